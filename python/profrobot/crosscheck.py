@@ -1,0 +1,118 @@
+"""The MuJoCo reference labeller, and the side-by-side check of ours against it.
+
+MuJoCo decides: a pose collides when ``mj_kinematics`` + ``mj_collision`` leave ``ncon > 0``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from tqdm.auto import tqdm
+
+from .labels import Labels, as_poses, label_poses
+from .robot import Robot
+
+
+@dataclass
+class MujocoLabels:
+    """MuJoCo's verdict on B poses: contact count (the paper's "collision points") and pairs."""
+
+    ncon: np.ndarray            # (B,) int
+    collides: np.ndarray        # (B,) bool
+    pairs: list[set[tuple[int, int]]]  # per pose, colliding (geom1, geom2) MuJoCo ids, sorted
+
+
+def mujoco_labels(robot: Robot, poses, *, progress: bool = False) -> MujocoLabels:
+    """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded)."""
+    q = as_poses(robot, poses)
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    ncon = np.zeros(len(q), dtype=np.int64)
+    pairs = []
+    adr = robot.qpos_adr
+    for i in tqdm(range(len(q)), disable=not progress, desc="mujoco", unit="pose"):
+        d.qpos[adr] = q[i]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        ncon[i] = d.ncon
+        g = d.contact.geom[: d.ncon]
+        pairs.append({(int(min(a, b)), int(max(a, b))) for a, b in g})
+    return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
+
+
+def mujoco_pair_distance(robot: Robot, pose: np.ndarray, g1: int, g2: int, distmax: float = 0.05) -> float:
+    """MuJoCo's own signed distance between two geoms at ``pose`` (``mj_geomDistance``)."""
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[robot.qpos_adr] = pose
+    mujoco.mj_kinematics(m, d)
+    return float(mujoco.mj_geomDistance(m, d, g1, g2, distmax, None))
+
+
+@dataclass
+class Disagreement:
+    pose_index: int
+    ours: bool
+    mujoco: bool
+    pairs: list[tuple[int, int]]        # geom pairs on which the two differ
+    signed_distance: float              # MuJoCo's signed distance of the worst such pair (m)
+
+
+@dataclass
+class CrosscheckReport:
+    """Our labels against MuJoCo's on the same poses."""
+
+    n: int
+    agreement: float                    # share of poses with the same collides label
+    pair_agreement: float               # share of poses with the same set of colliding pairs
+    confusion: np.ndarray               # [[both free, only MuJoCo collides], [only ours, both]]
+    disagreements: list[Disagreement]
+    mujoco_contacts: np.ndarray         # (B,) MuJoCo's ncon per pose
+    ours: Labels = field(repr=False)
+    reference: MujocoLabels = field(repr=False)
+
+    @property
+    def max_disagreement_distance(self) -> float:
+        return max((abs(x.signed_distance) for x in self.disagreements), default=0.0)
+
+    def summary(self) -> str:
+        c = self.confusion
+        lines = [
+            f"{self.n} poses: label agreement {self.agreement:.4%}, pair-set agreement {self.pair_agreement:.4%}",
+            f"confusion (rows ours free/colliding, cols MuJoCo free/colliding): {c.tolist()}",
+            f"MuJoCo contacts per pose {self.mujoco_contacts.mean():.3f} "
+            f"({self.mujoco_contacts[self.reference.collides].mean() if self.reference.collides.any() else 0:.2f} per colliding pose)",
+            f"{len(self.disagreements)} label disagreements; largest |signed distance| {self.max_disagreement_distance:.2e} m",
+        ]
+        return "\n".join(lines)
+
+
+def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = False) -> CrosscheckReport:
+    """Labels ``poses`` with both our labeller and MuJoCo and compares them pose by pose.
+
+    Every disagreement comes with MuJoCo's signed distance (``mj_geomDistance``) of the geom
+    pair the two labellers disagree on; grazing contacts are |distance| < 1e-4 m.
+    """
+    q = as_poses(robot, poses)
+    ours = label_poses(robot, q, pairs=True, threads=threads)
+    ref = mujoco_labels(robot, q, progress=progress)
+    ours_pairs: list[set] = [set() for _ in range(len(q))]
+    for p, k in ours.colliding_pairs:
+        g1, g2 = robot.pair_geoms[k]
+        ours_pairs[p].add((int(min(g1, g2)), int(max(g1, g2))))
+    same_pairs = np.array([a == b for a, b in zip(ours_pairs, ref.pairs)])
+    confusion = np.zeros((2, 2), dtype=np.int64)
+    np.add.at(confusion, (ours.collides.astype(int), ref.collides.astype(int)), 1)
+    disagreements = []
+    for i in np.flatnonzero(ours.collides != ref.collides):
+        diff = sorted(ours_pairs[i] ^ ref.pairs[i])
+        dists = [mujoco_pair_distance(robot, q[i], a, b) for a, b in diff]
+        worst = max(dists, key=abs) if dists else float("nan")
+        disagreements.append(Disagreement(int(i), bool(ours.collides[i]), bool(ref.collides[i]), diff, worst))
+    return CrosscheckReport(
+        n=len(q), agreement=float((ours.collides == ref.collides).mean()),
+        pair_agreement=float(same_pairs.mean()), confusion=confusion, disagreements=disagreements,
+        mujoco_contacts=ref.ncon, ours=ours, reference=ref,
+    )

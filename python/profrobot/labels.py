@@ -1,0 +1,133 @@
+"""Input validation and the thin wrappers over the Rust labeller.
+
+Validation happens here, once: the core re-checks shapes and finiteness but Python users get
+the exception that names their problem.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .robot import Robot
+
+
+def as_poses(robot: Robot, poses, *, name: str = "poses", check_limits: bool = False, atol: float = 1e-9) -> np.ndarray:
+    """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
+
+    Accepts a single pose (K,) as a batch of one. Rejects non-float dtypes, wrong widths, empty
+    batches, NaN/inf, and (with ``check_limits``) joints outside their limits.
+    """
+    if not isinstance(robot, Robot):
+        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor
+        poses = poses.detach().cpu().numpy()
+    arr = np.asarray(poses)
+    if arr.dtype.kind not in "f":
+        raise TypeError(f"{name} must be a floating-point array (radians / metres); got dtype {arr.dtype}")
+    k = robot.njoint
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != k:
+        raise ValueError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name} is empty: at least one pose is needed")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise ValueError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
+    if check_limits:
+        lim = robot.joint_limits
+        limited = ~robot.continuous
+        out = ((arr < lim[:, 0] - atol) | (arr > lim[:, 1] + atol)) & limited
+        if out.any():
+            i, j = np.argwhere(out)[0]
+            raise ValueError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
+                             f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
+    return arr
+
+
+def check_threads(threads) -> int | None:
+    if threads is None:
+        return None
+    if not isinstance(threads, (int, np.integer)) or isinstance(threads, bool) or threads < 1:
+        raise ValueError(f"threads must be a positive integer or None; got {threads!r}")
+    return int(threads)
+
+
+@dataclass
+class Labels:
+    """Exact collision labels of B poses.
+
+    Attributes:
+        collides: (B,) bool, any contact (self or scene).
+        self_collides: (B,) bool, robot against robot.
+        scene_collides: (B,) bool, robot against the static scene.
+        n_pairs: (B,) int32, number of geom pairs in contact.
+        min_distance: (B,) float64 metres, minimum signed distance over candidate pairs
+            (negative: penetration depth), when asked for.
+        colliding_pairs: (M, 2) int64 rows ``(pose index, pair index)``, when asked for; pair
+            indices refer to ``robot.pair_geoms``.
+    """
+
+    collides: np.ndarray
+    self_collides: np.ndarray
+    scene_collides: np.ndarray
+    n_pairs: np.ndarray
+    min_distance: np.ndarray | None = None
+    colliding_pairs: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.collides)
+
+    def summary(self) -> str:
+        n = len(self)
+        return (f"{n} poses: {self.collides.mean():.1%} collide "
+                f"({self.self_collides.mean():.1%} self, {self.scene_collides.mean():.1%} scene), "
+                f"{self.n_pairs[self.collides].mean() if self.collides.any() else 0:.2f} pairs per colliding pose")
+
+
+def label_poses(robot: Robot, poses, *, pairs: bool = False, distance: bool = False,
+                check_limits: bool = False, threads: int | None = None) -> Labels:
+    """Exact collision labels of ``poses`` (B, K) (radians / metres, MuJoCo joint order).
+
+    Runs the Rust labeller in parallel (all cores unless ``threads``) with the GIL released;
+    labels agree with MuJoCo's ``mj_collision`` (meshes as convex hulls, MuJoCo's pair filters).
+    ``pairs`` adds the colliding pairs, ``distance`` the minimum signed distance per pose.
+    """
+    q = as_poses(robot, poses, check_limits=check_limits)
+    out = robot.core.label(q, pairs=pairs, distance=distance, threads=check_threads(threads))
+    return Labels(**out)
+
+
+def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = None) -> np.ndarray:
+    """``n`` poses (n, K) drawn uniformly within the joint limits (continuous hinges: [-pi, pi]).
+
+    The same ``seed`` gives the same poses whatever the thread count.
+    """
+    if not isinstance(robot, Robot):
+        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer; got {n!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
+        raise ValueError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+    return robot.core.sample(int(n), int(seed), threads=check_threads(threads))
+
+
+def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:
+    """Poses along SO(2)^K from ``start`` to ``goal``: (steps, K) for single poses, or
+    (B, steps, K) for (B, K) batches. Continuous joints take the shortest arc; limited joints go
+    straight (ends must be within limits). Both end points are included."""
+    single = np.ndim(start) == 1
+    s = as_poses(robot, start, name="start", check_limits=True)
+    g = as_poses(robot, goal, name="goal", check_limits=True)
+    if s.shape != g.shape:
+        raise ValueError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
+        raise ValueError(f"steps must be an integer >= 2 (both end points included); got {steps!r}")
+    from . import _core
+
+    path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))
+    return path[0] if single else path

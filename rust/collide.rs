@@ -1,0 +1,435 @@
+//! Where a pose becomes a label: candidate pairs (MuJoCo's filters), culling, narrow phase.
+//!
+//! Candidate pairs follow `mj_collision`:
+//! - explicit `<pair>`s are always tested, with their own margin, and replace any dynamic pair
+//!   over the same two geoms;
+//! - dynamic pairs skip geoms on the same weld body, a weld body and its weld parent (unless
+//!   either is welded to the world or `filterparent` is disabled), `<exclude>`d body pairs, and
+//!   pairs whose contype/conaffinity bitmasks do not match; plane-plane has no collider.
+//!
+//! A pair is in contact when its signed distance is below its margin (sum of the geom margins).
+//! Planes are half-spaces; everything else is convex (meshes as their hulls), tested with parry.
+
+use std::collections::{HashMap, HashSet};
+
+use nalgebra::{Isometry3, Matrix3, Vector3};
+use parry3d_f64::query;
+use rayon::prelude::*;
+
+use crate::error::{invalid_input, invalid_model, Result};
+use crate::kinematics::{body_poses, geom_poses};
+use crate::model::{Geom, ModelDesc, RobotModel};
+use crate::shapes::GeomType;
+
+/// Whether a pair is robot against robot or robot against the static scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PairKind {
+    SelfCollision,
+    Scene,
+}
+
+/// Two collidable geoms (indices into `RobotModel::geoms`) tested on every pose.
+#[derive(Clone, Debug)]
+pub struct CandidatePair {
+    pub g1: usize,
+    pub g2: usize,
+    pub margin: f64,
+    pub kind: PairKind,
+    pub explicit: bool,
+}
+
+/// Derives the candidate pairs of a model with MuJoCo's filters (see the module docs).
+pub(crate) fn candidate_pairs(desc: &ModelDesc, body_parent: &[usize], geoms: &[Geom]) -> Result<Vec<CandidatePair>> {
+    if !desc.contact_enabled {
+        return Ok(Vec::new());
+    }
+    let index: HashMap<i32, usize> = geoms.iter().enumerate().map(|(i, g)| (g.mujoco_id, i)).collect();
+    let weld = |b: usize| desc.body_weld[b] as usize;
+    let kind = |a: usize, b: usize| {
+        if geoms[a].on_robot && geoms[b].on_robot {
+            PairKind::SelfCollision
+        } else {
+            PairKind::Scene
+        }
+    };
+    let both_planes = |a: usize, b: usize| geoms[a].shape.kind == GeomType::Plane && geoms[b].shape.kind == GeomType::Plane;
+
+    let mut pairs = Vec::new();
+    let mut explicit = HashSet::new();
+    for (k, (&[a, b], &margin)) in desc.pair_geom.iter().zip(&desc.pair_margin).enumerate() {
+        let (Some(&i), Some(&j)) = (index.get(&a), index.get(&b)) else {
+            return invalid_model(format!("explicit pair {k} names geom {a} or {b}, which is not in the geom list"));
+        };
+        if !margin.is_finite() {
+            return invalid_model(format!("explicit pair {k} has a non-finite margin"));
+        }
+        explicit.insert((i.min(j), i.max(j)));
+        if i != j && !both_planes(i, j) {
+            pairs.push(CandidatePair { g1: i, g2: j, margin, kind: kind(i, j), explicit: true });
+        }
+    }
+
+    let excluded: HashSet<(usize, usize)> = desc
+        .exclude
+        .iter()
+        .map(|&[a, b]| (a.min(b) as usize, a.max(b) as usize))
+        .collect();
+    for i in 0..geoms.len() {
+        for j in i + 1..geoms.len() {
+            let (b1, b2) = (geoms[i].body, geoms[j].body);
+            let (w1, w2) = (weld(b1), weld(b2));
+            if w1 == w2 || both_planes(i, j) || explicit.contains(&(i, j)) {
+                continue;
+            }
+            let (p1, p2) = (weld(body_parent[w1]), weld(body_parent[w2]));
+            if desc.filter_parent && w1 != 0 && w2 != 0 && (w1 == p2 || w2 == p1) {
+                continue;
+            }
+            if excluded.contains(&(b1.min(b2), b1.max(b2))) {
+                continue;
+            }
+            let (t1, a1) = (desc.geom_contype[i], desc.geom_conaffinity[i]);
+            let (t2, a2) = (desc.geom_contype[j], desc.geom_conaffinity[j]);
+            if (t1 & a2) == 0 && (t2 & a1) == 0 {
+                continue;
+            }
+            let margin = desc.geom_margin[i] + desc.geom_margin[j];
+            pairs.push(CandidatePair { g1: i, g2: j, margin, kind: kind(i, j), explicit: false });
+        }
+    }
+    Ok(pairs)
+}
+
+/// What a caller wants beyond the four labels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LabelOptions {
+    /// Report the colliding pairs of every pose.
+    pub pairs: bool,
+    /// Compute the minimum signed distance over all candidate pairs (negative: penetration).
+    pub distance: bool,
+}
+
+/// The labels of one pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Label {
+    pub self_collides: bool,
+    pub scene_collides: bool,
+    pub n_pairs: u32,
+    /// `f64::INFINITY` unless asked for (or the model has no pairs).
+    pub min_distance: f64,
+}
+
+impl Label {
+    pub fn collides(&self) -> bool {
+        self.self_collides || self.scene_collides
+    }
+}
+
+/// Labels of a batch of poses, in pose order.
+#[derive(Clone, Debug, Default)]
+pub struct LabelBatch {
+    pub labels: Vec<Label>,
+    /// `(pose index, pair index)` of every colliding pair, when asked for.
+    pub colliding_pairs: Vec<[u32; 2]>,
+}
+
+/// Reusable per-thread buffers: one pose's body and geom frames.
+pub struct Scratch {
+    bodies: Vec<Isometry3<f64>>,
+    geoms: Vec<Isometry3<f64>>,
+    obbs: Vec<Obb>,
+}
+
+impl Scratch {
+    pub fn new(model: &RobotModel) -> Self {
+        let n = model.geoms.len();
+        Scratch {
+            bodies: vec![Isometry3::identity(); model.nbody()],
+            geoms: vec![Isometry3::identity(); n],
+            obbs: vec![Obb { rot: Matrix3::identity(), center: Vector3::zeros() }; n],
+        }
+    }
+}
+
+/// A geom's bounding box in the world for one pose: its rotation and world centre (the half
+/// extents are fixed, in `GeomShape`). Computed once per pose, shared by all its pairs.
+#[derive(Clone, Copy)]
+struct Obb {
+    rot: Matrix3<f64>,
+    center: Vector3<f64>,
+}
+
+fn world_obbs(model: &RobotModel, poses: &[Isometry3<f64>], out: &mut [Obb]) {
+    for ((o, g), p) in out.iter_mut().zip(&model.geoms).zip(poses) {
+        o.rot = p.rotation.to_rotation_matrix().into_inner();
+        o.center = p.translation.vector + o.rot * g.shape.obb_center;
+    }
+}
+
+/// Signed distance of `g` (at `pose`) from the plane at `plane` (`z <= 0` is inside), exact via
+/// the support point of `g` along the plane's inward normal.
+fn plane_distance(plane: &Isometry3<f64>, g: &Geom, pose: &Isometry3<f64>) -> f64 {
+    let n = plane.rotation * Vector3::z();
+    let origin = plane.translation.vector;
+    let sm = g.shape.shape.as_ref().and_then(|s| s.as_support_map()).expect("non-plane shapes are support maps");
+    let deepest = sm.support_point(pose, &(-n));
+    n.dot(&(deepest.coords - origin))
+}
+
+/// Separating-axis test of two oriented boxes, inflated by `margin`: `false` proves them apart.
+fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
+    let (ha, hb) = (&a.shape.obb_half, &b.shape.obb_half);
+    // Everything in a's frame.
+    let r = oa.rot.tr_mul(&ob.rot);
+    let t = oa.rot.tr_mul(&(ob.center - oa.center));
+    let abs_r = r.abs().add_scalar(1e-9);
+    for i in 0..3 {
+        let rb_proj = hb[0] * abs_r[(i, 0)] + hb[1] * abs_r[(i, 1)] + hb[2] * abs_r[(i, 2)];
+        if t[i].abs() > ha[i] + rb_proj + margin {
+            return false;
+        }
+    }
+    for j in 0..3 {
+        let ra_proj = ha[0] * abs_r[(0, j)] + ha[1] * abs_r[(1, j)] + ha[2] * abs_r[(2, j)];
+        let tj = t[0] * r[(0, j)] + t[1] * r[(1, j)] + t[2] * r[(2, j)];
+        if tj.abs() > ra_proj + hb[j] + margin {
+            return false;
+        }
+    }
+    for i in 0..3 {
+        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+        for j in 0..3 {
+            let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+            let ra_proj = ha[i1] * abs_r[(i2, j)] + ha[i2] * abs_r[(i1, j)];
+            let rb_proj = hb[j1] * abs_r[(i, j2)] + hb[j2] * abs_r[(i, j1)];
+            let tl = t[i2] * r[(i1, j)] - t[i1] * r[(i2, j)];
+            if tl.abs() > ra_proj + rb_proj + margin {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Whether one candidate pair is in contact (signed distance below its margin).
+fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], obbs: &[Obb]) -> bool {
+    let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
+    let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
+    match (a.shape.kind == GeomType::Plane, b.shape.kind == GeomType::Plane) {
+        (true, false) => return plane_pair_in_contact(pa, b, pb, pair.margin),
+        (false, true) => return plane_pair_in_contact(pb, a, pa, pair.margin),
+        _ => {}
+    }
+    let reach = a.shape.rbound + b.shape.rbound + pair.margin;
+    if (pa.translation.vector - pb.translation.vector).norm_squared() > reach * reach {
+        return false;
+    }
+    if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
+        return false;
+    }
+    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
+    if pair.margin == 0.0 {
+        query::intersection_test(pa, sa, pb, sb).unwrap_or(false)
+    } else {
+        query::distance(pa, sa, pb, sb).map(|d| d < pair.margin).unwrap_or(false)
+    }
+}
+
+fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, pg: &Isometry3<f64>, margin: f64) -> bool {
+    let n = plane.rotation * Vector3::z();
+    if n.dot(&(pg.translation.vector - plane.translation.vector)) > g.shape.rbound + margin {
+        return false;
+    }
+    plane_distance(plane, g, pg) < margin
+}
+
+/// Exact signed distance of a pair (negative: penetration depth), or `None` when the pair is
+/// provably farther apart than `bound` (so it cannot lower the running minimum).
+fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], bound: f64) -> Option<f64> {
+    let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
+    let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
+    match (a.shape.kind == GeomType::Plane, b.shape.kind == GeomType::Plane) {
+        (true, false) => return Some(plane_distance(pa, b, pb)),
+        (false, true) => return Some(plane_distance(pb, a, pa)),
+        _ => {}
+    }
+    let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
+    if lower >= bound {
+        return None;
+    }
+    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
+    match query::contact(pa, sa, pb, sb, 0.0) {
+        Ok(Some(c)) => Some(c.dist.min(0.0)),
+        _ => query::distance(pa, sa, pb, sb).ok(),
+    }
+}
+
+/// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked.
+pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
+    body_poses(model, q, &mut scratch.bodies);
+    geom_poses(model, &scratch.bodies, &mut scratch.geoms);
+    world_obbs(model, &scratch.geoms, &mut scratch.obbs);
+    let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
+    for (k, pair) in model.pairs.iter().enumerate() {
+        if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
+            label.n_pairs += 1;
+            match pair.kind {
+                PairKind::SelfCollision => label.self_collides = true,
+                PairKind::Scene => label.scene_collides = true,
+            }
+            if opts.pairs {
+                hits.push(k as u32);
+            }
+        }
+    }
+    if opts.distance {
+        for pair in &model.pairs {
+            if let Some(d) = pair_signed_distance(model, pair, &scratch.geoms, label.min_distance) {
+                label.min_distance = label.min_distance.min(d);
+            }
+        }
+    }
+    label
+}
+
+/// Poses per parallel work item: large enough to amortise scheduling, small enough to balance.
+const CHUNK: usize = 256;
+
+/// Checks that `poses` is a non-empty, finite `(B, K)` buffer for `model`.
+pub(crate) fn check_poses(model: &RobotModel, poses: &[f64]) -> Result<usize> {
+    let k = model.njoint();
+    if k == 0 {
+        return invalid_input("the model has no joints");
+    }
+    if poses.is_empty() || poses.len() % k != 0 {
+        return invalid_input(format!("poses must be a non-empty (B, {k}) array; got {} values", poses.len()));
+    }
+    if let Some(i) = poses.iter().position(|v| !v.is_finite()) {
+        return invalid_input(format!("pose {} joint {} is not finite ({})", i / k, i % k, poses[i]));
+    }
+    Ok(poses.len() / k)
+}
+
+/// Labels a `(B, K)` row-major batch of poses in parallel (rayon's current pool).
+///
+/// Each pose is independent, so the result does not depend on the number of threads.
+pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Result<LabelBatch> {
+    check_poses(model, poses)?;
+    let k = model.njoint();
+    let chunks: Vec<(Vec<Label>, Vec<[u32; 2]>)> = poses
+        .par_chunks(CHUNK * k)
+        .enumerate()
+        .map_init(
+            || (Scratch::new(model), Vec::new()),
+            |(scratch, hits), (c, chunk)| {
+                let mut labels = Vec::with_capacity(chunk.len() / k);
+                let mut pairs = Vec::new();
+                for (i, q) in chunk.chunks_exact(k).enumerate() {
+                    hits.clear();
+                    labels.push(label_pose(model, q, scratch, opts, hits));
+                    let pose = (c * CHUNK + i) as u32;
+                    pairs.extend(hits.iter().map(|&p| [pose, p]));
+                }
+                (labels, pairs)
+            },
+        )
+        .collect();
+    let mut out = LabelBatch::default();
+    for (labels, pairs) in chunks {
+        out.labels.extend(labels);
+        out.colliding_pairs.extend(pairs);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pendulum() -> RobotModel {
+        RobotModel::new(ModelDesc::example_pendulum()).unwrap()
+    }
+
+    #[test]
+    fn pendulum_hangs_free_and_hits_floor_when_margin_reaches_it() {
+        let model = pendulum();
+        let mut s = Scratch::new(&model);
+        let opts = LabelOptions { pairs: true, distance: true };
+        let mut hits = Vec::new();
+        let l = label_pose(&model, &[0.0], &mut s, opts, &mut hits);
+        assert!(!l.collides());
+        assert!((l.min_distance - 0.05).abs() < 1e-12, "{}", l.min_distance);
+
+        let mut desc = ModelDesc::example_pendulum();
+        desc.geom_margin = vec![0.03, 0.03];
+        let model = RobotModel::new(desc).unwrap();
+        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut hits);
+        assert!(l.scene_collides && l.n_pairs == 1 && hits == vec![0]);
+    }
+
+    #[test]
+    fn lowered_pendulum_penetrates_floor_by_the_expected_depth() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_pos[1][2] = 0.45; // bob bottom at -0.05
+        let model = RobotModel::new(desc).unwrap();
+        let opts = LabelOptions { pairs: false, distance: true };
+        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut Vec::new());
+        assert!(l.scene_collides && !l.self_collides);
+        assert!((l.min_distance + 0.05).abs() < 1e-12);
+        // Swung to horizontal the bob rises to z = 0.45 and clears the floor.
+        let l = label_pose(&model, &[std::f64::consts::FRAC_PI_2], &mut Scratch::new(&model), opts, &mut Vec::new());
+        assert!(!l.collides());
+    }
+
+    #[test]
+    fn regression_same_weld_body_pairs_are_never_candidates() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_weld = vec![0, 0]; // the arm welded to the world: no pair left
+        desc.jnt_type.clear();
+        desc.jnt_body.clear();
+        desc.jnt_pos.clear();
+        desc.jnt_axis.clear();
+        desc.jnt_qpos0.clear();
+        desc.jnt_range.clear();
+        desc.jnt_limited.clear();
+        let model = RobotModel::new(desc).unwrap();
+        assert!(model.pairs().is_empty());
+    }
+
+    #[test]
+    fn obb_test_separates_and_overlaps_rotated_boxes() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.geom_type = vec![6, 6];
+        desc.geom_size = vec![[0.1, 0.1, 0.1], [0.1, 0.1, 0.1]];
+        let model = RobotModel::new(desc).unwrap();
+        let (a, b) = (&model.geoms[0], &model.geoms[1]);
+        let obb = |x: f64, angle: f64| Obb {
+            rot: nalgebra::Rotation3::from_euler_angles(0.0, 0.0, angle).into_inner(),
+            center: Vector3::new(x, 0.0, 0.0),
+        };
+        let pa = obb(0.0, 0.0);
+        // Rotated 45 degrees the corner reaches 0.1 * sqrt(2) ~ 0.1414 along x.
+        let (near, far) = (obb(0.24, std::f64::consts::FRAC_PI_4), obb(0.25, std::f64::consts::FRAC_PI_4));
+        assert!(obbs_overlap(a, &pa, b, &near, 0.0));
+        assert!(!obbs_overlap(a, &pa, b, &far, 0.0));
+        assert!(obbs_overlap(a, &pa, b, &far, 0.01));
+    }
+
+    #[test]
+    fn bad_poses_are_errors_not_panics() {
+        let model = pendulum();
+        assert!(label_batch(&model, &[], LabelOptions::default()).is_err());
+        assert!(label_batch(&model, &[f64::NAN], LabelOptions::default()).is_err());
+    }
+
+    #[test]
+    fn batch_labels_do_not_depend_on_thread_count() {
+        let model = pendulum();
+        let poses: Vec<f64> = (0..5000).map(|i| -3.0 + 6.0 * (i as f64) / 5000.0).collect();
+        let opts = LabelOptions { pairs: true, distance: true };
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| label_batch(&model, &poses, opts).unwrap());
+        let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| label_batch(&model, &poses, opts).unwrap());
+        assert_eq!(one.labels, two.labels);
+        assert_eq!(one.colliding_pairs, two.colliding_pairs);
+    }
+}

@@ -1,0 +1,382 @@
+//! The robot as flat arrays: what Python copies out of MuJoCo's compiled `mjModel`, and the
+//! validated, derived form the hot paths index into.
+
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::collide::{candidate_pairs, CandidatePair};
+use crate::error::{invalid_model, Result};
+use crate::shapes::{GeomShape, GeomType};
+
+/// MuJoCo's `mjtJoint` codes for the joints we accept.
+pub const JOINT_SLIDE: i32 = 2;
+pub const JOINT_HINGE: i32 = 3;
+
+/// A robot scene exactly as MuJoCo compiled it, in flat arrays.
+///
+/// Body 0 is the world; bodies are ordered parents first (MuJoCo guarantees it). Quaternions
+/// are `(w, x, y, z)`. Only *collidable* geoms are listed (those with a non-zero contype or
+/// conaffinity, or named by an explicit pair); `geom_id` keeps their MuJoCo ids so that
+/// pairs and reports speak MuJoCo's language.
+///
+/// # Example
+/// A single hinge that swings a unit sphere above a floor plane:
+/// ```
+/// use profrobot::{ModelDesc, RobotModel};
+/// let desc = ModelDesc::example_pendulum();
+/// let model = RobotModel::new(desc).unwrap();
+/// assert_eq!(model.njoint(), 1);
+/// assert_eq!(model.pairs().len(), 1); // the bob against the floor
+/// ```
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ModelDesc {
+    pub body_parent: Vec<i32>,
+    pub body_weld: Vec<i32>,
+    pub body_pos: Vec<[f64; 3]>,
+    pub body_quat: Vec<[f64; 4]>,
+
+    pub jnt_type: Vec<i32>,
+    pub jnt_body: Vec<i32>,
+    pub jnt_pos: Vec<[f64; 3]>,
+    pub jnt_axis: Vec<[f64; 3]>,
+    pub jnt_qpos0: Vec<f64>,
+    pub jnt_range: Vec<[f64; 2]>,
+    pub jnt_limited: Vec<bool>,
+
+    pub geom_id: Vec<i32>,
+    pub geom_type: Vec<i32>,
+    pub geom_body: Vec<i32>,
+    pub geom_pos: Vec<[f64; 3]>,
+    pub geom_quat: Vec<[f64; 4]>,
+    pub geom_size: Vec<[f64; 3]>,
+    pub geom_contype: Vec<u32>,
+    pub geom_conaffinity: Vec<u32>,
+    pub geom_margin: Vec<f64>,
+    /// Index into `mesh_vert_adr`/`mesh_vert_num` for mesh geoms, -1 otherwise.
+    pub geom_mesh: Vec<i32>,
+
+    /// Convex-hull vertices of each mesh, in the mesh frame MuJoCo compiled.
+    pub mesh_vert_adr: Vec<u32>,
+    pub mesh_vert_num: Vec<u32>,
+    pub mesh_vert: Vec<[f64; 3]>,
+
+    /// `<exclude>` body pairs (MuJoCo body ids).
+    pub exclude: Vec<[i32; 2]>,
+    /// Explicit `<pair>` geom pairs (MuJoCo geom ids) and their margins.
+    pub pair_geom: Vec<[i32; 2]>,
+    pub pair_margin: Vec<f64>,
+
+    /// `!mjDSBL_FILTERPARENT`.
+    pub filter_parent: bool,
+    /// `!mjDSBL_CONTACT && !mjDSBL_CONSTRAINT`.
+    pub contact_enabled: bool,
+}
+
+/// One joint, ready for forward kinematics.
+#[derive(Clone, Debug)]
+pub struct Joint {
+    pub hinge: bool,
+    pub body: usize,
+    pub anchor: Vector3<f64>,
+    pub axis: Unit<Vector3<f64>>,
+    pub qpos0: f64,
+}
+
+/// One collidable geom, its shape and its fixed pose in its body frame.
+#[derive(Debug)]
+pub struct Geom {
+    pub mujoco_id: i32,
+    pub body: usize,
+    /// Geom frame in the body frame, with the shape's own axis convention folded in.
+    pub local: Isometry3<f64>,
+    pub shape: GeomShape,
+    /// Belongs to a body whose kinematic root carries joints (the robot), not the static scene.
+    pub on_robot: bool,
+}
+
+/// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.
+#[derive(Debug)]
+pub struct RobotModel {
+    pub(crate) body_parent: Vec<usize>,
+    pub(crate) body_local: Vec<Isometry3<f64>>,
+    /// Joints of body `b` are `joints[body_joints[b].0 .. body_joints[b].1]`.
+    pub(crate) body_joints: Vec<(usize, usize)>,
+    pub(crate) joints: Vec<Joint>,
+    pub(crate) limits: Vec<[f64; 2]>,
+    pub(crate) limited: Vec<bool>,
+    pub(crate) geoms: Vec<Geom>,
+    pub(crate) pairs: Vec<CandidatePair>,
+}
+
+fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
+    if got != want {
+        return invalid_model(format!("{name} has {got} entries, expected {want}"));
+    }
+    Ok(())
+}
+
+fn finite(name: &str, values: &[f64]) -> Result<()> {
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return invalid_model(format!("{name} holds a non-finite value at flat index {i}"));
+    }
+    Ok(())
+}
+
+fn quat(q: [f64; 4]) -> Result<UnitQuaternion<f64>> {
+    let q = nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]);
+    if !(q.norm() > 1e-12) {
+        return invalid_model("zero quaternion");
+    }
+    Ok(UnitQuaternion::from_quaternion(q))
+}
+
+fn iso(pos: [f64; 3], q: [f64; 4]) -> Result<Isometry3<f64>> {
+    Ok(Isometry3::from_parts(Translation3::new(pos[0], pos[1], pos[2]), quat(q)?))
+}
+
+impl RobotModel {
+    /// Validates `desc` and derives everything the labeller needs (shapes, candidate pairs).
+    pub fn new(desc: ModelDesc) -> Result<Self> {
+        let nbody = desc.body_parent.len();
+        if nbody == 0 {
+            return invalid_model("no bodies (body 0 must be the world)");
+        }
+        check_len("body_weld", desc.body_weld.len(), nbody)?;
+        check_len("body_pos", desc.body_pos.len(), nbody)?;
+        check_len("body_quat", desc.body_quat.len(), nbody)?;
+        finite("body_pos", desc.body_pos.as_flattened())?;
+        finite("body_quat", desc.body_quat.as_flattened())?;
+        let mut body_parent = Vec::with_capacity(nbody);
+        for (b, &p) in desc.body_parent.iter().enumerate() {
+            let ok = if b == 0 { p == 0 } else { p >= 0 && (p as usize) < b };
+            if !ok {
+                return invalid_model(format!("body {b} has parent {p}; parents must precede children"));
+            }
+            body_parent.push(p as usize);
+        }
+        for (b, &w) in desc.body_weld.iter().enumerate() {
+            if w < 0 || w as usize > b {
+                return invalid_model(format!("body {b} has weld id {w}"));
+            }
+        }
+        let body_local = (0..nbody)
+            .map(|b| iso(desc.body_pos[b], desc.body_quat[b]))
+            .collect::<Result<Vec<_>>>()?;
+
+        // Joints.
+        let njnt = desc.jnt_type.len();
+        check_len("jnt_body", desc.jnt_body.len(), njnt)?;
+        check_len("jnt_pos", desc.jnt_pos.len(), njnt)?;
+        check_len("jnt_axis", desc.jnt_axis.len(), njnt)?;
+        check_len("jnt_qpos0", desc.jnt_qpos0.len(), njnt)?;
+        check_len("jnt_range", desc.jnt_range.len(), njnt)?;
+        check_len("jnt_limited", desc.jnt_limited.len(), njnt)?;
+        finite("jnt_pos", desc.jnt_pos.as_flattened())?;
+        finite("jnt_axis", desc.jnt_axis.as_flattened())?;
+        finite("jnt_qpos0", &desc.jnt_qpos0)?;
+        let mut joints = Vec::with_capacity(njnt);
+        let mut body_joints = vec![(0usize, 0usize); nbody];
+        let mut last_body = 0usize;
+        for j in 0..njnt {
+            let hinge = match desc.jnt_type[j] {
+                JOINT_HINGE => true,
+                JOINT_SLIDE => false,
+                0 => return invalid_model(format!("joint {j} is a free joint; only hinge and slide joints are supported")),
+                1 => return invalid_model(format!("joint {j} is a ball joint; only hinge and slide joints are supported")),
+                t => return invalid_model(format!("joint {j} has unknown type {t}")),
+            };
+            let b = desc.jnt_body[j];
+            if b <= 0 || b as usize >= nbody {
+                return invalid_model(format!("joint {j} sits on body {b}"));
+            }
+            let b = b as usize;
+            if b < last_body {
+                return invalid_model("joints are not grouped by body in body order");
+            }
+            if b != last_body {
+                body_joints[b].0 = j;
+            }
+            body_joints[b].1 = j + 1;
+            last_body = b;
+            let a = Vector3::from(desc.jnt_axis[j]);
+            if !(a.norm() > 1e-12) {
+                return invalid_model(format!("joint {j} has a zero axis"));
+            }
+            let [lo, hi] = desc.jnt_range[j];
+            if desc.jnt_limited[j] && !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return invalid_model(format!("joint {j} has an invalid range [{lo}, {hi}]"));
+            }
+            joints.push(Joint {
+                hinge,
+                body: b,
+                anchor: Vector3::from(desc.jnt_pos[j]),
+                axis: Unit::new_normalize(a),
+                qpos0: desc.jnt_qpos0[j],
+            });
+        }
+        // Empty ranges for bodies without joints.
+        for bj in body_joints.iter_mut() {
+            if bj.1 == 0 {
+                *bj = (0, 0);
+            }
+        }
+
+        // Which bodies belong to the robot: those whose root (child of the world) carries a
+        // joint somewhere in its subtree. Everything else is static scene.
+        let root_of: Vec<usize> = {
+            let mut r = vec![0usize; nbody];
+            for b in 1..nbody {
+                r[b] = if body_parent[b] == 0 { b } else { r[body_parent[b]] };
+            }
+            r
+        };
+        let mut root_moves = vec![false; nbody];
+        for jnt in &joints {
+            root_moves[root_of[jnt.body]] = true;
+        }
+        let on_robot = |b: usize| b != 0 && root_moves[root_of[b]];
+
+        // Geoms.
+        let ngeom = desc.geom_type.len();
+        check_len("geom_id", desc.geom_id.len(), ngeom)?;
+        check_len("geom_body", desc.geom_body.len(), ngeom)?;
+        check_len("geom_pos", desc.geom_pos.len(), ngeom)?;
+        check_len("geom_quat", desc.geom_quat.len(), ngeom)?;
+        check_len("geom_size", desc.geom_size.len(), ngeom)?;
+        check_len("geom_contype", desc.geom_contype.len(), ngeom)?;
+        check_len("geom_conaffinity", desc.geom_conaffinity.len(), ngeom)?;
+        check_len("geom_margin", desc.geom_margin.len(), ngeom)?;
+        check_len("geom_mesh", desc.geom_mesh.len(), ngeom)?;
+        check_len("mesh_vert_num", desc.mesh_vert_num.len(), desc.mesh_vert_adr.len())?;
+        finite("geom_pos", desc.geom_pos.as_flattened())?;
+        finite("geom_quat", desc.geom_quat.as_flattened())?;
+        finite("geom_size", desc.geom_size.as_flattened())?;
+        finite("geom_margin", &desc.geom_margin)?;
+        finite("mesh_vert", desc.mesh_vert.as_flattened())?;
+        let mut geoms = Vec::with_capacity(ngeom);
+        for g in 0..ngeom {
+            let b = desc.geom_body[g];
+            if b < 0 || b as usize >= nbody {
+                return invalid_model(format!("geom {} sits on body {b}", desc.geom_id[g]));
+            }
+            let gtype = GeomType::from_mujoco(desc.geom_type[g], desc.geom_id[g])?;
+            let hull_points: Vec<Point3<f64>> = if gtype == GeomType::Mesh {
+                let m = desc.geom_mesh[g];
+                if m < 0 || m as usize >= desc.mesh_vert_adr.len() {
+                    return invalid_model(format!("mesh geom {} names mesh {m}", desc.geom_id[g]));
+                }
+                let adr = desc.mesh_vert_adr[m as usize] as usize;
+                let num = desc.mesh_vert_num[m as usize] as usize;
+                let Some(verts) = desc.mesh_vert.get(adr..adr + num) else {
+                    return invalid_model(format!("mesh {m} vertex range {adr}..{} is out of bounds", adr + num));
+                };
+                verts.iter().map(|v| Point3::from(*v)).collect()
+            } else {
+                Vec::new()
+            };
+            let (shape, axis_fix) = GeomShape::new(gtype, desc.geom_size[g], &hull_points, desc.geom_id[g])?;
+            geoms.push(Geom {
+                mujoco_id: desc.geom_id[g],
+                body: b as usize,
+                local: iso(desc.geom_pos[g], desc.geom_quat[g])? * axis_fix,
+                shape,
+                on_robot: on_robot(b as usize),
+            });
+        }
+        if desc.pair_margin.len() != desc.pair_geom.len() {
+            return invalid_model("pair_margin and pair_geom differ in length");
+        }
+        let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
+        Ok(Self {
+            body_parent,
+            body_local,
+            body_joints,
+            joints,
+            limits: desc.jnt_range.clone(),
+            limited: desc.jnt_limited.clone(),
+            geoms,
+            pairs,
+        })
+    }
+
+    /// Number of joints, i.e. the length K of a pose vector.
+    pub fn njoint(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Number of bodies, the world included.
+    pub fn nbody(&self) -> usize {
+        self.body_parent.len()
+    }
+
+    /// The collidable geoms in `ModelDesc` order.
+    pub fn geoms(&self) -> &[Geom] {
+        &self.geoms
+    }
+
+    /// The geom pairs every pose is tested on (after MuJoCo's filters).
+    pub fn pairs(&self) -> &[CandidatePair] {
+        &self.pairs
+    }
+
+    /// Joint ranges `(K, 2)`; unlimited hinges report `[-pi, pi]` (one full turn).
+    pub fn sampling_ranges(&self) -> Result<Vec<[f64; 2]>> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(j, jnt)| {
+                if self.limited[j] {
+                    Ok(self.limits[j])
+                } else if jnt.hinge {
+                    Ok([-std::f64::consts::PI, std::f64::consts::PI])
+                } else {
+                    invalid_model(format!("slide joint {j} is unlimited: no range to sample from"))
+                }
+            })
+            .collect()
+    }
+
+    /// Whether each joint is a continuous (unlimited) hinge, which wraps around.
+    pub fn continuous(&self) -> Vec<bool> {
+        self.joints.iter().zip(&self.limited).map(|(j, &l)| j.hinge && !l).collect()
+    }
+}
+
+impl ModelDesc {
+    /// A one-joint pendulum: a sphere of radius 0.1 on a 0.5 m arm hinged about x at height 0.55,
+    /// above a floor plane. At q = 0 the bob hangs 0.05 m above the floor; swinging it sideways
+    /// lifts it. Used by doc tests and unit tests.
+    pub fn example_pendulum() -> Self {
+        ModelDesc {
+            body_parent: vec![0, 0],
+            body_weld: vec![0, 1],
+            body_pos: vec![[0.0; 3], [0.0, 0.0, 0.55]],
+            body_quat: vec![[1.0, 0.0, 0.0, 0.0]; 2],
+            jnt_type: vec![JOINT_HINGE],
+            jnt_body: vec![1],
+            jnt_pos: vec![[0.0; 3]],
+            jnt_axis: vec![[1.0, 0.0, 0.0]],
+            jnt_qpos0: vec![0.0],
+            jnt_range: vec![[-3.0, 3.0]],
+            jnt_limited: vec![true],
+            geom_id: vec![0, 1],
+            geom_type: vec![0, 2],
+            geom_body: vec![0, 1],
+            geom_pos: vec![[0.0; 3], [0.0, 0.0, -0.4]],
+            geom_quat: vec![[1.0, 0.0, 0.0, 0.0]; 2],
+            geom_size: vec![[1.0, 1.0, 0.1], [0.1, 0.0, 0.0]],
+            geom_contype: vec![1, 1],
+            geom_conaffinity: vec![1, 1],
+            geom_margin: vec![0.0, 0.0],
+            geom_mesh: vec![-1, -1],
+            mesh_vert_adr: vec![],
+            mesh_vert_num: vec![],
+            mesh_vert: vec![],
+            exclude: vec![],
+            pair_geom: vec![],
+            pair_margin: vec![],
+            filter_parent: true,
+            contact_enabled: true,
+        }
+    }
+}

@@ -1,0 +1,259 @@
+//! The only file that knows Python: pyo3 bindings over the core. Heavy calls release the GIL.
+//! Documented for users in `python/profrobot/_core.pyi`.
+
+use nalgebra::Isometry3;
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::conversion::FromPyObjectOwned;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rayon::prelude::*;
+
+use crate::collide::{check_poses, label_batch, LabelOptions, PairKind};
+use crate::error::Error;
+use crate::kinematics::body_poses;
+use crate::model::{ModelDesc, RobotModel as CoreModel};
+use crate::{interpolate_so2, sample_uniform, with_threads};
+
+fn to_py(e: Error) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+    d.get_item(key)?.ok_or_else(|| PyValueError::new_err(format!("model arrays lack '{key}'")))
+}
+
+fn typed<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<T> {
+    item(d, key)?.extract::<T>().map_err(|e| {
+        let e: PyErr = e.into();
+        PyTypeError::new_err(format!("model array '{key}': {e}"))
+    })
+}
+
+fn rows<const N: usize>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[f64; N]>> {
+    let a: PyReadonlyArray2<f64> = typed(d, key)?;
+    let shape = a.shape();
+    if shape[1] != N {
+        return Err(PyValueError::new_err(format!("model array '{key}' must have {N} columns; got shape {shape:?}")));
+    }
+    let a = a.as_array();
+    Ok(a.rows().into_iter().map(|r| std::array::from_fn(|i| r[i])).collect())
+}
+
+fn int_rows(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[i32; 2]>> {
+    let a: PyReadonlyArray2<i32> = typed(d, key)?;
+    if a.shape()[1] != 2 {
+        return Err(PyValueError::new_err(format!("model array '{key}' must have 2 columns")));
+    }
+    Ok(a.as_array().rows().into_iter().map(|r| [r[0], r[1]]).collect())
+}
+
+fn vec1<T: numpy::Element + Copy + 'static>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<T>> {
+    let a: PyReadonlyArray1<T> = typed(d, key)?;
+    Ok(a.as_array().to_vec())
+}
+
+fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
+    Ok(ModelDesc {
+        body_parent: vec1(d, "body_parent")?,
+        body_weld: vec1(d, "body_weld")?,
+        body_pos: rows(d, "body_pos")?,
+        body_quat: rows(d, "body_quat")?,
+        jnt_type: vec1(d, "jnt_type")?,
+        jnt_body: vec1(d, "jnt_body")?,
+        jnt_pos: rows(d, "jnt_pos")?,
+        jnt_axis: rows(d, "jnt_axis")?,
+        jnt_qpos0: vec1(d, "jnt_qpos0")?,
+        jnt_range: rows(d, "jnt_range")?,
+        jnt_limited: vec1(d, "jnt_limited")?,
+        geom_id: vec1(d, "geom_id")?,
+        geom_type: vec1(d, "geom_type")?,
+        geom_body: vec1(d, "geom_body")?,
+        geom_pos: rows(d, "geom_pos")?,
+        geom_quat: rows(d, "geom_quat")?,
+        geom_size: rows(d, "geom_size")?,
+        geom_contype: vec1(d, "geom_contype")?,
+        geom_conaffinity: vec1(d, "geom_conaffinity")?,
+        geom_margin: vec1(d, "geom_margin")?,
+        geom_mesh: vec1(d, "geom_mesh")?,
+        mesh_vert_adr: vec1(d, "mesh_vert_adr")?,
+        mesh_vert_num: vec1(d, "mesh_vert_num")?,
+        mesh_vert: rows(d, "mesh_vert")?,
+        exclude: int_rows(d, "exclude")?,
+        pair_geom: int_rows(d, "pair_geom")?,
+        pair_margin: vec1(d, "pair_margin")?,
+        filter_parent: typed(d, "filter_parent")?,
+        contact_enabled: typed(d, "contact_enabled")?,
+    })
+}
+
+/// Reads a C-contiguous `(B, K)` float64 array for a model with K joints.
+fn pose_slice<'a>(poses: &'a PyReadonlyArray2<'_, f64>, k: usize, what: &str) -> PyResult<&'a [f64]> {
+    let shape = poses.shape();
+    if shape[1] != k {
+        return Err(PyValueError::new_err(format!("{what} must have shape (B, {k}); got {shape:?}")));
+    }
+    poses.as_slice().map_err(|_| PyValueError::new_err(format!("{what} must be C-contiguous")))
+}
+
+/// The compiled collision model of one robot scene (see `_core.pyi`).
+#[pyclass(module = "profrobot._core", frozen)]
+struct RobotModel {
+    inner: CoreModel,
+}
+
+#[pymethods]
+impl RobotModel {
+    #[new]
+    fn new(arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let desc = desc_from_dict(arrays)?;
+        Ok(Self { inner: CoreModel::new(desc).map_err(to_py)? })
+    }
+
+    #[getter]
+    fn njoint(&self) -> usize {
+        self.inner.njoint()
+    }
+
+    #[getter]
+    fn nbody(&self) -> usize {
+        self.inner.nbody()
+    }
+
+    #[getter]
+    fn ngeom(&self) -> usize {
+        self.inner.geoms().len()
+    }
+
+    #[getter]
+    fn npair(&self) -> usize {
+        self.inner.pairs().len()
+    }
+
+    /// `(geom ids (P, 2) int32, is_self (P,) bool, margin (P,) float64)`.
+    fn pairs<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray2<i32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<f64>>)> {
+        let geoms = self.inner.geoms();
+        let pairs = self.inner.pairs();
+        let ids: Vec<i32> = pairs.iter().flat_map(|p| [geoms[p.g1].mujoco_id, geoms[p.g2].mujoco_id]).collect();
+        let is_self: Vec<bool> = pairs.iter().map(|p| p.kind == PairKind::SelfCollision).collect();
+        let margin: Vec<f64> = pairs.iter().map(|p| p.margin).collect();
+        Ok((
+            PyArray1::from_vec(py, ids).reshape([pairs.len(), 2])?,
+            PyArray1::from_vec(py, is_self),
+            PyArray1::from_vec(py, margin),
+        ))
+    }
+
+    fn sampling_ranges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let r = self.inner.sampling_ranges().map_err(to_py)?;
+        let k = r.len();
+        PyArray1::from_vec(py, r.into_flattened()).reshape([k, 2])
+    }
+
+    fn continuous<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
+        PyArray1::from_vec(py, self.inner.continuous())
+    }
+
+    #[pyo3(signature = (poses, threads=None))]
+    fn forward_kinematics<'py>(
+        &self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+        threads: Option<usize>,
+    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>)> {
+        let model = &self.inner;
+        let k = model.njoint();
+        let q = pose_slice(&poses, k, "poses")?;
+        let b = check_poses(model, q).map_err(to_py)?;
+        let nb = model.nbody();
+        let (xpos, xquat) = py
+            .detach(|| {
+                with_threads(threads, || {
+                    let frames: Vec<Vec<Isometry3<f64>>> = q
+                        .par_chunks(k)
+                        .map_init(
+                            || vec![Isometry3::identity(); nb],
+                            |buf, qi| {
+                                body_poses(model, qi, buf);
+                                buf.clone()
+                            },
+                        )
+                        .collect();
+                    let mut xpos = Vec::with_capacity(b * nb * 3);
+                    let mut xquat = Vec::with_capacity(b * nb * 4);
+                    for f in frames.iter().flatten() {
+                        xpos.extend(f.translation.vector.iter());
+                        let q = f.rotation.quaternion();
+                        xquat.extend([q.w, q.i, q.j, q.k]);
+                    }
+                    (xpos, xquat)
+                })
+            })
+            .map_err(to_py)?;
+        Ok((PyArray1::from_vec(py, xpos).reshape([b, nb, 3])?, PyArray1::from_vec(py, xquat).reshape([b, nb, 4])?))
+    }
+
+    #[pyo3(signature = (poses, *, pairs=false, distance=false, threads=None))]
+    fn label<'py>(
+        &self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+        pairs: bool,
+        distance: bool,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let model = &self.inner;
+        let q = pose_slice(&poses, model.njoint(), "poses")?;
+        let opts = LabelOptions { pairs, distance };
+        let batch = py.detach(|| with_threads(threads, || label_batch(model, q, opts))).map_err(to_py)?.map_err(to_py)?;
+        let labels = &batch.labels;
+        let out = PyDict::new(py);
+        out.set_item("collides", PyArray1::from_iter(py, labels.iter().map(|l| l.collides())))?;
+        out.set_item("self_collides", PyArray1::from_iter(py, labels.iter().map(|l| l.self_collides)))?;
+        out.set_item("scene_collides", PyArray1::from_iter(py, labels.iter().map(|l| l.scene_collides)))?;
+        out.set_item("n_pairs", PyArray1::from_iter(py, labels.iter().map(|l| l.n_pairs as i32)))?;
+        if distance {
+            out.set_item("min_distance", PyArray1::from_iter(py, labels.iter().map(|l| l.min_distance)))?;
+        }
+        if pairs {
+            let m = batch.colliding_pairs.len();
+            let flat: Vec<i64> = batch.colliding_pairs.iter().flat_map(|&[p, k]| [p as i64, k as i64]).collect();
+            out.set_item("colliding_pairs", PyArray1::from_vec(py, flat).reshape([m, 2])?)?;
+        }
+        Ok(out)
+    }
+
+    #[pyo3(signature = (n, seed, threads=None))]
+    fn sample<'py>(&self, py: Python<'py>, n: usize, seed: u64, threads: Option<usize>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let ranges = self.inner.sampling_ranges().map_err(to_py)?;
+        let k = ranges.len();
+        let v = py.detach(|| with_threads(threads, || sample_uniform(&ranges, n, seed))).map_err(to_py)?.map_err(to_py)?;
+        PyArray1::from_vec(py, v).reshape([n, k])
+    }
+}
+
+/// `(B, steps, K)` interpolation of `(B, K)` start/goal poses (see `_core.pyi`).
+#[pyfunction]
+fn interpolate<'py>(
+    py: Python<'py>,
+    start: PyReadonlyArray2<'py, f64>,
+    goal: PyReadonlyArray2<'py, f64>,
+    steps: usize,
+    continuous: PyReadonlyArray1<'py, bool>,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let cont = continuous.as_array().to_vec();
+    let k = cont.len();
+    let s = pose_slice(&start, k, "start")?;
+    let g = pose_slice(&goal, k, "goal")?;
+    let b = start.shape()[0];
+    let v = py.detach(|| interpolate_so2(s, g, steps, &cont)).map_err(to_py)?;
+    PyArray1::from_vec(py, v).reshape([b, steps, k])
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<RobotModel>()?;
+    m.add_function(wrap_pyfunction!(interpolate, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
