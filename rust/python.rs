@@ -23,15 +23,13 @@ fn item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
     d.get_item(key)?.ok_or_else(|| PyValueError::new_err(format!("model arrays lack '{key}'")))
 }
 
-fn typed<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<T> {
-    item(d, key)?.extract::<T>().map_err(|e| {
-        let e: PyErr = e.into();
-        PyTypeError::new_err(format!("model array '{key}': {e}"))
-    })
+/// Extracts `d[key]` as `T`; on failure a TypeError saying what was `expected`.
+fn typed<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, expected: &str) -> PyResult<T> {
+    item(d, key)?.extract::<T>().map_err(|_| PyTypeError::new_err(format!("model array '{key}' must be {expected}")))
 }
 
 fn rows<const N: usize>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[f64; N]>> {
-    let a: PyReadonlyArray2<f64> = typed(d, key)?;
+    let a: PyReadonlyArray2<f64> = typed(d, key, &format!("a float64 array of shape (n, {N})"))?;
     let shape = a.shape();
     if shape[1] != N {
         return Err(PyValueError::new_err(format!("model array '{key}' must have {N} columns; got shape {shape:?}")));
@@ -41,7 +39,7 @@ fn rows<const N: usize>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[f64; 
 }
 
 fn int_rows(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[i32; 2]>> {
-    let a: PyReadonlyArray2<i32> = typed(d, key)?;
+    let a: PyReadonlyArray2<i32> = typed(d, key, "an int32 array of shape (n, 2)")?;
     if a.shape()[1] != 2 {
         return Err(PyValueError::new_err(format!("model array '{key}' must have 2 columns")));
     }
@@ -49,7 +47,7 @@ fn int_rows(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[i32; 2]>> {
 }
 
 fn vec1<T: numpy::Element + Copy + 'static>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<T>> {
-    let a: PyReadonlyArray1<T> = typed(d, key)?;
+    let a: PyReadonlyArray1<T> = typed(d, key, &format!("a 1-D {} array", std::any::type_name::<T>()))?;
     Ok(a.as_array().to_vec())
 }
 
@@ -82,8 +80,8 @@ fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
         exclude: int_rows(d, "exclude")?,
         pair_geom: int_rows(d, "pair_geom")?,
         pair_margin: vec1(d, "pair_margin")?,
-        filter_parent: typed(d, "filter_parent")?,
-        contact_enabled: typed(d, "contact_enabled")?,
+        filter_parent: typed(d, "filter_parent", "a bool")?,
+        contact_enabled: typed(d, "contact_enabled", "a bool")?,
     })
 }
 

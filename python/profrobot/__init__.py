@@ -1,2 +1,24 @@
+"""profrobot: collision-aware robot pose optimisation.
+
+The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.label`` (Rust,
+``rust/collide.rs``).
+
+>>> import profrobot
+>>> robot = profrobot.scenes.load("panda_blocks")
+>>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
+>>> labels = profrobot.label_poses(robot, poses)                 # exact, parallel
+>>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
+"""
+
+from . import scenes
 from ._core import __version__
-from .robot import Robot, Box, Sphere, Capsule, Cylinder, Plane, Mesh
+from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels
+from .dataset import Dataset, make_dataset
+from .labels import Labels, interpolate, label_poses, sample_poses
+from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
+
+__all__ = [
+    "__version__", "scenes", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
+    "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
+    "crosscheck", "mujoco_labels", "CrosscheckReport",
+]

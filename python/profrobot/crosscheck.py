@@ -58,6 +58,7 @@ class Disagreement:
     mujoco: bool
     pairs: list[tuple[int, int]]        # geom pairs on which the two differ
     signed_distance: float              # MuJoCo's signed distance of the worst such pair (m)
+    ours_min_distance: float            # our exact minimum signed distance at this pose (m)
 
 
 @dataclass
@@ -106,11 +107,14 @@ def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: boo
     confusion = np.zeros((2, 2), dtype=np.int64)
     np.add.at(confusion, (ours.collides.astype(int), ref.collides.astype(int)), 1)
     disagreements = []
-    for i in np.flatnonzero(ours.collides != ref.collides):
+    differ = np.flatnonzero(ours.collides != ref.collides)
+    ours_dist = label_poses(robot, q[differ], distance=True).min_distance if len(differ) else []
+    for i, d_ours in zip(differ, ours_dist):
         diff = sorted(ours_pairs[i] ^ ref.pairs[i])
         dists = [mujoco_pair_distance(robot, q[i], a, b) for a, b in diff]
         worst = max(dists, key=abs) if dists else float("nan")
-        disagreements.append(Disagreement(int(i), bool(ours.collides[i]), bool(ref.collides[i]), diff, worst))
+        disagreements.append(Disagreement(int(i), bool(ours.collides[i]), bool(ref.collides[i]), diff, worst,
+                                          float(d_ours)))
     return CrosscheckReport(
         n=len(q), agreement=float((ours.collides == ref.collides).mean()),
         pair_agreement=float(same_pairs.mean()), confusion=confusion, disagreements=disagreements,

@@ -35,11 +35,20 @@ def panda_blocks() -> Robot:
     ], "panda_blocks")
 
 
+def box_mesh(half_size) -> np.ndarray:
+    """The 8 corners (8, 3) of a box of ``half_size``: a box that collides as a convex mesh."""
+    h = np.asarray(half_size, dtype=float)
+    return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * h
+
+
 def ur5e_wall_box() -> Robot:
+    # The wall and box are 8-vertex meshes, not MuJoCo boxes: MuJoCo 4.0's capsule-box collider
+    # reports no contact when a capsule (the UR5e's links) pierces a box with both ends outside,
+    # so box obstacles would make MuJoCo, our reference, wrong (tests pin that case).
     return _scene("universal_robots_ur5e", "ur5e", [
         FLOOR,
-        Box(pos=(0.0, 0.55, 0.6), half_size=(1.0, 0.02, 0.6), name="wall"),
-        Box(pos=(0.45, -0.1, 0.12), half_size=(0.12, 0.12, 0.12), name="box"),
+        Mesh(pos=(0.0, 0.65, 0.6), vertices=box_mesh((1.0, 0.02, 0.6)), name="wall"),
+        Mesh(pos=(0.45, -0.1, 0.12), vertices=box_mesh((0.12, 0.12, 0.12)), name="box"),
     ], "ur5e_wall_box")
 
 

@@ -1,0 +1,156 @@
+"""Balanced pose datasets (the paper's resampling to about 1:1 collided:free), saved atomically
+to one ``.npz`` file with poses, labels and metadata. Nothing is pickled."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from . import _core
+from .labels import check_threads, label_poses, sample_poses
+from .robot import Robot
+
+_LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
+
+
+@dataclass
+class Dataset:
+    """Poses (N, K) in radians / metres and their exact labels, plus provenance metadata."""
+
+    poses: np.ndarray
+    collides: np.ndarray
+    self_collides: np.ndarray
+    scene_collides: np.ndarray
+    n_pairs: np.ndarray
+    metadata: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def collided_fraction(self) -> float:
+        return float(self.collides.mean())
+
+    def split(self, test_fraction: float = 0.1, seed: int = 0) -> tuple["Dataset", "Dataset"]:
+        """A seeded (train, test) split, each keeping the metadata."""
+        if not 0 < test_fraction < 1:
+            raise ValueError(f"test_fraction must be in (0, 1); got {test_fraction}")
+        idx = np.random.default_rng(seed).permutation(len(self))
+        n_test = max(1, int(round(len(self) * test_fraction)))
+        return self._take(idx[n_test:]), self._take(idx[:n_test])
+
+    def _take(self, idx: np.ndarray) -> "Dataset":
+        return Dataset(self.poses[idx], *(getattr(self, k)[idx] for k in _LABELS), metadata=dict(self.metadata))
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Writes one ``.npz`` atomically: a temporary file in the same folder, fsynced, then
+        renamed over ``path``, so an interrupted save never leaves a half-written file."""
+        path = os.fspath(path)
+        if not path.endswith(".npz"):
+            raise ValueError(f"dataset files end in .npz; got {path!r}")
+        folder = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix=".profrobot-", suffix=".npz.tmp", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
+                         metadata=np.array(json.dumps(self.metadata)))
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
+        """Reads a file written by :meth:`save`; with ``robot``, refuses data for another robot."""
+        path = os.fspath(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in ("poses", "metadata", *_LABELS) if k not in z.files]
+                if missing:
+                    raise ValueError(f"{path!r} is not a profrobot dataset: it lacks {', '.join(missing)}")
+                data = {k: z[k] for k in ("poses", *_LABELS)}
+                metadata = json.loads(str(z["metadata"]))
+        except (OSError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(f"could not read dataset {path!r}: {e}") from e
+        except (ValueError, json.JSONDecodeError) as e:
+            if isinstance(e, ValueError) and "profrobot dataset" in str(e):
+                raise
+            raise ValueError(f"{path!r} is corrupt or not a profrobot dataset: {e}") from e
+        ds = cls(**data, metadata=metadata)
+        n = len(ds.poses)
+        if ds.poses.ndim != 2 or any(len(getattr(ds, k)) != n for k in _LABELS):
+            raise ValueError(f"{path!r} is corrupt: arrays of inconsistent lengths")
+        if robot is not None and metadata.get("robot_fingerprint") != robot.fingerprint:
+            raise ValueError(f"{path!r} was made for robot {metadata.get('robot')!r} "
+                             f"(fingerprint {metadata.get('robot_fingerprint')}), not {robot.name!r} "
+                             f"(fingerprint {robot.fingerprint})")
+        return ds
+
+
+def _round_seed(seed: int, round_index: int) -> int:
+    """A distinct, reproducible 64-bit seed per sampling round."""
+    return int(np.random.SeedSequence([seed, round_index]).generate_state(1, np.uint64)[0])
+
+
+def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *,
+                 batch: int = 100_000, max_samples: int | None = None, progress: bool = True,
+                 threads: int | None = None) -> Dataset:
+    """``n`` poses with exact labels, resampled so that ``collided_fraction`` of them collide.
+
+    Uniform poses are drawn in seeded rounds of ``batch`` and labelled; colliding and free poses
+    are kept until each quota is full (the paper's balanced resampling), then shuffled. Raises
+    if a quota cannot be met within ``max_samples`` draws (default ``200 * n``), naming the
+    collision rate seen. Same seed, same dataset, whatever the thread count.
+    """
+    if not isinstance(robot, Robot):
+        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer; got {n!r}")
+    if not 0.0 <= collided_fraction <= 1.0:
+        raise ValueError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
+    threads = check_threads(threads)
+    want_coll = int(round(n * collided_fraction))
+    want = {True: want_coll, False: n - want_coll}
+    kept: dict[bool, list[np.ndarray]] = {True: [], False: []}
+    have = {True: 0, False: 0}
+    drawn = seen_colliding = 0
+    max_samples = max_samples or 200 * n
+    bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=not progress)
+    r = 0
+    while have[True] < want[True] or have[False] < want[False]:
+        if drawn >= max_samples:
+            bar.close()
+            raise RuntimeError(f"could not fill the quotas for {robot.name} after {drawn} samples "
+                               f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
+                               "or raise max_samples")
+        q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads)
+        collides = label_poses(robot, q, threads=threads).collides
+        drawn += batch
+        seen_colliding += int(collides.sum())
+        for c in (True, False):
+            take = q[np.flatnonzero(collides == c)[: want[c] - have[c]]]
+            if len(take):
+                kept[c].append(take)
+                have[c] += len(take)
+                bar.update(len(take))
+        r += 1
+    bar.close()
+    poses = np.concatenate([*kept[True], *kept[False]])
+    poses = poses[np.random.default_rng(seed).permutation(len(poses))]
+    labels = label_poses(robot, poses, threads=threads)
+    from . import __version__
+
+    metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
+                    seed=int(seed), collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
+                    uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
+                    core_version=_core.__version__)
+    return Dataset(poses, labels.collides, labels.self_collides, labels.scene_collides, labels.n_pairs, metadata)

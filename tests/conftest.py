@@ -1,0 +1,30 @@
+import os
+from pathlib import Path
+
+import pytest
+
+# Offline machines (CI included) use the Menagerie copy beside the checkout.
+_LOCAL = Path(__file__).resolve().parents[1].parent / "shared" / "menagerie"
+if "MENAGERIE_ROOT" not in os.environ and _LOCAL.is_dir():
+    os.environ["MENAGERIE_ROOT"] = str(_LOCAL)
+
+import profrobot  # noqa: E402
+
+_CACHE: dict = {}
+
+
+def scene(name: str) -> "profrobot.Robot":
+    """Bundled scenes are built once per test session."""
+    if name not in _CACHE:
+        _CACHE[name] = profrobot.scenes.load(name)
+    return _CACHE[name]
+
+
+@pytest.fixture(scope="session")
+def panda():
+    return scene("panda_blocks")
+
+
+@pytest.fixture(scope="session")
+def ur5e():
+    return scene("ur5e_wall_box")

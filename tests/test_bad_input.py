@@ -1,0 +1,125 @@
+"""Every bad input gets a Python exception that names the problem (acceptance 4)."""
+
+import mujoco
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot import Robot
+
+
+@pytest.mark.parametrize("poses, exc, match", [
+    (np.zeros((4, 5)), ValueError, r"shape \(B, 9\)"),
+    (np.zeros((2, 3, 9)), ValueError, r"shape \(B, 9\)"),
+    (np.zeros((0, 9)), ValueError, "empty"),
+    (np.zeros((3, 9), dtype=np.int64), TypeError, "floating-point"),
+    (np.array([["a"] * 9]), TypeError, "floating-point"),
+    (np.full((2, 9), np.nan), ValueError, r"poses\[0, 0\].*finite"),
+    (np.r_[np.zeros((1, 9)), [[0, 0, np.inf, 0, 0, 0, 0, 0, 0]]], ValueError, r"poses\[1, 2\] \(joint3\)"),
+])
+def test_bad_poses(panda, poses, exc, match):
+    with pytest.raises(exc, match=match):
+        profrobot.label_poses(panda, poses)
+
+
+def test_out_of_limits_where_forbidden(panda):
+    pose = np.zeros((1, 9))
+    pose[0, 3] = 1.0  # joint4's range is about [-3.07, -0.07]
+    profrobot.label_poses(panda, pose)  # labelling beyond the limits is allowed by default
+    with pytest.raises(ValueError, match=r"outside the limits of joint 'joint4'"):
+        profrobot.label_poses(panda, pose, check_limits=True)
+    with pytest.raises(ValueError, match="outside the limits"):
+        profrobot.interpolate(panda, pose[0], np.zeros(9), 10)
+
+
+def test_bad_counts_seeds_and_threads(panda):
+    for n in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="n must be a positive integer"):
+            profrobot.sample_poses(panda, n)
+    with pytest.raises(ValueError, match="seed"):
+        profrobot.sample_poses(panda, 10, seed=-1)
+    with pytest.raises(ValueError, match="threads"):
+        profrobot.label_poses(panda, np.zeros((1, 9)), threads=0)
+    mid = panda.joint_limits.mean(1)
+    with pytest.raises(ValueError, match="steps"):
+        profrobot.interpolate(panda, mid, mid, 1)
+
+
+def test_wrong_argument_types(panda):
+    with pytest.raises(TypeError, match="profrobot.Robot"):
+        profrobot.label_poses("panda", np.zeros((1, 9)))
+    with pytest.raises(TypeError, match="mujoco.MjModel"):
+        Robot("not a model")
+
+
+def test_unknown_robot_scene_and_entry():
+    with pytest.raises(ValueError, match="unknown scene 'nope'.*panda_blocks"):
+        profrobot.scenes.load("nope")
+    with pytest.raises(ValueError, match="unknown Menagerie robot 'nope'"):
+        Robot.from_menagerie("nope")
+    with pytest.raises(ValueError, match="no entry point 'nope'"):
+        Robot.from_menagerie("franka_emika_panda", "nope")
+
+
+def test_unreadable_and_malformed_mjcf(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no MJCF file"):
+        Robot.from_mjcf(tmp_path / "missing.xml")
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body><geom size='0.1'></body></worldbody>")
+    with pytest.raises(ValueError, match="could not read MJCF"):
+        Robot.from_mjcf(bad)
+    bad.write_text("<mujoco><worldbody><geom type='box' size='-1 1 1'/></worldbody></mujoco>")
+    with pytest.raises(ValueError):
+        Robot.from_mjcf(bad)
+
+
+@pytest.mark.parametrize("joint, kind", [('type="free"', "free"), ('type="ball"', "ball")])
+def test_free_and_ball_joints_are_rejected(tmp_path, joint, kind):
+    path = tmp_path / "robot.xml"
+    path.write_text(f"""<mujoco><worldbody><body pos="0 0 1"><joint name="j" {joint}/><geom size="0.1"/>
+        <body pos="0 0 0.3"><joint name="h" axis="1 0 0"/><geom size="0.1"/></body></body></worldbody></mujoco>""")
+    with pytest.raises(ValueError, match=f"'j' \\({kind}\\)"):
+        Robot.from_mjcf(path)
+
+
+def test_robot_without_joints_and_unsupported_geoms(tmp_path):
+    path = tmp_path / "static.xml"
+    path.write_text("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="no joints"):
+        Robot.from_mjcf(path)
+    path.write_text("""<mujoco><worldbody><geom type="plane" size="1 1 1"/><body><joint axis="1 0 0"/>
+        <geom type="ellipsoid" size="0.1 0.2 0.3"/></body></worldbody></mujoco>""")
+    with pytest.raises(ValueError, match="ellipsoid"):
+        Robot.from_mjcf(path)
+
+
+def test_bad_obstacles(panda):
+    with pytest.raises(ValueError, match="positive length"):
+        panda.with_obstacles([profrobot.Box(pos=(0, 0, 0), half_size=(0.1, -1, 0.1))])
+    with pytest.raises(ValueError, match="vertices"):
+        panda.with_obstacles([profrobot.Mesh(pos=(0, 0, 0), vertices=np.zeros((2, 3)))])
+    with pytest.raises(TypeError, match="Obstacle"):
+        panda.with_obstacles(["box"])
+    with pytest.raises(ValueError, match="MjSpec"):
+        Robot.from_model(panda.mj_model).with_obstacles([])
+
+
+def test_core_rejects_inconsistent_arrays_without_panicking(panda):
+    arrays = panda.core_arrays()
+    arrays["body_parent"] = arrays["body_parent"][::-1].copy()
+    with pytest.raises(ValueError, match="parents must precede children"):
+        profrobot._core.RobotModel(arrays)
+    arrays = panda.core_arrays()
+    arrays["geom_pos"] = arrays["geom_pos"][:3].copy()
+    with pytest.raises(ValueError, match="geom_pos has 3 entries"):
+        profrobot._core.RobotModel(arrays)
+    arrays = panda.core_arrays()
+    arrays["jnt_axis"] = arrays["jnt_axis"].astype(np.float32)
+    with pytest.raises(TypeError, match="jnt_axis"):
+        profrobot._core.RobotModel(arrays)
+    arrays = panda.core_arrays()
+    del arrays["exclude"]
+    with pytest.raises(ValueError, match="lack 'exclude'"):
+        profrobot._core.RobotModel(arrays)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        panda.core.label(np.zeros((4, 18))[:, ::2])

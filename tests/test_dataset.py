@@ -1,0 +1,79 @@
+"""Balanced datasets, atomic saves, and provenance checks on load."""
+
+import os
+
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot import Dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(panda):
+    return profrobot.make_dataset(panda, 1000, collided_fraction=0.5, seed=7, batch=4000, progress=False)
+
+
+def test_dataset_is_balanced_and_labels_are_exact(panda, dataset):
+    assert len(dataset) == 1000 and dataset.collided_fraction == 0.5
+    check = profrobot.crosscheck(panda, dataset.poses[:300])
+    assert check.agreement == 1.0
+    np.testing.assert_array_equal(check.ours.collides, dataset.collides[:300])
+    assert dataset.metadata["robot_fingerprint"] == panda.fingerprint
+    assert dataset.metadata["joint_names"] == panda.joint_names
+    assert 0 < dataset.metadata["uniform_collision_rate"] < 0.5
+
+
+def test_other_fractions_and_impossible_quotas(panda):
+    ds = profrobot.make_dataset(panda, 200, collided_fraction=0.25, seed=1, batch=2000, progress=False)
+    assert ds.collides.sum() == 50
+    with pytest.raises(RuntimeError, match="collision rate"):
+        profrobot.make_dataset(panda, 500, collided_fraction=1.0, seed=1, batch=100, max_samples=300, progress=False)
+
+
+def test_save_load_round_trip(tmp_path, panda, dataset):
+    path = tmp_path / "panda.npz"
+    dataset.save(path)
+    back = Dataset.load(path, robot=panda)
+    np.testing.assert_array_equal(back.poses, dataset.poses)
+    for k in ("collides", "self_collides", "scene_collides", "n_pairs"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(dataset, k))
+    assert back.metadata == dataset.metadata
+    assert os.listdir(tmp_path) == ["panda.npz"]  # no temporary file left behind
+
+
+def test_interrupted_save_keeps_the_old_file(tmp_path, dataset, monkeypatch):
+    path = tmp_path / "d.npz"
+    dataset.save(path)
+    before = path.read_bytes()
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez", boom)
+    with pytest.raises(KeyboardInterrupt):
+        dataset.save(path)
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == ["d.npz"]
+
+
+def test_load_refuses_other_robots_and_corrupt_files(tmp_path, ur5e, dataset):
+    path = tmp_path / "d.npz"
+    dataset.save(path)
+    with pytest.raises(ValueError, match="was made for robot 'panda_blocks'"):
+        Dataset.load(path, robot=ur5e)
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(ValueError, match="corrupt|could not read"):
+        Dataset.load(bad)
+    np.savez(tmp_path / "other.npz", poses=np.zeros((2, 9)))
+    with pytest.raises(ValueError, match="not a profrobot dataset"):
+        Dataset.load(tmp_path / "other.npz")
+    with pytest.raises(ValueError, match=".npz"):
+        dataset.save(tmp_path / "d.pkl")
+
+
+def test_split_is_seeded(dataset):
+    tr, te = dataset.split(0.1, seed=0)
+    assert len(te) == 100 and len(tr) == 900
+    np.testing.assert_array_equal(te.poses, dataset.split(0.1, seed=0)[1].poses)
