@@ -31,7 +31,7 @@ def test_labels_agree_with_mujoco(name):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", profrobot.scenes.names())
 def test_labels_agree_with_mujoco_large_sample(name):
-    check_scene(name, 20_000, seed=12)
+    check_scene(name, 100_000, seed=12)
 
 
 def test_self_and_scene_split_matches_mujoco_pairs(panda):
