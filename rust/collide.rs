@@ -14,6 +14,7 @@ use std::collections::{HashMap, HashSet};
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use parry3d_f64::query;
+use parry3d_f64::shape::SupportMap;
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, invalid_model, Result};
@@ -138,6 +139,8 @@ pub struct Scratch {
     bodies: Vec<Isometry3<f64>>,
     geoms: Vec<Isometry3<f64>>,
     obbs: Vec<Obb>,
+    /// `obbs[i].center`, packed densely for the pair loop.
+    centers: Vec<Vector3<f64>>,
 }
 
 impl Scratch {
@@ -147,6 +150,7 @@ impl Scratch {
             bodies: vec![Isometry3::identity(); model.nbody()],
             geoms: vec![Isometry3::identity(); n],
             obbs: vec![Obb { rot: Matrix3::identity(), center: Vector3::zeros() }; n],
+            centers: vec![Vector3::zeros(); n],
         }
     }
 }
@@ -159,11 +163,34 @@ struct Obb {
     center: Vector3<f64>,
 }
 
-fn world_obbs(model: &RobotModel, poses: &[Isometry3<f64>], out: &mut [Obb]) {
-    for ((o, g), p) in out.iter_mut().zip(&model.geoms).zip(poses) {
+fn world_obbs(model: &RobotModel, poses: &[Isometry3<f64>], out: &mut [Obb], centers: &mut [Vector3<f64>]) {
+    for (((o, c), g), p) in out.iter_mut().zip(centers).zip(&model.geoms).zip(poses) {
         o.rot = p.rotation.to_rotation_matrix().into_inner();
         o.center = p.translation.vector + o.rot * g.shape.obb_center;
+        *c = o.center;
     }
+}
+
+/// The first, cheapest cull of a candidate pair, packed for the per-pose loop over all pairs:
+/// the geoms' OBB centres farther apart than `reach` (the sum of the boxes' circumradii and
+/// the margin, slightly inflated against rounding) cannot touch. Plane pairs get `reach = inf`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PairCull {
+    g1: u32,
+    g2: u32,
+    reach2: f64,
+}
+
+/// One `PairCull` per candidate pair, in pair order.
+pub(crate) fn pair_culls(geoms: &[Geom], pairs: &[CandidatePair]) -> Vec<PairCull> {
+    pairs
+        .iter()
+        .map(|p| {
+            let (a, b) = (&geoms[p.g1].shape, &geoms[p.g2].shape);
+            let reach = (a.obb_half.norm() + b.obb_half.norm() + p.margin) * (1.0 + 1e-9) + 1e-9;
+            PairCull { g1: p.g1 as u32, g2: p.g2 as u32, reach2: reach * reach }
+        })
+        .collect()
 }
 
 /// Signed distance of `g` (at `pose`) from the plane at `plane` (`z <= 0` is inside), exact via
@@ -171,7 +198,7 @@ fn world_obbs(model: &RobotModel, poses: &[Isometry3<f64>], out: &mut [Obb]) {
 fn plane_distance(plane: &Isometry3<f64>, g: &Geom, pose: &Isometry3<f64>) -> f64 {
     let n = plane.rotation * Vector3::z();
     let origin = plane.translation.vector;
-    let sm = g.shape.shape.as_ref().and_then(|s| s.as_support_map()).expect("non-plane shapes are support maps");
+    let sm = g.shape.convex.as_ref().expect("non-plane shapes are support maps");
     let deepest = sm.support_point(pose, &(-n));
     n.dot(&(deepest.coords - origin))
 }
@@ -216,28 +243,46 @@ fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
     match (a.shape.kind == GeomType::Plane, b.shape.kind == GeomType::Plane) {
-        (true, false) => return plane_pair_in_contact(pa, b, pb, pair.margin),
-        (false, true) => return plane_pair_in_contact(pb, a, pa, pair.margin),
+        (true, false) => return plane_pair_in_contact(pa, b, pb, &obbs[pair.g2], pair.margin),
+        (false, true) => return plane_pair_in_contact(pb, a, pa, &obbs[pair.g1], pair.margin),
         _ => {}
     }
-    let reach = a.shape.rbound + b.shape.rbound + pair.margin;
-    if (pa.translation.vector - pb.translation.vector).norm_squared() > reach * reach {
-        return false;
-    }
+    // (The bounding-sphere cull ran before, in `label_pose`.)
     if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
         return false;
     }
-    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
     if pair.margin == 0.0 {
-        query::intersection_test(pa, sa, pb, sb).unwrap_or(false)
-    } else {
+        return intersection_test(a, pa, b, pb);
+    }
+    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
+    {
         query::distance(pa, sa, pb, sb).map(|d| d < pair.margin).unwrap_or(false)
     }
 }
 
-fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, pg: &Isometry3<f64>, margin: f64) -> bool {
+/// `query::intersection_test` for two non-plane geoms, with parry's dispatcher unrolled so that
+/// the common support-map case runs GJK on the concrete `Convex` (same support points, same
+/// GJK, same answer) rather than through `dyn Shape`.
+fn intersection_test(a: &Geom, pa: &Isometry3<f64>, b: &Geom, pb: &Isometry3<f64>) -> bool {
+    use crate::shapes::Convex;
+    use parry3d_f64::query::details;
+    let pos12 = pa.inv_mul(pb);
+    let (ca, cb) = (a.shape.convex.as_ref().unwrap(), b.shape.convex.as_ref().unwrap());
+    match (ca, cb) {
+        (Convex::Ball(b1), Convex::Ball(b2)) => details::intersection_test_ball_ball(&pos12.translation.vector.into(), b1, b2),
+        (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
+        (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.shape.shape.as_deref().unwrap()),
+        (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.shape.shape.as_deref().unwrap(), b2),
+        _ => details::intersection_test_support_map_support_map(&pos12, ca, cb),
+    }
+}
+
+/// Half-space test: the geom's bounding box must reach below `margin` before the exact
+/// support point is computed (the box's lowest point is a lower bound on the geom's).
+fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, pg: &Isometry3<f64>, obb: &Obb, margin: f64) -> bool {
     let n = plane.rotation * Vector3::z();
-    if n.dot(&(pg.translation.vector - plane.translation.vector)) > g.shape.rbound + margin {
+    let reach = obb.rot.tr_mul(&n).abs().dot(&g.shape.obb_half);
+    if n.dot(&(obb.center - plane.translation.vector)) - reach >= margin {
         return false;
     }
     plane_distance(plane, g, pg) < margin
@@ -268,17 +313,30 @@ fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isome
 pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
     body_poses(model, q, &mut scratch.bodies);
     geom_poses(model, &scratch.bodies, &mut scratch.geoms);
-    world_obbs(model, &scratch.geoms, &mut scratch.obbs);
+    world_obbs(model, &scratch.geoms, &mut scratch.obbs, &mut scratch.centers);
     let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
-    for (k, pair) in model.pairs.iter().enumerate() {
-        if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
-            label.n_pairs += 1;
-            match pair.kind {
-                PairKind::SelfCollision => label.self_collides = true,
-                PairKind::Scene => label.scene_collides = true,
-            }
-            if opts.pairs {
-                hits.push(k as u32);
+    // Sphere cull of every pair without branches (few pass, unpredictably): one bit per pair
+    // in 64-pair words, then the survivors in pair order.
+    let centers = &scratch.centers;
+    for (w, culls) in model.culls.chunks(64).enumerate() {
+        let mut bits = 0u64;
+        for (i, c) in culls.iter().enumerate() {
+            let near = (centers[c.g1 as usize] - centers[c.g2 as usize]).norm_squared() <= c.reach2;
+            bits |= (near as u64) << i;
+        }
+        while bits != 0 {
+            let k = w * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let pair = &model.pairs[k];
+            if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
+                label.n_pairs += 1;
+                match pair.kind {
+                    PairKind::SelfCollision => label.self_collides = true,
+                    PairKind::Scene => label.scene_collides = true,
+                }
+                if opts.pairs {
+                    hits.push(k as u32);
+                }
             }
         }
     }

@@ -4,7 +4,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::collide::{candidate_pairs, CandidatePair};
+use crate::collide::{candidate_pairs, pair_culls, CandidatePair, PairCull};
 use crate::error::{invalid_model, Result};
 use crate::shapes::{GeomShape, GeomType};
 
@@ -106,6 +106,8 @@ pub struct RobotModel {
     pub(crate) limited: Vec<bool>,
     pub(crate) geoms: Vec<Geom>,
     pub(crate) pairs: Vec<CandidatePair>,
+    /// Per-pair bounding-sphere data for the hot loop, in `pairs` order.
+    pub(crate) culls: Vec<PairCull>,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -287,6 +289,7 @@ impl RobotModel {
             return invalid_model("pair_margin and pair_geom differ in length");
         }
         let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
+        let culls = pair_culls(&geoms, &pairs);
         Ok(Self {
             body_parent,
             body_local,
@@ -296,6 +299,7 @@ impl RobotModel {
             limited: desc.jnt_limited.clone(),
             geoms,
             pairs,
+            culls,
         })
     }
 

@@ -4,8 +4,8 @@
 //! (`z <= 0` in the plane's frame). Each geom becomes one of these, plus a fixed rotation where
 //! parry's axis convention differs from MuJoCo's (cylinders: parry's axis is y, MuJoCo's z).
 
-use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
-use parry3d_f64::shape::{Ball, Capsule, ConvexPolyhedron, Cuboid, Cylinder, Shape};
+use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion, Vector3};
+use parry3d_f64::shape::{Ball, Capsule, ConvexPolyhedron, Cuboid, Cylinder, Shape, SupportMap};
 
 use crate::error::{invalid_model, Result};
 
@@ -42,6 +42,9 @@ pub struct GeomShape {
     pub kind: GeomType,
     /// `None` for planes, which are handled as half-spaces by `collide`.
     pub shape: Option<Box<dyn Shape>>,
+    /// The same shape as a concrete support map, for the hot path (GJK, plane support): an
+    /// enum match instead of dyn dispatch, and hill climbing instead of a scan for hulls.
+    pub convex: Option<Convex>,
     /// Centre and half extents of a box bounding the shape in its own frame (OBB culling).
     pub obb_center: Vector3<f64>,
     pub obb_half: Vector3<f64>,
@@ -70,13 +73,13 @@ impl GeomShape {
     /// axis lines up with MuJoCo's.
     pub fn new(kind: GeomType, size: [f64; 3], points: &[Point3<f64>], geom_id: i32) -> Result<(Self, Isometry3<f64>)> {
         let mut axis_fix = Isometry3::identity();
-        let shape: Option<Box<dyn Shape>> = match kind {
+        let convex: Option<Convex> = match kind {
             GeomType::Plane => None,
-            GeomType::Sphere => Some(Box::new(Ball::new(positive(geom_id, "radius", size[0])?))),
+            GeomType::Sphere => Some(Convex::Ball(Ball::new(positive(geom_id, "radius", size[0])?))),
             GeomType::Capsule => {
                 let r = positive(geom_id, "radius", size[0])?;
                 let h = positive(geom_id, "half-length", size[1])?;
-                Some(Box::new(Capsule::new_z(h, r)))
+                Some(Convex::Capsule(Capsule::new_z(h, r)))
             }
             GeomType::Cylinder => {
                 let r = positive(geom_id, "radius", size[0])?;
@@ -86,7 +89,7 @@ impl GeomShape {
                     nalgebra::Translation3::identity(),
                     UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2),
                 );
-                Some(Box::new(Cylinder::new(h, r)))
+                Some(Convex::Cylinder(Cylinder::new(h, r)))
             }
             GeomType::Box => {
                 let h = Vector3::new(
@@ -94,18 +97,19 @@ impl GeomShape {
                     positive(geom_id, "half-size y", size[1])?,
                     positive(geom_id, "half-size z", size[2])?,
                 );
-                Some(Box::new(Cuboid::new(h)))
+                Some(Convex::Cuboid(Cuboid::new(h)))
             }
             GeomType::Mesh => {
                 if points.len() < 4 {
                     return invalid_model(format!("mesh geom {geom_id} has {} hull vertices; at least 4 are needed", points.len()));
                 }
-                match ConvexPolyhedron::from_convex_hull(points) {
-                    Some(hull) => Some(Box::new(hull)),
+                match Hull::new(points) {
+                    Some(hull) => Some(Convex::Hull(hull)),
                     None => return invalid_model(format!("mesh geom {geom_id}: its vertices do not span a 3-D convex hull")),
                 }
             }
         };
+        let shape: Option<Box<dyn Shape>> = convex.as_ref().map(Convex::to_shape);
         let (obb_center, obb_half, rbound) = match &shape {
             None => (Vector3::zeros(), Vector3::repeat(f64::INFINITY), f64::INFINITY),
             Some(s) => {
@@ -115,6 +119,281 @@ impl GeomShape {
                 (aabb.center().coords, aabb.half_extents(), sphere.center.coords.norm() + sphere.radius)
             }
         };
-        Ok((GeomShape { kind, shape, obb_center, obb_half, rbound }, axis_fix))
+        Ok((GeomShape { kind, shape, convex, obb_center, obb_half, rbound }, axis_fix))
+    }
+}
+
+/// A geom's convex shape as a concrete type (planes excepted).
+///
+/// Its support points are exactly parry's for the same shape (the enum forwards every
+/// `SupportMap` method; `Hull` returns the vertex parry's linear scan would), so GJK on it
+/// gives bit-identical results to GJK on the boxed parry shape.
+pub enum Convex {
+    Ball(Ball),
+    Cuboid(Cuboid),
+    Capsule(Capsule),
+    Cylinder(Cylinder),
+    Hull(Hull),
+}
+
+impl Convex {
+    fn to_shape(&self) -> Box<dyn Shape> {
+        match self {
+            Convex::Ball(s) => Box::new(*s),
+            Convex::Cuboid(s) => Box::new(*s),
+            Convex::Capsule(s) => Box::new(*s),
+            Convex::Cylinder(s) => Box::new(*s),
+            Convex::Hull(h) => Box::new((*h.poly).clone()),
+        }
+    }
+}
+
+impl SupportMap for Convex {
+    #[inline]
+    fn local_support_point(&self, dir: &Vector3<f64>) -> Point3<f64> {
+        match self {
+            Convex::Ball(s) => s.local_support_point(dir),
+            Convex::Cuboid(s) => s.local_support_point(dir),
+            Convex::Capsule(s) => s.local_support_point(dir),
+            Convex::Cylinder(s) => s.local_support_point(dir),
+            Convex::Hull(h) => h.points[h.support_index(dir)],
+        }
+    }
+
+    #[inline]
+    fn local_support_point_toward(&self, dir: &Unit<Vector3<f64>>) -> Point3<f64> {
+        match self {
+            Convex::Ball(s) => s.local_support_point_toward(dir),
+            Convex::Cuboid(s) => s.local_support_point_toward(dir),
+            Convex::Capsule(s) => s.local_support_point_toward(dir),
+            Convex::Cylinder(s) => s.local_support_point_toward(dir),
+            Convex::Hull(h) => h.points[h.support_index(dir)],
+        }
+    }
+
+    #[inline]
+    fn support_point(&self, m: &Isometry3<f64>, dir: &Vector3<f64>) -> Point3<f64> {
+        match self {
+            Convex::Ball(s) => s.support_point(m, dir),
+            _ => m * self.local_support_point(&m.inverse_transform_vector(dir)),
+        }
+    }
+
+    #[inline]
+    fn support_point_toward(&self, m: &Isometry3<f64>, dir: &Unit<Vector3<f64>>) -> Point3<f64> {
+        match self {
+            Convex::Ball(s) => s.support_point_toward(m, dir),
+            _ => m * self.local_support_point_toward(&Unit::new_unchecked(m.inverse_transform_vector(dir))),
+        }
+    }
+}
+
+/// A mesh's convex hull with vertex adjacency, for support points by hill climbing.
+///
+/// On a convex polytope a vertex no neighbour of which lies further along `dir` is a global
+/// maximum, so climbing the hull's edge graph visits a handful of vertices instead of scanning
+/// all of them. Ties are broken like parry's scan (lowest index among the maximal vertices).
+pub struct Hull {
+    /// The hull's vertices, exactly `ConvexPolyhedron::points()` of `poly`.
+    points: Vec<Point3<f64>>,
+    /// Neighbours of vertex `i` are `adj[adj_start[i]..adj_start[i + 1]]` (compressed rows).
+    adj_start: Vec<u32>,
+    adj: Vec<u32>,
+    /// Starting vertex per cube-map cell of directions (the support along the cell's centre
+    /// direction), so that the climb usually ends after checking one vertex's neighbours.
+    start: Vec<u32>,
+    /// Some vertex has no hull edge (never expected): fall back to the linear scan.
+    scan: bool,
+    /// parry's own hull (boxed: it is large, and only the cold paths use it).
+    poly: Box<ConvexPolyhedron>,
+}
+
+impl Hull {
+    /// The convex hull of `points`, built exactly as `ConvexPolyhedron::from_convex_hull` does.
+    pub fn new(points: &[Point3<f64>]) -> Option<Self> {
+        let (vertices, triangles) = parry3d_f64::transformation::try_convex_hull(points).ok()?;
+        let poly = ConvexPolyhedron::from_convex_mesh(vertices.clone(), &triangles)?;
+        let n = vertices.len();
+        let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for t in &triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                if !nbrs[a as usize].contains(&b) {
+                    nbrs[a as usize].push(b);
+                }
+                if !nbrs[b as usize].contains(&a) {
+                    nbrs[b as usize].push(a);
+                }
+            }
+        }
+        let scan = nbrs.iter().any(|v| v.is_empty());
+        let mut adj_start = vec![0u32];
+        let mut adj = Vec::new();
+        for v in &nbrs {
+            adj.extend_from_slice(v);
+            adj_start.push(adj.len() as u32);
+        }
+        let start = (0..6 * CUBE * CUBE).map(|cell| scan_support(&vertices, &cube_cell_centre(cell)) as u32).collect();
+        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly) })
+    }
+
+    pub fn points(&self) -> &[Point3<f64>] {
+        &self.points
+    }
+
+    #[inline]
+    fn neighbours(&self, i: usize) -> &[u32] {
+        &self.adj[self.adj_start[i] as usize..self.adj_start[i + 1] as usize]
+    }
+
+    /// Index of the support vertex along `dir`: the lowest index among the vertices of
+    /// maximal `p . dir`, as `scan_support` (parry's scan) returns.
+    #[inline]
+    pub fn support_index(&self, dir: &Vector3<f64>) -> usize {
+        if self.scan {
+            return scan_support(&self.points, dir);
+        }
+        let mut cur = self.start[cube_cell(dir)] as usize;
+        let mut cur_dot = self.points[cur].coords.dot(dir);
+        if cur_dot.is_nan() {
+            return 0; // the scan never replaces vertex 0 when every dot is NaN
+        }
+        loop {
+            let (mut next, mut next_dot, mut tie) = (cur, cur_dot, false);
+            for &j in self.neighbours(cur) {
+                let d = self.points[j as usize].coords.dot(dir);
+                if d > next_dot {
+                    (next, next_dot) = (j as usize, d);
+                } else if d == cur_dot {
+                    tie = true;
+                }
+            }
+            if next == cur {
+                return if tie { self.lowest_on_plateau(cur, cur_dot, dir) } else { cur };
+            }
+            (cur, cur_dot) = (next, next_dot);
+        }
+    }
+
+    /// Lowest index among the vertices connected to `from` through vertices of the same
+    /// (maximal) dot product: the tie the scan resolves by taking the first.
+    #[cold]
+    fn lowest_on_plateau(&self, from: usize, top: f64, dir: &Vector3<f64>) -> usize {
+        let mut seen = vec![from];
+        let mut stack = vec![from];
+        while let Some(i) = stack.pop() {
+            for &j in self.neighbours(i) {
+                let j = j as usize;
+                if !seen.contains(&j) && self.points[j].coords.dot(dir) == top {
+                    seen.push(j);
+                    stack.push(j);
+                }
+            }
+        }
+        seen.into_iter().min().unwrap()
+    }
+}
+
+/// Cells per cube-map face side: 6 * CUBE^2 starting vertices per hull.
+const CUBE: usize = 8;
+
+/// Cube-map cell of a direction: the face of its largest component, then a CUBE x CUBE grid
+/// over the other two components divided by it. Any cell is a valid start (the climb is exact);
+/// a zero or NaN direction just lands in some cell.
+#[inline]
+fn cube_cell(d: &Vector3<f64>) -> usize {
+    let a = d.abs();
+    let (m, u, v) = if a.x >= a.y && a.x >= a.z {
+        (0, d.y, d.z)
+    } else if a.y >= a.z {
+        (1, d.z, d.x)
+    } else {
+        (2, d.x, d.y)
+    };
+    let face = 2 * m + (d[m] > 0.0) as usize;
+    let scale = 0.5 * CUBE as f64 / a[m];
+    let iu = (((u * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
+    let iv = (((v * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
+    (face * CUBE + iu) * CUBE + iv
+}
+
+/// The centre direction of a cube-map cell (inverse of `cube_cell`).
+fn cube_cell_centre(cell: usize) -> Vector3<f64> {
+    let (face, iu, iv) = (cell / (CUBE * CUBE), (cell / CUBE) % CUBE, cell % CUBE);
+    let (m, sign) = (face / 2, if face % 2 == 1 { 1.0 } else { -1.0 });
+    let coord = |i: usize| ((i as f64 + 0.5) / CUBE as f64) * 2.0 - 1.0;
+    let mut d = Vector3::zeros();
+    d[m] = sign;
+    d[(m + 1) % 3] = coord(iu);
+    d[(m + 2) % 3] = coord(iv);
+    d
+}
+
+/// parry's point-cloud support (`utils::point_cloud_support_point_id`): first maximal vertex.
+fn scan_support(points: &[Point3<f64>], dir: &Vector3<f64>) -> usize {
+    let mut best = 0;
+    let mut best_dot = points[0].coords.dot(dir);
+    for (i, p) in points.iter().enumerate().skip(1) {
+        let d = p.coords.dot(dir);
+        if d > best_dot {
+            (best, best_dot) = (i, d);
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    fn random_dirs(n: usize, seed: u64) -> Vec<Vector3<f64>> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        (0..n).map(|_| Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))).collect()
+    }
+
+    #[test]
+    fn cube_cells_round_trip_their_centres() {
+        for cell in 0..6 * CUBE * CUBE {
+            assert_eq!(cube_cell(&cube_cell_centre(cell)), cell);
+            assert_eq!(cube_cell(&(cube_cell_centre(cell) * 3.5)), cell);
+        }
+        assert!(cube_cell(&Vector3::zeros()) < 6 * CUBE * CUBE);
+        assert!(cube_cell(&Vector3::repeat(f64::NAN)) < 6 * CUBE * CUBE);
+    }
+
+    #[test]
+    fn hull_support_matches_parry_scan_on_random_and_axis_directions() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        // A random cloud (interior points dropped by the hull) and a box with coplanar faces,
+        // whose axis-aligned directions make ties that must resolve like the scan.
+        let cloud: Vec<Point3<f64>> =
+            (0..300).map(|_| Point3::new(rng.random_range(-1.0..1.0), rng.random_range(-0.5..0.5), rng.random_range(-0.2..0.3))).collect();
+        let mut boxy = Vec::new();
+        for x in [-1.0, 0.0, 1.0] {
+            for y in [-2.0, 0.0, 2.0] {
+                for z in [-0.5, 0.5] {
+                    boxy.push(Point3::new(x, y, z));
+                }
+            }
+        }
+        let mut dirs = random_dirs(20_000, 4);
+        for a in [-1.0, 0.0, 1.0] {
+            for b in [-1.0, 0.0, 1.0] {
+                for c in [-1.0, 0.0, 1.0] {
+                    dirs.push(Vector3::new(a, b, c));
+                }
+            }
+        }
+        for pts in [cloud, boxy] {
+            let hull = Hull::new(&pts).unwrap();
+            assert!(!hull.scan);
+            assert_eq!(hull.points(), hull.poly.points());
+            let convex = Convex::Hull(Hull::new(&pts).unwrap());
+            for d in &dirs {
+                assert_eq!(hull.support_index(d), scan_support(hull.points(), d), "dir {d:?}");
+                assert_eq!(convex.local_support_point(d), hull.poly.local_support_point(d));
+            }
+        }
     }
 }
