@@ -255,9 +255,7 @@ fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<
         return intersection_test(a, pa, b, pb);
     }
     let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
-    {
-        query::distance(pa, sa, pb, sb).map(|d| d < pair.margin).unwrap_or(false)
-    }
+    query::distance(pa, sa, pb, sb).map(|d| d < pair.margin).unwrap_or(false)
 }
 
 /// `query::intersection_test` for two non-plane geoms, with parry's dispatcher unrolled so that

@@ -120,7 +120,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     threads = check_threads(threads)
     want_coll = int(round(n * collided_fraction))
     want = {True: want_coll, False: n - want_coll}
-    kept: dict[bool, list[np.ndarray]] = {True: [], False: []}
+    kept: dict[bool, list[tuple[np.ndarray, ...]]] = {True: [], False: []}  # (poses, *labels) per round
     have = {True: 0, False: 0}
     drawn = seen_colliding = 0
     max_samples = max_samples or 200 * n
@@ -133,24 +133,24 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
                                f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
                                "or raise max_samples")
         q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads)
-        collides = label_poses(robot, q, threads=threads).collides
+        lab = label_poses(robot, q, threads=threads)
         drawn += batch
-        seen_colliding += int(collides.sum())
+        seen_colliding += int(lab.collides.sum())
         for c in (True, False):
-            take = q[np.flatnonzero(collides == c)[: want[c] - have[c]]]
-            if len(take):
-                kept[c].append(take)
-                have[c] += len(take)
-                bar.update(len(take))
+            idx = np.flatnonzero(lab.collides == c)[: want[c] - have[c]]
+            if len(idx):
+                kept[c].append((q[idx], *(getattr(lab, k)[idx] for k in _LABELS)))
+                have[c] += len(idx)
+                bar.update(len(idx))
         r += 1
     bar.close()
-    poses = np.concatenate([*kept[True], *kept[False]])
-    poses = poses[np.random.default_rng(seed).permutation(len(poses))]
-    labels = label_poses(robot, poses, threads=threads)
+    parts = kept[True] + kept[False]
+    order = np.random.default_rng(seed).permutation(n)
+    poses, *labels = (np.concatenate(column)[order] for column in zip(*parts))
     from . import __version__
 
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
                     seed=int(seed), collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
                     uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
                     core_version=_core.__version__)
-    return Dataset(poses, labels.collides, labels.self_collides, labels.scene_collides, labels.n_pairs, metadata)
+    return Dataset(poses, *labels, metadata=metadata)
