@@ -1,0 +1,319 @@
+"""The Gaussian robot: 3D Gaussians attached to the robot's bodies, moved by differentiable FK.
+
+Each Gaussian i lives in the frame of body ``b_i`` with mean ``m_i`` (metres), rotation ``Q_i``
+(unit quaternion, w x y z), scales ``s_i = exp(log_s_i)`` (metres), opacity ``sigmoid(o_i)`` and
+colour spherical harmonics ``f_i`` (degree 0-2) expressed in the body frame.
+
+Motion (``theta`` (B, K) radians / metres → world), with ``FK`` from :mod:`profrobot.kinematics`:
+
+- rigid (default): ``mu = R_b m + x_b``,  ``Sigma = A S^2 A^T`` with ``A = R_b Q``;
+- ``skinning="lbs"`` (Dr. Robot): an MLP of the canonical position gives softmax weights
+  ``w_ij`` over the bodies; ``T_j = FK(theta)_j FK(theta_c)^{-1}``; ``mu = sum_j w_ij T_j mu_c``
+  and the linear part ``sum_j w_ij R_j R_cj^T`` carries the covariance. The MLP's output is
+  biased towards each Gaussian's own body, so it starts as the rigid model.
+
+Initialisation samples points on the robot's visual meshes (MuJoCo's compiled ``mesh_vert`` /
+``mesh_face``, by triangle area), flat discs in the surface's tangent plane, colours from the
+geom's material (or geom) rgba shaded like MuJoCo's headlight: ``c(d) = rgb (1/2 - n.d/2)`` for a
+viewing direction ``d``, which degree-1 spherical harmonics represent exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import warnings
+
+import mujoco
+import numpy as np
+import torch
+
+from ..kinematics import Kinematics, quat_to_matrix
+from .rasterize import RenderOut, rasterize
+
+__all__ = ["GaussianRobot", "sample_visual_surface"]
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+_FORMAT = "profrobot.gaussian_robot/1"
+
+
+def eval_sh(sh: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """Colour from SH coefficients ``sh`` (..., n, 3), n in {1, 4, 9}, for unit directions
+    ``d`` (..., 3): the 3DGS convention ``c = sum_k Y_k(d) f_k + 1/2``, clamped at 0."""
+    n = sh.shape[-2]
+    c = SH_C0 * sh[..., 0, :]
+    if n > 1:
+        x, y, z = d[..., 0:1], d[..., 1:2], d[..., 2:3]
+        c = c - SH_C1 * y * sh[..., 1, :] + SH_C1 * z * sh[..., 2, :] - SH_C1 * x * sh[..., 3, :]
+        if n > 4:
+            xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+            c = (c + SH_C2[0] * xy * sh[..., 4, :] + SH_C2[1] * yz * sh[..., 5, :]
+                 + SH_C2[2] * (2 * zz - xx - yy) * sh[..., 6, :] + SH_C2[3] * xz * sh[..., 7, :]
+                 + SH_C2[4] * (xx - yy) * sh[..., 8, :])
+    return torch.clamp(c + 0.5, min=0.0)
+
+
+def _visible_mesh_geoms(m: mujoco.MjModel) -> list[int]:
+    """Robot geoms MuJoCo draws by default (groups 0-2, alpha > 0, not on the world body)."""
+    out, skipped = [], []
+    for g in range(m.ngeom):
+        rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
+        if m.geom_bodyid[g] == 0 or m.geom_group[g] > 2 or rgba[3] <= 0:
+            continue
+        (out if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else skipped).append(g)
+    if skipped:
+        warnings.warn(f"GaussianRobot: {len(skipped)} visible primitive (non-mesh) geoms get no Gaussians "
+                      "from the initialiser; the appearance fit must cover them", stacklevel=3)
+    return out
+
+
+def sample_visual_surface(m: mujoco.MjModel, n: int, seed: int = 0):
+    """``n`` points on the robot's visible meshes, by area. Returns body (n,) int, points (n, 3)
+    and normals (n, 3) in the body frame, rgb (n, 3) in [0, 1], and the area per point (m^2)."""
+    rng = np.random.default_rng(seed)
+    tris, bodies, cols = [], [], []
+    for g in _visible_mesh_geoms(m):
+        mid = m.geom_dataid[g]
+        v = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
+        f = m.mesh_face[m.mesh_faceadr[mid]: m.mesh_faceadr[mid] + m.mesh_facenum[mid]]
+        # compiled mesh vertices are in the geom frame; geom_pos/quat place it in the body
+        R = np.empty(9)
+        mujoco.mju_quat2Mat(R, m.geom_quat[g])
+        vb = v @ R.reshape(3, 3).T + m.geom_pos[g]
+        tris.append(vb[f])
+        bodies.append(np.full(len(f), m.geom_bodyid[g]))
+        rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
+        cols.append(np.tile(rgba[:3], (len(f), 1)))
+    if not tris:
+        raise ValueError("the robot has no visible mesh geoms to put Gaussians on")
+    T, B, Cl = np.concatenate(tris), np.concatenate(bodies), np.concatenate(cols)
+    cr = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    idx = rng.choice(len(T), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], 1)           # uniform on each triangle
+    pts = np.einsum("nk,nkj->nj", bary, T[idx])
+    nrm = cr[idx] / np.maximum(2 * area[idx, None], 1e-18)
+    return B[idx], pts, nrm, Cl[idx], area.sum() / n
+
+
+def _quat_from_z(n: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z) rotating the z axis onto unit vectors ``n`` (N, 3)."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, n)
+    w = 1.0 + n[:, 2]
+    q = np.concatenate([w[:, None], axis], 1)
+    flip = w < 1e-6                                              # n = -z: half turn about x
+    q[flip] = [0.0, 1.0, 0.0, 0.0]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+class GaussianRobot(torch.nn.Module):
+    """Gaussians attached to a :class:`profrobot.Robot`'s bodies (see the module docstring).
+
+    Build with :meth:`from_robot`; :meth:`render` draws poses from cameras; :meth:`save` /
+    :meth:`load` keep a fitted model (safetensors + JSON, robot fingerprint checked).
+    """
+
+    def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
+                 opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: str = "rigid", canonical=None,
+                 hidden: int = 64):
+        super().__init__()
+        if skinning not in ("rigid", "lbs"):
+            raise ValueError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
+        self.robot_fingerprint = robot.fingerprint
+        self.robot_name = robot.name
+        self.njoint = robot.njoint
+        self.kin = Kinematics.from_robot(robot)
+        f = lambda a: torch.nn.Parameter(torch.as_tensor(np.asarray(a), dtype=torch.float32).clone())
+        self.register_buffer("body", torch.as_tensor(np.asarray(body), dtype=torch.long).clone())
+        self.means, self.quats, self.log_scales = f(means), f(quats), f(log_scales)
+        self.opacity_logits, self.sh = f(opacity_logits), f(sh)
+        self.skinning = skinning
+        self.hidden = hidden
+        can = np.asarray(robot.mj_model.qpos0[robot.qpos_adr] if canonical is None else canonical, dtype=np.float64)
+        self.register_buffer("limits", torch.as_tensor(np.asarray(robot.joint_limits), dtype=torch.float32).clone())
+        self.register_buffer("canonical", torch.as_tensor(can, dtype=torch.float32).reshape(1, -1))
+        self.skin_mlp = None
+        if skinning == "lbs":
+            # Dr. Robot: an MLP (GELU) from the canonical position to logits over the frames
+            nb = self.kin.nbody
+            self.skin_mlp = torch.nn.Sequential(torch.nn.Linear(3, hidden), torch.nn.GELU(), torch.nn.Linear(hidden, hidden),
+                                                torch.nn.GELU(), torch.nn.Linear(hidden, nb))
+            torch.nn.init.zeros_(self.skin_mlp[-1].weight)
+            torch.nn.init.zeros_(self.skin_mlp[-1].bias)
+
+    # ---- construction ------------------------------------------------------------------------
+    @classmethod
+    def from_robot(cls, robot, n: int = 8000, *, sh_degree: int = 1, skinning: str = "rigid", opacity: float = 0.9,
+                   thickness: float = 0.2, seed: int = 0) -> "GaussianRobot":
+        """``n`` Gaussians on the robot's visual meshes. Each is a disc of radius ~ the spacing of
+        the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times that along the
+        normal. ``sh_degree`` 0, 1 or 2."""
+        if sh_degree not in (0, 1, 2):
+            raise ValueError(f"sh_degree must be 0, 1 or 2; got {sh_degree}")
+        if n < 1:
+            raise ValueError(f"n must be positive; got {n}")
+        body, pts, nrm, rgb, area = sample_visual_surface(robot.mj_model, n, seed)
+        spacing = math.sqrt(area)
+        log_s = np.log(np.array([0.6 * spacing, 0.6 * spacing, thickness * 0.6 * spacing]))
+        nsh = (sh_degree + 1) ** 2
+        sh = np.zeros((n, nsh, 3))
+        # c(d) = rgb (1/2 - n.d/2): DC = rgb/2, linear part -rgb/2 (n.d)
+        sh[:, 0] = (0.5 * rgb - 0.5) / SH_C0
+        if sh_degree >= 1:
+            sh[:, 1] = 0.5 * rgb * nrm[:, 1:2] / SH_C1
+            sh[:, 2] = -0.5 * rgb * nrm[:, 2:3] / SH_C1
+            sh[:, 3] = 0.5 * rgb * nrm[:, 0:1] / SH_C1
+        else:
+            sh[:, 0] = (0.85 * rgb - 0.5) / SH_C0
+        op = np.full(n, math.log(opacity / (1 - opacity)))
+        return cls(robot, body, pts, _quat_from_z(nrm), np.tile(log_s, (n, 1)), op, sh, skinning=skinning)
+
+    @property
+    def n(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def sh_degree(self) -> int:
+        return int(round(math.sqrt(self.sh.shape[1]))) - 1
+
+    # ---- motion --------------------------------------------------------------------------------
+    def _check_theta(self, theta) -> torch.Tensor:
+        theta = torch.as_tensor(theta, dtype=self.means.dtype, device=self.means.device)
+        if theta.ndim == 1:
+            theta = theta[None]
+        if theta.ndim != 2 or theta.shape[1] != self.njoint:
+            raise ValueError(f"theta must have shape (B, {self.njoint}) or ({self.njoint},); got {tuple(theta.shape)}")
+        if not torch.isfinite(theta).all():
+            raise ValueError("theta contains NaN or inf")
+        return theta
+
+    def skin_weights(self) -> torch.Tensor:
+        """(N, nbody) LBS weights (one-hot on the attached body for the rigid model)."""
+        onehot = torch.nn.functional.one_hot(self.body, self.kin.nbody).to(self.means.dtype)
+        if self.skin_mlp is None:
+            return onehot
+        fk0 = self.kin(self.canonical)
+        mu_c = fk0.transform(self.body, self.means)[0]
+        return torch.softmax(self.skin_mlp(mu_c) + 8.0 * onehot, dim=-1)
+
+    def world(self, theta) -> tuple[torch.Tensor, torch.Tensor]:
+        """World means (B, N, 3) metres and the linear maps A (B, N, 3, 3) from each Gaussian's
+        own frame to the world (covariance ``A S^2 A^T``)."""
+        theta = self._check_theta(theta)
+        fk = self.kin(theta)
+        Q = quat_to_matrix(self.quats)                                # (N, 3, 3)
+        if self.skin_mlp is None:
+            Rb = fk.rot[:, self.body]                                 # (B, N, 3, 3)
+            mu = torch.einsum("bnij,nj->bni", Rb, self.means) + fk.pos[:, self.body]
+            return mu, Rb @ Q
+        fk0 = self.kin(self.canonical)
+        R0, x0 = fk0.rot[0], fk0.pos[0]                               # (nb, 3, 3), (nb, 3)
+        mu_c = torch.einsum("nij,nj->ni", R0[self.body], self.means) + x0[self.body]
+        w = self.skin_weights()                                       # (N, nb)
+        Rrel = fk.rot @ R0.transpose(-1, -2)                          # (B, nb, 3, 3): T_j = FK FK_c^-1
+        trel = fk.pos - torch.einsum("bjik,jk->bji", Rrel, x0)
+        Rbl = torch.einsum("nj,bjik->bnik", w, Rrel)
+        tbl = torch.einsum("nj,bjk->bnk", w, trel)
+        mu = torch.einsum("bnij,nj->bni", Rbl, mu_c) + tbl
+        return mu, Rbl @ (R0[self.body] @ Q)
+
+    def covariances(self, A: torch.Tensor) -> torch.Tensor:
+        """(B, N, 3, 3) world covariances ``A diag(s^2) A^T`` (m^2)."""
+        s2 = torch.exp(2 * self.log_scales)
+        return (A * s2[:, None, :]) @ A.transpose(-1, -2)
+
+    # ---- rendering -----------------------------------------------------------------------------
+    def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: str = "soft",
+               backend: str = "auto") -> RenderOut:
+        """Draw B poses ``theta`` (B, K) from C cameras (``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3)
+        OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major."""
+        viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
+        Ks = torch.as_tensor(Ks, dtype=self.means.dtype, device=self.means.device)
+        mu, A = self.world(theta)
+        B, C = mu.shape[0], viewmats.shape[0]
+        cov = self.covariances(A)
+        # view direction from each camera centre to each Gaussian, in the Gaussian's body frame
+        cam_c = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])   # (C, 3)
+        d = mu[:, None] - cam_c[None, :, None]                                          # (B, C, N, 3)
+        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        Ab = A @ quat_to_matrix(self.quats).transpose(-1, -2)                           # body rotation (B, N, 3, 3)
+        d_loc = torch.einsum("bnji,bcnj->bcni", Ab, d)
+        d_loc = d_loc / d_loc.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        col = eval_sh(self.sh[None, None], d_loc)                                      # (B, C, N, 3)
+        op = torch.sigmoid(self.opacity_logits)
+        rep = lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:])
+        return rasterize(rep(mu), rep(cov), op, col.reshape(B * C, -1, 3), viewmats.repeat(B, 1, 1),
+                         Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend)
+
+    def render_views(self, theta, cameras, **kw) -> RenderOut:
+        """:meth:`render` with a :class:`profrobot.render.Cameras`."""
+        return self.render(theta, cameras.world_to_cam, cameras.K, cameras.width, cameras.height, **kw)
+
+    # ---- topology edits (used by the appearance fit) ----------------------------------------------
+    def keep(self, mask: torch.Tensor) -> None:
+        """Keep only Gaussians where ``mask`` (N,) is true (parameters replaced in place)."""
+        for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+            setattr(self, name, torch.nn.Parameter(getattr(self, name).detach()[mask].clone()))
+        self.body = self.body[mask]
+
+    def append(self, body, means, quats, log_scales, opacity_logits, sh) -> None:
+        """Add Gaussians (tensors shaped like the parameters)."""
+        for name, v in (("means", means), ("quats", quats), ("log_scales", log_scales),
+                        ("opacity_logits", opacity_logits), ("sh", sh)):
+            setattr(self, name, torch.nn.Parameter(torch.cat([getattr(self, name).detach(), v.detach()])))
+        self.body = torch.cat([self.body, body])
+
+    # ---- persistence ---------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """safetensors file with a JSON header (format, robot fingerprint, configuration); written
+        to a temporary file and renamed (atomic)."""
+        from safetensors.torch import save_file
+
+        path = os.fspath(path)
+        tensors = {k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}
+        meta = dict(format=_FORMAT, robot_fingerprint=self.robot_fingerprint, robot_name=self.robot_name,
+                    skinning=self.skinning, hidden=self.hidden, n=self.n, sh_degree=self.sh_degree)
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), suffix=".tmp")
+        os.close(fd)
+        try:
+            save_file(tensors, tmp, metadata={"profrobot": json.dumps(meta)})
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, robot) -> "GaussianRobot":
+        """A model saved by :meth:`save`, for ``robot`` (refused if it was fitted to another)."""
+        from safetensors import safe_open
+
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"no Gaussian robot file at {path!r}")
+        try:
+            with safe_open(path, framework="pt") as f:
+                meta = json.loads((f.metadata() or {})["profrobot"])
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as e:  # safetensors raises its own error types on corrupt headers
+            raise ValueError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
+        if meta.get("format") != _FORMAT:
+            raise ValueError(f"{path}: unknown format {meta.get('format')!r}")
+        if meta["robot_fingerprint"] != robot.fingerprint:
+            raise ValueError(f"{path}: fitted to robot {meta['robot_name']!r} (fingerprint {meta['robot_fingerprint']}), "
+                             f"not {robot.name!r} ({robot.fingerprint})")
+        t = lambda k: tensors[k].numpy()
+        try:
+            model = cls(robot, t("body"), t("means"), t("quats"), t("log_scales"), t("opacity_logits"), t("sh"),
+                        skinning=meta["skinning"], canonical=t("canonical")[0], hidden=meta["hidden"])
+            model.load_state_dict(tensors, strict=True)
+        except (KeyError, RuntimeError) as e:
+            raise ValueError(f"{path}: inconsistent Gaussian robot file ({e})") from e
+        return model

@@ -1,0 +1,350 @@
+"""Multi-view training data from MuJoCo: RGB, metric depth and the robot mask, with the camera
+intrinsics and extrinsics that match the pixels.
+
+Camera conventions (OpenCV): ``x`` right, ``y`` down, ``z`` forward; ``world_to_cam`` (C, 4, 4)
+maps world points (metres) to camera coordinates; ``K`` (C, 3, 3) maps them to pixels with pixel
+*centres* at integer coordinates, so ``cx = W/2 - 1/2`` (checked against MuJoCo renders of a
+known point in ``tests/test_render_views.py``). ``fx = fy = (H/2) / tan(fovy/2)``: MuJoCo's fovy
+is vertical.
+
+A camera is a MuJoCo *free* camera (``lookat``, ``distance``, ``azimuth``, ``elevation``, degrees),
+which has no roll: its up vector lies in the vertical plane through the viewing direction. That
+is what MuJoCo renders, so the matrices below are exact for its pixels (the headlight follows it).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+__all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
+
+
+# --------------------------------------------------------------------------------------------
+# Cameras
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Cameras:
+    """C free cameras sharing one image size and vertical field of view.
+
+    ``lookat`` (C, 3) metres, ``distance`` (C,) metres, ``azimuth`` and ``elevation`` (C,)
+    degrees (MuJoCo's: negative elevation looks down), ``fovy`` degrees, ``width``/``height``
+    pixels.
+    """
+
+    lookat: np.ndarray
+    distance: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    width: int = 128
+    height: int = 128
+    fovy: float = 45.0
+
+    def __post_init__(self):
+        la = np.asarray(self.lookat, dtype=np.float64).reshape(-1, 3)
+        n = len(la)
+        arrs = {k: np.broadcast_to(np.asarray(getattr(self, k), dtype=np.float64), (n,)).copy()
+                for k in ("distance", "azimuth", "elevation")}
+        object.__setattr__(self, "lookat", la)
+        for k, v in arrs.items():
+            object.__setattr__(self, k, v)
+        vals = np.concatenate([la.ravel(), *arrs.values(), [self.fovy]])
+        if not np.isfinite(vals).all():
+            raise ValueError("Cameras: lookat, distance, azimuth, elevation and fovy must be finite")
+        if (arrs["distance"] <= 0).any():
+            raise ValueError("Cameras: distance must be positive (metres)")
+        if not 0 < self.fovy < 180:
+            raise ValueError(f"Cameras: fovy must be in (0, 180) degrees; got {self.fovy}")
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise ValueError(f"Cameras: image size must be positive; got {self.width}x{self.height}")
+
+    def __len__(self) -> int:
+        return len(self.lookat)
+
+    def __getitem__(self, idx) -> "Cameras":
+        idx = np.atleast_1d(np.arange(len(self))[idx])
+        return Cameras(self.lookat[idx], self.distance[idx], self.azimuth[idx], self.elevation[idx],
+                       self.width, self.height, self.fovy)
+
+    def resized(self, width: int, height: int | None = None) -> "Cameras":
+        """The same views at another resolution (same fovy)."""
+        return Cameras(self.lookat, self.distance, self.azimuth, self.elevation, int(width),
+                       int(height if height is not None else width), self.fovy)
+
+    # ---- OpenCV matrices -------------------------------------------------------------------
+    def frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Camera centre (C, 3), forward (C, 3) and up (C, 3), as ``mjv_updateCamera`` computes
+        them for a free camera: ``forward = (cos e cos a, cos e sin a, sin e)``."""
+        a, e = np.deg2rad(self.azimuth), np.deg2rad(self.elevation)
+        fwd = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1)
+        up = np.stack([-np.sin(e) * np.cos(a), -np.sin(e) * np.sin(a), np.cos(e)], -1)
+        pos = self.lookat - self.distance[:, None] * fwd
+        return pos, fwd, up
+
+    @property
+    def world_to_cam(self) -> np.ndarray:
+        """(C, 4, 4): rows of R are the camera's right, down and forward axes; t = -R c."""
+        pos, fwd, up = self.frames()
+        right = np.cross(fwd, up)
+        R = np.stack([right, -up, fwd], axis=1)
+        T = np.zeros((len(self), 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = -np.einsum("cij,cj->ci", R, pos)
+        T[:, 3, 3] = 1
+        return T
+
+    @property
+    def K(self) -> np.ndarray:
+        """(C, 3, 3) intrinsics, pixel centres at integers."""
+        f = (self.height / 2) / np.tan(np.deg2rad(self.fovy) / 2)
+        K = np.array([[f, 0, self.width / 2 - 0.5], [0, f, self.height / 2 - 0.5], [0, 0, 1]])
+        return np.broadcast_to(K, (len(self), 3, 3)).copy()
+
+    def to_dict(self) -> dict:
+        return dict(lookat=self.lookat.tolist(), distance=self.distance.tolist(), azimuth=self.azimuth.tolist(),
+                    elevation=self.elevation.tolist(), width=int(self.width), height=int(self.height), fovy=float(self.fovy))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Cameras":
+        return cls(**d)
+
+
+def ring_cameras(n: int = 4, *, distance: float = 1.8, elevation: float | list = -20.0, azimuth0: float = 0.0,
+                 lookat=(0.0, 0.0, 0.4), size: int = 128, fovy: float = 45.0) -> Cameras:
+    """``n`` cameras evenly spaced in azimuth around ``lookat`` (one ring per elevation given)."""
+    els = np.atleast_1d(np.asarray(elevation, dtype=float))
+    az = (azimuth0 + 360.0 * np.arange(n) / n)
+    A, E = np.meshgrid(az, els)
+    m = A.size
+    return Cameras(np.tile(np.asarray(lookat, dtype=float), (m, 1)), np.full(m, distance), A.ravel(), E.ravel(),
+                   size, size, fovy)
+
+
+def sphere_cameras(n: int, *, distance: float = 1.8, elevation_range=(-60.0, 30.0), lookat=(0.0, 0.0, 0.4),
+                   size: int = 128, fovy: float = 45.0, seed: int = 0, jitter: float = 0.0) -> Cameras:
+    """``n`` cameras on a sphere cap (Fibonacci spiral in azimuth and uniform in sin(elevation)),
+    looking at ``lookat``; ``jitter`` (metres) shifts each lookat randomly, as Dr. Robot does."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(n) + 0.5
+    s0, s1 = np.sin(np.deg2rad(elevation_range))
+    el = np.rad2deg(np.arcsin(s0 + (s1 - s0) * i / n))
+    az = (i * 137.50776405) % 360.0
+    la = np.asarray(lookat, dtype=float) + jitter * rng.uniform(-1, 1, (n, 3))
+    return Cameras(la, np.full(n, distance), az, el, size, size, fovy)
+
+
+# --------------------------------------------------------------------------------------------
+# MuJoCo rendering
+# --------------------------------------------------------------------------------------------
+
+def robot_visual_model(robot) -> mujoco.MjModel:
+    """A copy of the robot's model in which only the robot is drawn: world-body geoms (floor,
+    obstacles) get alpha 0, which MuJoCo's scene builder skips."""
+    import copy
+
+    m = copy.deepcopy(robot.mj_model)
+    world = m.geom_bodyid == 0
+    m.geom_rgba[world, 3] = 0.0
+    m.geom_matid[world] = -1
+    return m
+
+
+class _MjViews:
+    """One MuJoCo renderer (one GL context) for one model and image size."""
+
+    def __init__(self, model: mujoco.MjModel, cameras: Cameras):
+        self.m = model
+        self.m.vis.global_.fovy = cameras.fovy
+        self.d = mujoco.MjData(model)
+        self.cams = cameras
+        self.r = mujoco.Renderer(model, cameras.height, cameras.width)
+        robot_geom = np.asarray(model.geom_bodyid) != 0
+        self.robot_geom = np.concatenate([robot_geom, [False]])  # index -1 (background) → False
+
+    def render(self, qpos: np.ndarray):
+        """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
+        robot), mask (C,H,W) bool."""
+        m, d, r, cams = self.m, self.d, self.r, self.cams
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_camlight(m, d)
+        C, H, W = len(cams), cams.height, cams.width
+        rgb = np.empty((C, H, W, 3), np.uint8)
+        depth = np.empty((C, H, W), np.float32)
+        mask = np.empty((C, H, W), bool)
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        for c in range(C):
+            cam.lookat[:] = cams.lookat[c]
+            cam.distance, cam.azimuth, cam.elevation = cams.distance[c], cams.azimuth[c], cams.elevation[c]
+            r.update_scene(d, cam)
+            rgb[c] = r.render()
+            r.enable_depth_rendering()
+            depth[c] = r.render()
+            r.disable_depth_rendering()
+            r.enable_segmentation_rendering()
+            seg = r.render()
+            r.disable_segmentation_rendering()
+            is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+            mask[c] = is_geom & self.robot_geom[np.where(is_geom, seg[..., 0], -1)]
+        depth[~mask] = 0.0
+        return rgb, depth, mask
+
+    def gl_camera(self, c: int):
+        """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        cam.lookat[:] = self.cams.lookat[c]
+        cam.distance, cam.azimuth, cam.elevation = self.cams.distance[c], self.cams.azimuth[c], self.cams.elevation[c]
+        self.r.update_scene(self.d, cam)
+        return mujoco.mjv_averageCamera(self.r.scene.camera[0], self.r.scene.camera[1])
+
+    def close(self):
+        self.r.close()
+
+
+_WORKER: _MjViews | None = None
+
+
+def _worker_init(model_bytes: bytes, cameras: Cameras):
+    global _WORKER
+    import pickle
+
+    _WORKER = _MjViews(pickle.loads(model_bytes), cameras)
+
+
+def _worker_render(qpos_chunk: np.ndarray):
+    out = [_WORKER.render(q) for q in qpos_chunk]
+    return tuple(np.stack(x) for x in zip(*out))
+
+
+# --------------------------------------------------------------------------------------------
+# Datasets
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class Views:
+    """Renders of P poses from C cameras.
+
+    ``poses`` (P, K) radians/metres; ``rgb`` (P, C, H, W, 3) uint8; ``depth`` (P, C, H, W)
+    float32 metres along the camera's z axis, 0 off the robot; ``mask`` (P, C, H, W) bool.
+    """
+
+    poses: np.ndarray
+    cameras: Cameras
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    robot_fingerprint: str = ""
+    robot_name: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def background(self) -> np.ndarray:
+        """(3,) background colour in [0, 1] (the median off-robot pixel of the renders)."""
+        return np.asarray(self.meta.get("background", [0.0, 0.0, 0.0]), dtype=np.float64)
+
+    def __getitem__(self, idx) -> "Views":
+        idx = np.atleast_1d(np.arange(len(self))[idx])
+        return Views(self.poses[idx], self.cameras, self.rgb[idx], self.depth[idx], self.mask[idx],
+                     self.robot_fingerprint, self.robot_name, dict(self.meta))
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Compressed ``.npz`` with a JSON header (robot fingerprint, cameras); written to a
+        temporary file in the same directory and renamed, so a crash never leaves half a file."""
+        path = os.fspath(path)
+        header = dict(format="profrobot.views/1", robot_fingerprint=self.robot_fingerprint,
+                      robot_name=self.robot_name, cameras=self.cameras.to_dict(), meta=self.meta)
+        d = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(dir=d, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                # depth in millimetres as uint16 would lose sub-mm detail; float16 keeps ~0.5 mm at 1 m
+                np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
+                                    poses=self.poses, rgb=self.rgb, depth=self.depth, mask=np.packbits(self.mask, axis=-1),
+                                    mask_width=np.int64(self.mask.shape[-1]))
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, robot=None) -> "Views":
+        """Load a dataset; with ``robot``, refuse one rendered from another robot."""
+        try:
+            z = np.load(os.fspath(path))
+            header = json.loads(z["header"].tobytes().decode())
+            if header.get("format") != "profrobot.views/1":
+                raise ValueError(f"unknown format {header.get('format')!r}")
+            mask = np.unpackbits(z["mask"], axis=-1, count=int(z["mask_width"])).astype(bool)
+            v = cls(z["poses"], Cameras.from_dict(header["cameras"]), z["rgb"], z["depth"], mask,
+                    header["robot_fingerprint"], header["robot_name"], header.get("meta", {}))
+        except (OSError, KeyError, ValueError, EOFError) as e:
+            raise ValueError(f"{path}: not a readable profrobot views file ({e})") from e
+        if robot is not None and v.robot_fingerprint != robot.fingerprint:
+            raise ValueError(f"{path}: rendered from robot {v.robot_name!r} (fingerprint {v.robot_fingerprint}), "
+                             f"not {robot.name!r} ({robot.fingerprint})")
+        return v
+
+
+def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, processes: int = 1,
+               progress: bool = True, chunk: int = 8) -> Views:
+    """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo (offscreen: set
+    ``MUJOCO_GL=osmesa`` on a CPU, ``egl`` on a GPU machine). Only the robot is drawn (world-body
+    geoms are hidden); the background is MuJoCo's clear colour (black).
+
+    ``size``: if given, the cameras are re-rendered at ``size`` x ``size``. ``processes`` > 1
+    renders chunks of poses in worker processes (each with its own GL context).
+    """
+    from tqdm.auto import tqdm
+
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != robot.njoint:
+        raise ValueError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
+    if not np.isfinite(poses).all():
+        raise ValueError("poses contain NaN or inf")
+    if not isinstance(cameras, Cameras):
+        raise TypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
+    if size is not None:
+        cameras = cameras.resized(size)
+    m = robot_visual_model(robot)
+    qpos = np.tile(m.qpos0, (len(poses), 1))
+    qpos[:, robot.qpos_adr] = poses
+    chunks = [qpos[i:i + chunk] for i in range(0, len(qpos), chunk)]
+    bar = tqdm(total=len(poses), desc="MuJoCo views", unit="pose", disable=not progress)
+    parts = []
+    if processes <= 1:
+        r = _MjViews(m, cameras)
+        try:
+            for ch in chunks:
+                out = [r.render(q) for q in ch]
+                parts.append(tuple(np.stack(x) for x in zip(*out)))
+                bar.update(len(ch))
+        finally:
+            r.close()
+    else:
+        import multiprocessing as mp
+        import pickle
+
+        with ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn"), initializer=_worker_init,
+                                 initargs=(pickle.dumps(m), cameras)) as ex:
+            for out, ch in zip(ex.map(_worker_render, chunks), chunks):
+                parts.append(out)
+                bar.update(len(ch))
+    bar.close()
+    rgb, depth, mask = (np.concatenate(x) for x in zip(*parts))
+    # MuJoCo's background (skybox or clear colour): the median off-robot pixel, for compositing
+    off = rgb[~mask]
+    bg = (np.median(off, axis=0) / 255.0).tolist() if len(off) else [0.0, 0.0, 0.0]
+    return Views(poses, cameras, rgb, depth, mask, robot.fingerprint, robot.name, dict(background=bg))
