@@ -18,7 +18,8 @@ use parry3d_f64::shape::SupportMap;
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, invalid_model, Result};
-use crate::kinematics::{body_poses, geom_poses};
+use crate::broad::BroadScratch;
+use crate::kinematics::body_poses;
 use crate::model::{Geom, ModelDesc, RobotModel};
 use crate::shapes::GeomType;
 
@@ -134,13 +135,18 @@ pub struct LabelBatch {
     pub colliding_pairs: Vec<[u32; 2]>,
 }
 
-/// Reusable per-thread buffers: one pose's body and geom frames.
+/// Reusable per-thread buffers: one pose's body frames, and the geom frames and boxes
+/// computed so far for it (only geoms of pairs the broad phase keeps need them).
 pub struct Scratch {
     bodies: Vec<Isometry3<f64>>,
     geoms: Vec<Isometry3<f64>>,
     obbs: Vec<Obb>,
-    /// `obbs[i].center`, packed densely for the pair loop.
-    centers: Vec<Vector3<f64>>,
+    /// `geoms[g]` and `obbs[g]` belong to the current pose when `stamp[g] == pose`.
+    stamp: Vec<u32>,
+    pose: u32,
+    broad: BroadScratch,
+    /// The pairs the broad phase keeps, in pair order.
+    near: Vec<u32>,
 }
 
 impl Scratch {
@@ -150,7 +156,32 @@ impl Scratch {
             bodies: vec![Isometry3::identity(); model.nbody()],
             geoms: vec![Isometry3::identity(); n],
             obbs: vec![Obb { rot: Matrix3::identity(), center: Vector3::zeros() }; n],
-            centers: vec![Vector3::zeros(); n],
+            stamp: vec![0; n],
+            pose: 0,
+            broad: model.broad.scratch(),
+            near: Vec::new(),
+        }
+    }
+
+    /// Starts a new pose: every geom frame is stale.
+    fn next_pose(&mut self) {
+        self.pose = self.pose.wrapping_add(1);
+        if self.pose == 0 {
+            self.stamp.fill(0);
+            self.pose = 1;
+        }
+    }
+
+    /// Computes geom `g`'s world frame and box for this pose, once.
+    #[inline]
+    fn frame(&mut self, model: &RobotModel, g: usize) {
+        if self.stamp[g] != self.pose {
+            self.stamp[g] = self.pose;
+            let geom = &model.geoms[g];
+            let p = self.bodies[geom.body] * geom.local;
+            let rot = p.rotation.to_rotation_matrix().into_inner();
+            self.obbs[g] = Obb { rot, center: p.translation.vector + rot * geom.shape.obb_center };
+            self.geoms[g] = p;
         }
     }
 }
@@ -161,36 +192,6 @@ impl Scratch {
 struct Obb {
     rot: Matrix3<f64>,
     center: Vector3<f64>,
-}
-
-fn world_obbs(model: &RobotModel, poses: &[Isometry3<f64>], out: &mut [Obb], centers: &mut [Vector3<f64>]) {
-    for (((o, c), g), p) in out.iter_mut().zip(centers).zip(&model.geoms).zip(poses) {
-        o.rot = p.rotation.to_rotation_matrix().into_inner();
-        o.center = p.translation.vector + o.rot * g.shape.obb_center;
-        *c = o.center;
-    }
-}
-
-/// The first, cheapest cull of a candidate pair, packed for the per-pose loop over all pairs:
-/// the geoms' OBB centres farther apart than `reach` (the sum of the boxes' circumradii and
-/// the margin, slightly inflated against rounding) cannot touch. Plane pairs get `reach = inf`.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct PairCull {
-    g1: u32,
-    g2: u32,
-    reach2: f64,
-}
-
-/// One `PairCull` per candidate pair, in pair order.
-pub(crate) fn pair_culls(geoms: &[Geom], pairs: &[CandidatePair]) -> Vec<PairCull> {
-    pairs
-        .iter()
-        .map(|p| {
-            let (a, b) = (&geoms[p.g1].shape, &geoms[p.g2].shape);
-            let reach = (a.obb_half.norm() + b.obb_half.norm() + p.margin) * (1.0 + 1e-9) + 1e-9;
-            PairCull { g1: p.g1 as u32, g2: p.g2 as u32, reach2: reach * reach }
-        })
-        .collect()
 }
 
 /// Signed distance of `g` (at `pose`) from the plane at `plane` (`z <= 0` is inside), exact via
@@ -247,7 +248,7 @@ fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<
         (false, true) => return plane_pair_in_contact(pb, a, pa, &obbs[pair.g1], pair.margin),
         _ => {}
     }
-    // (The bounding-sphere cull ran before, in `label_pose`.)
+    // (The bounding-sphere culls ran before, in `broad.rs`.)
     if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
         return false;
     }
@@ -310,34 +311,36 @@ fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isome
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked.
 pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
     body_poses(model, q, &mut scratch.bodies);
-    geom_poses(model, &scratch.bodies, &mut scratch.geoms);
-    world_obbs(model, &scratch.geoms, &mut scratch.obbs, &mut scratch.centers);
-    let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
-    // Sphere cull of every pair without branches (few pass, unpredictably): one bit per pair
-    // in 64-pair words, then the survivors in pair order.
-    let centers = &scratch.centers;
-    for (w, culls) in model.culls.chunks(64).enumerate() {
-        let mut bits = 0u64;
-        for (i, c) in culls.iter().enumerate() {
-            let near = (centers[c.g1 as usize] - centers[c.g2 as usize]).norm_squared() <= c.reach2;
-            bits |= (near as u64) << i;
+    scratch.next_pose();
+    if opts.distance {
+        for g in 0..model.geoms.len() {
+            scratch.frame(model, g);
         }
-        while bits != 0 {
-            let k = w * 64 + bits.trailing_zeros() as usize;
-            bits &= bits - 1;
-            let pair = &model.pairs[k];
-            if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
-                label.n_pairs += 1;
-                match pair.kind {
-                    PairKind::SelfCollision => label.self_collides = true,
-                    PairKind::Scene => label.scene_collides = true,
-                }
-                if opts.pairs {
-                    hits.push(k as u32);
-                }
+    } else {
+        for &g in model.broad.plane_geoms() {
+            scratch.frame(model, g as usize);
+        }
+    }
+    let mut near = std::mem::take(&mut scratch.near);
+    near.clear();
+    model.broad.near_pairs(&scratch.bodies, &scratch.geoms, &mut scratch.broad, &mut near);
+    let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
+    for &k in &near {
+        let pair = &model.pairs[k as usize];
+        scratch.frame(model, pair.g1);
+        scratch.frame(model, pair.g2);
+        if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
+            label.n_pairs += 1;
+            match pair.kind {
+                PairKind::SelfCollision => label.self_collides = true,
+                PairKind::Scene => label.scene_collides = true,
+            }
+            if opts.pairs {
+                hits.push(k);
             }
         }
     }
+    scratch.near = near;
     if opts.distance {
         for pair in &model.pairs {
             if let Some(d) = pair_signed_distance(model, pair, &scratch.geoms, label.min_distance) {
@@ -469,6 +472,85 @@ mod tests {
         assert!(obbs_overlap(a, &pa, b, &near, 0.0));
         assert!(!obbs_overlap(a, &pa, b, &far, 0.0));
         assert!(obbs_overlap(a, &pa, b, &far, 0.01));
+    }
+
+    /// A three-link arm (hinges about x, y, x) over a floor, with a box and a mesh on the world
+    /// and every shape kind on the links, some with margins: pairs of all kinds that come
+    /// close, touch and separate as the arm moves.
+    fn arm() -> RobotModel {
+        let cube: Vec<[f64; 3]> =
+            (0..8).map(|i| [0.05 * (2 * (i & 1) - 1) as f64, 0.08 * ((i & 2) as f64 - 1.0), 0.03 * ((i & 4) as f64 / 2.0 - 1.0)]).collect();
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_parent = vec![0, 0, 1, 2];
+        desc.body_weld = vec![0, 1, 2, 3];
+        desc.body_pos = vec![[0.0; 3], [0.0, 0.0, 0.3], [0.0, 0.0, 0.3], [0.0, 0.0, 0.3]];
+        desc.body_quat = vec![[1.0, 0.0, 0.0, 0.0]; 4];
+        desc.jnt_type = vec![3; 3];
+        desc.jnt_body = vec![1, 2, 3];
+        desc.jnt_pos = vec![[0.0; 3]; 3];
+        desc.jnt_axis = vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]];
+        desc.jnt_qpos0 = vec![0.0; 3];
+        desc.jnt_range = vec![[-3.0, 3.0]; 3];
+        desc.jnt_limited = vec![true; 3];
+        desc.geom_id = (0..9).collect();
+        desc.geom_type = vec![0, 6, 7, 3, 6, 2, 5, 7, 6];
+        desc.geom_body = vec![0, 0, 0, 1, 1, 2, 3, 3, 3];
+        desc.geom_pos = vec![
+            [0.0; 3],
+            [0.3, 0.0, 0.1],
+            [-0.2, 0.2, 0.4],
+            [0.0, 0.0, 0.15],
+            [0.05, 0.0, 0.1],
+            [0.0, 0.0, 0.2],
+            [0.0, 0.0, 0.15],
+            [0.0, 0.05, 0.3],
+            [0.05, 0.0, 0.35],
+        ];
+        desc.geom_quat = vec![[1.0, 0.0, 0.0, 0.0], [0.9, 0.1, 0.3, 0.0], [0.8, 0.0, 0.2, 0.4], [1.0, 0.0, 0.0, 0.0], [0.9, 0.2, 0.0, 0.1],
+            [1.0, 0.0, 0.0, 0.0], [0.7, 0.7, 0.0, 0.0], [0.9, 0.0, 0.0, 0.3], [1.0, 0.0, 0.0, 0.0]];
+        desc.geom_size = vec![[1.0, 1.0, 0.1], [0.1, 0.2, 0.1], [0.0; 3], [0.04, 0.12, 0.0], [0.03, 0.05, 0.08], [0.07, 0.0, 0.0],
+            [0.04, 0.1, 0.0], [0.0; 3], [0.02, 0.06, 0.03]];
+        desc.geom_contype = vec![1; 9];
+        desc.geom_conaffinity = vec![1; 9];
+        desc.geom_margin = vec![0.0, 0.01, 0.0, 0.0, 0.005, 0.02, 0.0, 0.0, 0.0];
+        desc.geom_mesh = vec![-1, -1, 0, -1, -1, -1, -1, 0, -1];
+        desc.mesh_vert_adr = vec![0];
+        desc.mesh_vert_num = vec![8];
+        desc.mesh_vert = cube;
+        RobotModel::new(desc).unwrap()
+    }
+
+    /// Whether each candidate pair is in contact, every pair through the narrow phase (no
+    /// broad phase), with every geom frame computed.
+    fn contacts_without_broad_phase(model: &RobotModel, q: &[f64], s: &mut Scratch) -> Vec<u32> {
+        body_poses(model, q, &mut s.bodies);
+        s.next_pose();
+        for g in 0..model.geoms.len() {
+            s.frame(model, g);
+        }
+        (0..model.pairs.len() as u32).filter(|&k| pair_in_contact(model, &model.pairs[k as usize], &s.geoms, &s.obbs)).collect()
+    }
+
+    #[test]
+    fn broad_phase_drops_no_pair_in_contact() {
+        let model = arm();
+        assert!(model.pairs.len() >= 20, "{}", model.pairs.len());
+        let mut s = Scratch::new(&model);
+        let poses = crate::sample_uniform(&model.sampling_ranges().unwrap(), 20_000, 1).unwrap();
+        let opts = LabelOptions { pairs: true, distance: false };
+        let (mut hits, mut touched, mut dropped) = (Vec::new(), 0, 0);
+        for q in poses.chunks_exact(3) {
+            let want = contacts_without_broad_phase(&model, q, &mut s);
+            hits.clear();
+            let l = label_pose(&model, q, &mut s, opts, &mut hits);
+            assert_eq!(hits, want, "pose {q:?}");
+            assert_eq!(l.n_pairs as usize, want.len());
+            touched += !want.is_empty() as usize;
+            dropped += model.pairs.len() - s.near.len();
+        }
+        // The arm collides often, and the broad phase still drops most pairs.
+        assert!(touched > 5_000, "{touched}");
+        assert!(dropped > 15 * poses.len() / 3, "{dropped}");
     }
 
     #[test]

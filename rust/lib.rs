@@ -14,6 +14,7 @@
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
 
+mod broad;
 pub mod collide;
 pub mod error;
 pub mod interpolate;

@@ -4,7 +4,8 @@
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::collide::{candidate_pairs, pair_culls, CandidatePair, PairCull};
+use crate::broad::Broad;
+use crate::collide::{candidate_pairs, CandidatePair};
 use crate::error::{invalid_model, Result};
 use crate::shapes::{GeomShape, GeomType};
 
@@ -106,8 +107,8 @@ pub struct RobotModel {
     pub(crate) limited: Vec<bool>,
     pub(crate) geoms: Vec<Geom>,
     pub(crate) pairs: Vec<CandidatePair>,
-    /// Per-pair bounding-sphere data for the hot loop, in `pairs` order.
-    pub(crate) culls: Vec<PairCull>,
+    /// Bounding spheres by body pair and by pair, for the per-pose broad phase.
+    pub(crate) broad: Broad,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -289,7 +290,7 @@ impl RobotModel {
             return invalid_model("pair_margin and pair_geom differ in length");
         }
         let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
-        let culls = pair_culls(&geoms, &pairs);
+        let broad = Broad::new(nbody, &geoms, &pairs);
         Ok(Self {
             body_parent,
             body_local,
@@ -299,7 +300,7 @@ impl RobotModel {
             limited: desc.jnt_limited.clone(),
             geoms,
             pairs,
-            culls,
+            broad,
         })
     }
 

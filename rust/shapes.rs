@@ -50,6 +50,10 @@ pub struct GeomShape {
     pub obb_half: Vector3<f64>,
     /// Radius of a sphere about the shape-frame origin that holds the shape (sphere culling).
     pub rbound: f64,
+    /// Radius of a sphere about `obb_center` that holds the shape: the farthest vertex of a
+    /// hull, not the corner of its box, so the broad phase (`broad.rs`) culls more pairs.
+    /// Infinite for planes.
+    pub radius: f64,
 }
 
 impl std::fmt::Debug for GeomShape {
@@ -119,7 +123,11 @@ impl GeomShape {
                 (aabb.center().coords, aabb.half_extents(), sphere.center.coords.norm() + sphere.radius)
             }
         };
-        Ok((GeomShape { kind, shape, convex, obb_center, obb_half, rbound }, axis_fix))
+        let radius = match &convex {
+            None => f64::INFINITY,
+            Some(c) => c.radius_about(&obb_center),
+        };
+        Ok((GeomShape { kind, shape, convex, obb_center, obb_half, rbound, radius }, axis_fix))
     }
 }
 
@@ -137,6 +145,20 @@ pub enum Convex {
 }
 
 impl Convex {
+    /// An upper bound on the distance from `c` (shape frame) to any point of the shape,
+    /// rounded up by a relative 1e-12 so that it bounds the rounded distances too.
+    fn radius_about(&self, c: &Vector3<f64>) -> f64 {
+        let r = match self {
+            Convex::Ball(s) => c.norm() + s.radius,
+            Convex::Capsule(s) => (s.segment.a.coords - c).norm().max((s.segment.b.coords - c).norm()) + s.radius,
+            // parry's cylinder runs along y: its rim circles lie at y = +-h.
+            Convex::Cylinder(s) => c.norm() + (s.half_height * s.half_height + s.radius * s.radius).sqrt(),
+            Convex::Cuboid(s) => c.norm() + s.half_extents.norm(),
+            Convex::Hull(h) => h.points.iter().map(|p| (p.coords - c).norm()).fold(0.0, f64::max),
+        };
+        r * (1.0 + 1e-12)
+    }
+
     fn to_shape(&self) -> Box<dyn Shape> {
         match self {
             Convex::Ball(s) => Box::new(*s),
@@ -360,6 +382,33 @@ mod tests {
         }
         assert!(cube_cell(&Vector3::zeros()) < 6 * CUBE * CUBE);
         assert!(cube_cell(&Vector3::repeat(f64::NAN)) < 6 * CUBE * CUBE);
+    }
+
+    #[test]
+    fn broad_phase_radius_holds_every_support_point_and_is_tight_for_hulls() {
+        // Points on an ellipsoid: its hull reaches 0.2 from the centre, its box corners 0.27.
+        let cloud: Vec<Point3<f64>> = random_dirs(200, 9).iter().map(|d| Point3::from(d.normalize().component_mul(&Vector3::new(0.2, 0.15, 0.1)))).collect();
+        let shapes = [
+            (GeomType::Sphere, [0.1, 0.0, 0.0]),
+            (GeomType::Capsule, [0.05, 0.2, 0.0]),
+            (GeomType::Cylinder, [0.05, 0.2, 0.0]),
+            (GeomType::Box, [0.1, 0.2, 0.3]),
+            (GeomType::Mesh, [0.0; 3]),
+        ];
+        for (kind, size) in shapes {
+            let (shape, _) = GeomShape::new(kind, size, &cloud, 0).unwrap();
+            let convex = shape.convex.as_ref().unwrap();
+            let mut far = 0.0f64;
+            for d in random_dirs(5000, 10) {
+                far = far.max((convex.local_support_point(&d).coords - shape.obb_center).norm());
+            }
+            assert!(far <= shape.radius, "{kind:?}: {far} > {}", shape.radius);
+            assert!(shape.radius <= shape.obb_half.norm() * (1.0 + 1e-9), "{kind:?}");
+            if kind == GeomType::Mesh {
+                // The farthest vertex, well inside the box's corner.
+                assert!(shape.radius < 0.9 * shape.obb_half.norm(), "{} vs {}", shape.radius, shape.obb_half.norm());
+            }
+        }
     }
 
     #[test]

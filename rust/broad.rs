@@ -1,0 +1,243 @@
+//! Broad phase: the candidate pairs of one pose that may touch, found from the body frames
+//! alone, before any geom frame or bounding box is computed.
+//!
+//! Two levels of bounding spheres, fixed in the body frames:
+//! - pairs are grouped by body pair, and a group is dropped with one test when the spheres
+//!   holding each body's geoms are apart (most of the ~60 body pairs of an arm, most poses);
+//! - in a group that survives, each pair is dropped when its geoms' own spheres (about their box
+//!   centre, out to the farthest hull vertex) are apart.
+//!
+//! Every test is inflated by a relative and absolute 1e-9, far above the rounding of the sphere
+//! centres (~1e-15 m), so a dropped pair is separated by more than that, and the narrow phase
+//! (exact for such pairs: GJK never reports an intersection, nor a distance below the margin,
+//! for shapes that far apart) would have reported it apart too. Labels do not depend on this
+//! file; it only decides how few pairs reach `collide::pair_in_contact`.
+//!
+//! Pairs with a plane (a half-space) are tested against the plane by the geom's sphere.
+
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+use crate::collide::CandidatePair;
+use crate::model::Geom;
+use crate::shapes::GeomType;
+
+/// `(reach * (1 + 1e-9) + 1e-9)^2`: the squared centre distance beyond which two spheres whose
+/// radii and margin sum to `reach` cannot touch, with slack for rounding.
+fn reach2(reach: f64) -> f64 {
+    let r = reach * (1.0 + 1e-9) + 1e-9;
+    r * r
+}
+
+/// One pair inside a body-pair group.
+#[derive(Clone, Copy, Debug)]
+struct Member {
+    pair: u32,
+    g1: u32,
+    g2: u32,
+    reach2: f64,
+}
+
+/// The pairs between two bodies, `members[start..end]`, and the squared reach of the two
+/// bodies' spheres (plus the largest margin among the pairs).
+#[derive(Clone, Copy, Debug)]
+struct Group {
+    b1: u32,
+    b2: u32,
+    reach2: f64,
+    start: u32,
+    end: u32,
+}
+
+/// A pair of a plane geom with a non-plane geom.
+#[derive(Clone, Copy, Debug)]
+struct PlanePair {
+    pair: u32,
+    plane: u32,
+    geom: u32,
+    /// The geom's sphere radius plus the pair's margin, inflated.
+    reach: f64,
+}
+
+/// The model's broad-phase data, built once from the geoms and candidate pairs.
+#[derive(Debug, Default)]
+pub(crate) struct Broad {
+    /// Bodies that carry a geom in `geoms` (their rotation matrices are needed per pose).
+    bodies: Vec<u32>,
+    /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.
+    body_centre: Vec<Vector3<f64>>,
+    /// Per geom: centre of its sphere in its body's frame, and its body.
+    geom_centre: Vec<Vector3<f64>>,
+    geom_body: Vec<u32>,
+    /// Non-plane geoms of some pair, whose world sphere centres are needed per pose.
+    geoms: Vec<u32>,
+    groups: Vec<Group>,
+    members: Vec<Member>,
+    planes: Vec<PlanePair>,
+    /// The plane geoms of `planes`, once each.
+    plane_geoms: Vec<u32>,
+}
+
+/// Per-thread buffers of the broad phase (world sphere centres of one pose).
+#[derive(Clone, Debug)]
+pub(crate) struct BroadScratch {
+    rot: Vec<Matrix3<f64>>,
+    body_world: Vec<Vector3<f64>>,
+    geom_world: Vec<Vector3<f64>>,
+    /// Per plane geom: world normal and `normal . origin`.
+    plane: Vec<(Vector3<f64>, f64)>,
+    /// Room for every pair.
+    buf: Vec<u32>,
+}
+
+impl Broad {
+    pub(crate) fn new(nbody: usize, geoms: &[Geom], pairs: &[CandidatePair]) -> Self {
+        let is_plane = |g: usize| geoms[g].shape.kind == GeomType::Plane;
+        let geom_centre: Vec<Vector3<f64>> = geoms.iter().map(|g| (g.local * nalgebra::Point3::from(g.shape.obb_center)).coords).collect();
+        let geom_body: Vec<u32> = geoms.iter().map(|g| g.body as u32).collect();
+
+        // Non-plane pairs by body pair (ordered ids), planes apart.
+        let mut by_bodies: std::collections::BTreeMap<(u32, u32), Vec<u32>> = Default::default();
+        let mut planes = Vec::new();
+        // Geoms of non-plane pairs (they shape their body's sphere), and geoms whose world
+        // sphere centre is needed (those and the non-plane geoms of plane pairs).
+        let mut used = vec![false; geoms.len()];
+        let mut sphere = vec![false; geoms.len()];
+        for (k, p) in pairs.iter().enumerate() {
+            match (is_plane(p.g1), is_plane(p.g2)) {
+                (true, true) => unreachable!("plane-plane pairs are never candidates"),
+                (true, false) | (false, true) => {
+                    let (plane, geom) = if is_plane(p.g1) { (p.g1, p.g2) } else { (p.g2, p.g1) };
+                    let reach = (geoms[geom].shape.radius + p.margin) * (1.0 + 1e-9) + 1e-9;
+                    planes.push(PlanePair { pair: k as u32, plane: plane as u32, geom: geom as u32, reach });
+                    sphere[geom] = true;
+                }
+                (false, false) => {
+                    let (b1, b2) = (geom_body[p.g1], geom_body[p.g2]);
+                    by_bodies.entry((b1.min(b2), b1.max(b2))).or_default().push(k as u32);
+                    used[p.g1] = true;
+                    used[p.g2] = true;
+                    sphere[p.g1] = true;
+                    sphere[p.g2] = true;
+                }
+            }
+        }
+
+        // Each body's sphere: centred in the box around its geoms' spheres, out to the farthest.
+        let mut lo = vec![Vector3::repeat(f64::INFINITY); nbody];
+        let mut hi = vec![Vector3::repeat(f64::NEG_INFINITY); nbody];
+        for g in (0..geoms.len()).filter(|&g| used[g]) {
+            let (b, r) = (geom_body[g] as usize, geoms[g].shape.radius);
+            lo[b] = lo[b].inf(&geom_centre[g].add_scalar(-r));
+            hi[b] = hi[b].sup(&geom_centre[g].add_scalar(r));
+        }
+        let body_centre: Vec<Vector3<f64>> =
+            (0..nbody).map(|b| if lo[b].x.is_finite() { (lo[b] + hi[b]) * 0.5 } else { Vector3::zeros() }).collect();
+        let mut body_radius = vec![0.0f64; nbody];
+        for g in (0..geoms.len()).filter(|&g| used[g]) {
+            let b = geom_body[g] as usize;
+            let r = ((geom_centre[g] - body_centre[b]).norm() + geoms[g].shape.radius) * (1.0 + 1e-12);
+            body_radius[b] = body_radius[b].max(r);
+        }
+
+        let mut groups = Vec::new();
+        let mut members = Vec::new();
+        for ((b1, b2), ks) in by_bodies {
+            let mut margin = 0.0f64;
+            for &k in &ks {
+                margin = margin.max(pairs[k as usize].margin);
+            }
+            let reach = reach2(body_radius[b1 as usize] + body_radius[b2 as usize] + margin);
+            // At most 64 members a group, so that a group's survivors fit one bit mask.
+            for chunk in ks.chunks(64) {
+                let start = members.len() as u32;
+                for &k in chunk {
+                    let p = &pairs[k as usize];
+                    let r = geoms[p.g1].shape.radius + geoms[p.g2].shape.radius + p.margin;
+                    members.push(Member { pair: k, g1: p.g1 as u32, g2: p.g2 as u32, reach2: reach2(r) });
+                }
+                groups.push(Group { b1, b2, reach2: reach, start, end: members.len() as u32 });
+            }
+        }
+        let mut bodies: Vec<u32> = (0..geoms.len()).filter(|&g| sphere[g]).map(|g| geom_body[g]).collect();
+        bodies.sort_unstable();
+        bodies.dedup();
+        let geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize]).collect();
+        let mut plane_geoms: Vec<u32> = planes.iter().map(|p| p.plane).collect();
+        plane_geoms.sort_unstable();
+        plane_geoms.dedup();
+        Broad { bodies, body_centre, geom_centre, geom_body, geoms, groups, members, planes, plane_geoms }
+    }
+
+    /// The plane geoms whose world frames `near_pairs` needs.
+    pub(crate) fn plane_geoms(&self) -> &[u32] {
+        &self.plane_geoms
+    }
+
+    pub(crate) fn scratch(&self) -> BroadScratch {
+        let (nb, ng) = (self.body_centre.len(), self.geom_centre.len());
+        BroadScratch {
+            rot: vec![Matrix3::identity(); nb],
+            body_world: vec![Vector3::zeros(); nb],
+            geom_world: vec![Vector3::zeros(); ng],
+            plane: vec![(Vector3::zeros(), 0.0); ng],
+            buf: vec![0; self.members.len() + self.planes.len()],
+        }
+    }
+
+    /// Appends to `near` the candidate pairs that may touch in the pose whose body frames are
+    /// `bodies` (`geom_poses` must hold the world frames of the plane geoms), in pair order.
+    pub(crate) fn near_pairs(&self, bodies: &[Isometry3<f64>], geom_poses: &[Isometry3<f64>], s: &mut BroadScratch, near: &mut Vec<u32>) {
+        for &b in &self.bodies {
+            let b = b as usize;
+            let x = &bodies[b];
+            let r = x.rotation.to_rotation_matrix().into_inner();
+            s.rot[b] = r;
+            s.body_world[b] = x.translation.vector + r * self.body_centre[b];
+        }
+        for &g in &self.geoms {
+            let g = g as usize;
+            let b = self.geom_body[g] as usize;
+            s.geom_world[g] = bodies[b].translation.vector + s.rot[b] * self.geom_centre[g];
+        }
+        // Without branches (few pass, unpredictably): one bit per group in 64-group words,
+        // then one bit per member of each surviving group, then the survivors.
+        let buf = &mut s.buf;
+        let mut n = 0usize;
+        for (w, groups) in self.groups.chunks(64).enumerate() {
+            let mut bits = 0u64;
+            for (i, gr) in groups.iter().enumerate() {
+                let d = s.body_world[gr.b1 as usize] - s.body_world[gr.b2 as usize];
+                bits |= ((d.norm_squared() <= gr.reach2) as u64) << i;
+            }
+            while bits != 0 {
+                let gr = &self.groups[w * 64 + bits.trailing_zeros() as usize];
+                bits &= bits - 1;
+                let members = &self.members[gr.start as usize..gr.end as usize];
+                let mut near_bits = 0u64;
+                for (i, m) in members.iter().enumerate() {
+                    let d = s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize];
+                    near_bits |= ((d.norm_squared() <= m.reach2) as u64) << i;
+                }
+                while near_bits != 0 {
+                    buf[n] = members[near_bits.trailing_zeros() as usize].pair;
+                    n += 1;
+                    near_bits &= near_bits - 1;
+                }
+            }
+        }
+        for &g in &self.plane_geoms {
+            let x = &geom_poses[g as usize];
+            let normal = x.rotation * Vector3::z();
+            s.plane[g as usize] = (normal, normal.dot(&x.translation.vector));
+        }
+        for p in &self.planes {
+            let (normal, offset) = s.plane[p.plane as usize];
+            if normal.dot(&s.geom_world[p.geom as usize]) - offset < p.reach {
+                buf[n] = p.pair;
+                n += 1;
+            }
+        }
+        near.extend_from_slice(&buf[..n]);
+        near.sort_unstable();
+    }
+}
