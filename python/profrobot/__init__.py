@@ -8,6 +8,8 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 >>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
 >>> labels = profrobot.label_poses(robot, poses)                 # exact, parallel
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
+>>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
+>>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
 """
 
 from . import scenes
@@ -16,9 +18,13 @@ from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels
 from .dataset import Dataset, make_dataset
 from .labels import Labels, interpolate, label_poses, sample_poses
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
+from .field import PoseSDF, train_sdf
+from .field.checkpoint import export_sdf, load_sdf, save_sdf
+from .kinematics import Kinematics
 
 __all__ = [
     "__version__", "scenes", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
     "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport",
+    "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
 ]

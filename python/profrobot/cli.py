@@ -1,4 +1,4 @@
-"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``scenes``."""
+"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``scenes``."""
 
 from __future__ import annotations
 
@@ -63,6 +63,32 @@ def cmd_dataset(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    """Train a PoseSDF on a scene, print the held-out metrics, save a checkpoint (atomically)."""
+    from .field import format_metrics, train_sdf
+    from .field.checkpoint import export_sdf, save_sdf
+
+    robot = _robot(args)
+    opts = dict(seed=args.seed, threads=args.threads)
+    for key in ("n_poses", "iterations", "batch_size", "lr", "encoder", "eikonal_weight"):
+        if getattr(args, key) is not None:
+            opts[key] = getattr(args, key)
+    if args.minutes is not None:
+        opts["time_budget"] = args.minutes * 60
+    sdf = train_sdf(robot, preset=args.preset, **opts)
+    print(f"{sdf}\n{format_metrics(sdf.metrics)}")
+    save_sdf(sdf, args.out)
+    print(f"saved checkpoint {args.out}")
+    if args.plot:
+        from .viz import sdf_slice
+
+        sdf_slice(sdf, robot, path=args.plot)
+        print(f"saved SDF slice {args.plot}")
+    if args.export:
+        print(f"exported {args.export} ({export_sdf(sdf, args.export) / 1e6:.1f} MB)")
+    return 0
+
+
 def cmd_demo(args) -> int:
     """The main job on a bundled default: build a scene, label poses, cross-check with MuJoCo."""
     robot = scenes.load(args.scene)
@@ -105,6 +131,20 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--collided-fraction", type=float, default=0.5)
     sp.add_argument("--out", required=True)
     sp.set_defaults(fn=cmd_dataset)
+    sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
+    common(sp, 0)
+    sp.add_argument("--preset", default="cpu", help="cpu (ours, minutes) or paper (the paper's recipe)")
+    sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
+    sp.add_argument("--iterations", type=int, default=None)
+    sp.add_argument("--batch-size", dest="batch_size", type=int, default=None)
+    sp.add_argument("--lr", type=float, default=None)
+    sp.add_argument("--encoder", choices=("kinematic", "hierarchical", "flat"), default=None)
+    sp.add_argument("--eikonal-weight", dest="eikonal_weight", type=float, default=None)
+    sp.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
+    sp.add_argument("--out", required=True, help="checkpoint directory (safetensors + JSON)")
+    sp.add_argument("--plot", help="also save an SDF slice PNG here")
+    sp.add_argument("--export", help="also export a torch.export .pt2 file here")
+    sp.set_defaults(fn=cmd_train)
     sp = sub.add_parser("scenes", help="list the bundled scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names())) or 0)
 

@@ -108,7 +108,8 @@ class Kinematics(torch.nn.Module):
                 anchor=f(np.asarray(arrays["jnt_pos"])[jid]) * torch.as_tensor(has, dtype=dtype)[..., None],
             )
             for k, v in lvl.items():  # buffers, so that .to(device, dtype) moves them
-                self.register_buffer(f"_l{d}_{k}", v, persistent=False)
+                # clone: own storage (numpy-backed empty tensors trip torch.export's packager)
+                self.register_buffer(f"_l{d}_{k}", v.clone().contiguous(), persistent=False)
             self._level_keys.append({k: f"_l{d}_{k}" for k in lvl})
         # where each body ends up in the concatenation of levels (world first)
         order = np.concatenate([[0]] + [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)])

@@ -1,0 +1,8 @@
+"""The learned pose collision field (paper §3): :class:`PoseSDF`, :func:`train_sdf`, metrics,
+checkpoints and export."""
+
+from .metrics import evaluate, format_metrics
+from .model import PoseSDF
+from .train import PRESETS, TrainConfig, train_sdf
+
+__all__ = ["PoseSDF", "train_sdf", "TrainConfig", "PRESETS", "evaluate", "format_metrics"]

@@ -1,0 +1,123 @@
+"""Checkpoints: a directory with ``model.safetensors`` (weights and buffers) and ``config.json``
+(architecture, robot fingerprint, metrics). Nothing is unpickled. Export for deployment with
+``torch.export``."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from ..robot import Robot
+from .model import PoseSDF
+
+FORMAT = "profrobot.PoseSDF/1"
+
+
+def _atomic_dir(path: Path, write) -> None:
+    """Write a directory next to ``path`` and move it into place, so that a crash or Ctrl-C
+    leaves either the old checkpoint or the new one, never half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        write(tmp)
+        if path.exists():
+            old = path.with_name(f".{path.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
+    """Save ``sdf`` to the directory ``path`` (created or replaced atomically)."""
+    path = Path(path)
+    tensors = {k: v.detach().cpu().contiguous() for k, v in sdf.state_dict().items()}
+    config = dict(format=FORMAT, robot=sdf.robot_name, robot_fingerprint=sdf.fingerprint,
+                  joint_names=sdf.joint_names, model=sdf.config,
+                  metrics={k: v for k, v in sdf.metrics.items() if isinstance(v, (int, float, str))})
+
+    def write(d: Path) -> None:
+        save_file(tensors, str(d / "model.safetensors"), metadata={"format": FORMAT})
+        (d / "config.json").write_text(json.dumps(config, indent=2))
+
+    _atomic_dir(path, write)
+    return path
+
+
+def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
+    """Load a checkpoint saved by :func:`save_sdf` for ``robot``.
+
+    Raises ValueError if the checkpoint is for another robot (its fingerprint differs), or if
+    the files are missing or corrupt.
+    """
+    path = Path(path)
+    cfg_path, w_path = path / "config.json", path / "model.safetensors"
+    if not cfg_path.is_file() or not w_path.is_file():
+        raise ValueError(f"{path} is not a PoseSDF checkpoint (needs config.json and model.safetensors)")
+    try:
+        config = json.loads(cfg_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"corrupt checkpoint config {cfg_path}: {e}") from e
+    if not isinstance(config, dict) or config.get("format") != FORMAT:
+        raise ValueError(f"{cfg_path} is not a {FORMAT} config")
+    if not isinstance(robot, Robot):
+        raise TypeError(f"load_sdf needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
+    if config.get("robot_fingerprint") != robot.fingerprint:
+        raise ValueError(f"checkpoint {path} was trained for robot {config.get('robot')!r} "
+                         f"(fingerprint {config.get('robot_fingerprint')}), not for {robot.name!r} "
+                         f"(fingerprint {robot.fingerprint})")
+    try:
+        tensors = load_file(str(w_path))
+    except (SafetensorError, OSError, ValueError) as e:
+        raise ValueError(f"corrupt checkpoint weights {w_path}: {e}") from e
+    sdf = PoseSDF(robot, **config["model"])
+    try:
+        sdf.load_state_dict(tensors, strict=True)
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint weights {w_path} do not fit the architecture in its config: {e}") from e
+    sdf.metrics = dict(config.get("metrics", {}))
+    sdf.eval()
+    return sdf
+
+
+class _Deployable(torch.nn.Module):
+    """θ (B, K) → g (B,), without the Python-side checks (export traces tensors only)."""
+
+    def __init__(self, sdf: PoseSDF):
+        super().__init__()
+        self.sdf = sdf
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        return self.sdf.head_g(self.sdf.encoder(theta))
+
+
+def export_sdf(sdf: PoseSDF, path: str | os.PathLike, *, batch: int = 1024) -> int:
+    """Export ``sdf`` with ``torch.export`` to a ``.pt2`` file (dynamic batch size); returns its
+    size in bytes. Load it with ``torch.export.load(path).module()``."""
+    path = Path(path)
+    sdf = sdf.eval()
+    example = torch.zeros(batch, sdf.njoint)
+    dim = torch.export.Dim("batch", min=1)
+    program = torch.export.export(_Deployable(sdf), (example,), dynamic_shapes={"theta": {0: dim}})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".pt2", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.export.save(program, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path.stat().st_size

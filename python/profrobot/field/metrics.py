@@ -1,0 +1,68 @@
+"""Held-out metrics of a field: classification, ranking, and how distance-like g is."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.stats import rankdata
+
+from .model import PoseSDF
+
+
+@torch.no_grad()
+def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 16384) -> np.ndarray:
+    """g (N,) for poses (N, K), evaluated in chunks without gradients."""
+    out = [sdf(torch.as_tensor(poses[i:i + chunk], dtype=torch.float32)).numpy() for i in range(0, len(poses), chunk)]
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+
+
+def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term)."""
+    out = []
+    for i in range(0, len(poses), chunk):
+        q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32).requires_grad_(True)
+        (grad,) = torch.autograd.grad(sdf(q).sum(), q)
+        out.append(grad.norm(dim=1).numpy())
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+
+
+def auroc(score: np.ndarray, label: np.ndarray) -> float:
+    """Area under the ROC curve (Mann–Whitney U with tied ranks averaged)."""
+    label = np.asarray(label, dtype=bool)
+    n1, n0 = int(label.sum()), int((~label).sum())
+    if n1 == 0 or n0 == 0:
+        return float("nan")
+    r = rankdata(score)
+    return float((r[label].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
+
+
+def evaluate(sdf: PoseSDF, poses: np.ndarray, collides: np.ndarray, *, gradient_poses: int = 10_000) -> dict:
+    """Metrics on labelled poses (N, K), labels (N,) bool (True = colliding):
+
+    accuracy, precision and recall of "colliding" (g > 0); ``false_free_rate``: the share of poses
+    predicted free that actually collide (the error that breaks robots); AUROC of g; and on the
+    first ``gradient_poses`` poses the Eikonal loss mean (‖∇g‖ − 1)² and the mean ‖∇g‖.
+    """
+    collides = np.asarray(collides, dtype=bool)
+    was_training = sdf.training
+    sdf.eval()
+    g = field_values(sdf, poses)
+    pred = g > 0
+    tp = int((pred & collides).sum())
+    fp = int((pred & ~collides).sum())
+    fn = int((~pred & collides).sum())
+    tn = int((~pred & ~collides).sum())
+    norms = gradient_norms(sdf, poses[:gradient_poses])
+    sdf.train(was_training)
+    return dict(
+        n=len(g), accuracy=(tp + tn) / max(len(g), 1), precision=tp / max(tp + fp, 1), recall=tp / max(tp + fn, 1),
+        false_free_rate=fn / max(fn + tn, 1), auroc=auroc(g, collides),
+        eikonal_loss=float(np.mean((norms - 1) ** 2)), grad_norm=float(np.mean(norms)),
+    )
+
+
+def format_metrics(m: dict) -> str:
+    """A small two-column table of metrics."""
+    rows = [(k, f"{v:.4f}" if isinstance(v, float) else str(v)) for k, v in m.items()]
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)

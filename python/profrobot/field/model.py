@@ -1,0 +1,126 @@
+"""The pose collision field g(θ) (paper §3): g < 0 free, g > 0 colliding; ``prob = sigmoid(s·g)``."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
+
+ENCODERS = ("kinematic", "hierarchical", "flat")
+OBJECTIVES = ("sdf", "ndf")
+
+
+class LipschitzLinear(nn.Linear):
+    """Linear layer with a learnable Lipschitz bound (Liu et al. 2022): each row of W is rescaled
+    so its absolute sum is at most ``softplus(c)``; the product of the bounds is penalised."""
+
+    def __init__(self, n_in: int, n_out: int):
+        super().__init__(n_in, n_out)
+        self.c = nn.Parameter(self.weight.detach().abs().sum(1).max().clone())
+
+    def bound(self) -> torch.Tensor:
+        return nn.functional.softplus(self.c)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        scale = torch.clamp(self.bound() / self.weight.abs().sum(1), max=1.0)
+        return nn.functional.linear(x, self.weight * scale[:, None], self.bias)
+
+
+class PoseSDF(nn.Module):
+    """Collision field over joint space for one robot.
+
+    ``forward(theta)``: θ (B, K), radians / metres in MuJoCo joint order → g (B,); g < 0 is free.
+    ``prob(theta)``: collision probability sigmoid(s·g), (B,).
+
+    Options (the paper's model is ``encoder="hierarchical"``; ours, the default, ``"kinematic"``):
+
+    - ``encoder``: "kinematic" (link poses and pair clearances from torch FK), "hierarchical"
+      (paper), "flat" (ablation);
+    - ``feature_size`` (hierarchical/flat, default 8); ``hidden``: MLP widths (default 4 × 512);
+    - ``learn_scale`` (default True; False fixes s = 1: the ablation), ``init_scale`` 10;
+    - ``lipschitz``: Lipschitz-constrained MLP layers;
+    - ``objective``: "sdf" (classifier field) or "ndf" (the baseline: g regresses the distance
+      to the nearest free pose, minus a threshold fitted on training data).
+    """
+
+    def __init__(self, robot, *, encoder: str = "kinematic", feature_size: int = 8,
+                 hidden: tuple[int, ...] = (512, 512, 512, 512), learn_scale: bool = True,
+                 init_scale: float = 10.0, lipschitz: bool = False, objective: str = "sdf",
+                 spheres_per_body: int = 4):
+        super().__init__()
+        if encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}; got {encoder!r}")
+        if objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {OBJECTIVES}; got {objective!r}")
+        if not hidden or any(int(h) <= 0 for h in hidden):
+            raise ValueError(f"hidden must be a non-empty list of positive widths; got {hidden!r}")
+        self.config = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
+                           learn_scale=bool(learn_scale), init_scale=float(init_scale), lipschitz=bool(lipschitz),
+                           objective=objective, spheres_per_body=int(spheres_per_body))
+        self.robot_name = robot.name
+        self.fingerprint = robot.fingerprint
+        self.joint_names = list(robot.joint_names)
+        self.njoint = robot.njoint
+        self.register_buffer("joint_limits", torch.as_tensor(robot.joint_limits, dtype=torch.float32))
+        if encoder == "hierarchical":
+            self.encoder = HierarchicalEncoder(robot.joint_parents, feature_size)
+        elif encoder == "flat":
+            self.encoder = FlatEncoder(robot.njoint, feature_size)
+        else:
+            self.encoder = KinematicEncoder(robot, spheres_per_body=spheres_per_body)
+        Lin = LipschitzLinear if lipschitz else nn.Linear
+        layers: list[nn.Module] = [nn.LeakyReLU()] if encoder != "kinematic" else []
+        width = self.encoder.out_features
+        for h in self.config["hidden"]:
+            layers += [Lin(width, h), nn.LeakyReLU()]
+            width = h
+        layers.append(Lin(width, 1))
+        self.head = nn.Sequential(*layers)
+        self.s_raw = nn.Parameter(torch.tensor(math.log(init_scale)), requires_grad=learn_scale)
+        # NDF: g = distance − threshold (set by training)
+        self.register_buffer("ndf_threshold", torch.tensor(0.0))
+        self.metrics: dict = {}
+
+    @property
+    def scale(self) -> torch.Tensor:
+        """s = exp(s_raw), clamped to [1e-3, 1e3]."""
+        return self.s_raw.exp().clamp(1e-3, 1e3)
+
+    def check_poses(self, theta: torch.Tensor) -> None:
+        if not isinstance(theta, torch.Tensor):
+            raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+        if theta.ndim != 2 or theta.shape[1] != self.njoint:
+            raise ValueError(f"theta must have shape (B, {self.njoint}) for robot {self.robot_name!r}; "
+                             f"got {tuple(theta.shape)}")
+        if not theta.is_floating_point():
+            raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
+
+    def head_g(self, features: torch.Tensor) -> torch.Tensor:
+        """g (B,) from encoder features (B, F)."""
+        g = self.head(features)[:, 0]
+        return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        self.check_poses(theta)
+        theta = theta.to(self.joint_limits.dtype)
+        return self.head_g(self.encoder(theta))
+
+    def prob(self, theta: torch.Tensor) -> torch.Tensor:
+        """Collision probability sigmoid(s·g(θ)), (B,)."""
+        return torch.sigmoid(self.scale * self(theta))
+
+    def lipschitz_bound(self) -> torch.Tensor:
+        """Product of the layers' Lipschitz bounds (1 if the MLP is unconstrained)."""
+        out = torch.ones((), device=self.s_raw.device)
+        for m in self.head:
+            if isinstance(m, LipschitzLinear):
+                out = out * m.bound()
+        return out
+
+    def __repr__(self) -> str:
+        n = sum(p.numel() for p in self.parameters())
+        return (f"PoseSDF(robot={self.robot_name!r}, encoder={self.config['encoder']!r}, "
+                f"hidden={self.config['hidden']}, params={n:,})")

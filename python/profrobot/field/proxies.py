@@ -1,0 +1,209 @@
+"""Coarse, differentiable clearance of every candidate body pair: the kinematics-aware features.
+
+Collision depends on where the links are, not on the angles as such. So for each pair of bodies
+(or body and static geom) that the exact labeller tests, we compute a cheap proxy of its clearance
+(metres) from the torch FK:
+
+- each moving body is covered by ``m`` spheres (k-means of its collision geoms' points; centre
+  ``c``, radius ``r`` covering its cluster);
+- a static geom (welded to the world) keeps an exact signed distance function ``sdf(p)``
+  (plane, sphere, capsule, cylinder, box; a mesh by its bounding box in its own frame);
+- body–body:    ``min_ij ‖c_i − c_j‖ − r_i − r_j``;
+- body–static:  ``min_i sdf(c_i) − r_i``.
+
+Grouping by body keeps the cost at (pairs of bodies × m²) rather than (pairs of geoms × m²): a few
+hundred terms per pose. The proxy under-estimates the true clearance; the network on top learns
+the rest. Everything is a function of θ, so the Eikonal gradient ∂g/∂θ flows through it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..kinematics import Kinematics, quat_to_matrix
+
+# MuJoCo geom types
+PLANE, SPHERE, CAPSULE, CYLINDER, BOX, MESH = 0, 2, 3, 5, 6, 7
+
+
+def _surface_points(kind: int, size: np.ndarray, hull: np.ndarray | None) -> np.ndarray:
+    """A point set (P, 3) whose convex hull is the geom (geom frame), for sphere fitting."""
+    if kind == MESH:
+        return hull
+    if kind == BOX:
+        return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
+    if kind in (SPHERE, CAPSULE):  # the ball (or the two end balls) sampled on 26 directions
+        d = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)])
+        ball = d / np.linalg.norm(d, axis=1, keepdims=True) * size[0]
+        return ball if kind == SPHERE else np.concatenate([ball + [0, 0, size[1]], ball - [0, 0, size[1]]])
+    if kind == CYLINDER:
+        a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        ring = np.stack([size[0] * np.cos(a), size[0] * np.sin(a), np.zeros_like(a)], 1)
+        return np.concatenate([ring + [0, 0, size[1]], ring - [0, 0, size[1]]])
+    raise ValueError(f"no point set for geom type {kind}")
+
+
+def cover_spheres(points: np.ndarray, count: int, iters: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` spheres (centres (m, 3), radii (m,)) covering ``points`` (P, 3): deterministic
+    k-means (seeded along the principal axis), each radius the farthest point of its cluster."""
+    mean = points.mean(0)
+    _, _, vt = np.linalg.svd(points - mean, full_matrices=False)
+    t = (points - mean) @ vt[0]
+    centres = mean + np.outer(np.quantile(t, (np.arange(count) + 0.5) / count), vt[0])
+    for _ in range(iters):
+        nearest = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)
+        centres = np.stack([points[nearest == i].mean(0) if np.any(nearest == i) else centres[i] for i in range(count)])
+    nearest = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)
+    radii = np.array([np.linalg.norm(points[nearest == i] - centres[i], axis=1).max() if np.any(nearest == i) else 0.0
+                      for i in range(count)])
+    return centres, radii
+
+
+class PairClearance(torch.nn.Module):
+    """Proxy clearance (metres) of each candidate body pair: θ (B, K) → (B, npair).
+
+    Built from a :class:`profrobot.Robot`; shares its :class:`~profrobot.kinematics.Kinematics`.
+    ``names`` lists the pairs ("link3|link5", "hand|block_1", …).
+    """
+
+    def __init__(self, robot, kinematics: Kinematics, spheres_per_body: int = 4):
+        super().__init__()
+        arr = robot.core_arrays()
+        self.kin = kinematics
+        dtype = kinematics.qpos0.dtype
+        weld = np.asarray(arr["body_weld"])
+        gid = np.asarray(arr["geom_id"])
+        gbody = np.asarray(arr["geom_body"])
+        moving = weld[gbody] != 0
+        index_of = {int(g): i for i, g in enumerate(gid)}
+
+        def hull(i):
+            k = arr["geom_mesh"][i]
+            return None if k < 0 else arr["mesh_vert"][arr["mesh_vert_adr"][k]:][: arr["mesh_vert_num"][k]]
+
+        # spheres covering each moving body's collision geoms, in the body frame
+        bodies = sorted({int(gbody[i]) for i in np.flatnonzero(moving)})
+        slot = {b: s for s, b in enumerate(bodies)}
+        m = spheres_per_body
+        centres, radii = np.zeros((len(bodies), m, 3)), np.zeros((len(bodies), m))
+        for b in bodies:
+            pts = []
+            for i in np.flatnonzero(moving & (gbody == b)):
+                R = quat_to_matrix(torch.as_tensor(arr["geom_quat"][i])).numpy()
+                pts.append(_surface_points(int(arr["geom_type"][i]), np.asarray(arr["geom_size"][i]), hull(i)) @ R.T
+                           + arr["geom_pos"][i])
+            centres[slot[b]], radii[slot[b]] = cover_spheres(np.concatenate(pts), m)
+        f = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype)
+        self.register_buffer("body_ids", torch.as_tensor(bodies, dtype=torch.int64), persistent=False)
+        self.register_buffer("sph_centre", f(centres), persistent=False)      # (nb, m, 3)
+        self.register_buffer("sph_radius", f(radii), persistent=False)        # (nb, m)
+
+        # static geoms: world pose (bodies welded to the world do not move) and SDF parameters
+        xpos, xquat = robot.core.forward_kinematics(np.zeros((1, robot.njoint)))
+        st_idx = np.flatnonzero(~moving)
+        st_rot, st_pos, st_size, st_off, st_kind = [], [], [], [], []
+        for i in st_idx:
+            Rb = quat_to_matrix(torch.as_tensor(xquat[0][gbody[i]])).numpy()
+            Rg = quat_to_matrix(torch.as_tensor(arr["geom_quat"][i])).numpy()
+            st_rot.append(Rb @ Rg)
+            st_pos.append(xpos[0][gbody[i]] + Rb @ arr["geom_pos"][i])
+            kind, size, off = int(arr["geom_type"][i]), np.array(arr["geom_size"][i], dtype=np.float64), np.zeros(3)
+            if kind == MESH:  # its box in the mesh frame
+                v = hull(i)
+                off, size, kind = (v.max(0) + v.min(0)) / 2, (v.max(0) - v.min(0)) / 2, BOX
+            elif kind not in (PLANE, SPHERE, CAPSULE, CYLINDER, BOX):
+                raise ValueError(f"{robot.name}: no clearance proxy for static geom type {kind}")
+            st_kind.append(kind), st_size.append(size), st_off.append(off)
+        self.register_buffer("st_rot", f(np.array(st_rot).reshape(-1, 3, 3)), persistent=False)
+        self.register_buffer("st_pos", f(np.array(st_pos).reshape(-1, 3)), persistent=False)
+        self.register_buffer("st_size", f(np.array(st_size).reshape(-1, 3)), persistent=False)
+        self.register_buffer("st_off", f(np.array(st_off).reshape(-1, 3)), persistent=False)
+        self.st_kind = np.asarray(st_kind, dtype=np.int64)
+        static_slot = {int(i): s for s, i in enumerate(st_idx)}
+
+        # candidate geom pairs → distinct (body, body) and (body, static geom) pairs
+        bb, bs = set(), set()
+        for g1, g2 in np.asarray(robot.pair_geoms):
+            a, b = index_of[int(g1)], index_of[int(g2)]
+            if not moving[a]:
+                a, b = b, a
+            if not moving[a]:
+                continue
+            if moving[b]:
+                bb.add(tuple(sorted((slot[int(gbody[a])], slot[int(gbody[b])]))))
+            else:
+                bs.add((slot[int(gbody[a])], static_slot[int(b)]))
+        bb, bs = sorted(bb), sorted(bs)
+        idx = lambda pairs, k: torch.as_tensor(np.array([p[k] for p in pairs], dtype=np.int64))
+        self.register_buffer("bb_a", idx(bb, 0), persistent=False)
+        self.register_buffer("bb_b", idx(bb, 1), persistent=False)
+        self.register_buffer("bs_a", idx(bs, 0), persistent=False)
+        self.register_buffer("bs_g", idx(bs, 1), persistent=False)
+        bs_kinds = self.st_kind[[g for _, g in bs]] if bs else np.zeros(0, np.int64)
+        self._bs_kinds = [int(k) for k in np.unique(bs_kinds)]
+        for k in self._bs_kinds:
+            self.register_buffer(f"_bs_kind_{k}", torch.as_tensor(np.flatnonzero(bs_kinds == k)), persistent=False)
+        bname = robot.body_names
+        gname = [t["name"] for t in robot.geom_table()]
+        self.names = ([f"{bname[bodies[a]]}|{bname[bodies[b]]}" for a, b in bb]
+                      + [f"{bname[bodies[a]]}|{gname[st_idx[g]]}" for a, g in bs])
+        self.npair = len(self.names)
+
+    def _kind_columns(self, g: torch.Tensor) -> list[tuple[int, torch.Tensor]]:
+        """(kind, columns of g with that kind); cached for the pair list so that tracing
+        (torch.export) sees constant indices."""
+        if g is self.bs_g:
+            return [(k, getattr(self, f"_bs_kind_{k}")) for k in self._bs_kinds]
+        kinds = self.st_kind[g.cpu().numpy()]
+        return [(int(k), torch.as_tensor(np.flatnonzero(kinds == k), device=g.device)) for k in np.unique(kinds)]
+
+    def sphere_centres(self, theta: torch.Tensor) -> torch.Tensor:
+        """World centres (B, nb, m, 3) of the covering spheres."""
+        bp = self.kin(theta)
+        R, x = bp.rot[:, self.body_ids], bp.pos[:, self.body_ids]                 # (B, nb, 3, 3), (B, nb, 3)
+        return torch.einsum("bnij,nmj->bnmi", R, self.sph_centre) + x[:, :, None]
+
+    def static_sdf(self, p: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """Signed distance (B, n, m) of world points p (B, n, m, 3) to static geoms g (n,), metres."""
+        local = torch.einsum("nji,bnmj->bnmi", self.st_rot[g], p - self.st_pos[g][:, None]) - self.st_off[g][:, None]
+        size = self.st_size[g][:, None]                                            # (n, 1, 3)
+        out = torch.empty(local.shape[:-1], dtype=p.dtype, device=p.device)
+        # one formula per kind, on its own columns, so no NaN gradient leaks from another kind
+        for k, cols in self._kind_columns(g):
+            q, s = local[:, cols], size[cols]
+            if k == PLANE:
+                d = q[..., 2]
+            elif k == SPHERE:
+                d = q.norm(dim=-1) - s[..., 0]
+            elif k == CAPSULE:
+                z = torch.minimum(torch.maximum(q[..., 2], -s[..., 1]), s[..., 1])
+                d = torch.stack([q[..., 0], q[..., 1], q[..., 2] - z], -1).norm(dim=-1) - s[..., 0]
+            else:
+                e = (torch.stack([q[..., :2].norm(dim=-1) - s[..., 0], q[..., 2].abs() - s[..., 1]], -1)
+                     if k == CYLINDER else q.abs() - s)
+                outside = e.max(-1).values
+                # the 1e-12 floor keeps the norm's gradient finite at the surface
+                d = torch.where(outside > 0, e.clamp(min=1e-12).norm(dim=-1), outside)
+            out[:, cols] = d
+        return out
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        return self.from_centres(self.sphere_centres(theta))
+
+    def from_centres(self, c: torch.Tensor) -> torch.Tensor:
+        """Clearances (B, npair) from sphere centres (B, nb, m, 3)."""
+        feats = []
+        if len(self.bb_a):
+            ca, cb = c[:, self.bb_a], c[:, self.bb_b]                               # (B, P, m, 3)
+            # |a - b|² = |a|² + |b|² - 2 a·b: no (B, P, m, m, 3) tensor; the floor keeps sqrt's
+            # gradient finite
+            sq = ((ca * ca).sum(-1)[..., :, None] + (cb * cb).sum(-1)[..., None, :]
+                  - 2 * torch.einsum("bpid,bpjd->bpij", ca, cb))
+            d = sq.clamp(min=1e-10).sqrt()                                          # (B, P, m, m)
+            d = d - self.sph_radius[self.bb_a][:, :, None] - self.sph_radius[self.bb_b][:, None, :]
+            feats.append(d.flatten(2).min(-1).values)
+        if len(self.bs_a):
+            d = self.static_sdf(c[:, self.bs_a], self.bs_g) - self.sph_radius[self.bs_a]
+            feats.append(d.min(-1).values)
+        return torch.cat(feats, 1)

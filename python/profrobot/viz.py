@@ -1,0 +1,70 @@
+"""Pictures: an SDF slice over two joints with the exact labels drawn over it."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
+    """Save a matplotlib figure atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, **kwargs)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarray | None = None,
+              resolution: int = 120, path: str | os.PathLike | None = None):
+    """g over joints ``joints`` (indices; the others fixed at ``base_pose``, default the middle of
+    their ranges), as a heat map with g = 0 drawn, and the exact labeller's colliding region
+    outlined over it (the paper's supplementary figure). Returns the matplotlib Figure; saves a PNG
+    when ``path`` is given.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from .labels import label_poses
+
+    i, j = (int(k) for k in joints)
+    K = robot.njoint
+    if not (0 <= i < K and 0 <= j < K and i != j):
+        raise ValueError(f"joints must be two distinct indices in [0, {K}); got {joints}")
+    lim = robot.joint_limits
+    base = lim.mean(1) if base_pose is None else np.asarray(base_pose, dtype=np.float64).reshape(K)
+    a = np.linspace(lim[i, 0], lim[i, 1], resolution)
+    b = np.linspace(lim[j, 0], lim[j, 1], resolution)
+    A, Bg = np.meshgrid(a, b)
+    poses = np.repeat(base[None], A.size, axis=0)
+    poses[:, i], poses[:, j] = A.ravel(), Bg.ravel()
+    with torch.no_grad():
+        g = sdf(torch.as_tensor(poses, dtype=torch.float32)).numpy().reshape(A.shape)
+    exact = label_poses(robot, poses).collides.reshape(A.shape)
+    fig, ax = plt.subplots(figsize=(6, 5))
+    vmax = float(np.abs(g).max()) or 1.0
+    im = ax.pcolormesh(A, Bg, g, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
+    ax.contour(A, Bg, g, levels=[0.0], colors="k", linewidths=1.5)
+    ax.contour(A, Bg, exact.astype(float), levels=[0.5], colors="yellow", linewidths=1.5, linestyles="--")
+    fig.colorbar(im, ax=ax, label="g(θ)  (> 0: colliding)")
+    names = robot.joint_names
+    ax.set_xlabel(f"{names[i]} (rad)")
+    ax.set_ylabel(f"{names[j]} (rad)")
+    agree = float(np.mean((g > 0) == exact))
+    ax.set_title(f"{robot.name}: g = 0 (black) vs exact boundary (yellow); agree {agree:.1%}")
+    fig.tight_layout()
+    if path is not None:
+        save_figure(fig, path, dpi=120)
+    return fig

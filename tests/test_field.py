@@ -1,0 +1,137 @@
+"""The pose collision field: gradients, encoders, checkpoints, export, a quick training run."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from conftest import scene
+from profrobot.field import PoseSDF, train_sdf
+from profrobot.field.encoders import HierarchicalEncoder
+from profrobot.field.train import eikonal_terms
+
+
+@pytest.mark.parametrize("encoder", ["kinematic", "hierarchical", "flat"])
+def test_autograd_gradient_matches_finite_differences(panda, encoder):
+    torch.manual_seed(0)
+    sdf = PoseSDF(panda, encoder=encoder, hidden=(32, 32)).double()
+    q = torch.as_tensor(profrobot.sample_poses(panda, 4, seed=3), dtype=torch.float64).requires_grad_()
+    assert torch.autograd.gradcheck(lambda t: sdf(t), (q,), eps=1e-6, atol=1e-5, rtol=1e-4)
+
+
+def test_eikonal_term_is_differentiable_in_the_weights(panda):
+    """Double backward: the Eikonal loss must move the network's parameters (finite differences)."""
+    torch.manual_seed(1)
+    sdf = PoseSDF(panda, hidden=(16,)).double()
+    q = torch.as_tensor(profrobot.sample_poses(panda, 8, seed=4), dtype=torch.float64)
+    w = sdf.head[-1].weight
+    eik, _ = eikonal_terms(sdf, q)
+    (grad,) = torch.autograd.grad(eik, w)
+    with torch.no_grad():
+        w[0, 0] += 1e-6
+    up, _ = eikonal_terms(sdf, q)
+    with torch.no_grad():
+        w[0, 0] -= 2e-6
+    down, _ = eikonal_terms(sdf, q)
+    assert float(grad[0, 0]) == pytest.approx(float(up - down) / 2e-6, rel=1e-4, abs=1e-8)
+
+
+def test_hierarchical_encoder_follows_the_tree(panda):
+    """Level-by-level evaluation equals the per-joint recursion ν_k = W_k [θ_k, ν_parent] + b_k."""
+    enc = HierarchicalEncoder(panda.joint_parents, 8).double()
+    theta = torch.randn(5, panda.njoint, dtype=torch.float64)
+    nu = [None] * panda.njoint
+    for k, p in enumerate(panda.joint_parents):
+        parent = nu[p] if p >= 0 else torch.zeros(5, 8, dtype=torch.float64)
+        nu[k] = torch.cat([theta[:, k:k + 1], parent], 1) @ enc.weight[k] + enc.bias[k]
+    torch.testing.assert_close(enc(theta), torch.cat(nu, 1))
+
+
+def test_branching_tree_of_the_panda_fingers(panda):
+    """Both finger joints hang off joint7: the tree branches."""
+    parents = panda.joint_parents
+    assert parents[-1] == parents[-2] == panda.joint_names.index("joint7")
+
+
+def test_checkpoint_round_trips_bit_exactly(panda, tmp_path):
+    torch.manual_seed(2)
+    sdf = PoseSDF(panda, hidden=(64, 64))
+    with torch.no_grad():
+        sdf.s_raw.fill_(3.1)
+    sdf.metrics = {"accuracy": 0.5}
+    profrobot.save_sdf(sdf, tmp_path / "ckpt")
+    back = profrobot.load_sdf(tmp_path / "ckpt", panda)
+    for (k, v), (k2, v2) in zip(sdf.state_dict().items(), back.state_dict().items()):
+        assert k == k2 and torch.equal(v, v2), k
+    q = torch.as_tensor(profrobot.sample_poses(panda, 100, seed=5), dtype=torch.float32)
+    with torch.no_grad():
+        assert torch.equal(sdf(q), back(q))
+    assert back.metrics["accuracy"] == 0.5
+    # saving again replaces the directory atomically, leaving no temporary files behind
+    profrobot.save_sdf(sdf, tmp_path / "ckpt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ckpt"]
+
+
+def test_checkpoint_for_another_robot_fails(panda, ur5e, tmp_path):
+    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), tmp_path / "ckpt")
+    with pytest.raises(ValueError, match="trained for robot 'panda_blocks'"):
+        profrobot.load_sdf(tmp_path / "ckpt", ur5e)
+    # the same arm with one obstacle fewer is another robot too
+    with pytest.raises(ValueError, match="fingerprint"):
+        profrobot.load_sdf(tmp_path / "ckpt", profrobot.Robot.from_menagerie("franka_emika_panda"))
+
+
+def test_corrupt_checkpoints_fail_clearly(panda, tmp_path):
+    path = tmp_path / "ckpt"
+    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), path)
+    w = path / "model.safetensors"
+    w.write_bytes(w.read_bytes()[:100])
+    with pytest.raises(ValueError, match="corrupt checkpoint weights"):
+        profrobot.load_sdf(path, panda)
+    (path / "config.json").write_text("{not json")
+    with pytest.raises(ValueError, match="corrupt checkpoint config"):
+        profrobot.load_sdf(path, panda)
+    with pytest.raises(ValueError, match="not a PoseSDF checkpoint"):
+        profrobot.load_sdf(tmp_path / "missing", panda)
+    # weights that do not fit the config's architecture
+    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), path)
+    cfg = json.loads((path / "config.json").read_text())
+    cfg["model"]["hidden"] = [16]
+    (path / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match="do not fit"):
+        profrobot.load_sdf(path, panda)
+
+
+def test_export_matches_the_module(panda, tmp_path):
+    torch.manual_seed(3)
+    sdf = PoseSDF(panda, hidden=(32, 32)).eval()
+    size = profrobot.export_sdf(sdf, tmp_path / "field.pt2")
+    assert size > 0 and (tmp_path / "field.pt2").stat().st_size == size
+    program = torch.export.load(str(tmp_path / "field.pt2")).module()
+    q = torch.as_tensor(profrobot.sample_poses(panda, 37, seed=6), dtype=torch.float32)
+    with torch.no_grad():
+        torch.testing.assert_close(program(q), sdf(q))
+
+
+def test_bad_inputs_are_named(panda):
+    sdf = PoseSDF(panda, hidden=(8,))
+    with pytest.raises(ValueError, match=r"shape \(B, 9\)"):
+        sdf(torch.zeros(3, 6))
+    with pytest.raises(TypeError, match="torch.Tensor"):
+        sdf(np.zeros((3, 9)))
+    with pytest.raises(ValueError, match="encoder must be one of"):
+        PoseSDF(panda, encoder="mlp")
+    with pytest.raises(TypeError, match="unknown train_sdf option"):
+        train_sdf(panda, learning_rate=1e-3)
+    with pytest.raises(ValueError, match="unknown preset"):
+        train_sdf(panda, preset="gpu-cluster")
+
+
+def test_scale_is_clamped(panda):
+    sdf = PoseSDF(panda, hidden=(8,))
+    with torch.no_grad():
+        sdf.s_raw.fill_(50.0)
+    assert float(sdf.scale) == pytest.approx(1e3)
+    assert float(PoseSDF(panda, hidden=(8,)).scale) == pytest.approx(10.0)
