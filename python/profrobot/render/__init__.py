@@ -13,3 +13,7 @@ from .views import Cameras, Views, make_views, ring_cameras, sphere_cameras
 
 __all__ = ["make_views", "Cameras", "Views", "ring_cameras", "sphere_cameras", "GaussianRobot", "rasterize",
            "RenderOut"]
+from .fit import fit_gaussians  # noqa: E402
+from .pose import PoseFit, fit_pose  # noqa: E402
+
+__all__ += ["fit_gaussians", "fit_pose", "PoseFit"]

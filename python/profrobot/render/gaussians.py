@@ -14,8 +14,9 @@ Motion (``theta`` (B, K) radians / metres → world), with ``FK`` from :mod:`pro
 
 Initialisation samples points on the robot's visual meshes (MuJoCo's compiled ``mesh_vert`` /
 ``mesh_face``, by triangle area), flat discs in the surface's tangent plane, colours from the
-geom's material (or geom) rgba shaded like MuJoCo's headlight: ``c(d) = rgb (1/2 - n.d/2)`` for a
-viewing direction ``d``, which degree-1 spherical harmonics represent exactly.
+geom's material (or geom) rgba shaded like MuJoCo's headlight: ``c(d) = rgb (a - k n.d)`` for a
+viewing direction ``d`` (a, k: the model's headlight ambient and diffuse), which degree-1
+spherical harmonics represent exactly.
 """
 
 from __future__ import annotations
@@ -152,26 +153,28 @@ class GaussianRobot(torch.nn.Module):
     @classmethod
     def from_robot(cls, robot, n: int = 8000, *, sh_degree: int = 1, skinning: str = "rigid", opacity: float = 0.9,
                    thickness: float = 0.2, seed: int = 0) -> "GaussianRobot":
-        """``n`` Gaussians on the robot's visual meshes. Each is a disc of radius ~ the spacing of
-        the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times that along the
-        normal. ``sh_degree`` 0, 1 or 2."""
+        """``n`` Gaussians on the robot's visual meshes. Each is a disc of standard deviation half
+        the spacing of the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times
+        that along the normal. ``sh_degree`` 0, 1 or 2."""
         if sh_degree not in (0, 1, 2):
             raise ValueError(f"sh_degree must be 0, 1 or 2; got {sh_degree}")
         if n < 1:
             raise ValueError(f"n must be positive; got {n}")
         body, pts, nrm, rgb, area = sample_visual_surface(robot.mj_model, n, seed)
         spacing = math.sqrt(area)
-        log_s = np.log(np.array([0.6 * spacing, 0.6 * spacing, thickness * 0.6 * spacing]))
+        log_s = np.log(np.array([0.5 * spacing, 0.5 * spacing, thickness * 0.5 * spacing]))
         nsh = (sh_degree + 1) ** 2
         sh = np.zeros((n, nsh, 3))
-        # c(d) = rgb (1/2 - n.d/2): DC = rgb/2, linear part -rgb/2 (n.d)
-        sh[:, 0] = (0.5 * rgb - 0.5) / SH_C0
+        # MuJoCo's headlight (a directional light along the view): c(d) = rgb (ambient - diffuse n.d)
+        hl = robot.mj_model.vis.headlight
+        amb, dif = float(np.mean(hl.ambient)), float(np.mean(hl.diffuse)) if hl.active else 0.0
+        sh[:, 0] = (amb * rgb - 0.5) / SH_C0
         if sh_degree >= 1:
-            sh[:, 1] = 0.5 * rgb * nrm[:, 1:2] / SH_C1
-            sh[:, 2] = -0.5 * rgb * nrm[:, 2:3] / SH_C1
-            sh[:, 3] = 0.5 * rgb * nrm[:, 0:1] / SH_C1
+            sh[:, 1] = dif * rgb * nrm[:, 1:2] / SH_C1
+            sh[:, 2] = -dif * rgb * nrm[:, 2:3] / SH_C1
+            sh[:, 3] = dif * rgb * nrm[:, 0:1] / SH_C1
         else:
-            sh[:, 0] = (0.85 * rgb - 0.5) / SH_C0
+            sh[:, 0] = ((amb + 0.7 * dif) * rgb - 0.5) / SH_C0
         op = np.full(n, math.log(opacity / (1 - opacity)))
         return cls(robot, body, pts, _quat_from_z(nrm), np.tile(log_s, (n, 1)), op, sh, skinning=skinning)
 

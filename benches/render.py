@@ -1,0 +1,230 @@
+"""Benchmark of the Gaussian-splat robot renderer on the Panda (issue acceptance 1, 3, 4, 5).
+
+    MUJOCO_GL=osmesa python benches/render.py [--quick] [--out benches/out/render]
+
+1. fidelity on held-out poses *and* views at 128^2 against MuJoCo: PSNR, mask IoU (alpha > 1/2
+   against MuJoCo's segmentation), median depth error on MuJoCo's robot mask;
+2. pose from 4 views: MuJoCo renders of collision-free targets, starts 0.3 rad away on every arm
+   joint, median joint error after ``fit_pose``;
+3. speed: forward + backward, 4 cameras at 128^2, with MuJoCo's own CPU render time per view;
+4. a PNG: MuJoCo | ours | |difference| x 4, for a few held-out poses and views.
+
+Data, the fitted model and the figures are cached under ``--out`` (delete to start afresh).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+import torch
+
+import profrobot
+from profrobot.render import GaussianRobot, Views, fit_gaussians, fit_pose, make_views, ring_cameras, sphere_cameras
+from profrobot.render.image import mask_iou, psnr, to_uint8, write_png
+from profrobot.render.views import _MjViews, robot_visual_model
+
+LOOKAT = (0.0, 0.0, 0.45)
+DIST = 1.5
+
+
+def free_poses(robot, n, seed):
+    """``n`` collision-free uniform poses (exact labels)."""
+    p = profrobot.sample_poses(robot, 4 * n + 64, seed=seed)
+    return p[~profrobot.label_poses(robot, p).collides][:n]
+
+
+def cached_views(path, robot, make):
+    if os.path.exists(path):
+        return Views.load(path, robot=robot)
+    v = make()
+    v.save(path)
+    return v
+
+
+def render_all(model, views, batch=4):
+    """Our renders of every (pose, camera) of ``views``: rgb, alpha, depth as numpy (P, C, ...)."""
+    outs = []
+    bg = torch.tensor(views.background, dtype=torch.float32)
+    with torch.no_grad():
+        for i in range(0, len(views), batch):
+            th = torch.tensor(views.poses[i:i + batch], dtype=torch.float32)
+            o = model.render_views(th, views.cameras, background=bg)
+            P, C = len(th), len(views.cameras)
+            outs.append((o.rgb.reshape(P, C, *o.rgb.shape[1:]).numpy(), o.alpha.reshape(P, C, *o.alpha.shape[1:]).numpy(),
+                         o.depth.reshape(P, C, *o.depth.shape[1:]).numpy()))
+    return tuple(np.concatenate(x) for x in zip(*outs))
+
+
+def fidelity(model, te):
+    rgb, alpha, depth = render_all(model, te)
+    err = np.abs(depth - te.depth)[te.mask]
+    return dict(psnr_db=psnr(rgb, te.rgb / 255.0), mask_iou=mask_iou(alpha > 0.5, te.mask),
+                depth_median_err_m=float(np.median(err)), depth_mean_err_m=float(err.mean()),
+                per_view_psnr_min=float(min(psnr(rgb[p, c], te.rgb[p, c] / 255.0) for p in range(len(te)) for c in range(len(te.cameras))))), (rgb, alpha, depth)
+
+
+def comparison_png(path, te, ours, poses=3, views=4):
+    rgb = ours[0]
+    rows = []
+    for p in range(min(poses, len(te))):
+        tiles = []
+        for c in range(min(views, len(te.cameras))):
+            mj = te.rgb[p, c]
+            us = to_uint8(rgb[p, c])
+            diff = to_uint8(np.clip(4 * np.abs(mj / 255.0 - rgb[p, c]), 0, 1))
+            tiles.append(np.concatenate([mj, us, diff], axis=0))         # column: MuJoCo / ours / diff
+        rows.append(np.concatenate(tiles, axis=1))
+    write_png(path, np.concatenate(rows, axis=0))
+
+
+def mujoco_render_time(robot, cams, n=20):
+    """Seconds per RGB frame of MuJoCo's own offscreen renderer (update_scene + render)."""
+    import mujoco
+
+    mv = _MjViews(robot_visual_model(robot), cams)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    mujoco.mj_kinematics(mv.m, mv.d)
+    ts = []
+    for i in range(n):
+        c = i % len(cams)
+        cam.lookat[:] = cams.lookat[c]
+        cam.distance, cam.azimuth, cam.elevation = cams.distance[c], cams.azimuth[c], cams.elevation[c]
+        t = time.perf_counter()
+        mv.r.update_scene(mv.d, cam)
+        mv.r.render()
+        ts.append(time.perf_counter() - t)
+    mv.close()
+    return float(np.median(ts))
+
+
+def speed(model, cams, theta, threads, reps=5):
+    torch.set_num_threads(threads)
+    vm, K = torch.tensor(cams.world_to_cam, dtype=torch.float32), torch.tensor(cams.K, dtype=torch.float32)
+    ts = []
+    for _ in range(reps + 1):
+        th = theta.clone().requires_grad_(True)
+        t = time.perf_counter()
+        out = model.render(th, vm, K, cams.width, cams.height)
+        (out.rgb.sum() + out.depth.sum()).backward()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts[1:])), float(np.min(ts[1:])), out.npairs
+
+
+def pose_benchmark(robot, model, n, iters, size, batch, seed, out_dir):
+    cams = ring_cameras(4, size=size, distance=DIST, elevation=-25.0, azimuth0=45.0, lookat=LOOKAT)
+    targets = cached_views(os.path.join(out_dir, f"pose_targets_{n}_{size}.npz"), robot,
+                           lambda: make_views(robot, free_poses(robot, n, seed), cams, progress=False))
+    rng = np.random.default_rng(seed)
+    K = robot.njoint
+    arm = np.array([t == "hinge" for t in robot.joint_types])
+    lim = robot.joint_limits
+    start = targets.poses.copy()
+    sign = rng.choice([-1.0, 1.0], size=start.shape)
+    start[:, arm] += 0.3 * sign[:, arm]                      # 0.3 rad away on every arm joint
+    start[:, ~arm] += 0.01 * sign[:, ~arm]                   # fingers (slides): 1 cm
+    # a start beyond a limit is reflected to the other side so it stays 0.3 rad away
+    over, under = start > lim[:, 1], start < lim[:, 0]
+    start[over] = (targets.poses - 0.3 * sign)[over] if arm.any() else start[over]
+    start[under] = (targets.poses - 0.3 * sign)[under] if arm.any() else start[under]
+    start = np.clip(start, lim[:, 0], lim[:, 1])
+    fits, t0 = [], time.perf_counter()
+    for i in range(0, n, batch):
+        sl = slice(i, min(n, i + batch))
+        f = fit_pose(model, dict(rgb=targets.rgb[sl], depth=targets.depth[sl], mask=targets.mask[sl]), cams, start[sl],
+                     iters=iters, background=targets.background)
+        fits.append(f.theta)
+        print(f"    pose targets {sl.stop}/{n}: {time.perf_counter() - t0:.0f} s", flush=True)
+    theta = np.concatenate(fits)
+    err = np.abs(theta - targets.poses)
+    e0 = np.abs(start - targets.poses)
+    return dict(targets=n, views=4, size=size, iters=iters,
+                start_err_arm_median_rad=float(np.median(e0[:, arm])),
+                median_joint_err_rad=float(np.median(err[:, arm])),
+                mean_joint_err_rad=float(err[:, arm].mean()),
+                median_of_per_target_max_err_rad=float(np.median(err[:, arm].max(1))),
+                share_targets_all_joints_within_0p02=float((err[:, arm].max(1) <= 0.02).mean()),
+                finger_median_err_m=float(np.median(err[:, ~arm])) if (~arm).any() else None,
+                seconds=time.perf_counter() - t0)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="benches/out/render")
+    ap.add_argument("--train-poses", type=int, default=60)
+    ap.add_argument("--train-cams", type=int, default=8)
+    ap.add_argument("--test-poses", type=int, default=8)
+    ap.add_argument("--gaussians", type=int, default=10000)
+    ap.add_argument("--iters", type=int, default=600)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--pose-targets", type=int, default=50)
+    ap.add_argument("--pose-iters", type=int, default=80)
+    ap.add_argument("--pose-size", type=int, default=64)
+    ap.add_argument("--pose-batch", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads for fitting (speed is timed at 1 and 2)")
+    ap.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")
+    ap.add_argument("--quick", action="store_true", help="small everything (smoke run)")
+    ap.add_argument("--skip-pose", action="store_true")
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.train_poses, a.test_poses, a.gaussians, a.iters, a.pose_targets, a.pose_iters = 6, 2, 2000, 20, 4, 10
+        a.out = a.out + "_quick"
+    os.makedirs(a.out, exist_ok=True)
+    torch.set_num_threads(a.threads)
+    robot = profrobot.Robot.from_menagerie("franka_emika_panda")
+    res = dict(robot=robot.name, size=a.size, torch_threads=a.threads, cpu_count=os.cpu_count(),
+               loadavg_start=os.getloadavg())
+    print(f"robot {robot.name}, {a.size}x{a.size}, torch threads {a.threads}, load average {os.getloadavg()}", flush=True)
+
+    train_cams = sphere_cameras(a.train_cams, size=a.size, distance=DIST, lookat=LOOKAT, jitter=0.05, seed=1,
+                                elevation_range=(-50.0, 20.0))
+    test_cams = ring_cameras(4, size=a.size, distance=DIST, elevation=[-15.0], azimuth0=22.5, lookat=LOOKAT)
+    t = time.perf_counter()
+    tr = cached_views(os.path.join(a.out, f"train_{a.train_poses}x{a.train_cams}_{a.size}.npz"), robot,
+                      lambda: make_views(robot, free_poses(robot, a.train_poses, 1), train_cams, processes=a.processes))
+    te = cached_views(os.path.join(a.out, f"test_{a.test_poses}_{a.size}.npz"), robot,
+                      lambda: make_views(robot, free_poses(robot, a.test_poses, 2), test_cams, processes=a.processes))
+    res["data_seconds"] = time.perf_counter() - t
+    res["mujoco_rgb_render_s_per_view"] = mujoco_render_time(robot, test_cams)
+    print(f"data: train {tr.rgb.shape}, held-out {te.rgb.shape}; MuJoCo RGB render "
+          f"{1e3 * res['mujoco_rgb_render_s_per_view']:.1f} ms/view", flush=True)
+
+    mpath = os.path.join(a.out, f"panda_{a.gaussians}_{a.iters}.safetensors")
+    if os.path.exists(mpath):
+        model = GaussianRobot.load(mpath, robot)
+        res["fit"] = json.load(open(mpath + ".json"))
+    else:
+        model = GaussianRobot.from_robot(robot, a.gaussians, seed=0)
+        res["fidelity_before_fit"] = fidelity(model, te)[0]
+        print("before fit:", res["fidelity_before_fit"], flush=True)
+        t = time.perf_counter()
+        hist = fit_gaussians(model, tr, iters=a.iters, max_gaussians=int(2.5 * a.gaussians))
+        res["fit"] = dict(seconds=time.perf_counter() - t, iters=a.iters, gaussians_start=a.gaussians, gaussians_end=model.n,
+                          last=[h for h in hist if "total" in h][-1])
+        model.save(mpath)
+        json.dump(res["fit"], open(mpath + ".json", "w"), indent=1)
+    fid, ours = fidelity(model, te)
+    res["fidelity"] = fid
+    print("fidelity (held-out poses and views):", fid, flush=True)
+    comparison_png(os.path.join(a.out, "mujoco_vs_ours.png"), te, ours)
+
+    theta = torch.tensor(te.poses[:1], dtype=torch.float32)
+    res["speed"] = {f"threads_{n}": dict(zip(("median_s", "min_s", "pairs"), speed(model, test_cams, theta, n))) for n in (1, 2)}
+    torch.set_num_threads(a.threads)
+    print("speed (forward + backward, 4 cameras):", res["speed"], flush=True)
+
+    if not a.skip_pose:
+        res["pose"] = pose_benchmark(robot, model, a.pose_targets, a.pose_iters, a.pose_size, a.pose_batch, 3, a.out)
+        print("pose from 4 views:", res["pose"], flush=True)
+    res["loadavg_end"] = os.getloadavg()
+    json.dump(res, open(os.path.join(a.out, "results.json"), "w"), indent=1)
+    print(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

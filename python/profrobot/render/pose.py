@@ -1,0 +1,138 @@
+"""Joint angles from images: gradient descent on the Gaussian robot's render (paper §4.3).
+
+For B targets, each seen by the same C cameras, with target images ``I*`` (C, H, W, 3) in [0, 1],
+depths ``D*`` (metres) and robot masks ``M*``:
+
+    L(theta) = mean_{M} |I(theta) - I*|^2                 (L_RGB on the robot mask)
+             + w_depth * mean_{M* & alpha > 1/2} |D(theta) - D*|   (L_D, metres)
+             + w_mask  * mean |alpha(theta) - M*|          (silhouette)
+             + extra(theta)                               (e.g. beta * L_SDF, the collision penalty)
+
+where ``M = M* | (alpha > 1/2)`` (the target's and the render's robot pixels, so that a robot
+drawn in the wrong place is penalised too). Adam on joints normalised to [-1, 1] over their
+limits (Dr. Robot: lr 0.02), projected back into the limits after each step, learning rate
+decayed ten-fold (cosine); restarts perturb the start and keep the best final loss.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ._adam import Adam
+from .gaussians import GaussianRobot
+from .views import Cameras
+
+__all__ = ["fit_pose", "PoseFit", "pose_loss"]
+
+
+@dataclass
+class PoseFit:
+    """``theta`` (B, K) the fitted poses, ``loss`` (B,) their final image loss, ``history``
+    (iters, B) the loss of the kept start per step, ``start`` (B, K) the start that was kept."""
+
+    theta: np.ndarray
+    loss: np.ndarray
+    history: np.ndarray
+    start: np.ndarray
+    all_losses: np.ndarray = field(default=None)
+
+
+def pose_loss(out, rgb_t, depth_t, mask_t, *, w_depth: float = 1.0, w_mask: float = 0.5) -> torch.Tensor:
+    """Per-image loss (N,) of renders ``out`` against targets (N, H, W, 3), (N, H, W), (N, H, W)."""
+    mt = mask_t.to(out.rgb.dtype)
+    drawn = (out.alpha.detach() > 0.5).to(out.rgb.dtype)
+    m = torch.maximum(mt, drawn)
+    msum = m.sum((1, 2)).clamp_min(1)
+    l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * m).sum((1, 2)) / msum
+    md = mt * drawn
+    l_d = ((out.depth - depth_t).abs() * md).sum((1, 2)) / md.sum((1, 2)).clamp_min(1)
+    l_m = (out.alpha - mt).abs().mean((1, 2))
+    return l_rgb + w_depth * l_d + w_mask * l_m
+
+
+def _as_targets(x, name, shape_tail, B, C, dtype):
+    t = torch.as_tensor(np.asarray(x))
+    if t.dtype == torch.uint8:
+        t = t.to(dtype) / 255.0
+    if t.ndim == len(shape_tail) + 1:
+        t = t[None]
+    if t.shape[:2] != (B, C) or tuple(t.shape[2:]) != tuple(shape_tail):
+        raise ValueError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
+    return t
+
+
+def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iters: int = 100, lr: float = 0.02,
+             restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
+             extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
+             seed: int = 0) -> PoseFit:
+    """Recover joint angles from multi-view images.
+
+    ``targets``: dict with ``rgb`` (B, C, H, W, 3) uint8 or [0, 1] floats, ``depth`` (B, C, H, W)
+    metres and ``mask`` (B, C, H, W) bool (B may be left out for one target), e.g. from
+    :func:`profrobot.render.make_views`. ``cameras``: the C cameras. ``init`` (B, K) or (K,)
+    starting poses. ``restarts``: extra starts per target, perturbed by ``restart_sigma`` (radians,
+    per joint, clipped to the limits); all starts run as one batch. ``extra_loss``: a callable
+    of theta (B*R, K) returning a scalar added to the summed loss (the collision penalty's hook).
+    """
+    init = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=torch.float32)
+    if init.ndim == 1:
+        init = init[None]
+    K = model.njoint
+    if init.ndim != 2 or init.shape[1] != K:
+        raise ValueError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
+    if not torch.isfinite(init).all():
+        raise ValueError("fit_pose: init contains NaN or inf")
+    B, C, H, W = init.shape[0], len(cameras), cameras.height, cameras.width
+    rgb_t = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float()
+    depth_t = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float()
+    mask_t = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool()
+    if not (torch.isfinite(rgb_t).all() and torch.isfinite(depth_t).all()):
+        raise ValueError("fit_pose: targets contain NaN or inf")
+
+    lim = model.limits.detach().float().cpu()                        # (K, 2) radians / metres
+    lo, hi = lim[:, 0], lim[:, 1]
+    span = (hi - lo).clamp_min(1e-9)
+    R = restarts + 1
+    gen = torch.Generator().manual_seed(seed)
+    starts = init[:, None].repeat(1, R, 1)
+    if restarts:
+        starts[:, 1:] += restart_sigma * torch.randn(B, restarts, K, generator=gen)
+    starts = torch.minimum(torch.maximum(starts, lo), hi).reshape(B * R, K)
+    u = torch.nn.Parameter(2 * (starts - lo) / span - 1)            # normalised joints in [-1, 1]
+    opt = Adam([dict(params=[u], lr=lr)], eps=1e-8)
+    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32)
+    Ks = torch.as_tensor(cameras.K, dtype=torch.float32)
+    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32)
+    rep = lambda t: t[:, None].expand(B, R, *t.shape[1:]).reshape(B * R * C, *t.shape[2:])
+    tr, td, tm = rep(rgb_t), rep(depth_t), rep(mask_t)
+    hist = []
+    for it in range(iters):
+        opt.scale_lr(0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))   # cosine to lr/10
+        theta = lo + (u + 1) / 2 * span
+        out = model.render(theta, vm, Ks, W, H, background=bg)
+        per = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B * R, C).mean(1)
+        total = per.sum()
+        if extra_loss is not None:
+            total = total + extra_loss(theta)
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+        with torch.no_grad():
+            u.clamp_(-1, 1)                                         # joint limits
+        hist.append(per.detach().reshape(B, R))
+    with torch.no_grad():
+        theta = lo + (u + 1) / 2 * span
+        out = model.render(theta, vm, Ks, W, H, background=bg)
+        final = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B, R, C).mean(-1)
+    best = final.argmin(1)
+    ar = torch.arange(B)
+    history = torch.stack(hist).numpy() if hist else np.zeros((0, B, R))
+    return PoseFit(theta=theta.reshape(B, R, K)[ar, best].numpy().astype(np.float64), loss=final[ar, best].numpy(),
+                   history=history[:, np.arange(B), best.numpy()] if len(history) else np.zeros((0, B)),
+                   start=starts.reshape(B, R, K)[ar, best].numpy().astype(np.float64), all_losses=final.numpy())
+

@@ -1,0 +1,123 @@
+"""The Gaussian robot (initialisation, rigid and LBS motion, save/load), the appearance fit and
+pose from images, on a two-link toy arm at tiny image sizes."""
+
+import os
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from profrobot.render import GaussianRobot, fit_gaussians, fit_pose, make_views, ring_cameras
+
+ARM = """<mujoco><compiler angle="radian"/><statistic extent="1" center="0 0 0.3"/>
+  <asset><mesh name="bar" vertex="-.04 -.04 0  .04 -.04 0  .04 .04 0  -.04 .04 0  -.04 -.04 .3  .04 -.04 .3  .04 .04 .3  -.04 .04 .3"/>
+         <material name="red" rgba="0.8 0.2 0.2 1"/></asset>
+  <worldbody>
+    <body name="l1"><joint name="j1" type="hinge" axis="0 0 1" range="-3 3"/><geom type="mesh" mesh="bar" material="red"/>
+      <body name="l2" pos="0 0 0.3"><joint name="j2" type="hinge" axis="0 1 0" range="-2 2"/>
+        <geom type="mesh" mesh="bar" rgba="0.2 0.6 0.9 1"/></body>
+    </body>
+  </worldbody></mujoco>"""
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return profrobot.Robot.from_spec(mujoco.MjSpec.from_string(ARM), name="arm")
+
+
+@pytest.fixture(scope="module")
+def cams():
+    return ring_cameras(3, size=32, distance=1.4, elevation=-20, lookat=(0, 0, 0.3))
+
+
+def test_init_on_visual_meshes(arm):
+    g = GaussianRobot.from_robot(arm, 400, seed=1)
+    assert g.n == 400 and set(g.body.tolist()) == {1, 2}
+    # points on the bar surfaces: |x|, |y| <= 4 cm, 0 <= z <= 30 cm in the body frame
+    m = g.means.detach().numpy()
+    assert (np.abs(m[:, :2]) <= 0.04 + 1e-6).all() and (m[:, 2] >= -1e-6).all() and (m[:, 2] <= 0.3 + 1e-6).all()
+    mu, A = g.world(torch.zeros(1, 2))
+    assert mu.shape == (1, 400, 3) and A.shape == (1, 400, 3, 3)
+
+
+def test_render_shapes_and_close_to_mujoco_before_fitting(arm, cams):
+    g = GaussianRobot.from_robot(arm, 1500, seed=0)
+    v = make_views(arm, np.array([[0.3, 0.8]]), cams, progress=False)
+    with torch.no_grad():
+        out = g.render_views(torch.tensor(v.poses, dtype=torch.float32), cams, background=torch.tensor(v.background, dtype=torch.float32))
+    assert out.rgb.shape == (3, 32, 32, 3) and out.depth.shape == (3, 32, 32) and out.alpha.shape == (3, 32, 32)
+    drawn = out.alpha.numpy() > 0.5
+    # every robot pixel is drawn (unfitted discs overhang the silhouette by ~1 px, which at this
+    # size is as wide as the bar: no IoU test here; benches/render.py measures fitted IoU)
+    assert (drawn & v.mask[0]).sum() / v.mask[0].sum() > 0.9
+    err = np.abs(out.depth.numpy() - v.depth[0])[v.mask[0] & drawn]
+    assert np.median(err) < 0.02
+
+
+def test_lbs_starts_as_rigid_and_trains(arm, cams):
+    torch.manual_seed(0)
+    rigid = GaussianRobot.from_robot(arm, 300, seed=0)
+    lbs = GaussianRobot.from_robot(arm, 300, seed=0, skinning="lbs")
+    theta = torch.tensor([[0.4, -0.7]])
+    mu_r, _ = rigid.world(theta)
+    mu_l, _ = lbs.world(theta)
+    assert (mu_r - mu_l).norm(dim=-1).max() < 5e-3          # softmax weights start ~one-hot
+    lbs.render_views(theta, cams).rgb.sum().backward()
+    # the output layer starts at zero (weights = softmax of the body prior), so it learns first
+    assert lbs.skin_mlp[-1].weight.grad is not None and lbs.skin_mlp[-1].weight.grad.abs().sum() > 0
+
+
+def test_save_load_roundtrip_and_errors(arm, panda, tmp_path, cams):
+    g = GaussianRobot.from_robot(arm, 200, seed=0, skinning="lbs")
+    p = tmp_path / "arm.safetensors"
+    g.save(p)
+    assert sorted(os.listdir(tmp_path)) == ["arm.safetensors"]          # no temporary left
+    h = GaussianRobot.load(p, arm)
+    theta = torch.tensor([[0.2, 0.3]])
+    with torch.no_grad():
+        torch.testing.assert_close(h.render_views(theta, cams).rgb, g.render_views(theta, cams).rgb)
+    assert h.skinning == "lbs" and h.sh_degree == g.sh_degree
+    with pytest.raises(ValueError, match="fitted to robot"):
+        GaussianRobot.load(p, panda)
+    p.write_bytes(b"\x00" * 40)
+    with pytest.raises(ValueError, match="not a readable"):
+        GaussianRobot.load(p, arm)
+    with pytest.raises(FileNotFoundError):
+        GaussianRobot.load(tmp_path / "missing.safetensors", arm)
+    with pytest.raises(ValueError, match="theta"):
+        g.world(torch.zeros(1, 3))
+    with pytest.raises(ValueError, match="NaN"):
+        g.world(torch.full((1, 2), float("nan")))
+
+
+def test_fit_reduces_loss(arm, cams):
+    v = make_views(arm, np.array([[0.0, 0.5], [1.0, -0.5]]), cams, progress=False)
+    g = GaussianRobot.from_robot(arm, 200, seed=0)
+    hist = fit_gaussians(g, v, iters=12, cams_per_step=3, densify_every=5, log_every=4, progress=False, seed=0)
+    losses = [h["total"] for h in hist if "total" in h]
+    assert losses[-1] < losses[0]
+    assert any(h.get("event") == "densify" for h in hist) and g.n >= 200 * 0.9
+
+
+def test_fit_pose_recovers_joints_and_respects_limits(arm, cams):
+    torch.manual_seed(0)
+    g = GaussianRobot.from_robot(arm, 300, seed=0)
+    target = torch.tensor([[0.5, 1.9]])                   # j2 near its upper limit (2.0)
+    with torch.no_grad():
+        out = g.render_views(target, cams)
+    targets = dict(rgb=out.rgb[None].numpy(), depth=out.depth[None].numpy(), mask=(out.alpha > 0.5)[None].numpy())
+    calls = []
+
+    def extra(theta):
+        calls.append(theta.shape)
+        return 0.0 * theta.sum()
+
+    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iters=40, lr=0.02, extra_loss=extra)
+    assert np.abs(fit.theta - target.numpy()).max() < 0.02, fit.theta
+    assert (fit.theta[:, 1] <= 2.0 + 1e-6).all() and fit.history.shape == (40, 1) and len(calls) == 40
+    with pytest.raises(ValueError, match="rgb"):
+        fit_pose(g, dict(rgb=np.zeros((1, 2, 32, 32, 3)), depth=targets["depth"], mask=targets["mask"]), cams, target.numpy())
+    with pytest.raises(ValueError, match="init"):
+        fit_pose(g, targets, cams, np.zeros((1, 5)))
