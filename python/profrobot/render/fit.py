@@ -82,11 +82,15 @@ def _optimizer(model: GaussianRobot, lr_scale: float = 1.0) -> Adam:
 
 @torch.no_grad()
 def _densify(model: GaussianRobot, grad_acc: torch.Tensor, top: float, max_n: int, min_opacity: float,
-             rng: torch.Generator) -> dict:
-    """Split/clone the ``top`` fraction by accumulated position gradient, prune transparent ones."""
+             rng: torch.Generator, contrib: torch.Tensor | None = None, min_contrib: float = 0.0) -> dict:
+    """Split/clone the ``top`` fraction by accumulated position gradient; prune transparent ones
+    and those whose largest blending weight ``contrib`` (N,) stayed below ``min_contrib``
+    (hidden inside the robot: e.g. Gaussians on internal meshes)."""
     n0 = model.n
     op = torch.sigmoid(model.opacity_logits)
     keep = op >= min_opacity
+    if contrib is not None:
+        keep &= contrib >= min_contrib
     room = max(0, max_n - int(keep.sum()))
     k = min(int(top * n0), room)
     added = 0
@@ -96,25 +100,46 @@ def _densify(model: GaussianRobot, grad_acc: torch.Tensor, top: float, max_n: in
         big = s.max(-1).values > torch.exp(model.log_scales).max(-1).values.median()
         # split the big: two samples from the Gaussian (in its body frame), scales / 1.6
         R = quat_to_matrix(model.quats[sel])
-        eps = torch.randn(k, 3, generator=rng, dtype=s.dtype) * s
+        eps = torch.randn(k, 3, generator=rng, dtype=s.dtype).to(s.device) * s
         offs = torch.einsum("nij,nj->ni", R, eps)
         new_means = torch.where(big[:, None], model.means[sel] + offs, model.means[sel])
         new_logs = torch.where(big[:, None], model.log_scales[sel] - math.log(1.6), model.log_scales[sel])
         model.log_scales.data[sel] = new_logs
         model.means.data[sel] = torch.where(big[:, None], model.means[sel] - offs, model.means[sel])
         model.append(model.body[sel], new_means, model.quats[sel], new_logs, model.opacity_logits[sel], model.sh[sel])
-        keep = torch.cat([keep, torch.ones(k, dtype=torch.bool)])
+        keep = torch.cat([keep, torch.ones(k, dtype=torch.bool, device=keep.device)])
         added = k
     model.keep(keep)
     return dict(n_before=n0, added=added, pruned=int((~keep).sum()), n_after=model.n)
 
 
+@torch.no_grad()
+def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int = 0) -> torch.Tensor:
+    """(N,) each Gaussian's largest blending weight over (up to ``max_sets``) training poses,
+    each from all of its cameras."""
+    rng = np.random.default_rng(seed)
+    idx = rng.permutation(len(views))[:max_sets]
+    dev = model.means.device
+    best = torch.zeros(model.n, device=dev)
+    for p in idx:
+        out = model.render_views(torch.tensor(views.poses[p:p + 1], dtype=torch.float32, device=dev), views.cameras)
+        if out.contrib is None:                                   # gsplat: no per-Gaussian weights
+            return torch.ones(model.n, device=dev)
+        best = torch.maximum(best, out.contrib.max(0).values)
+    return best
+
+
 def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_per_step: int = 4, w_ssim: float = 0.2,
                   w_depth: float = 1.0, w_mask: float = 0.5, densify_every: int = 100, densify_until: float = 0.7,
-                  densify_top: float = 0.05, max_gaussians: int = 30000, min_opacity: float = 0.02, seed: int = 0,
-                  progress: bool = True, log_every: int = 50) -> list[dict]:
+                  densify_top: float = 0.05, max_gaussians: int = 30000, min_opacity: float = 0.02,
+                  min_contrib: float = 0.02, prune_hidden_first: bool = True, seed: int = 0, progress: bool = True,
+                  log_every: int = 50) -> list[dict]:
     """Fit ``model`` (in place) to ``views`` (MuJoCo renders of the same robot). Each step draws
-    one pose and ``cams_per_step`` of its cameras. Returns the loss history (one dict per log)."""
+    one pose and ``cams_per_step`` of its cameras. Returns the loss history (one dict per log).
+
+    ``prune_hidden_first``: before fitting, drop Gaussians whose blending weight never reaches
+    ``min_contrib`` in any training view (initialised on meshes inside the robot's shell, they
+    only leak dark blotches through it)."""
     from tqdm.auto import tqdm
 
     if views.robot_fingerprint and views.robot_fingerprint != model.robot_fingerprint:
@@ -122,23 +147,27 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
     rng = np.random.default_rng(seed)
     trng = torch.Generator().manual_seed(seed)
     cams = views.cameras
-    vm_all = torch.tensor(cams.world_to_cam, dtype=torch.float32)
-    K_all = torch.tensor(cams.K, dtype=torch.float32)
-    bg = torch.tensor(views.background, dtype=torch.float32)
-    opt = _optimizer(model)
-    grad_acc = torch.zeros(model.n)
-    seen = torch.zeros(model.n)
+    dev = model.means.device
+    f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=dev)
+    vm_all, K_all, bg = f32(cams.world_to_cam), f32(cams.K), f32(views.background)
     history = []
+    if prune_hidden_first:
+        vis = visibility(model, views, seed=seed)
+        n0 = model.n
+        model.keep(vis >= min_contrib)
+        history.append(dict(step=0, event="prune_hidden", n_before=n0, n_after=model.n))
+    opt = _optimizer(model)
+    zeros = lambda: torch.zeros(model.n, device=dev)
+    grad_acc, seen, contrib = zeros(), zeros(), zeros()
     t0 = time.perf_counter()
     bar = tqdm(range(iters), desc="fit Gaussians", disable=not progress)
     for it in bar:
         p = int(rng.integers(len(views)))
         cs = rng.choice(len(cams), size=min(cams_per_step, len(cams)), replace=False)
-        rgb_t = torch.from_numpy(views.rgb[p, cs]).float() / 255.0
-        depth_t = torch.from_numpy(views.depth[p, cs]).float()
-        mask_t = torch.from_numpy(views.mask[p, cs])
-        out = model.render(torch.tensor(views.poses[p:p + 1], dtype=torch.float32), vm_all[cs], K_all[cs],
-                           cams.width, cams.height, background=bg)
+        rgb_t = f32(views.rgb[p, cs]) / 255.0
+        depth_t = f32(views.depth[p, cs])
+        mask_t = torch.as_tensor(views.mask[p, cs], device=dev)
+        out = model.render(f32(views.poses[p:p + 1]), vm_all[cs], K_all[cs], cams.width, cams.height, background=bg)
         terms = image_losses(out, rgb_t, depth_t, mask_t, w_ssim=w_ssim, w_depth=w_depth, w_mask=w_mask)
         opt.zero_grad()
         terms["total"].backward()
@@ -146,14 +175,18 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
             gn = model.means.grad.norm(dim=-1)
             grad_acc += gn
             seen += (gn > 0).float()
+            if out.contrib is not None:
+                contrib = torch.maximum(contrib, out.contrib.max(0).values)
         opt.step()
         with torch.no_grad():
             model.quats.data = model.quats / model.quats.norm(dim=-1, keepdim=True)
             model.log_scales.data.clamp_(max=math.log(0.05))           # no Gaussian wider than 5 cm
         if (it + 1) % densify_every == 0 and it + 1 < densify_until * iters:
-            info = _densify(model, grad_acc / seen.clamp_min(1), densify_top, max_gaussians, min_opacity, trng)
+            # contrib over one interval sees few views: only prune what was drawn nowhere at all
+            info = _densify(model, grad_acc / seen.clamp_min(1), densify_top, max_gaussians, min_opacity, trng,
+                            contrib if contrib.any() else None, 1e-6)
             opt = _optimizer(model)
-            grad_acc, seen = torch.zeros(model.n), torch.zeros(model.n)
+            grad_acc, seen, contrib = zeros(), zeros(), zeros()
             history.append(dict(step=it + 1, event="densify", **info))
         if (it + 1) % log_every == 0 or it + 1 == iters:
             rec = {k: float(v.detach()) for k, v in terms.items()}

@@ -79,6 +79,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     per joint, clipped to the limits); all starts run as one batch. ``extra_loss``: a callable
     of theta (B*R, K) returning a scalar added to the summed loss (the collision penalty's hook).
     """
+    dev = model.means.device
     init = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=torch.float32)
     if init.ndim == 1:
         init = init[None]
@@ -95,6 +96,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         raise ValueError("fit_pose: targets contain NaN or inf")
 
     lim = model.limits.detach().float().cpu()                        # (K, 2) radians / metres
+    # the optimisation lives on the model's device (CPU, or a GPU after model.to("cuda"))
     lo, hi = lim[:, 0], lim[:, 1]
     span = (hi - lo).clamp_min(1e-9)
     R = restarts + 1
@@ -103,12 +105,13 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     if restarts:
         starts[:, 1:] += restart_sigma * torch.randn(B, restarts, K, generator=gen)
     starts = torch.minimum(torch.maximum(starts, lo), hi).reshape(B * R, K)
-    u = torch.nn.Parameter(2 * (starts - lo) / span - 1)            # normalised joints in [-1, 1]
+    lo, hi, span = lo.to(dev), hi.to(dev), span.to(dev)
+    u = torch.nn.Parameter((2 * (starts.to(dev) - lo) / span - 1))    # normalised joints in [-1, 1]
     opt = Adam([dict(params=[u], lr=lr)], eps=1e-8)
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32)
-    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32)
-    rep = lambda t: t[:, None].expand(B, R, *t.shape[1:]).reshape(B * R * C, *t.shape[2:])
+    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
+    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
+    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+    rep = lambda t: t.to(dev)[:, None].expand(B, R, *t.shape[1:]).reshape(B * R * C, *t.shape[2:])
     tr, td, tm = rep(rgb_t), rep(depth_t), rep(mask_t)
     hist = []
     for it in range(iters):
@@ -129,9 +132,10 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         theta = lo + (u + 1) / 2 * span
         out = model.render(theta, vm, Ks, W, H, background=bg)
         final = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B, R, C).mean(-1)
+    theta, final = theta.cpu(), final.cpu()
     best = final.argmin(1)
     ar = torch.arange(B)
-    history = torch.stack(hist).numpy() if hist else np.zeros((0, B, R))
+    history = torch.stack(hist).cpu().numpy() if hist else np.zeros((0, B, R))
     return PoseFit(theta=theta.reshape(B, R, K)[ar, best].numpy().astype(np.float64), loss=final[ar, best].numpy(),
                    history=history[:, np.arange(B), best.numpy()] if len(history) else np.zeros((0, B)),
                    start=starts.reshape(B, R, K)[ar, best].numpy().astype(np.float64), all_losses=final.numpy())

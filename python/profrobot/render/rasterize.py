@@ -41,12 +41,15 @@ NEAR = 0.01               # metres: Gaussians closer than this to the camera are
 @dataclass
 class RenderOut:
     """``rgb`` (C, H, W, 3), ``depth`` (C, H, W) metres (expected depth; 0 where nothing was
-    drawn), ``alpha`` (C, H, W) accumulated opacity in [0, 1]; ``npairs``: composited pairs."""
+    drawn), ``alpha`` (C, H, W) accumulated opacity in [0, 1]; ``npairs``: composited pairs;
+    ``contrib`` (C, N) each Gaussian's largest blending weight ``alpha T`` in any pixel (no
+    gradient; 0 for a Gaussian that is hidden or off-screen), or None (gsplat)."""
 
     rgb: torch.Tensor
     depth: torch.Tensor
     alpha: torch.Tensor
     npairs: int = 0
+    contrib: torch.Tensor | None = None
 
 
 def _check(name, t, shape_desc, ok):
@@ -195,7 +198,8 @@ def _rasterize_torch(means, covs, opacities, colors, viewmats, Ks, width, height
     depth = torch.where(acc > 1e-6, dsum.reshape(C, height, width) / acc.clamp_min(1e-6), torch.zeros_like(acc))
     if background is not None:
         rgb = rgb + (1 - acc)[..., None] * background.reshape(-1, 1, 1, 3)
-    return RenderOut(rgb, depth, acc, int(g.numel()))
+    contrib = torch.zeros(C * N, dtype=w.dtype, device=w.device).scatter_reduce_(0, g, w.detach(), "amax").reshape(C, N)
+    return RenderOut(rgb, depth, acc, int(g.numel()), contrib)
 
 
 _warned = False
@@ -244,7 +248,8 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     (m^2); opacities (N,) or (C, N) in [0, 1]; colors (N, 3) or (C, N, 3); viewmats (C, 4, 4)
     world-to-camera (OpenCV); Ks (C, 3, 3) pixel centres at integers; background (3,) or (C, 3)
     or None (black). ``cutoff``: "soft" (default) or "hard" (3DGS). ``backend``: "auto" (gsplat
-    on CUDA when installed, else torch), "torch" or "gsplat".
+    on CUDA when installed, else torch, with one warning), "torch" or "gsplat" (gsplat ignores
+    ``cutoff``: its kernel cuts hard; and returns no ``contrib``).
     """
     if cutoff not in ("soft", "hard"):
         raise ValueError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
@@ -256,9 +261,8 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     _validate(means, covs, opacities, colors, viewmats, Ks)
     if background is not None:
         background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
-    use_gsplat = backend == "gsplat" or (backend == "auto" and cutoff == "hard" and _gsplat_available(means.device))
-    if backend == "auto" and cutoff == "soft" and _gsplat_available(means.device):
-        use_gsplat = True  # gsplat's kernel uses the hard cutoff; on a GPU speed wins (documented)
+    # gsplat's CUDA kernel always uses the hard cutoff; on a GPU its speed wins over exact gradients
+    use_gsplat = backend == "gsplat" or (backend == "auto" and _gsplat_available(means.device))
     if use_gsplat:
         try:
             return _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background)
