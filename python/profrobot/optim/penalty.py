@@ -1,0 +1,31 @@
+"""The collision penalty L_SDF = ReLU(g(θ) − l_thres) (paper §4.2), for any torch loss."""
+
+from __future__ import annotations
+
+import torch
+
+from ._inputs import check_field, finite
+
+
+def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1) -> torch.Tensor:
+    """ReLU(g(θ) − l_thres) per pose: θ (..., K) radians / metres → (...,), differentiable in θ
+    (and in the field's parameters). Zero once the field puts a pose ``-l_thres`` inside the free
+    region; add ``β · penalty.mean()`` to a loss to keep its poses out of collision.
+
+    Raises TypeError for a non-tensor or non-float θ, ValueError for a last dimension that is not
+    the field's joint count or for NaN/inf poses.
+    """
+    check_field(sdf)
+    l_thres = finite("l_thres", l_thres)
+    if not isinstance(theta, torch.Tensor):
+        raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+    if not theta.is_floating_point():
+        raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
+    if theta.ndim == 0 or theta.shape[-1] != sdf.njoint:
+        raise ValueError(f"theta must have shape (..., {sdf.njoint}) for robot {getattr(sdf, 'robot_name', '?')!r}; "
+                         f"got {tuple(theta.shape)}")
+    if not torch.isfinite(theta).all():
+        raise ValueError("theta contains NaN or inf")
+    lead = theta.shape[:-1]
+    g = sdf(theta.reshape(-1, sdf.njoint))
+    return torch.relu(g - l_thres).reshape(lead)

@@ -1,0 +1,237 @@
+"""Collision-aware trajectories (paper supplement, "Collision-free Trajectory"): SO(2)
+interpolation between two free poses, then either
+
+- ``"penalty"``: Adam on the interior waypoints of γ1·mean L_SDF + γ2·TV with the end points
+  fixed, TV = mean ‖θ_{i+1} − θ_i‖ over the whole path; or
+- ``"tangent"``: Algorithm 1, a walk from start to goal along the L1 goal gradient, projected
+  onto the tangent plane of ∇g where it would climb into the obstacle margin; the walk is then
+  resampled to ``steps`` waypoints by arc length.
+
+Every result is verified by the exact labeller at the waypoints and on a dense re-interpolation
+between them (:func:`~profrobot.optim.certify.check_path`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..labels import interpolate
+from ..robot import Robot
+from ._inputs import Limits, field_robot, finite, poses_array, positive
+from .certify import PathCheck, check_path
+from .resolve import _RowAdam
+
+METHODS = ("penalty", "tangent")
+
+
+@dataclass
+class TrajectoryResult:
+    """A planned path and the exact labeller's verdict on it.
+
+    Attributes:
+        path: (S, K) float64 waypoints, radians / metres, ``path[0]`` = start, ``path[-1]`` = goal.
+        free: the whole path is free at the dense check (waypoints and ``density``× finer samples).
+        waypoint_collides: (S,) bool; segment_collides: (S−1,) bool (segment i: waypoints i, i+1).
+        g: (S,) float32, the field along the path.
+        length: Σ‖θ_{i+1} − θ_i‖ (radians, continuous joints the short way); straight_length: the
+            same for the straight SO(2) interpolation; relative_length = length / straight_length.
+        iterations: optimiser steps (penalty: Adam steps; tangent: walk steps).
+        seconds: wall time of the batched call that produced it, shared by its problems.
+    """
+
+    path: np.ndarray
+    free: bool
+    waypoint_collides: np.ndarray
+    segment_collides: np.ndarray
+    g: np.ndarray
+    method: str
+    iterations: int
+    length: float
+    straight_length: float
+    seconds: float
+    check: PathCheck = field(repr=False)
+    initial_free: bool = False
+
+    @property
+    def relative_length(self) -> float:
+        return self.length / self.straight_length if self.straight_length > 0 else 1.0
+
+    @property
+    def colliding_waypoints(self) -> np.ndarray:
+        return np.flatnonzero(self.waypoint_collides)
+
+    @property
+    def colliding_segments(self) -> np.ndarray:
+        return np.flatnonzero(self.segment_collides)
+
+    def summary(self) -> str:
+        where = "" if self.free else (f": {len(self.colliding_segments)} colliding segment(s), "
+                                      f"first at {self.colliding_segments[:1].tolist()}")
+        return (f"{self.method} path of {len(self.path)} waypoints, {'free' if self.free else 'COLLIDES'}{where}; "
+                f"length {self.relative_length:.2f}× the straight interpolation, {self.iterations} iterations")
+
+
+def _unwrap(path: np.ndarray, cont: np.ndarray) -> np.ndarray:
+    """Continuous joints unwrapped along the steps axis of (..., S, K), so paths are continuous."""
+    out = path.copy()
+    if cont.any():
+        out[..., cont] = np.unwrap(path[..., cont], axis=-2)
+    return out
+
+
+def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: float, gamma1: float, gamma2: float,
+             lr: float, iterations: int, check_every: int, density: int) -> np.ndarray:
+    """Optimises (B, S, K) unwrapped paths in place of their interior waypoints; a problem stops
+    once the exact labeller finds its whole path free at the dense check. Returns (B,) steps."""
+    like = sdf.joint_limits
+    B, S, K = paths.shape
+    full = torch.as_tensor(paths, dtype=like.dtype, device=like.device).clone()
+    x = full[:, 1:-1].reshape(B, -1).clone()            # (B, (S−2)·K): one Adam row per problem
+    x0 = x.clone()
+    opt = _RowAdam(x.shape, lr, x)
+    steps = np.zeros(B, dtype=np.int64)
+    active = torch.arange(B, device=x.device)
+    for it in range(iterations + 1):
+        if it % check_every == 0 or it == iterations:
+            rows = active.cpu().numpy()
+            cur = full[rows].clone()
+            cur[:, 1:-1] = x[active].reshape(len(rows), S - 2, K)
+            done = np.array([check_path(robot, limits.numpy(p), density).free for p in cur.cpu().numpy()], dtype=bool)
+            active = active[torch.as_tensor(~done, device=x.device)]
+        if len(active) == 0 or it == iterations:
+            break
+        xa = x[active].detach().requires_grad_(True)
+        inner = xa.reshape(len(active), S - 2, K)
+        path = torch.cat([full[active, :1], inner, full[active, -1:]], dim=1)
+        g = sdf(limits.wrap(inner).reshape(-1, K)).reshape(len(active), S - 2)
+        l_sdf = torch.relu(g - l_thres).mean(1)
+        tv = (path[:, 1:] - path[:, :-1]).norm(dim=2).mean(1)
+        loss = (gamma1 * l_sdf + gamma2 * tv).sum()     # problems independent: per-row gradients
+        (grad,) = torch.autograd.grad(loss, xa)
+        opt.step(x, active, grad)
+        limits.clamp_(x.view(B, S - 2, K))
+        steps[active.cpu().numpy()] += 1
+    # the float32 displacement on the float64 path: untouched waypoints stay bit for bit
+    paths[:, 1:-1] += (x - x0).reshape(B, S - 2, K).cpu().numpy().astype(np.float64)
+    return steps
+
+
+def _tangent(sdf, limits: Limits, starts: np.ndarray, goals: np.ndarray, steps: int, l_thres: float, delta: float,
+             band: float, max_iters: int, tol: float, goal_norm: str) -> tuple[np.ndarray, np.ndarray]:
+    """Algorithm 1, batched over B problems: θ ← θ − δ·D, D the L1 goal gradient G (per-joint
+    steps clipped so that no joint overshoots the goal), projected onto the tangent plane of ∇g
+    where g ≥ l_thres − band and the step would raise g; poses past the threshold take a
+    Gauss-Newton step back to g = l_thres. Returns (B, steps, K) unwrapped paths resampled by arc
+    length from each walk, and the walk lengths (B,)."""
+    like = sdf.joint_limits
+    B, K = starts.shape
+    goal_np = starts + limits.diff(goals, starts)       # unwrapped goal: the short way round
+    theta = torch.as_tensor(starts, dtype=like.dtype, device=like.device).clone()
+    goal = torch.as_tensor(goal_np, dtype=like.dtype, device=like.device)
+    walks = [theta.cpu().numpy().copy()]
+    n_iter = np.zeros(B, dtype=np.int64)
+    active = torch.ones(B, dtype=torch.bool, device=theta.device)
+    for _ in range(max_iters):
+        d = theta - goal
+        active &= d.abs().sum(1) >= tol
+        if not active.any():
+            break
+        x = theta.detach().requires_grad_(True)
+        g = sdf(limits.wrap(x))
+        (grad_g,) = torch.autograd.grad(g.sum(), x)
+        with torch.no_grad():
+            norm = grad_g.norm(dim=1, keepdim=True).clamp(min=1e-8)
+            n = grad_g / norm
+            if goal_norm == "l1":   # Algorithm 1: ∂‖θ − θ_end‖₁, each joint clipped so as not to overshoot
+                G = torch.sign(d) * torch.clamp(d.abs() / delta, max=1.0)
+            else:                   # ∂‖θ − θ_end‖₂: straight towards the goal in free space
+                dist = d.norm(dim=1, keepdim=True)
+                G = d / dist.clamp(min=1e-12) * torch.clamp(dist / delta, max=1.0)
+            along = (n * G).sum(1, keepdim=True)
+            project = (g[:, None] >= l_thres - band) & (along < 0)
+            D = torch.where(project, G - along * n, G)
+            back = torch.relu(g - l_thres)[:, None] * grad_g / norm**2    # return to the g = l_thres surface
+            step = delta * D + back
+            theta = torch.where(active[:, None], theta - step, theta)
+            limits.clamp_(theta)
+        n_iter += active.cpu().numpy()
+        walks.append(theta.cpu().numpy().copy())
+    walk = np.stack(walks, axis=1)                      # (B, T, K)
+    walk = np.concatenate([walk, goal_np[:, None]], axis=1)  # end exactly at the goal
+    out = np.empty((B, steps, K))
+    for b in range(B):
+        seg = np.linalg.norm(np.diff(walk[b], axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        u = np.linspace(0.0, s[-1], steps)
+        out[b] = np.stack([np.interp(u, s, walk[b, :, k]) for k in range(K)], axis=1)
+        out[b, 0], out[b, -1] = walk[b, 0], goal_np[b]
+    return out, n_iter
+
+
+def plan_trajectory(sdf, start, goal, steps: int = 100, method: str = "penalty", *, robot: Robot | None = None,
+                    l_thres: float = -0.1, gamma1: float = 5.0, gamma2: float = 1.0, lr: float = 0.01,
+                    iterations: int = 500, check_every: int = 10, density: int = 10, delta: float = 0.01,
+                    band: float = 0.05, tangent_iters: int = 3000, tol: float = 1e-4, goal_norm: str = "l1"):
+    """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
+    limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
+    list of B results, optimised together.
+
+    ``method="penalty"``: Adam (``lr``, at most ``iterations`` steps) on γ1·mean ReLU(g − l_thres) +
+    γ2·TV over the interior waypoints; each problem stops once its path is free at the dense check.
+    ``method="tangent"``: Algorithm 1 with step ``delta`` (radians), at most ``tangent_iters`` steps;
+    ``goal_norm`` "l1" (the paper's L1 goal distance) or "l2" (straight lines in free space).
+    ``density``: the dense check samples each segment this many times finer. ``robot``: the
+    labeller's robot (default: the bundled scene the field was trained on).
+    """
+    t0 = time.perf_counter()
+    robot = field_robot(sdf, robot)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}; got {method!r}")
+    if goal_norm not in ("l1", "l2"):
+        raise ValueError(f"goal_norm must be 'l1' or 'l2'; got {goal_norm!r}")
+    single = np.ndim(start) == 1 and np.ndim(goal) == 1
+    s = poses_array(robot, start, "start")
+    g = poses_array(robot, goal, "goal")
+    if s.shape != g.shape:
+        raise ValueError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
+    steps = positive("steps", steps, integer=True)
+    if steps < 3:
+        raise ValueError(f"steps must be >= 3 (the end points are fixed); got {steps}")
+    l_thres = finite("l_thres", l_thres)
+    gamma1, gamma2 = positive("gamma1", gamma1, allow_zero=True), positive("gamma2", gamma2, allow_zero=True)
+    lr, delta = positive("lr", lr), positive("delta", delta)
+    iterations = positive("iterations", iterations, integer=True, allow_zero=True)
+    check_every = positive("check_every", check_every, integer=True)
+    density = positive("density", density, integer=True)
+    band, tol = positive("band", band, allow_zero=True), positive("tol", tol)
+    tangent_iters = positive("tangent_iters", tangent_iters, integer=True, allow_zero=True)
+
+    limits = Limits(robot, sdf.joint_limits)
+    straight = interpolate(robot, s, g, steps)          # (B, S, K): SO(2), from the Rust core
+    initial_free = [check_path(robot, p, density).free for p in straight]
+    if method == "penalty":
+        paths = _unwrap(straight, limits.cont_np)
+        n_iter = _penalty(sdf, limits, robot, paths, l_thres, gamma1, gamma2, lr, iterations, check_every, density)
+    else:
+        paths, n_iter = _tangent(sdf, limits, s, g, steps, l_thres, delta, band, tangent_iters, tol, goal_norm)
+    paths = limits.numpy(paths)
+    paths[:, 0], paths[:, -1] = s, g                    # exactly the caller's end points
+    with torch.no_grad():
+        like = sdf.joint_limits
+        gs = sdf(torch.as_tensor(paths.reshape(-1, s.shape[1]), dtype=like.dtype, device=like.device))
+        gs = gs.reshape(len(paths), steps).cpu().numpy()
+    seconds = time.perf_counter() - t0
+    results = []
+    for b, p in enumerate(paths):
+        chk = check_path(robot, p, density)
+        results.append(TrajectoryResult(
+            path=p, free=chk.free, waypoint_collides=chk.waypoint_collides, segment_collides=chk.segment_collides,
+            g=gs[b], method=method, iterations=int(n_iter[b]),
+            length=float(np.linalg.norm(limits.diff(p[1:], p[:-1]), axis=1).sum()),
+            straight_length=float(np.linalg.norm(limits.diff(g[b], s[b]))), seconds=seconds, check=chk,
+            initial_free=bool(initial_free[b])))
+    return results[0] if single else results

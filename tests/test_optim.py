@@ -1,0 +1,275 @@
+"""Collision-aware optimisation: the penalty, batched resolution with per-pose freezing, limits,
+trajectories, and certification by the exact labeller catching what the field gets wrong."""
+
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from conftest import scene
+from profrobot.field import PoseSDF
+from profrobot.optim import check_path, collision_penalty, plan_trajectory, resolve
+
+
+class LinearField(torch.nn.Module):
+    """A field with the PoseSDF interface and a known answer: g(θ) = w·θ + b."""
+
+    def __init__(self, robot, w, b):
+        super().__init__()
+        self.robot_name, self.fingerprint, self.njoint = robot.name, robot.fingerprint, robot.njoint
+        self.register_buffer("joint_limits", torch.as_tensor(robot.joint_limits, dtype=torch.float32))
+        self.register_buffer("w", torch.as_tensor(w, dtype=torch.float32))
+        self.b = float(b)
+
+    def forward(self, theta):
+        return theta.to(torch.float32) @ self.w + self.b
+
+
+def shifted_field(robot, shift):
+    """An untrained PoseSDF whose output is moved by ``shift``: −100 calls every pose free."""
+    torch.manual_seed(0)
+    sdf = PoseSDF(robot, hidden=(16,))
+    with torch.no_grad():
+        sdf.head[-1].bias += shift
+    return sdf
+
+
+def colliding_and_free(robot, n=400, seed=3):
+    q = profrobot.sample_poses(robot, n, seed=seed)
+    hit = profrobot.label_poses(robot, q).collides
+    return q[hit], q[~hit]
+
+
+# ---- the penalty -----------------------------------------------------------------------------
+
+def test_penalty_is_relu_of_g_minus_threshold_with_its_gradient(panda):
+    torch.manual_seed(0)
+    sdf = PoseSDF(panda, hidden=(16, 16)).double()
+    q = torch.as_tensor(profrobot.sample_poses(panda, 16, seed=1), dtype=torch.float64)
+    g = sdf(q).detach()
+    l_thres = float(g.median())                       # half the poses above, half below
+    theta = q.clone().requires_grad_(True)
+    p = collision_penalty(sdf, theta, l_thres)
+    assert torch.allclose(p, torch.relu(g - l_thres))
+    (grad,) = torch.autograd.grad(p.sum(), theta)
+    x = q.clone().requires_grad_(True)
+    (grad_g,) = torch.autograd.grad(sdf(x).sum(), x)
+    above = g > l_thres
+    assert torch.allclose(grad[above], grad_g[above]) and (grad[~above] == 0).all()
+    assert torch.autograd.gradcheck(lambda t: collision_penalty(sdf, t, l_thres), (q[above].clone().requires_grad_(),))
+
+
+def test_penalty_keeps_leading_dimensions(panda):
+    sdf = shifted_field(panda, 0.0)
+    theta = torch.as_tensor(profrobot.sample_poses(panda, 12, seed=2), dtype=torch.float32).reshape(3, 4, -1)
+    assert collision_penalty(sdf, theta).shape == (3, 4)
+
+
+def test_penalty_bad_input(panda):
+    sdf = shifted_field(panda, 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        collision_penalty(sdf, torch.zeros(2, panda.njoint + 1))
+    with pytest.raises(ValueError, match="NaN"):
+        collision_penalty(sdf, torch.full((2, panda.njoint), float("nan")))
+    with pytest.raises(TypeError, match="floating"):
+        collision_penalty(sdf, torch.zeros(2, panda.njoint, dtype=torch.long))
+    with pytest.raises(TypeError, match="Tensor"):
+        collision_penalty(sdf, np.zeros((2, panda.njoint)))
+    with pytest.raises(ValueError, match="l_thres"):
+        collision_penalty(sdf, torch.zeros(2, panda.njoint), float("nan"))
+    with pytest.raises(TypeError, match="PoseSDF"):
+        collision_penalty(object(), torch.zeros(2, panda.njoint))
+
+
+# ---- resolution ------------------------------------------------------------------------------
+
+def test_each_pose_stops_at_its_threshold_and_stays_there(panda):
+    """g = θ0 + b: Adam's first steps move θ0 by ≈ lr each, so a pose needs about
+    (g0 − l_thres)/lr steps; once frozen it must not drift while the others go on."""
+    w = np.zeros(panda.njoint); w[0] = 1.0
+    field = LinearField(panda, w, 0.0)
+    q = np.tile(panda.joint_limits.mean(1), (4, 1))   # mid-range: inside every limit
+    q[:, 0] = [-0.2, 0.0, 0.05, 0.2]                 # g0 = θ0
+    res = resolve(field, q, l_thres=-0.1, lr=0.01, refine=False)
+    assert res.iterations[0] == 0 and res.poses[0, 0] == pytest.approx(-0.2)   # already below
+    assert list(res.iterations[1:]) == sorted(res.iterations[1:])
+    for i in range(1, 4):
+        need = (q[i, 0] + 0.1) / 0.01
+        assert need <= res.iterations[i] <= need + 3
+        # frozen on the first step past the threshold: within one step of it
+        assert -0.1 - 0.0101 <= res.poses[i, 0] <= -0.1
+    assert np.all(res.poses[:, 1:] == q[:, 1:])      # zero gradient: the other joints never move
+    assert res.reached.all()
+    np.testing.assert_allclose(res.delta, np.abs(res.poses[:, 0] - q[:, 0]), atol=1e-6)
+
+
+def test_joint_limits_are_respected(panda):
+    w = np.zeros(panda.njoint); w[3] = -1.0           # g falls as joint 3 rises: pushes it to its upper limit
+    field = LinearField(panda, w, 100.0)
+    q = profrobot.sample_poses(panda, 5, seed=0)
+    res = resolve(field, q, lr=0.5, max_iters=50, refine=False)
+    lim = panda.joint_limits
+    assert (res.poses >= lim[:, 0]).all() and (res.poses <= lim[:, 1]).all()
+    np.testing.assert_array_equal(res.poses[:, 3], lim[3, 1])
+    assert (res.iterations == 50).all() and not res.reached.any()
+
+
+def test_certification_catches_poses_the_field_wrongly_calls_free(panda):
+    colliding, _ = colliding_and_free(panda)
+    sdf = shifted_field(panda, -100.0)               # calls everything free: nothing to optimise
+    res = resolve(sdf, colliding[:20], refine_rounds=2, max_iters=5)
+    assert (res.iterations == 0).all()               # the field was satisfied at once ...
+    assert not res.certified.any()                    # ... but the exact labeller was not
+    assert len(res.failures) == 20 and res.rounds == 2
+    assert "20 failures" in res.summary()
+
+
+def test_refinement_lowers_the_threshold_until_certified(panda):
+    """g = θ0 − c makes a colliding pose look free once θ0 < c − 0.1; the labeller disagrees, so
+    refinement keeps pushing θ0 down (lower threshold each round) and reports what it achieved."""
+    colliding, _ = colliding_and_free(panda)
+    w = np.zeros(panda.njoint); w[0] = 1.0
+    field = LinearField(panda, w, -colliding[0, 0])   # g(start) = 0
+    res = resolve(field, colliding[:1], lr=0.05, refine_rounds=3, refine_step=0.2)
+    assert res.iterations[0] > 0
+    if not res.certified[0]:
+        assert res.rounds == 3 and res.threshold[0] == pytest.approx(-0.1 - 3 * 0.2)
+    else:
+        assert profrobot.label_poses(panda, res.poses).collides.sum() == 0
+
+
+def test_resolve_bad_input(panda, ur5e):
+    sdf = shifted_field(panda, 0.0)
+    q = profrobot.sample_poses(panda, 3, seed=0)
+    with pytest.raises(ValueError, match=r"shape \(B, 9\)"):
+        resolve(sdf, q[:, :-1])
+    bad = q.copy(); bad[1, 2] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        resolve(sdf, bad)
+    out = q.copy(); out[0, 0] = 10.0
+    with pytest.raises(ValueError, match="outside the limits"):
+        resolve(sdf, out)
+    with pytest.raises(ValueError, match="another robot"):
+        resolve(sdf, q, robot=ur5e)
+    with pytest.raises(ValueError, match="lr"):
+        resolve(sdf, q, lr=0)
+    with pytest.raises(ValueError, match="max_iters"):
+        resolve(sdf, q, max_iters=-1)
+    with pytest.raises(TypeError, match="floating"):
+        resolve(sdf, q.astype(np.int64))
+
+
+# ---- trajectories ----------------------------------------------------------------------------
+
+def _hard_pair(robot, seed=5):
+    """Two free poses whose straight SO(2) interpolation collides."""
+    _, free = colliding_and_free(robot, 400, seed)
+    for a, b in zip(free[:-1:2], free[1::2]):
+        if not check_path(robot, profrobot.interpolate(robot, a, b, 30)).free:
+            return a, b
+    raise AssertionError("no colliding straight path among the samples")
+
+
+def test_check_path_finds_collisions_between_free_waypoints(panda):
+    a, b = _hard_pair(panda)
+    chk = check_path(panda, np.stack([a, b]), density=50)
+    assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.free
+    assert len(chk.dense) == 51
+    full = check_path(panda, profrobot.interpolate(panda, a, b, 30), density=4)
+    assert not full.free and full.colliding_segments.size > 0
+    hit = np.flatnonzero(full.dense_collides)
+    assert set(np.minimum(hit // 4, 28)) <= set(full.colliding_segments)
+
+
+def test_plan_reports_collisions_the_field_misses(panda):
+    """A field that calls everything free leaves the straight path as it is; the dense check
+    must say where it collides."""
+    a, b = _hard_pair(panda)
+    for method in ("penalty", "tangent"):
+        res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method,
+                              iterations=10, tangent_iters=500, delta=0.05)
+        assert not res.free and res.colliding_segments.size > 0
+        np.testing.assert_array_equal(res.path[0], a)
+        np.testing.assert_array_equal(res.path[-1], b)
+        assert res.path.shape == (20, panda.njoint)
+        assert profrobot.label_poses(panda, res.check.dense).collides.any()
+
+
+def test_plan_penalty_moves_waypoints_along_the_field_gradient(panda):
+    """g = θ0 + b, all waypoints above the threshold: the interior moves to lower θ0, end points
+    stay, limits hold, and batches give one result per problem."""
+    pairs = [_hard_pair(panda, seed) for seed in (5, 6)]   # straight paths collide: work to do
+    starts, goals = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+    w = np.zeros(panda.njoint); w[0] = 1.0
+    field = LinearField(panda, w, 5.0)
+    res = plan_trajectory(field, starts, goals, steps=10, iterations=20, check_every=1000)
+    assert len(res) == 2
+    for r, a, b in zip(res, starts, goals):
+        straight = profrobot.interpolate(panda, a, b, 10)
+        assert (r.path[1:-1, 0] < straight[1:-1, 0]).all()
+        np.testing.assert_array_equal(r.path[[0, -1]], np.stack([a, b]))
+        assert r.iterations == 20 and r.relative_length > 1
+        lim = panda.joint_limits
+        assert (r.path >= lim[:, 0]).all() and (r.path <= lim[:, 1]).all()
+
+
+def test_plan_tangent_walk_reaches_the_goal_in_free_space(panda):
+    """Far from the threshold the projection is off: the walk is straight to the goal."""
+    _, free = colliding_and_free(panda)
+    field = LinearField(panda, np.zeros(panda.njoint), -10.0)
+    res = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, goal_norm="l2")
+    np.testing.assert_allclose(res.path, profrobot.interpolate(panda, free[0], free[1], 15), atol=1e-4)
+    l1 = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05)   # the paper's L1
+    np.testing.assert_array_equal(l1.path[[0, -1]], np.stack([free[0], free[1]]))
+    assert l1.iterations > 0 and l1.relative_length >= 1 - 1e-6
+
+
+def test_plan_bad_input(panda):
+    sdf = shifted_field(panda, 0.0)
+    q = profrobot.sample_poses(panda, 2, seed=0)
+    with pytest.raises(ValueError, match="method"):
+        plan_trajectory(sdf, q[0], q[1], method="rrt")
+    with pytest.raises(ValueError, match="same shape"):
+        plan_trajectory(sdf, q[0], q)
+    with pytest.raises(ValueError, match="shape"):
+        plan_trajectory(sdf, q[0, :-1], q[1, :-1])
+    with pytest.raises(ValueError, match="steps"):
+        plan_trajectory(sdf, q[0], q[1], steps=2)
+    bad = q[1].copy(); bad[0] = np.inf
+    with pytest.raises(ValueError, match="finite"):
+        plan_trajectory(sdf, q[0], bad)
+
+
+# ---- pictures --------------------------------------------------------------------------------
+
+def test_gif_and_plot(tmp_path, panda):
+    pytest.importorskip("PIL")
+    from PIL import Image
+
+    from profrobot.optim.pictures import plot_trajectory, render_trajectory
+
+    a, b = _hard_pair(panda)
+    res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=6, iterations=0)
+    gif = render_trajectory(panda, res.path, tmp_path / "t.gif", size=(96, 72))
+    with Image.open(gif) as im:
+        assert im.n_frames == 6 and im.size == (96, 72)
+    png = plot_trajectory(res, tmp_path / "t.png", joint_names=panda.joint_names)
+    assert png.stat().st_size > 0
+    with pytest.raises(ValueError, match="gif"):
+        render_trajectory(panda, res.path, tmp_path / "t.avi")
+
+
+# ---- with a trained field --------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_trained_field_resolves_and_plans(panda):
+    torch.manual_seed(0)
+    sdf = profrobot.train_sdf(panda, hidden=(64, 64), n_poses=50_000, iterations=150, progress=False)
+    colliding, _ = colliding_and_free(panda, 600, seed=11)
+    res = resolve(sdf, colliding[:100])
+    assert res.certified.mean() >= 0.9
+    assert profrobot.label_poses(panda, res.poses[res.certified]).collides.sum() == 0
+    a, b = _hard_pair(panda, seed=12)
+    path = plan_trajectory(sdf, a, b, steps=50)
+    if path.free:   # a path reported free must be free under the exact labeller
+        assert not profrobot.label_poses(panda, path.check.dense).collides.any()
