@@ -53,6 +53,7 @@ class TrainConfig:
     seed: int = 0
     threads: int | None = None        # torch and labeller threads (None: as configured)
     eval_every: int = 0               # evaluate on the test split every N iterations (0: at the end)
+    eval_at_seconds: tuple = ()       # full test metrics when training time passes each of these
 
 
 PRESETS: dict[str, dict] = {
@@ -160,6 +161,8 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str 
     params = [p for p in sdf.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
+    snapshots: list[dict] = []
+    pending = sorted(float(x) for x in cfg.eval_at_seconds)
     n = len(theta_all)
     bs = min(cfg.batch_size, n)
     order, cursor = rng.permutation(n), 0
@@ -172,6 +175,12 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str 
             progress_frac = max(it / cfg.iterations, elapsed / cfg.time_budget if cfg.time_budget else 0.0)
             if cfg.time_budget and elapsed >= cfg.time_budget:
                 break
+            if pending and elapsed >= pending[0]:
+                sdf.eval()
+                snapshots.append(dict(evaluate(sdf, test.poses, test.collides), at_seconds=pending.pop(0),
+                                      iterations=it))
+                sdf.train()
+                start += time.perf_counter() - start - elapsed  # evaluation time is not training time
             for group in opt.param_groups:
                 group["lr"] = cfg.lr * _lr_factor(cfg, progress_frac, it)
             if cursor + bs > n:
@@ -216,6 +225,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str 
     sdf.metrics = dict(evaluate(sdf, test.poses, test.collides), iterations=len(history),
                        train_seconds=train_seconds, train_poses=n, threads=torch.get_num_threads())
     sdf.history = history
+    sdf.snapshots = snapshots
     return sdf
 
 
