@@ -273,3 +273,23 @@ def test_trained_field_resolves_and_plans(panda):
     path = plan_trajectory(sdf, a, b, steps=50)
     if path.free:   # a path reported free must be free under the exact labeller
         assert not profrobot.label_poses(panda, path.check.dense).collides.any()
+
+
+# ---- command line ----------------------------------------------------------------------------
+
+def test_cli_resolve_and_plan(tmp_path, panda, capsys):
+    from profrobot.cli import main
+
+    ckpt = profrobot.save_sdf(shifted_field(panda, -100.0), tmp_path / "field")
+    # a field that calls everything free: the labeller's failures must show in the exit status
+    assert main(["resolve", "--field", str(ckpt), "-n", "5", "--max-iters", "3",
+                 "--out", str(tmp_path / "r.npz")]) == 1
+    out = capsys.readouterr().out
+    assert "5 failures" in out and "still colliding" in out
+    saved = np.load(tmp_path / "r.npz")
+    assert saved["poses"].shape == (5, panda.njoint) and not saved["certified"].any()
+    code = main(["plan", "--field", str(ckpt), "--steps", "5", "--iterations", "5", "--gif", str(tmp_path / "p.gif"),
+                 "--plot", str(tmp_path / "p.png")])
+    assert code == 1 and "COLLIDES" in capsys.readouterr().out
+    assert (tmp_path / "p.gif").stat().st_size > 0 and (tmp_path / "p.png").stat().st_size > 0
+    assert main(["plan", "--field", str(ckpt), "--start", "0,0"]) == 2   # --goal missing: a clear error

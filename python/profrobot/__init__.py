@@ -21,10 +21,12 @@ from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
 from .field import PoseSDF, train_sdf
 from .field.checkpoint import export_sdf, load_sdf, save_sdf
 from .kinematics import Kinematics
+from .optim import ResolveResult, TrajectoryResult, collision_penalty, plan_trajectory, resolve
 
 __all__ = [
     "__version__", "scenes", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
     "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
+    "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
 ]

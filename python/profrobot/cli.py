@@ -1,4 +1,4 @@
-"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``scenes``."""
+"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``resolve``, ``plan``, ``scenes``."""
 
 from __future__ import annotations
 
@@ -145,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--plot", help="also save an SDF slice PNG here")
     sp.add_argument("--export", help="also export a torch.export .pt2 file here")
     sp.set_defaults(fn=cmd_train)
+    from .optim.cli import add_commands
+
+    add_commands(sub, common)  # resolve, plan
     sp = sub.add_parser("scenes", help="list the bundled scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names())) or 0)
 
