@@ -106,14 +106,17 @@ def mujoco_render_time(robot, cams, n=20):
 def speed(model, cams, theta, threads, reps=5):
     torch.set_num_threads(threads)
     vm, K = torch.tensor(cams.world_to_cam, dtype=torch.float32), torch.tensor(cams.K, dtype=torch.float32)
-    ts = []
+    ts, cpu = [], []
     for _ in range(reps + 1):
         th = theta.clone().requires_grad_(True)
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = model.render(th, vm, K, cams.width, cams.height)
         (out.rgb.sum() + out.depth.sum()).backward()
         ts.append(time.perf_counter() - t)
-    return float(np.median(ts[1:])), float(np.min(ts[1:])), out.npairs
+        cpu.append(time.process_time() - c)
+    # wall time depends on what else runs on the machine; the process's CPU time (all threads
+    # together) is what the work costs
+    return float(np.median(ts[1:])), float(np.min(ts[1:])), float(np.median(cpu[1:])), out.npairs
 
 
 def pose_benchmark(robot, model, n, iters, size, batch, seed, out_dir):
@@ -214,7 +217,9 @@ def main(argv=None):
     comparison_png(os.path.join(a.out, "mujoco_vs_ours.png"), te, ours)
 
     theta = torch.tensor(te.poses[:1], dtype=torch.float32)
-    res["speed"] = {f"threads_{n}": dict(zip(("median_s", "min_s", "pairs"), speed(model, test_cams, theta, n))) for n in (1, 2)}
+    res["speed"] = {f"threads_{n}": dict(zip(("median_s", "min_s", "cpu_s", "pairs"), speed(model, test_cams, theta, n)))
+                    for n in (1, 2)}
+    res["speed"]["loadavg"] = os.getloadavg()
     torch.set_num_threads(a.threads)
     print("speed (forward + backward, 4 cameras):", res["speed"], flush=True)
 

@@ -104,11 +104,17 @@ def project(means, covs, viewmats, Ks, width, height):
 
 
 @torch.no_grad()
-def _find_pairs(uv, conic, cov2, z, opac, width, height, cutoff):
+def _find_pairs(uv, conic, cov2, z, opac, width, height, cutoff, chunks: int = 4):
     """Contributing (pixel, Gaussian) pairs, in compositing order, without autograd.
 
     Returns ``g`` (M,) flat Gaussian index into C*N, ``pix`` (M,) flat pixel index into C*H*W,
-    sorted by pixel then depth, keeping only pairs with alpha >= 1/255 and T above 1e-4."""
+    sorted by pixel then depth, keeping only pairs with alpha >= 1/255 and T above 1e-4.
+
+    Occlusion culling, exact: each camera's Gaussians are taken front to back in ``chunks``
+    depth slices; after each slice a pixel whose transmittance fell below 1e-4 is closed (3DGS
+    stops there), and a Gaussian of a later slice whose whole box lies on closed pixels (an
+    integral image of the open pixels answers that per box) is never enumerated. On the Panda
+    most pairs behind the front surfaces go this way. The result equals the unculled search."""
     C, N = z.shape
     dev = z.device
     # Tight box of the ellipse where o exp(-q/2) >= 1/255, i.e. q <= 2 ln(255 o): half-widths
@@ -125,32 +131,75 @@ def _find_pairs(uv, conic, cov2, z, opac, width, height, cutoff):
     bh = (y1 - y0 + 1).clamp_min(0)
     live = (z > NEAR) & (k > 0)
     count = torch.where(live, bw * bh, torch.zeros_like(bw))
-    # enumerate each camera's Gaussians front to back, so that a stable sort by pixel alone
-    # leaves every pixel's pairs in depth order (cheaper than sorting (pixel, depth) keys)
-    order = torch.argsort(z, dim=1) + torch.arange(C, device=dev)[:, None] * N     # (C, N) flat ids
-    order = order.reshape(-1)
-    cnt = count.reshape(-1)[order]
-    total = int(cnt.sum())
-    if total == 0:
+    box = dict(x0=x0, x1=x1, y0=y0, y1=y1, bw=bw, count=count)
+    params = torch.cat([uv, conic, opac[..., None]], -1)            # (C, N, 6)
+    # each camera's Gaussians front to back; a stable sort by pixel of pairs enumerated in this
+    # order leaves every pixel's pairs in depth order (cheaper than sorting (pixel, depth) keys)
+    order = torch.argsort(z, dim=1)                                   # (C, N)
+    log_tmin = math.log(T_MIN)
+    logT = torch.zeros(C * height * width, dtype=torch.float64, device=dev)   # log T so far, per pixel
+    gs, pixs = [], []
+    bounds = [round(N * i / chunks) for i in range(chunks + 1)]
+    for i in range(chunks):
+        ids = order[:, bounds[i]:bounds[i + 1]]                       # (C, n) this depth slice
+        if ids.numel() == 0:
+            continue
+        cam = torch.arange(C, device=dev)[:, None].expand_as(ids)
+        take = lambda t: t[cam, ids]
+        cnt = take(count)
+        if i > 0:                                                     # cull boxes with no open pixel
+            open_ = (logT >= log_tmin).reshape(C, height, width).int()
+            S = torch.zeros(C, height + 1, width + 1, dtype=torch.int32, device=dev)
+            S[:, 1:, 1:] = open_.cumsum(1).cumsum(2)
+            bx0, bx1, by0, by1 = take(x0), take(x1) + 1, take(y0), take(y1) + 1
+            n_open = S[cam, by1, bx1] - S[cam, by0, bx1] - S[cam, by1, bx0] + S[cam, by0, bx0]
+            cnt = torch.where(n_open > 0, cnt, torch.zeros_like(cnt))
+        sel = cnt.reshape(-1) > 0
+        if not sel.any():
+            continue
+        flat = (ids + cam * N).reshape(-1)[sel]                        # flat Gaussian ids, depth order
+        g, pix, alpha = _candidates(flat, params.reshape(-1, 6), box, cnt.reshape(-1)[sel], N, width, height, cutoff)
+        if i > 0:                                                     # pairs on closed pixels
+            o = logT[pix] >= log_tmin
+            g, pix, alpha = g[o], pix[o], alpha[o]
+        srt = torch.sort(pix.int() if C * height * width < 2**31 else pix, stable=True).indices
+        g, pix, alpha = g[srt], pix[srt], alpha[srt]
+        la = torch.log1p(-alpha.double())
+        # transmittance after each pair; a pixel stops at the first pair that would leave T < 1e-4
+        keep = logT[pix] + _segment_cumsum(la, pix) >= log_tmin
+        logT.index_add_(0, pix, la)
+        gs.append(g[keep])
+        pixs.append(pix[keep])
+    if not gs:
         e = torch.zeros(0, dtype=torch.long, device=dev)
         return e, e
-    g = torch.repeat_interleave(order, cnt)
-    start = torch.cumsum(cnt, 0) - cnt
-    off = torch.arange(total, device=dev) - torch.repeat_interleave(start, cnt)
-    bwg = bw.reshape(-1)[g]
-    px = x0.reshape(-1)[g] + off % bwg
-    py = y0.reshape(-1)[g] + torch.div(off, bwg, rounding_mode="floor")
-    alpha = _alpha(uv.reshape(-1, 2)[g], conic.reshape(-1, 3)[g], opac.reshape(-1)[g], px, py, cutoff)
-    keep = alpha > 0
-    g, px, py, alpha = g[keep], px[keep], py[keep], alpha[keep]
-    cam = torch.div(g, N, rounding_mode="floor")
-    pix = (cam * height + py) * width + px
-    srt = torch.sort(pix.int() if pix.numel() and C * height * width < 2**31 else pix, stable=True).indices
-    g, pix, alpha = g[srt], pix[srt], alpha[srt]
-    # transmittance after each pair; a pixel stops at the first pair that would leave T < 1e-4
-    logT_after = _segment_cumsum(torch.log1p(-alpha.double()), pix)
-    keep = logT_after >= math.log(T_MIN)
-    return g[keep], pix[keep]
+    g, pix = torch.cat(gs), torch.cat(pixs)
+    srt = torch.sort(pix.int() if C * height * width < 2**31 else pix, stable=True).indices
+    return g[srt], pix[srt]
+
+
+def _candidates(flat, params, box, cnt, N, width, height, cutoff):
+    """Enumerate the box pixels of Gaussians ``flat`` (n,) (flat ids, in depth order, with box
+    sizes ``cnt`` (n,)) and keep the pairs with alpha > 0: returns g, pix (flat), alpha (M,)."""
+    dev = flat.device
+    total = int(cnt.sum())
+    cam = torch.div(flat, N, rounding_mode="floor")
+    x0, y0 = box["x0"].reshape(-1)[flat], box["y0"].reshape(-1)[flat]
+    # per pair: its Gaussian's slot and the offset inside the box, pixel = first + (off // bw) W + off % bw
+    slot = torch.repeat_interleave(torch.arange(len(flat), device=dev), cnt)
+    off = torch.arange(total, device=dev) - (torch.cumsum(cnt, 0) - cnt)[slot]
+    bwg = box["bw"].reshape(-1)[flat][slot]
+    oy = torch.div(off, bwg, rounding_mode="floor")
+    ox = off - oy * bwg
+    pix = ((cam * height + y0) * width + x0)[slot] + oy * width + ox
+    pr = params[flat][slot]                                           # (M, 6): u, v, conic, opacity
+    dx = (ox + x0[slot]).to(pr.dtype) - pr[:, 0]
+    dy = (oy + y0[slot]).to(pr.dtype) - pr[:, 1]
+    q = pr[:, 2] * dx * dx + 2 * pr[:, 3] * dx * dy + pr[:, 4] * dy * dy
+    alpha = torch.clamp(pr[:, 5] * torch.exp(-0.5 * q), max=ALPHA_MAX)
+    alpha = torch.clamp(alpha - ALPHA_MIN, min=0.0) if cutoff == "soft" else torch.where(alpha >= ALPHA_MIN, alpha, 0.0)
+    keep = torch.nonzero(alpha > 0).squeeze(1)
+    return flat[slot[keep]], pix[keep], alpha[keep]
 
 
 def _alpha(uv, conic, opac, px, py, cutoff):
