@@ -10,13 +10,13 @@ from .model import PoseSDF
 
 
 @torch.no_grad()
-def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 16384) -> np.ndarray:
+def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
     """g (N,) for poses (N, K), evaluated in chunks without gradients."""
     out = [sdf(torch.as_tensor(poses[i:i + chunk], dtype=torch.float32)).numpy() for i in range(0, len(poses), chunk)]
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
-def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 4096) -> np.ndarray:
+def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
     """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term)."""
     out = []
     for i in range(0, len(poses), chunk):

@@ -2,10 +2,10 @@
 
 Two presets:
 
-- ``"cpu"`` (default): our kinematics-aware field, 2 M balanced poses, BCE on batches of 8192
-  with the encoder's features computed once per pose (they have no parameters), the Eikonal term
-  on a sub-batch of 1024 through the full differentiable FK, Adam with a cosine schedule. Minutes
-  on a laptop CPU.
+- ``"cpu"`` (default): our kinematics-aware field (4 × 256 MLP), 2 M balanced poses, BCE on
+  batches of 8192 with the encoder's features computed once per pose (they have no parameters),
+  the Eikonal term on a sub-batch of 256 through the full differentiable FK, Adam (lr 2e-3) with a
+  cosine schedule. Minutes on a laptop CPU.
 - ``"paper"``: the paper's model and recipe: hierarchical encoder, 10 M poses, batch 100 000,
   10 000 iterations, Adam lr 1e-3 halved at iterations 100, 500, 1400, 3000, 5500, 9100.
 
@@ -46,7 +46,7 @@ class TrainConfig:
     lr: float = 1e-3
     schedule: str = "cosine"          # "cosine", "paper" (halvings at PAPER_MILESTONES), "constant"
     eikonal_weight: float = 0.1       # α
-    eikonal_batch: int = 1024         # poses per iteration for the Eikonal term (0: whole batch)
+    eikonal_batch: int = 0            # poses per iteration for the Eikonal term (0: whole batch)
     steik_weight: float = 0.0         # StEik directional-divergence term |dᵀ H d|, d = ∇g/‖∇g‖
     lipschitz_weight: float = 1e-6    # weight of the product of Lipschitz bounds (lipschitz MLPs)
     time_budget: float | None = None  # seconds of optimisation; None: run all iterations
@@ -57,8 +57,8 @@ class TrainConfig:
 
 
 PRESETS: dict[str, dict] = {
-    "cpu": dict(),
-    "paper": dict(encoder="hierarchical", n_poses=10_000_000, batch_size=100_000, iterations=10_000,
+    "cpu": dict(encoder="kinematic", hidden=(256, 256, 256, 256), lr=2e-3, eikonal_batch=256),
+    "paper": dict(encoder="hierarchical", hidden=(512, 512, 512, 512), n_poses=10_000_000, batch_size=100_000, iterations=10_000,
                   schedule="paper", eikonal_batch=0),
 }
 
@@ -150,12 +150,13 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str 
     theta_all = torch.as_tensor(train.poses, dtype=torch.float32)
     target = torch.as_tensor(_fit_ndf_targets(train) if ndf else train.collides.astype(np.float32))
 
-    # Parameter-free encoders: features once per pose, so BCE costs only the MLP.
+    # Parameter-free encoders: features once per pose, so BCE costs only the MLP. Small chunks
+    # keep the FK's intermediates in cache (2x faster than 16k-pose chunks on a laptop CPU).
     features = None
     if not sdf.encoder.learnable:
         with torch.no_grad():
-            chunks = range(0, len(theta_all), 16384)
-            features = torch.cat([sdf.encoder(theta_all[i:i + 16384])
+            chunks = range(0, len(theta_all), 2048)
+            features = torch.cat([sdf.encoder(theta_all[i:i + 2048])
                                   for i in tqdm(chunks, desc="features", disable=not progress, leave=False)])
 
     params = [p for p in sdf.parameters() if p.requires_grad]
