@@ -11,9 +11,22 @@ from ..labels import interpolate, label_poses
 from ..robot import Robot
 
 
-def certify_poses(robot: Robot, poses: np.ndarray) -> np.ndarray:
-    """(B,) bool: True where the exact labeller finds pose ``poses[i]`` (B, K) free."""
-    return ~label_poses(robot, poses).collides
+# Touching is not free: MuJoCo reports a contact at zero distance (e.g. a joint clamped at the
+# limit where two links just meet), so a certified pose keeps at least this clearance (metres).
+CLEARANCE = 1e-6
+
+
+def _free(robot: Robot, poses: np.ndarray, clearance: float) -> np.ndarray:
+    if clearance <= 0:
+        return ~label_poses(robot, poses).collides
+    lab = label_poses(robot, poses, distance=True)
+    return ~lab.collides & (lab.min_distance > clearance)
+
+
+def certify_poses(robot: Robot, poses: np.ndarray, clearance: float = CLEARANCE) -> np.ndarray:
+    """(B,) bool: True where the exact labeller finds pose ``poses[i]`` (B, K) free, with every
+    candidate pair at least ``clearance`` metres apart."""
+    return _free(robot, np.asarray(poses, dtype=np.float64), float(clearance))
 
 
 @dataclass
@@ -40,9 +53,10 @@ class PathCheck:
         return np.flatnonzero(self.segment_collides)
 
 
-def check_path(robot: Robot, path: np.ndarray, density: int = 10) -> PathCheck:
+def check_path(robot: Robot, path: np.ndarray, density: int = 10, clearance: float = CLEARANCE) -> PathCheck:
     """Checks ``path`` (S, K) waypoints and ``density − 1`` SO(2)-interpolated poses between
-    each consecutive pair (``density`` times finer than the waypoints)."""
+    each consecutive pair (``density`` times finer than the waypoints); a pose counts as free
+    with every candidate pair more than ``clearance`` metres apart."""
     path = np.asarray(path, dtype=np.float64)
     if path.ndim != 2 or len(path) < 2:
         raise ValueError(f"path must have shape (S >= 2, K); got {path.shape}")
@@ -52,7 +66,7 @@ def check_path(robot: Robot, path: np.ndarray, density: int = 10) -> PathCheck:
     # (S−1, density+1, K): each segment with both its end points, so every segment is whole
     seg = interpolate(robot, path[:-1], path[1:], int(density) + 1)
     dense = np.concatenate([seg[:, :-1].reshape(-1, K), path[-1:]], axis=0)
-    hit = label_poses(robot, dense).collides
+    hit = ~_free(robot, dense, float(clearance))
     seg_hit = np.zeros(S - 1, dtype=bool)
     idx = np.arange(len(dense))
     # dense sample j lies in segment j // density; a shared end point belongs to both neighbours

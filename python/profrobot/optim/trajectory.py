@@ -100,7 +100,9 @@ def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: floa
             rows = active.cpu().numpy()
             cur = full[rows].clone()
             cur[:, 1:-1] = x[active].reshape(len(rows), S - 2, K)
-            done = np.array([check_path(robot, limits.numpy(p), density).free for p in cur.cpu().numpy()], dtype=bool)
+            # the cheap test (no distances) to decide when to stop; the final verdict is strict
+            done = np.array([check_path(robot, limits.numpy(p), density, clearance=0.0).free
+                             for p in cur.cpu().numpy()], dtype=bool)
             active = active[torch.as_tensor(~done, device=x.device)]
         if len(active) == 0 or it == iterations:
             break
@@ -212,7 +214,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: str = "penalty",
 
     limits = Limits(robot, sdf.joint_limits)
     straight = interpolate(robot, s, g, steps)          # (B, S, K): SO(2), from the Rust core
-    initial_free = [check_path(robot, p, density).free for p in straight]
+    initial_free = [check_path(robot, p, density, clearance=0.0).free for p in straight]
     if method == "penalty":
         paths = _unwrap(straight, limits.cont_np)
         n_iter = _penalty(sdf, limits, robot, paths, l_thres, gamma1, gamma2, lr, iterations, check_every, density)
