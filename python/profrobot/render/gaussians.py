@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import warnings
 
 import mujoco
@@ -32,6 +31,7 @@ import numpy as np
 import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
+from ._io import atomic_path
 from .rasterize import RenderOut, rasterize
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
@@ -283,15 +283,8 @@ class GaussianRobot(torch.nn.Module):
         tensors = {k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}
         meta = dict(format=_FORMAT, robot_fingerprint=self.robot_fingerprint, robot_name=self.robot_name,
                     skinning=self.skinning, hidden=self.hidden, n=self.n, sh_degree=self.sh_degree)
-        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), suffix=".tmp")
-        os.close(fd)
-        try:
+        with atomic_path(path) as tmp:
             save_file(tensors, tmp, metadata={"profrobot": json.dumps(meta)})
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot) -> "GaussianRobot":

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+
+from ._io import atomic_path
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
 
@@ -265,19 +266,10 @@ class Views:
         path = os.fspath(path)
         header = dict(format="profrobot.views/1", robot_fingerprint=self.robot_fingerprint,
                       robot_name=self.robot_name, cameras=self.cameras.to_dict(), meta=self.meta)
-        d = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(dir=d, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                # depth in millimetres as uint16 would lose sub-mm detail; float16 keeps ~0.5 mm at 1 m
-                np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
-                                    poses=self.poses, rgb=self.rgb, depth=self.depth, mask=np.packbits(self.mask, axis=-1),
-                                    mask_width=np.int64(self.mask.shape[-1]))
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
+                                poses=self.poses, rgb=self.rgb, depth=self.depth, mask=np.packbits(self.mask, axis=-1),
+                                mask_width=np.int64(self.mask.shape[-1]))
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot=None) -> "Views":
