@@ -84,7 +84,7 @@ def row_report(name, sdf, robot, colliding: np.ndarray, seconds: float) -> dict:
     if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, default)"):
         it, final = resolve_iterations(sdf, colliding)
         out["iters"] = float(it.mean())
-        out["after"] = 100 * float(np.mean(mujoco_labels(robot, final) > 0))
+        out["after"] = 100 * float(np.mean(mujoco_labels(robot, final).collides))
     return out
 
 

@@ -63,7 +63,8 @@ def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarra
     ax.set_xlabel(f"{names[i]} (rad)")
     ax.set_ylabel(f"{names[j]} (rad)")
     agree = float(np.mean((g > 0) == exact))
-    ax.set_title(f"{robot.name}: g = 0 (black) vs exact boundary (yellow); agree {agree:.1%}")
+    ax.set_title(f"{robot.name}: g = 0 (black) vs exact boundary (yellow)\nagreement on this slice {agree:.1%}",
+                 fontsize=10)
     fig.tight_layout()
     if path is not None:
         save_figure(fig, path, dpi=120)
