@@ -25,3 +25,16 @@ def test_crosscheck_and_demo(capsys):
 def test_errors_are_reported_not_raised(capsys):
     assert main(["label", "--scene", "nope", "-n", "10"]) == 2
     assert "unknown scene" in capsys.readouterr().err
+
+
+def test_train_command_saves_a_loadable_checkpoint(tmp_path, capsys):
+    import profrobot
+
+    ckpt = tmp_path / "ur5e_sdf"
+    assert main(["train", "--scene", "ur5e_wall_box", "--n-poses", "3000", "--iterations", "3",
+                 "--batch-size", "256", "--out", str(ckpt), "--plot", str(tmp_path / "slice.png")]) == 0
+    out = capsys.readouterr().out
+    assert "accuracy" in out and "false_free_rate" in out
+    sdf = profrobot.load_sdf(ckpt, profrobot.scenes.load("ur5e_wall_box"))
+    assert sdf.metrics["iterations"] == 3
+    assert (tmp_path / "slice.png").is_file()
