@@ -126,10 +126,14 @@ def bench_gif() -> dict:
     robot = profrobot.scenes.load("ur5e_wall_box")
     sdf = field("ur5e_wall_box")
     starts, goals = hard_pairs(robot, 30, seed=300)
-    # the problem whose straight path collides most: the clearest demonstration
-    worst = np.argmax([check_path(robot, profrobot.interpolate(robot, a, b, 100)).dense_collides.sum()
-                       for a, b in zip(starts, goals)])
-    res = plan_trajectory(sdf, starts[worst:worst + 1], goals[worst:worst + 1], steps=100, robot=robot)[0]
+    # of the problems solved, the one whose straight path hits the wall or box (not only the
+    # floor or itself) the most: the clearest demonstration
+    results = plan_trajectory(sdf, starts, goals, steps=100, robot=robot, lr=0.05, iterations=200, check_every=5)
+    hits = [profrobot.label_poses(robot, profrobot.interpolate(robot, a, b, 100)).scene_collides.sum()
+            for a, b in zip(starts, goals)]
+    solved = [i for i, r in enumerate(results) if r.free] or list(range(len(results)))
+    worst = max(solved, key=lambda i: hits[i])
+    res = results[worst]
     straight = profrobot.interpolate(robot, starts[worst], goals[worst], 100)
     gif = render_trajectory(robot, res.path, OUT / "ur5e_wall_box_trajectory.gif", size=(320, 240))
     render_trajectory(robot, straight, OUT / "ur5e_wall_box_straight.gif", size=(320, 240))
@@ -194,8 +198,10 @@ def main() -> None:
     path = OUT / "optimise.json"
     results = {}
     sections = args.sections.split(",")
-    methods = {"penalty": dict(method="penalty", lr=0.02), "tangent": dict(method="tangent", delta=0.02),
-               "tangent_l2": dict(method="tangent", delta=0.02, goal_norm="l2")}
+    # lr 0.05 / δ 0.03: fewer steps on two shared cores (100 problems × 100 waypoints per step)
+    methods = {"penalty": dict(method="penalty", lr=0.05, iterations=200, check_every=5),
+               "tangent": dict(method="tangent", delta=0.03, tangent_iters=1500),
+               "tangent_l2": dict(method="tangent", delta=0.03, tangent_iters=1500, goal_norm="l2")}
     methods = {k: methods[k] for k in args.methods.split(",")}
     if "resolve" in sections:
         results["resolve"] = bench_resolve(args.poses)
@@ -209,7 +215,11 @@ def main() -> None:
     results["threads"] = args.threads
     OUT.mkdir(parents=True, exist_ok=True)
     if path.exists():  # sections run separately add up
-        results = {**json.loads(path.read_text()), **results}
+        old = json.loads(path.read_text())
+        for key, value in results.items():   # one method re-run keeps the others' rows
+            if key.startswith("traj_") and isinstance(old.get(key), dict):
+                results[key] = {**old[key], **value}
+        results = {**old, **results}
     path.write_text(json.dumps(results, indent=1, default=float))
     (OUT / "optimise.md").write_text(markdown(json.loads(path.read_text())))
     print(markdown(json.loads(path.read_text())))

@@ -293,3 +293,14 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     assert code == 1 and "COLLIDES" in capsys.readouterr().out
     assert (tmp_path / "p.gif").stat().st_size > 0 and (tmp_path / "p.png").stat().st_size > 0
     assert main(["plan", "--field", str(ckpt), "--start", "0,0"]) == 2   # --goal missing: a clear error
+
+
+def test_plan_penalty_options_keep_the_ends_and_limits(panda):
+    """midpoints and the path-energy term (beyond the paper) change the loss, not the contract."""
+    a, b = _hard_pair(panda)
+    w = np.zeros(panda.njoint); w[0] = 1.0
+    res = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0)
+    np.testing.assert_array_equal(res.path[[0, -1]], np.stack([a, b]))
+    assert res.iterations == 5 and (res.path[1:-1, 0] < profrobot.interpolate(panda, a, b, 8)[1:-1, 0]).all()
+    with pytest.raises(ValueError, match="gamma3"):
+        plan_trajectory(LinearField(panda, w, 5.0), a, b, gamma3=-1.0)
