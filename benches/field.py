@@ -1,7 +1,7 @@
 """The pose collision field on Panda-blocks: the paper's Tables 1–4 (+ StEik and Lipschitz rows),
 our default field, and the paper's exact recipe — paper numbers beside ours.
 
-    python benches/field.py tables   [--minutes 2]      # ablations, same budget per row
+    python benches/field.py tables   [--iterations 400 | --minutes 2]   # ablations, same budget per row
     python benches/field.py default  [--minutes 15]     # acceptance 1: our default field
     python benches/field.py paper    [--minutes 60]     # the paper's model + recipe (15 and 60 min)
     python benches/field.py shadow   [--minutes 15]     # Shadow Hand, self-collision only
@@ -116,6 +116,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("command", choices=("tables", "default", "paper", "shadow"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
+    ap.add_argument("--iterations", type=int, default=None,
+                    help="tables: iterations per row (default 400; fairer than minutes on a shared CPU)")
     ap.add_argument("--poses", type=int, default=2_000_000, help="balanced poses (train + test)")
     ap.add_argument("--rows", default=None, help="comma-separated subset of table rows")
     ap.add_argument("--seed", type=int, default=0)
@@ -131,15 +133,16 @@ def main(argv=None) -> int:
     colliding = test.poses[test.collides][:1000]
     rows = []
     if args.command == "tables":
-        minutes = args.minutes or 2.0
+        budget = (dict(time_budget=60 * args.minutes, iterations=10**9) if args.minutes and not args.iterations
+                  else dict(iterations=args.iterations or 400))
         names = args.rows.split(",") if args.rows else list(ROWS)
         for name in names:
             t = time.perf_counter()
-            sdf = train_sdf(data, robot=robot, seed=args.seed, time_budget=60 * minutes, iterations=10**9,
-                            **ROWS[name])
+            sdf = train_sdf(data, robot=robot, seed=args.seed, **budget, **ROWS[name])
             rows.append(row_report(name, sdf, robot, colliding, time.perf_counter() - t))
             print(rows[-1], flush=True)
-        header = (f"# Panda-blocks field ablations: {minutes:g} min of training per row\n\n"
+        what = f"{args.minutes:g} min" if "time_budget" in budget else f"{budget['iterations']} iterations"
+        header = (f"# Panda-blocks field ablations: {what} of training per row\n\n"
                   f"Paper rows at CPU scale: {_PAPER_MODEL}; ours: the `cpu` preset.")
     elif args.command in ("default", "shadow"):
         minutes = args.minutes or 15.0
