@@ -157,3 +157,19 @@ def test_same_seed_same_field(panda):
     a, b = train_sdf(panda, **kw), train_sdf(panda, **kw)
     for (k, v), (_, w) in zip(a.state_dict().items(), b.state_dict().items()):
         assert torch.equal(v, w), k
+
+
+def test_regression_torch_optim_after_an_osmesa_render_does_not_segfault():
+    """torch.optim's first use imports triton's LLVM; after MuJoCo loaded OSMesa's that crashed."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import profrobot, mujoco, torch\n"
+            "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\".1\"/></worldbody></mujoco>')\n"
+            "d = mujoco.MjData(m); mujoco.mj_forward(m, d)\n"
+            "r = mujoco.Renderer(m, 16, 16); r.update_scene(d); r.render()\n"
+            "torch.optim.Adam([torch.zeros(2, requires_grad=True)])\n")
+    env = dict(os.environ, MUJOCO_GL="osmesa")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -12,6 +12,10 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
 """
 
+# torch.optim imports torch._dynamo (and with it triton's LLVM) on first use; once MuJoCo has
+# loaded OSMesa (llvmpipe, another LLVM) that import segfaults. Importing it first is safe.
+import torch._dynamo  # noqa: E402,F401  (isort: skip)
+
 from . import scenes
 from ._core import __version__
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels
