@@ -16,7 +16,7 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 # loaded OSMesa (llvmpipe, another LLVM) that import segfaults. Importing it first is safe.
 import torch._dynamo  # noqa: E402,F401  (isort: skip)
 
-from . import scenes
+from . import render, scenes
 from ._core import __version__
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels
 from .dataset import Dataset, make_dataset
@@ -28,7 +28,7 @@ from .kinematics import Kinematics
 from .optim import ResolveResult, TrajectoryResult, collision_penalty, plan_trajectory, resolve
 
 __all__ = [
-    "__version__", "scenes", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
+    "__version__", "scenes", "render", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
     "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
