@@ -172,4 +172,6 @@ def test_regression_torch_optim_after_an_osmesa_render_does_not_segfault():
             "torch.optim.Adam([torch.zeros(2, requires_grad=True)])\n")
     env = dict(os.environ, MUJOCO_GL="osmesa")
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    if done.returncode > 0 and "Segmentation fault" not in done.stderr and "osmesa" in done.stderr.lower():
+        pytest.skip("no OSMesa on this machine (install Debian's libosmesa6)")
     assert done.returncode == 0, done.stderr[-2000:]
