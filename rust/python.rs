@@ -2,7 +2,10 @@
 //! Documented for users in `python/profrobot/_core.pyi`.
 
 use nalgebra::Isometry3;
+use std::borrow::Cow;
+
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::create_exception;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
@@ -15,8 +18,24 @@ use crate::kinematics::body_poses;
 use crate::model::{ModelDesc, RobotModel as CoreModel};
 use crate::{interpolate_so2, sample_uniform, with_threads};
 
+create_exception!(
+    profrobot._core,
+    ProfrobotError,
+    PyValueError,
+    "Base of every error profrobot raises on purpose (a ValueError)."
+);
+create_exception!(
+    profrobot._core,
+    ModelError,
+    ProfrobotError,
+    "A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints)."
+);
+
 fn to_py(e: Error) -> PyErr {
-    PyValueError::new_err(e.to_string())
+    match e {
+        Error::InvalidModel(_) => ModelError::new_err(e.to_string()),
+        Error::InvalidInput(_) => ProfrobotError::new_err(e.to_string()),
+    }
 }
 
 fn item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
@@ -85,13 +104,38 @@ fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
     })
 }
 
-/// Reads a C-contiguous `(B, K)` float64 array for a model with K joints.
-fn pose_slice<'a>(poses: &'a PyReadonlyArray2<'_, f64>, k: usize, what: &str) -> PyResult<&'a [f64]> {
-    let shape = poses.shape();
+/// `obj` as a 2-D float64 array with `k` columns (any memory layout), or a TypeError/ValueError
+/// naming `what`, the dtype and the shape it wants.
+fn pose_array<'py>(obj: &Bound<'py, PyAny>, k: usize, what: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
+    let a: PyReadonlyArray2<'py, f64> = obj.extract().map_err(|_| {
+        let dtype = obj.getattr("dtype").and_then(|d| d.str()).map(|d| d.to_string());
+        let ndim = obj.getattr("ndim").and_then(|n| n.extract::<usize>());
+        let got = match (dtype, ndim) {
+            (Ok(d), Ok(n)) => format!("a {n}-D {d} array"),
+            _ => format!("a {}", obj.get_type().name().map(|n| n.to_string()).unwrap_or_default()),
+        };
+        PyTypeError::new_err(format!("{what} must be a 2-D float64 numpy array of shape (B, {k}); got {got}"))
+    })?;
+    let shape = a.shape();
     if shape[1] != k {
-        return Err(PyValueError::new_err(format!("{what} must have shape (B, {k}); got {shape:?}")));
+        return Err(ProfrobotError::new_err(format!("{what} must have shape (B, {k}); got {shape:?}")));
     }
-    poses.as_slice().map_err(|_| PyValueError::new_err(format!("{what} must be C-contiguous")))
+    Ok(a)
+}
+
+/// The rows of `a` as one row-major buffer: borrowed when `a` is C-contiguous, otherwise copied
+/// element by element through its strides (Fortran order, negative strides, sliced views).
+///
+/// Exactness: rust-numpy's `as_slice` succeeds for *any* contiguous array, Fortran order
+/// included, and would hand back the memory in storage order; reading it as rows silently
+/// transposes the poses. Only `is_c_contiguous` guarantees storage order == row order.
+fn rows_of<'a>(a: &'a PyReadonlyArray2<'_, f64>) -> Cow<'a, [f64]> {
+    if a.is_c_contiguous() {
+        if let Ok(s) = a.as_slice() {
+            return Cow::Borrowed(s);
+        }
+    }
+    Cow::Owned(a.as_array().iter().copied().collect())
 }
 
 /// The compiled collision model of one robot scene (see `_core.pyi`).
@@ -156,12 +200,14 @@ impl RobotModel {
     fn forward_kinematics<'py>(
         &self,
         py: Python<'py>,
-        poses: PyReadonlyArray2<'py, f64>,
+        poses: &Bound<'py, PyAny>,
         threads: Option<usize>,
     ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>)> {
         let model = &self.inner;
         let k = model.njoint();
-        let q = pose_slice(&poses, k, "poses")?;
+        let poses = pose_array(poses, k, "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
         let b = check_poses(model, q).map_err(to_py)?;
         let nb = model.nbody();
         let (xpos, xquat) = py
@@ -195,13 +241,15 @@ impl RobotModel {
     fn label<'py>(
         &self,
         py: Python<'py>,
-        poses: PyReadonlyArray2<'py, f64>,
+        poses: &Bound<'py, PyAny>,
         pairs: bool,
         distance: bool,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let model = &self.inner;
-        let q = pose_slice(&poses, model.njoint(), "poses")?;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
         let opts = LabelOptions { pairs, distance };
         let batch = py.detach(|| with_threads(threads, || label_batch(model, q, opts))).map_err(to_py)?.map_err(to_py)?;
         let labels = &batch.labels;
@@ -234,23 +282,28 @@ impl RobotModel {
 #[pyfunction]
 fn interpolate<'py>(
     py: Python<'py>,
-    start: PyReadonlyArray2<'py, f64>,
-    goal: PyReadonlyArray2<'py, f64>,
+    start: &Bound<'py, PyAny>,
+    goal: &Bound<'py, PyAny>,
     steps: usize,
-    continuous: PyReadonlyArray1<'py, bool>,
+    continuous: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let continuous: PyReadonlyArray1<'py, bool> = continuous
+        .extract()
+        .map_err(|_| PyTypeError::new_err("continuous must be a 1-D bool numpy array of shape (K,)"))?;
     let cont = continuous.as_array().to_vec();
     let k = cont.len();
-    let s = pose_slice(&start, k, "start")?;
-    let g = pose_slice(&goal, k, "goal")?;
+    let (start, goal) = (pose_array(start, k, "start")?, pose_array(goal, k, "goal")?);
+    let (s, g) = (rows_of(&start), rows_of(&goal));
     let b = start.shape()[0];
-    let v = py.detach(|| interpolate_so2(s, g, steps, &cont)).map_err(to_py)?;
+    let v = py.detach(|| interpolate_so2(&s, &g, steps, &cont)).map_err(to_py)?;
     PyArray1::from_vec(py, v).reshape([b, steps, k])
 }
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<RobotModel>()?;
+    m.add("ProfrobotError", m.py().get_type::<ProfrobotError>())?;
+    m.add("ModelError", m.py().get_type::<ModelError>())?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
