@@ -1,14 +1,25 @@
 """The native core (Rust, pyo3). Everything here releases the GIL while it works.
 
 Shapes: B poses, K joints (MuJoCo joint order; radians for hinges, metres for slides), nbody
-bodies (the world included), P candidate geom pairs. Invalid input raises ValueError (or
-TypeError for a wrong dtype), never a panic.
+bodies (the world included), P candidate geom pairs. Arrays are read in any memory layout
+(C or Fortran order, negative strides, sliced views): rows are read through the strides, never
+reinterpreted. Invalid input raises :class:`ProfrobotError` (a ValueError), a bad robot model
+:class:`ModelError`, a wrong dtype or object TypeError naming the dtype wanted; never a panic.
 """
+
+from typing import final
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
+
+class ProfrobotError(ValueError):
+    """Base of every error profrobot raises on purpose (a ValueError)."""
+
+@final
+class ModelError(ProfrobotError):
+    """A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints)."""
 
 class RobotModel:
     """A robot scene's collision model, built once from flat MuJoCo arrays
@@ -37,7 +48,7 @@ class RobotModel:
         as MuJoCo's ``mj_kinematics`` computes them."""
     def label(self, poses: npt.NDArray[np.float64], *, pairs: bool = False, distance: bool = False,
               threads: int | None = None) -> dict[str, npt.NDArray]:
-        """Labels (B, K) C-contiguous float64 poses. Keys: collides, self_collides, scene_collides
+        """Labels (B, K) float64 poses. Keys: collides, self_collides, scene_collides
         (B,) bool; n_pairs (B,) int32; with ``distance``, min_distance (B,) float64 metres
         (negative: penetration); with ``pairs``, colliding_pairs (M, 2) int64 (pose, pair index)."""
     def sample(self, n: int, seed: int, threads: int | None = None) -> npt.NDArray[np.float64]:

@@ -13,6 +13,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _core
+from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
 
@@ -103,13 +104,14 @@ def _round_seed(seed: int, round_index: int) -> int:
 
 def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *,
                  batch: int = 100_000, max_samples: int | None = None, progress: bool = True,
-                 threads: int | None = None) -> Dataset:
+                 threads: int | None = None, equalities: EqualityMode = "auto") -> Dataset:
     """``n`` poses with exact labels, resampled so that ``collided_fraction`` of them collide.
 
     Uniform poses are drawn in seeded rounds of ``batch`` and labelled; colliding and free poses
     are kept until each quota is full (the paper's balanced resampling), then shuffled. Raises
     if a quota cannot be met within ``max_samples`` draws (default ``200 * n``), naming the
-    collision rate seen. Same seed, same dataset, whatever the thread count.
+    collision rate seen. Same seed, same dataset, whatever the thread count. ``equalities``
+    chooses how coupled joints are sampled (see :func:`profrobot.sample_poses`).
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
@@ -132,7 +134,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
             raise RuntimeError(f"could not fill the quotas for {robot.name} after {drawn} samples "
                                f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
                                "or raise max_samples")
-        q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads)
+        q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads, equalities=equalities)
         lab = label_poses(robot, q, threads=threads)
         drawn += batch
         seen_colliding += int(lab.collides.sum())
@@ -150,7 +152,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     from . import __version__
 
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
-                    seed=int(seed), collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
+                    seed=int(seed), equalities=equalities, collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
                     uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
                     core_version=_core.__version__)
     return Dataset(poses, *labels, metadata=metadata)

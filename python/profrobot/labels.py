@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
 
 
@@ -102,8 +103,15 @@ def label_poses(robot: Robot, poses, *, pairs: bool = False, distance: bool = Fa
     return Labels(**out)
 
 
-def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = None) -> np.ndarray:
+def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = None,
+                 equalities: EqualityMode = "auto") -> np.ndarray:
     """``n`` poses (n, K) drawn uniformly within the joint limits (continuous hinges: [-pi, pi]).
+
+    ``equalities`` (see :mod:`profrobot.equalities`): ``"auto"`` computes every joint that a
+    MuJoCo joint equality makes dependent from its independent joint (exact); ``"settle"``
+    also projects each pose onto every active equality (connect/weld loops, tendons) with
+    MuJoCo's constraint rows, replacing poses that do not settle within limits by further
+    seeded draws; ``"ignore"`` samples every joint independently.
 
     The same ``seed`` gives the same poses whatever the thread count.
     """
@@ -113,7 +121,38 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
         raise ValueError(f"n must be a positive integer; got {n!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
         raise ValueError(f"seed must be an integer in [0, 2**64); got {seed!r}")
-    return robot.core.sample(int(n), int(seed), threads=check_threads(threads))
+    if equalities not in EQUALITY_MODES:
+        raise ValueError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
+    threads = check_threads(threads)
+    poses = robot.core.sample(int(n), int(seed), threads=threads)
+    if equalities == "ignore":
+        return poses
+    robot.couplings.apply(poses)
+    if equalities == "auto" or all(e.enforced_by_default for e in robot.equalities if e.active):
+        return poses
+    return _settled(robot, poses, int(n), int(seed), threads)
+
+
+def _settled(robot: Robot, poses: np.ndarray, n: int, seed: int, threads: int | None) -> np.ndarray:
+    """``poses`` projected onto the equality manifold; failures (no convergence, or a limited
+    joint pushed past its range) are replaced by draws from seeds derived from ``seed``."""
+    lim, limited = robot.joint_limits, ~robot.continuous
+    dof = np.asarray(robot.mj_model.jnt_dofadr, dtype=np.int64)
+    kept, have, r = [], 0, 0
+    while have < n:
+        if r > 0:
+            poses = robot.core.sample(n, int(np.random.SeedSequence([seed, r]).generate_state(1, np.uint64)[0]),
+                                      threads=threads)
+            robot.couplings.apply(poses)
+        q, ok = settle(robot.mj_model, poses, robot.qpos_adr, dof)
+        ok &= ~(((q < lim[:, 0] - 1e-9) | (q > lim[:, 1] + 1e-9)) & limited).any(axis=1)
+        kept.append(q[ok][: n - have])
+        have += len(kept[-1])
+        r += 1
+        if r > 50 and have == 0:
+            raise RuntimeError(f"{robot.name}: no pose settled onto its equality constraints within the joint "
+                               f"limits after {r * n} draws")
+    return np.concatenate(kept)
 
 
 def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import abc
 import hashlib
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -17,6 +18,7 @@ import mujoco
 import numpy as np
 
 from . import _core
+from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                                   mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE))
@@ -139,6 +141,51 @@ def _name(m: mujoco.MjModel, obj: mujoco.mjtObj, i: int, prefix: str) -> str:
     return mujoco.mj_id2name(m, obj, i) or f"{prefix}{i}"
 
 
+_WARNED: set[str] = set()
+
+
+def _frame(pos: np.ndarray, quat: np.ndarray, sameframe: int, inertial: tuple[np.ndarray, np.ndarray]
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's pose in its body, taken the way ``mj_local2Global`` takes it.
+
+    MuJoCo's compiler flags frames that (nearly) coincide with their body's frame or inertial
+    frame (``*_sameframe``) and ``mj_kinematics`` then *copies* that frame instead of composing
+    ``body · (pos, quat)``:
+    0 none: (pos, quat); 1 body: (0, 1); 2 inertia: the inertial frame; 3 body rotation:
+    (pos, 1); 4 inertial rotation: (pos, inertial quat).
+    Composing the flagged pose instead leaves the geometry off MuJoCo's by up to the
+    compiler's tolerance (seen: 3e-8 m on a gripper), enough to flip contacts on the boundary.
+    With the frame returned here, ``body · frame`` equals MuJoCo's copy to rounding (1e-16 m).
+    """
+    one = np.array([1.0, 0.0, 0.0, 0.0])
+    ipos, iquat = inertial
+    sf = int(sameframe)
+    if sf == 0:
+        return pos, quat
+    if sf == 1:
+        return np.zeros(3), one
+    if sf == 2:
+        return ipos, iquat
+    if sf == 3:
+        return pos, one
+    if sf == 4:
+        return pos, iquat
+    raise ValueError(f"unknown MuJoCo sameframe flag {sf}")
+
+
+def geom_local_frames(m: mujoco.MjModel, gids) -> tuple[np.ndarray, np.ndarray]:
+    """(G, 3) positions and (G, 4) quaternions (w, x, y, z) of geoms ``gids`` in their bodies'
+    frames, following MuJoCo's ``geom_sameframe`` flags (see :func:`_frame`)."""
+    pos, quat = [], []
+    for g in np.asarray(gids, dtype=int):
+        b = int(m.geom_bodyid[g])
+        inertial = _frame(m.body_ipos[b], m.body_iquat[b], m.body_sameframe[b], (None, None))
+        p, q = _frame(m.geom_pos[g], m.geom_quat[g], m.geom_sameframe[g], inertial)
+        pos.append(p)
+        quat.append(q)
+    return np.asarray(pos, dtype=np.float64).reshape(-1, 3), np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+
+
 def _hull_vertices(m: mujoco.MjModel, mesh: int) -> np.ndarray:
     """The vertices MuJoCo collides for a mesh: its convex hull's when compiled, else all."""
     adr, num = m.mesh_vertadr[mesh], m.mesh_vertnum[mesh]
@@ -186,6 +233,15 @@ class Robot:
         self.continuous = (m.jnt_type == _HINGE) & (m.jnt_limited == 0)
         self.joint_parents = self._joint_parents()
         self.body_names: list[str] = [_name(m, mujoco.mjtObj.mjOBJ_BODY, b, "body") for b in range(m.nbody)]
+        self.equalities = read_equalities(m)
+        self.tendons = read_tendons(m)
+        self.couplings = JointCouplings(m, self.joint_names)
+        loose = unenforced_summary(self.equalities, self.tendons)
+        if loose and loose not in _WARNED:  # once per process for the same couplings
+            _WARNED.add(loose)
+            warnings.warn(f"{name}: uniform sampling leaves these couplings free: {loose}. "
+                          "sample_poses(..., equalities='settle') projects poses onto them "
+                          "(robot.equalities lists every equality).", EqualityWarning, stacklevel=3)
         self._arrays = self._core_arrays()
         self.core = _core.RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
@@ -326,6 +382,7 @@ class Robot:
         adr = np.cumsum([0] + [len(h) for h in hulls])[:-1]
         geom_mesh = [mesh_index.get(int(m.geom_dataid[g]), -1) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else -1
                      for g in gids]
+        geom_pos, geom_quat = geom_local_frames(m, gids)
         excl = np.array([[s >> 16, s & 0xFFFF] for s in m.exclude_signature], dtype=np.int32).reshape(-1, 2)
         dis = m.opt.disableflags
         return dict(
@@ -335,7 +392,7 @@ class Robot:
             jnt_axis=f64(m.jnt_axis, 3), jnt_qpos0=f64(m.qpos0[m.jnt_qposadr]),
             jnt_range=f64(m.jnt_range, 2), jnt_limited=np.ascontiguousarray(m.jnt_limited != 0),
             geom_id=i32(gids), geom_type=i32(m.geom_type[gids]), geom_body=i32(m.geom_bodyid[gids]),
-            geom_pos=f64(m.geom_pos[gids], 3), geom_quat=f64(m.geom_quat[gids], 4),
+            geom_pos=f64(geom_pos, 3), geom_quat=f64(geom_quat, 4),
             geom_size=f64(m.geom_size[gids], 3),
             geom_contype=np.ascontiguousarray(m.geom_contype[gids], dtype=np.uint32),
             geom_conaffinity=np.ascontiguousarray(m.geom_conaffinity[gids], dtype=np.uint32),
