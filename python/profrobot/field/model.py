@@ -29,6 +29,19 @@ class LipschitzLinear(nn.Linear):
         return nn.functional.linear(x, self.weight * scale[:, None], self.bias)
 
 
+class _Shared:
+    """Holds the field's Robot: copies of the module (deepcopy, snapshots) share it, since a
+    Robot is immutable, instead of copying MuJoCo models and the Rust collision model."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+    def __deepcopy__(self, memo):
+        return self
+
+
 class PoseSDF(nn.Module):
     """Collision field over joint space for one robot.
 
@@ -60,6 +73,7 @@ class PoseSDF(nn.Module):
         self.config = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
                            learn_scale=bool(learn_scale), init_scale=float(init_scale), lipschitz=bool(lipschitz),
                            objective=objective, spheres_per_body=int(spheres_per_body))
+        self._robot = _Shared(robot)
         self.robot_name = robot.name
         self.fingerprint = robot.fingerprint
         self.joint_names = list(robot.joint_names)
@@ -119,6 +133,11 @@ class PoseSDF(nn.Module):
             if isinstance(m, LipschitzLinear):
                 out = out * m.bound()
         return out
+
+    @property
+    def robot(self):
+        """The :class:`profrobot.Robot` this field was built for (certification labels with it)."""
+        return self._robot.value
 
     def __repr__(self) -> str:
         n = sum(p.numel() for p in self.parameters())
