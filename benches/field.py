@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 import profrobot
+from profrobot._io import atomic_path
 from profrobot.crosscheck import mujoco_labels
 from profrobot.field import train_sdf
 
@@ -105,10 +106,8 @@ def write_table(rows: list[dict], path: Path, header: str) -> str:
             f"{fmt(r.get('iters'), '.1f')} ({fmt(p.get('iters'))}) | {fmt(r.get('after'), '.1f')} ({fmt(p.get('after'))}) | "
             f"{r['iters_trained']} | {r['seconds']:.0f} |")
     text = "\n".join(lines) + "\n"
-    OUT.mkdir(exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
     return text
 
 

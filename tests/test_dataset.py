@@ -7,6 +7,7 @@ import pytest
 
 import profrobot
 from profrobot import Dataset
+from profrobot.errors import RobotMismatchError
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +61,7 @@ def test_interrupted_save_keeps_the_old_file(tmp_path, dataset, monkeypatch):
 def test_load_refuses_other_robots_and_corrupt_files(tmp_path, ur5e, dataset):
     path = tmp_path / "d.npz"
     dataset.save(path)
-    with pytest.raises(ValueError, match="was made for robot 'panda_blocks'"):
+    with pytest.raises(RobotMismatchError, match="was made for robot 'panda_blocks'"):
         Dataset.load(path, robot=ur5e)
     bad = tmp_path / "bad.npz"
     bad.write_bytes(path.read_bytes()[:200])

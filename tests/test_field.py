@@ -11,6 +11,7 @@ from conftest import scene
 from profrobot.field import PoseSDF, train_sdf
 from profrobot.field.encoders import HierarchicalEncoder
 from profrobot.field.train import eikonal_terms
+from profrobot.errors import RobotMismatchError
 
 
 @pytest.mark.parametrize("encoder", ["kinematic", "hierarchical", "flat"])
@@ -76,10 +77,10 @@ def test_checkpoint_round_trips_bit_exactly(panda, tmp_path):
 
 def test_checkpoint_for_another_robot_fails(panda, ur5e, tmp_path):
     profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), tmp_path / "ckpt")
-    with pytest.raises(ValueError, match="trained for robot 'panda_blocks'"):
+    with pytest.raises(RobotMismatchError, match="made for robot 'panda_blocks'"):
         profrobot.load_sdf(tmp_path / "ckpt", ur5e)
     # the same arm with one obstacle fewer is another robot too
-    with pytest.raises(ValueError, match="fingerprint"):
+    with pytest.raises(RobotMismatchError, match="fingerprint"):
         profrobot.load_sdf(tmp_path / "ckpt", profrobot.Robot.from_menagerie("franka_emika_panda"))
 
 

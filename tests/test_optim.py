@@ -9,6 +9,7 @@ import profrobot
 from conftest import scene
 from profrobot.field import PoseSDF
 from profrobot.optim import check_path, collision_penalty, plan_trajectory, resolve
+from profrobot.errors import RobotMismatchError
 
 
 class LinearField(torch.nn.Module):
@@ -149,7 +150,7 @@ def test_resolve_bad_input(panda, ur5e):
     out = q.copy(); out[0, 0] = 10.0
     with pytest.raises(ValueError, match="outside the limits"):
         resolve(sdf, out)
-    with pytest.raises(ValueError, match="another robot"):
+    with pytest.raises(RobotMismatchError, match="made for robot"):
         resolve(sdf, q, robot=ur5e)
     with pytest.raises(ValueError, match="lr"):
         resolve(sdf, q, lr=0)

@@ -10,6 +10,7 @@ import torch
 
 import profrobot
 from profrobot.render import GaussianRobot, fit_gaussians, fit_pose, make_views, ring_cameras
+from profrobot.errors import RobotMismatchError
 
 ARM = """<mujoco><compiler angle="radian"/><statistic extent="1" center="0 0 0.3"/>
   <asset><mesh name="bar" vertex="-.04 -.04 0  .04 -.04 0  .04 .04 0  -.04 .04 0  -.04 -.04 .3  .04 -.04 .3  .04 .04 .3  -.04 .04 .3"/>
@@ -79,7 +80,7 @@ def test_save_load_roundtrip_and_errors(arm, panda, tmp_path, cams):
     with torch.no_grad():
         torch.testing.assert_close(h.render_views(theta, cams).rgb, g.render_views(theta, cams).rgb)
     assert h.skinning == "lbs" and h.sh_degree == g.sh_degree
-    with pytest.raises(ValueError, match="fitted to robot"):
+    with pytest.raises(RobotMismatchError, match="made for robot"):
         GaussianRobot.load(p, panda)
     p.write_bytes(b"\x00" * 40)
     with pytest.raises(ValueError, match="not a readable"):

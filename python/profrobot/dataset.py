@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 
@@ -13,6 +12,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _core
+from ._io import atomic_path, check_robot
 from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
@@ -55,19 +55,9 @@ class Dataset:
         path = os.fspath(path)
         if not path.endswith(".npz"):
             raise ValueError(f"dataset files end in .npz; got {path!r}")
-        folder = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix=".profrobot-", suffix=".npz.tmp", dir=folder)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
-                         metadata=np.array(json.dumps(self.metadata)))
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_path(path) as tmp:
+            np.savez(tmp, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
+                     metadata=np.array(json.dumps(self.metadata)))
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
@@ -90,10 +80,8 @@ class Dataset:
         n = len(ds.poses)
         if ds.poses.ndim != 2 or any(len(getattr(ds, k)) != n for k in _LABELS):
             raise ValueError(f"{path!r} is corrupt: arrays of inconsistent lengths")
-        if robot is not None and metadata.get("robot_fingerprint") != robot.fingerprint:
-            raise ValueError(f"{path!r} was made for robot {metadata.get('robot')!r} "
-                             f"(fingerprint {metadata.get('robot_fingerprint')}), not {robot.name!r} "
-                             f"(fingerprint {robot.fingerprint})")
+        if robot is not None:
+            check_robot(metadata, robot, f"dataset {path!r}")
         return ds
 
 

@@ -6,38 +6,17 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
+from .._io import atomic_dir, atomic_path, check_robot
 from ..robot import Robot
 from .model import PoseSDF
 
 FORMAT = "profrobot.PoseSDF/1"
-
-
-def _atomic_dir(path: Path, write) -> None:
-    """Write a directory next to ``path`` and move it into place, so that a crash or Ctrl-C
-    leaves either the old checkpoint or the new one, never half of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    try:
-        write(tmp)
-        if path.exists():
-            old = path.with_name(f".{path.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
@@ -48,11 +27,9 @@ def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
                   joint_names=sdf.joint_names, model=sdf.config,
                   metrics={k: v for k, v in sdf.metrics.items() if isinstance(v, (int, float, str))})
 
-    def write(d: Path) -> None:
+    with atomic_dir(path) as d:
         save_file(tensors, str(d / "model.safetensors"), metadata={"format": FORMAT})
         (d / "config.json").write_text(json.dumps(config, indent=2))
-
-    _atomic_dir(path, write)
     return path
 
 
@@ -74,10 +51,7 @@ def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
         raise ValueError(f"{cfg_path} is not a {FORMAT} config")
     if not isinstance(robot, Robot):
         raise TypeError(f"load_sdf needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
-    if config.get("robot_fingerprint") != robot.fingerprint:
-        raise ValueError(f"checkpoint {path} was trained for robot {config.get('robot')!r} "
-                         f"(fingerprint {config.get('robot_fingerprint')}), not for {robot.name!r} "
-                         f"(fingerprint {robot.fingerprint})")
+    check_robot(config, robot, f"checkpoint {path}")
     try:
         tensors = load_file(str(w_path))
     except (SafetensorError, OSError, ValueError) as e:
@@ -111,13 +85,6 @@ def export_sdf(sdf: PoseSDF, path: str | os.PathLike, *, batch: int = 1024) -> i
     example = torch.zeros(batch, sdf.njoint)
     dim = torch.export.Dim("batch", min=1)
     program = torch.export.export(_Deployable(sdf), (example,), dynamic_shapes={"theta": {0: dim}})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".pt2", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".pt2") as tmp:
         torch.export.save(program, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path.stat().st_size

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .._io import check_robot
 from ..dataset import Dataset, make_dataset
 from ..robot import Robot
 from .metrics import evaluate
@@ -137,8 +138,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str 
             if name not in scenes.names():
                 raise ValueError("pass robot= with a Dataset whose robot is not a bundled scene")
             robot = scenes.load(name)
-        if data.metadata.get("robot_fingerprint") not in (None, robot.fingerprint):
-            raise ValueError(f"the dataset was made for another robot than {robot.name!r} (fingerprints differ)")
+        check_robot(data.metadata, robot, "the dataset", missing_ok=True)
     else:
         raise TypeError(f"train_sdf needs a profrobot.Robot or Dataset; got {type(data).__name__}")
     train, test = dataset.split(cfg.test_fraction, seed=cfg.seed)

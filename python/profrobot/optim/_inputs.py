@@ -9,6 +9,7 @@ from functools import lru_cache
 import numpy as np
 import torch
 
+from .._io import check_robot
 from ..labels import as_poses
 from ..robot import Robot
 
@@ -43,8 +44,7 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
         robot = _bundled(name)
     if not isinstance(robot, Robot):
         raise TypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
-    if robot.fingerprint != sdf.fingerprint:
-        raise ValueError(f"the field was trained for another robot than {robot.name!r} (fingerprints differ)")
+    check_robot(sdf.fingerprint, robot, "the field", made_for=getattr(sdf, "robot_name", None))
     return robot
 
 

@@ -3,11 +3,9 @@ by :mod:`profrobot.cli`). Exit status 0 only when every result is certified free
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-
 import numpy as np
+
+from .._io import atomic_path
 
 
 def _field(args):
@@ -26,16 +24,8 @@ def _pose(text: str, name: str) -> np.ndarray:
 
 
 def _save_npz(path: str, **arrays) -> None:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".npz", dir=p.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, **arrays)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def cmd_resolve(args) -> int:

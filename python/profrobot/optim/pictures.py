@@ -7,11 +7,11 @@ Headless machines: set ``MUJOCO_GL=osmesa`` (CPU) or ``egl`` before importing mu
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._io import atomic_path
 from ..labels import label_poses
 from ..robot import Robot
 
@@ -75,10 +75,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     if collides.shape != (len(path),):
         raise ValueError(f"collides must have shape ({len(path)},); got {collides.shape}")
     frames = _frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=suffix, dir=out.parent)
-    os.close(fd)
-    try:
+    with atomic_path(out) as tmp:
         if suffix == ".gif":
             frames[0].save(tmp, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
         else:
@@ -87,10 +84,6 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
             except ImportError as e:
                 raise RuntimeError("MP4 output needs imageio with its ffmpeg plugin; write a .gif instead") from e
             iio.imwrite(tmp, np.stack([np.asarray(f) for f in frames]), fps=fps)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return out
 
 

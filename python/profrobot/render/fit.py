@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .._io import check_robot
 from ..kinematics import quat_to_matrix
 from ._adam import Adam
 from .gaussians import GaussianRobot
@@ -142,8 +143,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
     only leak dark blotches through it)."""
     from tqdm.auto import tqdm
 
-    if views.robot_fingerprint and views.robot_fingerprint != model.robot_fingerprint:
-        raise ValueError(f"views were rendered from robot {views.robot_name!r}, the model is of {model.robot_name!r}")
+    check_robot(views.robot_fingerprint or None, model, "the views", made_for=views.robot_name, missing_ok=True)
     rng = np.random.default_rng(seed)
     trng = torch.Generator().manual_seed(seed)
     cams = views.cameras

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
-from ._io import atomic_path
+from .._io import atomic_path, check_robot
 from .rasterize import RenderOut, rasterize
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
@@ -284,7 +284,7 @@ class GaussianRobot(torch.nn.Module):
         meta = dict(format=_FORMAT, robot_fingerprint=self.robot_fingerprint, robot_name=self.robot_name,
                     skinning=self.skinning, hidden=self.hidden, n=self.n, sh_degree=self.sh_degree)
         with atomic_path(path) as tmp:
-            save_file(tensors, tmp, metadata={"profrobot": json.dumps(meta)})
+            save_file(tensors, str(tmp), metadata={"profrobot": json.dumps(meta)})
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot) -> "GaussianRobot":
@@ -302,9 +302,7 @@ class GaussianRobot(torch.nn.Module):
             raise ValueError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
         if meta.get("format") != _FORMAT:
             raise ValueError(f"{path}: unknown format {meta.get('format')!r}")
-        if meta["robot_fingerprint"] != robot.fingerprint:
-            raise ValueError(f"{path}: fitted to robot {meta['robot_name']!r} (fingerprint {meta['robot_fingerprint']}), "
-                             f"not {robot.name!r} ({robot.fingerprint})")
+        check_robot(meta, robot, f"Gaussian robot {path}")
         t = lambda k: tensors[k].numpy()
         try:
             model = cls(robot, t("body"), t("means"), t("quats"), t("log_scales"), t("opacity_logits"), t("sh"),

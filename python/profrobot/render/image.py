@@ -8,7 +8,7 @@ import zlib
 
 import numpy as np
 
-from ._io import atomic_path
+from .._io import atomic_path
 
 __all__ = ["psnr", "mask_iou", "write_png", "to_uint8", "depth_to_rgb"]
 

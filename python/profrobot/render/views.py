@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from ._io import atomic_path
+from .._io import atomic_path
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
 
