@@ -7,7 +7,7 @@ import pytest
 
 import profrobot
 from profrobot import Dataset
-from profrobot.errors import RobotMismatchError
+from profrobot.errors import CorruptFileError, RobotMismatchError
 
 
 @pytest.fixture(scope="module")
@@ -65,10 +65,10 @@ def test_load_refuses_other_robots_and_corrupt_files(tmp_path, ur5e, dataset):
         Dataset.load(path, robot=ur5e)
     bad = tmp_path / "bad.npz"
     bad.write_bytes(path.read_bytes()[:200])
-    with pytest.raises(ValueError, match="corrupt|could not read"):
+    with pytest.raises(CorruptFileError, match="corrupt"):
         Dataset.load(bad)
     np.savez(tmp_path / "other.npz", poses=np.zeros((2, 9)))
-    with pytest.raises(ValueError, match="not a profrobot dataset"):
+    with pytest.raises(CorruptFileError, match="not a profrobot dataset"):
         Dataset.load(tmp_path / "other.npz")
     with pytest.raises(ValueError, match=".npz"):
         dataset.save(tmp_path / "d.pkl")

@@ -10,7 +10,7 @@ import torch
 
 import profrobot
 from profrobot.render import GaussianRobot, fit_gaussians, fit_pose, make_views, ring_cameras
-from profrobot.errors import RobotMismatchError
+from profrobot.errors import CorruptFileError, RobotMismatchError
 
 ARM = """<mujoco><compiler angle="radian"/><statistic extent="1" center="0 0 0.3"/>
   <asset><mesh name="bar" vertex="-.04 -.04 0  .04 -.04 0  .04 .04 0  -.04 .04 0  -.04 -.04 .3  .04 -.04 .3  .04 .04 .3  -.04 .04 .3"/>
@@ -83,7 +83,7 @@ def test_save_load_roundtrip_and_errors(arm, panda, tmp_path, cams):
     with pytest.raises(RobotMismatchError, match="made for robot"):
         GaussianRobot.load(p, panda)
     p.write_bytes(b"\x00" * 40)
-    with pytest.raises(ValueError, match="not a readable"):
+    with pytest.raises(CorruptFileError, match="not a readable"):
         GaussianRobot.load(p, arm)
     with pytest.raises(FileNotFoundError):
         GaussianRobot.load(tmp_path / "missing.safetensors", arm)

@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 
 from . import _core
 from ._io import atomic_path, check_robot
+from .errors import CorruptFileError
 from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
@@ -61,25 +62,29 @@ class Dataset:
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
-        """Reads a file written by :meth:`save`; with ``robot``, refuses data for another robot."""
+        """Reads a file written by :meth:`save`; with ``robot``, refuses data for another robot
+        (:class:`~profrobot.errors.RobotMismatchError`). A file that cannot be read as a dataset
+        raises :class:`~profrobot.errors.CorruptFileError`; a missing one ``FileNotFoundError``."""
         path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"no dataset file at {path!r}")
+        missing: list[str] = []
         try:
             with np.load(path, allow_pickle=False) as z:
                 missing = [k for k in ("poses", "metadata", *_LABELS) if k not in z.files]
-                if missing:
-                    raise ValueError(f"{path!r} is not a profrobot dataset: it lacks {', '.join(missing)}")
-                data = {k: z[k] for k in ("poses", *_LABELS)}
-                metadata = json.loads(str(z["metadata"]))
-        except (OSError, EOFError, zipfile.BadZipFile) as e:
-            raise ValueError(f"could not read dataset {path!r}: {e}") from e
-        except (ValueError, json.JSONDecodeError) as e:
-            if isinstance(e, ValueError) and "profrobot dataset" in str(e):
-                raise
-            raise ValueError(f"{path!r} is corrupt or not a profrobot dataset: {e}") from e
+                if not missing:
+                    data = {k: z[k] for k in ("poses", *_LABELS)}
+                    metadata = json.loads(str(z["metadata"]))
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as e:  # JSONDecodeError is a ValueError
+            raise CorruptFileError(f"{path!r} is corrupt or not a profrobot dataset: {e}") from e
+        if missing:
+            raise CorruptFileError(f"{path!r} is not a profrobot dataset: it lacks {', '.join(missing)}")
+        if not isinstance(metadata, dict):
+            raise CorruptFileError(f"{path!r} is corrupt: its metadata is not a JSON object")
         ds = cls(**data, metadata=metadata)
         n = len(ds.poses)
-        if ds.poses.ndim != 2 or any(len(getattr(ds, k)) != n for k in _LABELS):
-            raise ValueError(f"{path!r} is corrupt: arrays of inconsistent lengths")
+        if ds.poses.ndim != 2 or any(getattr(ds, k).ndim != 1 or len(getattr(ds, k)) != n for k in _LABELS):
+            raise CorruptFileError(f"{path!r} is corrupt: arrays of inconsistent shapes")
         if robot is not None:
             check_robot(metadata, robot, f"dataset {path!r}")
         return ds

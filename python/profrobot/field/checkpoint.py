@@ -13,6 +13,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from .._io import atomic_dir, atomic_path, check_robot
+from ..errors import CorruptFileError
 from ..robot import Robot
 from .model import PoseSDF
 
@@ -36,31 +37,35 @@ def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
 def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
     """Load a checkpoint saved by :func:`save_sdf` for ``robot``.
 
-    Raises ValueError if the checkpoint is for another robot (its fingerprint differs), or if
-    the files are missing or corrupt.
+    Raises :class:`~profrobot.errors.RobotMismatchError` if the checkpoint is for another robot
+    (its fingerprint differs), :class:`~profrobot.errors.CorruptFileError` if its files are
+    missing or corrupt (both are ``ValueError``).
     """
     path = Path(path)
     cfg_path, w_path = path / "config.json", path / "model.safetensors"
     if not cfg_path.is_file() or not w_path.is_file():
-        raise ValueError(f"{path} is not a PoseSDF checkpoint (needs config.json and model.safetensors)")
+        raise CorruptFileError(f"{path} is not a PoseSDF checkpoint (needs config.json and model.safetensors)")
     try:
         config = json.loads(cfg_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"corrupt checkpoint config {cfg_path}: {e}") from e
-    if not isinstance(config, dict) or config.get("format") != FORMAT:
-        raise ValueError(f"{cfg_path} is not a {FORMAT} config")
+        raise CorruptFileError(f"corrupt checkpoint config {cfg_path}: {e}") from e
+    if not isinstance(config, dict) or config.get("format") != FORMAT or not isinstance(config.get("model"), dict):
+        raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config")
     if not isinstance(robot, Robot):
         raise TypeError(f"load_sdf needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
     check_robot(config, robot, f"checkpoint {path}")
     try:
         tensors = load_file(str(w_path))
     except (SafetensorError, OSError, ValueError) as e:
-        raise ValueError(f"corrupt checkpoint weights {w_path}: {e}") from e
-    sdf = PoseSDF(robot, **config["model"])
+        raise CorruptFileError(f"corrupt checkpoint weights {w_path}: {e}") from e
+    try:
+        sdf = PoseSDF(robot, **config["model"])
+    except (TypeError, ValueError) as e:
+        raise CorruptFileError(f"{cfg_path} describes no valid PoseSDF: {e}") from e
     try:
         sdf.load_state_dict(tensors, strict=True)
     except RuntimeError as e:
-        raise ValueError(f"checkpoint weights {w_path} do not fit the architecture in its config: {e}") from e
+        raise CorruptFileError(f"checkpoint weights {w_path} do not fit the architecture in its config: {e}") from e
     sdf.metrics = dict(config.get("metrics", {}))
     sdf.eval()
     return sdf

@@ -32,6 +32,7 @@ import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
 from .._io import atomic_path, check_robot
+from ..errors import CorruptFileError
 from .rasterize import RenderOut, rasterize
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
@@ -299,9 +300,9 @@ class GaussianRobot(torch.nn.Module):
                 meta = json.loads((f.metadata() or {})["profrobot"])
                 tensors = {k: f.get_tensor(k) for k in f.keys()}
         except Exception as e:  # safetensors raises its own error types on corrupt headers
-            raise ValueError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{path}: unknown format {meta.get('format')!r}")
+            raise CorruptFileError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
+        if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
+            raise CorruptFileError(f"{path}: unknown format {(meta.get('format') if isinstance(meta, dict) else meta)!r}")
         check_robot(meta, robot, f"Gaussian robot {path}")
         t = lambda k: tensors[k].numpy()
         try:
@@ -309,5 +310,5 @@ class GaussianRobot(torch.nn.Module):
                         skinning=meta["skinning"], canonical=t("canonical")[0], hidden=meta["hidden"])
             model.load_state_dict(tensors, strict=True)
         except (KeyError, RuntimeError) as e:
-            raise ValueError(f"{path}: inconsistent Gaussian robot file ({e})") from e
+            raise CorruptFileError(f"{path}: inconsistent Gaussian robot file ({e})") from e
         return model
