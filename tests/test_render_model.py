@@ -122,3 +122,43 @@ def test_fit_pose_recovers_joints_and_respects_limits(arm, cams):
         fit_pose(g, dict(rgb=np.zeros((1, 2, 32, 32, 3)), depth=targets["depth"], mask=targets["mask"]), cams, target.numpy())
     with pytest.raises(ValueError, match="init"):
         fit_pose(g, targets, cams, np.zeros((1, 5)))
+
+
+def test_densify_keeps_adam_moments(arm):
+    """torch.optim.Adam across a split/clone/prune: survivors keep their moments and step count,
+    new Gaussians start from zero, the optimiser holds the model's new parameters."""
+    from profrobot.render.fit import _PARAMS, _densify, _optimizer, _remap_optimizer
+
+    torch.manual_seed(0)
+    g = GaussianRobot.from_robot(arm, 40, seed=0)
+    opt = _optimizer(g)
+    for _ in range(2):
+        opt.zero_grad()
+        for name in _PARAMS:
+            getattr(g, name).grad = torch.randn_like(getattr(g, name))
+        opt.step()
+    with torch.no_grad():
+        g.opacity_logits[:3] = -10.0                         # three transparent ones get pruned
+    old = {name: getattr(g, name) for name in _PARAMS}
+    before = {name: {k: v.clone() for k, v in opt.state[p].items()} for name, p in old.items()}
+    n0 = g.n
+    grad_acc = torch.arange(n0, dtype=torch.float32)          # the last ones are split / cloned
+    info, rows = _densify(g, grad_acc, 0.25, 1000, 0.02, torch.Generator().manual_seed(0))
+    _remap_optimizer(opt, old, g, rows)
+    assert info["added"] == 10 and info["pruned"] == 3 and g.n == n0 + 10 - 3 == len(rows)
+    new = rows < 0
+    assert int(new.sum()) == 10 and rows[~new].tolist() == list(range(3, n0))
+    held = {id(p) for group in opt.param_groups for p in group["params"]}
+    for name in _PARAMS:
+        p = getattr(g, name)
+        assert id(p) in held and old[name] not in opt.state
+        st = opt.state[p]
+        assert float(st["step"]) == 2.0
+        for key in ("exp_avg", "exp_avg_sq"):
+            assert st[key].shape == p.shape
+            torch.testing.assert_close(st[key][~new], before[name][key][rows[~new]], rtol=0, atol=0)
+            assert not st[key][new].any()
+    # and the optimiser keeps working on the new parameters
+    opt.zero_grad()
+    g.render_views(torch.tensor([[0.1, 0.2]]), ring_cameras(1, size=8, distance=1.4)).rgb.sum().backward()
+    opt.step()

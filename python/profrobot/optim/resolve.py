@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..robot import Robot
+from ._batched_adam import BatchedAdam
 from ._inputs import Limits, field_robot, finite, poses_array, positive
 from .certify import certify_poses
 
@@ -57,36 +58,7 @@ class ResolveResult:
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
 
 
-class _RowAdam:
-    """Adam with one step counter per pose (row), so that a pose frozen at its threshold keeps
-    its place exactly and the others behave as if each had its own torch.optim.Adam (Adam is
-    element-wise, and each pose's loss depends on that pose alone)."""
-
-    def __init__(self, shape, lr: float, like: torch.Tensor, betas=(0.9, 0.999), eps: float = 1e-8):
-        self.lr, (self.b1, self.b2), self.eps = lr, betas, eps
-        self.m = like.new_zeros(shape)
-        self.v = like.new_zeros(shape)
-        self.t = like.new_zeros(shape[0])
-
-    def reset(self, rows: torch.Tensor) -> None:
-        self.m[rows] = 0
-        self.v[rows] = 0
-        self.t[rows] = 0
-
-    @torch.no_grad()
-    def step(self, theta: torch.Tensor, rows: torch.Tensor, grad: torch.Tensor) -> None:
-        """θ[rows] −= Adam update from ``grad`` (len(rows), K)."""
-        self.t[rows] += 1
-        t = self.t[rows, None]
-        m = self.m[rows] * self.b1 + (1 - self.b1) * grad
-        v = self.v[rows] * self.b2 + (1 - self.b2) * grad * grad
-        self.m[rows], self.v[rows] = m, v
-        mhat = m / (1 - self.b1 ** t)
-        vhat = v / (1 - self.b2 ** t)
-        theta[rows] -= self.lr * mhat / (vhat.sqrt() + self.eps)
-
-
-def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Tensor, opt: _RowAdam,
+def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Tensor, opt: BatchedAdam,
              limits: Limits, max_iters: int, iterations: torch.Tensor, g_out: torch.Tensor) -> None:
     """Adam on g for poses ``rows`` until each meets g ≤ its threshold (then it is frozen) or
     ``max_iters`` steps; updates θ, iteration counts and g in place."""
@@ -136,7 +108,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
     theta = torch.as_tensor(q0, dtype=like.dtype, device=like.device).clone()
     B, K = theta.shape
     limits = Limits(robot, theta)
-    opt = _RowAdam((B, K), lr, theta)
+    opt = BatchedAdam((B, K), lr, theta)
     thresholds = torch.full((B,), l_thres, dtype=theta.dtype, device=theta.device)
     iterations = torch.zeros(B, dtype=torch.long, device=theta.device)
     g = torch.empty(B, dtype=theta.dtype, device=theta.device)

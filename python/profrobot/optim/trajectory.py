@@ -21,9 +21,9 @@ import torch
 
 from ..labels import interpolate
 from ..robot import Robot
+from ._batched_adam import BatchedAdam
 from ._inputs import Limits, field_robot, finite, poses_array, positive
 from .certify import PathCheck, check_path
-from .resolve import _RowAdam
 
 METHODS = ("penalty", "tangent")
 
@@ -95,7 +95,7 @@ def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: floa
     full = torch.as_tensor(paths, dtype=like.dtype, device=like.device).clone()
     x = full[:, 1:-1].reshape(B, -1).clone()            # (B, (S−2)·K): one Adam row per problem
     x0 = x.clone()
-    opt = _RowAdam(x.shape, lr, x)
+    opt = BatchedAdam(x.shape, lr, x)
     steps = np.zeros(B, dtype=np.int64)
     active = torch.arange(B, device=x.device)
     thres = torch.full((B,), l_thres, dtype=x.dtype, device=x.device)

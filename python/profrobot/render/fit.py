@@ -9,7 +9,8 @@ Loss per step (one training pose, a few of its cameras; images in [0, 1], depth 
 Adam with 3DGS-style per-parameter learning rates. Every ``densify_every`` steps, as 3DGS does
 at CPU scale: Gaussians whose positions received the largest mean gradient are split (large
 ones: two samples from the Gaussian, scales / 1.6) or cloned (small ones), and nearly
-transparent ones are pruned; the optimiser is rebuilt after each edit (its moments restart).
+transparent ones are pruned. ``torch.optim.Adam`` keeps its moments across each edit, as
+gsplat's strategy ops do: surviving Gaussians keep theirs, new ones start from zero.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ import torch.nn.functional as F
 
 from .._io import check_robot
 from ..kinematics import quat_to_matrix
-from ._adam import Adam
 from .gaussians import GaussianRobot
 from .views import Views
 
@@ -66,7 +66,10 @@ def image_losses(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.
     return terms
 
 
-def _optimizer(model: GaussianRobot, lr_scale: float = 1.0) -> Adam:
+_PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def _optimizer(model: GaussianRobot, lr_scale: float = 1.0) -> torch.optim.Adam:
     # 3DGS's rates, positions in metres for a ~1 m robot; the degree-0 colour term learns faster
     # than the view-dependent ones (3DGS: 1/20)
     groups = [
@@ -78,16 +81,43 @@ def _optimizer(model: GaussianRobot, lr_scale: float = 1.0) -> Adam:
     ]
     if model.skin_mlp is not None:
         groups.append(dict(params=list(model.skin_mlp.parameters()), lr=1e-3 * lr_scale))
-    return Adam(groups, eps=1e-15)
+    return torch.optim.Adam(groups, eps=1e-15)
+
+
+@torch.no_grad()
+def _remap_optimizer(opt: torch.optim.Adam, old: dict[str, torch.nn.Parameter], model: GaussianRobot,
+                     rows: torch.Tensor) -> None:
+    """After densification replaced the per-Gaussian parameters (``old``, by name) with the
+    model's new ones, put the new ones in ``opt``'s groups and carry their moments over: row ``i``
+    of a new parameter came from row ``rows[i]`` of the old one, or is new where ``rows[i] < 0``
+    (zero moments). The step counters are kept (gsplat's ``_update_param_with_optimizer``)."""
+    valid = rows >= 0
+    src = rows.clamp_min(0)
+    for name, p_old in old.items():
+        p_new = getattr(model, name)
+        for group in opt.param_groups:
+            group["params"] = [p_new if p is p_old else p for p in group["params"]]
+        state = opt.state.pop(p_old, None)
+        if not state:
+            continue
+        for key, v in state.items():
+            if isinstance(v, torch.Tensor) and v.shape == p_old.shape:   # exp_avg, exp_avg_sq (, max_exp_avg_sq)
+                moved = v[src]
+                moved[~valid] = 0
+                state[key] = moved
+        opt.state[p_new] = state
 
 
 @torch.no_grad()
 def _densify(model: GaussianRobot, grad_acc: torch.Tensor, top: float, max_n: int, min_opacity: float,
-             rng: torch.Generator, contrib: torch.Tensor | None = None, min_contrib: float = 0.0) -> dict:
+             rng: torch.Generator, contrib: torch.Tensor | None = None,
+             min_contrib: float = 0.0) -> tuple[dict, torch.Tensor]:
     """Split/clone the ``top`` fraction by accumulated position gradient; prune transparent ones
     and those whose largest blending weight ``contrib`` (N,) stayed below ``min_contrib``
-    (hidden inside the robot: e.g. Gaussians on internal meshes)."""
+    (hidden inside the robot: e.g. Gaussians on internal meshes). Returns a summary and, per
+    Gaussian after the edit, the index it had before (-1 for new ones)."""
     n0 = model.n
+    rows = torch.arange(n0, device=model.means.device)          # where each row comes from; -1: new
     op = torch.sigmoid(model.opacity_logits)
     keep = op >= min_opacity
     if contrib is not None:
@@ -109,9 +139,10 @@ def _densify(model: GaussianRobot, grad_acc: torch.Tensor, top: float, max_n: in
         model.means.data[sel] = torch.where(big[:, None], model.means[sel] - offs, model.means[sel])
         model.append(model.body[sel], new_means, model.quats[sel], new_logs, model.opacity_logits[sel], model.sh[sel])
         keep = torch.cat([keep, torch.ones(k, dtype=torch.bool, device=keep.device)])
+        rows = torch.cat([rows, torch.full((k,), -1, dtype=rows.dtype, device=rows.device)])
         added = k
     model.keep(keep)
-    return dict(n_before=n0, added=added, pruned=int((~keep).sum()), n_after=model.n)
+    return dict(n_before=n0, added=added, pruned=int((~keep).sum()), n_after=model.n), rows[keep]
 
 
 @torch.no_grad()
@@ -183,9 +214,10 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
             model.log_scales.data.clamp_(max=math.log(0.05))           # no Gaussian wider than 5 cm
         if (it + 1) % densify_every == 0 and it + 1 < densify_until * iters:
             # contrib over one interval sees few views: only prune what was drawn nowhere at all
-            info = _densify(model, grad_acc / seen.clamp_min(1), densify_top, max_gaussians, min_opacity, trng,
-                            contrib if contrib.any() else None, 1e-6)
-            opt = _optimizer(model)
+            old = {name: getattr(model, name) for name in _PARAMS}
+            info, rows = _densify(model, grad_acc / seen.clamp_min(1), densify_top, max_gaussians, min_opacity,
+                                  trng, contrib if contrib.any() else None, 1e-6)
+            _remap_optimizer(opt, old, model, rows)
             grad_acc, seen, contrib = zeros(), zeros(), zeros()
             history.append(dict(step=it + 1, event="densify", **info))
         if (it + 1) % log_every == 0 or it + 1 == iters:

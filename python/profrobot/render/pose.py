@@ -23,7 +23,6 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ._adam import Adam
 from .gaussians import GaussianRobot
 from .views import Cameras
 
@@ -107,7 +106,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     starts = torch.minimum(torch.maximum(starts, lo), hi).reshape(B * R, K)
     lo, hi, span = lo.to(dev), hi.to(dev), span.to(dev)
     u = torch.nn.Parameter((2 * (starts.to(dev) - lo) / span - 1))    # normalised joints in [-1, 1]
-    opt = Adam([dict(params=[u], lr=lr)], eps=1e-8)
+    opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
@@ -115,7 +114,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     tr, td, tm = rep(rgb_t), rep(depth_t), rep(mask_t)
     hist = []
     for it in range(iters):
-        opt.scale_lr(0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))   # cosine to lr/10
+        opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))  # cosine to lr/10
         theta = lo + (u + 1) / 2 * span
         out = model.render(theta, vm, Ks, W, H, background=bg)
         per = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B * R, C).mean(1)
