@@ -305,3 +305,22 @@ def test_plan_penalty_options_keep_the_ends_and_limits(panda):
     assert res.iterations == 5 and (res.path[1:-1, 0] < profrobot.interpolate(panda, a, b, 8)[1:-1, 0]).all()
     with pytest.raises(ValueError, match="gamma3"):
         plan_trajectory(LinearField(panda, w, 5.0), a, b, gamma3=-1.0)
+
+
+def test_limits_clamp_limited_wrap_continuous():
+    from profrobot.joints import Limits
+
+    lim = Limits([-1.0, -np.pi, 0.0], [1.0, np.pi, 0.5], [False, True, False])
+    theta = torch.tensor([[2.0, np.pi + 0.5, -0.1], [-3.0, -np.pi - 0.5, 0.7]])
+    out = lim.clamp_or_wrap(theta)
+    torch.testing.assert_close(out, torch.tensor([[1.0, -np.pi + 0.5, 0.0], [-1.0, np.pi - 0.5, 0.5]]))
+    u = lim.normalise(out)
+    assert (u >= -1).all() and (u <= 1).all()
+    torch.testing.assert_close(lim.denormalise(u), out)
+    u2 = torch.tensor([[1.5, 1.25, -2.0]])
+    lim.clamp_or_wrap_normalised_(u2)
+    torch.testing.assert_close(u2, torch.tensor([[1.0, -0.75, -1.0]]))
+    torch.testing.assert_close(lim.denormalise(u2), lim.clamp_or_wrap(lim.denormalise(torch.tensor([[1.5, 1.25, -2.0]]))))
+    np.testing.assert_allclose(lim.diff([np.pi - 0.1, np.pi - 0.1, 0], [0, -np.pi + 0.1, 0]), [np.pi - 0.1, -0.2, 0])
+    with pytest.raises(ValueError):
+        Limits([1.0], [0.0], [False])

@@ -162,3 +162,39 @@ def test_densify_keeps_adam_moments(arm):
     opt.zero_grad()
     g.render_views(torch.tensor([[0.1, 0.2]]), ring_cameras(1, size=8, distance=1.4)).rgb.sum().backward()
     opt.step()
+
+
+def test_fit_pose_wraps_continuous_hinges(cams):
+    """j1 continuous: from -3.0 to a target at 3.0 the short way crosses ±pi; clamping there
+    (as fit_pose did) stalls the fit at -pi, wrapping lets it through."""
+    spec = mujoco.MjSpec.from_string(ARM.replace('axis="0 0 1" range="-3 3"', 'axis="0 0 1"'))
+    arm_c = profrobot.Robot.from_spec(spec, name="arm_continuous")
+    assert arm_c.continuous.tolist() == [True, False]
+    torch.manual_seed(0)
+    g = GaussianRobot.from_robot(arm_c, 300, seed=0)
+    target = torch.tensor([[3.0, 1.0]])
+    with torch.no_grad():
+        out = g.render_views(target, cams)
+    targets = dict(rgb=out.rgb[None].numpy(), depth=out.depth[None].numpy(), mask=(out.alpha > 0.5)[None].numpy())
+    fit = fit_pose(g, targets, cams, np.array([[-3.0, 1.0]]), iters=40, lr=0.02)
+    d = np.remainder(fit.theta[0, 0] - 3.0 + np.pi, 2 * np.pi) - np.pi
+    assert abs(d) < 0.02 and abs(fit.theta[0, 1] - 1.0) < 0.02, fit.theta
+    assert -np.pi <= fit.theta[0, 0] < np.pi
+    # a start past pi is wrapped, not clamped
+    fit = fit_pose(g, targets, cams, np.array([[3.0 + 2 * np.pi, 1.0]]), iters=0)
+    np.testing.assert_allclose(fit.start[0], [3.0, 1.0], atol=1e-5)
+
+
+def test_fit_pose_validates_at_entry(arm, cams):
+    g = GaussianRobot.from_robot(arm, 50, seed=0)
+    good = dict(rgb=np.zeros((1, 3, 32, 32, 3)), depth=np.zeros((1, 3, 32, 32)), mask=np.zeros((1, 3, 32, 32), bool))
+    with pytest.raises(ValueError, match="init contains NaN"):
+        fit_pose(g, good, cams, np.array([[np.nan, 0.0]]), iters=1)
+    with pytest.raises(ValueError, match="targets contain NaN"):
+        fit_pose(g, dict(good, depth=np.full((1, 3, 32, 32), np.inf)), cams, np.zeros((1, 2)), iters=1)
+    with pytest.raises(ValueError, match="background"):
+        fit_pose(g, good, cams, np.zeros((1, 2)), iters=1, background=[np.nan, 0, 0])
+    with torch.no_grad():
+        g.means[0, 0] = float("nan")
+    with pytest.raises(ValueError, match="model.means"):
+        fit_pose(g, good, cams, np.zeros((1, 2)), iters=1)

@@ -11,7 +11,8 @@ import torch
 
 from ..robot import Robot
 from ._batched_adam import BatchedAdam
-from ._inputs import Limits, field_robot, finite, poses_array, positive
+from ..joints import Limits
+from ._inputs import field_robot, finite, poses_array, positive
 from .certify import certify_poses
 
 
@@ -74,7 +75,7 @@ def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Ten
             break
         (grad,) = torch.autograd.grad(g.sum(), x)  # per-pose gradients: poses are independent
         opt.step(theta, active[todo], grad[todo])
-        limits.apply_(theta)  # joint limits respected after every step
+        limits.clamp_or_wrap_(theta)  # joint limits respected after every step
         iterations[active[todo]] += 1
         active = active[todo]
 
@@ -107,7 +108,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
     like = sdf.joint_limits
     theta = torch.as_tensor(q0, dtype=like.dtype, device=like.device).clone()
     B, K = theta.shape
-    limits = Limits(robot, theta)
+    limits = Limits.of(robot, theta)
     opt = BatchedAdam((B, K), lr, theta)
     thresholds = torch.full((B,), l_thres, dtype=theta.dtype, device=theta.device)
     iterations = torch.zeros(B, dtype=torch.long, device=theta.device)

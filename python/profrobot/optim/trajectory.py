@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..joints import Limits
 from ..labels import interpolate
 from ..robot import Robot
 from ._batched_adam import BatchedAdam
-from ._inputs import Limits, field_robot, finite, poses_array, positive
+from ._inputs import field_robot, finite, poses_array, positive
 from .certify import PathCheck, check_path
 
 METHODS = ("penalty", "tangent")
@@ -238,7 +239,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: str = "penalty",
     gamma3 = positive("gamma3", gamma3, allow_zero=True)
     tangent_iters = positive("tangent_iters", tangent_iters, integer=True, allow_zero=True)
 
-    limits = Limits(robot, sdf.joint_limits)
+    limits = Limits.of(robot, sdf.joint_limits)
     straight = interpolate(robot, s, g, steps)          # (B, S, K): SO(2), from the Rust core
     initial_free = [check_path(robot, p, density, clearance=0.0).free for p in straight]
     if method == "penalty":

@@ -33,7 +33,7 @@ import torch
 from ..kinematics import Kinematics, quat_to_matrix
 from .._io import atomic_path, check_robot
 from ..errors import CorruptFileError
-from .rasterize import RenderOut, rasterize
+from .rasterize import RenderOut, rasterize, rasterize_unchecked
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
 
@@ -140,6 +140,9 @@ class GaussianRobot(torch.nn.Module):
         self.hidden = hidden
         can = np.asarray(robot.mj_model.qpos0[robot.qpos_adr] if canonical is None else canonical, dtype=np.float64)
         self.register_buffer("limits", torch.as_tensor(np.asarray(robot.joint_limits), dtype=torch.float32).clone())
+        # continuous hinges wrap (pose fitting); not saved: it is the robot's, checked on load
+        self.register_buffer("continuous", torch.as_tensor(np.asarray(robot.continuous, dtype=bool)).clone(),
+                             persistent=False)
         self.register_buffer("canonical", torch.as_tensor(can, dtype=torch.float32).reshape(1, -1))
         self.skin_mlp = None
         if skinning == "lbs":
@@ -210,7 +213,10 @@ class GaussianRobot(torch.nn.Module):
     def world(self, theta) -> tuple[torch.Tensor, torch.Tensor]:
         """World means (B, N, 3) metres and the linear maps A (B, N, 3, 3) from each Gaussian's
         own frame to the world (covariance ``A S^2 A^T``)."""
-        theta = self._check_theta(theta)
+        return self._world(self._check_theta(theta))
+
+    def _world(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`world` without the checks: ``theta`` a (B, K) tensor on the model's device."""
         fk = self.kin(theta)
         Q = quat_to_matrix(self.quats)                                # (N, 3, 3)
         if self.skin_mlp is None:
@@ -240,7 +246,15 @@ class GaussianRobot(torch.nn.Module):
         OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major."""
         viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
         Ks = torch.as_tensor(Ks, dtype=self.means.dtype, device=self.means.device)
-        mu, A = self.world(theta)
+        return self._render(self._check_theta(theta), viewmats, Ks, width, height, background=background,
+                            cutoff=cutoff, backend=backend, check=True)
+
+    def _render(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, *,
+                background=None, cutoff: str = "soft", backend: str = "auto", check: bool = False) -> RenderOut:
+        """:meth:`render` for callers that validated their inputs once (``theta`` (B, K),
+        ``viewmats``, ``Ks`` tensors on the model's device): no per-call finiteness checks, no host
+        syncs, unless ``check``."""
+        mu, A = self._world(theta)
         B, C = mu.shape[0], viewmats.shape[0]
         cov = self.covariances(A)
         # view direction from each camera centre to each Gaussian, in the Gaussian's body frame
@@ -253,8 +267,9 @@ class GaussianRobot(torch.nn.Module):
         col = eval_sh(self.sh[None, None], d_loc)                                      # (B, C, N, 3)
         op = torch.sigmoid(self.opacity_logits)
         rep = lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:])
-        return rasterize(rep(mu), rep(cov), op, col.reshape(B * C, -1, 3), viewmats.repeat(B, 1, 1),
-                         Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend)
+        draw = rasterize if check else rasterize_unchecked
+        return draw(rep(mu), rep(cov), op, col.reshape(B * C, -1, 3), viewmats.repeat(B, 1, 1),
+                    Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend)
 
     def render_views(self, theta, cameras, **kw) -> RenderOut:
         """:meth:`render` with a :class:`profrobot.render.Cameras`."""

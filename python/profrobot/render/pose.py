@@ -10,19 +10,22 @@ depths ``D*`` (metres) and robot masks ``M*``:
 
 where ``M = M* | (alpha > 1/2)`` (the target's and the render's robot pixels, so that a robot
 drawn in the wrong place is penalised too). Adam on joints normalised to [-1, 1] over their
-limits (Dr. Robot: lr 0.02), projected back into the limits after each step, learning rate
-decayed ten-fold (cosine); restarts perturb the start and keep the best final loss.
+limits (Dr. Robot: lr 0.02), projected back into joint space after each step (limited joints
+clamped, continuous hinges wrapped: :class:`profrobot.joints.Limits`), learning rate decayed
+ten-fold (cosine); restarts perturb the start and keep the best final loss. Inputs are
+validated once, at entry: the loop itself makes no host syncs.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
 
+from ..joints import Limits
 from .gaussians import GaussianRobot
 from .views import Cameras
 
@@ -93,30 +96,36 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     mask_t = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool()
     if not (torch.isfinite(rgb_t).all() and torch.isfinite(depth_t).all()):
         raise ValueError("fit_pose: targets contain NaN or inf")
+    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
+    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
+    if vm.shape != (C, 4, 4) or Ks.shape != (C, 3, 3):
+        raise ValueError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
+                         f"got {tuple(vm.shape)} and {tuple(Ks.shape)}")
+    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+    # everything the loop renders from is checked here, once (the loop then makes no host syncs)
+    for name, t in (("cameras", vm), ("cameras", Ks), ("background", bg),
+                    *((f"model.{n}", p) for n, p in model.named_parameters())):
+        if t is not None and not torch.isfinite(t).all():
+            raise ValueError(f"fit_pose: {name} contains NaN or inf")
 
-    lim = model.limits.detach().float().cpu()                        # (K, 2) radians / metres
-    # the optimisation lives on the model's device (CPU, or a GPU after model.to("cuda"))
-    lo, hi = lim[:, 0], lim[:, 1]
-    span = (hi - lo).clamp_min(1e-9)
+    limits = Limits.of(model)                                          # CPU, float32
     R = restarts + 1
     gen = torch.Generator().manual_seed(seed)
     starts = init[:, None].repeat(1, R, 1)
     if restarts:
         starts[:, 1:] += restart_sigma * torch.randn(B, restarts, K, generator=gen)
-    starts = torch.minimum(torch.maximum(starts, lo), hi).reshape(B * R, K)
-    lo, hi, span = lo.to(dev), hi.to(dev), span.to(dev)
-    u = torch.nn.Parameter((2 * (starts.to(dev) - lo) / span - 1))    # normalised joints in [-1, 1]
+    starts = limits.clamp_or_wrap(starts).reshape(B * R, K)
+    # the optimisation lives on the model's device (CPU, or a GPU after model.to("cuda"))
+    limits = Limits.of(model, like=model.means)
+    u = torch.nn.Parameter(limits.normalise(starts.to(dev)))          # normalised joints in [-1, 1]
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
-    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
     rep = lambda t: t.to(dev)[:, None].expand(B, R, *t.shape[1:]).reshape(B * R * C, *t.shape[2:])
     tr, td, tm = rep(rgb_t), rep(depth_t), rep(mask_t)
     hist = []
     for it in range(iters):
-        opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))  # cosine to lr/10
-        theta = lo + (u + 1) / 2 * span
-        out = model.render(theta, vm, Ks, W, H, background=bg)
+        opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))  # to lr/10
+        theta = limits.denormalise(u)
+        out = model._render(theta, vm, Ks, W, H, background=bg)
         per = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B * R, C).mean(1)
         total = per.sum()
         if extra_loss is not None:
@@ -124,18 +133,20 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         opt.zero_grad()
         total.backward()
         opt.step()
-        with torch.no_grad():
-            u.clamp_(-1, 1)                                         # joint limits
+        limits.clamp_or_wrap_normalised_(u)                           # limits clamped, continuous wrapped
         hist.append(per.detach().reshape(B, R))
     with torch.no_grad():
-        theta = lo + (u + 1) / 2 * span
-        out = model.render(theta, vm, Ks, W, H, background=bg)
+        theta = limits.denormalise(u)
+        out = model._render(theta, vm, Ks, W, H, background=bg)
         final = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B, R, C).mean(-1)
+    if not bool(torch.isfinite(theta).all()):
+        raise FloatingPointError("fit_pose: the optimisation diverged (NaN or inf joints); lower lr or check "
+                                 "extra_loss")
     theta, final = theta.cpu(), final.cpu()
     best = final.argmin(1)
     ar = torch.arange(B)
     history = torch.stack(hist).cpu().numpy() if hist else np.zeros((0, B, R))
-    return PoseFit(theta=theta.reshape(B, R, K)[ar, best].numpy().astype(np.float64), loss=final[ar, best].numpy(),
+    return PoseFit(theta=limits.numpy(theta.reshape(B, R, K)[ar, best].numpy()), loss=final[ar, best].numpy(),
                    history=history[:, np.arange(B), best.numpy()] if len(history) else np.zeros((0, B)),
                    start=starts.reshape(B, R, K)[ar, best].numpy().astype(np.float64), all_losses=final.numpy())
 

@@ -308,6 +308,15 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     if width < 1 or height < 1:
         raise ValueError(f"rasterize: image size must be positive; got {width}x{height}")
     _validate(means, covs, opacities, colors, viewmats, Ks)
+    return rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width, height, background=background,
+                               cutoff=cutoff, backend=backend)
+
+
+def rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width: int, height: int, *, background=None,
+                        cutoff: str = "soft", backend: str = "auto") -> RenderOut:
+    """:func:`rasterize` without its argument checks (shapes, NaN/inf: one host sync each), for
+    loops whose inputs were validated once at their entry (``fit_pose``)."""
+    width, height = int(width), int(height)
     if background is not None:
         background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
     # gsplat's CUDA kernel always uses the hard cutoff; on a GPU its speed wins over exact gradients
