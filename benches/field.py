@@ -25,6 +25,7 @@ import profrobot
 from profrobot._io import atomic_path
 from profrobot.crosscheck import mujoco_labels
 from profrobot.field import train_sdf
+from profrobot.problems import colliding_poses
 
 OUT = Path(__file__).resolve().parent / "out"
 
@@ -106,8 +107,7 @@ def main(argv=None) -> int:
     scene = "shadow_hand" if args.command == "shadow" else "panda_blocks"
     robot = profrobot.scenes.load(scene)
     data = profrobot.make_dataset(robot, args.poses, seed=args.seed)
-    _, test = data.split(0.1, seed=args.seed)
-    colliding = test.poses[test.collides][:1000]
+    colliding = colliding_poses(robot, 1000, seed=args.seed + 1)
     rows = []
     if args.command == "tables":
         budget = (dict(time_budget=60 * args.minutes, iterations=10**9) if args.minutes and not args.iterations

@@ -22,13 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
 import profrobot
-from profrobot.optim import check_path, plan_trajectory, resolve
+from profrobot.optim import plan_trajectory, resolve
+from profrobot.problems import colliding_poses, hard_pairs
 
 from fields import OUT as FIELDS_OUT, field
 
@@ -42,11 +42,6 @@ PAPER_T6 = {0.001: (241.363, 1.841, 0.203, 5.460, 0.003), 0.01: (24.450, 0.192, 
             0.02: (12.826, 0.104, 0.215, 5.495, 0.000), 0.05: (5.634, 0.049, 0.236, 5.622, 0.000),
             0.1: (3.026, 0.028, 0.256, 5.569, 0.000), 0.2: (1.785, 0.018, 0.315, 5.635, 0.001),
             0.5: (1.127, 0.013, 0.527, 5.326, 0.000), 1.0: (1.104, 0.013, 1.040, 5.553, 0.000)}
-
-
-def colliding_poses(robot, n, seed=100):
-    q = profrobot.sample_poses(robot, 20 * n, seed=seed)   # ~12 % of uniform Panda poses collide
-    return q[profrobot.label_poses(robot, q).collides][:n]
 
 
 def contacts(robot, poses) -> float:
@@ -69,7 +64,7 @@ def resolve_row(sdf, robot, poses, before, **kw) -> dict:
 def bench_resolve(n: int, default_only: bool = False) -> dict:
     robot = profrobot.scenes.load("panda_blocks")
     sdf = field("panda_blocks")
-    poses = colliding_poses(robot, n)
+    poses = colliding_poses(robot, n, seed=100)
     before = contacts(robot, poses)
     resolve(sdf, poses[:10], robot=robot)            # warm-up (first-call allocations)
     out = {"t5": {}, "t6": {}, "default": None, "n": len(poses), "field": sdf.metrics}
@@ -86,24 +81,10 @@ def bench_resolve(n: int, default_only: bool = False) -> dict:
     return out
 
 
-def hard_pairs(robot, n, seed=200, steps=100):
-    """n pairs of free poses whose straight SO(2) interpolation collides at the dense check."""
-    q = profrobot.sample_poses(robot, 40 * n, seed=seed)
-    free = q[~profrobot.label_poses(robot, q).collides]
-    starts, goals = [], []
-    for a, b in zip(free[0::2], free[1::2]):
-        if not check_path(robot, profrobot.interpolate(robot, a, b, steps)).free:
-            starts.append(a)
-            goals.append(b)
-            if len(starts) == n:
-                break
-    return np.array(starts), np.array(goals)
-
-
 def bench_trajectories(scene: str, n: int, methods) -> dict:
     robot = profrobot.scenes.load(scene)
     sdf = field(scene)
-    starts, goals = hard_pairs(robot, n)
+    starts, goals = hard_pairs(robot, n, seed=200)
     out = {"pairs": len(starts), "field": sdf.metrics}
     for name, kw in methods.items():
         t = time.perf_counter()
@@ -153,7 +134,7 @@ def markdown(results: dict) -> str:
                   f"Field: accuracy {r['field'].get('accuracy', float('nan')):.4f}. Ours / paper. "
                   "Time per pose = batch wall time / poses (ours batched).", ""]
         head = "| {} | iter. | time/pose (s) | Δθ | before | after | certified free | batch wall (s) |"
-        for key, table, paper, label in (("t5", r["t5"], PAPER_T5, "l_thres"), ("t6", r["t6"], PAPER_T6, "lr")):
+        for _key, table, paper, label in (("t5", r["t5"], PAPER_T5, "l_thres"), ("t6", r["t6"], PAPER_T6, "lr")):
             lines += [head.format(label), "|---|---|---|---|---|---|---|---|"]
             for k, row in table.items():
                 p = paper[float(k)]

@@ -29,17 +29,12 @@ import torch  # noqa: E402
 
 import profrobot  # noqa: E402
 from profrobot.render import GaussianRobot, Views, fit_gaussians, fit_pose, make_views, ring_cameras, sphere_cameras
+from profrobot.problems import free_poses  # noqa: E402
 from profrobot.render.image import mask_iou, psnr, to_uint8, write_png  # noqa: E402
 from profrobot.render.views import _MjViews, robot_visual_model  # noqa: E402
 
 LOOKAT = (0.0, 0.0, 0.45)
 DIST = 1.5
-
-
-def free_poses(robot, n, seed):
-    """``n`` collision-free uniform poses (exact labels)."""
-    p = profrobot.sample_poses(robot, 4 * n + 64, seed=seed)
-    return p[~profrobot.label_poses(robot, p).collides][:n]
 
 
 def cached_views(path, robot, make):
@@ -128,7 +123,6 @@ def pose_benchmark(robot, model, n, iters, refine_iters, size, batch, seed, out_
     targets = cached_views(os.path.join(out_dir, f"pose_targets_{n}_{size}.npz"), robot,
                            lambda: make_views(robot, free_poses(robot, n, seed), cams, progress=False))
     rng = np.random.default_rng(seed)
-    K = robot.njoint
     arm = np.array([t == "hinge" for t in robot.joint_types])
     lim = robot.joint_limits
     start = targets.poses.copy()

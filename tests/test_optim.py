@@ -6,6 +6,7 @@ import pytest
 import torch
 
 import profrobot
+from profrobot import problems
 from conftest import scene
 from profrobot.field import PoseSDF
 from profrobot.optim import check_path, collision_penalty, plan_trajectory, resolve
@@ -35,10 +36,8 @@ def shifted_field(robot, shift):
     return sdf
 
 
-def colliding_and_free(robot, n=400, seed=3):
-    q = profrobot.sample_poses(robot, n, seed=seed)
-    hit = profrobot.label_poses(robot, q).collides
-    return q[hit], q[~hit]
+def colliding_and_free(robot, n=40, seed=3):
+    return problems.colliding_poses(robot, n, seed), problems.free_poses(robot, n, seed)
 
 
 # ---- the penalty -----------------------------------------------------------------------------
@@ -164,11 +163,8 @@ def test_resolve_bad_input(panda, ur5e):
 
 def _hard_pair(robot, seed=5):
     """Two free poses whose straight SO(2) interpolation collides."""
-    _, free = colliding_and_free(robot, 400, seed)
-    for a, b in zip(free[:-1:2], free[1::2]):
-        if not check_path(robot, profrobot.interpolate(robot, a, b, 30)).free:
-            return a, b
-    raise AssertionError("no colliding straight path among the samples")
+    (a,), (b,) = problems.hard_pairs(robot, 1, seed, steps=30)
+    return a, b
 
 
 def test_check_path_finds_collisions_between_free_waypoints(panda):
@@ -266,7 +262,7 @@ def test_gif_and_plot(tmp_path, panda):
 def test_trained_field_resolves_and_plans(panda):
     torch.manual_seed(0)
     sdf = profrobot.train_sdf(panda, hidden=(64, 64), n_poses=50_000, iterations=150, progress=False)
-    colliding, _ = colliding_and_free(panda, 600, seed=11)
+    colliding, _ = colliding_and_free(panda, 100, seed=11)
     res = resolve(sdf, colliding[:100])
     assert res.certified.mean() >= 0.9
     assert profrobot.label_poses(panda, res.poses[res.certified]).collides.sum() == 0
@@ -324,3 +320,23 @@ def test_limits_clamp_limited_wrap_continuous():
     np.testing.assert_allclose(lim.diff([np.pi - 0.1, np.pi - 0.1, 0], [0, -np.pi + 0.1, 0]), [np.pi - 0.1, -0.2, 0])
     with pytest.raises(ValueError):
         Limits([1.0], [0.0], [False])
+
+
+def test_problems_are_seeded_and_what_they_say(panda):
+    c = problems.colliding_poses(panda, 30, seed=4)
+    f = problems.free_poses(panda, 30, seed=4)
+    assert c.shape == f.shape == (30, panda.njoint)
+    assert profrobot.label_poses(panda, c).collides.all() and not profrobot.label_poses(panda, f).collides.any()
+    np.testing.assert_array_equal(c, problems.colliding_poses(panda, 30, seed=4))
+    assert not np.array_equal(c, problems.colliding_poses(panda, 30, seed=5))
+    starts, goals = problems.hard_pairs(panda, 3, seed=4, steps=20)
+    assert starts.shape == goals.shape == (3, panda.njoint)
+    assert not profrobot.label_poses(panda, np.concatenate([starts, goals])).collides.any()
+    for a, b in zip(starts, goals):
+        assert not check_path(panda, profrobot.interpolate(panda, a, b, 20)).free
+    s2, g2 = problems.hard_pairs(panda, 3, seed=4, steps=20)
+    np.testing.assert_array_equal(s2, starts) and np.testing.assert_array_equal(g2, goals)
+    with pytest.raises(ValueError, match="n must be"):
+        problems.colliding_poses(panda, 0)
+    with pytest.raises(ValueError, match="start/goal pairs"):
+        problems.hard_pairs(panda, 5, seed=0, steps=20, max_pairs=2)

@@ -29,15 +29,14 @@ def _save_npz(path: str, **arrays) -> None:
 
 
 def cmd_resolve(args) -> int:
-    from ..labels import label_poses, sample_poses
+    from ..problems import colliding_poses
     from .resolve import resolve
 
     robot, sdf = _field(args)
     if args.poses:
         poses = np.load(args.poses)
     else:  # colliding poses drawn uniformly
-        q = sample_poses(robot, 20 * args.n, args.seed)
-        poses = q[label_poses(robot, q).collides][: args.n]
+        poses = colliding_poses(robot, args.n, args.seed)
     res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, max_iters=args.max_iters, robot=robot,
                   refine=not args.no_refine)
     print(res.summary())
@@ -51,8 +50,7 @@ def cmd_resolve(args) -> int:
 
 
 def cmd_plan(args) -> int:
-    from ..labels import interpolate, label_poses, sample_poses
-    from .certify import check_path
+    from ..problems import hard_pairs
     from .trajectory import plan_trajectory
 
     robot, sdf = _field(args)
@@ -61,13 +59,7 @@ def cmd_plan(args) -> int:
     if args.start is not None:
         start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     else:  # two free poses whose straight interpolation collides
-        q = sample_poses(robot, 4000, args.seed)
-        free = q[~label_poses(robot, q).collides]
-        pairs = ((a, b) for a, b in zip(free[0::2], free[1::2])
-                 if not check_path(robot, interpolate(robot, a, b, args.steps)).free)
-        start, goal = next(pairs, (None, None))
-        if start is None:
-            raise ValueError("no free start/goal pair with a colliding straight path found; pass --start/--goal")
+        (start,), (goal,) = hard_pairs(robot, 1, args.seed, steps=args.steps)
     res = plan_trajectory(sdf, start, goal, steps=args.steps, method=args.method, robot=robot,
                           iterations=args.iterations, tangent_iters=6 * args.iterations)
     print(res.summary())
@@ -83,30 +75,3 @@ def cmd_plan(args) -> int:
 
         print(f"saved {plot_trajectory(res, args.plot, joint_names=robot.joint_names)}")
     return 0 if res.free else 1
-
-
-def add_commands(sub, common) -> None:
-    """Register ``resolve`` and ``plan`` on an argparse sub-parser set."""
-    sp = sub.add_parser("resolve", help="push colliding poses out of collision with a trained field")
-    common(sp, 100)
-    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
-    sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
-    sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1)
-    sp.add_argument("--lr", type=float, default=0.01)
-    sp.add_argument("--max-iters", dest="max_iters", type=int, default=1000)
-    sp.add_argument("--no-refine", dest="no_refine", action="store_true",
-                    help="do not retry poses the exact labeller still finds colliding")
-    sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")
-    sp.set_defaults(fn=cmd_resolve)
-    sp = sub.add_parser("plan", help="a collision-aware trajectory between two poses")
-    common(sp, 0)
-    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory")
-    sp.add_argument("--start", help="comma-separated start pose (default: a random hard problem)")
-    sp.add_argument("--goal", help="comma-separated goal pose")
-    sp.add_argument("--steps", type=int, default=100)
-    sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty")
-    sp.add_argument("--iterations", type=int, default=500, help="Adam steps (tangent: 6x as many walk steps)")
-    sp.add_argument("--out", help="save the path and its check to this .npz")
-    sp.add_argument("--gif", help="render the path with MuJoCo to this .gif (MUJOCO_GL=osmesa headless)")
-    sp.add_argument("--plot", help="joint curves and g along the path to this image")
-    sp.set_defaults(fn=cmd_plan)

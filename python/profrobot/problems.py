@@ -1,0 +1,82 @@
+"""Test problems for the field and the optimisers, drawn uniformly and labelled by the exact
+labeller, seeded: colliding poses, free poses, and hard start/goal pairs (both ends free, the
+straight SO(2) interpolation between them colliding). Used by the command line, the benches and
+the tests, so that all of them pose the same kind of problem.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .dataset import make_dataset
+from .labels import check_threads, interpolate
+from .robot import Robot
+
+__all__ = ["colliding_poses", "free_poses", "hard_pairs"]
+
+
+def _count(name: str, n) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"{name} must be a positive integer; got {n!r}")
+    return int(n)
+
+
+def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, threads: int | None) -> np.ndarray:
+    n = _count("n", n)
+    # rounds sized for a rare class (Panda-blocks: ~12 % of uniform poses collide)
+    batch = min(100_000, max(1024, 16 * n))
+    ds = make_dataset(robot, n, collided_fraction=1.0 if collides else 0.0, seed=seed, batch=batch,
+                      max_samples=max_samples, progress=False, threads=threads)
+    return ds.poses
+
+
+def colliding_poses(robot: Robot, n: int, seed: int = 0, *, max_samples: int | None = None,
+                    threads: int | None = None) -> np.ndarray:
+    """(n, K) float64 uniform poses that the exact labeller finds colliding, seeded. Raises
+    ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
+    return _poses(robot, n, True, seed, max_samples, threads)
+
+
+def free_poses(robot: Robot, n: int, seed: int = 0, *, max_samples: int | None = None,
+               threads: int | None = None) -> np.ndarray:
+    """(n, K) float64 uniform poses that the exact labeller finds free, seeded. Raises
+    ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
+    return _poses(robot, n, False, seed, max_samples, threads)
+
+
+def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density: int = 10,
+               max_pairs: int | None = None, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both free, and the
+    straight SO(2) interpolation between them colliding under the dense check that
+    :func:`profrobot.optim.plan_trajectory` certifies with (``steps`` waypoints, ``density``
+    times finer samples between them). Seeded; raises ValueError if fewer than ``n`` turn up
+    among ``max_pairs`` candidate pairs (default ``200 * n``)."""
+    n = _count("n", n)
+    steps = _count("steps", steps)
+    density = _count("density", density)
+    if steps < 2:
+        raise ValueError(f"steps must be at least 2; got {steps}")
+    threads = check_threads(threads)
+    max_pairs = max_pairs or 200 * n
+    from .optim.certify import certify_poses  # the certification's own clearance rule
+
+    starts, goals = [], []
+    tried = found = 0
+    r = 0
+    while found < n:
+        if tried >= max_pairs:
+            raise ValueError(f"only {found} of {n} start/goal pairs with a colliding straight path among "
+                             f"{tried} free pairs; raise max_pairs")
+        m = min(max_pairs - tried, max(16, 2 * (n - found)))
+        round_seed = int(np.random.SeedSequence([seed, r]).generate_state(1, np.uint64)[0] >> 1)
+        free = free_poses(robot, 2 * m, seed=round_seed, threads=threads)
+        a, b = free[0::2], free[1::2]
+        dense = interpolate(robot, a, b, (steps - 1) * density + 1)        # (m, D, K)
+        straight_collides = (~certify_poses(robot, dense.reshape(-1, robot.njoint))).reshape(m, -1).any(axis=1)
+        take = np.flatnonzero(straight_collides)[: n - found]
+        starts.append(a[take])
+        goals.append(b[take])
+        found += len(take)
+        tried += m
+        r += 1
+    return np.concatenate(starts), np.concatenate(goals)
