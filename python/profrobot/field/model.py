@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import math
+from typing import Literal, get_args
 
 import torch
 from torch import nn
 
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
 
-ENCODERS = ("kinematic", "hierarchical", "flat")
-OBJECTIVES = ("sdf", "ndf")
+Encoder = Literal["kinematic", "hierarchical", "flat"]
+Objective = Literal["sdf", "ndf"]
+ENCODERS: tuple[str, ...] = get_args(Encoder)
+OBJECTIVES: tuple[str, ...] = get_args(Objective)
 
 
 class LipschitzLinear(nn.Linear):
@@ -59,9 +62,9 @@ class PoseSDF(nn.Module):
       to the nearest free pose, minus a threshold fitted on training data).
     """
 
-    def __init__(self, robot, *, encoder: str = "kinematic", feature_size: int = 8,
+    def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
                  hidden: tuple[int, ...] = (512, 512, 512, 512), learn_scale: bool = True,
-                 init_scale: float = 10.0, lipschitz: bool = False, objective: str = "sdf",
+                 init_scale: float = 10.0, lipschitz: bool = False, objective: Objective = "sdf",
                  spheres_per_body: int = 4):
         super().__init__()
         if encoder not in ENCODERS:

@@ -20,6 +20,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 import torch
@@ -31,6 +32,8 @@ from ..robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
 
+Schedule = Literal["cosine", "paper", "constant"]
+Preset = Literal["cpu", "paper"]
 PAPER_MILESTONES = (100, 500, 1400, 3000, 5500, 9100)
 MODEL_OPTIONS = ("encoder", "feature_size", "hidden", "learn_scale", "init_scale", "lipschitz", "objective",
                  "spheres_per_body")
@@ -45,7 +48,7 @@ class TrainConfig:
     batch_size: int = 8192
     iterations: int = 3000
     lr: float = 1e-3
-    schedule: str = "cosine"          # "cosine", "paper" (halvings at PAPER_MILESTONES), "constant"
+    schedule: Schedule = "cosine"          # "cosine", "paper" (halvings at PAPER_MILESTONES), "constant"
     eikonal_weight: float = 0.1       # α
     eikonal_batch: int = 0            # poses per iteration for the Eikonal term (0: whole batch)
     steik_weight: float = 0.0         # StEik directional-divergence term |dᵀ H d|, d = ∇g/‖∇g‖
@@ -64,7 +67,7 @@ PRESETS: dict[str, dict] = {
 }
 
 
-def _split_options(preset: str, options: dict) -> tuple[dict, TrainConfig]:
+def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
     merged = {**PRESETS[preset], **options}
@@ -74,7 +77,7 @@ def _split_options(preset: str, options: dict) -> tuple[dict, TrainConfig]:
         raise TypeError(f"unknown train_sdf option(s): {', '.join(sorted(unknown))}")
     model_opts = {k: v for k, v in merged.items() if k in MODEL_OPTIONS}
     cfg = TrainConfig(**{k: v for k, v in merged.items() if k in fields})
-    if cfg.schedule not in ("cosine", "paper", "constant"):
+    if cfg.schedule not in get_args(Schedule):
         raise ValueError(f"schedule must be 'cosine', 'paper' or 'constant'; got {cfg.schedule!r}")
     if cfg.batch_size < 2 or cfg.iterations < 1 or cfg.lr <= 0:
         raise ValueError("batch_size >= 2, iterations >= 1 and lr > 0 are required")
@@ -112,7 +115,7 @@ def _fit_ndf_targets(train: Dataset) -> np.ndarray:
     return dist.astype(np.float32)
 
 
-def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: str = "cpu",
+def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Preset = "cpu",
               progress: bool = True, **options) -> PoseSDF:
     """Train a :class:`PoseSDF` and return it with ``.metrics`` (held-out balanced split) and
     ``.history`` attached.

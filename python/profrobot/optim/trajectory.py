@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import numpy as np
 import torch
@@ -26,7 +27,9 @@ from ._batched_adam import BatchedAdam
 from ._inputs import field_robot, finite, poses_array, positive
 from .certify import PathCheck, check_path
 
-METHODS = ("penalty", "tangent")
+Method = Literal["penalty", "tangent"]
+GoalNorm = Literal["l1", "l2"]
+METHODS: tuple[str, ...] = get_args(Method)
 
 
 @dataclass
@@ -49,7 +52,7 @@ class TrajectoryResult:
     waypoint_collides: np.ndarray
     segment_collides: np.ndarray
     g: np.ndarray
-    method: str
+    method: Method
     iterations: int
     length: float
     straight_length: float
@@ -143,7 +146,7 @@ def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: floa
 
 
 def _tangent(sdf, limits: Limits, starts: np.ndarray, goals: np.ndarray, steps: int, l_thres: float, delta: float,
-             band: float, max_iters: int, tol: float, goal_norm: str) -> tuple[np.ndarray, np.ndarray]:
+             band: float, max_iters: int, tol: float, goal_norm: GoalNorm) -> tuple[np.ndarray, np.ndarray]:
     """Algorithm 1, batched over B problems: θ ← θ − δ·D, D the L1 goal gradient G (per-joint
     steps clipped so that no joint overshoots the goal), projected onto the tangent plane of ∇g
     where g ≥ l_thres − band and the step would raise g; poses past the threshold take a
@@ -194,10 +197,10 @@ def _tangent(sdf, limits: Limits, starts: np.ndarray, goals: np.ndarray, steps: 
     return out, n_iter
 
 
-def plan_trajectory(sdf, start, goal, steps: int = 100, method: str = "penalty", *, robot: Robot | None = None,
+def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
                     l_thres: float = -0.1, gamma1: float = 5.0, gamma2: float = 1.0, lr: float = 0.01,
                     iterations: int = 500, check_every: int = 10, density: int = 10, delta: float = 0.01,
-                    band: float = 0.05, tangent_iters: int = 3000, tol: float = 1e-4, goal_norm: str = "l1",
+                    band: float = 0.05, tangent_iters: int = 3000, tol: float = 1e-4, goal_norm: GoalNorm = "l1",
                     refine_step: float = 0.05, gamma3: float = 0.0, midpoints: bool = False):
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
@@ -218,7 +221,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: str = "penalty",
     robot = field_robot(sdf, robot)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}")
-    if goal_norm not in ("l1", "l2"):
+    if goal_norm not in get_args(GoalNorm):
         raise ValueError(f"goal_norm must be 'l1' or 'l2'; got {goal_norm!r}")
     single = np.ndim(start) == 1 and np.ndim(goal) == 1
     s = poses_array(robot, start, "start")

@@ -25,6 +25,7 @@ import json
 import math
 import os
 import warnings
+from typing import Literal, get_args
 
 import mujoco
 import numpy as np
@@ -33,7 +34,7 @@ import torch
 from ..kinematics import Kinematics, quat_to_matrix
 from .._io import atomic_path, check_robot
 from ..errors import CorruptFileError
-from .rasterize import RenderOut, rasterize, rasterize_unchecked
+from .rasterize import Backend, Cutoff, RenderOut, rasterize, rasterize_unchecked
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
 
@@ -41,6 +42,7 @@ SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 _FORMAT = "profrobot.gaussian_robot/1"
+Skinning = Literal["rigid", "lbs"]
 
 
 def eval_sh(sh: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
@@ -123,10 +125,10 @@ class GaussianRobot(torch.nn.Module):
     """
 
     def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
-                 opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: str = "rigid", canonical=None,
+                 opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid", canonical=None,
                  hidden: int = 64):
         super().__init__()
-        if skinning not in ("rigid", "lbs"):
+        if skinning not in get_args(Skinning):
             raise ValueError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
         self.robot_fingerprint = robot.fingerprint
         self.robot_name = robot.name
@@ -155,7 +157,7 @@ class GaussianRobot(torch.nn.Module):
 
     # ---- construction ------------------------------------------------------------------------
     @classmethod
-    def from_robot(cls, robot, n: int = 8000, *, sh_degree: int = 1, skinning: str = "rigid", opacity: float = 0.9,
+    def from_robot(cls, robot, n: int = 8000, *, sh_degree: int = 1, skinning: Skinning = "rigid", opacity: float = 0.9,
                    thickness: float = 0.2, seed: int = 0) -> "GaussianRobot":
         """``n`` Gaussians on the robot's visual meshes. Each is a disc of standard deviation half
         the spacing of the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times
@@ -240,8 +242,8 @@ class GaussianRobot(torch.nn.Module):
         return (A * s2[:, None, :]) @ A.transpose(-1, -2)
 
     # ---- rendering -----------------------------------------------------------------------------
-    def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: str = "soft",
-               backend: str = "auto") -> RenderOut:
+    def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: Cutoff = "soft",
+               backend: Backend = "auto") -> RenderOut:
         """Draw B poses ``theta`` (B, K) from C cameras (``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3)
         OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major."""
         viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
@@ -250,7 +252,7 @@ class GaussianRobot(torch.nn.Module):
                             cutoff=cutoff, backend=backend, check=True)
 
     def _render(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, *,
-                background=None, cutoff: str = "soft", backend: str = "auto", check: bool = False) -> RenderOut:
+                background=None, cutoff: Cutoff = "soft", backend: Backend = "auto", check: bool = False) -> RenderOut:
         """:meth:`render` for callers that validated their inputs once (``theta`` (B, K),
         ``viewmats``, ``Ks`` tensors on the model's device): no per-call finiteness checks, no host
         syncs, unless ``check``."""

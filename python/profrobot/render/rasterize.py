@@ -26,10 +26,14 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import torch
 
-__all__ = ["rasterize", "RenderOut", "ALPHA_MIN", "T_MIN"]
+Cutoff = Literal["soft", "hard"]
+Backend = Literal["auto", "torch", "gsplat"]
+
+__all__ = ["rasterize", "RenderOut", "Cutoff", "Backend", "ALPHA_MIN", "T_MIN"]
 
 ALPHA_MIN = 1.0 / 255.0   # 3DGS: pairs below this alpha do not contribute
 T_MIN = 1e-4              # 3DGS: a pixel stops compositing once transmittance would drop below
@@ -290,7 +294,7 @@ def _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, heigh
 
 
 def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: int, *, background=None,
-              cutoff: str = "soft", backend: str = "auto") -> RenderOut:
+              cutoff: Cutoff = "soft", backend: Backend = "auto") -> RenderOut:
     """Render Gaussians from C cameras.
 
     means (N, 3) or (C, N, 3) world metres; covs (N, 3, 3) or (C, N, 3, 3) world covariances
@@ -300,9 +304,9 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     on CUDA when installed, else torch, with one warning), "torch" or "gsplat" (gsplat ignores
     ``cutoff``: its kernel cuts hard; and returns no ``contrib``).
     """
-    if cutoff not in ("soft", "hard"):
+    if cutoff not in get_args(Cutoff):
         raise ValueError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
-    if backend not in ("auto", "torch", "gsplat"):
+    if backend not in get_args(Backend):
         raise ValueError(f"rasterize: backend must be 'auto', 'torch' or 'gsplat'; got {backend!r}")
     width, height = int(width), int(height)
     if width < 1 or height < 1:
@@ -313,7 +317,7 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
 
 
 def rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width: int, height: int, *, background=None,
-                        cutoff: str = "soft", backend: str = "auto") -> RenderOut:
+                        cutoff: Cutoff = "soft", backend: Backend = "auto") -> RenderOut:
     """:func:`rasterize` without its argument checks (shapes, NaN/inf: one host sync each), for
     loops whose inputs were validated once at their entry (``fit_pose``)."""
     width, height = int(width), int(height)
