@@ -28,3 +28,15 @@ def panda():
 @pytest.fixture(scope="session")
 def ur5e():
     return scene("ur5e_wall_box")
+
+
+@pytest.fixture(scope="session")
+def renderer() -> str:
+    """The MuJoCo GL backend render workers use (probed once, in a subprocess); tests that draw
+    with MuJoCo take this fixture and skip, with what to install, where no backend works."""
+    from profrobot import _gl
+
+    gl, why = _gl.status()
+    if gl is None:
+        pytest.skip(why)
+    return gl

@@ -43,7 +43,7 @@ def test_init_on_visual_meshes(arm):
     assert mu.shape == (1, 400, 3) and A.shape == (1, 400, 3, 3)
 
 
-def test_render_shapes_and_close_to_mujoco_before_fitting(arm, cams):
+def test_render_shapes_and_close_to_mujoco_before_fitting(arm, cams, renderer):
     g = GaussianRobot.from_robot(arm, 1500, seed=0)
     v = make_views(arm, np.array([[0.3, 0.8]]), cams, progress=False)
     with torch.no_grad():
@@ -93,7 +93,7 @@ def test_save_load_roundtrip_and_errors(arm, panda, tmp_path, cams):
         g.world(torch.full((1, 2), float("nan")))
 
 
-def test_fit_reduces_loss(arm, cams):
+def test_fit_reduces_loss(arm, cams, renderer):
     v = make_views(arm, np.array([[0.0, 0.5], [1.0, -0.5]]), cams, progress=False)
     g = GaussianRobot.from_robot(arm, 200, seed=0)
     hist = fit_gaussians(g, v, iters=12, cams_per_step=3, densify_every=5, log_every=4, progress=False, seed=0)

@@ -33,7 +33,7 @@ def test_cameras_match_mujoco_gl_camera(ball):
     mv.close()
 
 
-def test_projection_matches_pixels_and_depth(ball):
+def test_projection_matches_pixels_and_depth(ball, renderer):
     cams = Cameras(np.tile([0, 0, 0.3], (4, 1)), 1.0, [0, 77, 200, 300], [0, -33, 10, 40], width=192, height=144)
     v = make_views(ball, np.zeros((1, 1)), cams, progress=False)
     centre = np.array([0.1, 0.05, 0.3, 1.0])
@@ -50,7 +50,7 @@ def test_projection_matches_pixels_and_depth(ball):
     assert v.rgb.dtype == np.uint8 and v.rgb.shape == (1, 4, 144, 192, 3)
 
 
-def test_views_save_load_roundtrip_and_robot_check(ball, panda, tmp_path):
+def test_views_save_load_roundtrip_and_robot_check(ball, panda, tmp_path, renderer):
     v = make_views(ball, np.array([[0.0], [0.5]]), ring_cameras(3, size=16, distance=1.0, lookat=(0, 0, .3)), progress=False)
     p = tmp_path / "v.npz"
     v.save(p)
@@ -65,7 +65,7 @@ def test_views_save_load_roundtrip_and_robot_check(ball, panda, tmp_path):
 
 
 @pytest.mark.slow  # spawns two worker processes (each imports mujoco and torch)
-def test_parallel_matches_serial(ball):
+def test_parallel_matches_serial(ball, renderer):
     poses = np.linspace(-1, 1, 4)[:, None]
     cams = ring_cameras(2, size=16, distance=1.0, lookat=(0, 0, .3))
     a = make_views(ball, poses, cams, progress=False)

@@ -10,27 +10,63 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
 >>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
+
+``import profrobot`` loads neither torch, MuJoCo's OpenGL stack nor matplotlib: labelling,
+datasets and the cross-check need none of them. The torch side (``PoseSDF``, ``train_sdf``,
+``resolve``, ..., and the subpackages ``field``, ``optim``, ``render``, ``viz``) loads on first
+attribute access (PEP 562).
 """
 
-# torch.optim imports torch._dynamo (and with it triton's LLVM) on first use; once MuJoCo has
-# loaded OSMesa (llvmpipe, another LLVM) that import segfaults. Importing it first is safe.
-import torch._dynamo  # noqa: E402,F401  (isort: skip)
+from __future__ import annotations
 
-from . import render, scenes
-from ._core import __version__
-from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels
-from .dataset import Dataset, make_dataset
-from .labels import Labels, interpolate, label_poses, sample_poses
-from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
-from .field import PoseSDF, train_sdf
-from .field.checkpoint import export_sdf, load_sdf, save_sdf
-from .kinematics import Kinematics
-from .optim import ResolveResult, TrajectoryResult, collision_penalty, plan_trajectory, resolve
+import importlib
+
+# Before anything imports mujoco or torch: mujoco without its GL stack (a MUJOCO_GL whose library
+# is missing cannot break the import; rendering happens in worker processes), and triton's LLVM
+# kept apart from Mesa's (a libLLVM mapped before triton loads crashed torch._dynamo's import).
+from . import _gl
+
+_gl.install_triton_guard()
+_gl.import_mujoco()
+
+from . import scenes  # noqa: E402
+from ._core import __version__  # noqa: E402
+from ._gl import RendererUnavailableError  # noqa: E402
+from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
+from .dataset import Dataset, make_dataset  # noqa: E402
+from .labels import Labels, interpolate, label_poses, sample_poses  # noqa: E402
+from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
+
+# name → the module that defines it; loaded on first access
+_LAZY = {
+    "PoseSDF": ".field", "train_sdf": ".field",
+    "save_sdf": ".field.checkpoint", "load_sdf": ".field.checkpoint", "export_sdf": ".field.checkpoint",
+    "Kinematics": ".kinematics",
+    "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
+    "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
+}
+_SUBPACKAGES = ("render", "field", "optim", "viz", "errors")
 
 __all__ = [
-    "__version__", "scenes", "render", "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
+    "__version__", "scenes", "render", "field", "optim", "viz", "errors",
+    "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
     "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
-    "crosscheck", "mujoco_labels", "CrosscheckReport",
+    "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
 ]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    elif name in _SUBPACKAGES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -21,6 +21,17 @@ def _robot(args):
     return scenes.load(args.scene)
 
 
+def _optim(name: str):
+    """``profrobot.optim.cli.<name>``, imported when the command runs (the optimisers need torch;
+    ``label``, ``crosscheck``, ``dataset`` and ``scenes`` never load it)."""
+    def run(args) -> int:
+        from .optim import cli
+
+        return getattr(cli, name)(args)
+
+    return run
+
+
 def _label_with_progress(robot, poses, threads) -> Labels:
     parts = []
     for start in tqdm(range(0, len(poses), _CHUNK), desc=f"label {robot.name}", unit="chunk"):
@@ -175,9 +186,30 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--plot", help="also save an SDF slice PNG here")
     sp.add_argument("--export", help="also export a torch.export .pt2 file here")
     sp.set_defaults(fn=cmd_train)
-    from .optim.cli import add_commands
-
-    add_commands(sub, common)  # resolve, plan
+    sp = sub.add_parser("resolve", help="push colliding poses out of collision with a trained field")
+    common(sp, 100)
+    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
+    sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
+    sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1)
+    sp.add_argument("--lr", type=float, default=0.01)
+    sp.add_argument("--max-iters", dest="max_iters", type=int, default=1000)
+    sp.add_argument("--no-refine", dest="no_refine", action="store_true",
+                    help="do not retry poses the exact labeller still finds colliding")
+    sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")
+    sp.set_defaults(fn=_optim("cmd_resolve"))
+    sp = sub.add_parser("plan", help="a collision-aware trajectory between two poses")
+    common(sp, 0)
+    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory")
+    sp.add_argument("--start", help="comma-separated start pose (default: a random hard problem)")
+    sp.add_argument("--goal", help="comma-separated goal pose")
+    sp.add_argument("--steps", type=int, default=100)
+    sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty")
+    sp.add_argument("--iterations", type=int, default=500, help="Adam steps (tangent: 6x as many walk steps)")
+    sp.add_argument("--out", help="save the path and its check to this .npz")
+    sp.add_argument("--gif", help="render the path with MuJoCo to this .gif (in a worker process: EGL or OSMesa "
+                                  "headless)")
+    sp.add_argument("--plot", help="joint curves and g along the path to this image")
+    sp.set_defaults(fn=_optim("cmd_plan"))
     sp = sub.add_parser("render", help="fit a Gaussian-splat robot to MuJoCo renders (robot only)")
     common(sp, 40)
     sp.add_argument("--cameras", type=int, default=8, help="training cameras per pose")

@@ -1,7 +1,8 @@
 """Pictures of a trajectory: MuJoCo's offscreen renderer to a GIF (Pillow) or MP4 (imageio, if
 installed), colliding frames marked; joint curves and g along the path as a matplotlib plot.
 
-Headless machines: set ``MUJOCO_GL=osmesa`` (CPU) or ``egl`` before importing mujoco.
+MuJoCo renders in a worker process with a backend it chose (``MUJOCO_GL`` if set, else EGL, then
+OSMesa); :class:`profrobot.RendererUnavailableError` says what to install when none works.
 """
 
 from __future__ import annotations
@@ -19,40 +20,35 @@ from ..robot import Robot
 DEFAULT_CAMERA = dict(lookat=(0.25, 0.0, 0.35), distance=2.3, azimuth=60.0, elevation=-25.0)
 
 
-def _frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera: dict) -> list:
-    import mujoco
+def _frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera: dict,
+            chunk: int = 32) -> list:
+    """MuJoCo renders the poses in a render worker (:mod:`profrobot._gl`); Pillow marks them here."""
+    import pickle
+
     from PIL import Image, ImageDraw
+
+    from .._gl import RenderWorkers
 
     m = robot.mj_model
     width, height = size
     if width > m.vis.global_.offwidth or height > m.vis.global_.offheight:
         raise ValueError(f"size {size} exceeds the model's offscreen buffer "
                          f"({m.vis.global_.offwidth}×{m.vis.global_.offheight})")
-    d = mujoco.MjData(m)
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.lookat[:] = camera.get("lookat", DEFAULT_CAMERA["lookat"])
-    cam.distance = camera.get("distance", DEFAULT_CAMERA["distance"])
-    cam.azimuth = camera.get("azimuth", DEFAULT_CAMERA["azimuth"])
-    cam.elevation = camera.get("elevation", DEFAULT_CAMERA["elevation"])
-    opt = mujoco.MjvOption()
-    opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
-    renderer = mujoco.Renderer(m, height, width)
+    views = "profrobot.render.views"
+    with RenderWorkers(1) as worker:
+        worker.call(views, "_frames_init", pickle.dumps(m), np.asarray(robot.qpos_adr), (width, height), camera)
+        rgb = np.concatenate(list(worker.map(views, "_frames_render",
+                                             [path[i:i + chunk] for i in range(0, len(path), chunk)])))
+        worker.call(views, "_release")
     frames = []
-    try:
-        for i, q in enumerate(path):
-            d.qpos[robot.qpos_adr] = q
-            mujoco.mj_forward(m, d)
-            renderer.update_scene(d, camera=cam, scene_option=opt)
-            img = Image.fromarray(renderer.render())
-            draw = ImageDraw.Draw(img)
-            if collides[i]:  # a red frame and a caption: the exact labeller finds a collision here
-                draw.rectangle([0, 0, width - 1, height - 1], outline=(230, 20, 20), width=6)
-                draw.text((10, height - 22), "COLLISION", fill=(255, 40, 40))
-            draw.text((10, 8), f"{i + 1}/{len(path)}", fill=(255, 255, 255))
-            frames.append(img)
-    finally:
-        renderer.close()
+    for i, pixels in enumerate(rgb):
+        img = Image.fromarray(pixels)
+        draw = ImageDraw.Draw(img)
+        if collides[i]:  # a red frame and a caption: the exact labeller finds a collision here
+            draw.rectangle([0, 0, width - 1, height - 1], outline=(230, 20, 20), width=6)
+            draw.text((10, height - 22), "COLLISION", fill=(255, 40, 40))
+        draw.text((10, 8), f"{i + 1}/{len(path)}", fill=(255, 255, 255))
+        frames.append(img)
     return frames
 
 

@@ -5,15 +5,48 @@
 - :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha);
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
 - :mod:`.pose`: :func:`fit_pose`, joint angles from images.
+
+The MuJoCo side (:mod:`.views`) needs no torch; the torch side loads on first use of its names.
 """
 
-from .gaussians import GaussianRobot
-from .rasterize import RenderOut, rasterize
+from __future__ import annotations
+
+import importlib
+import sys
+import types
+
 from .views import Cameras, Views, make_views, ring_cameras, sphere_cameras
 
-__all__ = ["make_views", "Cameras", "Views", "ring_cameras", "sphere_cameras", "GaussianRobot", "rasterize",
-           "RenderOut"]
-from .fit import fit_gaussians  # noqa: E402
-from .pose import PoseFit, fit_pose  # noqa: E402
+_LAZY = {"GaussianRobot": ".gaussians", "rasterize": ".rasterize", "RenderOut": ".rasterize",
+         "fit_gaussians": ".fit", "fit_pose": ".pose", "PoseFit": ".pose"}
 
-__all__ += ["fit_gaussians", "fit_pose", "PoseFit"]
+__all__ = ["make_views", "Cameras", "Views", "ring_cameras", "sphere_cameras", "GaussianRobot", "rasterize",
+           "RenderOut", "fit_gaussians", "fit_pose", "PoseFit"]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+class _Package(types.ModuleType):
+    """``render.rasterize`` is the function, as when this package imported it eagerly, even after
+    the import system binds the submodule of the same name here."""
+
+    @property
+    def rasterize(self):
+        return importlib.import_module(".rasterize", __name__).rasterize
+
+    @rasterize.setter
+    def rasterize(self, value):
+        pass
+
+
+sys.modules[__name__].__class__ = _Package
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor
+import pickle
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
+from .._gl import RenderWorkers
 from .._io import atomic_path
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
@@ -157,22 +158,42 @@ def robot_visual_model(robot) -> mujoco.MjModel:
     return m
 
 
+def _free_camera(lookat, distance, azimuth, elevation) -> mujoco.MjvCamera:
+    """A MuJoCo free camera (metres, degrees)."""
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = lookat
+    cam.distance, cam.azimuth, cam.elevation = float(distance), float(azimuth), float(elevation)
+    return cam
+
+
 class _MjViews:
-    """One MuJoCo renderer (one GL context) for one model and image size."""
+    """One MuJoCo renderer (one GL context, made on the first :meth:`render`) for one model and
+    image size. It runs in a render worker (:mod:`profrobot._gl`); :meth:`gl_camera` needs no GL."""
 
     def __init__(self, model: mujoco.MjModel, cameras: Cameras):
         self.m = model
         self.m.vis.global_.fovy = cameras.fovy
         self.d = mujoco.MjData(model)
         self.cams = cameras
-        self.r = mujoco.Renderer(model, cameras.height, cameras.width)
+        self.r = None
         robot_geom = np.asarray(model.geom_bodyid) != 0
         self.robot_geom = np.concatenate([robot_geom, [False]])  # index -1 (background) → False
+
+    def renderer(self) -> mujoco.Renderer:
+        if self.r is None:
+            self.r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
+        return self.r
+
+    def camera(self, c: int) -> mujoco.MjvCamera:
+        cams = self.cams
+        return _free_camera(cams.lookat[c], cams.distance[c], cams.azimuth[c], cams.elevation[c])
 
     def render(self, qpos: np.ndarray):
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
         robot), mask (C,H,W) bool."""
-        m, d, r, cams = self.m, self.d, self.r, self.cams
+        m, d, cams = self.m, self.d, self.cams
+        r = self.renderer()
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         mujoco.mj_camlight(m, d)
@@ -180,12 +201,8 @@ class _MjViews:
         rgb = np.empty((C, H, W, 3), np.uint8)
         depth = np.empty((C, H, W), np.float32)
         mask = np.empty((C, H, W), bool)
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         for c in range(C):
-            cam.lookat[:] = cams.lookat[c]
-            cam.distance, cam.azimuth, cam.elevation = cams.distance[c], cams.azimuth[c], cams.elevation[c]
-            r.update_scene(d, cam)
+            r.update_scene(d, self.camera(c))
             rgb[c] = r.render()
             r.enable_depth_rendering()
             depth[c] = r.render()
@@ -200,30 +217,83 @@ class _MjViews:
 
     def gl_camera(self, c: int):
         """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
-        cam = mujoco.MjvCamera()
-        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.lookat[:] = self.cams.lookat[c]
-        cam.distance, cam.azimuth, cam.elevation = self.cams.distance[c], self.cams.azimuth[c], self.cams.elevation[c]
-        self.r.update_scene(self.d, cam)
-        return mujoco.mjv_averageCamera(self.r.scene.camera[0], self.r.scene.camera[1])
+        scn = mujoco.MjvScene(self.m, maxgeom=max(1, self.m.ngeom))
+        mujoco.mjv_updateScene(self.m, self.d, mujoco.MjvOption(), None, self.camera(c),
+                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+        return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
 
     def close(self):
-        self.r.close()
+        if self.r is not None:
+            self.r.close()
+            self.r = None
 
 
+# Render-worker entry points (profrobot._gl.RenderWorkers runs them in its subprocesses).
 _WORKER: _MjViews | None = None
 
 
-def _worker_init(model_bytes: bytes, cameras: Cameras):
+def _worker_init(model_bytes: bytes, cameras: Cameras) -> None:
     global _WORKER
     import pickle
 
+    if _WORKER is not None:
+        _WORKER.close()
     _WORKER = _MjViews(pickle.loads(model_bytes), cameras)
+    _WORKER.renderer()  # the GL context, now
 
 
 def _worker_render(qpos_chunk: np.ndarray):
     out = [_WORKER.render(q) for q in qpos_chunk]
     return tuple(np.stack(x) for x in zip(*out))
+
+
+class _MjFrames:
+    """RGB frames of poses from one free camera (contact points shown): trajectory pictures."""
+
+    def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera: dict):
+        self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
+        width, height = size
+        self.cam = _free_camera(camera["lookat"], camera["distance"], camera["azimuth"], camera["elevation"])
+        self.opt = mujoco.MjvOption()
+        self.opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
+        self.r = mujoco.Renderer(model, height, width)
+
+    def render(self, poses: np.ndarray) -> np.ndarray:
+        out = []
+        for q in poses:
+            self.d.qpos[self.adr] = q
+            mujoco.mj_forward(self.m, self.d)
+            self.r.update_scene(self.d, camera=self.cam, scene_option=self.opt)
+            out.append(self.r.render())
+        return np.stack(out)
+
+    def close(self):
+        self.r.close()
+
+
+_FRAMES: _MjFrames | None = None
+
+
+def _frames_init(model_bytes: bytes, qpos_adr, size: tuple[int, int], camera: dict) -> None:
+    global _FRAMES
+    import pickle
+
+    if _FRAMES is not None:
+        _FRAMES.close()
+    _FRAMES = _MjFrames(pickle.loads(model_bytes), qpos_adr, size, camera)
+
+
+def _frames_render(poses: np.ndarray) -> np.ndarray:
+    return _FRAMES.render(poses)
+
+
+def _release() -> None:
+    """Free a worker's renderers (its GL contexts) between calls."""
+    global _WORKER, _FRAMES
+    for r in (_WORKER, _FRAMES):
+        if r is not None:
+            r.close()
+    _WORKER = _FRAMES = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -292,12 +362,16 @@ class Views:
 
 def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, processes: int = 1,
                progress: bool = True, chunk: int = 8) -> Views:
-    """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo (offscreen: set
-    ``MUJOCO_GL=osmesa`` on a CPU, ``egl`` on a GPU machine). Only the robot is drawn (world-body
-    geoms are hidden); the background is MuJoCo's clear colour (black).
+    """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo, offscreen. Only the
+    robot is drawn (world-body geoms are hidden); the background is MuJoCo's clear colour (black).
 
-    ``size``: if given, the cameras are re-rendered at ``size`` x ``size``. ``processes`` > 1
-    renders chunks of poses in worker processes (each with its own GL context).
+    MuJoCo's OpenGL runs in ``processes`` render worker processes (each with its own GL context),
+    never in this one; the backend is ``MUJOCO_GL`` if set, else the first of EGL and OSMesa that
+    works (:mod:`profrobot._gl`). Raises :class:`profrobot.RendererUnavailableError` (saying what
+    to install) when none does.
+
+    ``size``: if given, the cameras are re-rendered at ``size`` x ``size``; ``chunk``: poses per
+    request to a worker.
     """
     from tqdm.auto import tqdm
 
@@ -314,27 +388,14 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     qpos = np.tile(m.qpos0, (len(poses), 1))
     qpos[:, robot.qpos_adr] = poses
     chunks = [qpos[i:i + chunk] for i in range(0, len(qpos), chunk)]
-    bar = tqdm(total=len(poses), desc="MuJoCo views", unit="pose", disable=not progress)
     parts = []
-    if processes <= 1:
-        r = _MjViews(m, cameras)
-        try:
-            for ch in chunks:
-                out = [r.render(q) for q in ch]
-                parts.append(tuple(np.stack(x) for x in zip(*out)))
-                bar.update(len(ch))
-        finally:
-            r.close()
-    else:
-        import multiprocessing as mp
-        import pickle
-
-        with ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn"), initializer=_worker_init,
-                                 initargs=(pickle.dumps(m), cameras)) as ex:
-            for out, ch in zip(ex.map(_worker_render, chunks), chunks):
+    with RenderWorkers(min(processes, len(chunks))) as workers:
+        workers.call(__name__, "_worker_init", pickle.dumps(m), cameras)
+        with tqdm(total=len(poses), desc="MuJoCo views", unit="pose", disable=not progress) as bar:
+            for out, ch in zip(workers.map(__name__, "_worker_render", chunks), chunks):
                 parts.append(out)
                 bar.update(len(ch))
-    bar.close()
+        workers.call(__name__, "_release")
     rgb, depth, mask = (np.concatenate(x) for x in zip(*parts))
     # MuJoCo's background (skybox or clear colour): the median off-robot pixel, for compositing
     off = rgb[~mask]
