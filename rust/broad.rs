@@ -17,9 +17,8 @@
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 
-use crate::collide::CandidatePair;
-use crate::model::Geom;
-use crate::shapes::GeomType;
+use crate::geom::Geom;
+use crate::pairs::CandidatePair;
 
 /// `(reach * (1 + 1e-9) + 1e-9)^2`: the squared centre distance beyond which two spheres whose
 /// radii and margin sum to `reach` cannot touch, with slack for rounding.
@@ -91,7 +90,7 @@ pub(crate) struct BroadScratch {
 
 impl Broad {
     pub(crate) fn new(nbody: usize, geoms: &[Geom], pairs: &[CandidatePair]) -> Self {
-        let is_plane = |g: usize| geoms[g].shape.kind == GeomType::Plane;
+        let is_plane = |g: usize| geoms[g].shape.is_half_space();
         let geom_centre: Vec<Vector3<f64>> = geoms.iter().map(|g| (g.local * nalgebra::Point3::from(g.shape.obb_center)).coords).collect();
         let geom_body: Vec<u32> = geoms.iter().map(|g| g.body as u32).collect();
 
@@ -104,7 +103,8 @@ impl Broad {
         let mut sphere = vec![false; geoms.len()];
         for (k, p) in pairs.iter().enumerate() {
             match (is_plane(p.g1), is_plane(p.g2)) {
-                (true, true) => unreachable!("plane-plane pairs are never candidates"),
+                // Never a candidate (`pairs.rs` drops them), and nothing to test if it were.
+                (true, true) => {}
                 (true, false) | (false, true) => {
                     let (plane, geom) = if is_plane(p.g1) { (p.g1, p.g2) } else { (p.g2, p.g1) };
                     let reach = (geoms[geom].shape.radius + p.margin) * (1.0 + 1e-9) + 1e-9;

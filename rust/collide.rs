@@ -1,106 +1,22 @@
-//! Where a pose becomes a label: candidate pairs (MuJoCo's filters), culling, narrow phase.
+//! Where a pose becomes a label: forward kinematics, the broad phase (`broad.rs`), box culling
+//! and the exact narrow phase over the model's candidate pairs (`pairs.rs`).
 //!
-//! Candidate pairs follow `mj_collision`:
-//! - explicit `<pair>`s are always tested, with their own margin, and replace any dynamic pair
-//!   over the same two geoms;
-//! - dynamic pairs skip geoms on the same weld body, a weld body and its weld parent (unless
-//!   either is welded to the world or `filterparent` is disabled), `<exclude>`d body pairs, and
-//!   pairs whose contype/conaffinity bitmasks do not match; plane-plane has no collider.
-//!
-//! A pair is in contact when its signed distance is below its margin (sum of the geom margins).
-//! Planes are half-spaces; everything else is convex (meshes as their hulls), tested with parry.
-
-use std::collections::{HashMap, HashSet};
+//! A pair is in contact when its signed distance is below its margin. Planes are half-spaces
+//! (decided by the other geom's support point); everything else is convex (meshes as their
+//! hulls), tested with parry's GJK.
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use parry3d_f64::query;
-use parry3d_f64::shape::SupportMap;
+use parry3d_f64::shape::{Shape, SupportMap};
 use rayon::prelude::*;
 
-use crate::error::{invalid_input, invalid_model, Result};
 use crate::broad::BroadScratch;
+use crate::error::Result;
+use crate::geom::Geom;
 use crate::kinematics::body_poses;
-use crate::model::{Geom, ModelDesc, RobotModel};
-use crate::shapes::GeomType;
-
-/// Whether a pair is robot against robot or robot against the static scene.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PairKind {
-    SelfCollision,
-    Scene,
-}
-
-/// Two collidable geoms (indices into `RobotModel::geoms`) tested on every pose.
-#[derive(Clone, Debug)]
-pub struct CandidatePair {
-    pub g1: usize,
-    pub g2: usize,
-    pub margin: f64,
-    pub kind: PairKind,
-    pub explicit: bool,
-}
-
-/// Derives the candidate pairs of a model with MuJoCo's filters (see the module docs).
-pub(crate) fn candidate_pairs(desc: &ModelDesc, body_parent: &[usize], geoms: &[Geom]) -> Result<Vec<CandidatePair>> {
-    if !desc.contact_enabled {
-        return Ok(Vec::new());
-    }
-    let index: HashMap<i32, usize> = geoms.iter().enumerate().map(|(i, g)| (g.mujoco_id, i)).collect();
-    let weld = |b: usize| desc.body_weld[b] as usize;
-    let kind = |a: usize, b: usize| {
-        if geoms[a].on_robot && geoms[b].on_robot {
-            PairKind::SelfCollision
-        } else {
-            PairKind::Scene
-        }
-    };
-    let both_planes = |a: usize, b: usize| geoms[a].shape.kind == GeomType::Plane && geoms[b].shape.kind == GeomType::Plane;
-
-    let mut pairs = Vec::new();
-    let mut explicit = HashSet::new();
-    for (k, (&[a, b], &margin)) in desc.pair_geom.iter().zip(&desc.pair_margin).enumerate() {
-        let (Some(&i), Some(&j)) = (index.get(&a), index.get(&b)) else {
-            return invalid_model(format!("explicit pair {k} names geom {a} or {b}, which is not in the geom list"));
-        };
-        if !margin.is_finite() {
-            return invalid_model(format!("explicit pair {k} has a non-finite margin"));
-        }
-        explicit.insert((i.min(j), i.max(j)));
-        if i != j && !both_planes(i, j) {
-            pairs.push(CandidatePair { g1: i, g2: j, margin, kind: kind(i, j), explicit: true });
-        }
-    }
-
-    let excluded: HashSet<(usize, usize)> = desc
-        .exclude
-        .iter()
-        .map(|&[a, b]| (a.min(b) as usize, a.max(b) as usize))
-        .collect();
-    for i in 0..geoms.len() {
-        for j in i + 1..geoms.len() {
-            let (b1, b2) = (geoms[i].body, geoms[j].body);
-            let (w1, w2) = (weld(b1), weld(b2));
-            if w1 == w2 || both_planes(i, j) || explicit.contains(&(i, j)) {
-                continue;
-            }
-            let (p1, p2) = (weld(body_parent[w1]), weld(body_parent[w2]));
-            if desc.filter_parent && w1 != 0 && w2 != 0 && (w1 == p2 || w2 == p1) {
-                continue;
-            }
-            if excluded.contains(&(b1.min(b2), b1.max(b2))) {
-                continue;
-            }
-            let (t1, a1) = (desc.geom_contype[i], desc.geom_conaffinity[i]);
-            let (t2, a2) = (desc.geom_contype[j], desc.geom_conaffinity[j]);
-            if (t1 & a2) == 0 && (t2 & a1) == 0 {
-                continue;
-            }
-            let margin = desc.geom_margin[i] + desc.geom_margin[j];
-            pairs.push(CandidatePair { g1: i, g2: j, margin, kind: kind(i, j), explicit: false });
-        }
-    }
-    Ok(pairs)
-}
+use crate::model::RobotModel;
+use crate::pairs::{CandidatePair, PairKind};
+use crate::shapes::{Convex, Solid};
 
 /// What a caller wants beyond the four labels.
 #[derive(Clone, Copy, Debug, Default)]
@@ -194,13 +110,12 @@ struct Obb {
     center: Vector3<f64>,
 }
 
-/// Signed distance of `g` (at `pose`) from the plane at `plane` (`z <= 0` is inside), exact via
-/// the support point of `g` along the plane's inward normal.
-fn plane_distance(plane: &Isometry3<f64>, g: &Geom, pose: &Isometry3<f64>) -> f64 {
+/// Signed distance of the convex `g` (at `pose`) from the plane at `plane` (`z <= 0` is
+/// inside), exact via the support point of `g` along the plane's inward normal.
+fn plane_distance(plane: &Isometry3<f64>, g: &Convex, pose: &Isometry3<f64>) -> f64 {
     let n = plane.rotation * Vector3::z();
     let origin = plane.translation.vector;
-    let sm = g.shape.convex.as_ref().expect("non-plane shapes are support maps");
-    let deepest = sm.support_point(pose, &(-n));
+    let deepest = g.support_point(pose, &(-n));
     n.dot(&(deepest.coords - origin))
 }
 
@@ -243,48 +158,50 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
 fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], obbs: &[Obb]) -> bool {
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
-    match (a.shape.kind == GeomType::Plane, b.shape.kind == GeomType::Plane) {
-        (true, false) => return plane_pair_in_contact(pa, b, pb, &obbs[pair.g2], pair.margin),
-        (false, true) => return plane_pair_in_contact(pb, a, pa, &obbs[pair.g1], pair.margin),
-        _ => {}
+    match (&a.shape.solid, &b.shape.solid) {
+        (Solid::HalfSpace, Solid::Convex { convex, .. }) => plane_pair_in_contact(pa, b, convex, pb, &obbs[pair.g2], pair.margin),
+        (Solid::Convex { convex, .. }, Solid::HalfSpace) => plane_pair_in_contact(pb, a, convex, pa, &obbs[pair.g1], pair.margin),
+        // Never a candidate (`pairs.rs` drops them): MuJoCo has no plane-plane collider.
+        (Solid::HalfSpace, Solid::HalfSpace) => false,
+        (Solid::Convex { convex: ca, shape: sa }, Solid::Convex { convex: cb, shape: sb }) => {
+            // (The bounding-sphere culls ran before, in `broad.rs`.)
+            if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
+                return false;
+            }
+            if pair.margin == 0.0 {
+                return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb);
+            }
+            query::distance(pa, sa.as_ref(), pb, sb.as_ref()).map(|d| d < pair.margin).unwrap_or(false)
+        }
     }
-    // (The bounding-sphere culls ran before, in `broad.rs`.)
-    if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
-        return false;
-    }
-    if pair.margin == 0.0 {
-        return intersection_test(a, pa, b, pb);
-    }
-    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
-    query::distance(pa, sa, pb, sb).map(|d| d < pair.margin).unwrap_or(false)
 }
 
-/// `query::intersection_test` for two non-plane geoms, with parry's dispatcher unrolled so that
-/// the common support-map case runs GJK on the concrete `Convex` (same support points, same
-/// GJK, same answer) rather than through `dyn Shape`.
-fn intersection_test(a: &Geom, pa: &Isometry3<f64>, b: &Geom, pb: &Isometry3<f64>) -> bool {
-    use crate::shapes::Convex;
+/// `query::intersection_test` for two convex geoms (each as its `Convex` and its parry shape),
+/// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
+/// concrete `Convex` (same support points, same GJK, same answer) rather than through
+/// `dyn Shape`.
+fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>) -> bool {
     use parry3d_f64::query::details;
     let pos12 = pa.inv_mul(pb);
-    let (ca, cb) = (a.shape.convex.as_ref().unwrap(), b.shape.convex.as_ref().unwrap());
-    match (ca, cb) {
+    match (a.0, b.0) {
         (Convex::Ball(b1), Convex::Ball(b2)) => details::intersection_test_ball_ball(&pos12.translation.vector.into(), b1, b2),
         (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
-        (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.shape.shape.as_deref().unwrap()),
-        (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.shape.shape.as_deref().unwrap(), b2),
-        _ => details::intersection_test_support_map_support_map(&pos12, ca, cb),
+        (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
+        (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
+        (ca, cb) => details::intersection_test_support_map_support_map(&pos12, ca, cb),
     }
 }
 
 /// Half-space test: the geom's bounding box must reach below `margin` before the exact
-/// support point is computed (the box's lowest point is a lower bound on the geom's).
-fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, pg: &Isometry3<f64>, obb: &Obb, margin: f64) -> bool {
+/// support point of its `convex` shape is computed (the box's lowest point is a lower bound
+/// on the geom's).
+fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, convex: &Convex, pg: &Isometry3<f64>, obb: &Obb, margin: f64) -> bool {
     let n = plane.rotation * Vector3::z();
     let reach = obb.rot.tr_mul(&n).abs().dot(&g.shape.obb_half);
     if n.dot(&(obb.center - plane.translation.vector)) - reach >= margin {
         return false;
     }
-    plane_distance(plane, g, pg) < margin
+    plane_distance(plane, convex, pg) < margin
 }
 
 /// Exact signed distance of a pair (negative: penetration depth), or `None` when the pair is
@@ -292,19 +209,22 @@ fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, pg: &Isometry3<f64>, 
 fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], bound: f64) -> Option<f64> {
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
-    match (a.shape.kind == GeomType::Plane, b.shape.kind == GeomType::Plane) {
-        (true, false) => return Some(plane_distance(pa, b, pb)),
-        (false, true) => return Some(plane_distance(pb, a, pa)),
-        _ => {}
-    }
-    let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
-    if lower >= bound {
-        return None;
-    }
-    let (sa, sb) = (a.shape.shape.as_deref().unwrap(), b.shape.shape.as_deref().unwrap());
-    match query::contact(pa, sa, pb, sb, 0.0) {
-        Ok(Some(c)) => Some(c.dist.min(0.0)),
-        _ => query::distance(pa, sa, pb, sb).ok(),
+    match (&a.shape.solid, &b.shape.solid) {
+        (Solid::HalfSpace, Solid::Convex { convex, .. }) => Some(plane_distance(pa, convex, pb)),
+        (Solid::Convex { convex, .. }, Solid::HalfSpace) => Some(plane_distance(pb, convex, pa)),
+        // Never a candidate (see `pair_in_contact`).
+        (Solid::HalfSpace, Solid::HalfSpace) => None,
+        (Solid::Convex { shape: sa, .. }, Solid::Convex { shape: sb, .. }) => {
+            let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
+            if lower >= bound {
+                return None;
+            }
+            let (sa, sb) = (sa.as_ref(), sb.as_ref());
+            match query::contact(pa, sa, pb, sb, 0.0) {
+                Ok(Some(c)) => Some(c.dist.min(0.0)),
+                _ => query::distance(pa, sa, pb, sb).ok(),
+            }
+        }
     }
 }
 
@@ -354,26 +274,11 @@ pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: La
 /// Poses per parallel work item: large enough to amortise scheduling, small enough to balance.
 const CHUNK: usize = 256;
 
-/// Checks that `poses` is a non-empty, finite `(B, K)` buffer for `model`.
-pub(crate) fn check_poses(model: &RobotModel, poses: &[f64]) -> Result<usize> {
-    let k = model.njoint();
-    if k == 0 {
-        return invalid_input("the model has no joints");
-    }
-    if poses.is_empty() || poses.len() % k != 0 {
-        return invalid_input(format!("poses must be a non-empty (B, {k}) array; got {} values", poses.len()));
-    }
-    if let Some(i) = poses.iter().position(|v| !v.is_finite()) {
-        return invalid_input(format!("pose {} joint {} is not finite ({})", i / k, i % k, poses[i]));
-    }
-    Ok(poses.len() / k)
-}
-
 /// Labels a `(B, K)` row-major batch of poses in parallel (rayon's current pool).
 ///
 /// Each pose is independent, so the result does not depend on the number of threads.
 pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Result<LabelBatch> {
-    check_poses(model, poses)?;
+    model.check_poses(poses)?;
     let k = model.njoint();
     let chunks: Vec<(Vec<Label>, Vec<[u32; 2]>)> = poses
         .par_chunks(CHUNK * k)
@@ -404,6 +309,8 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::desc::ModelDesc;
+    use crate::sample::sample_uniform;
 
     fn pendulum() -> RobotModel {
         RobotModel::new(ModelDesc::example_pendulum()).unwrap()
@@ -438,21 +345,6 @@ mod tests {
         // Swung to horizontal the bob rises to z = 0.45 and clears the floor.
         let l = label_pose(&model, &[std::f64::consts::FRAC_PI_2], &mut Scratch::new(&model), opts, &mut Vec::new());
         assert!(!l.collides());
-    }
-
-    #[test]
-    fn regression_same_weld_body_pairs_are_never_candidates() {
-        let mut desc = ModelDesc::example_pendulum();
-        desc.body_weld = vec![0, 0]; // the arm welded to the world: no pair left
-        desc.jnt_type.clear();
-        desc.jnt_body.clear();
-        desc.jnt_pos.clear();
-        desc.jnt_axis.clear();
-        desc.jnt_qpos0.clear();
-        desc.jnt_range.clear();
-        desc.jnt_limited.clear();
-        let model = RobotModel::new(desc).unwrap();
-        assert!(model.pairs().is_empty());
     }
 
     #[test]
@@ -536,7 +428,7 @@ mod tests {
         let model = arm();
         assert!(model.pairs.len() >= 20, "{}", model.pairs.len());
         let mut s = Scratch::new(&model);
-        let poses = crate::sample_uniform(&model.sampling_ranges().unwrap(), 20_000, 1).unwrap();
+        let poses = sample_uniform(&model.sampling_ranges().unwrap(), 20_000, 1).unwrap();
         let opts = LabelOptions { pairs: true, distance: false };
         let (mut hits, mut touched, mut dropped) = (Vec::new(), 0, 0);
         for q in poses.chunks_exact(3) {

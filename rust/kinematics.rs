@@ -6,7 +6,9 @@
 //! - slide: translate along the world axis, `x <- x + R * axis * (q - qpos0)`.
 
 use nalgebra::{Isometry3, Point3, UnitQuaternion};
+use rayon::prelude::*;
 
+use crate::error::Result;
 use crate::model::RobotModel;
 
 /// Computes every body's world pose for one pose vector `q` (length K) into `out` (nbody).
@@ -26,9 +28,8 @@ pub fn body_poses(model: &RobotModel, q: &[f64], out: &mut [Isometry3<f64>]) {
     for b in 1..model.body_parent.len() {
         let mut x = out[model.body_parent[b]] * model.body_local[b];
         let (j0, j1) = model.body_joints[b];
-        for j in j0..j1 {
-            let jnt = &model.joints[j];
-            let angle = q[j] - jnt.qpos0;
+        for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
+            let angle = qj - jnt.qpos0;
             if jnt.hinge {
                 let anchor_world: Point3<f64> = x * Point3::from(jnt.anchor);
                 let mut rot = x.rotation * UnitQuaternion::from_axis_angle(&jnt.axis, angle);
@@ -43,9 +44,73 @@ pub fn body_poses(model: &RobotModel, q: &[f64], out: &mut [Isometry3<f64>]) {
     }
 }
 
-/// World poses of the collidable geoms (shape frames), given the body poses.
-pub fn geom_poses(model: &RobotModel, bodies: &[Isometry3<f64>], out: &mut [Isometry3<f64>]) {
-    for (o, g) in out.iter_mut().zip(&model.geoms) {
-        *o = bodies[g.body] * g.local;
+/// Poses per parallel work item (fixed, so the split never depends on the thread count).
+const CHUNK: usize = 256;
+
+/// Forward kinematics of a `(B, K)` row-major batch of poses, in parallel on rayon's current
+/// pool: `xpos` `(B, nbody, 3)` metres and `xquat` `(B, nbody, 4)` `(w, x, y, z)`, row-major,
+/// as MuJoCo's `xpos`/`xquat`. Every pose is computed alone, so the result does not depend on
+/// the number of threads.
+///
+/// # Example
+/// ```
+/// use profrobot::{ModelDesc, RobotModel, kinematics::forward_kinematics};
+/// let model = RobotModel::new(ModelDesc::example_pendulum()).unwrap();
+/// let (xpos, xquat) = forward_kinematics(&model, &[0.0, std::f64::consts::FRAC_PI_2]).unwrap();
+/// assert_eq!((xpos.len(), xquat.len()), (2 * 2 * 3, 2 * 2 * 4));
+/// assert_eq!(&xpos[3..6], &[0.0, 0.0, 0.55]); // pose 0, body 1: the hinge
+/// assert!(forward_kinematics(&model, &[f64::NAN]).is_err());
+/// ```
+pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>, Vec<f64>)> {
+    let b = model.check_poses(poses)?;
+    let (k, nb) = (model.njoint(), model.nbody());
+    let mut xpos = vec![0.0; b * nb * 3];
+    let mut xquat = vec![0.0; b * nb * 4];
+    poses
+        .par_chunks(CHUNK * k)
+        .zip(xpos.par_chunks_mut(CHUNK * nb * 3))
+        .zip(xquat.par_chunks_mut(CHUNK * nb * 4))
+        .for_each_init(
+            || vec![Isometry3::identity(); nb],
+            |frames, ((q, pos), quat)| {
+                for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
+                    body_poses(model, qi, frames);
+                    for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+                        p.copy_from_slice(f.translation.vector.as_slice());
+                        let q = f.rotation.quaternion();
+                        r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
+                    }
+                }
+            },
+        );
+    Ok((xpos, xquat))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::desc::ModelDesc;
+
+    #[test]
+    fn batched_fk_is_body_poses_pose_by_pose_on_any_thread_count() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.jnt_axis = vec![[0.3, -0.2, 0.9]];
+        desc.jnt_pos = vec![[0.01, 0.02, -0.1]];
+        let model = RobotModel::new(desc).unwrap();
+        let poses: Vec<f64> = (0..1000).map(|i| -3.0 + 6.0 * i as f64 / 1000.0).collect();
+        let run = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| forward_kinematics(&model, &poses).unwrap());
+        let (xpos, xquat) = run(1);
+        assert_eq!((xpos.clone(), xquat.clone()), run(2));
+        let mut frames = vec![Isometry3::identity(); model.nbody()];
+        for (i, q) in poses.iter().enumerate() {
+            body_poses(&model, &[*q], &mut frames);
+            for (b, f) in frames.iter().enumerate() {
+                let o = (i * model.nbody() + b) * 3;
+                assert_eq!(&xpos[o..o + 3], f.translation.vector.as_slice());
+                let r = f.rotation.quaternion();
+                let o = (i * model.nbody() + b) * 4;
+                assert_eq!(&xquat[o..o + 4], &[r.w, r.i, r.j, r.k]);
+            }
+        }
     }
 }

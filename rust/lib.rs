@@ -12,36 +12,49 @@
 //! q ──kinematics::body_poses──▶ body frames ──▶ geom frames ──collide::label_pose──▶ Label
 //! ```
 //!
+//! Modules, each importing only those above it (no cycle):
+//!
+//! | module | concern |
+//! |---|---|
+//! | [`error`] | the one error type |
+//! | [`desc`] | `ModelDesc`: the robot as plain serde data |
+//! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
+//! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
+//! | [`geom`] | `Geom`: a shape on a body |
+//! | [`pairs`] | candidate pairs with MuJoCo's filters |
+//! | `broad` | the per-pose broad phase (bounding spheres) |
+//! | [`model`] | `RobotModel`: the validated, derived robot |
+//! | [`kinematics`] | forward kinematics, one pose or a batch |
+//! | [`collide`] | labelling: narrow phase and batches |
+//! | [`sample`], [`interpolate`] | poses |
+//! | [`threads`] | one rayon pool per thread count, fork-safe |
+//!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
 
 mod broad;
 pub mod collide;
+pub mod desc;
 pub mod error;
+pub mod geom;
+pub mod hull;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;
+pub mod pairs;
 pub mod sample;
 pub mod shapes;
+pub mod threads;
 
 #[cfg(feature = "python")]
 mod python;
 
-pub use collide::{label_batch, Label, LabelOptions, LabelBatch, PairKind};
+pub use collide::{label_batch, Label, LabelBatch, LabelOptions};
+pub use desc::ModelDesc;
 pub use error::{Error, Result};
+pub use geom::Geom;
 pub use interpolate::interpolate_so2;
-pub use model::{ModelDesc, RobotModel};
+pub use kinematics::forward_kinematics;
+pub use model::RobotModel;
+pub use pairs::{CandidatePair, PairKind};
 pub use sample::sample_uniform;
-
-/// Runs `f` on a rayon pool of `threads` workers (the global pool when `None`).
-///
-/// Results never depend on the count: work is split into fixed-size, independently seeded items.
-pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
-    match threads {
-        None => Ok(f()),
-        Some(0) => error::invalid_input("threads must be at least 1"),
-        Some(n) => match rayon::ThreadPoolBuilder::new().num_threads(n).build() {
-            Ok(pool) => Ok(pool.install(f)),
-            Err(e) => error::invalid_input(format!("could not start {n} threads: {e}")),
-        },
-    }
-}
+pub use threads::with_threads;

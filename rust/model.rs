@@ -1,77 +1,16 @@
-//! The robot as flat arrays: what Python copies out of MuJoCo's compiled `mjModel`, and the
-//! validated, derived form the hot paths index into.
+//! The validated robot: a [`ModelDesc`] checked once and turned into the flat, derived arrays
+//! the hot paths index into (joint frames, shapes, candidate pairs, broad-phase spheres).
 
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
-use serde::{Deserialize, Serialize};
 
 use crate::broad::Broad;
-use crate::collide::{candidate_pairs, CandidatePair};
-use crate::error::{invalid_model, Result};
+use crate::desc::{JOINT_HINGE, JOINT_SLIDE};
+/// (Also reachable here, where it lived before `desc.rs`.)
+pub use crate::desc::ModelDesc;
+use crate::error::{invalid_input, invalid_model, Result};
+use crate::geom::Geom;
+use crate::pairs::{candidate_pairs, CandidatePair};
 use crate::shapes::{GeomShape, GeomType};
-
-/// MuJoCo's `mjtJoint` codes for the joints we accept.
-pub const JOINT_SLIDE: i32 = 2;
-pub const JOINT_HINGE: i32 = 3;
-
-/// A robot scene exactly as MuJoCo compiled it, in flat arrays.
-///
-/// Body 0 is the world; bodies are ordered parents first (MuJoCo guarantees it). Quaternions
-/// are `(w, x, y, z)`. Only *collidable* geoms are listed (those with a non-zero contype or
-/// conaffinity, or named by an explicit pair); `geom_id` keeps their MuJoCo ids so that
-/// pairs and reports speak MuJoCo's language.
-///
-/// # Example
-/// A single hinge that swings a unit sphere above a floor plane:
-/// ```
-/// use profrobot::{ModelDesc, RobotModel};
-/// let desc = ModelDesc::example_pendulum();
-/// let model = RobotModel::new(desc).unwrap();
-/// assert_eq!(model.njoint(), 1);
-/// assert_eq!(model.pairs().len(), 1); // the bob against the floor
-/// ```
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct ModelDesc {
-    pub body_parent: Vec<i32>,
-    pub body_weld: Vec<i32>,
-    pub body_pos: Vec<[f64; 3]>,
-    pub body_quat: Vec<[f64; 4]>,
-
-    pub jnt_type: Vec<i32>,
-    pub jnt_body: Vec<i32>,
-    pub jnt_pos: Vec<[f64; 3]>,
-    pub jnt_axis: Vec<[f64; 3]>,
-    pub jnt_qpos0: Vec<f64>,
-    pub jnt_range: Vec<[f64; 2]>,
-    pub jnt_limited: Vec<bool>,
-
-    pub geom_id: Vec<i32>,
-    pub geom_type: Vec<i32>,
-    pub geom_body: Vec<i32>,
-    pub geom_pos: Vec<[f64; 3]>,
-    pub geom_quat: Vec<[f64; 4]>,
-    pub geom_size: Vec<[f64; 3]>,
-    pub geom_contype: Vec<u32>,
-    pub geom_conaffinity: Vec<u32>,
-    pub geom_margin: Vec<f64>,
-    /// Index into `mesh_vert_adr`/`mesh_vert_num` for mesh geoms, -1 otherwise.
-    pub geom_mesh: Vec<i32>,
-
-    /// Convex-hull vertices of each mesh, in the mesh frame MuJoCo compiled.
-    pub mesh_vert_adr: Vec<u32>,
-    pub mesh_vert_num: Vec<u32>,
-    pub mesh_vert: Vec<[f64; 3]>,
-
-    /// `<exclude>` body pairs (MuJoCo body ids).
-    pub exclude: Vec<[i32; 2]>,
-    /// Explicit `<pair>` geom pairs (MuJoCo geom ids) and their margins.
-    pub pair_geom: Vec<[i32; 2]>,
-    pub pair_margin: Vec<f64>,
-
-    /// `!mjDSBL_FILTERPARENT`.
-    pub filter_parent: bool,
-    /// `!mjDSBL_CONTACT && !mjDSBL_CONSTRAINT`.
-    pub contact_enabled: bool,
-}
 
 /// One joint, ready for forward kinematics.
 #[derive(Clone, Debug)]
@@ -81,18 +20,6 @@ pub struct Joint {
     pub anchor: Vector3<f64>,
     pub axis: Unit<Vector3<f64>>,
     pub qpos0: f64,
-}
-
-/// One collidable geom, its shape and its fixed pose in its body frame.
-#[derive(Debug)]
-pub struct Geom {
-    pub mujoco_id: i32,
-    pub body: usize,
-    /// Geom frame in the body frame, with the shape's own axis convention folded in.
-    pub local: Isometry3<f64>,
-    pub shape: GeomShape,
-    /// Belongs to a body whose kinematic root carries joints (the robot), not the static scene.
-    pub on_robot: bool,
 }
 
 /// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.
@@ -127,7 +54,8 @@ fn finite(name: &str, values: &[f64]) -> Result<()> {
 
 fn quat(q: [f64; 4]) -> Result<UnitQuaternion<f64>> {
     let q = nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]);
-    if !(q.norm() > 1e-12) {
+    let norm = q.norm();
+    if norm.is_nan() || norm <= 1e-12 {
         return invalid_model("zero quaternion");
     }
     Ok(UnitQuaternion::from_quaternion(q))
@@ -178,6 +106,7 @@ impl RobotModel {
         finite("jnt_axis", desc.jnt_axis.as_flattened())?;
         finite("jnt_qpos0", &desc.jnt_qpos0)?;
         let mut joints = Vec::with_capacity(njnt);
+        // Bodies without joints keep the empty range (0, 0).
         let mut body_joints = vec![(0usize, 0usize); nbody];
         let mut last_body = 0usize;
         for j in 0..njnt {
@@ -202,7 +131,8 @@ impl RobotModel {
             body_joints[b].1 = j + 1;
             last_body = b;
             let a = Vector3::from(desc.jnt_axis[j]);
-            if !(a.norm() > 1e-12) {
+            let norm = a.norm();
+            if norm.is_nan() || norm <= 1e-12 {
                 return invalid_model(format!("joint {j} has a zero axis"));
             }
             let [lo, hi] = desc.jnt_range[j];
@@ -217,13 +147,6 @@ impl RobotModel {
                 qpos0: desc.jnt_qpos0[j],
             });
         }
-        // Empty ranges for bodies without joints.
-        for bj in body_joints.iter_mut() {
-            if bj.1 == 0 {
-                *bj = (0, 0);
-            }
-        }
-
         // Which bodies belong to the robot: those whose root (child of the world) carries a
         // joint somewhere in its subtree. Everything else is static scene.
         let root_of: Vec<usize> = {
@@ -345,43 +268,20 @@ impl RobotModel {
     pub fn continuous(&self) -> Vec<bool> {
         self.joints.iter().zip(&self.limited).map(|(j, &l)| j.hinge && !l).collect()
     }
-}
 
-impl ModelDesc {
-    /// A one-joint pendulum: a sphere of radius 0.1 on a 0.5 m arm hinged about x at height 0.55,
-    /// above a floor plane. At q = 0 the bob hangs 0.05 m above the floor; swinging it sideways
-    /// lifts it. Used by doc tests and unit tests.
-    pub fn example_pendulum() -> Self {
-        ModelDesc {
-            body_parent: vec![0, 0],
-            body_weld: vec![0, 1],
-            body_pos: vec![[0.0; 3], [0.0, 0.0, 0.55]],
-            body_quat: vec![[1.0, 0.0, 0.0, 0.0]; 2],
-            jnt_type: vec![JOINT_HINGE],
-            jnt_body: vec![1],
-            jnt_pos: vec![[0.0; 3]],
-            jnt_axis: vec![[1.0, 0.0, 0.0]],
-            jnt_qpos0: vec![0.0],
-            jnt_range: vec![[-3.0, 3.0]],
-            jnt_limited: vec![true],
-            geom_id: vec![0, 1],
-            geom_type: vec![0, 2],
-            geom_body: vec![0, 1],
-            geom_pos: vec![[0.0; 3], [0.0, 0.0, -0.4]],
-            geom_quat: vec![[1.0, 0.0, 0.0, 0.0]; 2],
-            geom_size: vec![[1.0, 1.0, 0.1], [0.1, 0.0, 0.0]],
-            geom_contype: vec![1, 1],
-            geom_conaffinity: vec![1, 1],
-            geom_margin: vec![0.0, 0.0],
-            geom_mesh: vec![-1, -1],
-            mesh_vert_adr: vec![],
-            mesh_vert_num: vec![],
-            mesh_vert: vec![],
-            exclude: vec![],
-            pair_geom: vec![],
-            pair_margin: vec![],
-            filter_parent: true,
-            contact_enabled: true,
+    /// Checks that `poses` is a non-empty, finite `(B, K)` row-major buffer for this model;
+    /// returns B.
+    pub fn check_poses(&self, poses: &[f64]) -> Result<usize> {
+        let k = self.njoint();
+        if k == 0 {
+            return invalid_input("the model has no joints");
         }
+        if poses.is_empty() || poses.len() % k != 0 {
+            return invalid_input(format!("poses must be a non-empty (B, {k}) array; got {} values", poses.len()));
+        }
+        if let Some(i) = poses.iter().position(|v| !v.is_finite()) {
+            return invalid_input(format!("pose {} joint {} is not finite ({})", i / k, i % k, poses[i]));
+        }
+        Ok(poses.len() / k)
     }
 }

@@ -1,22 +1,24 @@
 //! The only file that knows Python: pyo3 bindings over the core. Heavy calls release the GIL.
 //! Documented for users in `python/profrobot/_core.pyi`.
 
-use nalgebra::Isometry3;
 use std::borrow::Cow;
 
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::conversion::FromPyObjectOwned;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyTypeError, PyValueError};
-use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
-use rayon::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyType};
 
-use crate::collide::{check_poses, label_batch, LabelOptions, PairKind};
+use crate::collide::{label_batch, LabelOptions};
+use crate::desc::ModelDesc;
 use crate::error::Error;
-use crate::kinematics::body_poses;
-use crate::model::{ModelDesc, RobotModel as CoreModel};
-use crate::{interpolate_so2, sample_uniform, with_threads};
+use crate::interpolate::interpolate_so2;
+use crate::kinematics::forward_kinematics;
+use crate::model::RobotModel;
+use crate::pairs::PairKind;
+use crate::sample::sample_uniform;
+use crate::threads::with_threads;
 
 create_exception!(
     profrobot._core,
@@ -138,44 +140,75 @@ fn rows_of<'a>(a: &'a PyReadonlyArray2<'_, f64>) -> Cow<'a, [f64]> {
     Cow::Owned(a.as_array().iter().copied().collect())
 }
 
-/// The compiled collision model of one robot scene (see `_core.pyi`).
-#[pyclass(module = "profrobot._core", frozen)]
-struct RobotModel {
-    inner: CoreModel,
+/// `RobotModel.pairs()`: geom ids `(P, 2)`, is-self `(P,)`, margin `(P,)`.
+type PairArrays<'py> = (Bound<'py, PyArray2<i32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<f64>>);
+
+/// `RobotModel.forward_kinematics()`: xpos `(B, nbody, 3)`, xquat `(B, nbody, 4)`.
+type FrameArrays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>);
+
+/// The compiled collision model of one robot scene (see `_core.pyi`): the core's
+/// `RobotModel`, and the description it was built from, which is what pickles.
+#[pyclass(name = "RobotModel", module = "profrobot._core", frozen)]
+struct PyRobotModel {
+    model: RobotModel,
+    desc: ModelDesc,
+}
+
+impl PyRobotModel {
+    fn from_desc(desc: ModelDesc) -> PyResult<Self> {
+        Ok(Self { model: RobotModel::new(desc.clone()).map_err(to_py)?, desc })
+    }
 }
 
 #[pymethods]
-impl RobotModel {
+impl PyRobotModel {
     #[new]
     fn new(arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
-        let desc = desc_from_dict(arrays)?;
-        Ok(Self { inner: CoreModel::new(desc).map_err(to_py)? })
+        Self::from_desc(desc_from_dict(arrays)?)
+    }
+
+    /// Pickling: `RobotModel._from_state(bytes)` rebuilds the model from its description
+    /// (`ModelDesc::to_bytes`, exact to the bit).
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+        let state = PyBytes::new(slf.py(), &slf.get().desc.to_bytes());
+        Ok((slf.get_type().getattr("_from_state")?, (state,)))
+    }
+
+    /// The inverse of `__reduce__`: a ProfrobotError (ValueError) for bytes that are not a
+    /// model description, ModelError for one the core rejects.
+    #[classmethod]
+    fn _from_state(_cls: &Bound<'_, PyType>, state: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let bytes = state.cast::<PyBytes>().map_err(|_| {
+            let got = state.get_type().name().map(|n| n.to_string()).unwrap_or_default();
+            PyTypeError::new_err(format!("RobotModel state must be bytes; got {got}"))
+        })?;
+        Self::from_desc(ModelDesc::from_bytes(bytes.as_bytes()).map_err(to_py)?)
     }
 
     #[getter]
     fn njoint(&self) -> usize {
-        self.inner.njoint()
+        self.model.njoint()
     }
 
     #[getter]
     fn nbody(&self) -> usize {
-        self.inner.nbody()
+        self.model.nbody()
     }
 
     #[getter]
     fn ngeom(&self) -> usize {
-        self.inner.geoms().len()
+        self.model.geoms().len()
     }
 
     #[getter]
     fn npair(&self) -> usize {
-        self.inner.pairs().len()
+        self.model.pairs().len()
     }
 
     /// `(geom ids (P, 2) int32, is_self (P,) bool, margin (P,) float64)`.
-    fn pairs<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyArray2<i32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<f64>>)> {
-        let geoms = self.inner.geoms();
-        let pairs = self.inner.pairs();
+    fn pairs<'py>(&self, py: Python<'py>) -> PyResult<PairArrays<'py>> {
+        let geoms = self.model.geoms();
+        let pairs = self.model.pairs();
         let ids: Vec<i32> = pairs.iter().flat_map(|p| [geoms[p.g1].mujoco_id, geoms[p.g2].mujoco_id]).collect();
         let is_self: Vec<bool> = pairs.iter().map(|p| p.kind == PairKind::SelfCollision).collect();
         let margin: Vec<f64> = pairs.iter().map(|p| p.margin).collect();
@@ -187,13 +220,13 @@ impl RobotModel {
     }
 
     fn sampling_ranges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let r = self.inner.sampling_ranges().map_err(to_py)?;
+        let r = self.model.sampling_ranges().map_err(to_py)?;
         let k = r.len();
         PyArray1::from_vec(py, r.into_flattened()).reshape([k, 2])
     }
 
     fn continuous<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
-        PyArray1::from_vec(py, self.inner.continuous())
+        PyArray1::from_vec(py, self.model.continuous())
     }
 
     #[pyo3(signature = (poses, threads=None))]
@@ -202,38 +235,14 @@ impl RobotModel {
         py: Python<'py>,
         poses: &Bound<'py, PyAny>,
         threads: Option<usize>,
-    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>)> {
-        let model = &self.inner;
-        let k = model.njoint();
-        let poses = pose_array(poses, k, "poses")?;
+    ) -> PyResult<FrameArrays<'py>> {
+        let model = &self.model;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let b = check_poses(model, q).map_err(to_py)?;
+        let (xpos, xquat) = py.detach(|| with_threads(threads, || forward_kinematics(model, q))).map_err(to_py)?.map_err(to_py)?;
         let nb = model.nbody();
-        let (xpos, xquat) = py
-            .detach(|| {
-                with_threads(threads, || {
-                    let frames: Vec<Vec<Isometry3<f64>>> = q
-                        .par_chunks(k)
-                        .map_init(
-                            || vec![Isometry3::identity(); nb],
-                            |buf, qi| {
-                                body_poses(model, qi, buf);
-                                buf.clone()
-                            },
-                        )
-                        .collect();
-                    let mut xpos = Vec::with_capacity(b * nb * 3);
-                    let mut xquat = Vec::with_capacity(b * nb * 4);
-                    for f in frames.iter().flatten() {
-                        xpos.extend(f.translation.vector.iter());
-                        let q = f.rotation.quaternion();
-                        xquat.extend([q.w, q.i, q.j, q.k]);
-                    }
-                    (xpos, xquat)
-                })
-            })
-            .map_err(to_py)?;
+        let b = xpos.len() / (3 * nb);
         Ok((PyArray1::from_vec(py, xpos).reshape([b, nb, 3])?, PyArray1::from_vec(py, xquat).reshape([b, nb, 4])?))
     }
 
@@ -246,7 +255,7 @@ impl RobotModel {
         distance: bool,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let model = &self.inner;
+        let model = &self.model;
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
@@ -271,7 +280,7 @@ impl RobotModel {
 
     #[pyo3(signature = (n, seed, threads=None))]
     fn sample<'py>(&self, py: Python<'py>, n: usize, seed: u64, threads: Option<usize>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let ranges = self.inner.sampling_ranges().map_err(to_py)?;
+        let ranges = self.model.sampling_ranges().map_err(to_py)?;
         let k = ranges.len();
         let v = py.detach(|| with_threads(threads, || sample_uniform(&ranges, n, seed))).map_err(to_py)?.map_err(to_py)?;
         PyArray1::from_vec(py, v).reshape([n, k])
@@ -301,7 +310,7 @@ fn interpolate<'py>(
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<RobotModel>()?;
+    m.add_class::<PyRobotModel>()?;
     m.add("ProfrobotError", m.py().get_type::<ProfrobotError>())?;
     m.add("ModelError", m.py().get_type::<ModelError>())?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;

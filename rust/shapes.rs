@@ -1,13 +1,15 @@
 //! parry shapes from MuJoCo geom descriptions.
 //!
 //! MuJoCo collides primitives exactly and meshes as their convex hulls; planes are half-spaces
-//! (`z <= 0` in the plane's frame). Each geom becomes one of these, plus a fixed rotation where
-//! parry's axis convention differs from MuJoCo's (cylinders: parry's axis is y, MuJoCo's z).
+//! (`z <= 0` in the plane's frame). Each geom becomes a [`Solid`], one of these two cases, plus
+//! a fixed rotation where parry's axis convention differs from MuJoCo's (cylinders: parry's
+//! axis is y, MuJoCo's z).
 
 use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion, Vector3};
-use parry3d_f64::shape::{Ball, Capsule, ConvexPolyhedron, Cuboid, Cylinder, Shape, SupportMap};
+use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, Shape, SupportMap};
 
 use crate::error::{invalid_model, Result};
+use crate::hull::Hull;
 
 /// MuJoCo's `mjtGeom` codes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,22 +39,34 @@ impl GeomType {
     }
 }
 
+/// What a geom is to the narrow phase: MuJoCo's two cases.
+pub enum Solid {
+    /// A plane: the half-space `z <= 0` of its geom frame. Unbounded, so it has no support
+    /// map; pairs with it are decided by the other geom's support point along the normal.
+    HalfSpace,
+    /// Every other geom: a convex body (meshes as their convex hulls).
+    Convex {
+        /// The shape as a concrete support map, for the hot path (GJK, plane support): an enum
+        /// match instead of dyn dispatch, and hill climbing instead of a scan for hulls.
+        convex: Convex,
+        /// The same shape boxed for parry's generic queries (exact distance, contact).
+        shape: Box<dyn Shape>,
+    },
+}
+
 /// A collision shape in its geom frame, with the data the broad phase needs.
 pub struct GeomShape {
     pub kind: GeomType,
-    /// `None` for planes, which are handled as half-spaces by `collide`.
-    pub shape: Option<Box<dyn Shape>>,
-    /// The same shape as a concrete support map, for the hot path (GJK, plane support): an
-    /// enum match instead of dyn dispatch, and hill climbing instead of a scan for hulls.
-    pub convex: Option<Convex>,
+    pub solid: Solid,
     /// Centre and half extents of a box bounding the shape in its own frame (OBB culling).
+    /// Infinite half extents for half-spaces.
     pub obb_center: Vector3<f64>,
     pub obb_half: Vector3<f64>,
     /// Radius of a sphere about the shape-frame origin that holds the shape (sphere culling).
     pub rbound: f64,
     /// Radius of a sphere about `obb_center` that holds the shape: the farthest vertex of a
     /// hull, not the corner of its box, so the broad phase (`broad.rs`) culls more pairs.
-    /// Infinite for planes.
+    /// Infinite for half-spaces.
     pub radius: f64,
 }
 
@@ -77,13 +91,13 @@ impl GeomShape {
     /// axis lines up with MuJoCo's.
     pub fn new(kind: GeomType, size: [f64; 3], points: &[Point3<f64>], geom_id: i32) -> Result<(Self, Isometry3<f64>)> {
         let mut axis_fix = Isometry3::identity();
-        let convex: Option<Convex> = match kind {
-            GeomType::Plane => None,
-            GeomType::Sphere => Some(Convex::Ball(Ball::new(positive(geom_id, "radius", size[0])?))),
+        let convex = match kind {
+            GeomType::Plane => return Ok((GeomShape::half_space(), axis_fix)),
+            GeomType::Sphere => Convex::Ball(Ball::new(positive(geom_id, "radius", size[0])?)),
             GeomType::Capsule => {
                 let r = positive(geom_id, "radius", size[0])?;
                 let h = positive(geom_id, "half-length", size[1])?;
-                Some(Convex::Capsule(Capsule::new_z(h, r)))
+                Convex::Capsule(Capsule::new_z(h, r))
             }
             GeomType::Cylinder => {
                 let r = positive(geom_id, "radius", size[0])?;
@@ -93,7 +107,7 @@ impl GeomShape {
                     nalgebra::Translation3::identity(),
                     UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2),
                 );
-                Some(Convex::Cylinder(Cylinder::new(h, r)))
+                Convex::Cylinder(Cylinder::new(h, r))
             }
             GeomType::Box => {
                 let h = Vector3::new(
@@ -101,37 +115,55 @@ impl GeomShape {
                     positive(geom_id, "half-size y", size[1])?,
                     positive(geom_id, "half-size z", size[2])?,
                 );
-                Some(Convex::Cuboid(Cuboid::new(h)))
+                Convex::Cuboid(Cuboid::new(h))
             }
             GeomType::Mesh => {
                 if points.len() < 4 {
                     return invalid_model(format!("mesh geom {geom_id} has {} hull vertices; at least 4 are needed", points.len()));
                 }
                 match Hull::new(points) {
-                    Some(hull) => Some(Convex::Hull(hull)),
+                    Some(hull) => Convex::Hull(hull),
                     None => return invalid_model(format!("mesh geom {geom_id}: its vertices do not span a 3-D convex hull")),
                 }
             }
         };
-        let shape: Option<Box<dyn Shape>> = convex.as_ref().map(Convex::to_shape);
-        let (obb_center, obb_half, rbound) = match &shape {
-            None => (Vector3::zeros(), Vector3::repeat(f64::INFINITY), f64::INFINITY),
-            Some(s) => {
-                // Bounds in the shape's own frame, the one `Geom::local` places in the body.
-                let aabb = s.compute_local_aabb();
-                let sphere = s.compute_local_bounding_sphere();
-                (aabb.center().coords, aabb.half_extents(), sphere.center.coords.norm() + sphere.radius)
-            }
+        let shape = convex.to_shape();
+        // Bounds in the shape's own frame, the one `Geom::local` places in the body.
+        let aabb = shape.compute_local_aabb();
+        let sphere = shape.compute_local_bounding_sphere();
+        let obb_center = aabb.center().coords;
+        let radius = convex.radius_about(&obb_center);
+        let shape = GeomShape {
+            kind,
+            solid: Solid::Convex { convex, shape },
+            obb_center,
+            obb_half: aabb.half_extents(),
+            rbound: sphere.center.coords.norm() + sphere.radius,
+            radius,
         };
-        let radius = match &convex {
-            None => f64::INFINITY,
-            Some(c) => c.radius_about(&obb_center),
-        };
-        Ok((GeomShape { kind, shape, convex, obb_center, obb_half, rbound, radius }, axis_fix))
+        Ok((shape, axis_fix))
+    }
+
+    /// A plane geom: the half-space `z <= 0`, bounded by nothing.
+    fn half_space() -> Self {
+        GeomShape {
+            kind: GeomType::Plane,
+            solid: Solid::HalfSpace,
+            obb_center: Vector3::zeros(),
+            obb_half: Vector3::repeat(f64::INFINITY),
+            rbound: f64::INFINITY,
+            radius: f64::INFINITY,
+        }
+    }
+
+    /// Whether the geom is a plane (a half-space).
+    #[inline]
+    pub fn is_half_space(&self) -> bool {
+        matches!(self.solid, Solid::HalfSpace)
     }
 }
 
-/// A geom's convex shape as a concrete type (planes excepted).
+/// A geom's convex shape as a concrete type (every geom but planes).
 ///
 /// Its support points are exactly parry's for the same shape (the enum forwards every
 /// `SupportMap` method; `Hull` returns the vertex parry's linear scan would), so GJK on it
@@ -154,7 +186,7 @@ impl Convex {
             // parry's cylinder runs along y: its rim circles lie at y = +-h.
             Convex::Cylinder(s) => c.norm() + (s.half_height * s.half_height + s.radius * s.radius).sqrt(),
             Convex::Cuboid(s) => c.norm() + s.half_extents.norm(),
-            Convex::Hull(h) => h.points.iter().map(|p| (p.coords - c).norm()).fold(0.0, f64::max),
+            Convex::Hull(h) => h.points().iter().map(|p| (p.coords - c).norm()).fold(0.0, f64::max),
         };
         r * (1.0 + 1e-12)
     }
@@ -165,7 +197,7 @@ impl Convex {
             Convex::Cuboid(s) => Box::new(*s),
             Convex::Capsule(s) => Box::new(*s),
             Convex::Cylinder(s) => Box::new(*s),
-            Convex::Hull(h) => Box::new((*h.poly).clone()),
+            Convex::Hull(h) => Box::new(h.poly().clone()),
         }
     }
 }
@@ -178,7 +210,7 @@ impl SupportMap for Convex {
             Convex::Cuboid(s) => s.local_support_point(dir),
             Convex::Capsule(s) => s.local_support_point(dir),
             Convex::Cylinder(s) => s.local_support_point(dir),
-            Convex::Hull(h) => h.points[h.support_index(dir)],
+            Convex::Hull(h) => h.support_point(dir),
         }
     }
 
@@ -189,7 +221,7 @@ impl SupportMap for Convex {
             Convex::Cuboid(s) => s.local_support_point_toward(dir),
             Convex::Capsule(s) => s.local_support_point_toward(dir),
             Convex::Cylinder(s) => s.local_support_point_toward(dir),
-            Convex::Hull(h) => h.points[h.support_index(dir)],
+            Convex::Hull(h) => h.support_point(dir),
         }
     }
 
@@ -210,224 +242,6 @@ impl SupportMap for Convex {
     }
 }
 
-/// A mesh's convex hull with vertex adjacency, for support points by hill climbing.
-///
-/// On a convex polytope a vertex no neighbour of which lies further along `dir` is a global
-/// maximum, so climbing the hull's edge graph visits a handful of vertices instead of scanning
-/// all of them. Ties are broken like parry's scan (lowest index among the maximal vertices).
-pub struct Hull {
-    /// The hull's vertices, exactly `ConvexPolyhedron::points()` of `poly`.
-    points: Vec<Point3<f64>>,
-    /// Neighbours of vertex `i` are `adj[adj_start[i]..adj_start[i + 1]]` (compressed rows).
-    adj_start: Vec<u32>,
-    adj: Vec<u32>,
-    /// Starting vertex per cube-map cell of directions (the support along the cell's centre
-    /// direction), so that the climb usually ends after checking one vertex's neighbours;
-    /// flagged `SOLE` where that vertex is the answer for the whole cell and no climb is needed
-    /// (about a third of GJK's calls on the Panda's hulls). u16 keeps the table in L1.
-    start: Vec<u16>,
-    /// Some vertex has no hull edge (never expected): fall back to the linear scan.
-    scan: bool,
-    /// parry's own hull (boxed: it is large, and only the cold paths use it).
-    poly: Box<ConvexPolyhedron>,
-}
-
-impl Hull {
-    /// The convex hull of `points`, built exactly as `ConvexPolyhedron::from_convex_hull` does.
-    pub fn new(points: &[Point3<f64>]) -> Option<Self> {
-        let (vertices, triangles) = parry3d_f64::transformation::try_convex_hull(points).ok()?;
-        let poly = ConvexPolyhedron::from_convex_mesh(vertices.clone(), &triangles)?;
-        let n = vertices.len();
-        let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for t in &triangles {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                if !nbrs[a as usize].contains(&b) {
-                    nbrs[a as usize].push(b);
-                }
-                if !nbrs[b as usize].contains(&a) {
-                    nbrs[b as usize].push(a);
-                }
-            }
-        }
-        // (Cube-map entries hold 15-bit vertex indices; MuJoCo's hulls are far smaller.)
-        let scan = n >= SOLE as usize || nbrs.iter().any(|v| v.is_empty());
-        let mut adj_start = vec![0u32];
-        let mut adj = Vec::new();
-        for v in &nbrs {
-            adj.extend_from_slice(v);
-            adj_start.push(adj.len() as u32);
-        }
-        let start: Vec<u16> = (0..6 * CUBE * CUBE).map(|cell| cell_start(&vertices, cell)).collect();
-        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly) })
-    }
-
-    pub fn points(&self) -> &[Point3<f64>] {
-        &self.points
-    }
-
-    #[inline]
-    fn neighbours(&self, i: usize) -> &[u32] {
-        &self.adj[self.adj_start[i] as usize..self.adj_start[i + 1] as usize]
-    }
-
-    /// Index of the support vertex along `dir`: the lowest index among the vertices of
-    /// maximal `p . dir`, as `scan_support` (parry's scan) returns.
-    #[inline]
-    pub fn support_index(&self, dir: &Vector3<f64>) -> usize {
-        if self.scan {
-            return scan_support(&self.points, dir);
-        }
-        let (cell, plain) = cube_cell_plain(dir);
-        let start = self.start[cell];
-        if plain && start & SOLE != 0 {
-            return (start & !SOLE) as usize;
-        }
-        let mut cur = (start & !SOLE) as usize;
-        let mut cur_dot = self.points[cur].coords.dot(dir);
-        if cur_dot.is_nan() {
-            return 0; // the scan never replaces vertex 0 when every dot is NaN
-        }
-        loop {
-            let (mut next, mut next_dot, mut tie) = (cur, cur_dot, false);
-            for &j in self.neighbours(cur) {
-                let d = self.points[j as usize].coords.dot(dir);
-                if d > next_dot {
-                    (next, next_dot) = (j as usize, d);
-                } else if d == cur_dot {
-                    tie = true;
-                }
-            }
-            if next == cur {
-                return if tie { self.lowest_on_plateau(cur, cur_dot, dir) } else { cur };
-            }
-            (cur, cur_dot) = (next, next_dot);
-        }
-    }
-
-    /// Lowest index among the vertices connected to `from` through vertices of the same
-    /// (maximal) dot product: the tie the scan resolves by taking the first.
-    #[cold]
-    fn lowest_on_plateau(&self, from: usize, top: f64, dir: &Vector3<f64>) -> usize {
-        let mut seen = vec![from];
-        let mut stack = vec![from];
-        while let Some(i) = stack.pop() {
-            for &j in self.neighbours(i) {
-                let j = j as usize;
-                if !seen.contains(&j) && self.points[j].coords.dot(dir) == top {
-                    seen.push(j);
-                    stack.push(j);
-                }
-            }
-        }
-        seen.into_iter().min().unwrap()
-    }
-}
-
-/// Cells per cube-map face side: 6 * CUBE^2 starting vertices per hull (3 KiB). Finer grids
-/// certify more cells but fall out of L1 (32: 12 KiB a hull, no faster on the Panda).
-const CUBE: usize = 16;
-
-/// Flag on a cube-map cell's vertex: it is the support of every direction in the cell, with a
-/// lead over every other vertex that rounding cannot overturn (see `cell_start`).
-const SOLE: u16 = 1 << 15;
-
-/// Cube-map cell of a direction: the face of its largest component, then a CUBE x CUBE grid
-/// over the other two components divided by it. Any cell is a valid start (the climb is exact);
-/// a zero or NaN direction just lands in some cell.
-#[cfg(test)]
-#[inline]
-fn cube_cell(d: &Vector3<f64>) -> usize {
-    cube_cell_plain(d).0
-}
-
-/// `cube_cell`, and whether `d` is a plain direction for which the cell's `SOLE` vertex may be
-/// trusted: no NaN, largest component in [1e-100, 1e100] (so no product in a dot with a hull
-/// vertex overflows, and underflow is negligible against the certified lead).
-#[inline]
-fn cube_cell_plain(d: &Vector3<f64>) -> (usize, bool) {
-    let a = d.abs();
-    let (m, u, v) = if a.x >= a.y && a.x >= a.z {
-        (0, d.y, d.z)
-    } else if a.y >= a.z {
-        (1, d.z, d.x)
-    } else {
-        (2, d.x, d.y)
-    };
-    let face = 2 * m + (d[m] > 0.0) as usize;
-    let scale = 0.5 * CUBE as f64 / a[m];
-    let iu = (((u * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
-    let iv = (((v * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
-    let plain = a[m] >= 1e-100 && a[m] <= 1e100 && !(u + v).is_nan();
-    ((face * CUBE + iu) * CUBE + iv, plain)
-}
-
-/// The starting vertex of a cube-map cell: the support along the cell's centre direction, with
-/// `SOLE` set when that vertex is provably what parry's scan returns for *every* direction
-/// that `cube_cell_plain` maps to the cell, so that the climb can be skipped.
-///
-/// The directions of a cell, scaled to their largest component, fill the cell's square on the
-/// cube face, up to rounding in `cube_cell` (~1e-15); we take the square grown by 1e-9 a side,
-/// whose directions are the non-negative combinations of its four corners `c_i`. If
-/// `(p_v - p_k) . c_i > t_k` at every corner for every other vertex `k`, then `(p_v - p_k) . d
-/// > t_k |d|_inf` for every direction `d` of the cell, by linearity. With `t_k = 2e-12
-/// (|p_v|_1 + |p_k|_1)`, a thousand times the rounding error of any of these dot products,
-/// `v`'s computed dot is strictly the largest: the scan (first maximum) returns `v`.
-fn cell_start(points: &[Point3<f64>], cell: usize) -> u16 {
-    let centre = cube_cell_centre(cell);
-    let v = scan_support(points, &centre);
-    let (face, iu, iv) = (cell / (CUBE * CUBE), (cell / CUBE) % CUBE, cell % CUBE);
-    let (m, sign) = (face / 2, if face % 2 == 1 { 1.0 } else { -1.0 });
-    let edge = |i: usize| (i as f64 / CUBE as f64) * 2.0 - 1.0;
-    let grow = 1e-9;
-    let mut corners = [Vector3::zeros(); 4];
-    for (c, (u, w)) in corners.iter_mut().zip([(iu, iv), (iu + 1, iv), (iu, iv + 1), (iu + 1, iv + 1)]) {
-        c[m] = sign;
-        c[(m + 1) % 3] = edge(u) + if u == iu { -grow } else { grow };
-        c[(m + 2) % 3] = edge(w) + if w == iv { -grow } else { grow };
-    }
-    // Half the square's side (plus growth): how far a corner lies from the centre, per axis.
-    let half = 1.0 / CUBE as f64 + 2.0 * grow;
-    let pv = points[v].coords;
-    let sole = pv.abs().max() < 1e100
-        && points.iter().enumerate().all(|(k, p)| {
-            if k == v {
-                return true;
-            }
-            let diff = pv - p.coords;
-            let t = 2e-12 * (pv.abs().sum() + p.coords.abs().sum());
-            // Lead at the centre, less what the corners can lose: enough for all four?
-            let l1 = diff.abs().sum();
-            diff.dot(&centre) - l1 * half > 2.0 * t || corners.iter().all(|c| diff.dot(c) > t)
-        });
-    v as u16 | if sole { SOLE } else { 0 }
-}
-
-/// The centre direction of a cube-map cell (inverse of `cube_cell`).
-fn cube_cell_centre(cell: usize) -> Vector3<f64> {
-    let (face, iu, iv) = (cell / (CUBE * CUBE), (cell / CUBE) % CUBE, cell % CUBE);
-    let (m, sign) = (face / 2, if face % 2 == 1 { 1.0 } else { -1.0 });
-    let coord = |i: usize| ((i as f64 + 0.5) / CUBE as f64) * 2.0 - 1.0;
-    let mut d = Vector3::zeros();
-    d[m] = sign;
-    d[(m + 1) % 3] = coord(iu);
-    d[(m + 2) % 3] = coord(iv);
-    d
-}
-
-/// parry's point-cloud support (`utils::point_cloud_support_point_id`): first maximal vertex.
-fn scan_support(points: &[Point3<f64>], dir: &Vector3<f64>) -> usize {
-    let mut best = 0;
-    let mut best_dot = points[0].coords.dot(dir);
-    for (i, p) in points.iter().enumerate().skip(1) {
-        let d = p.coords.dot(dir);
-        if d > best_dot {
-            (best, best_dot) = (i, d);
-        }
-    }
-    best
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -439,13 +253,23 @@ mod tests {
     }
 
     #[test]
-    fn cube_cells_round_trip_their_centres() {
-        for cell in 0..6 * CUBE * CUBE {
-            assert_eq!(cube_cell(&cube_cell_centre(cell)), cell);
-            assert_eq!(cube_cell(&(cube_cell_centre(cell) * 3.5)), cell);
+    fn planes_are_unbounded_half_spaces_and_nothing_else_is() {
+        let (plane, fix) = GeomShape::new(GeomType::Plane, [1.0, 1.0, 0.1], &[], 0).unwrap();
+        assert!(plane.is_half_space() && fix == Isometry3::identity());
+        assert!(plane.radius.is_infinite() && plane.obb_half.iter().all(|h| h.is_infinite()));
+        let (ball, _) = GeomShape::new(GeomType::Sphere, [0.1, 0.0, 0.0], &[], 1).unwrap();
+        assert!(!ball.is_half_space());
+    }
+
+    #[test]
+    fn convex_hull_support_points_are_parrys() {
+        let cloud: Vec<Point3<f64>> = random_dirs(100, 11).iter().map(|d| Point3::from(d.component_mul(&Vector3::new(0.1, 0.2, 0.05)))).collect();
+        let (shape, _) = GeomShape::new(GeomType::Mesh, [0.0; 3], &cloud, 0).unwrap();
+        let Solid::Convex { convex, shape } = &shape.solid else { panic!("a mesh is convex") };
+        let poly = shape.as_convex_polyhedron().expect("a mesh is parry's ConvexPolyhedron");
+        for d in random_dirs(5000, 12) {
+            assert_eq!(convex.local_support_point(&d), poly.local_support_point(&d));
         }
-        assert!(cube_cell(&Vector3::zeros()) < 6 * CUBE * CUBE);
-        assert!(cube_cell(&Vector3::repeat(f64::NAN)) < 6 * CUBE * CUBE);
     }
 
     #[test]
@@ -461,7 +285,7 @@ mod tests {
         ];
         for (kind, size) in shapes {
             let (shape, _) = GeomShape::new(kind, size, &cloud, 0).unwrap();
-            let convex = shape.convex.as_ref().unwrap();
+            let Solid::Convex { convex, .. } = &shape.solid else { panic!("{kind:?} is not a half-space") };
             let mut far = 0.0f64;
             for d in random_dirs(5000, 10) {
                 far = far.max((convex.local_support_point(&d).coords - shape.obb_center).norm());
@@ -475,69 +299,4 @@ mod tests {
         }
     }
 
-    #[test]
-    fn sole_cube_cells_give_the_scan_vertex_up_to_their_corners() {
-        // Directions pushed into the corners and edges of every certified cell, where a wrong
-        // certificate would first show, and the cell's own corner directions.
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let cloud: Vec<Point3<f64>> =
-            (0..150).map(|_| Point3::new(rng.random_range(-0.1..0.1), rng.random_range(-0.05..0.05), rng.random_range(-0.2..0.2))).collect();
-        let hull = Hull::new(&cloud).unwrap();
-        let mut sole = 0;
-        for cell in 0..6 * CUBE * CUBE {
-            if hull.start[cell] & SOLE == 0 {
-                continue;
-            }
-            sole += 1;
-            let (face, iu, iv) = (cell / (CUBE * CUBE), (cell / CUBE) % CUBE, cell % CUBE);
-            let (m, sign): (usize, f64) = (face / 2, if face % 2 == 1 { 1.0 } else { -1.0 });
-            for _ in 0..20 {
-                let t = |i: usize, r: f64| ((i as f64 + r) / CUBE as f64) * 2.0 - 1.0;
-                let pick = |rng: &mut rand_chacha::ChaCha8Rng| [0.0, 1e-12, 0.5, 1.0 - 1e-12][rng.random_range(0..4)];
-                let mut d: Vector3<f64> = Vector3::zeros();
-                d[m] = sign * rng.random_range(0.1..10.0);
-                d[(m + 1) % 3] = t(iu, pick(&mut rng)) * d[m].abs();
-                d[(m + 2) % 3] = t(iv, pick(&mut rng)) * d[m].abs();
-                if cube_cell(&d) == cell {
-                    assert_eq!(hull.support_index(&d), scan_support(hull.points(), &d), "cell {cell} dir {d:?}");
-                }
-            }
-        }
-        assert!(sole > 6 * CUBE * CUBE / 4, "{sole}");
-    }
-
-    #[test]
-    fn hull_support_matches_parry_scan_on_random_and_axis_directions() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        // A random cloud (interior points dropped by the hull) and a box with coplanar faces,
-        // whose axis-aligned directions make ties that must resolve like the scan.
-        let cloud: Vec<Point3<f64>> =
-            (0..300).map(|_| Point3::new(rng.random_range(-1.0..1.0), rng.random_range(-0.5..0.5), rng.random_range(-0.2..0.3))).collect();
-        let mut boxy = Vec::new();
-        for x in [-1.0, 0.0, 1.0] {
-            for y in [-2.0, 0.0, 2.0] {
-                for z in [-0.5, 0.5] {
-                    boxy.push(Point3::new(x, y, z));
-                }
-            }
-        }
-        let mut dirs = random_dirs(20_000, 4);
-        for a in [-1.0, 0.0, 1.0] {
-            for b in [-1.0, 0.0, 1.0] {
-                for c in [-1.0, 0.0, 1.0] {
-                    dirs.push(Vector3::new(a, b, c));
-                }
-            }
-        }
-        for pts in [cloud, boxy] {
-            let hull = Hull::new(&pts).unwrap();
-            assert!(!hull.scan);
-            assert_eq!(hull.points(), hull.poly.points());
-            let convex = Convex::Hull(Hull::new(&pts).unwrap());
-            for d in &dirs {
-                assert_eq!(hull.support_index(d), scan_support(hull.points(), d), "dir {d:?}");
-                assert_eq!(convex.local_support_point(d), hull.poly.local_support_point(d));
-            }
-        }
-    }
 }

@@ -7,10 +7,13 @@ reinterpreted. Invalid input raises :class:`ProfrobotError` (a ValueError), a ba
 :class:`ModelError`, a wrong dtype or object TypeError naming the dtype wanted; never a panic.
 """
 
+from collections.abc import Callable
 from typing import final
 
 import numpy as np
 import numpy.typing as npt
+
+__all__ = ["RobotModel", "ProfrobotError", "ModelError", "interpolate", "__version__"]
 
 __version__: str
 
@@ -21,11 +24,23 @@ class ProfrobotError(ValueError):
 class ModelError(ProfrobotError):
     """A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints)."""
 
+@final
 class RobotModel:
     """A robot scene's collision model, built once from flat MuJoCo arrays
-    (``profrobot.Robot`` builds it; see ``Robot.core_arrays()`` for the keys)."""
+    (``profrobot.Robot`` builds it; see ``Robot.core_arrays()`` for the keys).
 
-    def __init__(self, arrays: dict[str, npt.NDArray | bool]) -> None: ...
+    Immutable and picklable: the pickle holds the model's description, every float exact to
+    the bit, so an unpickled model (in another process, e.g. a DataLoader worker) labels
+    exactly as the original. Safe to use in a child forked after the parent labelled poses:
+    the child starts its own threads."""
+
+    def __new__(cls, arrays: dict[str, npt.NDArray | bool]) -> RobotModel: ...
+    def __reduce__(self) -> tuple[Callable[[bytes], RobotModel], tuple[bytes]]:
+        """Pickling: ``(RobotModel._from_state, (state,))``."""
+    @classmethod
+    def _from_state(cls, state: bytes) -> RobotModel:
+        """A model from a pickle state; ProfrobotError for bytes that are not one (truncated,
+        altered, another version), ModelError for a description the core rejects."""
     @property
     def njoint(self) -> int: ...
     @property
