@@ -101,9 +101,9 @@ def _defer_gl(mujoco) -> None:
                     importlib.reload(glc)  # reads MUJOCO_GL now, as ``import mujoco`` would have
                 except Exception as e:
                     gl = os.environ.get("MUJOCO_GL", "")
+                    why = _plain(gl.strip().lower(), f"{type(e).__name__}: {e}")
                     raise RendererUnavailableError(
-                        f"MuJoCo's OpenGL backend (MUJOCO_GL={gl!r}) failed to load: {type(e).__name__}: {e}; "
-                        f"{INSTALL_HINT}") from e
+                        f"MuJoCo's OpenGL backend (MUJOCO_GL={gl!r}) failed to load: {why}; {INSTALL_HINT}") from e
             ctx = vars(glc).get("GLContext")
             for mod in (mujoco, sys.modules.get("mujoco.gl_context")):
                 if mod is not None and ctx is not None:
@@ -214,6 +214,8 @@ def _why(done: subprocess.CompletedProcess | None, timeout: float) -> str:
         return f"timed out after {timeout:.0f} s"
     lines = [ln.strip() for ln in (done.stderr or "").splitlines() if ln.strip()]
     tail = lines[-1] if lines else ""
+    if ". " in tail:  # the first sentence says it
+        tail = tail[:tail.index(". ") + 1]
     if done.returncode < 0:
         import signal
 
@@ -237,7 +239,14 @@ def _probe(gl: str, timeout: float = 120.0) -> str:
         done = None
     if done is not None and done.returncode == 0 and "profrobot-gl-ok" in done.stdout:
         return ""
-    return _why(done, timeout)
+    return _plain(gl, _why(done, timeout))
+
+
+def _plain(gl: str, why: str) -> str:
+    """PyOpenGL's way of saying libOSMesa is missing, in words."""
+    if gl == "osmesa" and "glGetError" in why:
+        return f"libOSMesa not found ({why})"
+    return why
 
 
 def status() -> tuple[str | None, str]:
@@ -321,12 +330,12 @@ class _Worker:
         env = dict(os.environ)
         if gl:
             env["MUJOCO_GL"] = gl
-        root = str(Path(__file__).resolve().parents[1])  # the directory holding this package
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        root = str(Path(__file__).resolve().parents[1])  # where this profrobot is, last on the path
+        main = f"import sys; sys.path.append({root!r}); from profrobot._gl import _serve; _serve()"
         self.pending = 0  # requests sent, replies not yet read
         self.err = tempfile.TemporaryFile()
-        self.p = subprocess.Popen([sys.executable, "-c", "from profrobot._gl import _serve; _serve()"],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.err, env=env)
+        self.p = subprocess.Popen([sys.executable, "-c", main], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                  stderr=self.err, env=env)
 
     def alive(self) -> bool:
         return self.p.poll() is None

@@ -168,22 +168,24 @@ def _free_camera(lookat, distance, azimuth, elevation) -> mujoco.MjvCamera:
 
 
 class _MjViews:
-    """One MuJoCo renderer (one GL context, made on the first :meth:`render`) for one model and
-    image size. It runs in a render worker (:mod:`profrobot._gl`); :meth:`gl_camera` needs no GL."""
+    """One MuJoCo renderer (one GL context, made on first use of ``r``) for one model and image
+    size. It runs in a render worker (:mod:`profrobot._gl`); :meth:`gl_camera` needs no GL."""
 
     def __init__(self, model: mujoco.MjModel, cameras: Cameras):
         self.m = model
         self.m.vis.global_.fovy = cameras.fovy
         self.d = mujoco.MjData(model)
         self.cams = cameras
-        self.r = None
+        self._r = None
         robot_geom = np.asarray(model.geom_bodyid) != 0
         self.robot_geom = np.concatenate([robot_geom, [False]])  # index -1 (background) → False
 
-    def renderer(self) -> mujoco.Renderer:
-        if self.r is None:
-            self.r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
-        return self.r
+    @property
+    def r(self) -> mujoco.Renderer:
+        """The renderer, made (with its GL context) on first use."""
+        if self._r is None:
+            self._r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
+        return self._r
 
     def camera(self, c: int) -> mujoco.MjvCamera:
         cams = self.cams
@@ -193,7 +195,7 @@ class _MjViews:
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
         robot), mask (C,H,W) bool."""
         m, d, cams = self.m, self.d, self.cams
-        r = self.renderer()
+        r = self.r
         d.qpos[:] = qpos
         mujoco.mj_kinematics(m, d)
         mujoco.mj_camlight(m, d)
@@ -223,9 +225,9 @@ class _MjViews:
         return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
 
     def close(self):
-        if self.r is not None:
-            self.r.close()
-            self.r = None
+        if self._r is not None:
+            self._r.close()
+            self._r = None
 
 
 # Render-worker entry points (profrobot._gl.RenderWorkers runs them in its subprocesses).
@@ -239,7 +241,7 @@ def _worker_init(model_bytes: bytes, cameras: Cameras) -> None:
     if _WORKER is not None:
         _WORKER.close()
     _WORKER = _MjViews(pickle.loads(model_bytes), cameras)
-    _WORKER.renderer()  # the GL context, now
+    _WORKER.r  # noqa: B018  (the GL context, now)
 
 
 def _worker_render(qpos_chunk: np.ndarray):
