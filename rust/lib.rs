@@ -27,6 +27,7 @@
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
 //! | [`sample`], [`interpolate`] | poses |
+//! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
@@ -41,6 +42,7 @@ pub mod interpolate;
 pub mod kinematics;
 pub mod model;
 pub mod pairs;
+pub mod plan;
 pub mod sample;
 pub mod shapes;
 pub mod threads;
@@ -56,5 +58,6 @@ pub use interpolate::interpolate_so2;
 pub use kinematics::forward_kinematics;
 pub use model::RobotModel;
 pub use pairs::{CandidatePair, PairKind};
+pub use plan::{plan_path, PlanOptions, PlanResult, PlanStatus};
 pub use sample::sample_uniform;
 pub use threads::with_threads;

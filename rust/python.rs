@@ -17,6 +17,7 @@ use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
 use crate::pairs::PairKind;
+use crate::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::sample::sample_uniform;
 use crate::threads::with_threads;
 
@@ -275,6 +276,51 @@ impl PyRobotModel {
             let flat: Vec<i64> = batch.colliding_pairs.iter().flat_map(|&[p, k]| [p as i64, k as i64]).collect();
             out.set_item("colliding_pairs", PyArray1::from_vec(py, flat).reshape([m, 2])?)?;
         }
+        Ok(out)
+    }
+
+    /// A free path from `start` to `goal` (see `_core.pyi` and `plan.rs`).
+    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn plan_path<'py>(
+        &self,
+        py: Python<'py>,
+        start: &Bound<'py, PyAny>,
+        goal: &Bound<'py, PyAny>,
+        resolution: f64,
+        max_time: f64,
+        seed: u64,
+        range: f64,
+        max_iterations: usize,
+        shortcut_rounds: usize,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
+            let a: PyReadonlyArray1<'py, f64> = obj
+                .extract()
+                .map_err(|_| PyTypeError::new_err(format!("{what} must be a 1-D float64 numpy array of shape (K,)")))?;
+            Ok(a.as_array().to_vec())
+        };
+        let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
+        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds };
+        let model = &self.model;
+        let r = py.detach(|| with_threads(threads, || plan_path(model, &s, &g, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let k = model.njoint();
+        let m = r.path.len() / k.max(1);
+        let out = PyDict::new(py);
+        out.set_item("path", PyArray1::from_vec(py, r.path).reshape([m, k])?)?;
+        let status = match r.status {
+            PlanStatus::Direct => "direct",
+            PlanStatus::Connected => "connected",
+            PlanStatus::TimeOut => "time_out",
+            PlanStatus::IterationLimit => "iteration_limit",
+        };
+        out.set_item("status", status)?;
+        out.set_item("checks", r.checks)?;
+        out.set_item("iterations", r.iterations)?;
+        out.set_item("tree_sizes", (r.tree_sizes[0], r.tree_sizes[1]))?;
+        out.set_item("raw_waypoints", r.raw_waypoints)?;
+        out.set_item("seconds", r.seconds)?;
         Ok(out)
     }
 

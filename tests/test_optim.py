@@ -179,11 +179,11 @@ def test_check_path_finds_collisions_between_free_waypoints(panda):
 
 
 def test_plan_reports_collisions_the_field_misses(panda):
-    """A field that calls everything free leaves the straight path as it is; the dense check
-    must say where it collides."""
+    """A field that calls everything free leaves the straight path as it is (init="straight":
+    the field alone); the dense check must say where it collides."""
     a, b = _hard_pair(panda)
     for method in ("penalty", "tangent"):
-        res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method,
+        res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method, init="straight",
                               iterations=10, tangent_iters=500, delta=0.05)
         assert not res.free and res.colliding_segments.size > 0
         np.testing.assert_array_equal(res.path[0], a)
@@ -199,7 +199,7 @@ def test_plan_penalty_moves_waypoints_along_the_field_gradient(panda):
     starts, goals = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
     w = np.zeros(panda.njoint); w[0] = 1.0
     field = LinearField(panda, w, 5.0)
-    res = plan_trajectory(field, starts, goals, steps=10, iterations=20, check_every=1000)
+    res = plan_trajectory(field, starts, goals, steps=10, iterations=20, check_every=1000, init="straight")
     assert len(res) == 2
     for r, a, b in zip(res, starts, goals):
         straight = profrobot.interpolate(panda, a, b, 10)
@@ -214,9 +214,9 @@ def test_plan_tangent_walk_reaches_the_goal_in_free_space(panda):
     """Far from the threshold the projection is off: the walk is straight to the goal."""
     _, free = colliding_and_free(panda)
     field = LinearField(panda, np.zeros(panda.njoint), -10.0)
-    res = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, goal_norm="l2")
+    res = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, goal_norm="l2", init="straight")
     np.testing.assert_allclose(res.path, profrobot.interpolate(panda, free[0], free[1], 15), atol=1e-4)
-    l1 = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05)   # the paper's L1
+    l1 = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, init="straight")   # the paper's L1
     np.testing.assert_array_equal(l1.path[[0, -1]], np.stack([free[0], free[1]]))
     assert l1.iterations > 0 and l1.relative_length >= 1 - 1e-6
 
@@ -300,7 +300,7 @@ def test_plan_penalty_options_keep_the_ends_and_limits(panda):
     """midpoints and the path-energy term (beyond the paper) change the loss, not the contract."""
     a, b = _hard_pair(panda)
     w = np.zeros(panda.njoint); w[0] = 1.0
-    res = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0)
+    res = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0, init="straight")
     np.testing.assert_array_equal(res.path[[0, -1]], np.stack([a, b]))
     assert res.iterations == 5 and (res.path[1:-1, 0] < profrobot.interpolate(panda, a, b, 8)[1:-1, 0]).all()
     with pytest.raises(ValueError, match="gamma3"):

@@ -35,6 +35,7 @@ from ._gl import RendererUnavailableError  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
 from .labels import Labels, interpolate, label_poses, sample_poses  # noqa: E402
+from .planning import PathResult, plan_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 
 # name → the module that defines it; loaded on first access
@@ -44,8 +45,10 @@ _LAZY = {
     "Kinematics": ".kinematics",
     "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
+    "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
+    "CorruptFileError": ".errors",
 }
-_SUBPACKAGES = ("render", "field", "optim", "viz", "errors")
+_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -54,6 +57,8 @@ __all__ = [
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
+    "plan_path", "PathResult", "problems", "joints", "equalities",
+    "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 
 

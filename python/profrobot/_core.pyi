@@ -66,6 +66,15 @@ class RobotModel:
         """Labels (B, K) float64 poses. Keys: collides, self_collides, scene_collides
         (B,) bool; n_pairs (B,) int32; with ``distance``, min_distance (B,) float64 metres
         (negative: penetration); with ``pairs``, colliding_pairs (M, 2) int64 (pose, pair index)."""
+    def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
+                  max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
+                  shortcut_rounds: int = 200, threads: int | None = None) -> dict[str, object]:
+        """A free path from ``start`` to ``goal`` (K,) (both free and within limits): the straight
+        SO(2) path if free, else RRT-Connect then shortcutting, every edge checked so that no joint
+        moves more than ``resolution`` between labelled poses. Keys: path (M, K) float64 (0 rows
+        when none was found), status ('direct' | 'connected' | 'time_out' | 'iteration_limit'),
+        checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Same seed, same path, for any
+        thread count."""
     def sample(self, n: int, seed: int, threads: int | None = None) -> npt.NDArray[np.float64]:
         """(n, K) uniform poses within the sampling ranges; identical for any thread count."""
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .dataset import make_dataset
-from .labels import check_threads, interpolate
+from .labels import check_threads, interpolate, label_poses
 from .robot import Robot
 
 __all__ = ["colliding_poses", "free_poses", "hard_pairs"]
@@ -44,13 +44,42 @@ def free_poses(robot: Robot, n: int, seed: int = 0, *, max_samples: int | None =
     return _poses(robot, n, False, seed, max_samples, threads)
 
 
+def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk: int, step: float,
+                resolution: float = 0.01) -> np.ndarray:
+    """From each start (m, K), ``walk`` random moves of L2 length ``step``, each taken only when
+    its whole SO(2) segment is free at ``resolution`` (no joint moves more than that between
+    checked poses): the end is reachable by construction."""
+
+    q = starts.copy()
+    m, k = q.shape
+    lim, cont = robot.joint_limits, robot.continuous
+    d_count = int(np.ceil(step / resolution)) + 1
+    for _ in range(walk):
+        d = rng.normal(size=(m, k))
+        d *= step / np.linalg.norm(d, axis=1, keepdims=True)
+        cand = q + d
+        cand[:, cont] = (cand[:, cont] + np.pi) % (2 * np.pi) - np.pi
+        cand[:, ~cont] = np.clip(cand[:, ~cont], lim[~cont, 0], lim[~cont, 1])
+        seg = interpolate(robot, q, cand, d_count)                               # (m, D, K)
+        ok = ~label_poses(robot, seg.reshape(-1, k)).collides.reshape(m, -1).any(axis=1)
+        q[ok] = cand[ok]
+    return q
+
+
 def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density: int = 10,
-               max_pairs: int | None = None, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+               max_pairs: int | None = None, reachable: bool = True, walk: int = 150, walk_step: float = 0.3,
+               threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both free, and the
     straight SO(2) interpolation between them colliding under the dense check that
     :func:`profrobot.optim.plan_trajectory` certifies with (``steps`` waypoints, ``density``
     times finer samples between them). Seeded; raises ValueError if fewer than ``n`` turn up
-    among ``max_pairs`` candidate pairs (default ``200 * n``)."""
+    among ``max_pairs`` candidate pairs (default ``200 * n``).
+
+    ``reachable=True`` (default): each goal is the end of a free random walk from its start
+    (``walk`` moves of ``walk_step`` radians, every segment checked), so a path exists. Uniform
+    pairs (``reachable=False``) can lie in different components of free space, with no path at
+    all: a ±2π shoulder joint, say, on the other side of the floor, which a limited joint cannot
+    wrap around; no planner can solve those."""
     n = _count("n", n)
     steps = _count("steps", steps)
     density = _count("density", density)
@@ -71,8 +100,17 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
         round_seed = int(np.random.SeedSequence([seed, r]).generate_state(1, np.uint64)[0] >> 1)
         free = free_poses(robot, 2 * m, seed=round_seed, threads=threads)
         a, b = free[0::2], free[1::2]
+        if reachable:
+            b = _free_walks(robot, a, np.random.default_rng(round_seed), walk, walk_step)
         dense = interpolate(robot, a, b, (steps - 1) * density + 1)        # (m, D, K)
-        straight_collides = (~certify_poses(robot, dense.reshape(-1, robot.njoint))).reshape(m, -1).any(axis=1)
+        flat = dense.reshape(-1, robot.njoint)
+        # the plain labels first (cheap); the clearance rule (distances, ~15x dearer) only where
+        # they find the straight path free, since it can only add collisions
+        straight_collides = label_poses(robot, flat, threads=threads).collides.reshape(m, -1).any(axis=1)
+        rest = np.flatnonzero(~straight_collides)
+        if len(rest):
+            strict = ~certify_poses(robot, dense[rest].reshape(-1, robot.njoint))
+            straight_collides[rest] = strict.reshape(len(rest), -1).any(axis=1)
         take = np.flatnonzero(straight_collides)[: n - found]
         starts.append(a[take])
         goals.append(b[take])

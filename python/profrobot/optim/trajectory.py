@@ -7,6 +7,14 @@ interpolation between two free poses, then either
   onto the tangent plane of ∇g where it would climb into the obstacle margin; the walk is then
   resampled to ``steps`` waypoints by arc length.
 
+Straight interpolations that collide deeply (joints over ±2π, obstacles across the straight
+line) trap both local methods. ``init="auto"`` (default) therefore starts such problems from a
+global path found by the exact labeller (:func:`profrobot.plan_path`, RRT-Connect + shortcut),
+resampled to ``steps`` waypoints, then *smooths* it with the field (γ1·mean L_SDF + γ2·TV,
+keeping the shortest iterate that the exact labeller certifies); if smoothing never yields a
+certified path, the certified planner path itself is returned, never a colliding one.
+``sdf=None`` runs the exact planner alone.
+
 Every result is verified by the exact labeller at the waypoints and on a dense re-interpolation
 between them (:func:`~profrobot.optim.certify.check_path`).
 """
@@ -29,7 +37,9 @@ from .certify import PathCheck, check_path
 
 Method = Literal["penalty", "tangent"]
 GoalNorm = Literal["l1", "l2"]
+Init = Literal["auto", "straight", "planner"]
 METHODS: tuple[str, ...] = get_args(Method)
+INITS: tuple[str, ...] = get_args(Init)
 
 
 @dataclass
@@ -52,13 +62,17 @@ class TrajectoryResult:
     waypoint_collides: np.ndarray
     segment_collides: np.ndarray
     g: np.ndarray
-    method: Method
+    method: str
     iterations: int
     length: float
     straight_length: float
     seconds: float
     check: PathCheck = field(repr=False)
     initial_free: bool = False
+    init: str = "straight"
+    planner: object = field(default=None, repr=False)   # the PathResult when init used the planner
+    smoothed: bool = False
+    length_before: float = float("nan")                 # the resampled planner path's length
 
     @property
     def relative_length(self) -> float:
@@ -145,6 +159,63 @@ def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: floa
     return steps
 
 
+def _smooth(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: float, gamma1: float, gamma2: float,
+            gamma3: float, lr: float, iterations: int, check_every: int, density: int) -> tuple[np.ndarray, np.ndarray]:
+    """Shortens (B, S, K) unwrapped, certified-free paths with the field.
+
+    Adam on the interior waypoints of γ1·mean ReLU(g − l_thres) + γ2·TV (+ γ3·energy, which keeps
+    waypoints evenly spaced); every ``check_every`` steps each problem's current path is checked
+    by the exact labeller (dense check) and kept when it is free and shorter than the best so far.
+    The input paths are the first "best", so certification is never lost and length never grows.
+    Returns (best paths (B, S, K) float64, (B,) the step at which each best was taken).
+    """
+    like = sdf.joint_limits
+    B, S, K = paths.shape
+    best = paths.copy()
+    best_len = np.linalg.norm(np.diff(paths, axis=1), axis=2).sum(1)
+    best_at = np.zeros(B, dtype=np.int64)
+    full = torch.as_tensor(paths, dtype=like.dtype, device=like.device)
+    x0 = full[:, 1:-1].reshape(B, -1).clone()
+    x = x0.clone()
+    opt = BatchedAdam(x.shape, lr, x)
+    rows = torch.arange(B, device=x.device)
+    energy0 = (full[:, 1:] - full[:, :-1]).pow(2).sum(2).mean(1).clamp(min=1e-12)
+    for it in range(1, iterations + 1):
+        xa = x.detach().requires_grad_(True)
+        inner = xa.reshape(B, S - 2, K)
+        path = torch.cat([full[:, :1], inner, full[:, -1:]], dim=1)
+        g = sdf(limits.wrap(inner).reshape(-1, K)).reshape(B, S - 2)
+        seg = path[:, 1:] - path[:, :-1]
+        loss = gamma1 * torch.relu(g - l_thres).mean(1) + gamma2 * seg.norm(dim=2).mean(1)
+        if gamma3 > 0:
+            loss = loss + gamma3 * (seg.pow(2).sum(2).mean(1) / energy0)
+        (grad,) = torch.autograd.grad(loss.sum(), xa)
+        opt.step(x, rows, grad)
+        limits.clamp_(x.view(B, S - 2, K))
+        if it % check_every == 0 or it == iterations:
+            cur = paths.copy()
+            cur[:, 1:-1] += (x - x0).reshape(B, S - 2, K).cpu().numpy().astype(np.float64)
+            length = np.linalg.norm(np.diff(cur, axis=1), axis=2).sum(1)
+            for b in np.flatnonzero(length < best_len - 1e-9):
+                q = limits.numpy(cur[b:b + 1])[0]
+                if check_path(robot, q, density, clearance=0.0).free and check_path(robot, q, density).free:
+                    best[b], best_len[b], best_at[b] = cur[b], length[b], it
+    return best, best_at
+
+
+def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, options: dict) -> list:
+    """A certified planner path per problem, resampled to ``steps`` waypoints (None when the
+    planner found none, or needs more waypoints than ``steps``)."""
+    from ..planning import plan_path, resample_path
+
+    out = []
+    for b in range(len(s)):
+        res = plan_path(robot, s[b], g[b], **{"seed": b, **options})
+        path = resample_path(robot, res.path, steps) if res.found and len(res.path) <= steps else None
+        out.append((res, path))
+    return out
+
+
 def _tangent(sdf, limits: Limits, starts: np.ndarray, goals: np.ndarray, steps: int, l_thres: float, delta: float,
              band: float, max_iters: int, tol: float, goal_norm: GoalNorm) -> tuple[np.ndarray, np.ndarray]:
     """Algorithm 1, batched over B problems: θ ← θ − δ·D, D the L1 goal gradient G (per-joint
@@ -198,6 +269,7 @@ def _tangent(sdf, limits: Limits, starts: np.ndarray, goals: np.ndarray, steps: 
 
 
 def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
+                    init: Init = "auto", planner: dict | None = None, smooth_iters: int = 300,
                     l_thres: float = -0.1, gamma1: float = 5.0, gamma2: float = 1.0, lr: float = 0.01,
                     iterations: int = 500, check_every: int = 10, density: int = 10, delta: float = 0.01,
                     band: float = 0.05, tangent_iters: int = 3000, tol: float = 1e-4, goal_norm: GoalNorm = "l1",
@@ -205,6 +277,15 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
     list of B results, optimised together.
+
+    ``init``: ``"straight"`` optimises the straight SO(2) interpolation with ``method``;
+    ``"planner"`` starts every problem from :func:`profrobot.plan_path` (``planner``: its
+    options, e.g. ``dict(resolution=0.01, max_time=10.0)``), resampled to ``steps`` waypoints and
+    smoothed with the field for ``smooth_iters`` Adam steps (γ1·mean L_SDF + γ2·TV, the shortest
+    certified iterate kept; the certified planner path itself if none is shorter); ``"auto"``
+    (default) does ``"straight"`` where the straight path is free at the dense check and
+    ``"planner"`` where it collides. ``sdf=None`` (``robot`` required): exact planning and
+    shortcutting only.
 
     ``method="penalty"``: Adam (``lr``, at most ``iterations`` steps) on γ1·mean ReLU(g − l_thres) +
     γ2·TV over the interior waypoints; each problem stops once its path is free at the dense check
@@ -215,14 +296,24 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     ``method="tangent"``: Algorithm 1 with step ``delta`` (radians), at most ``tangent_iters`` steps;
     ``goal_norm`` "l1" (the paper's L1 goal distance) or "l2" (straight lines in free space).
     ``density``: the dense check samples each segment this many times finer. ``robot``: the
-    labeller's robot (default: the bundled scene the field was trained on).
+    labeller's robot (default: the field's own).
     """
     t0 = time.perf_counter()
-    robot = field_robot(sdf, robot)
+    if sdf is None:
+        if not isinstance(robot, Robot):
+            raise ValueError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")
+    else:
+        robot = field_robot(sdf, robot)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}")
+    if init not in INITS:
+        raise ValueError(f"init must be one of {INITS}; got {init!r}")
+    if sdf is None and init == "straight":
+        raise ValueError("init='straight' optimises with the field; with sdf=None use init='auto' or 'planner'")
     if goal_norm not in get_args(GoalNorm):
         raise ValueError(f"goal_norm must be 'l1' or 'l2'; got {goal_norm!r}")
+    if planner is not None and not isinstance(planner, dict):
+        raise TypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
     single = np.ndim(start) == 1 and np.ndim(goal) == 1
     s = poses_array(robot, start, "start")
     g = poses_array(robot, goal, "goal")
@@ -235,6 +326,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     gamma1, gamma2 = positive("gamma1", gamma1, allow_zero=True), positive("gamma2", gamma2, allow_zero=True)
     lr, delta = positive("lr", lr), positive("delta", delta)
     iterations = positive("iterations", iterations, integer=True, allow_zero=True)
+    smooth_iters = positive("smooth_iters", smooth_iters, integer=True, allow_zero=True)
     check_every = positive("check_every", check_every, integer=True)
     density = positive("density", density, integer=True)
     band, tol = positive("band", band, allow_zero=True), positive("tol", tol)
@@ -242,29 +334,58 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     gamma3 = positive("gamma3", gamma3, allow_zero=True)
     tangent_iters = positive("tangent_iters", tangent_iters, integer=True, allow_zero=True)
 
-    limits = Limits.of(robot, sdf.joint_limits)
+    limits = Limits.of(robot, sdf.joint_limits if sdf is not None else None)
     straight = interpolate(robot, s, g, steps)          # (B, S, K): SO(2), from the Rust core
-    initial_free = [check_path(robot, p, density, clearance=0.0).free for p in straight]
-    if method == "penalty":
-        paths = _unwrap(straight, limits.cont_np)
-        n_iter = _penalty(sdf, limits, robot, paths, l_thres, gamma1, gamma2, lr, iterations, check_every, density,
+    initial_free = np.array([check_path(robot, p, density, clearance=0.0).free for p in straight], dtype=bool)
+    use_planner = np.ones(len(s), dtype=bool) if init == "planner" else (
+        ~initial_free if init == "auto" else np.zeros(len(s), dtype=bool))
+    paths = limits.numpy(straight.copy())
+    n_iter = np.zeros(len(s), dtype=np.int64)
+    straight_rows = np.flatnonzero(~use_planner)
+    if len(straight_rows):
+        ss, gg = s[straight_rows], g[straight_rows]
+        if method == "penalty":
+            sub = _unwrap(straight[straight_rows], limits.cont_np)
+            it = _penalty(sdf, limits, robot, sub, l_thres, gamma1, gamma2, lr, iterations, check_every, density,
                           refine_step, gamma3, bool(midpoints))
-    else:
-        paths, n_iter = _tangent(sdf, limits, s, g, steps, l_thres, delta, band, tangent_iters, tol, goal_norm)
-    paths = limits.numpy(paths)
+        else:
+            sub, it = _tangent(sdf, limits, ss, gg, steps, l_thres, delta, band, tangent_iters, tol, goal_norm)
+        paths[straight_rows], n_iter[straight_rows] = limits.numpy(sub), it
+    plans: dict[int, object] = {}
+    before: dict[int, float] = {}
+    smoothed = np.zeros(len(s), dtype=bool)
+    planner_rows = np.flatnonzero(use_planner)
+    if len(planner_rows):
+        found = []
+        for b, (res, path) in zip(planner_rows, _planner_paths(robot, s[planner_rows], g[planner_rows], steps,
+                                                               dict(planner or {}))):
+            plans[int(b)] = res
+            if path is not None:
+                paths[b] = path
+                before[int(b)] = float(np.linalg.norm(limits.diff(path[1:], path[:-1]), axis=1).sum())
+                found.append(int(b))
+        if found and sdf is not None and smooth_iters > 0:
+            rows = np.asarray(found)
+            best, at = _smooth(sdf, limits, robot, _unwrap(paths[rows], limits.cont_np), l_thres, gamma1, gamma2,
+                               gamma3, lr, smooth_iters, check_every, density)
+            paths[rows], n_iter[rows], smoothed[rows] = limits.numpy(best), at, at > 0
     paths[:, 0], paths[:, -1] = s, g                    # exactly the caller's end points
-    with torch.no_grad():
-        like = sdf.joint_limits
-        gs = sdf(torch.as_tensor(paths.reshape(-1, s.shape[1]), dtype=like.dtype, device=like.device))
-        gs = gs.reshape(len(paths), steps).cpu().numpy()
+    gs = np.full((len(paths), steps), np.nan, dtype=np.float32)
+    if sdf is not None:
+        with torch.no_grad():
+            like = sdf.joint_limits
+            gv = sdf(torch.as_tensor(paths.reshape(-1, s.shape[1]), dtype=like.dtype, device=like.device))
+            gs = gv.reshape(len(paths), steps).cpu().numpy()
     seconds = time.perf_counter() - t0
     results = []
     for b, p in enumerate(paths):
         chk = check_path(robot, p, density)
         results.append(TrajectoryResult(
             path=p, free=chk.free, waypoint_collides=chk.waypoint_collides, segment_collides=chk.segment_collides,
-            g=gs[b], method=method, iterations=int(n_iter[b]),
+            g=gs[b], method=method if not use_planner[b] else ("planner+smooth" if sdf is not None else "planner"),
+            iterations=int(n_iter[b]),
             length=float(np.linalg.norm(limits.diff(p[1:], p[:-1]), axis=1).sum()),
             straight_length=float(np.linalg.norm(limits.diff(g[b], s[b]))), seconds=seconds, check=chk,
-            initial_free=bool(initial_free[b])))
+            initial_free=bool(initial_free[b]), init="planner" if use_planner[b] else "straight",
+            planner=plans.get(b), smoothed=bool(smoothed[b]), length_before=before.get(b, float("nan"))))
     return results[0] if single else results

@@ -1,0 +1,141 @@
+"""Global paths over the exact labeller: RRT-Connect in joint space, shortcut, in Rust.
+
+:func:`plan_path` answers "a free path between these two free poses, or a clear *none found*":
+it tries the straight SO(2) path, then grows two trees (RRT-Connect) whose every edge is checked
+densely (no joint moves more than ``resolution`` between two labelled poses), then shortcuts the
+path. Every segment of the result is an SO(2) interpolation that was checked at that
+resolution, so :func:`profrobot.interpolate` between consecutive waypoints replays exactly the
+motion that was certified. Same seed, same path, whatever the thread count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from .labels import as_poses, check_threads, label_poses
+from .robot import Robot
+
+PlanStatus = Literal["direct", "connected", "time_out", "iteration_limit"]
+
+
+@dataclass
+class PathResult:
+    """A planning result.
+
+    Attributes:
+        path: (M, K) waypoints, start first and goal last (radians / metres; continuous hinges
+            in [-pi, pi)); (0, K) when none was found.
+        found: whether ``path`` joins start and goal.
+        status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
+            ``"time_out"`` or ``"iteration_limit"`` (none found within the budget).
+        checks: poses labelled by the exact labeller.
+        seconds: wall time.
+        iterations: tree extensions made.
+        tree_sizes: nodes in the start and goal trees.
+        raw_waypoints: waypoints before shortcutting.
+        reason: one line saying why nothing was found ('' when found).
+    """
+
+    path: np.ndarray
+    found: bool
+    status: PlanStatus
+    checks: int
+    seconds: float
+    iterations: int
+    tree_sizes: tuple[int, int]
+    raw_waypoints: int
+    reason: str = ""
+
+    def summary(self) -> str:
+        if not self.found:
+            return f"no path: {self.reason}"
+        return (f"{self.status}: {len(self.path)} waypoints (from {self.raw_waypoints}), "
+                f"{self.checks} checks, {self.seconds * 1e3:.1f} ms")
+
+
+def so2_length(robot: Robot, path: np.ndarray) -> float:
+    """L2 length of a waypoint path (M, K), continuous hinges along the short arc."""
+    d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
+    d[:, robot.continuous] = (d[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi
+    return float(np.linalg.norm(d, axis=1).sum())
+
+
+def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
+              range: float = 0.0, max_iterations: int = 200_000, shortcut_rounds: int = 200,
+              threads: int | None = None) -> PathResult:
+    """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
+
+    Args:
+        resolution: largest joint move between two labelled poses along any edge (rad / m).
+        max_time: wall-clock budget in seconds (> 0); the call returns by then (give or take
+            one edge check) with ``found=False`` if no path was found.
+        seed: the sampler's seed; the same seed gives the same path for any thread count.
+        range: longest tree extension (L2 in joint space); 0 picks 0.2 × the joint-space
+            diagonal, OMPL's default.
+        max_iterations: a deterministic budget of tree extensions.
+        shortcut_rounds: shortcut attempts on the found path.
+
+    Raises ValueError naming the problem for a colliding or out-of-limits start or goal,
+    mismatched lengths, NaN, a non-positive ``max_time`` or ``resolution``.
+    """
+    s = as_poses(robot, start, name="start", check_limits=True)
+    g = as_poses(robot, goal, name="goal", check_limits=True)
+    if s.shape != (1, robot.njoint) or g.shape != (1, robot.njoint):
+        raise ValueError(f"start and goal must each be one pose of {robot.njoint} joints; got shapes "
+                         f"{np.shape(start)} and {np.shape(goal)}")
+    for name, v in (("resolution", resolution), ("max_time", max_time)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a positive number; got {v!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
+        raise ValueError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+    for name, q in (("start", s), ("goal", g)):
+        lab = label_poses(robot, q, pairs=True)
+        if lab.collides[0]:
+            (k,) = lab.colliding_pairs[:1, 1]
+            raise ValueError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+    out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
+                               range=float(range), max_iterations=int(max_iterations),
+                               shortcut_rounds=int(shortcut_rounds), threads=check_threads(threads))
+    status = out["status"]
+    found = status in ("direct", "connected")
+    reason = "" if found else {
+        "time_out": f"no path within max_time={max_time} s ({out['iterations']} extensions, trees of "
+                    f"{out['tree_sizes'][0]} and {out['tree_sizes'][1]} nodes); the goal may be enclosed",
+        "iteration_limit": f"no path within max_iterations={max_iterations}; the goal may be enclosed",
+    }[status]
+    return PathResult(path=np.asarray(out["path"]).reshape(-1, robot.njoint), found=found, status=status,
+                      checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
+                      tree_sizes=tuple(int(t) for t in out["tree_sizes"]), raw_waypoints=int(out["raw_waypoints"]),
+                      reason=reason)
+
+
+def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
+    """(steps, K) poses along a waypoint path, evenly by SO(2) arc length, keeping every waypoint.
+
+    Every original waypoint is kept (a chord that cut a corner would leave the checked path), and
+    the remaining ``steps - M`` poses are spread over the segments in proportion to their length.
+    """
+    from .labels import interpolate
+
+    p = as_poses(robot, path, name="path")
+    m = len(p)
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < max(m, 2):
+        raise ValueError(f"steps must be an integer >= the path's {m} waypoints (and >= 2); got {steps!r}")
+    if m == 1:
+        return np.repeat(p, steps, axis=0)
+    d = np.diff(p, axis=0)
+    d[:, robot.continuous] = (d[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi
+    seg = np.linalg.norm(d, axis=1)
+    extra = steps - m
+    # Largest-remainder split of the extra poses over the segments, by length.
+    share = seg / seg.sum() * extra if seg.sum() > 0 else np.full(m - 1, extra / (m - 1))
+    inner = np.floor(share).astype(int)
+    for i in np.argsort(-(share - inner), kind="stable")[: extra - inner.sum()]:
+        inner[i] += 1
+    out = [p[:1]]
+    for i in range(m - 1):
+        out.append(interpolate(robot, p[i], p[i + 1], int(inner[i]) + 2)[1:])
+    return np.concatenate(out)

@@ -1,0 +1,466 @@
+//! Global paths over the exact labeller: RRT-Connect in joint space, then shortcutting.
+//!
+//! The configuration space is a product of intervals (limited joints) and circles (continuous
+//! hinges, SO(2)): differences on a circle take the short arc, as `interpolate_so2` does, so a
+//! path's segments are exactly the motions the SO(2) interpolation (and the certification in
+//! Python) will replay.
+//!
+//! An edge `a → b` is free when every state `a + (i/n)·Δ`, `i = 1..n`, is free with
+//! `n = ceil(max_k |Δ_k| / resolution)`: no joint moves more than `resolution` between two
+//! checked states. States are checked coarse-to-fine (the end, then midpoints breadth-first) in
+//! fixed batches; a batch is checked in parallel when it is large. Batches depend only on `n`,
+//! never on the thread count, so the checks made, the tree grown and the path returned are the
+//! same for any number of threads (only `seconds` differs, and a run cut by `max_time`).
+//!
+//! RRT-Connect (Kuffner & LaValle 2000): two trees, from start and goal; each iteration extends
+//! one toward a uniform sample by at most `range` (L2, radians/metres), then greedily connects
+//! the other tree to the new node; the trees swap roles every iteration.
+
+use std::f64::consts::PI;
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::collide::{label_pose, LabelOptions, Scratch};
+use crate::error::{invalid_input, Result};
+use crate::model::RobotModel;
+
+/// What a planning call may spend and how finely it checks edges.
+#[derive(Clone, Debug)]
+pub struct PlanOptions {
+    /// Largest joint move between two checked states (radians / metres).
+    pub resolution: f64,
+    /// Wall-clock budget in seconds (planning and shortcutting together).
+    pub max_time: f64,
+    /// Seed of the sampler (and of the shortcut pairs).
+    pub seed: u64,
+    /// Longest tree extension (L2 in joint space); 0 picks 0.2 × the space's diagonal, as OMPL.
+    pub range: f64,
+    /// Deterministic budget: tree-extension iterations.
+    pub max_iterations: usize,
+    /// Shortcut attempts on the found path.
+    pub shortcut_rounds: usize,
+}
+
+impl Default for PlanOptions {
+    fn default() -> Self {
+        Self { resolution: 0.01, max_time: 10.0, seed: 0, range: 0.0, max_iterations: 200_000, shortcut_rounds: 200 }
+    }
+}
+
+/// Why a plan ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlanStatus {
+    /// The straight (SO(2)) path is free.
+    Direct,
+    /// RRT-Connect joined the trees.
+    Connected,
+    /// `max_time` ran out first.
+    TimeOut,
+    /// `max_iterations` ran out first.
+    IterationLimit,
+}
+
+/// A plan: waypoints `(M, K)` row-major (start first, goal last) when found.
+#[derive(Clone, Debug)]
+pub struct PlanResult {
+    pub path: Vec<f64>,
+    pub status: PlanStatus,
+    /// Poses labelled (every state of every checked batch).
+    pub checks: u64,
+    pub iterations: usize,
+    pub tree_sizes: [usize; 2],
+    /// Waypoints before shortcutting.
+    pub raw_waypoints: usize,
+    pub seconds: f64,
+}
+
+impl PlanResult {
+    pub fn found(&self) -> bool {
+        matches!(self.status, PlanStatus::Direct | PlanStatus::Connected)
+    }
+}
+
+/// The joint space: bounds per joint and which joints wrap.
+struct Space {
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    wraps: Vec<bool>,
+}
+
+/// `x` wrapped into [-π, π).
+fn wrap(x: f64) -> f64 {
+    let y = (x + PI).rem_euclid(2.0 * PI) - PI;
+    if y >= PI { y - 2.0 * PI } else { y }
+}
+
+impl Space {
+    /// `b − a`, the short arc on wrapping joints.
+    fn delta(&self, a: &[f64], b: &[f64], out: &mut [f64]) {
+        for k in 0..a.len() {
+            let d = b[k] - a[k];
+            out[k] = if self.wraps[k] { wrap(d) } else { d };
+        }
+    }
+
+    fn distance(&self, a: &[f64], b: &[f64]) -> f64 {
+        let mut s = 0.0;
+        for k in 0..a.len() {
+            let d = b[k] - a[k];
+            let d = if self.wraps[k] { wrap(d) } else { d };
+            s += d * d;
+        }
+        s.sqrt()
+    }
+
+    /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π).
+    fn along(&self, a: &[f64], d: &[f64], t: f64, out: &mut [f64]) {
+        for k in 0..a.len() {
+            let v = a[k] + t * d[k];
+            out[k] = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
+        }
+    }
+
+    fn sample(&self, rng: &mut ChaCha8Rng, out: &mut [f64]) {
+        for k in 0..out.len() {
+            out[k] = self.lo[k] + (self.hi[k] - self.lo[k]) * rng.random::<f64>();
+        }
+    }
+}
+
+/// States of an edge in the order they are checked: `n` (the end) first, then midpoints of
+/// `[0, n]` breadth-first, so a collision anywhere is met after few checks.
+fn check_order(n: usize) -> Vec<usize> {
+    let mut order = Vec::with_capacity(n);
+    order.push(n);
+    let mut queue = std::collections::VecDeque::from([(0usize, n)]);
+    while let Some((l, h)) = queue.pop_front() {
+        if h - l < 2 {
+            continue;
+        }
+        let m = l + (h - l) / 2;
+        order.push(m);
+        queue.push_back((l, m));
+        queue.push_back((m, h));
+    }
+    order
+}
+
+/// Batch sizes over an edge's ordered states: small first (early exit), then wide (parallel).
+const BATCHES: [usize; 4] = [4, 16, 64, 256];
+/// Batches at least this large are checked in parallel.
+const PARALLEL_FROM: usize = 64;
+
+/// Exact collision checks for one planning call.
+struct Checker<'m> {
+    model: &'m RobotModel,
+    space: Space,
+    resolution: f64,
+    scratch: Scratch,
+    hits: Vec<u32>,
+    checks: u64,
+}
+
+impl<'m> Checker<'m> {
+    fn free(&mut self, q: &[f64]) -> bool {
+        self.checks += 1;
+        self.hits.clear();
+        !label_pose(self.model, q, &mut self.scratch, LabelOptions::default(), &mut self.hits).collides()
+    }
+
+    /// Whether the SO(2) segment `a → b` is free at `resolution` (`a` is taken as free).
+    fn edge_free(&mut self, a: &[f64], b: &[f64]) -> bool {
+        let k = a.len();
+        let mut d = vec![0.0; k];
+        self.space.delta(a, b, &mut d);
+        let span = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let n = ((span / self.resolution).ceil() as usize).max(1);
+        let order = check_order(n);
+        let mut start = 0;
+        let mut b_idx = 0;
+        while start < order.len() {
+            let size = BATCHES[b_idx.min(BATCHES.len() - 1)];
+            b_idx += 1;
+            let batch = &order[start..(start + size).min(order.len())];
+            start += batch.len();
+            self.checks += batch.len() as u64;
+            let state = |i: usize, q: &mut [f64]| {
+                if i == n {
+                    q.copy_from_slice(b);
+                } else {
+                    self.space.along(a, &d, i as f64 / n as f64, q);
+                }
+            };
+            let model = self.model;
+            let collides = if batch.len() >= PARALLEL_FROM {
+                batch.par_iter().map_init(
+                    || (Scratch::new(model), Vec::new(), vec![0.0; k]),
+                    |(s, h, q), &i| {
+                        state(i, q);
+                        h.clear();
+                        label_pose(model, q, s, LabelOptions::default(), h).collides()
+                    },
+                ).any(|c| c)
+            } else {
+                let mut q = vec![0.0; k];
+                batch.iter().any(|&i| {
+                    state(i, &mut q);
+                    self.hits.clear();
+                    label_pose(model, &q, &mut self.scratch, LabelOptions::default(), &mut self.hits).collides()
+                })
+            };
+            if collides {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+/// One search tree: nodes row-major, each with its parent (`usize::MAX` at the root).
+struct Tree {
+    nodes: Vec<f64>,
+    parent: Vec<usize>,
+    k: usize,
+}
+
+impl Tree {
+    fn new(root: &[f64]) -> Self {
+        Tree { nodes: root.to_vec(), parent: vec![usize::MAX], k: root.len() }
+    }
+
+    fn node(&self, i: usize) -> &[f64] {
+        &self.nodes[i * self.k..(i + 1) * self.k]
+    }
+
+    fn len(&self) -> usize {
+        self.parent.len()
+    }
+
+    fn nearest(&self, space: &Space, q: &[f64]) -> usize {
+        let mut best = (f64::INFINITY, 0);
+        for i in 0..self.len() {
+            let d = space.distance(self.node(i), q);
+            if d < best.0 {
+                best = (d, i);
+            }
+        }
+        best.1
+    }
+
+    fn push(&mut self, q: &[f64], parent: usize) -> usize {
+        self.nodes.extend_from_slice(q);
+        self.parent.push(parent);
+        self.len() - 1
+    }
+
+    /// Nodes from `i` up to the root.
+    fn branch(&self, mut i: usize) -> Vec<usize> {
+        let mut out = vec![i];
+        while self.parent[i] != usize::MAX {
+            i = self.parent[i];
+            out.push(i);
+        }
+        out
+    }
+}
+
+enum Extend {
+    Trapped,
+    Advanced(usize),
+    Reached(usize),
+}
+
+/// Grows `tree` from its node nearest `target` by at most `range` toward it.
+fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) -> Extend {
+    let near = tree.nearest(&checker.space, target);
+    let from = tree.node(near).to_vec();
+    let dist = checker.space.distance(&from, target);
+    let mut q = target.to_vec();
+    let reached = dist <= range;
+    if !reached {
+        let mut d = vec![0.0; q.len()];
+        checker.space.delta(&from, target, &mut d);
+        checker.space.along(&from, &d, range / dist, &mut q);
+    }
+    if !checker.edge_free(&from, &q) {
+        return Extend::Trapped;
+    }
+    let i = tree.push(&q, near);
+    if reached { Extend::Reached(i) } else { Extend::Advanced(i) }
+}
+
+/// Plans a collision-free path from `start` to `goal` (length K each, free, within limits).
+///
+/// `ranges` are the sampling ranges (`RobotModel::sampling_ranges`); `continuous` marks the
+/// wrapping joints. Runs on rayon's current pool for wide edge batches.
+pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOptions) -> Result<PlanResult> {
+    let clock = Instant::now();
+    let k = model.njoint();
+    if start.len() != k || goal.len() != k {
+        return invalid_input(format!("start and goal must have {k} joints; got {} and {}", start.len(), goal.len()));
+    }
+    if start.iter().chain(goal).any(|v| !v.is_finite()) {
+        return invalid_input("start and goal must be finite");
+    }
+    if !(opts.resolution > 0.0 && opts.resolution.is_finite()) {
+        return invalid_input(format!("resolution must be a positive length; got {}", opts.resolution));
+    }
+    if !(opts.max_time > 0.0) {
+        return invalid_input(format!("max_time must be positive seconds; got {}", opts.max_time));
+    }
+    if !(opts.range >= 0.0 && opts.range.is_finite()) {
+        return invalid_input(format!("range must be >= 0; got {}", opts.range));
+    }
+    let ranges = model.sampling_ranges()?;
+    let space = Space {
+        lo: ranges.iter().map(|r| r[0]).collect(),
+        hi: ranges.iter().map(|r| r[1]).collect(),
+        wraps: model.continuous(),
+    };
+    let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
+    let range = if opts.range > 0.0 { opts.range } else { 0.2 * diagonal };
+    let mut checker = Checker {
+        model,
+        space,
+        resolution: opts.resolution,
+        scratch: Scratch::new(model),
+        hits: Vec::new(),
+        checks: 0,
+    };
+    for (q, what) in [(start, "start"), (goal, "goal")] {
+        for j in 0..k {
+            if !checker.space.wraps[j] && (q[j] < checker.space.lo[j] - 1e-9 || q[j] > checker.space.hi[j] + 1e-9) {
+                return invalid_input(format!("{what}[{j}] = {} is outside the joint's limits", q[j]));
+            }
+        }
+        if !checker.free(q) {
+            return invalid_input(format!("{what} collides"));
+        }
+    }
+    let start: Vec<f64> = start.iter().zip(&checker.space.wraps).map(|(&v, &w)| if w { wrap(v) } else { v }).collect();
+    let goal: Vec<f64> = goal.iter().zip(&checker.space.wraps).map(|(&v, &w)| if w { wrap(v) } else { v }).collect();
+    let finish = |path: Vec<f64>, status, checks, iterations, tree_sizes, raw| PlanResult {
+        path,
+        status,
+        checks,
+        iterations,
+        tree_sizes,
+        raw_waypoints: raw,
+        seconds: clock.elapsed().as_secs_f64(),
+    };
+    if checker.edge_free(&start, &goal) {
+        let path = [start.clone(), goal.clone()].concat();
+        return Ok(finish(path, PlanStatus::Direct, checker.checks, 0, [1, 1], 2));
+    }
+
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let mut trees = [Tree::new(&start), Tree::new(&goal)];
+    let mut target = vec![0.0; k];
+    let mut joined: Option<(usize, usize)> = None; // (node in trees[0], node in trees[1])
+    let mut status = PlanStatus::IterationLimit;
+    let mut iterations = 0;
+    while iterations < opts.max_iterations {
+        if clock.elapsed().as_secs_f64() > opts.max_time {
+            status = PlanStatus::TimeOut;
+            break;
+        }
+        iterations += 1;
+        let (a, b) = if iterations % 2 == 1 { (0, 1) } else { (1, 0) };
+        checker.space.sample(&mut rng, &mut target);
+        let new = match extend(&mut trees[a], &mut checker, &target, range) {
+            Extend::Trapped => continue,
+            Extend::Advanced(i) | Extend::Reached(i) => i,
+        };
+        let q_new = trees[a].node(new).to_vec();
+        loop {
+            match extend(&mut trees[b], &mut checker, &q_new, range) {
+                Extend::Advanced(_) => continue,
+                Extend::Trapped => break,
+                Extend::Reached(j) => {
+                    joined = Some(if a == 0 { (new, j) } else { (j, new) });
+                    break;
+                }
+            }
+        }
+        if joined.is_some() {
+            status = PlanStatus::Connected;
+            break;
+        }
+    }
+    let sizes = [trees[0].len(), trees[1].len()];
+    let Some((i0, i1)) = joined else {
+        return Ok(finish(Vec::new(), status, checker.checks, iterations, sizes, 0));
+    };
+    let mut order: Vec<Vec<f64>> = trees[0].branch(i0).into_iter().rev().map(|i| trees[0].node(i).to_vec()).collect();
+    // The joining node is in both trees (the same pose): skip its copy in the goal tree.
+    order.extend(trees[1].branch(i1).into_iter().skip(1).map(|i| trees[1].node(i).to_vec()));
+    let raw = order.len();
+    let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || clock.elapsed().as_secs_f64() > opts.max_time);
+    Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw))
+}
+
+/// Random shortcutting: join two waypoints directly when the segment between them is free.
+fn shortcut(mut path: Vec<Vec<f64>>, checker: &mut Checker, rng: &mut ChaCha8Rng, rounds: usize,
+            out_of_time: impl Fn() -> bool) -> Vec<Vec<f64>> {
+    for _ in 0..rounds {
+        if path.len() < 3 || out_of_time() {
+            break;
+        }
+        let i = rng.random_range(0..path.len() - 2);
+        let j = rng.random_range(i + 2..path.len());
+        if checker.edge_free(&path[i], &path[j]) {
+            path.drain(i + 1..j);
+        }
+    }
+    path
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::ModelDesc;
+
+    #[test]
+    fn wrap_maps_into_half_open_circle() {
+        for x in [-7.0, -PI, -1.0, 0.0, 3.0, PI, 9.5] {
+            let y = wrap(x);
+            assert!((-PI..PI).contains(&y), "{x} -> {y}");
+            assert!(((x - y) / (2.0 * PI)).fract().abs() < 1e-12 || ((x - y) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12);
+        }
+    }
+
+    #[test]
+    fn check_order_visits_every_state_once_end_first() {
+        for n in [1, 2, 3, 7, 64, 1000] {
+            let o = check_order(n);
+            assert_eq!(o[0], n);
+            let mut s = o.clone();
+            s.sort();
+            assert_eq!(s, (1..=n).collect::<Vec<_>>());
+        }
+    }
+
+    #[test]
+    fn pendulum_swings_the_short_way_without_hitting_the_floor() {
+        let model = RobotModel::new(ModelDesc::example_pendulum()).unwrap();
+        let opts = PlanOptions::default();
+        let r = plan_path(&model, &[0.3], &[-0.3], &opts).unwrap();
+        assert!(r.found());
+        let p = &r.path;
+        assert!((p[0] - 0.3).abs() < 1e-12 && (p[p.len() - 1] + 0.3).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_arguments_are_errors() {
+        let model = RobotModel::new(ModelDesc::example_pendulum()).unwrap();
+        let o = PlanOptions { max_time: 0.0, ..PlanOptions::default() };
+        assert!(plan_path(&model, &[0.0], &[0.1], &o).is_err());
+        assert!(plan_path(&model, &[0.0, 1.0], &[0.1], &PlanOptions::default()).is_err());
+        assert!(plan_path(&model, &[f64::NAN], &[0.1], &PlanOptions::default()).is_err());
+        let o = PlanOptions { resolution: 0.0, ..PlanOptions::default() };
+        assert!(plan_path(&model, &[0.0], &[0.1], &o).is_err());
+    }
+}
