@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -122,7 +123,7 @@ def bench_gif() -> dict:
         g_straight = sdf(torch.as_tensor(straight, dtype=torch.float32)).numpy()
     plot_trajectory(res, OUT / "ur5e_wall_box_trajectory.png", joint_names=robot.joint_names, straight=g_straight)
     print("gif", gif, res.summary(), flush=True)
-    return dict(gif=str(gif), free=res.free, summary=res.summary(),
+    return dict(gif=str(Path(gif).resolve().relative_to(Path(__file__).resolve().parents[1])), free=res.free, summary=res.summary(),
                 straight_colliding_waypoints=int(profrobot.label_poses(robot, straight).collides.sum()))
 
 

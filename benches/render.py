@@ -31,7 +31,7 @@ import profrobot  # noqa: E402
 from profrobot.render import GaussianRobot, Views, fit_gaussians, fit_pose, make_views, ring_cameras, sphere_cameras
 from profrobot.problems import free_poses  # noqa: E402
 from profrobot.render.image import mask_iou, psnr, to_uint8, write_png  # noqa: E402
-from profrobot.render.views import _MjViews, robot_visual_model  # noqa: E402
+from profrobot.render.views import robot_visual_model  # noqa: E402
 
 LOOKAT = (0.0, 0.0, 0.45)
 DIST = 1.5
@@ -85,20 +85,19 @@ def mujoco_render_time(robot, cams, n=20):
     """Seconds per RGB frame of MuJoCo's own offscreen renderer (update_scene + render)."""
     import mujoco
 
-    mv = _MjViews(robot_visual_model(robot), cams)
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    mujoco.mj_kinematics(mv.m, mv.d)
+    m = robot_visual_model(robot)
+    m.vis.global_.fovy = cams.fovy
+    d = mujoco.MjData(m)
+    renderer = mujoco.Renderer(m, cams.height, cams.width)
+    mujoco.mj_kinematics(m, d)
     ts = []
     for i in range(n):
-        c = i % len(cams)
-        cam.lookat[:] = cams.lookat[c]
-        cam.distance, cam.azimuth, cam.elevation = cams.distance[c], cams.azimuth[c], cams.elevation[c]
+        cam = cams.mjv_camera(i % len(cams))
         t = time.perf_counter()
-        mv.r.update_scene(mv.d, cam)
-        mv.r.render()
+        renderer.update_scene(d, cam)
+        renderer.render()
         ts.append(time.perf_counter() - t)
-    mv.close()
+    renderer.close()
     return float(np.median(ts))
 
 

@@ -239,12 +239,13 @@ fn scan_support(points: &[Point3<f64>], dir: &Vector3<f64>) -> usize {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use parry3d_f64::shape::SupportMap;
     use rand::{Rng, SeedableRng};
 
-    fn random_dirs(n: usize, seed: u64) -> Vec<Vector3<f64>> {
+    /// `n` seeded directions in the cube [-1, 1)³ (shared with the shape tests).
+    pub(crate) fn random_dirs(n: usize, seed: u64) -> Vec<Vector3<f64>> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         (0..n).map(|_| Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))).collect()
     }

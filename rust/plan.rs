@@ -124,8 +124,8 @@ impl Space {
     }
 
     fn sample(&self, rng: &mut ChaCha8Rng, out: &mut [f64]) {
-        for k in 0..out.len() {
-            out[k] = self.lo[k] + (self.hi[k] - self.lo[k]) * rng.random::<f64>();
+        for ((v, lo), hi) in out.iter_mut().zip(&self.lo).zip(&self.hi) {
+            *v = lo + (hi - lo) * rng.random::<f64>();
         }
     }
 }
@@ -308,7 +308,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     if !(opts.resolution > 0.0 && opts.resolution.is_finite()) {
         return invalid_input(format!("resolution must be a positive length; got {}", opts.resolution));
     }
-    if !(opts.max_time > 0.0) {
+    if opts.max_time.is_nan() || opts.max_time <= 0.0 {
         return invalid_input(format!("max_time must be positive seconds; got {}", opts.max_time));
     }
     if !(opts.range >= 0.0 && opts.range.is_finite()) {
@@ -331,9 +331,10 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         checks: 0,
     };
     for (q, what) in [(start, "start"), (goal, "goal")] {
-        for j in 0..k {
-            if !checker.space.wraps[j] && (q[j] < checker.space.lo[j] - 1e-9 || q[j] > checker.space.hi[j] + 1e-9) {
-                return invalid_input(format!("{what}[{j}] = {} is outside the joint's limits", q[j]));
+        let sp = &checker.space;
+        for (j, &v) in q.iter().enumerate() {
+            if !sp.wraps[j] && (v < sp.lo[j] - 1e-9 || v > sp.hi[j] + 1e-9) {
+                return invalid_input(format!("{what}[{j}] = {v} is outside the joint's limits"));
             }
         }
         if !checker.free(q) {

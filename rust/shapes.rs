@@ -245,12 +245,8 @@ impl SupportMap for Convex {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
 
-    fn random_dirs(n: usize, seed: u64) -> Vec<Vector3<f64>> {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        (0..n).map(|_| Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))).collect()
-    }
+    use crate::hull::tests::random_dirs;
 
     #[test]
     fn planes_are_unbounded_half_spaces_and_nothing_else_is() {

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 import profrobot
-from conftest import scene
 from profrobot.field import PoseSDF, train_sdf
 from profrobot.field.encoders import HierarchicalEncoder
 from profrobot.field.train import eikonal_terms

@@ -7,7 +7,6 @@ import torch
 
 import profrobot
 from profrobot import problems
-from conftest import scene
 from profrobot.field import PoseSDF
 from profrobot.optim import check_path, collision_penalty, plan_trajectory, resolve
 from profrobot.errors import RobotMismatchError

@@ -12,6 +12,7 @@ from tqdm.auto import tqdm
 from . import scenes
 from .crosscheck import crosscheck
 from .dataset import Dataset, make_dataset
+from .errors import ProfrobotError
 from .labels import Labels, label_poses, sample_poses
 
 _CHUNK = 50_000
@@ -231,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted; nothing was written", file=sys.stderr)
         return 130
-    except (ValueError, TypeError, RuntimeError, FileNotFoundError) as e:
+    except (ProfrobotError, OSError) as e:  # ours, by type (and the file system's): one line, exit 2
         print(f"profrobot: error: {e}", file=sys.stderr)
         return 2
 

@@ -17,6 +17,7 @@ from .errors import CorruptFileError
 from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
+from .errors import ProfrobotError
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
 
@@ -42,7 +43,7 @@ class Dataset:
     def split(self, test_fraction: float = 0.1, seed: int = 0) -> tuple["Dataset", "Dataset"]:
         """A seeded (train, test) split, each keeping the metadata."""
         if not 0 < test_fraction < 1:
-            raise ValueError(f"test_fraction must be in (0, 1); got {test_fraction}")
+            raise ProfrobotError(f"test_fraction must be in (0, 1); got {test_fraction}")
         idx = np.random.default_rng(seed).permutation(len(self))
         n_test = max(1, int(round(len(self) * test_fraction)))
         return self._take(idx[n_test:]), self._take(idx[:n_test])
@@ -55,7 +56,7 @@ class Dataset:
         renamed over ``path``, so an interrupted save never leaves a half-written file."""
         path = os.fspath(path)
         if not path.endswith(".npz"):
-            raise ValueError(f"dataset files end in .npz; got {path!r}")
+            raise ProfrobotError(f"dataset files end in .npz; got {path!r}")
         with atomic_path(path) as tmp:
             np.savez(tmp, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
                      metadata=np.array(json.dumps(self.metadata)))
@@ -109,9 +110,9 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"n must be a positive integer; got {n!r}")
+        raise ProfrobotError(f"n must be a positive integer; got {n!r}")
     if not 0.0 <= collided_fraction <= 1.0:
-        raise ValueError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
+        raise ProfrobotError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
     threads = check_threads(threads)
     want_coll = int(round(n * collided_fraction))
     want = {True: want_coll, False: n - want_coll}
@@ -124,7 +125,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     while have[True] < want[True] or have[False] < want[False]:
         if drawn >= max_samples:
             bar.close()
-            raise RuntimeError(f"could not fill the quotas for {robot.name} after {drawn} samples "
+            raise ProfrobotError(f"could not fill the quotas for {robot.name} after {drawn} samples "
                                f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
                                "or raise max_samples")
         q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads, equalities=equalities)

@@ -28,6 +28,7 @@ import torch
 from ..joints import Limits
 from .gaussians import GaussianRobot
 from .views import Cameras
+from ..errors import ProfrobotError
 
 __all__ = ["fit_pose", "PoseFit", "pose_loss"]
 
@@ -64,7 +65,7 @@ def _as_targets(x, name, shape_tail, B, C, dtype):
     if t.ndim == len(shape_tail) + 1:
         t = t[None]
     if t.shape[:2] != (B, C) or tuple(t.shape[2:]) != tuple(shape_tail):
-        raise ValueError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
+        raise ProfrobotError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
     return t
 
 
@@ -87,26 +88,26 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         init = init[None]
     K = model.njoint
     if init.ndim != 2 or init.shape[1] != K:
-        raise ValueError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
+        raise ProfrobotError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
     if not torch.isfinite(init).all():
-        raise ValueError("fit_pose: init contains NaN or inf")
+        raise ProfrobotError("fit_pose: init contains NaN or inf")
     B, C, H, W = init.shape[0], len(cameras), cameras.height, cameras.width
     rgb_t = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float()
     depth_t = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float()
     mask_t = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool()
     if not (torch.isfinite(rgb_t).all() and torch.isfinite(depth_t).all()):
-        raise ValueError("fit_pose: targets contain NaN or inf")
+        raise ProfrobotError("fit_pose: targets contain NaN or inf")
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     if vm.shape != (C, 4, 4) or Ks.shape != (C, 3, 3):
-        raise ValueError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
+        raise ProfrobotError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
                          f"got {tuple(vm.shape)} and {tuple(Ks.shape)}")
     bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
     # everything the loop renders from is checked here, once (the loop then makes no host syncs)
     for name, t in (("cameras", vm), ("cameras", Ks), ("background", bg),
                     *((f"model.{n}", p) for n, p in model.named_parameters())):
         if t is not None and not torch.isfinite(t).all():
-            raise ValueError(f"fit_pose: {name} contains NaN or inf")
+            raise ProfrobotError(f"fit_pose: {name} contains NaN or inf")
 
     limits = Limits.of(model)                                          # CPU, float32
     R = restarts + 1

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import torch
+from ..errors import ProfrobotError
 
 Cutoff = Literal["soft", "hard"]
 Backend = Literal["auto", "torch", "gsplat"]
@@ -60,7 +61,7 @@ def _check(name, t, shape_desc, ok):
     if not isinstance(t, torch.Tensor):
         raise TypeError(f"rasterize: {name} must be a torch.Tensor; got {type(t).__name__}")
     if not ok:
-        raise ValueError(f"rasterize: {name} must have shape {shape_desc}; got {tuple(t.shape)}")
+        raise ProfrobotError(f"rasterize: {name} must have shape {shape_desc}; got {tuple(t.shape)}")
 
 
 def _validate(means, covs, opacities, colors, viewmats, Ks):
@@ -75,7 +76,7 @@ def _validate(means, covs, opacities, colors, viewmats, Ks):
     for name, t in (("means", means), ("covs", covs), ("opacities", opacities), ("colors", colors),
                     ("viewmats", viewmats), ("Ks", Ks)):
         if not torch.isfinite(t).all():
-            raise ValueError(f"rasterize: {name} contains NaN or inf")
+            raise ProfrobotError(f"rasterize: {name} contains NaN or inf")
     return C, N
 
 
@@ -149,7 +150,7 @@ def _find_pairs(uv, conic, cov2, z, opac, width, height, cutoff, chunks: int = 4
         if ids.numel() == 0:
             continue
         cam = torch.arange(C, device=dev)[:, None].expand_as(ids)
-        take = lambda t: t[cam, ids]
+        take = lambda t, cam=cam, ids=ids: t[cam, ids]   # bound now: used within this slice only
         cnt = take(count)
         if i > 0:                                                     # cull boxes with no open pixel
             open_ = (logT >= log_tmin).reshape(C, height, width).int()
@@ -305,12 +306,12 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     ``cutoff``: its kernel cuts hard; and returns no ``contrib``).
     """
     if cutoff not in get_args(Cutoff):
-        raise ValueError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
+        raise ProfrobotError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
     if backend not in get_args(Backend):
-        raise ValueError(f"rasterize: backend must be 'auto', 'torch' or 'gsplat'; got {backend!r}")
+        raise ProfrobotError(f"rasterize: backend must be 'auto', 'torch' or 'gsplat'; got {backend!r}")
     width, height = int(width), int(height)
     if width < 1 or height < 1:
-        raise ValueError(f"rasterize: image size must be positive; got {width}x{height}")
+        raise ProfrobotError(f"rasterize: image size must be positive; got {width}x{height}")
     _validate(means, covs, opacities, colors, viewmats, Ks)
     return rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width, height, background=background,
                                cutoff=cutoff, backend=backend)

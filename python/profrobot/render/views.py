@@ -24,6 +24,8 @@ import numpy as np
 
 from .._gl import RenderWorkers
 from .._io import atomic_path
+from .._io import check_robot
+from ..errors import CorruptFileError, ProfrobotError
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
 
@@ -59,13 +61,13 @@ class Cameras:
             object.__setattr__(self, k, v)
         vals = np.concatenate([la.ravel(), *arrs.values(), [self.fovy]])
         if not np.isfinite(vals).all():
-            raise ValueError("Cameras: lookat, distance, azimuth, elevation and fovy must be finite")
+            raise ProfrobotError("Cameras: lookat, distance, azimuth, elevation and fovy must be finite")
         if (arrs["distance"] <= 0).any():
-            raise ValueError("Cameras: distance must be positive (metres)")
+            raise ProfrobotError("Cameras: distance must be positive (metres)")
         if not 0 < self.fovy < 180:
-            raise ValueError(f"Cameras: fovy must be in (0, 180) degrees; got {self.fovy}")
+            raise ProfrobotError(f"Cameras: fovy must be in (0, 180) degrees; got {self.fovy}")
         if int(self.width) < 1 or int(self.height) < 1:
-            raise ValueError(f"Cameras: image size must be positive; got {self.width}x{self.height}")
+            raise ProfrobotError(f"Cameras: image size must be positive; got {self.width}x{self.height}")
 
     def __len__(self) -> int:
         return len(self.lookat)
@@ -116,6 +118,12 @@ class Cameras:
     @classmethod
     def from_dict(cls, d: dict) -> "Cameras":
         return cls(**d)
+
+    def mjv_camera(self, i: int) -> mujoco.MjvCamera:
+        """Camera ``i`` as MuJoCo's free ``MjvCamera`` (for ``mujoco.Renderer.update_scene``)."""
+        if not 0 <= int(i) < len(self):
+            raise IndexError(f"camera {i} out of range for {len(self)} cameras")
+        return _free_camera(self.lookat[i], self.distance[i], self.azimuth[i], self.elevation[i])
 
 
 def ring_cameras(n: int = 4, *, distance: float = 1.8, elevation: float | list = -20.0, azimuth0: float = 0.0,
@@ -188,8 +196,7 @@ class _MjViews:
         return self._r
 
     def camera(self, c: int) -> mujoco.MjvCamera:
-        cams = self.cams
-        return _free_camera(cams.lookat[c], cams.distance[c], cams.azimuth[c], cams.elevation[c])
+        return self.cams.mjv_camera(c)
 
     def render(self, qpos: np.ndarray):
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
@@ -350,15 +357,14 @@ class Views:
             z = np.load(os.fspath(path))
             header = json.loads(z["header"].tobytes().decode())
             if header.get("format") != "profrobot.views/1":
-                raise ValueError(f"unknown format {header.get('format')!r}")
+                raise ProfrobotError(f"unknown format {header.get('format')!r}")
             mask = np.unpackbits(z["mask"], axis=-1, count=int(z["mask_width"])).astype(bool)
             v = cls(z["poses"], Cameras.from_dict(header["cameras"]), z["rgb"], z["depth"], mask,
                     header["robot_fingerprint"], header["robot_name"], header.get("meta", {}))
         except (OSError, KeyError, ValueError, EOFError) as e:
-            raise ValueError(f"{path}: not a readable profrobot views file ({e})") from e
-        if robot is not None and v.robot_fingerprint != robot.fingerprint:
-            raise ValueError(f"{path}: rendered from robot {v.robot_name!r} (fingerprint {v.robot_fingerprint}), "
-                             f"not {robot.name!r} ({robot.fingerprint})")
+            raise CorruptFileError(f"{path}: not a readable profrobot views file ({e})") from e
+        if robot is not None:
+            check_robot(dict(robot_fingerprint=v.robot_fingerprint, robot_name=v.robot_name), robot, f"views {path}")
         return v
 
 
@@ -379,9 +385,9 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
 
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != robot.njoint:
-        raise ValueError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
+        raise ProfrobotError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
     if not np.isfinite(poses).all():
-        raise ValueError("poses contain NaN or inf")
+        raise ProfrobotError("poses contain NaN or inf")
     if not isinstance(cameras, Cameras):
         raise TypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
     if size is not None:

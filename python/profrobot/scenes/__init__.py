@@ -13,11 +13,12 @@ with ``mujoco.MjSpec``. ``load(name)`` returns a :class:`profrobot.Robot`.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from ..robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
+from ..errors import ProfrobotError
 
 FLOOR = Plane(pos=(0, 0, 0), name="floor", rgba=(0.9, 0.9, 0.9, 1))
 
@@ -101,5 +102,5 @@ def load(name: str) -> Robot:
     try:
         builder = _BUILDERS[name]
     except KeyError:
-        raise ValueError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}") from None
+        raise ProfrobotError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}") from None
     return builder()
