@@ -28,7 +28,7 @@ def test_dataset_is_balanced_and_labels_are_exact(panda, dataset):
 def test_other_fractions_and_impossible_quotas(panda):
     ds = profrobot.make_dataset(panda, 200, collided_fraction=0.25, seed=1, batch=2000, progress=False)
     assert ds.collides.sum() == 50
-    with pytest.raises(RuntimeError, match="collision rate"):
+    with pytest.raises(profrobot.ProfrobotError, match="collision rate"):
         profrobot.make_dataset(panda, 500, collided_fraction=1.0, seed=1, batch=100, max_samples=300, progress=False)
 
 

@@ -57,7 +57,7 @@ def test_views_save_load_roundtrip_and_robot_check(ball, panda, tmp_path, render
     w = Views.load(p, robot=ball)
     assert (w.rgb == v.rgb).all() and (w.mask == v.mask).all() and np.allclose(w.depth, v.depth)
     assert w.cameras.to_dict() == v.cameras.to_dict() and np.allclose(w.background, v.background)
-    with pytest.raises(ValueError, match="rendered from robot"):
+    with pytest.raises(profrobot.RobotMismatchError, match="made for robot 'ball'"):
         Views.load(p, robot=panda)
     p.write_bytes(b"not a dataset")
     with pytest.raises(ValueError, match="not a readable"):

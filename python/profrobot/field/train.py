@@ -212,7 +212,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             with torch.no_grad():
                 sdf.s_raw.clamp_(math.log(1e-3), math.log(1e3))
             rec = dict(iteration=it, loss=float(loss.detach()), data=float(data_loss.detach()), eikonal=float(eik.detach()),
-                       scale=float(sdf.scale), seconds=time.perf_counter() - start)
+                       scale=float(sdf.scale.detach()), seconds=time.perf_counter() - start)
             if cfg.eval_every and (it + 1) % cfg.eval_every == 0:
                 rec.update(_test_accuracy(sdf, test))
             history.append(rec)

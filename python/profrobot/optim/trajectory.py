@@ -343,7 +343,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     paths = limits.numpy(straight.copy())
     n_iter = np.zeros(len(s), dtype=np.int64)
     straight_rows = np.flatnonzero(~use_planner)
-    if len(straight_rows):
+    if len(straight_rows) and sdf is not None:         # without a field a free straight path stays as it is
         ss, gg = s[straight_rows], g[straight_rows]
         if method == "penalty":
             sub = _unwrap(straight[straight_rows], limits.cont_np)
