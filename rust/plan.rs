@@ -42,11 +42,14 @@ pub struct PlanOptions {
     pub max_iterations: usize,
     /// Shortcut attempts on the found path.
     pub shortcut_rounds: usize,
+    /// The answer is verified `verify` times finer than `resolution` (segments that fail are
+    /// re-planned at that resolution); 1 turns verification off.
+    pub verify: usize,
 }
 
 impl Default for PlanOptions {
     fn default() -> Self {
-        Self { resolution: 0.01, max_time: 10.0, seed: 0, range: 0.0, max_iterations: 200_000, shortcut_rounds: 200 }
+        Self { resolution: 0.01, max_time: 10.0, seed: 0, range: 0.0, max_iterations: 200_000, shortcut_rounds: 200, verify: 10 }
     }
 }
 
@@ -352,32 +355,80 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         raw_waypoints: raw,
         seconds: clock.elapsed().as_secs_f64(),
     };
-    if checker.edge_free(&start, &goal) {
-        let path = [start.clone(), goal.clone()].concat();
-        return Ok(finish(path, PlanStatus::Direct, checker.checks, 0, [1, 1], 2));
-    }
-
+    let deadline = |c: &Instant| c.elapsed().as_secs_f64() > opts.max_time;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let mut trees = [Tree::new(&start), Tree::new(&goal)];
+    let (path, status, iterations, sizes, raw) = if checker.edge_free(&start, &goal) {
+        (vec![start.clone(), goal.clone()], PlanStatus::Direct, 0, [1, 1], 2)
+    } else {
+        let search = rrt_connect(&mut checker, &mut rng, &start, &goal, range, opts.max_iterations, || deadline(&clock));
+        let Some(order) = search.path else {
+            return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0));
+        };
+        let raw = order.len();
+        let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock));
+        (path, search.status, search.iterations, search.sizes, raw)
+    };
+    if opts.verify <= 1 {
+        return Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw));
+    }
+    // Verification: every segment of the answer again, `verify` times finer. Search and
+    // shortcutting decide edges at `resolution`; a thin feature or a grazing contact can slip
+    // between two of its samples. A segment that fails is replaced by a search between its ends
+    // at the fine resolution (its own shortcutting included), so what is returned is free at the
+    // fine resolution, or nothing is.
+    checker.resolution = opts.resolution / opts.verify as f64;
+    let mut out = vec![path[0].clone()];
+    let mut iterations = iterations;
+    for w in path.windows(2) {
+        if checker.edge_free(&w[0], &w[1]) {
+            out.push(w[1].clone());
+            continue;
+        }
+        let budget = opts.max_iterations.saturating_sub(iterations).max(1);
+        let sub = rrt_connect(&mut checker, &mut rng, &w[0], &w[1], range, budget, || deadline(&clock));
+        iterations += sub.iterations;
+        let Some(sub_path) = sub.path else {
+            return Ok(finish(Vec::new(), sub.status, checker.checks, iterations, sizes, raw));
+        };
+        let sub_path = shortcut(sub_path, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock));
+        out.extend(sub_path.into_iter().skip(1));
+    }
+    Ok(finish(out.concat(), status, checker.checks, iterations, sizes, raw))
+}
+
+/// What one bidirectional search found.
+struct Search {
+    path: Option<Vec<Vec<f64>>>,
+    status: PlanStatus,
+    iterations: usize,
+    sizes: [usize; 2],
+}
+
+/// RRT-Connect from `start` to `goal` with `checker`'s resolution, at most `max_iterations`
+/// extensions or until `out_of_time`.
+fn rrt_connect(checker: &mut Checker, rng: &mut ChaCha8Rng, start: &[f64], goal: &[f64], range: f64,
+               max_iterations: usize, out_of_time: impl Fn() -> bool) -> Search {
+    let k = start.len();
+    let mut trees = [Tree::new(start), Tree::new(goal)];
     let mut target = vec![0.0; k];
     let mut joined: Option<(usize, usize)> = None; // (node in trees[0], node in trees[1])
     let mut status = PlanStatus::IterationLimit;
     let mut iterations = 0;
-    while iterations < opts.max_iterations {
-        if clock.elapsed().as_secs_f64() > opts.max_time {
+    while iterations < max_iterations {
+        if out_of_time() {
             status = PlanStatus::TimeOut;
             break;
         }
         iterations += 1;
         let (a, b) = if iterations % 2 == 1 { (0, 1) } else { (1, 0) };
-        checker.space.sample(&mut rng, &mut target);
-        let new = match extend(&mut trees[a], &mut checker, &target, range) {
+        checker.space.sample(rng, &mut target);
+        let new = match extend(&mut trees[a], checker, &target, range) {
             Extend::Trapped => continue,
             Extend::Advanced(i) | Extend::Reached(i) => i,
         };
         let q_new = trees[a].node(new).to_vec();
         loop {
-            match extend(&mut trees[b], &mut checker, &q_new, range) {
+            match extend(&mut trees[b], checker, &q_new, range) {
                 Extend::Advanced(_) => continue,
                 Extend::Trapped => break,
                 Extend::Reached(j) => {
@@ -392,15 +443,13 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         }
     }
     let sizes = [trees[0].len(), trees[1].len()];
-    let Some((i0, i1)) = joined else {
-        return Ok(finish(Vec::new(), status, checker.checks, iterations, sizes, 0));
-    };
-    let mut order: Vec<Vec<f64>> = trees[0].branch(i0).into_iter().rev().map(|i| trees[0].node(i).to_vec()).collect();
-    // The joining node is in both trees (the same pose): skip its copy in the goal tree.
-    order.extend(trees[1].branch(i1).into_iter().skip(1).map(|i| trees[1].node(i).to_vec()));
-    let raw = order.len();
-    let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || clock.elapsed().as_secs_f64() > opts.max_time);
-    Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw))
+    let path = joined.map(|(i0, i1)| {
+        let mut order: Vec<Vec<f64>> = trees[0].branch(i0).into_iter().rev().map(|i| trees[0].node(i).to_vec()).collect();
+        // The joining node is in both trees (the same pose): skip its copy in the goal tree.
+        order.extend(trees[1].branch(i1).into_iter().skip(1).map(|i| trees[1].node(i).to_vec()));
+        order
+    });
+    Search { path, status, iterations, sizes }
 }
 
 /// Random shortcutting: join two waypoints directly when the segment between them is free.

@@ -280,7 +280,7 @@ impl PyRobotModel {
     }
 
     /// A free path from `start` to `goal` (see `_core.pyi` and `plan.rs`).
-    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, threads=None))]
+    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, verify=10, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn plan_path<'py>(
         &self,
@@ -293,6 +293,7 @@ impl PyRobotModel {
         range: f64,
         max_iterations: usize,
         shortcut_rounds: usize,
+        verify: usize,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
@@ -302,7 +303,7 @@ impl PyRobotModel {
             Ok(a.as_array().to_vec())
         };
         let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
-        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds };
+        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify };
         let model = &self.model;
         let r = py.detach(|| with_threads(threads, || plan_path(model, &s, &g, &opts))).map_err(to_py)?.map_err(to_py)?;
         let k = model.njoint();

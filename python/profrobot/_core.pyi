@@ -68,10 +68,11 @@ class RobotModel:
         (negative: penetration); with ``pairs``, colliding_pairs (M, 2) int64 (pose, pair index)."""
     def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
                   max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
-                  shortcut_rounds: int = 200, threads: int | None = None) -> dict[str, object]:
+                  shortcut_rounds: int = 200, verify: int = 10, threads: int | None = None) -> dict[str, object]:
         """A free path from ``start`` to ``goal`` (K,) (both free and within limits): the straight
         SO(2) path if free, else RRT-Connect then shortcutting, every edge checked so that no joint
-        moves more than ``resolution`` between labelled poses. Keys: path (M, K) float64 (0 rows
+        moves more than ``resolution`` between labelled poses; the answer is then verified ``verify``
+        times finer (failing segments re-planned at that resolution; 1: off). Keys: path (M, K) float64 (0 rows
         when none was found), status ('direct' | 'connected' | 'time_out' | 'iteration_limit'),
         checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Same seed, same path, for any
         thread count."""

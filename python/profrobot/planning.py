@@ -3,7 +3,7 @@
 :func:`plan_path` answers "a free path between these two free poses, or a clear *none found*":
 it tries the straight SO(2) path, then grows two trees (RRT-Connect) whose every edge is checked
 densely (no joint moves more than ``resolution`` between two labelled poses), then shortcuts the
-path. Every segment of the result is an SO(2) interpolation that was checked at that
+path, then verifies the answer ``verify`` (10) times finer, re-planning any segment that fails. Every segment of the result is an SO(2) interpolation that was checked at that
 resolution, so :func:`profrobot.interpolate` between consecutive waypoints replays exactly the
 motion that was certified. Same seed, same path, whatever the thread count.
 """
@@ -65,7 +65,7 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
 
 
 def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
-              range: float = 0.0, max_iterations: int = 200_000, shortcut_rounds: int = 200,
+              range: float = 0.0, max_iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
               threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
@@ -78,6 +78,9 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             diagonal, OMPL's default.
         max_iterations: a deterministic budget of tree extensions.
         shortcut_rounds: shortcut attempts on the found path.
+        verify: the answer is re-checked ``verify`` times finer than ``resolution`` (a thin
+            feature or a grazing contact can slip between two samples of the search); a segment
+            that fails is re-planned at the fine resolution. 1 turns this off.
 
     Raises ValueError naming the problem for a colliding or out-of-limits start or goal,
     mismatched lengths, NaN, a non-positive ``max_time`` or ``resolution``.
@@ -92,6 +95,8 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             raise ProfrobotError(f"{name} must be a positive number; got {v!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
         raise ProfrobotError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+    if isinstance(verify, bool) or not isinstance(verify, (int, np.integer)) or verify < 1:
+        raise ProfrobotError(f"verify must be a positive integer (1: no verification); got {verify!r}")
     for name, q in (("start", s), ("goal", g)):
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
@@ -99,7 +104,8 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             raise ProfrobotError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
                                range=float(range), max_iterations=int(max_iterations),
-                               shortcut_rounds=int(shortcut_rounds), threads=check_threads(threads))
+                               shortcut_rounds=int(shortcut_rounds), verify=int(verify),
+                               threads=check_threads(threads))
     status = out["status"]
     found = status in ("direct", "connected")
     reason = "" if found else {

@@ -97,12 +97,21 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
         if tried >= max_pairs:
             raise ProfrobotError(f"only {found} of {n} start/goal pairs with a colliding straight path among "
                              f"{tried} free pairs; raise max_pairs")
-        m = min(max_pairs - tried, max(16, 2 * (n - found)))
+        m = drawn = min(max_pairs - tried, max(16, 2 * (n - found)))
         round_seed = int(np.random.SeedSequence([seed, r]).generate_state(1, np.uint64)[0] >> 1)
         free = free_poses(robot, 2 * m, seed=round_seed, threads=threads)
         a, b = free[0::2], free[1::2]
         if reachable:
             b = _free_walks(robot, a, np.random.default_rng(round_seed), walk, walk_step)
+            # a walk clipped at a joint limit can end exactly touching (fingers closed on each
+            # other): free to the labels, a contact to MuJoCo and to the certification's
+            # clearance rule; such goals are dropped
+            ok = certify_poses(robot, b)
+            a, b, m = a[ok], b[ok], int(ok.sum())
+            if m == 0:
+                tried += drawn
+                r += 1
+                continue
         dense = interpolate(robot, a, b, (steps - 1) * density + 1)        # (m, D, K)
         flat = dense.reshape(-1, robot.njoint)
         # the plain labels first (cheap); the clearance rule (distances, ~15x dearer) only where
@@ -116,6 +125,6 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
         starts.append(a[take])
         goals.append(b[take])
         found += len(take)
-        tried += m
+        tried += drawn
         r += 1
     return np.concatenate(starts), np.concatenate(goals)
