@@ -77,3 +77,16 @@ def check_path(robot: Robot, path: np.ndarray, density: int = 10, clearance: flo
     way = hit[::density]
     return PathCheck(free=not hit.any(), waypoint_collides=way, segment_collides=seg_hit,
                      dense=dense, dense_collides=hit)
+
+
+def path_free_at(robot: Robot, path: np.ndarray, resolution: float, clearance: float = 0.0) -> bool:
+    """Whether every segment of ``path`` (S, K) is free when re-interpolated (SO(2)) so that no
+    joint moves more than ``resolution`` between two checked poses: the planner's own guarantee
+    (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
+    path = np.asarray(path, dtype=np.float64)
+    d = np.diff(path, axis=0)
+    cont = np.asarray(robot.continuous, dtype=bool)
+    d[:, cont] = (d[:, cont] + np.pi) % (2 * np.pi) - np.pi
+    counts = np.maximum(np.ceil(np.abs(d).max(axis=1) / resolution).astype(int), 1)
+    poses = np.concatenate([interpolate(robot, a, b, int(n) + 1)[1:] for a, b, n in zip(path[:-1], path[1:], counts)])
+    return bool(certify_poses(robot, poses, clearance).all())

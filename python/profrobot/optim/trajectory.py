@@ -33,7 +33,7 @@ from ..labels import interpolate
 from ..robot import Robot
 from ._batched_adam import BatchedAdam
 from ._inputs import field_robot, finite, poses_array, positive
-from .certify import PathCheck, check_path
+from .certify import PathCheck, check_path, path_free_at
 from ..errors import ProfrobotError
 
 Method = Literal["penalty", "tangent"]
@@ -161,7 +161,8 @@ def _penalty(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: floa
 
 
 def _smooth(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: float, gamma1: float, gamma2: float,
-            gamma3: float, lr: float, iterations: int, check_every: int, density: int) -> tuple[np.ndarray, np.ndarray]:
+            gamma3: float, lr: float, iterations: int, check_every: int, density: int,
+            verify_resolution: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
     """Shortens (B, S, K) unwrapped, certified-free paths with the field.
 
     Adam on the interior waypoints of γ1·mean ReLU(g − l_thres) + γ2·TV (+ γ3·energy, which keeps
@@ -199,7 +200,11 @@ def _smooth(sdf, limits: Limits, robot: Robot, paths: np.ndarray, l_thres: float
             length = np.linalg.norm(np.diff(cur, axis=1), axis=2).sum(1)
             for b in np.flatnonzero(length < best_len - 1e-9):
                 q = limits.numpy(cur[b:b + 1])[0]
-                if check_path(robot, q, density, clearance=0.0).free and check_path(robot, q, density).free:
+                # the waypoint-relative dense check and the planner's own guarantee (no joint moves
+                # more than `verify_resolution` between checked poses): a smoothed segment may be
+                # long, and density alone would sample it more coarsely than the planner did
+                if (check_path(robot, q, density).free
+                        and path_free_at(robot, q, verify_resolution, clearance=0.0)):
                     best[b], best_len[b], best_at[b] = cur[b], length[b], it
     return best, best_at
 
@@ -367,8 +372,10 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
                 found.append(int(b))
         if found and sdf is not None and smooth_iters > 0:
             rows = np.asarray(found)
+            opts = dict(planner or {})
+            fine = float(opts.get("resolution", 0.01)) / max(int(opts.get("verify", 10)), 1)
             best, at = _smooth(sdf, limits, robot, _unwrap(paths[rows], limits.cont_np), l_thres, gamma1, gamma2,
-                               gamma3, lr, smooth_iters, check_every, density)
+                               gamma3, lr, smooth_iters, check_every, density, fine)
             paths[rows], n_iter[rows], smoothed[rows] = limits.numpy(best), at, at > 0
     paths[:, 0], paths[:, -1] = s, g                    # exactly the caller's end points
     gs = np.full((len(paths), steps), np.nan, dtype=np.float32)
