@@ -7,6 +7,10 @@ import pytest
 _LOCAL = Path(__file__).resolve().parents[1].parent / "shared" / "menagerie"
 if "MENAGERIE_ROOT" not in os.environ and _LOCAL.is_dir():
     os.environ["MENAGERIE_ROOT"] = str(_LOCAL)
+# The README sets it relative (../shared/menagerie); tests that run subprocesses in a temporary
+# folder need it absolute.
+if os.environ.get("MENAGERIE_ROOT"):
+    os.environ["MENAGERIE_ROOT"] = os.path.abspath(os.environ["MENAGERIE_ROOT"])
 
 import profrobot  # noqa: E402
 

@@ -285,7 +285,9 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     assert "5 failures" in out and "still colliding" in out
     saved = np.load(tmp_path / "r.npz")
     assert saved["poses"].shape == (5, panda.njoint) and not saved["certified"].any()
-    code = main(["plan", "--field", str(ckpt), "--steps", "5", "--iterations", "5", "--gif", str(tmp_path / "p.gif"),
+    # init straight: the field alone, which calls everything free, so the dense check must report it
+    code = main(["plan", "--field", str(ckpt), "--steps", "5", "--iterations", "5", "--init", "straight",
+                 "--gif", str(tmp_path / "p.gif"),
                  "--plot", str(tmp_path / "p.png")])
     if _gl.status()[0] is None:   # no MuJoCo renderer here: one clear error, exit status 2
         assert code == 2 and "libosmesa6" in capsys.readouterr().err

@@ -205,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--goal", help="comma-separated goal pose")
     sp.add_argument("--steps", type=int, default=100)
     sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty")
+    sp.add_argument("--init", choices=("auto", "straight", "planner"), default="auto",
+                    help="auto: the straight path if free, else the exact planner then field smoothing")
     sp.add_argument("--iterations", type=int, default=500, help="Adam steps (tangent: 6x as many walk steps)")
     sp.add_argument("--out", help="save the path and its check to this .npz")
     sp.add_argument("--gif", help="render the path with MuJoCo to this .gif (in a worker process: EGL or OSMesa "

@@ -61,7 +61,7 @@ def cmd_plan(args) -> int:
         start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     else:  # two free poses whose straight interpolation collides
         (start,), (goal,) = hard_pairs(robot, 1, args.seed, steps=args.steps)
-    res = plan_trajectory(sdf, start, goal, steps=args.steps, method=args.method, robot=robot,
+    res = plan_trajectory(sdf, start, goal, steps=args.steps, method=args.method, robot=robot, init=args.init,
                           iterations=args.iterations, tangent_iters=6 * args.iterations)
     print(res.summary())
     if args.out:
