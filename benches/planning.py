@@ -118,7 +118,21 @@ def ompl_plan(robot, start, goal, resolution: float, max_time: float, seed: int)
     return dict(found=exact, seconds=seconds, path=path, checks=checks[0])
 
 
-def field_for(scene: str):
+QUICK = dict(n_poses=200_000, iterations=400, batch_size=4096, eikonal_batch=256, threads=2)
+
+
+def field_for(scene: str, recipe: str):
+    """The cached bench field (benches/fields.py, ~15 min to train) or, with ``recipe="quick"``,
+    a smaller one (QUICK, ~2 min), cached beside it."""
+    if recipe == "quick":
+        robot = profrobot.scenes.load(scene)
+        path = OUT / "fields_quick" / scene
+        if path.is_dir():
+            return profrobot.load_sdf(path, robot)
+        sdf = profrobot.train_sdf(robot, progress=False, **QUICK)
+        profrobot.save_sdf(sdf, path)
+        print(scene, "quick field", {k: round(v, 4) for k, v in sdf.metrics.items() if isinstance(v, float)}, flush=True)
+        return sdf
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from fields import field  # noqa: E402  (the cached bench fields)
 
@@ -137,7 +151,8 @@ def summarise(rows: list[dict], robot, straight: list[float]) -> dict:
                 checks=float(np.median([r["checks"] for r in rows])))
 
 
-def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field: bool, with_ompl: bool) -> dict:
+def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field: bool, with_ompl: bool,
+              recipe: str = "bench") -> dict:
     robot = profrobot.scenes.load(scene)
     starts, goals = hard_pairs(robot, n, seed=200)
     straight = [so2_length(robot, np.stack([a, b])) for a, b in zip(starts, goals)]
@@ -153,7 +168,7 @@ def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field
     print(scene, "ours", summarise(out["ours (exact)"], robot, straight), flush=True)
     smoothing = None
     if with_field:
-        sdf = field_for(scene)
+        sdf = field_for(scene, recipe)
         t = time.perf_counter()
         res = profrobot.plan_trajectory(sdf, starts, goals, steps=100, init="planner",
                                         planner=dict(resolution=resolution, max_time=max_time))
@@ -193,7 +208,7 @@ def markdown(results: list[dict], args) -> str:
              f"Hard problems per scene: {args.problems}; resolution {args.resolution} rad (no joint moves more "
              f"than that between checks); budget {args.max_time} s per problem; 2 threads for ours, OMPL "
              f"single-threaded (its checker is our labeller, one pose per call). Load average at the end: "
-             f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}.", "",
+             f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}. Field recipe for smoothing: {args.recipe}.", "",
              "| scene | method | success | median s | p90 s | length / straight | max joint step | "
              "dense check free | reported free but colliding | median checks |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -221,12 +236,14 @@ def main() -> None:
     ap.add_argument("--max-time", dest="max_time", type=float, default=10.0)
     ap.add_argument("--field", action="store_true", help="also smooth with the cached bench field (benches/fields.py)")
     ap.add_argument("--field-scenes", dest="field_scenes", default="panda_blocks,ur5e_wall_box")
+    ap.add_argument("--field-recipe", dest="recipe", choices=("bench", "quick"), default="bench",
+                    help="bench: benches/fields.py's cached fields; quick: a 2-minute field per scene")
     ap.add_argument("--no-ompl", dest="ompl", action="store_false")
     args = ap.parse_args()
     results = []
     for scene in args.scenes.split(","):
         results.append(run_scene(scene, args.problems, args.resolution, args.max_time,
-                                 args.field and scene in args.field_scenes.split(","), args.ompl))
+                                 args.field and scene in args.field_scenes.split(","), args.ompl, args.recipe))
         OUT.mkdir(exist_ok=True)
         from profrobot._io import atomic_path
 
