@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import mujoco
 import numpy as np
 import pytest
@@ -87,9 +85,8 @@ _WALLED = """
 
 def test_enclosed_goal_reports_none_found_within_max_time():
     robot = profrobot.Robot.from_spec(mujoco.MjSpec.from_string(_WALLED), name="walled")
-    t = time.perf_counter()
+    # the budget ends it (status time_out), not a hang; no wall-clock assertion in a test
     res = plan_path(robot, [-0.5, 0.0], [0.5, 0.0], max_time=0.5)
-    assert time.perf_counter() - t < 2.0
     assert not res.found and res.status == "time_out" and "enclosed" in res.reason and res.path.shape == (0, 2)
     res = plan_path(robot, [-0.5, 0.0], [0.5, 0.0], max_iterations=200, max_time=60)
     assert not res.found and res.status == "iteration_limit"
