@@ -218,16 +218,24 @@ def _settle_model(m: mujoco.MjModel) -> mujoco.MjModel:
     return mc
 
 
+def _equality_rows(mc: mujoco.MjModel, d: mujoco.MjData, q: np.ndarray, qpos_adr: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's active equality rows at pose ``q``: residuals ``efc_pos`` (R,) and the dense
+    Jacobian ``efc_J`` (R, nv) (``mc`` from :func:`_settle_model`)."""
+    d.qpos[qpos_adr] = q
+    mujoco.mj_fwdPosition(mc, d)
+    eq = d.efc_type[:d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    return d.efc_pos[:d.nefc][eq], d.efc_J[:d.nefc * mc.nv].reshape(d.nefc, mc.nv)[eq]
+
+
 def equality_residual(m: mujoco.MjModel, poses: np.ndarray, qpos_adr: np.ndarray) -> np.ndarray:
     """(B,) max |efc_pos| over MuJoCo's active equality rows at each pose (metres / radians)."""
     mc = _settle_model(m)
     d = mujoco.MjData(mc)
     out = np.zeros(len(poses))
     for b, q in enumerate(poses):
-        d.qpos[qpos_adr] = q
-        mujoco.mj_fwdPosition(mc, d)
-        eq = d.efc_type[:d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-        out[b] = np.abs(d.efc_pos[:d.nefc][eq]).max() if eq.any() else 0.0
+        r, _ = _equality_rows(mc, d, q, qpos_adr)
+        out[b] = np.abs(r).max() if r.size else 0.0
     return out
 
 
@@ -246,15 +254,11 @@ def settle(m: mujoco.MjModel, poses: np.ndarray, qpos_adr: np.ndarray, dof_adr: 
     for b in range(len(out)):
         q = out[b]
         for _ in range(iterations):
-            d.qpos[qpos_adr] = q
-            mujoco.mj_fwdPosition(mc, d)
-            eq = d.efc_type[:d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-            r = d.efc_pos[:d.nefc][eq]
+            r, J = _equality_rows(mc, d, q, qpos_adr)
             if r.size == 0 or np.abs(r).max() <= tol:
                 ok[b] = np.isfinite(q).all()
                 break
-            J = d.efc_J[:d.nefc * mc.nv].reshape(d.nefc, mc.nv)[eq][:, dof_adr]
-            step, *_ = np.linalg.lstsq(J, r, rcond=None)
+            step, *_ = np.linalg.lstsq(J[:, dof_adr], r, rcond=None)
             q = q - step
             if not np.isfinite(q).all():
                 break

@@ -57,11 +57,17 @@ class PathResult:
                 f"{self.checks} checks, {self.seconds * 1e3:.1f} ms")
 
 
-def so2_length(robot: Robot, path: np.ndarray) -> float:
-    """L2 length of a waypoint path (M, K), continuous hinges along the short arc."""
+def so2_steps(robot: Robot, path: np.ndarray) -> np.ndarray:
+    """(M−1, K) joint moves between consecutive waypoints of ``path`` (M, K): continuous hinges
+    along the short arc, as :func:`profrobot.interpolate` moves them."""
     d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
     d[:, robot.continuous] = (d[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi
-    return float(np.linalg.norm(d, axis=1).sum())
+    return d
+
+
+def so2_length(robot: Robot, path: np.ndarray) -> float:
+    """L2 length of a waypoint path (M, K), continuous hinges along the short arc."""
+    return float(np.linalg.norm(so2_steps(robot, path), axis=1).sum())
 
 
 def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
@@ -133,9 +139,7 @@ def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
         raise ProfrobotError(f"steps must be an integer >= the path's {m} waypoints (and >= 2); got {steps!r}")
     if m == 1:
         return np.repeat(p, steps, axis=0)
-    d = np.diff(p, axis=0)
-    d[:, robot.continuous] = (d[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi
-    seg = np.linalg.norm(d, axis=1)
+    seg = np.linalg.norm(so2_steps(robot, p), axis=1)
     extra = steps - m
     # Largest-remainder split of the extra poses over the segments, by length.
     share = seg / seg.sum() * extra if seg.sum() > 0 else np.full(m - 1, extra / (m - 1))

@@ -83,10 +83,10 @@ def path_free_at(robot: Robot, path: np.ndarray, resolution: float, clearance: f
     """Whether every segment of ``path`` (S, K) is free when re-interpolated (SO(2)) so that no
     joint moves more than ``resolution`` between two checked poses: the planner's own guarantee
     (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
+    from ..planning import so2_steps
+
     path = np.asarray(path, dtype=np.float64)
-    d = np.diff(path, axis=0)
-    cont = np.asarray(robot.continuous, dtype=bool)
-    d[:, cont] = (d[:, cont] + np.pi) % (2 * np.pi) - np.pi
+    d = so2_steps(robot, path)
     counts = np.maximum(np.ceil(np.abs(d).max(axis=1) / resolution).astype(int), 1)
     poses = np.concatenate([interpolate(robot, a, b, int(n) + 1)[1:] for a, b, n in zip(path[:-1], path[1:], counts)])
     return bool(certify_poses(robot, poses, clearance).all())
