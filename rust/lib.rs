@@ -28,6 +28,7 @@
 //! | [`collide`] | labelling: narrow phase and batches |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
+//! | [`splat`] | Gaussian-splat tile rasterizer: forward compositing and its exact backward |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
@@ -45,6 +46,7 @@ pub mod pairs;
 pub mod plan;
 pub mod sample;
 pub mod shapes;
+pub mod splat;
 pub mod threads;
 
 #[cfg(feature = "python")]

@@ -3,7 +3,10 @@
 
 use std::borrow::Cow;
 
-use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -19,6 +22,7 @@ use crate::model::RobotModel;
 use crate::pairs::PairKind;
 use crate::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::sample::sample_uniform;
+use crate::splat::{self, Cutoff, Splats};
 use crate::threads::with_threads;
 
 create_exception!(
@@ -355,12 +359,149 @@ fn interpolate<'py>(
     PyArray1::from_vec(py, v).reshape([b, steps, k])
 }
 
+/// The backward state of one `splat_forward` call (tile lists, per-pixel compositing ends and
+/// the inputs); opaque to Python.
+#[pyclass(name = "SplatState", module = "profrobot._core", frozen)]
+struct PySplatState {
+    state: splat::State,
+}
+
+/// `name` as a float64 array of shape `(C, N, *tail)`, copied in logical order.
+fn splat_array(obj: &Bound<'_, PyAny>, name: &str, cn: Option<(usize, usize)>, tail: &[usize]) -> PyResult<(Vec<f64>, usize, usize)> {
+    let want = || {
+        let t: String = tail.iter().map(|k| format!(", {k}")).collect();
+        match cn {
+            Some((c, n)) => format!("({c}, {n}{t})"),
+            None => format!("(C, N{t})"),
+        }
+    };
+    let a: PyReadonlyArrayDyn<'_, f64> = obj.extract().map_err(|_| {
+        PyTypeError::new_err(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want()))
+    })?;
+    let shape = a.shape().to_vec();
+    let ok = shape.len() == 2 + tail.len()
+        && shape[2..] == *tail
+        && cn.is_none_or(|(c, n)| shape[0] == c && shape[1] == n);
+    if !ok {
+        return Err(ProfrobotError::new_err(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
+    }
+    let v = match a.as_slice() {
+        Ok(s) => s.to_vec(),
+        Err(_) => a.as_array().iter().copied().collect(),
+    };
+    Ok((v, shape[0], shape[1]))
+}
+
+type SplatOut<'py> = (
+    Bound<'py, numpy::PyArray<f64, numpy::Ix4>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    u64,
+    PySplatState,
+);
+
+/// Tile rasterization of projected Gaussians (see `_core.pyi` and `splat.rs`).
+#[pyfunction]
+#[pyo3(signature = (means2d, conics, opacities, colors, depths, width, height, *, cutoff="soft", threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn splat_forward<'py>(
+    py: Python<'py>,
+    means2d: &Bound<'py, PyAny>,
+    conics: &Bound<'py, PyAny>,
+    opacities: &Bound<'py, PyAny>,
+    colors: &Bound<'py, PyAny>,
+    depths: &Bound<'py, PyAny>,
+    width: usize,
+    height: usize,
+    cutoff: &str,
+    threads: Option<usize>,
+) -> PyResult<SplatOut<'py>> {
+    let cutoff = match cutoff {
+        "soft" => Cutoff::Soft,
+        "hard" => Cutoff::Hard,
+        other => return Err(ProfrobotError::new_err(format!("splat_forward: cutoff must be 'soft' or 'hard'; got {other:?}"))),
+    };
+    let (uv, c, n) = splat_array(means2d, "means2d", None, &[2])?;
+    let cn = Some((c, n));
+    let splats = Splats {
+        cameras: c,
+        n,
+        width,
+        height,
+        uv,
+        conic: splat_array(conics, "conics", cn, &[3])?.0,
+        opacity: splat_array(opacities, "opacities", cn, &[])?.0,
+        color: splat_array(colors, "colors", cn, &[3])?.0,
+        depth: splat_array(depths, "depths", cn, &[])?.0,
+        cutoff,
+    };
+    let f = py.detach(|| with_threads(threads, || splat::forward(splats))).map_err(to_py)?.map_err(to_py)?;
+    Ok((
+        PyArray1::from_vec(py, f.rgb).reshape([c, height, width, 3])?,
+        PyArray1::from_vec(py, f.alpha).reshape([c, height, width])?,
+        PyArray1::from_vec(py, f.dsum).reshape([c, height, width])?,
+        PyArray1::from_vec(py, f.contrib).reshape([c, n])?,
+        f.npairs,
+        PySplatState { state: f.state },
+    ))
+}
+
+type SplatGrads<'py> = (
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
+/// Gradients w.r.t. `splat_forward`'s inputs (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (state, grad_rgb, grad_alpha, grad_dsum, *, threads=None))]
+fn splat_backward<'py>(
+    py: Python<'py>,
+    state: &PySplatState,
+    grad_rgb: &Bound<'py, PyAny>,
+    grad_alpha: &Bound<'py, PyAny>,
+    grad_dsum: &Bound<'py, PyAny>,
+    threads: Option<usize>,
+) -> PyResult<SplatGrads<'py>> {
+    let s = &state.state.splats;
+    let (c, n, h, w) = (s.cameras, s.n, s.height, s.width);
+    let img = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<f64>> {
+        let a: PyReadonlyArrayDyn<'py, f64> = obj
+            .extract()
+            .map_err(|_| PyTypeError::new_err(format!("splat_backward: {name} must be a float64 numpy array")))?;
+        let want: Vec<usize> = [c, h, w].iter().chain(tail).copied().collect();
+        if a.shape() != want.as_slice() {
+            return Err(ProfrobotError::new_err(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));
+        }
+        Ok(match a.as_slice() {
+            Ok(s) => s.to_vec(),
+            Err(_) => a.as_array().iter().copied().collect(),
+        })
+    };
+    let (gr, ga, gd) = (img(grad_rgb, "grad_rgb", &[3])?, img(grad_alpha, "grad_alpha", &[])?, img(grad_dsum, "grad_dsum", &[])?);
+    let st = &state.state;
+    let g = py.detach(|| with_threads(threads, || splat::backward(st, &gr, &ga, &gd))).map_err(to_py)?.map_err(to_py)?;
+    Ok((
+        PyArray1::from_vec(py, g.uv).reshape([c, n, 2])?,
+        PyArray1::from_vec(py, g.conic).reshape([c, n, 3])?,
+        PyArray1::from_vec(py, g.opacity).reshape([c, n])?,
+        PyArray1::from_vec(py, g.color).reshape([c, n, 3])?,
+        PyArray1::from_vec(py, g.depth).reshape([c, n])?,
+    ))
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRobotModel>()?;
     m.add("ProfrobotError", m.py().get_type::<ProfrobotError>())?;
     m.add("ModelError", m.py().get_type::<ModelError>())?;
+    m.add_class::<PySplatState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
+    m.add_function(wrap_pyfunction!(splat_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(splat_backward, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

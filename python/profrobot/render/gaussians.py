@@ -223,8 +223,10 @@ class GaussianRobot(torch.nn.Module):
         fk = self.kin(theta)
         Q = quat_to_matrix(self.quats)                                # (N, 3, 3)
         if self.skin_mlp is None:
-            Rb = fk.rot[:, self.body]                                 # (B, N, 3, 3)
-            mu = torch.einsum("bnij,nj->bni", Rb, self.means) + fk.pos[:, self.body]
+            # index_select, not fancy indexing: its backward is an index_add, several times
+            # cheaper on a CPU than the accumulating index_put of advanced indexing
+            Rb = fk.rot.index_select(1, self.body)                    # (B, N, 3, 3)
+            mu = (Rb * self.means[:, None, :]).sum(-1) + fk.pos.index_select(1, self.body)
             return mu, Rb @ Q
         fk0 = self.kin(self.canonical)
         R0, x0 = fk0.rot[0], fk0.pos[0]                               # (nb, 3, 3), (nb, 3)
@@ -265,11 +267,15 @@ class GaussianRobot(torch.nn.Module):
         d = mu[:, None] - cam_c[None, :, None]                                          # (B, C, N, 3)
         d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         Ab = A @ quat_to_matrix(self.quats).transpose(-1, -2)                           # body rotation (B, N, 3, 3)
-        d_loc = torch.einsum("bnji,bcnj->bcni", Ab, d)
+        # d_loc = Ab^T d, component by component (cheaper on a CPU than a batched einsum)
+        dx, dy, dz = d.unbind(-1)                                                       # (B, C, N)
+        Ab = Ab[:, None]
+        d_loc = torch.stack([Ab[..., 0, i] * dx + Ab[..., 1, i] * dy + Ab[..., 2, i] * dz for i in range(3)], -1)
         d_loc = d_loc / d_loc.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         col = eval_sh(self.sh[None, None], d_loc)                                      # (B, C, N, 3)
         op = torch.sigmoid(self.opacity_logits)
-        rep = lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:])
+        # one pose: every camera shares the means and covariances (broadcast, not copied)
+        rep = (lambda t: t[0]) if B == 1 else (lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:]))
         draw = rasterize if check else rasterize_unchecked
         return draw(rep(mu), rep(cov), op, col.reshape(B * C, -1, 3), viewmats.repeat(B, 1, 1),
                     Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend)
