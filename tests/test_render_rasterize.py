@@ -90,8 +90,9 @@ def test_bad_input():
         rasterize(m.numpy(), cov, op, col, vm, K, 16, 12)
 
 
+@pytest.mark.parametrize("backend", ["torch", "rust"])
 @pytest.mark.parametrize("cutoff", ["soft"])
-def test_pose_gradients_match_finite_differences(panda, cutoff):
+def test_pose_gradients_match_finite_differences(panda, cutoff, backend):
     """dRGB/dtheta and dDepth/dtheta (through random pixel weights) against central differences,
     float64, on a fixed Panda pose seen by two cameras (depth weighted by alpha: the expected
     depth of a barely covered pixel is a ratio of two tiny numbers)."""
@@ -103,7 +104,7 @@ def test_pose_gradients_match_finite_differences(panda, cutoff):
     w_d = torch.rand(2, 32, 32, dtype=torch.float64)
 
     def f(th):
-        out = model.render_views(th, cams, background=torch.ones(3, dtype=torch.float64), cutoff=cutoff)
+        out = model.render_views(th, cams, background=torch.ones(3, dtype=torch.float64), cutoff=cutoff, backend=backend)
         return (out.rgb * w_rgb).sum(), (out.depth * out.alpha * w_d).sum()
 
     th = theta.clone().requires_grad_(True)

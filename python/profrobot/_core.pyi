@@ -8,12 +8,13 @@ reinterpreted. Invalid input raises :class:`ProfrobotError` (a ValueError), a ba
 """
 
 from collections.abc import Callable
-from typing import final
+from typing import Literal, final
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "ModelError", "interpolate", "__version__"]
+__all__ = ["RobotModel", "ProfrobotError", "ModelError", "interpolate", "SplatState", "splat_forward", "splat_backward",
+           "__version__"]
 
 __version__: str
 
@@ -83,3 +84,36 @@ def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], s
                 continuous: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
     """(B, steps, K) poses from (B, K) start to goal, both ends included: shortest arc where
     ``continuous`` (K,), straight otherwise."""
+
+
+@final
+class SplatState:
+    """What :func:`splat_backward` needs from one :func:`splat_forward` call: the tile lists,
+    each pixel's transmittance and last composited Gaussian, and the inputs. Opaque."""
+
+def splat_forward(means2d: npt.NDArray[np.float64], conics: npt.NDArray[np.float64], opacities: npt.NDArray[np.float64],
+                  colors: npt.NDArray[np.float64], depths: npt.NDArray[np.float64], width: int, height: int, *,
+                  cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
+                  ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+                             npt.NDArray[np.float64], int, SplatState]:
+    """Tile rasterization of C cameras' projected Gaussians (``rust/splat.rs``).
+
+    means2d (C, N, 2) pixels (pixel centres at integers); conics (C, N, 3) ``(a, b, c)`` of the
+    inverse 2D covariance ``[[a, b], [b, c]]`` (px^-2, positive definite); opacities (C, N);
+    colors (C, N, 3); depths (C, N) camera z (m; those <= 0.01 are not drawn). Per pixel, front
+    to back, ``alpha = min(0.99, o exp(-q/2))`` (``"soft"``: minus 1/255, kept when > 0;
+    ``"hard"``: kept when >= 1/255), stopping before transmittance falls below 1e-4.
+
+    Returns rgb (C, H, W, 3) ``sum w c`` (no background), alpha (C, H, W) ``sum w``, dsum
+    (C, H, W) ``sum w z``, contrib (C, N) each Gaussian's largest weight, the number of
+    composited pairs, and the backward state. Bit-identical for any ``threads``. NaN/inf, wrong
+    shapes, N = 0, a zero-size image or a conic that is not positive definite raise
+    :class:`ProfrobotError` naming the entry; a wrong dtype TypeError."""
+
+def splat_backward(state: SplatState, grad_rgb: npt.NDArray[np.float64], grad_alpha: npt.NDArray[np.float64],
+                   grad_dsum: npt.NDArray[np.float64], *, threads: int | None = None
+                   ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+                              npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Exact gradients of ``sum(grad_rgb * rgb) + sum(grad_alpha * alpha) + sum(grad_dsum * dsum)``
+    w.r.t. :func:`splat_forward`'s means2d, conics, opacities, colors and depths (same shapes).
+    Deterministic: each Gaussian sums its per-tile partial gradients in a fixed order."""

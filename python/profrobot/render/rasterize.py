@@ -79,8 +79,12 @@ def _validate(means, covs, opacities, colors, viewmats, Ks):
     _check("covs", covs, f"({N}, 3, 3) or (C, {N}, 3, 3)", covs.shape[-3:] == (N, 3, 3) and covs.ndim in (3, 4))
     _check("opacities", opacities, f"({N},) or (C, {N})", opacities.shape[-1] == N and opacities.ndim in (1, 2))
     _check("colors", colors, f"({N}, 3) or (C, {N}, 3)", colors.shape[-2:] == (N, 3) and colors.ndim in (2, 3))
+    if N == 0:
+        raise ProfrobotError("rasterize: the Gaussian set is empty (means has N = 0 rows)")
     for name, t in (("means", means), ("covs", covs), ("opacities", opacities), ("colors", colors),
                     ("viewmats", viewmats), ("Ks", Ks)):
+        if t.dtype not in (torch.float32, torch.float64):
+            raise TypeError(f"rasterize: {name} must be float32 or float64; got {t.dtype}")
         if not torch.isfinite(t).all():
             raise ProfrobotError(f"rasterize: {name} contains NaN or inf")
     return C, N
