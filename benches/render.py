@@ -5,8 +5,9 @@
 1. fidelity on held-out poses *and* views at 128^2 against MuJoCo: PSNR, mask IoU (alpha > 1/2
    against MuJoCo's segmentation), median depth error on MuJoCo's robot mask;
 2. pose from 4 views: MuJoCo renders of collision-free targets, starts 0.3 rad away on every arm
-   joint, median joint error after ``fit_pose``;
-3. speed: forward + backward, 4 cameras at 128^2, with MuJoCo's own CPU render time per view;
+   joint, median and 90th-percentile joint error after ``fit_pose`` (coarse to fine: 64^2 then 128^2);
+3. speed: forward + backward, 4 cameras at 128^2, the Rust kernel against the torch one in the same run
+   (1 and 2 threads; then 256^2, 8 cameras, a 64-pose batch), with MuJoCo's own CPU render time per view;
 4. a PNG: MuJoCo | ours | |difference| x 4, for a few held-out poses and views.
 
 Data, the fitted model and the figures are cached under ``--out`` (delete to start afresh).
@@ -85,6 +86,10 @@ def mujoco_render_time(robot, cams, n=20):
     """Seconds per RGB frame of MuJoCo's own offscreen renderer (update_scene + render)."""
     import mujoco
 
+    from profrobot import _gl
+
+    # the in-process renderer needs a GL backend: the one profrobot's probe picks (EGL or OSMesa)
+    os.environ.setdefault("MUJOCO_GL", _gl.backend())
     m = robot_visual_model(robot)
     m.vis.global_.fovy = cams.fovy
     d = mujoco.MjData(m)
@@ -101,23 +106,51 @@ def mujoco_render_time(robot, cams, n=20):
     return float(np.median(ts))
 
 
-def speed(model, cams, theta, threads, reps=5):
+def speed(model, cams, theta, threads, backend="rust", reps=5):
+    """Forward + backward of ``model`` at poses ``theta`` (B, K) from ``cams``: wall seconds
+    (median, min), process CPU seconds (median), composited pairs. ``threads`` sets torch's
+    threads and the Rust kernel's."""
     torch.set_num_threads(threads)
     vm, K = torch.tensor(cams.world_to_cam, dtype=torch.float32), torch.tensor(cams.K, dtype=torch.float32)
     ts, cpu = [], []
     for _ in range(reps + 1):
         th = theta.clone().requires_grad_(True)
         t, c = time.perf_counter(), time.process_time()
-        out = model.render(th, vm, K, cams.width, cams.height)
+        out = model.render(th, vm, K, cams.width, cams.height, backend=backend, threads=threads)
         (out.rgb.sum() + out.depth.sum()).backward()
         ts.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
     # wall time depends on what else runs on the machine; the process's CPU time (all threads
     # together) is what the work costs
-    return float(np.median(ts[1:])), float(np.min(ts[1:])), float(np.median(cpu[1:])), out.npairs
+    return dict(median_s=float(np.median(ts[1:])), min_s=float(np.min(ts[1:])), cpu_s=float(np.median(cpu[1:])),
+                pairs=out.npairs)
 
 
-def pose_benchmark(robot, model, n, iters, refine_iters, size, batch, seed, out_dir):
+def speed_table(model, theta, poses64):
+    """Rust against torch in one run (4 cameras, 128^2, one pose, 1 and 2 threads), then the
+    Rust kernel alone at 256^2, with 8 cameras, and for a 64-pose batch."""
+    cams4 = ring_cameras(4, size=128, distance=DIST, elevation=[-15.0], azimuth0=22.5, lookat=LOOKAT)
+    rows = {}
+    for threads in (2, 1):
+        for backend in ("rust", "torch"):
+            rows[f"{backend}_4cam_128_t{threads}"] = speed(model, cams4, theta, threads, backend,
+                                                         reps=5 if backend == "rust" else 2)
+        rows[f"ratio_torch_over_rust_t{threads}"] = (rows[f"torch_4cam_128_t{threads}"]["median_s"]
+                                                     / rows[f"rust_4cam_128_t{threads}"]["median_s"])
+        print(f"  {threads} thread(s): rust {1e3 * rows[f'rust_4cam_128_t{threads}']['median_s']:.1f} ms, torch "
+              f"{1e3 * rows[f'torch_4cam_128_t{threads}']['median_s']:.1f} ms: "
+              f"{rows[f'ratio_torch_over_rust_t{threads}']:.1f}x  (load {os.getloadavg()[0]:.2f})", flush=True)
+    rows["rust_4cam_256_t2"] = speed(model, cams4.resized(256), theta, 2)
+    rows["rust_8cam_128_t2"] = speed(model, ring_cameras(8, size=128, distance=DIST, elevation=[-15.0], azimuth0=22.5,
+                                                         lookat=LOOKAT), theta, 2)
+    rows["rust_4cam_128_64poses_t2"] = speed(model, cams4, poses64, 2, reps=2)
+    for k in ("rust_4cam_256_t2", "rust_8cam_128_t2", "rust_4cam_128_64poses_t2"):
+        print(f"  {k}: {1e3 * rows[k]['median_s']:.1f} ms", flush=True)
+    rows["loadavg"] = os.getloadavg()
+    return rows
+
+
+def pose_benchmark(robot, model, n, iters, refine_iters, size, batch, seed, out_dir, restarts=0):
     cams = ring_cameras(4, size=size, distance=DIST, elevation=-25.0, azimuth0=45.0, lookat=LOOKAT)
     targets = cached_views(os.path.join(out_dir, f"pose_targets_{n}_{size}.npz"), robot,
                            lambda: make_views(robot, free_poses(robot, n, seed), cams, progress=False))
@@ -137,17 +170,19 @@ def pose_benchmark(robot, model, n, iters, refine_iters, size, batch, seed, out_
     for i in range(0, n, batch):
         sl = slice(i, min(n, i + batch))
         tg = dict(rgb=targets.rgb[sl], depth=targets.depth[sl], mask=targets.mask[sl])
-        # two stages: into the basin with the paper's balance (lr 0.02, depth weight 1), then
-        # refine with depth weighted 10x at a quarter of the rate (depth pins the wrist joints)
-        f = fit_pose(model, tg, cams, start[sl], iters=iters, background=targets.background)
-        if refine_iters:
-            f = fit_pose(model, tg, cams, f.theta, iters=refine_iters, lr=0.005, w_depth=10.0, background=targets.background)
+        # coarse to fine: into the basin at half resolution with the paper's balance (lr 0.02,
+        # depth weight 1; restarts chosen there), then refine at full resolution with depth
+        # weighted 10x at a quarter of the rate (depth pins the wrist joints)
+        f = fit_pose(model, tg, cams, start[sl], iters=refine_iters, lr=0.005, w_depth=10.0,
+                     background=targets.background, coarse=dict(iters=iters, lr=0.02, w_depth=1.0, restarts=restarts))
         fits.append(f.theta)
         print(f"    pose targets {sl.stop}/{n}: {time.perf_counter() - t0:.0f} s", flush=True)
     theta = np.concatenate(fits)
     err = np.abs(theta - targets.poses)
     e0 = np.abs(start - targets.poses)
-    return dict(targets=n, views=4, size=size, iters=iters, refine_iters=refine_iters,
+    return dict(targets=n, views=4, size=size, coarse_size=size // 2, coarse_iters=iters, refine_iters=refine_iters,
+                restarts=restarts, seconds_per_target=(time.perf_counter() - t0) / n,
+                p90_joint_err_rad=float(np.percentile(err[:, arm], 90)),
                 start_err_arm_median_rad=float(np.median(e0[:, arm])),
                 median_joint_err_rad=float(np.median(err[:, arm])),
                 mean_joint_err_rad=float(err[:, arm].mean()),
@@ -167,14 +202,16 @@ def main(argv=None):
     ap.add_argument("--iters", type=int, default=600)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--pose-targets", type=int, default=50)
-    ap.add_argument("--pose-iters", type=int, default=45)
-    ap.add_argument("--pose-refine-iters", type=int, default=30)
-    ap.add_argument("--pose-size", type=int, default=64)
+    ap.add_argument("--pose-iters", type=int, default=45, help="coarse-stage iterations (at half --pose-size)")
+    ap.add_argument("--pose-refine-iters", type=int, default=60, help="full-resolution iterations")
+    ap.add_argument("--pose-size", type=int, default=128)
+    ap.add_argument("--pose-restarts", type=int, default=0)
     ap.add_argument("--pose-batch", type=int, default=10)
     ap.add_argument("--threads", type=int, default=1, help="torch threads for fitting (speed is timed at 1 and 2)")
     ap.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")
     ap.add_argument("--quick", action="store_true", help="small everything (smoke run)")
     ap.add_argument("--skip-pose", action="store_true")
+    ap.add_argument("--skip-speed", action="store_true")
     a = ap.parse_args(argv)
     if a.quick:
         a.train_poses, a.test_poses, a.gaussians, a.iters, a.pose_targets, a.pose_iters, a.pose_refine_iters = 6, 2, 2000, 20, 4, 10, 5
@@ -219,15 +256,15 @@ def main(argv=None):
     comparison_png(os.path.join(a.out, "mujoco_vs_ours.png"), te, ours)
 
     theta = torch.tensor(te.poses[:1], dtype=torch.float32)
-    res["speed"] = {f"threads_{n}": dict(zip(("median_s", "min_s", "cpu_s", "pairs"), speed(model, test_cams, theta, n)))
-                    for n in (1, 2)}
-    res["speed"]["loadavg"] = os.getloadavg()
+    poses64 = torch.tensor(free_poses(robot, 64, 5), dtype=torch.float32)
+    if not a.skip_speed:
+        print("speed (forward + backward):", flush=True)
+        res["speed"] = speed_table(model, theta, poses64)
     torch.set_num_threads(a.threads)
-    print("speed (forward + backward, 4 cameras):", res["speed"], flush=True)
 
     if not a.skip_pose:
         res["pose"] = pose_benchmark(robot, model, a.pose_targets, a.pose_iters, a.pose_refine_iters, a.pose_size,
-                                     a.pose_batch, 3, a.out)
+                                     a.pose_batch, 3, a.out, restarts=a.pose_restarts)
         print("pose from 4 views:", res["pose"], flush=True)
     res["loadavg_end"] = os.getloadavg()
     json.dump(res, open(os.path.join(a.out, "results.json"), "w"), indent=1)

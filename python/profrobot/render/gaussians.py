@@ -246,16 +246,18 @@ class GaussianRobot(torch.nn.Module):
 
     # ---- rendering -----------------------------------------------------------------------------
     def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: Cutoff = "soft",
-               backend: Backend = "auto") -> RenderOut:
+               backend: Backend = "auto", threads: int | None = None) -> RenderOut:
         """Draw B poses ``theta`` (B, K) from C cameras (``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3)
-        OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major."""
+        OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major.
+        ``backend``, ``cutoff``, ``threads``: see :func:`profrobot.render.rasterize`."""
         viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
         Ks = torch.as_tensor(Ks, dtype=self.means.dtype, device=self.means.device)
         return self._render(self._check_theta(theta), viewmats, Ks, width, height, background=background,
-                            cutoff=cutoff, backend=backend, check=True)
+                            cutoff=cutoff, backend=backend, threads=threads, check=True)
 
     def _render(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, *,
-                background=None, cutoff: Cutoff = "soft", backend: Backend = "auto", check: bool = False) -> RenderOut:
+                background=None, cutoff: Cutoff = "soft", backend: Backend = "auto", threads: int | None = None,
+                check: bool = False) -> RenderOut:
         """:meth:`render` for callers that validated their inputs once (``theta`` (B, K),
         ``viewmats``, ``Ks`` tensors on the model's device): no per-call finiteness checks, no host
         syncs, unless ``check``."""
@@ -278,7 +280,8 @@ class GaussianRobot(torch.nn.Module):
         rep = (lambda t: t[0]) if B == 1 else (lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:]))
         draw = rasterize if check else rasterize_unchecked
         return draw(rep(mu), rep(cov), op, col.reshape(B * C, -1, 3), viewmats.repeat(B, 1, 1),
-                    Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend)
+                    Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend,
+                    threads=threads)
 
     def render_views(self, theta, cameras, **kw) -> RenderOut:
         """:meth:`render` with a :class:`profrobot.render.Cameras`."""

@@ -30,7 +30,7 @@ from .gaussians import GaussianRobot
 from .views import Cameras
 from ..errors import ProfrobotError
 
-__all__ = ["fit_pose", "PoseFit", "pose_loss"]
+__all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets"]
 
 
 @dataclass
@@ -69,10 +69,47 @@ def _as_targets(x, name, shape_tail, B, C, dtype):
     return t
 
 
+def downsample_targets(targets: dict, factor: int) -> dict:
+    """Targets (``rgb`` (B, C, H, W, 3) uint8 or [0, 1], ``depth`` (B, C, H, W) m, ``mask``
+    (B, C, H, W) bool) at 1/``factor`` resolution: RGB averaged over ``factor`` x ``factor``
+    blocks, the mask where at least half of a block is robot, the depth averaged over the
+    block's robot pixels (0 elsewhere). A block's centre is where the downsampled camera
+    (:meth:`Cameras.resized`, same field of view) puts its pixel centre."""
+    rgb = np.asarray(targets["rgb"])
+    rgb = rgb.astype(np.float32) / 255.0 if rgb.dtype == np.uint8 else rgb.astype(np.float32)
+    depth = np.asarray(targets["depth"], dtype=np.float32)
+    mask = np.asarray(targets["mask"]).astype(np.float32)
+    H, W = mask.shape[-2:]
+    if factor < 1 or H % factor or W % factor:
+        raise ProfrobotError(f"downsample_targets: the image size {W}x{H} is not divisible by factor {factor}")
+    blocks = lambda a: a.reshape(*a.shape[:-2], H // factor, factor, W // factor, factor).sum((-3, -1))
+    n = float(factor * factor)
+    m = blocks(mask)
+    rgb_d = np.moveaxis(blocks(np.moveaxis(rgb, -1, -3)), -3, -1) / n
+    depth_d = np.where(m > 0, blocks(depth * mask) / np.maximum(m, 1.0), 0.0).astype(np.float32)
+    return dict(rgb=rgb_d.astype(np.float32), depth=depth_d, mask=m >= n / 2)
+
+
+def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
+    coarse = dict(coarse)
+    factor = int(coarse.pop("factor", 2))
+    H, W = cameras.height, cameras.width
+    if factor < 1 or H % factor or W % factor:
+        raise ProfrobotError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
+    unknown = set(coarse) - {"iters", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
+    if unknown:
+        raise ProfrobotError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
+    kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed")} | coarse
+    c = fit_pose(model, downsample_targets(targets, factor), cameras.resized(W // factor, H // factor), init, **kw)
+    f = fit_pose(model, targets, cameras, c.theta, **fine)
+    return PoseFit(theta=f.theta, loss=f.loss, history=np.concatenate([c.history, f.history]), start=c.start,
+                   all_losses=c.all_losses)
+
+
 def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iters: int = 100, lr: float = 0.02,
              restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
              extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
-             seed: int = 0) -> PoseFit:
+             seed: int = 0, coarse: dict | None = None) -> PoseFit:
     """Recover joint angles from multi-view images.
 
     ``targets``: dict with ``rgb`` (B, C, H, W, 3) uint8 or [0, 1] floats, ``depth`` (B, C, H, W)
@@ -81,7 +118,18 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     starting poses. ``restarts``: extra starts per target, perturbed by ``restart_sigma`` (radians,
     per joint, clipped to the limits); all starts run as one batch. ``extra_loss``: a callable
     of theta (B*R, K) returning a scalar added to the summed loss (the collision penalty's hook).
+
+    ``coarse``: coarse-to-fine. A dict of keyword arguments for a first stage run on the
+    targets and cameras downsampled by ``factor`` (default 2: 128^2 -> 64^2; RGB averaged over
+    2x2 blocks, the mask kept where at least half the block is robot, depth averaged over the
+    block's robot pixels), e.g. ``dict(iters=45, lr=0.02, restarts=3)``; the restarts are
+    chosen there (a coarse render is ~4x cheaper), and the full-resolution stage starts from
+    the best coarse pose with this call's ``iters``, ``lr`` and weights. ``history`` then
+    holds both stages.
     """
+    if coarse is not None:
+        return _coarse_to_fine(model, targets, cameras, init, coarse, iters=iters, lr=lr, w_depth=w_depth,
+                               w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed)
     dev = model.means.device
     init = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=torch.float32)
     if init.ndim == 1:
