@@ -198,3 +198,50 @@ def test_fit_pose_validates_at_entry(arm, cams):
         g.means[0, 0] = float("nan")
     with pytest.raises(ValueError, match="model.means"):
         fit_pose(g, good, cams, np.zeros((1, 2)), iters=1)
+
+
+def test_downsampled_targets_match_a_half_resolution_render(arm):
+    """downsample_targets (64^2 -> 32^2 here) lines up with rendering the same model through
+    the resized cameras: the block centres are where the smaller camera's pixel centres are
+    (no shift by a pixel does better), and the silhouettes mostly agree (a thin arm at 32^2
+    loses edge pixels either way)."""
+    from profrobot.render.pose import downsample_targets
+
+    cams = ring_cameras(3, size=64, distance=1.4, elevation=-20, lookat=(0, 0, 0.3))
+    g = GaussianRobot.from_robot(arm, 600, seed=0)
+    theta = torch.tensor([[0.4, 0.8]])
+    with torch.no_grad():
+        full = g.render_views(theta, cams)
+        half = g.render_views(theta, cams.resized(32))
+    d = downsample_targets(dict(rgb=full.rgb[None].numpy(), depth=full.depth[None].numpy(),
+                                mask=(full.alpha > 0.5)[None].numpy()), 2)
+    assert d["rgb"].shape == (1, 3, 32, 32, 3) and d["mask"].dtype == bool
+    m_half = (half.alpha > 0.5)[None].numpy()
+    iou = lambda a, b: (a & b).sum() / (a | b).sum()
+    shifted = [iou(d["mask"], np.roll(m_half, (dy, dx), (-2, -1))) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    assert max(shifted) == shifted[4] > 0.7, shifted
+    both = d["mask"] & m_half
+    # within the 8 cm bars' thickness: a coarse pixel averages depths the fine ones see apart
+    assert np.median(np.abs(d["depth"][both] - half.depth[None].numpy()[both])) < 0.03
+    with pytest.raises(ValueError, match="divisible"):
+        downsample_targets(dict(rgb=np.zeros((1, 3, 32, 32, 3)), depth=np.zeros((1, 3, 32, 32)),
+                                mask=np.zeros((1, 3, 32, 32), bool)), 3)
+
+
+def test_fit_pose_coarse_to_fine(arm, cams):
+    """coarse=...: a half-resolution stage (restarts chosen there), then full resolution; both
+    stages in the history; the pose is recovered as by the one-stage fit."""
+    torch.manual_seed(0)
+    g = GaussianRobot.from_robot(arm, 300, seed=0)
+    target = torch.tensor([[0.5, 1.2]])
+    with torch.no_grad():
+        out = g.render_views(target, cams)
+    targets = dict(rgb=out.rgb[None].numpy(), depth=out.depth[None].numpy(), mask=(out.alpha > 0.5)[None].numpy())
+    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iters=20, lr=0.005,
+                   coarse=dict(iters=30, lr=0.02, restarts=2))
+    assert fit.history.shape == (50, 1) and fit.all_losses.shape == (1, 3)
+    assert np.abs(fit.theta - target.numpy()).max() < 0.02, fit.theta
+    with pytest.raises(ValueError, match="unknown coarse"):
+        fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3))
+    with pytest.raises(ValueError, match="does not divide"):
+        fit_pose(g, targets, cams, target.numpy(), coarse=dict(iters=3, factor=5))

@@ -56,10 +56,24 @@ def cmd_label(args) -> int:
     return 0
 
 
+def _executor(args):
+    """``--ray ADDRESS``: a RayExecutor (``local`` starts a local cluster), else None (here)."""
+    if not getattr(args, "ray", None):
+        return None
+    from .executors import RayExecutor
+
+    return RayExecutor(None if args.ray == "local" else args.ray, workers=args.workers)
+
+
 def cmd_crosscheck(args) -> int:
     robot = _robot(args)
     poses = sample_poses(robot, args.n, args.seed, threads=args.threads)
-    report = crosscheck(robot, poses, threads=args.threads, progress=True)
+    ex = _executor(args)
+    try:
+        report = crosscheck(robot, poses, threads=args.threads, progress=True, executor=ex)
+    finally:
+        if ex is not None:
+            ex.shutdown()
     print(f"{robot}\n{report.summary()}")
     for d in report.disagreements[: args.show]:
         print(f"  pose {d.pose_index}: ours {d.ours}, MuJoCo {d.mujoco}, pairs {d.pairs}, "
@@ -69,7 +83,12 @@ def cmd_crosscheck(args) -> int:
 
 def cmd_dataset(args) -> int:
     robot = _robot(args)
-    ds = make_dataset(robot, args.n, args.collided_fraction, args.seed, threads=args.threads)
+    ex = _executor(args)
+    try:
+        ds = make_dataset(robot, args.n, args.collided_fraction, args.seed, threads=args.threads, executor=ex)
+    finally:
+        if ex is not None:
+            ex.shutdown()
     ds.save(args.out)
     print(f"saved {len(ds)} poses ({ds.collided_fraction:.1%} colliding) to {args.out}")
     return 0
@@ -133,11 +152,11 @@ def cmd_render(args) -> int:
     train = make_views(robot, sample_poses(robot, args.n, args.seed), train_cams, processes=args.processes)
     test = make_views(robot, sample_poses(robot, 4, args.seed + 1), test_cams, processes=args.processes)
     model = GaussianRobot.from_robot(robot, args.gaussians, seed=args.seed)
-    fit_gaussians(model, train, iters=args.iters, seed=args.seed)
+    fit_gaussians(model, train, iters=args.iters, seed=args.seed, backend=args.backend)
     model.save(args.out)
     with torch.no_grad():
         out = model.render_views(torch.tensor(test.poses, dtype=torch.float32), test_cams,
-                                 background=torch.tensor(test.background, dtype=torch.float32))
+                                 background=torch.tensor(test.background, dtype=torch.float32), backend=args.backend)
     shape = test.mask.shape
     rgb, alpha, depth = out.rgb.reshape(*shape, 3).numpy(), out.alpha.reshape(shape).numpy(), out.depth.reshape(shape).numpy()
     print(f"{model.n} Gaussians saved to {args.out}\nheld-out poses and views: PSNR {psnr(rgb, test.rgb / 255.0):.2f} dB, "
@@ -156,6 +175,11 @@ def main(argv: list[str] | None = None) -> int:
         sp.add_argument("--seed", type=int, default=0)
         sp.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
 
+    def cluster(sp):
+        sp.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: local (start one here), auto, "
+                                                         "host:6379 or ray://host:10001 (pip install 'profrobot[ray]')")
+        sp.add_argument("--workers", type=int, default=None, help="Ray workers (default: the cluster's CPUs)")
+
     sp = sub.add_parser("demo", help="label a bundled scene and cross-check with MuJoCo")
     common(sp, 100_000)
     sp.add_argument("--check", type=int, default=5_000, help="poses cross-checked with MuJoCo")
@@ -167,11 +191,13 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("crosscheck", help="compare our labels with MuJoCo's")
     common(sp, 10_000)
     sp.add_argument("--show", type=int, default=10, help="disagreements to print")
+    cluster(sp)
     sp.set_defaults(fn=cmd_crosscheck)
     sp = sub.add_parser("dataset", help="make a balanced dataset (.npz)")
     common(sp, 100_000)
     sp.add_argument("--collided-fraction", type=float, default=0.5)
     sp.add_argument("--out", required=True)
+    cluster(sp)
     sp.set_defaults(fn=cmd_dataset)
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
     common(sp, 0)
@@ -223,6 +249,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--lookat", default="0,0,0.45", help="x,y,z the cameras look at (metres)")
     sp.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")
     sp.add_argument("--torch-threads", dest="torch_threads", type=int, default=1)
+    sp.add_argument("--backend", choices=["auto", "rust", "torch", "gsplat"], default="auto",
+                    help="rasterizer: auto = the Rust kernel on a CPU, gsplat on CUDA (default: auto)")
     sp.add_argument("--out", required=True, help="model file (.safetensors)")
     sp.set_defaults(fn=cmd_render)
     sp = sub.add_parser("scenes", help="list the bundled scenes")

@@ -1,8 +1,10 @@
-"""Differentiable robot splat renderer (Dr. Robot-style), pure PyTorch on a CPU, gsplat on CUDA.
+"""Differentiable robot splat renderer (Dr. Robot-style): torch projection, the Rust tile kernel on a
+CPU, gsplat on CUDA, a pure-PyTorch reference.
 
 - :mod:`.views`: MuJoCo multi-view data (RGB, metric depth, robot mask) and OpenCV cameras;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
-- :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha);
+- :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
+  ``rust`` (``rust/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
 - :mod:`.pose`: :func:`fit_pose`, joint angles from images.
 

@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from .._io import check_robot
 from ..kinematics import quat_to_matrix
 from .gaussians import GaussianRobot
+from .rasterize import Backend
 from .views import Views
 
 __all__ = ["fit_gaussians", "ssim", "image_losses"]
@@ -146,7 +147,8 @@ def _densify(model: GaussianRobot, grad_acc: torch.Tensor, top: float, max_n: in
 
 
 @torch.no_grad()
-def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int = 0) -> torch.Tensor:
+def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int = 0,
+               backend: Backend = "auto") -> torch.Tensor:
     """(N,) each Gaussian's largest blending weight over (up to ``max_sets``) training poses,
     each from all of its cameras."""
     rng = np.random.default_rng(seed)
@@ -154,7 +156,8 @@ def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int
     dev = model.means.device
     best = torch.zeros(model.n, device=dev)
     for p in idx:
-        out = model.render_views(torch.tensor(views.poses[p:p + 1], dtype=torch.float32, device=dev), views.cameras)
+        out = model.render_views(torch.tensor(views.poses[p:p + 1], dtype=torch.float32, device=dev), views.cameras,
+                                 backend=backend)
         if out.contrib is None:                                   # gsplat: no per-Gaussian weights
             return torch.ones(model.n, device=dev)
         best = torch.maximum(best, out.contrib.max(0).values)
@@ -165,13 +168,14 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
                   w_depth: float = 1.0, w_mask: float = 0.5, densify_every: int = 100, densify_until: float = 0.7,
                   densify_top: float = 0.05, max_gaussians: int = 30000, min_opacity: float = 0.02,
                   min_contrib: float = 0.02, prune_hidden_first: bool = True, seed: int = 0, progress: bool = True,
-                  log_every: int = 50) -> list[dict]:
+                  log_every: int = 50, backend: Backend = "auto") -> list[dict]:
     """Fit ``model`` (in place) to ``views`` (MuJoCo renders of the same robot). Each step draws
     one pose and ``cams_per_step`` of its cameras. Returns the loss history (one dict per log).
 
     ``prune_hidden_first``: before fitting, drop Gaussians whose blending weight never reaches
     ``min_contrib`` in any training view (initialised on meshes inside the robot's shell, they
-    only leak dark blotches through it)."""
+    only leak dark blotches through it). ``backend``: the rasterizer (see
+    :func:`profrobot.render.rasterize`; "auto" is the Rust kernel on a CPU, gsplat on CUDA)."""
     from tqdm.auto import tqdm
 
     check_robot(views.robot_fingerprint or None, model, "the views", made_for=views.robot_name, missing_ok=True)
@@ -183,7 +187,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
     vm_all, K_all, bg = f32(cams.world_to_cam), f32(cams.K), f32(views.background)
     history = []
     if prune_hidden_first:
-        vis = visibility(model, views, seed=seed)
+        vis = visibility(model, views, seed=seed, backend=backend)
         n0 = model.n
         model.keep(vis >= min_contrib)
         history.append(dict(step=0, event="prune_hidden", n_before=n0, n_after=model.n))
@@ -198,7 +202,8 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
         rgb_t = f32(views.rgb[p, cs]) / 255.0
         depth_t = f32(views.depth[p, cs])
         mask_t = torch.as_tensor(views.mask[p, cs], device=dev)
-        out = model.render(f32(views.poses[p:p + 1]), vm_all[cs], K_all[cs], cams.width, cams.height, background=bg)
+        out = model.render(f32(views.poses[p:p + 1]), vm_all[cs], K_all[cs], cams.width, cams.height, background=bg,
+                           backend=backend)
         terms = image_losses(out, rgb_t, depth_t, mask_t, w_ssim=w_ssim, w_depth=w_depth, w_mask=w_mask)
         opt.zero_grad()
         terms["total"].backward()

@@ -343,7 +343,7 @@ def _gsplat_available(device) -> bool:
         return True
     except ImportError:
         if not _warned:
-            warnings.warn("CUDA is present but gsplat is not installed: using the pure-PyTorch rasterizer", stacklevel=3)
+            warnings.warn("CUDA is present but gsplat is not installed: using the Rust CPU rasterizer", stacklevel=3)
             _warned = True
         return False
 
@@ -377,7 +377,8 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     (m^2); opacities (N,) or (C, N) in [0, 1]; colors (N, 3) or (C, N, 3); viewmats (C, 4, 4)
     world-to-camera (OpenCV); Ks (C, 3, 3) pixel centres at integers; background (3,) or (C, 3)
     or None (black). ``cutoff``: "soft" (default) or "hard" (3DGS). ``backend``: "auto" (gsplat
-    on CUDA when installed, else the Rust kernel on CPU tensors, the torch one on other devices),
+    on CUDA when installed, else the Rust kernel, which copies tensors of another device to the
+    CPU and its results back),
     "rust", "torch" (the reference) or "gsplat" (gsplat ignores ``cutoff``: its kernel cuts
     hard; and returns no ``contrib``). ``threads``: the Rust kernel's thread count (None: every
     core); its results are identical for any count.
@@ -409,8 +410,8 @@ def rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width: int
         except (ImportError, TypeError, RuntimeError) as e:
             global _warned
             if not _warned:
-                warnings.warn(f"gsplat rasterization failed ({e}); using the pure-PyTorch rasterizer", stacklevel=2)
+                warnings.warn(f"gsplat rasterization failed ({e}); using the Rust CPU rasterizer", stacklevel=2)
                 _warned = True
-    if backend == "rust" or (backend == "auto" and means.device.type == "cpu"):
+    if backend != "torch":                      # "rust", "auto" without gsplat, or gsplat failed
         return _rasterize_rust(means, covs, opacities, colors, viewmats, Ks, width, height, background, cutoff, threads)
     return _rasterize_torch(means, covs, opacities, colors, viewmats, Ks, width, height, background, cutoff)

@@ -369,7 +369,7 @@ class Views:
 
 
 def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, processes: int = 1,
-               progress: bool = True, chunk: int = 8) -> Views:
+               progress: bool = True, chunk: int = 8, executor=None) -> Views:
     """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo, offscreen. Only the
     robot is drawn (world-body geoms are hidden); the background is MuJoCo's clear colour (black).
 
@@ -380,9 +380,18 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
 
     ``size``: if given, the cameras are re-rendered at ``size`` x ``size``; ``chunk``: poses per
     request to a worker.
+
+    ``executor``: ``None`` (the local render workers above) or a
+    :class:`profrobot.executors.RayExecutor`, whose actors (each holding the robot and one
+    MuJoCo renderer, its backend chosen on its node as above) render the same chunks; the views
+    are byte-identical to the local ones (``processes`` is then ignored: the executor's workers
+    render).
     """
     from tqdm.auto import tqdm
 
+    from ..executors import check_executor
+
+    executor = check_executor(executor)
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != robot.njoint:
         raise ProfrobotError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
@@ -395,6 +404,15 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     m = robot_visual_model(robot)
     qpos = np.tile(m.qpos0, (len(poses), 1))
     qpos[:, robot.qpos_adr] = poses
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ProfrobotError(f"chunk must be a positive integer; got {chunk!r}")
+    if executor is not None:
+        bounds = [(i, min(i + chunk, len(qpos))) for i in range(0, len(qpos), chunk)]
+        ref = executor.put(qpos)  # once, through the object store; each chunk names its rows
+        parts = executor.map_chunks(robot, "render", [(cameras, ref, a, b) for a, b in bounds],
+                                    sizes=[b - a for a, b in bounds], desc="MuJoCo views", unit="pose",
+                                    progress=progress)
+        return _views_of(robot, poses, cameras, parts)
     chunks = [qpos[i:i + chunk] for i in range(0, len(qpos), chunk)]
     parts = []
     with RenderWorkers(min(processes, len(chunks))) as workers:
@@ -404,6 +422,11 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
                 parts.append(out)
                 bar.update(len(ch))
         workers.call(__name__, "_release")
+    return _views_of(robot, poses, cameras, parts)
+
+
+def _views_of(robot, poses: np.ndarray, cameras: Cameras, parts: list) -> Views:
+    """The chunks' renders, in chunk order, as one :class:`Views`."""
     rgb, depth, mask = (np.concatenate(x) for x in zip(*parts))
     # MuJoCo's background (skybox or clear colour): the median off-robot pixel, for compositing
     off = rgb[~mask]
