@@ -2,6 +2,7 @@
 smoothing) and OMPL's RRT-Connect using our labeller as its state-validity checker, in one run.
 
     python benches/planning.py [--problems 100] [--scenes a,b] [--max-time 10] [--field] [--no-ompl]
+                               [--executor ray [--address ray://host:10001] [--workers N]]
 
 A hard problem: start and goal free, the straight SO(2) interpolation colliding at the dense
 check (``profrobot.problems.hard_pairs``). Every path reported free is re-checked: each segment
@@ -13,6 +14,11 @@ the rest), ``setStateValidityCheckingResolution`` so that consecutive checked st
 ``resolution`` apart in OMPL's metric (a sum over joints, so no joint moves more than
 ``resolution``: the same guarantee as ours), the default range, and the path simplifier off
 (ours: shortcutting on; both lengths are reported).
+
+``--executor ray`` farms the problems out, one per task, to a Ray cluster's workers (each holds
+the scene's robot, loaded once; ``profrobot.executors.RayExecutor``): the same problems, seeds
+and re-checks, each planner on one CPU per problem (locally ours uses all cores); field
+smoothing stays in this process (one batched torch call).
 """
 
 from __future__ import annotations
@@ -151,20 +157,47 @@ def summarise(rows: list[dict], robot, straight: list[float]) -> dict:
                 checks=float(np.median([r["checks"] for r in rows])))
 
 
+def ours_row(robot, i: int, start, goal, resolution: float, max_time: float, threads: int | None = None) -> dict:
+    """One problem with our exact planner (seed ``i``), its path re-checked densely."""
+    r = plan_path(robot, start, goal, resolution=resolution, max_time=max_time, seed=i, threads=threads)
+    row = dict(found=r.found, seconds=r.seconds, checks=r.checks, length=float("nan"), max_step=float("nan"),
+               dense_ours=False, dense_mujoco=False)
+    if r.found:
+        row["length"] = so2_length(robot, r.path)
+        row["dense_ours"], row["dense_mujoco"], row["max_step"] = dense_check(robot, r.path, resolution)
+    return row
+
+
+def ompl_row(robot, i: int, start, goal, resolution: float, max_time: float) -> dict:
+    """One problem with OMPL's RRT-Connect (seed ``i``), its path re-checked densely."""
+    r = ompl_plan(robot, start, goal, resolution, max_time, seed=i)
+    row = dict(found=r["found"], seconds=r["seconds"], checks=r["checks"], length=float("nan"),
+               max_step=float("nan"), dense_ours=False, dense_mujoco=False)
+    if r["found"]:
+        row["length"] = so2_length(robot, r["path"])
+        row["dense_ours"], row["dense_mujoco"], row["max_step"] = dense_check(robot, r["path"], resolution)
+    return row
+
+
+def rows(fn, robot, problems: list[tuple], executor, desc: str) -> list[dict]:
+    """``fn(robot, *problem)`` for each problem: here, or one problem per task on the executor's
+    workers (each holding the scene's robot), in problem order either way."""
+    if executor is None:
+        return [fn(robot, *p) for p in problems]
+    if __name__ != "__main__":  # imported (not run as a script): send this module's functions by value
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    return executor.map(fn, problems, robot=robot, desc=desc)
+
+
 def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field: bool, with_ompl: bool,
-              recipe: str = "bench") -> dict:
+              recipe: str = "bench", executor=None) -> dict:
     robot = profrobot.scenes.load(scene)
     starts, goals = hard_pairs(robot, n, seed=200)
     straight = [so2_length(robot, np.stack([a, b])) for a, b in zip(starts, goals)]
-    out: dict[str, list] = {"ours (exact)": []}
-    for i, (a, b) in enumerate(zip(starts, goals)):
-        r = plan_path(robot, a, b, resolution=resolution, max_time=max_time, seed=i)
-        row = dict(found=r.found, seconds=r.seconds, checks=r.checks, length=float("nan"), max_step=float("nan"),
-                   dense_ours=False, dense_mujoco=False)
-        if r.found:
-            row["length"] = so2_length(robot, r.path)
-            row["dense_ours"], row["dense_mujoco"], row["max_step"] = dense_check(robot, r.path, resolution)
-        out["ours (exact)"].append(row)
+    problems = [(i, a, b, resolution, max_time) for i, (a, b) in enumerate(zip(starts, goals))]
+    out: dict[str, list] = {"ours (exact)": rows(ours_row, robot, problems, executor, f"{scene} ours")}
     print(scene, "ours", summarise(out["ours (exact)"], robot, straight), flush=True)
     smoothing = None
     if with_field:
@@ -173,31 +206,22 @@ def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field
         res = profrobot.plan_trajectory(sdf, starts, goals, steps=100, init="planner",
                                         planner=dict(resolution=resolution, max_time=max_time))
         wall = (time.perf_counter() - t) / n
-        rows = []
+        field_rows = []
         for r in res:
             ok_o, ok_m, step = dense_check(robot, r.path, resolution) if r.free else (False, False, float("nan"))
-            rows.append(dict(found=r.free, seconds=wall, checks=r.planner.checks if r.planner else 0, length=r.length,
-                             max_step=step, dense_ours=ok_o, dense_mujoco=ok_m))
-        out["ours (exact + field smoothing)"] = rows
+            field_rows.append(dict(found=r.free, seconds=wall, checks=r.planner.checks if r.planner else 0,
+                                   length=r.length, max_step=step, dense_ours=ok_o, dense_mujoco=ok_m))
+        out["ours (exact + field smoothing)"] = field_rows
         before = np.array([r.length_before for r in res])
         after = np.array([r.length for r in res])
         tv = lambda p: float(np.abs(np.diff(p, axis=0)).sum())
         smoothing = dict(length_before=float(np.nanmedian(before)), length_after=float(np.nanmedian(after)),
                          shortened=int(sum(r.smoothed for r in res)),
                          tv_after=float(np.median([tv(r.path) for r in res])))
-        print(scene, "field", summarise(rows, robot, straight), smoothing, flush=True)
+        print(scene, "field", summarise(field_rows, robot, straight), smoothing, flush=True)
     if with_ompl:
-        rows = []
-        for i, (a, b) in enumerate(zip(starts, goals)):
-            r = ompl_plan(robot, a, b, resolution, max_time, seed=i)
-            row = dict(found=r["found"], seconds=r["seconds"], checks=r["checks"], length=float("nan"),
-                       max_step=float("nan"), dense_ours=False, dense_mujoco=False)
-            if r["found"]:
-                row["length"] = so2_length(robot, r["path"])
-                row["dense_ours"], row["dense_mujoco"], row["max_step"] = dense_check(robot, r["path"], resolution)
-            rows.append(row)
-        out["OMPL RRT-Connect"] = rows
-        print(scene, "ompl", summarise(rows, robot, straight), flush=True)
+        out["OMPL RRT-Connect"] = rows(ompl_row, robot, problems, executor, f"{scene} ompl")
+        print(scene, "ompl", summarise(out["OMPL RRT-Connect"], robot, straight), flush=True)
     return dict(scene=scene, n=n, methods={k: summarise(v, robot, straight) for k, v in out.items()},
                 smoothing=smoothing)
 
@@ -206,8 +230,10 @@ def markdown(results: list[dict], args) -> str:
     load = os.getloadavg()
     lines = ["# Planning: ours beside OMPL RRT-Connect", "",
              f"Hard problems per scene: {args.problems}; resolution {args.resolution} rad (no joint moves more "
-             f"than that between checks); budget {args.max_time} s per problem; 2 threads for ours, OMPL "
-             f"single-threaded (its checker is our labeller, one pose per call). Load average at the end: "
+             f"than that between checks); budget {args.max_time} s per problem; "
+             + ("2 threads for ours, " if getattr(args, "executor", "local") == "local" else
+                "on a Ray cluster (one problem per task, one CPU each), ")
+             + "OMPL single-threaded (its checker is our labeller, one pose per call). Load average at the end: "
              f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}. Field recipe for smoothing: {args.recipe}.", "",
              "| scene | method | success | median s | p90 s | length / straight | max joint step | "
              "dense check free | reported free but colliding | median checks |",
@@ -239,16 +265,31 @@ def main() -> None:
     ap.add_argument("--field-recipe", dest="recipe", choices=("bench", "quick"), default="bench",
                     help="bench: benches/fields.py's cached fields; quick: a 2-minute field per scene")
     ap.add_argument("--no-ompl", dest="ompl", action="store_false")
+    ap.add_argument("--executor", choices=("local", "ray"), default="local",
+                    help="ray: one problem per task on a Ray cluster's workers (pip install '.[ray]')")
+    ap.add_argument("--address", default=None, help="Ray address (default: start a local cluster)")
+    ap.add_argument("--workers", type=int, default=None, help="Ray workers (default: the cluster's CPUs)")
+    ap.add_argument("--out", default=str(OUT / "planning.md"), help="the Markdown table")
     args = ap.parse_args()
-    results = []
-    for scene in args.scenes.split(","):
-        results.append(run_scene(scene, args.problems, args.resolution, args.max_time,
-                                 args.field and scene in args.field_scenes.split(","), args.ompl, args.recipe))
-        OUT.mkdir(exist_ok=True)
-        from profrobot._io import atomic_path
+    executor = None
+    if args.executor == "ray":
+        from profrobot.executors import RayExecutor
 
-        with atomic_path(OUT / "planning.md") as tmp:
-            Path(tmp).write_text(markdown(results, args))
+        executor = RayExecutor(args.address, workers=args.workers)
+    results = []
+    try:
+        for scene in args.scenes.split(","):
+            results.append(run_scene(scene, args.problems, args.resolution, args.max_time,
+                                     args.field and scene in args.field_scenes.split(","), args.ompl, args.recipe,
+                                     executor))
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            from profrobot._io import atomic_path
+
+            with atomic_path(args.out) as tmp:
+                Path(tmp).write_text(markdown(results, args))
+    finally:
+        if executor is not None:
+            executor.shutdown()
     print(markdown(results, args))
 
 

@@ -48,7 +48,7 @@ _LAZY = {
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors",
 }
-_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities")
+_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -57,7 +57,7 @@ __all__ = [
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "problems", "joints", "equalities",
+    "plan_path", "PathResult", "problems", "joints", "equalities", "executors",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

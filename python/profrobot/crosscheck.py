@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
+from .errors import ProfrobotError
 from .labels import Labels, as_poses, label_poses
 from .robot import Robot
 
@@ -24,21 +25,48 @@ class MujocoLabels:
     pairs: list[set[tuple[int, int]]]  # per pose, colliding (geom1, geom2) MuJoCo ids, sorted
 
 
-def mujoco_labels(robot: Robot, poses, *, progress: bool = False) -> MujocoLabels:
-    """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded)."""
-    q = as_poses(robot, poses)
+def _mujoco_chunk(robot: Robot, q: np.ndarray, bar=None) -> tuple[np.ndarray, list[set[tuple[int, int]]]]:
+    """MuJoCo's contact count and colliding geom pairs for each pose of ``q`` (a pure function
+    of the poses: the chunk the local loop and a Ray worker both compute)."""
     m = robot.mj_model
     d = mujoco.MjData(m)
     ncon = np.zeros(len(q), dtype=np.int64)
     pairs = []
     adr = robot.qpos_adr
-    for i in tqdm(range(len(q)), disable=not progress, desc="mujoco", unit="pose"):
+    for i in range(len(q)):
         d.qpos[adr] = q[i]
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         ncon[i] = d.ncon
         g = d.contact.geom[: d.ncon]
         pairs.append({(int(min(a, b)), int(max(a, b))) for a, b in g})
+        if bar is not None:
+            bar.update(1)
+    return ncon, pairs
+
+
+def mujoco_labels(robot: Robot, poses, *, progress: bool = False, executor=None, chunk: int = 2000) -> MujocoLabels:
+    """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded).
+
+    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`, whose workers
+    label chunks of ``chunk`` poses each (the same labels: every pose is labelled on its own).
+    """
+    from .executors import check_executor
+
+    q = as_poses(robot, poses)
+    executor = check_executor(executor)
+    if executor is None:
+        with tqdm(total=len(q), disable=not progress, desc="mujoco", unit="pose") as bar:
+            ncon, pairs = _mujoco_chunk(robot, q, bar)
+        return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ProfrobotError(f"chunk must be a positive integer; got {chunk!r}")
+    bounds = [(i, min(i + chunk, len(q))) for i in range(0, len(q), chunk)]
+    ref = executor.put(q)  # once, through the object store; each chunk names its rows
+    parts = executor.map_chunks(robot, "mujoco_labels", [(ref, a, b) for a, b in bounds],
+                                sizes=[b - a for a, b in bounds], desc="mujoco", unit="pose", progress=progress)
+    ncon = np.concatenate([p[0] for p in parts])
+    pairs = [s for p in parts for s in p[1]]
     return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
 
 
@@ -90,15 +118,20 @@ class CrosscheckReport:
         return "\n".join(lines)
 
 
-def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = False) -> CrosscheckReport:
+def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = False, executor=None,
+               chunk: int = 2000) -> CrosscheckReport:
     """Labels ``poses`` with both our labeller and MuJoCo and compares them pose by pose.
 
     Every disagreement comes with MuJoCo's signed distance (``mj_geomDistance``) of the geom
     pair the two labellers disagree on; grazing contacts are |distance| < 1e-4 m.
+
+    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`: MuJoCo's labels
+    (the slow, single-threaded side) are then computed by its workers, ``chunk`` poses per task;
+    the report is identical to the local one.
     """
     q = as_poses(robot, poses)
     ours = label_poses(robot, q, pairs=True, threads=threads)
-    ref = mujoco_labels(robot, q, progress=progress)
+    ref = mujoco_labels(robot, q, progress=progress, executor=executor, chunk=chunk)
     ours_pairs: list[set] = [set() for _ in range(len(q))]
     for p, k in ours.colliding_pairs:
         g1, g2 = robot.pair_geoms[k]

@@ -3,9 +3,11 @@ to one ``.npz`` file with poses, labels and metadata. Nothing is pickled."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import zipfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -96,9 +98,19 @@ def _round_seed(seed: int, round_index: int) -> int:
     return int(np.random.SeedSequence([seed, round_index]).generate_state(1, np.uint64)[0])
 
 
+def _round(robot: Robot, seed: int, r: int, batch: int, threads: int | None,
+           equalities: EqualityMode) -> tuple[np.ndarray, ...]:
+    """Sampling round ``r``: ``batch`` poses from the round's own seed and their labels,
+    ``(poses, collides, self_collides, scene_collides, n_pairs)``. A pure function of its
+    arguments (whatever ``threads``): the chunk the local loop and a Ray worker both compute."""
+    q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads, equalities=equalities)
+    lab = label_poses(robot, q, threads=threads)
+    return (q, *(getattr(lab, k) for k in _LABELS))
+
+
 def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *,
                  batch: int = 100_000, max_samples: int | None = None, progress: bool = True,
-                 threads: int | None = None, equalities: EqualityMode = "auto") -> Dataset:
+                 threads: int | None = None, equalities: EqualityMode = "auto", executor=None) -> Dataset:
     """``n`` poses with exact labels, resampled so that ``collided_fraction`` of them collide.
 
     Uniform poses are drawn in seeded rounds of ``batch`` and labelled; colliding and free poses
@@ -106,40 +118,70 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     if a quota cannot be met within ``max_samples`` draws (default ``200 * n``), naming the
     collision rate seen. Same seed, same dataset, whatever the thread count. ``equalities``
     chooses how coupled joints are sampled (see :func:`profrobot.sample_poses`).
+
+    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`, whose workers
+    draw and label the rounds (a round is a pure function of ``seed`` and its index) while the
+    quotas are filled here, in round order: the same dataset as the local run, whatever the
+    number of workers (``threads`` is then each worker's, the executor's ``threads``).
     """
+    from .executors import check_executor
+
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ProfrobotError(f"n must be a positive integer; got {n!r}")
     if not 0.0 <= collided_fraction <= 1.0:
         raise ProfrobotError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
+    if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
+        raise ProfrobotError(f"batch must be a positive integer; got {batch!r}")
     threads = check_threads(threads)
+    executor = check_executor(executor)
     want_coll = int(round(n * collided_fraction))
     want = {True: want_coll, False: n - want_coll}
     kept: dict[bool, list[tuple[np.ndarray, ...]]] = {True: [], False: []}  # (poses, *labels) per round
     have = {True: 0, False: 0}
     drawn = seen_colliding = 0
     max_samples = max_samples or 200 * n
+    max_rounds = -(-max_samples // batch)
+
+    def rounds_needed() -> int:
+        """More rounds the quotas still need, at the collision rate seen so far (at least the
+        ``n`` draws left to keep, before any round came back)."""
+        if drawn == 0:
+            return -(-n // batch)
+        rate = {True: seen_colliding / drawn, False: 1 - seen_colliding / drawn}
+        need = [-(-(want[c] - have[c]) // max(1, int(batch * rate[c]))) for c in (True, False) if have[c] < want[c]]
+        return max(need, default=1)
+
+    stream = None
+    if executor is None:
+        rounds: Iterator[tuple[np.ndarray, ...]] = (_round(robot, seed, r, batch, threads, equalities)
+                                                   for r in itertools.count())
+    else:
+        stream = executor.ordered(robot, "dataset_round", lambda r: (int(seed), r, int(batch), equalities),
+                                  max_rounds, rounds_needed)
+        rounds = (value for _, value in stream)
     bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=not progress)
-    r = 0
-    while have[True] < want[True] or have[False] < want[False]:
-        if drawn >= max_samples:
-            bar.close()
-            raise ProfrobotError(f"could not fill the quotas for {robot.name} after {drawn} samples "
-                               f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
-                               "or raise max_samples")
-        q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads, equalities=equalities)
-        lab = label_poses(robot, q, threads=threads)
-        drawn += batch
-        seen_colliding += int(lab.collides.sum())
-        for c in (True, False):
-            idx = np.flatnonzero(lab.collides == c)[: want[c] - have[c]]
-            if len(idx):
-                kept[c].append((q[idx], *(getattr(lab, k)[idx] for k in _LABELS)))
-                have[c] += len(idx)
-                bar.update(len(idx))
-        r += 1
-    bar.close()
+    try:
+        while have[True] < want[True] or have[False] < want[False]:
+            if drawn >= max_samples:
+                raise ProfrobotError(f"could not fill the quotas for {robot.name} after {drawn} samples "
+                                     f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
+                                     "or raise max_samples")
+            q, *lab = next(rounds)
+            collides = lab[0]
+            drawn += batch
+            seen_colliding += int(collides.sum())
+            for c in (True, False):
+                idx = np.flatnonzero(collides == c)[: want[c] - have[c]]
+                if len(idx):
+                    kept[c].append((q[idx], *(x[idx] for x in lab)))
+                    have[c] += len(idx)
+                    bar.update(len(idx))
+    finally:
+        bar.close()
+        if stream is not None:
+            stream.close()  # a Ray run cancels the rounds it no longer needs
     parts = kept[True] + kept[False]
     order = np.random.default_rng(seed).permutation(n)
     poses, *labels = (np.concatenate(column)[order] for column in zip(*parts))
