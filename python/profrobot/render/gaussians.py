@@ -220,6 +220,12 @@ class GaussianRobot(torch.nn.Module):
 
     def _world(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`world` without the checks: ``theta`` a (B, K) tensor on the model's device."""
+        mu, A, _ = self._world_frames(theta)
+        return mu, A
+
+    def _world_frames(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """World means (B, N, 3), maps A (B, N, 3, 3), and the linear part of each Gaussian's
+        body motion (B, N, 3, 3): the body rotation (rigid), the blended map (LBS)."""
         fk = self.kin(theta)
         Q = quat_to_matrix(self.quats)                                # (N, 3, 3)
         if self.skin_mlp is None:
@@ -227,7 +233,7 @@ class GaussianRobot(torch.nn.Module):
             # cheaper on a CPU than the accumulating index_put of advanced indexing
             Rb = fk.rot.index_select(1, self.body)                    # (B, N, 3, 3)
             mu = (Rb * self.means[:, None, :]).sum(-1) + fk.pos.index_select(1, self.body)
-            return mu, Rb @ Q
+            return mu, Rb @ Q, Rb
         fk0 = self.kin(self.canonical)
         R0, x0 = fk0.rot[0], fk0.pos[0]                               # (nb, 3, 3), (nb, 3)
         mu_c = torch.einsum("nij,nj->ni", R0[self.body], self.means) + x0[self.body]
@@ -237,7 +243,8 @@ class GaussianRobot(torch.nn.Module):
         Rbl = torch.einsum("nj,bjik->bnik", w, Rrel)
         tbl = torch.einsum("nj,bjk->bnk", w, trel)
         mu = torch.einsum("bnij,nj->bni", Rbl, mu_c) + tbl
-        return mu, Rbl @ (R0[self.body] @ Q)
+        Ab = Rbl @ R0[self.body]
+        return mu, Ab @ Q, Ab
 
     def covariances(self, A: torch.Tensor) -> torch.Tensor:
         """(B, N, 3, 3) world covariances ``A diag(s^2) A^T`` (m^2)."""
@@ -261,14 +268,13 @@ class GaussianRobot(torch.nn.Module):
         """:meth:`render` for callers that validated their inputs once (``theta`` (B, K),
         ``viewmats``, ``Ks`` tensors on the model's device): no per-call finiteness checks, no host
         syncs, unless ``check``."""
-        mu, A = self._world(theta)
+        mu, A, Ab = self._world_frames(theta)                                          # Ab: body motion (B, N, 3, 3)
         B, C = mu.shape[0], viewmats.shape[0]
         cov = self.covariances(A)
         # view direction from each camera centre to each Gaussian, in the Gaussian's body frame
+        # (normalised once, after the rotation into the body frame)
         cam_c = -torch.einsum("cji,cj->ci", viewmats[:, :3, :3], viewmats[:, :3, 3])   # (C, 3)
         d = mu[:, None] - cam_c[None, :, None]                                          # (B, C, N, 3)
-        d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        Ab = A @ quat_to_matrix(self.quats).transpose(-1, -2)                           # body rotation (B, N, 3, 3)
         # d_loc = Ab^T d, component by component (cheaper on a CPU than a batched einsum)
         dx, dy, dz = d.unbind(-1)                                                       # (B, C, N)
         Ab = Ab[:, None]
