@@ -47,8 +47,10 @@ _LAZY = {
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors",
+    "pose_from_images": ".inverse", "InverseResult": ".inverse",
 }
-_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors")
+_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
+                "inverse")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -57,7 +59,8 @@ __all__ = [
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "problems", "joints", "equalities", "executors",
+    "plan_path", "PathResult", "problems", "joints", "equalities", "executors", "inverse",
+    "pose_from_images", "InverseResult",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

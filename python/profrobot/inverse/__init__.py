@@ -1,0 +1,10 @@
+"""Image-space inverse problems whose answers do not collide (the paper's point, Tables 7–9):
+the Gaussian robot's image loss, the pose collision field's penalty, the exact labeller's
+certificate.
+
+- :func:`pose_from_images` (Table 7): joint angles from multi-view images;
+"""
+
+from .images import InverseResult, pose_from_images
+
+__all__ = ["InverseResult", "pose_from_images"]

@@ -1,0 +1,221 @@
+"""Poses from images that do not collide (paper §5, Table 7): the differentiable Gaussian robot's
+image loss, the pose collision field's penalty, and the exact labeller's certificate.
+
+For B targets seen by C cameras:
+
+1. **image phase** (Dr. Robot, the baseline): :func:`profrobot.render.fit_pose` from ``init`` on
+   ``L_img = L_RGB + w_depth L_D + w_mask L_mask`` (masked, see :func:`profrobot.render.pose_loss`);
+2. **field phase** (``sdf`` given; the paper's "ours"): from the image-phase result, Adam on
+   ``L_img + beta ReLU(g(theta) - l_thres)``, each pose stopping as soon as ``g <= l_thres``
+   (the paper's rule), at most ``field_iters`` steps;
+3. **certify and continue**: every returned pose is labelled by the exact labeller (against the
+   field's scene: robot *and* obstacles, which the images do not show); a pose that still
+   collides goes on with its threshold lowered by ``refine_step``, for up to ``refine_rounds``
+   rounds, as :func:`profrobot.resolve` does. Poses left colliding are reported in
+   ``result.failures``, never hidden.
+
+``sdf=None`` is the baseline: the image phase only, labelled but not corrected.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..errors import ProfrobotError, RobotMismatchError
+from ..joints import Limits
+from ..optim._batched_adam import BatchedAdam
+from ..optim._inputs import check_field, field_robot, finite, positive
+from ..optim.certify import certify_poses
+from ..render.pose import _as_targets, fit_pose, pose_loss
+
+__all__ = ["InverseResult", "pose_from_images", "check_field_matches_model"]
+
+
+@dataclass
+class InverseResult:
+    """Outcome of :func:`pose_from_images` for B targets.
+
+    Attributes:
+        poses: (B, K) float64 returned poses (radians / metres, within the joint limits).
+        image_loss: (B,) the image loss at the returned poses (mean over the C views).
+        certified: (B,) bool, the exact labeller finds the returned pose free (with the field's
+            scene; the baseline is labelled too, not corrected).
+        iterations: (B,) int, field-phase Adam steps (0 for the baseline, or a pose the field
+            already called free).
+        image_iterations: image-phase steps (all poses).
+        g: (B,) the field at the returned poses (NaN without a field).
+        threshold: (B,) the last threshold each pose was driven to.
+        field_free_before_certify: (B,) bool, g <= l_thres when the field phase first stopped
+            (the paper's criterion; the certificate is the labeller's).
+        certified_before_continue: (B,) bool, the labeller's verdict before certify-and-continue.
+        seconds: wall time.
+    """
+
+    poses: np.ndarray
+    image_loss: np.ndarray
+    certified: np.ndarray
+    iterations: np.ndarray
+    image_iterations: int
+    g: np.ndarray
+    threshold: np.ndarray
+    field_free_before_certify: np.ndarray
+    certified_before_continue: np.ndarray
+    seconds: float
+    rounds: int = 0
+    history: list = field(default_factory=list, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def failures(self) -> np.ndarray:
+        """Indices of returned poses the exact labeller finds colliding."""
+        return np.flatnonzero(~self.certified)
+
+    def summary(self) -> str:
+        n = len(self)
+        return (f"{n} poses: {self.certified.mean():.1%} certified free ({len(self.failures)} colliding), "
+                f"{self.certified_before_continue.mean():.1%} before certify-and-continue; mean image loss "
+                f"{self.image_loss.mean():.4f}; mean field steps {self.iterations.mean():.1f}; {self.seconds:.1f} s "
+                f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
+
+
+def check_field_matches_model(sdf, model) -> None:
+    """The field and the Gaussian robot must move the same joints: same count and limits
+    (the field's scene may add obstacles the images do not show; the joints are the robot's)."""
+    check_field(sdf)
+    if sdf.njoint != model.njoint:
+        raise RobotMismatchError(f"the field is for robot {getattr(sdf, 'robot_name', '?')!r} with {sdf.njoint} joints; "
+                                 f"the Gaussian model {model.robot_name!r} has {model.njoint}")
+    a = sdf.joint_limits.detach().double().cpu().numpy()
+    b = model.limits.detach().double().cpu().numpy()
+    if a.shape != b.shape or not np.allclose(a, b, atol=1e-4):
+        raise RobotMismatchError(f"the field's robot {getattr(sdf, 'robot_name', '?')!r} and the Gaussian model's "
+                                 f"{model.robot_name!r} have different joint limits: not the same arm")
+
+
+def _image_losses(model, theta, vm, Ks, W, H, bg, tr, td, tm, C, w_depth, w_mask):
+    """(B,) mean image loss over the C views of each of B poses."""
+    out = model._render(theta, vm, Ks, W, H, background=bg)
+    return pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(-1, C).mean(1)
+
+
+def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
+                     iters: int = 100, lr: float = 0.02, field_iters: int = 300, field_lr: float = 0.005,
+                     refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
+                     background=None, coarse: dict | None = None, robot=None, seed: int = 0) -> InverseResult:
+    """Joint angles from multi-view images whose answers do not collide (module docs).
+
+    ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
+    (B, C, H, W, 3) uint8 or [0, 1], ``depth`` (B, C, H, W) metres, ``mask`` (B, C, H, W) bool;
+    ``cameras``: the C :class:`~profrobot.render.Cameras`; ``init`` (B, K) starts. ``sdf``: a
+    PoseSDF for the same arm (its scene's obstacles are what must not be hit), or None for the
+    Dr. Robot baseline. ``beta``, ``l_thres``: the penalty ``beta ReLU(g - l_thres)``;
+    ``iters``/``lr``/``coarse``: the image phase (:func:`~profrobot.render.fit_pose`);
+    ``field_iters``/``field_lr``: the field phase (Adam in joint space); ``refine_rounds``,
+    ``refine_step``: certify-and-continue. ``robot``: the labeller's scene (default: the field's;
+    for the baseline, required to label the results, else they are labelled against nothing).
+    """
+    t0 = time.perf_counter()
+    beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
+    iters = positive("iters", iters, integer=True, allow_zero=True)
+    field_iters = positive("field_iters", field_iters, integer=True, allow_zero=True)
+    refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
+    refine_step = positive("refine_step", refine_step)
+    field_lr = positive("field_lr", field_lr)
+    if sdf is not None:
+        check_field_matches_model(sdf, model)
+        robot = field_robot(sdf, robot)
+    if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
+        raise ProfrobotError("targets must be a dict with 'rgb', 'depth' and 'mask'")
+    init = np.asarray(init, dtype=np.float64)
+    if init.ndim == 1:
+        init = init[None]
+    if init.ndim != 2 or init.shape[1] != model.njoint:
+        raise ProfrobotError(f"init must have shape (B, {model.njoint}); got {init.shape}")
+    B, C = init.shape[0], len(cameras)
+    if np.asarray(targets["mask"]).shape[:2] != (B, C) and not (B == 1 and np.asarray(targets["mask"]).ndim == 3):
+        raise ProfrobotError(f"targets hold {np.asarray(targets['mask']).shape[:2]} (targets, cameras) images; "
+                             f"init has {B} targets and there are {C} cameras")
+
+    # 1. image phase (validates targets, cameras and init; restarts and coarse-to-fine as fit_pose)
+    fit = fit_pose(model, targets, cameras, init, iters=iters, lr=lr, w_depth=w_depth, w_mask=w_mask,
+                   background=background, coarse=coarse, seed=seed)
+    theta_img = fit.theta
+
+    H, W = cameras.height, cameras.width
+    dev = model.means.device
+    tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float().to(dev)
+    td = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float().to(dev)
+    tm = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool().to(dev)
+    flat = lambda t: t.reshape(B * C, *t.shape[2:])
+    tr, td, tm = flat(tr), flat(td), flat(tm)
+    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
+    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
+    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+
+    def img_loss(theta, rows):
+        sel = (rows[:, None] * C + torch.arange(C, device=dev)).reshape(-1)
+        return _image_losses(model, theta, vm, Ks, W, H, bg, tr[sel], td[sel], tm[sel], C, w_depth, w_mask)
+
+    limits = Limits.of(model, like=model.means)
+    theta = torch.as_tensor(theta_img, dtype=torch.float32, device=dev).clone()
+    iterations = np.zeros(B, dtype=np.int64)
+    g = torch.full((B,), float("nan"))
+    thresholds = np.full(B, l_thres)
+    history: list = []
+    rounds = 0
+
+    if sdf is None:
+        field_free = np.zeros(B, dtype=bool)
+    else:
+        sdf_dev = sdf.joint_limits.device
+        gfield = lambda th: sdf(th.to(sdf_dev, torch.float32)).to(dev)
+        opt = BatchedAdam((B, model.njoint), field_lr, theta)
+
+        def field_phase(rows: np.ndarray, budget: int) -> None:
+            """Adam on L_img + beta ReLU(g - thr) for ``rows``, each stopping once g <= its threshold."""
+            active = torch.as_tensor(rows, device=dev)
+            thr = torch.as_tensor(thresholds, dtype=torch.float32, device=dev)
+            for _ in range(budget + 1):
+                with torch.no_grad():
+                    g[active.cpu()] = gfield(theta[active]).cpu()
+                    keep = g[active.cpu()].to(dev) > thr[active]
+                active = active[keep]
+                if len(active) == 0 or _ == budget:
+                    break
+                th = theta[active].detach().requires_grad_(True)
+                loss = img_loss(th, active) + beta * torch.relu(gfield(th) - thr[active])
+                (grad,) = torch.autograd.grad(loss.sum(), th)
+                opt.step(theta, active, grad)
+                limits.clamp_or_wrap_(theta)
+                iterations[active.cpu().numpy()] += 1
+
+        field_phase(np.arange(B), field_iters)
+        field_free = (g.numpy() <= thresholds)
+
+    poses = limits.numpy(theta.detach().cpu().numpy().astype(np.float64))
+    certified = certify_poses(robot, poses) if robot is not None else np.ones(B, dtype=bool)
+    before = certified.copy()
+    history.append(dict(round=0, certified=int(certified.sum())))
+    if sdf is not None:
+        while rounds < refine_rounds and not certified.all():
+            rounds += 1
+            bad = np.flatnonzero(~certified)
+            thresholds[bad] = l_thres - rounds * refine_step     # the field is too kind here: ask for more margin
+            opt.reset(torch.as_tensor(bad, device=dev))
+            field_phase(bad, field_iters)
+            poses[bad] = limits.numpy(theta[torch.as_tensor(bad, device=dev)].detach().cpu().numpy().astype(np.float64))
+            certified[bad] = certify_poses(robot, poses[bad])
+            history.append(dict(round=rounds, threshold=l_thres - rounds * refine_step, certified=int(certified.sum())))
+    with torch.no_grad():
+        final = img_loss(torch.as_tensor(poses, dtype=torch.float32, device=dev), torch.arange(B, device=dev))
+    return InverseResult(poses=poses, image_loss=final.cpu().numpy().astype(np.float64), certified=certified,
+                         iterations=iterations, image_iterations=iters, g=g.numpy().astype(np.float64),
+                         threshold=thresholds, field_free_before_certify=field_free,
+                         certified_before_continue=before, seconds=time.perf_counter() - t0, rounds=rounds,
+                         history=history)

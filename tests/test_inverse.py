@@ -1,0 +1,78 @@
+"""Inverse problems through the renderer (profrobot.inverse): the baseline reports collisions
+without correcting them, the field phase stops at the threshold, certify-and-continue reports
+what it cannot fix, and bad input raises errors naming the problem."""
+
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from profrobot import problems
+from profrobot.errors import ProfrobotError, RobotMismatchError
+from profrobot.field import PoseSDF
+from profrobot.inverse import pose_from_images
+from profrobot.render import GaussianRobot, ring_cameras
+
+
+@pytest.fixture(scope="module")
+def setup(panda):
+    torch.manual_seed(0)
+    model = GaussianRobot.from_robot(panda, 1500, seed=0)
+    cams = ring_cameras(2, size=32, distance=1.6, lookat=(0.0, 0.0, 0.45))
+    target = problems.colliding_poses(panda, 2, 7)                 # they hit the blocks
+    with torch.no_grad():
+        out = model.render_views(torch.as_tensor(target, dtype=torch.float32), cams)
+    t = dict(rgb=out.rgb.reshape(2, 2, 32, 32, 3).numpy(), depth=out.depth.reshape(2, 2, 32, 32).numpy(),
+             mask=(out.alpha > 0.5).reshape(2, 2, 32, 32).numpy())
+    return model, cams, target, t
+
+
+def _field(robot, shift):
+    torch.manual_seed(0)
+    sdf = PoseSDF(robot, hidden=(16,))
+    with torch.no_grad():
+        sdf.head[-1].bias += shift
+    return sdf
+
+
+def test_baseline_labels_but_does_not_correct(panda, setup):
+    model, cams, target, t = setup
+    r = pose_from_images(model, t, cams, init=target + 0.02, iters=5, robot=panda)
+    assert r.poses.shape == target.shape and r.image_iterations == 5 and (r.iterations == 0).all()
+    assert np.isnan(r.g).all()
+    # the images do not show the blocks: the answer stays near the colliding target
+    assert (~r.certified).any() and set(r.failures) == set(np.flatnonzero(~r.certified))
+    assert "certified" in r.summary()
+
+
+def test_field_phase_stops_at_the_threshold_and_failures_are_reported(panda, setup):
+    model, cams, target, t = setup
+    # a field that calls every pose free (g ~ -100): the field phase takes no step, the labeller
+    # still finds the collisions, certify-and-continue cannot help (g is already below every
+    # lowered threshold) and the failures are reported, not hidden
+    r = pose_from_images(model, t, cams, init=target, iters=2, sdf=_field(panda, -100.0), refine_rounds=2)
+    assert (r.iterations == 0).all() and r.field_free_before_certify.all()
+    assert (~r.certified).any() and r.rounds == 2
+    assert np.allclose(r.threshold[r.failures], -0.1 - 2 * 0.05)
+    # a field that calls every pose colliding (g ~ +100): every pose runs its whole budget
+    r = pose_from_images(model, t, cams, init=target, iters=0, sdf=_field(panda, 100.0), field_iters=3,
+                         refine_rounds=0)
+    assert (r.iterations == 3).all() and not r.field_free_before_certify.any()
+
+
+def test_bad_input(panda, ur5e, setup):
+    model, cams, target, t = setup
+    with pytest.raises(RobotMismatchError):
+        pose_from_images(model, t, cams, init=target, sdf=_field(ur5e, 0.0))
+    with pytest.raises(ProfrobotError, match="init"):
+        pose_from_images(model, t, cams, init=np.zeros((2, 4)))
+    with pytest.raises(ProfrobotError, match="cameras"):
+        pose_from_images(model, t, ring_cameras(3, size=32), init=target)
+    bad = dict(t, rgb=np.full_like(t["rgb"], np.nan))
+    with pytest.raises(ProfrobotError, match="NaN"):
+        pose_from_images(model, bad, cams, init=target, iters=1)
+    with pytest.raises(ProfrobotError, match="targets"):
+        pose_from_images(model, dict(rgb=t["rgb"]), cams, init=target)
+    with pytest.raises(ProfrobotError, match="beta"):
+        pose_from_images(model, t, cams, init=target, beta=float("nan"), sdf=_field(panda, 0.0))
+    assert profrobot.pose_from_images is pose_from_images
