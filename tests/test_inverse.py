@@ -76,3 +76,28 @@ def test_bad_input(panda, ur5e, setup):
     with pytest.raises(ProfrobotError, match="beta"):
         pose_from_images(model, t, cams, init=target, beta=float("nan"), sdf=_field(panda, 0.0))
     assert profrobot.pose_from_images is pose_from_images
+
+
+def test_trajectory_from_images_frames_and_certificate(panda, setup):
+    """Baseline: every iterate is a frame, from the start towards the pose in the images; the
+    certificate covers every frame and dense segment. With a field that calls everything free
+    nothing is smoothed away, and a colliding result is reported, or replaced by a certified
+    planner path between free ends, never returned as free while colliding."""
+    from profrobot.inverse import trajectory_from_images
+
+    model, cams, _, _ = setup
+    a, b = problems.free_poses(panda, 2, 11)
+    with torch.no_grad():
+        out = model.render_views(torch.as_tensor(b[None], dtype=torch.float32), cams)
+    t = dict(rgb=out.rgb.numpy(), depth=out.depth.numpy(), mask=(out.alpha > 0.5).numpy())
+    r = trajectory_from_images(model, a, t, cams, goal=b, steps=12, robot=panda)
+    assert r.path.shape == (12, panda.njoint) and np.allclose(r.path[0], a) and r.method == "images"
+    assert np.linalg.norm(r.path[-1] - b) < np.linalg.norm(a - b)            # moved towards the goal
+    assert r.free == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    f = trajectory_from_images(model, a, t, cams, goal=b, steps=12, sdf=_field(panda, -100.0), smooth_iters=5)
+    assert f.free or f.method != "images+planner"
+    assert f.free == (not f.waypoint_collides.any() and not f.segment_collides.any())
+    with pytest.raises(ProfrobotError, match="robot="):
+        trajectory_from_images(model, a, t, cams, steps=5)
+    with pytest.raises(ProfrobotError, match="steps"):
+        trajectory_from_images(model, a, t, cams, steps=2, robot=panda)

@@ -47,7 +47,7 @@ _LAZY = {
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors",
-    "pose_from_images": ".inverse", "InverseResult": ".inverse",
+    "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
                 "inverse")
@@ -60,7 +60,7 @@ __all__ = [
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
     "plan_path", "PathResult", "problems", "joints", "equalities", "executors", "inverse",
-    "pose_from_images", "InverseResult",
+    "pose_from_images", "InverseResult", "trajectory_from_images",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

@@ -3,8 +3,11 @@ the Gaussian robot's image loss, the pose collision field's penalty, the exact l
 certificate.
 
 - :func:`pose_from_images` (Table 7): joint angles from multi-view images;
+- :func:`trajectory_from_images` (Table 8): a trajectory towards the pose seen in images, every
+  frame and dense segment certified.
 """
 
 from .images import InverseResult, pose_from_images
+from .trajectory import trajectory_from_images
 
-__all__ = ["InverseResult", "pose_from_images"]
+__all__ = ["InverseResult", "pose_from_images", "trajectory_from_images"]
