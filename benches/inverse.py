@@ -131,7 +131,7 @@ def t7(a):
         ours = pose_from_images(model, tg, cams, init=base.poses, sdf=sdf, iters=0, beta=a.beta, l_thres=a.l_thres,
                                 field_iters=a.field_iters, background=views.background)
         mj = lambda q: mujoco_labels(scene, q).ncon > 0
-        err = lambda q: np.median(np.abs(q - target)[:, arm])
+        err = lambda q, target=target: np.median(np.abs(q - target)[:, arm])
         r = dict(group=group, n=len(target), target_ncon_mean=float(ncon.mean()),
                  baseline_mujoco_collide_pct=100 * float(mj(base.poses).mean()),
                  baseline_ours_collide_pct=100 * float((~base.certified).mean()),
