@@ -48,9 +48,10 @@ _LAZY = {
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors",
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
+    "pose_from_text": ".inverse", "TextResult": ".inverse",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
-                "inverse")
+                "inverse", "scorers")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -60,7 +61,7 @@ __all__ = [
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
     "plan_path", "PathResult", "problems", "joints", "equalities", "executors", "inverse",
-    "pose_from_images", "InverseResult", "trajectory_from_images",
+    "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult", "scorers",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

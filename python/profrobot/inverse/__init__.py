@@ -4,10 +4,13 @@ certificate.
 
 - :func:`pose_from_images` (Table 7): joint angles from multi-view images;
 - :func:`trajectory_from_images` (Table 8): a trajectory towards the pose seen in images, every
-  frame and dense segment certified.
+  frame and dense segment certified;
+- :func:`pose_from_text` (Table 9): a pose whose render matches a prompt under a scorer
+  (:mod:`profrobot.scorers`).
 """
 
 from .images import InverseResult, pose_from_images
+from .text import TextResult, pose_from_text
 from .trajectory import trajectory_from_images
 
-__all__ = ["InverseResult", "pose_from_images", "trajectory_from_images"]
+__all__ = ["InverseResult", "pose_from_images", "trajectory_from_images", "TextResult", "pose_from_text"]

@@ -1,0 +1,132 @@
+"""A pose from a text prompt (paper §5, Table 9): maximise a scorer's match between one camera's
+render of the Gaussian robot and a prompt (CLIP: the raw dot product of image and text
+features), with the collision penalty added when a field is given; every returned pose is
+certified by the exact labeller, and one that still collides is resolved on the field
+(:func:`profrobot.resolve`, certify-and-continue) before it is returned, or reported."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..errors import ProfrobotError
+from ..joints import Limits
+from ..optim._inputs import field_robot, finite, positive
+from ..optim.certify import certify_poses
+from ..robot import Robot
+from .images import check_field_matches_model
+
+__all__ = ["TextResult", "pose_from_text"]
+
+
+@dataclass
+class TextResult:
+    """``runs`` optimisations of one prompt.
+
+    Attributes:
+        poses: (R, K) returned poses; score: (R,) the scorer's value at them (CLIP: raw dot
+        product); score_before_repair: (R,) at the end of the optimisation; certified: (R,) the
+        exact labeller finds the returned pose free; collided_before_repair: (R,) it found the
+        optimised pose colliding (then it was resolved on the field); g: (R,) the field at the
+        returned pose (NaN without one); history: (steps, R) score per step; seconds.
+    """
+
+    poses: np.ndarray
+    score: np.ndarray
+    score_before_repair: np.ndarray
+    certified: np.ndarray
+    collided_before_repair: np.ndarray
+    g: np.ndarray
+    history: np.ndarray
+    seconds: float
+
+    @property
+    def failures(self) -> np.ndarray:
+        return np.flatnonzero(~self.certified)
+
+    def summary(self) -> str:
+        return (f"{len(self.poses)} runs: score {self.score.mean():.3f} ± {self.score.std():.3f}, "
+                f"{self.collided_before_repair.mean():.0%} collided before repair, "
+                f"{self.certified.mean():.0%} certified free; {self.seconds:.1f} s")
+
+
+def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, steps: int = 200,
+                   lr: float = 0.01, beta: float = 10.0, l_thres: float = -0.1, background=(1.0, 1.0, 1.0),
+                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None) -> TextResult:
+    """Joint angles whose render from ``camera`` (a one-camera :class:`~profrobot.render.Cameras`)
+    best matches ``prompt`` under ``scorer`` (:mod:`profrobot.scorers`).
+
+    ``init`` (K,) start (default: the zero pose, clipped into the limits, as the paper's hand);
+    ``runs`` starts optimised as one batch, perturbed by ``noise`` radians (seeded). Adam
+    (``lr``, ``steps`` steps) on −score + ``beta`` ReLU(g − l_thres) (the latter with ``sdf``).
+    Then every pose is labelled by the exact labeller (``robot``: default the field's; without a
+    field required to label); with a field, colliding poses are resolved and re-certified.
+    """
+    t0 = time.perf_counter()
+    if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):
+        raise TypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
+    if sdf is not None:
+        check_field_matches_model(sdf, model)
+        robot = field_robot(sdf, robot)
+    elif not isinstance(robot, Robot):
+        raise ProfrobotError("pose_from_text without a field needs robot= (the robot to certify against)")
+    if len(camera) != 1:
+        raise ProfrobotError(f"pose_from_text renders from one camera; got {len(camera)}")
+    runs, steps = positive("runs", runs, integer=True), positive("steps", steps, integer=True, allow_zero=True)
+    lr, beta, l_thres, noise = positive("lr", lr), finite("beta", beta), finite("l_thres", l_thres), finite("noise", noise)
+    dev = model.means.device
+    limits = Limits.of(model, like=model.means)
+    K = model.njoint
+    q0 = np.zeros(K) if init is None else np.asarray(init, dtype=np.float64).reshape(-1)
+    if q0.shape != (K,) or not np.isfinite(q0).all():
+        raise ProfrobotError(f"init must be {K} finite joint values; got {np.asarray(init).shape}")
+    q0 = np.clip(q0, limits.lim_np[:, 0], limits.lim_np[:, 1])
+    gen = torch.Generator().manual_seed(seed)
+    start = torch.as_tensor(q0, dtype=torch.float32).repeat(runs, 1) + noise * torch.randn(runs, K, generator=gen)
+    theta = torch.nn.Parameter(limits.clamp_or_wrap(start.to(dev)))
+    opt = torch.optim.Adam([theta], lr=lr)
+    goal = scorer.encode_text(prompt).detach()
+    vm = torch.as_tensor(camera.world_to_cam, dtype=torch.float32, device=dev)
+    Ks = torch.as_tensor(camera.K, dtype=torch.float32, device=dev)
+    bg = torch.as_tensor(np.asarray(background, dtype=np.float32), device=dev)
+    W, H = camera.width, camera.height
+
+    def score(th):
+        out = model._render(th, vm, Ks, W, H, background=bg)
+        return scorer.score(scorer.encode_image(out.rgb), goal)
+
+    hist = []
+    for _ in range(steps):
+        s = score(theta)
+        loss = -s.sum()
+        if sdf is not None:
+            loss = loss + beta * torch.relu(sdf(theta.to(sdf.joint_limits.device)) - l_thres).sum().to(dev)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            limits.clamp_or_wrap_(theta)
+        hist.append(s.detach().cpu().numpy())
+    poses = limits.numpy(theta.detach().cpu().numpy().astype(np.float64))
+    with torch.no_grad():
+        before = score(theta).cpu().numpy().astype(np.float64)
+    certified = certify_poses(robot, poses)
+    collided = ~certified
+    after = before.copy()
+    if sdf is not None and collided.any():
+        from ..optim import resolve
+
+        bad = np.flatnonzero(collided)
+        r = resolve(sdf, poses[bad], l_thres=l_thres, robot=robot)
+        poses[bad] = r.poses
+        certified[bad] = r.certified
+        with torch.no_grad():
+            after[bad] = score(torch.as_tensor(poses[bad], dtype=torch.float32, device=dev)).cpu().numpy()
+    g = (np.full(runs, np.nan) if sdf is None else
+         sdf(torch.as_tensor(poses, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
+    return TextResult(poses=poses, score=after, score_before_repair=before, certified=certified,
+                      collided_before_repair=collided, g=np.asarray(g, dtype=np.float64),
+                      history=np.array(hist).reshape(steps, runs), seconds=time.perf_counter() - t0)
