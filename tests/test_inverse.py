@@ -101,3 +101,30 @@ def test_trajectory_from_images_frames_and_certificate(panda, setup):
         trajectory_from_images(model, a, t, cams, steps=5)
     with pytest.raises(ProfrobotError, match="steps"):
         trajectory_from_images(model, a, t, cams, steps=2, robot=panda)
+
+
+def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
+    """Frames rendered along a short free path are tracked frame to frame; the result is
+    certified per frame and segment; a field that calls everything free only refines."""
+    from profrobot.inverse import actions_from_video
+
+    model, cams, _, _ = setup
+    a = problems.free_poses(panda, 1, 21)[0]
+    path = np.stack([a + np.r_[0.02 * t * np.ones(7), 0, 0] for t in range(4)])
+    with torch.no_grad():
+        out = model.render_views(torch.as_tensor(path, dtype=torch.float32), cams)
+    f = dict(rgb=out.rgb.reshape(4, 2, 32, 32, 3).numpy(), depth=out.depth.reshape(4, 2, 32, 32).numpy(),
+             mask=(out.alpha > 0.5).reshape(4, 2, 32, 32).numpy())
+    r = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3, robot=panda)
+    assert r.path.shape == (4, panda.njoint) and r.method == "video"
+    assert np.median(np.abs(r.path - path)[:, :7]) < 0.03
+    assert r.free == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    rf = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3,
+                            sdf=_field(panda, -100.0))
+    # the field's stage adds joint_iters more steps (its penalty is 0 here): only image refinement
+    assert rf.method == "video+field" and np.abs(rf.path - r.path).max() < 0.02
+    assert rf.free == (not rf.waypoint_collides.any() and not rf.segment_collides.any())
+    with pytest.raises(ProfrobotError, match="2 frames"):
+        actions_from_video(model, {k: v[:1] for k, v in f.items()}, cams, init=path[0], robot=panda)
+    with pytest.raises(ProfrobotError, match="init"):
+        actions_from_video(model, f, cams, init=path[0][:3], robot=panda)

@@ -48,7 +48,7 @@ _LAZY = {
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors",
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
-    "pose_from_text": ".inverse", "TextResult": ".inverse",
+    "pose_from_text": ".inverse", "TextResult": ".inverse", "actions_from_video": ".inverse",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
                 "inverse", "scorers")
@@ -62,6 +62,7 @@ __all__ = [
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
     "plan_path", "PathResult", "problems", "joints", "equalities", "executors", "inverse",
     "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult", "scorers",
+    "actions_from_video",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

@@ -1,0 +1,153 @@
+"""Joint trajectories from multi-view video (paper supplement, "actions from video"):
+
+1. per frame, ``steps_per_frame`` Adam steps on the image loss, warm-started from the previous
+   frame's answer (the first from ``init``);
+2. all frames jointly: image loss + ``w_tv`` TV (mean ‖θ_{t+1} − θ_t‖₁), ``joint_iters`` steps;
+3. with a field: the same joint refinement with ``beta`` ReLU(g − l_thres) on every frame; then
+   the exact labeller on every frame and a ``density``× denser sampling of every segment. Frames
+   it finds colliding are resolved (:func:`profrobot.resolve`), and segments still colliding are
+   optimised on the field with the free frames as fixed ends (``plan_trajectory``'s penalty
+   loop). What still collides is reported in the result, never returned as free.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from ..errors import ProfrobotError
+from ..joints import Limits
+from ..optim._inputs import field_robot, finite, positive
+from ..optim.certify import certify_poses, check_path
+from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap
+from ..render.pose import _as_targets, pose_loss
+from ..robot import Robot
+from .images import check_field_matches_model
+
+__all__ = ["actions_from_video"]
+
+
+def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_per_frame: int = 5, lr: float = 0.01,
+                       joint_iters: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
+                       l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
+                       background=None, robot: Robot | None = None, batch: int = 20) -> TrajectoryResult:
+    """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
+    m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
+    ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
+    :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``free`` per the dense check,
+    ``method`` "video" or "video+field")."""
+    t0 = time.perf_counter()
+    if sdf is not None:
+        check_field_matches_model(sdf, model)
+        robot = field_robot(sdf, robot)
+    elif not isinstance(robot, Robot):
+        raise ProfrobotError("actions_from_video without a field needs robot= (the scene to certify against)")
+    steps_per_frame = positive("steps_per_frame", steps_per_frame, integer=True, allow_zero=True)
+    joint_iters = positive("joint_iters", joint_iters, integer=True, allow_zero=True)
+    lr, joint_lr = positive("lr", lr), positive("joint_lr", joint_lr)
+    w_tv, beta, l_thres = finite("w_tv", w_tv), finite("beta", beta), finite("l_thres", l_thres)
+    if not isinstance(frames, dict) or not {"rgb", "depth", "mask"} <= set(frames):
+        raise ProfrobotError("frames must be a dict with 'rgb', 'depth' and 'mask'")
+    T = int(np.asarray(frames["mask"]).shape[0])
+    if T < 2:
+        raise ProfrobotError(f"a video needs at least 2 frames; got {T}")
+    C, H, W = len(cameras), cameras.height, cameras.width
+    dev = model.means.device
+    tr = _as_targets(frames["rgb"], "rgb", (H, W, 3), T, C, torch.float32).float().to(dev)
+    td = _as_targets(frames["depth"], "depth", (H, W), T, C, torch.float32).float().to(dev)
+    tm = _as_targets(frames["mask"], "mask", (H, W), T, C, torch.float32).bool().to(dev)
+    if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
+        raise ProfrobotError("actions_from_video: frames contain NaN or inf")
+    q0 = np.asarray(init, dtype=np.float64).reshape(-1)
+    if q0.shape != (model.njoint,) or not np.isfinite(q0).all():
+        raise ProfrobotError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
+    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
+    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
+    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+    limits = Limits.of(model, like=model.means)
+
+    def img_loss(theta, idx):                      # (len(idx),) mean over views
+        out = model._render(theta, vm, Ks, W, H, background=bg)
+        flat = lambda t: t[idx].reshape(len(idx) * C, *t.shape[2:])
+        return pose_loss(out, flat(tr), flat(td), flat(tm), w_depth=w_depth, w_mask=w_mask).reshape(-1, C).mean(1)
+
+    # 1. frame by frame, warm-started
+    traj = torch.empty(T, model.njoint, device=dev)
+    prev = limits.clamp_or_wrap(torch.as_tensor(q0, dtype=torch.float32, device=dev)[None])
+    for t in range(T):
+        th = torch.nn.Parameter(prev.clone())
+        opt = torch.optim.Adam([th], lr=lr)
+        for _ in range(steps_per_frame):
+            loss = img_loss(th, [t]).sum()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            with torch.no_grad():
+                limits.clamp_or_wrap_(th)
+        traj[t] = th.detach()[0]
+        prev = th.detach()
+
+    # 2./3. all frames jointly, TV (and the field)
+    def joint(iters: int, with_field: bool) -> None:
+        th = torch.nn.Parameter(traj.clone())
+        opt = torch.optim.Adam([th], lr=joint_lr)
+        for _ in range(iters):
+            opt.zero_grad()
+            for s in range(0, T, batch):                          # gradients accumulate over chunks
+                idx = list(range(s, min(T, s + batch)))
+                loss = img_loss(th[s:s + batch], idx).sum()
+                if with_field:
+                    g = sdf(th[s:s + batch].to(sdf.joint_limits.device)).to(dev)
+                    loss = loss + beta * torch.relu(g - l_thres).sum()
+                loss.backward()
+            tv = w_tv * (th[1:] - th[:-1]).abs().sum(1).mean() * T
+            tv.backward()
+            opt.step()
+            with torch.no_grad():
+                limits.clamp_or_wrap_(th)
+        traj.copy_(th.detach())
+
+    joint(joint_iters, False)
+    method, iterations = "video", T * steps_per_frame + joint_iters
+    lim = Limits.of(robot)
+    if sdf is not None:
+        joint(joint_iters, True)
+        method, iterations = "video+field", iterations + joint_iters
+    path = _unwrap(lim.numpy(traj.cpu().numpy().astype(np.float64)), lim.cont_np)
+    if sdf is not None:
+        from ..optim import resolve
+
+        bad = np.flatnonzero(~certify_poses(robot, lim.numpy(path)))
+        if len(bad):                                              # colliding frames: resolve them
+            r = resolve(sdf, lim.numpy(path[bad]), l_thres=l_thres, robot=robot)
+            for i, b in enumerate(bad):
+                if r.certified[i]:
+                    ref = path[b - 1] if b > 0 else path[b]
+                    path[b] = ref + lim.diff(r.poses[i:i + 1], ref[None])[0]
+        chk = check_path(robot, lim.numpy(path), density)
+        if not chk.free:                                          # colliding segments between free frames
+            free = ~chk.waypoint_collides
+            for seg in np.flatnonzero(chk.segment_collides):
+                a = seg
+                while a > 0 and not free[a]:
+                    a -= 1
+                b = seg + 1
+                while b < T - 1 and not free[b]:
+                    b += 1
+                if b - a < 2:
+                    continue                                      # no interior frame to move
+                sub = path[a:b + 1][None].copy()
+                _penalty(sdf, Limits.of(robot, sdf.joint_limits), robot, sub, l_thres, 1.0, 1.0, 0.05, 300, 10,
+                         density, 0.05, 0.0, True)
+                path[a:b + 1] = sub[0]
+    path = lim.numpy(path)
+    chk = check_path(robot, path, density)
+    g = (np.full(T, np.nan) if sdf is None else
+         sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
+    return TrajectoryResult(path=path, free=chk.free, waypoint_collides=chk.waypoint_collides,
+                            segment_collides=chk.segment_collides, g=g, method=method, iterations=iterations,
+                            length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
+                            straight_length=float(np.linalg.norm(lim.diff(path[-1], path[0]))),
+                            seconds=time.perf_counter() - t0, check=chk)
