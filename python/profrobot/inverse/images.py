@@ -11,8 +11,10 @@ For B targets seen by C cameras:
 3. **certify and continue**: every returned pose is labelled by the exact labeller (against the
    field's scene: robot *and* obstacles, which the images do not show); a pose that still
    collides goes on with its threshold lowered by ``refine_step``, for up to ``refine_rounds``
-   rounds, as :func:`profrobot.resolve` does. Poses left colliding are reported in
-   ``result.failures``, never hidden.
+   rounds, as :func:`profrobot.resolve` does; poses still colliding then go to
+   :func:`profrobot.resolve` itself (the field alone, from the deepest threshold reached: the
+   image term no longer pulls them back towards the unseen obstacle). Poses left colliding are
+   reported in ``result.failures``, never hidden.
 
 ``sdf=None`` is the baseline: the image phase only, labelled but not corrected.
 """
@@ -212,6 +214,16 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
             poses[bad] = limits.numpy(theta[torch.as_tensor(bad, device=dev)].detach().cpu().numpy().astype(np.float64))
             certified[bad] = certify_poses(robot, poses[bad])
             history.append(dict(round=rounds, threshold=l_thres - rounds * refine_step, certified=int(certified.sum())))
+        if not certified.all():
+            # last resort: the field alone (no image term pulling back into the obstacle), with
+            # resolve's own certify-and-continue from the deepest threshold reached
+            from ..optim import resolve
+
+            bad = np.flatnonzero(~certified)
+            r = resolve(sdf, poses[bad], l_thres=float(thresholds[bad].min()), robot=robot, refine_step=refine_step)
+            poses[bad] = np.where(r.certified[:, None], r.poses, poses[bad])
+            certified[bad] = r.certified
+            history.append(dict(round="resolve", certified=int(certified.sum())))
     with torch.no_grad():
         final = img_loss(torch.as_tensor(poses, dtype=torch.float32, device=dev), torch.arange(B, device=dev))
     return InverseResult(poses=poses, image_loss=final.cpu().numpy().astype(np.float64), certified=certified,
