@@ -14,6 +14,9 @@ numbers; median per-joint |dtheta| to the target and end-effector error (the pap
 neither); a PNG per group (MuJoCo renders with the blocks: target | baseline | ours, collisions
 framed red). ``--instances 100`` is the paper's full run; the default is what fits a CPU session.
 
+``--executor ray [--address ADDR --workers N]`` runs the four rows as tasks on a Ray cluster
+(:class:`profrobot.executors.RayExecutor`), with identical results.
+
 ``t9`` (Table 9, a pose from a goal): Shadow Hand, one camera looking down (0.4 m, look-at
 (0.15, 0, 0)); frozen scorer; 200 Adam steps from the zero pose (``--runs`` runs, perturbed by
 0.05 rad), without and then with 10 ReLU(g - l_thres); mean/std score and the share of results
@@ -31,6 +34,7 @@ built yet (see the issue's note).
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
 import os
@@ -118,47 +122,76 @@ def picture(scene, path, target, base, ours, base_col, ours_col, camera=None):
     write_png(path, np.concatenate([np.asarray(f.convert("RGB")) for f in frames], axis=1))
 
 
+T7_CAMS = dict(n=4, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
+
+
+@functools.lru_cache(maxsize=1)
+def _t7_models():
+    robot_img = profrobot.Robot.from_menagerie("franka_emika_panda")
+    return robot_img, gaussian_panda(robot_img), _bench("fields").field("panda_blocks")
+
+
+def t7_group(scene, group: str, gi: int, o: dict):
+    """One row of Table 7 (runs here, or on a Ray actor that holds ``scene``): the row and the
+    poses for its picture."""
+    t0 = time.perf_counter()
+    robot_img, model, sdf = _t7_models()
+    cams = ring_cameras(T7_CAMS["n"], **{k: v for k, v in T7_CAMS.items() if k != "n"})
+    arm = np.array([t == "hinge" for t in scene.joint_types])
+    lim = scene.joint_limits
+    target, ncon = group_targets(scene, group, o["instances"], o["seed"] + gi)
+    views = make_views(robot_img, target, cams, progress=False)
+    rng = np.random.default_rng(o["seed"] + gi)
+    start = np.clip(target + 0.1 * rng.random(target.shape), lim[:, 0], lim[:, 1])
+    tg = dict(rgb=views.rgb, depth=views.depth, mask=views.mask)
+    base = pose_from_images(model, tg, cams, init=start, robot=scene, iters=o["refine_iters"], lr=0.005, w_depth=10.0,
+                            coarse=dict(iters=o["iters"], lr=0.02, w_depth=1.0), background=views.background)
+    ours = pose_from_images(model, tg, cams, init=base.poses, sdf=sdf, iters=0, beta=o["beta"], l_thres=o["l_thres"],
+                            field_iters=o["field_iters"], background=views.background)
+    mj = lambda q: mujoco_labels(scene, q).ncon > 0
+    err = lambda q: np.median(np.abs(q - target)[:, arm])
+    r = dict(group=group, n=len(target), target_ncon_mean=float(ncon.mean()),
+             baseline_mujoco_collide_pct=100 * float(mj(base.poses).mean()),
+             baseline_ours_collide_pct=100 * float((~base.certified).mean()),
+             field_before_certify_pct=100 * float((~ours.certified_before_continue).mean()),
+             field_after_certify_pct=100 * float((~ours.certified).mean()),
+             field_after_certify_mujoco_pct=100 * float(mj(ours.poses).mean()),
+             paper_dr_robot_pct=PAPER_T7[group][0], paper_ours_pct=PAPER_T7[group][1],
+             baseline_median_joint_err_rad=float(err(base.poses)), field_median_joint_err_rad=float(err(ours.poses)),
+             baseline_ee_err_m=float(np.median(ee_error(scene, base.poses, target))),
+             field_ee_err_m=float(np.median(ee_error(scene, ours.poses, target))),
+             field_mean_steps=float(ours.iterations.mean()), refinement_rounds=ours.rounds,
+             seconds=time.perf_counter() - t0)
+    k = int(np.argmax(~base.certified)) if (~base.certified).any() else 0
+    return r, (target[k], base.poses[k], ours.poses[k], bool(not base.certified[k]), bool(not ours.certified[k]))
+
+
 def t7(a):
     out = os.path.join(a.out, "t7")
     os.makedirs(out, exist_ok=True)
     scene = scenes.panda_blocks()
-    robot_img = profrobot.Robot.from_menagerie("franka_emika_panda")
-    model = gaussian_panda(robot_img)
-    sdf = _bench("fields").field("panda_blocks")
-    cams = ring_cameras(4, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
-    arm = np.array([t == "hinge" for t in scene.joint_types])
-    lim = scene.joint_limits
-    rows, res = [], dict(instances=a.instances, loadavg_start=os.getloadavg(), sdf_metrics=getattr(sdf, "metrics", None))
-    for gi, group in enumerate(GROUPS):
-        t0 = time.perf_counter()
-        target, ncon = group_targets(scene, group, a.instances, a.seed + gi)
-        views = make_views(robot_img, target, cams, progress=False)
-        rng = np.random.default_rng(a.seed + gi)
-        start = np.clip(target + 0.1 * rng.random(target.shape), lim[:, 0], lim[:, 1])
-        tg = dict(rgb=views.rgb, depth=views.depth, mask=views.mask)
-        base = pose_from_images(model, tg, cams, init=start, robot=scene, iters=a.refine_iters, lr=0.005, w_depth=10.0,
-                                coarse=dict(iters=a.iters, lr=0.02, w_depth=1.0), background=views.background)
-        ours = pose_from_images(model, tg, cams, init=base.poses, sdf=sdf, iters=0, beta=a.beta, l_thres=a.l_thres,
-                                field_iters=a.field_iters, background=views.background)
-        mj = lambda q: mujoco_labels(scene, q).ncon > 0
-        err = lambda q, target=target: np.median(np.abs(q - target)[:, arm])
-        r = dict(group=group, n=len(target), target_ncon_mean=float(ncon.mean()),
-                 baseline_mujoco_collide_pct=100 * float(mj(base.poses).mean()),
-                 baseline_ours_collide_pct=100 * float((~base.certified).mean()),
-                 field_before_certify_mujoco_pct=None, field_before_certify_pct=100 * float((~ours.certified_before_continue).mean()),
-                 field_after_certify_pct=100 * float((~ours.certified).mean()),
-                 field_after_certify_mujoco_pct=100 * float(mj(ours.poses).mean()),
-                 paper_dr_robot_pct=PAPER_T7[group][0], paper_ours_pct=PAPER_T7[group][1],
-                 baseline_median_joint_err_rad=float(err(base.poses)), field_median_joint_err_rad=float(err(ours.poses)),
-                 baseline_ee_err_m=float(np.median(ee_error(scene, base.poses, target))),
-                 field_ee_err_m=float(np.median(ee_error(scene, ours.poses, target))),
-                 field_mean_steps=float(ours.iterations.mean()), refinement_rounds=ours.rounds,
-                 seconds=time.perf_counter() - t0)
+    _t7_models()                                   # fit / train what is missing, once, here
+    o = dict(instances=a.instances, seed=a.seed, iters=a.iters, refine_iters=a.refine_iters, beta=a.beta,
+             l_thres=a.l_thres, field_iters=a.field_iters)
+    res = dict(instances=a.instances, loadavg_start=os.getloadavg(), executor=a.executor)
+    items = [(group, gi, o) for gi, group in enumerate(GROUPS)]
+    if a.executor == "ray":
+        # one row per task on long-lived actors holding the scene; the cached models are read
+        # from benches/out on the worker's machine (copy them there on a real cluster)
+        from profrobot.executors import RayExecutor
+
+        ex = RayExecutor(a.address, workers=a.workers)
+        try:
+            done = ex.map(t7_group, items, robot=scene, desc="Table 7 rows")
+        finally:
+            ex.shutdown()
+    else:
+        done = [t7_group(scene, *it) for it in items]
+    rows = []
+    for (group, _, _), (r, pic) in zip(items, done):
         rows.append(r)
         print(json.dumps(r), flush=True)
-        k = int(np.argmax(~base.certified)) if (~base.certified).any() else 0
-        picture(scene, os.path.join(out, f"t7_{group}.png"), target[k], base.poses[k], ours.poses[k],
-                not base.certified[k], not ours.certified[k])
+        picture(scene, os.path.join(out, f"t7_{group}.png"), *pic)
     res["rows"], res["loadavg_end"] = rows, os.getloadavg()
     json.dump(res, open(os.path.join(out, "t7.json"), "w"), indent=1)
     lines = ["| targets (MuJoCo contacts) | n | Dr. Robot, paper | baseline (ours, MuJoCo) | field, paper | field before certify | field after certify (labeller / MuJoCo) | median |Δθ| base / field (rad) | EE error base / field (mm) |",
@@ -264,6 +297,9 @@ def main(argv=None):
     sp.add_argument("--l-thres", type=float, default=-0.1)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--out", default=os.path.join(HERE, "out", "inverse"))
+    sp.add_argument("--executor", choices=["local", "ray"], default="local", help="run the four rows on Ray actors")
+    sp.add_argument("--address", default=None, help="Ray address (default: start a local cluster)")
+    sp.add_argument("--workers", type=int, default=None)
     sp.set_defaults(fn=t7)
     sp = sub.add_parser("t9", help="Table 9: a Shadow Hand pose from a goal (image goal or CLIP)")
     sp.add_argument("--runs", type=int, default=10)
