@@ -54,6 +54,7 @@ class InverseResult:
         field_free_before_certify: (B,) bool, g <= l_thres when the field phase first stopped
             (the paper's criterion; the certificate is the labeller's).
         certified_before_continue: (B,) bool, the labeller's verdict before certify-and-continue.
+        poses_before_continue: (B, K) the poses it was given (the paper's answers).
         seconds: wall time.
     """
 
@@ -68,6 +69,7 @@ class InverseResult:
     certified_before_continue: np.ndarray
     seconds: float
     rounds: int = 0
+    poses_before_continue: np.ndarray | None = None
     history: list = field(default_factory=list, repr=False)
 
     def __len__(self) -> int:
@@ -203,6 +205,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     poses = limits.numpy(theta.detach().cpu().numpy().astype(np.float64))
     certified = certify_poses(robot, poses) if robot is not None else np.ones(B, dtype=bool)
     before = certified.copy()
+    poses_before = poses.copy()
     history.append(dict(round=0, certified=int(certified.sum())))
     if sdf is not None:
         while rounds < refine_rounds and not certified.all():
@@ -230,4 +233,4 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                          iterations=iterations, image_iterations=iters, g=g.numpy().astype(np.float64),
                          threshold=thresholds, field_free_before_certify=field_free,
                          certified_before_continue=before, seconds=time.perf_counter() - t0, rounds=rounds,
-                         history=history)
+                         history=history, poses_before_continue=poses_before)
