@@ -16,6 +16,7 @@ use crate::geom::Geom;
 use crate::kinematics::body_poses;
 use crate::model::RobotModel;
 use crate::pairs::{CandidatePair, PairKind};
+use crate::sat::intersection_test_remembering;
 use crate::shapes::{Convex, Solid};
 
 /// What a caller wants beyond the four labels.
@@ -60,9 +61,18 @@ pub struct Scratch {
     /// `geoms[g]` and `obbs[g]` belong to the current pose when `stamp[g] == pose`.
     stamp: Vec<u32>,
     pose: u32,
-    broad: BroadScratch,
-    /// The pairs the broad phase keeps, in pair order.
-    near: Vec<u32>,
+    pub(crate) broad: BroadScratch,
+    /// The pairs the broad phase keeps.
+    pub(crate) near: Vec<u32>,
+    /// Per candidate pair: `tested[k] == pose` once the fast path (`fastpath.rs`) has decided
+    /// pair `k` for the current pose.
+    pub(crate) tested: Vec<u32>,
+    /// Per candidate pair: the separating axis GJK last found for it on this thread, in its
+    /// first geom's frame (zero: none), tried before GJK on the next pose (`sat.rs`).
+    axes: Vec<Vector3<f64>>,
+    /// The last pair the fast path found in contact (`u32::MAX`: none yet), tried first on
+    /// the next pose: nearby poses (a bisection, a path) tend to hit the same pair.
+    pub(crate) last_hit: u32,
 }
 
 impl Scratch {
@@ -76,16 +86,50 @@ impl Scratch {
             pose: 0,
             broad: model.broad.scratch(),
             near: Vec::new(),
+            tested: vec![0; model.pairs.len()],
+            axes: vec![Vector3::zeros(); model.pairs.len()],
+            last_hit: u32::MAX,
         }
     }
 
-    /// Starts a new pose: every geom frame is stale.
-    fn next_pose(&mut self) {
+    /// Starts a new pose: every geom frame is stale, no pair is tested.
+    pub(crate) fn next_pose(&mut self) {
         self.pose = self.pose.wrapping_add(1);
         if self.pose == 0 {
             self.stamp.fill(0);
+            self.tested.fill(0);
             self.pose = 1;
         }
+    }
+
+    pub(crate) fn pose_stamp(&self) -> u32 {
+        self.pose
+    }
+
+    /// Forward kinematics of `q`, the plane geoms' frames and the broad phase's spheres: what
+    /// every pair test of the pose needs first.
+    pub(crate) fn place(&mut self, model: &RobotModel, q: &[f64], all_geoms: bool) {
+        body_poses(model, q, &mut self.bodies);
+        self.next_pose();
+        if all_geoms {
+            for g in 0..model.geoms.len() {
+                self.frame(model, g);
+            }
+        } else {
+            for &g in model.broad.plane_geoms() {
+                self.frame(model, g as usize);
+            }
+        }
+        model.broad.place(&self.bodies, &self.geoms, &mut self.broad);
+    }
+
+    /// Whether candidate pair `k` is in contact in the placed pose (exact narrow phase).
+    #[inline]
+    pub(crate) fn in_contact(&mut self, model: &RobotModel, k: usize) -> bool {
+        let pair = &model.pairs[k];
+        self.frame(model, pair.g1);
+        self.frame(model, pair.g2);
+        pair_in_contact(model, pair, &self.geoms, &self.obbs, &mut self.axes[k])
     }
 
     /// Computes geom `g`'s world frame and box for this pose, once.
@@ -155,7 +199,10 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
 }
 
 /// Whether one candidate pair is in contact (signed distance below its margin).
-fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], obbs: &[Obb]) -> bool {
+///
+/// `axis` is the pair's remembered separating axis (`sat.rs`), updated here; it only ever
+/// saves GJK a run whose answer it has proven, so the result is a function of the pose alone.
+fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], obbs: &[Obb], axis: &mut Vector3<f64>) -> bool {
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
     match (&a.shape.solid, &b.shape.solid) {
@@ -169,7 +216,7 @@ fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<
                 return false;
             }
             if pair.margin == 0.0 {
-                return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb);
+                return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, axis);
             }
             query::distance(pa, sa.as_ref(), pb, sb.as_ref()).map(|d| d < pair.margin).unwrap_or(false)
         }
@@ -179,8 +226,9 @@ fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<
 /// `query::intersection_test` for two convex geoms (each as its `Convex` and its parry shape),
 /// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
-/// `dyn Shape`.
-fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>) -> bool {
+/// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
+/// GJK would find apart).
+fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>, axis: &mut Vector3<f64>) -> bool {
     use parry3d_f64::query::details;
     let pos12 = pa.inv_mul(pb);
     match (a.0, b.0) {
@@ -188,7 +236,7 @@ fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex,
         (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
         (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
         (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
-        (ca, cb) => details::intersection_test_support_map_support_map(&pos12, ca, cb),
+        (ca, cb) => intersection_test_remembering(ca, cb, &pos12, axis),
     }
 }
 
@@ -230,26 +278,18 @@ fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isome
 
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked.
 pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
-    body_poses(model, q, &mut scratch.bodies);
-    scratch.next_pose();
-    if opts.distance {
-        for g in 0..model.geoms.len() {
-            scratch.frame(model, g);
-        }
-    } else {
-        for &g in model.broad.plane_geoms() {
-            scratch.frame(model, g as usize);
-        }
-    }
+    scratch.place(model, q, opts.distance);
     let mut near = std::mem::take(&mut scratch.near);
     near.clear();
-    model.broad.near_pairs(&scratch.bodies, &scratch.geoms, &mut scratch.broad, &mut near);
+    model.broad.near_pairs(&mut scratch.broad, &mut near);
+    if opts.pairs {
+        // Colliding pairs are reported in pair order; the labels do not depend on the order.
+        near.sort_unstable();
+    }
     let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
     for &k in &near {
         let pair = &model.pairs[k as usize];
-        scratch.frame(model, pair.g1);
-        scratch.frame(model, pair.g2);
-        if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
+        if scratch.in_contact(model, k as usize) {
             label.n_pairs += 1;
             match pair.kind {
                 PairKind::SelfCollision => label.self_collides = true,
@@ -420,7 +460,9 @@ mod tests {
         for g in 0..model.geoms.len() {
             s.frame(model, g);
         }
-        (0..model.pairs.len() as u32).filter(|&k| pair_in_contact(model, &model.pairs[k as usize], &s.geoms, &s.obbs)).collect()
+        (0..model.pairs.len() as u32)
+            .filter(|&k| pair_in_contact(model, &model.pairs[k as usize], &s.geoms, &s.obbs, &mut Vector3::zeros()))
+            .collect()
     }
 
     #[test]

@@ -20,12 +20,14 @@
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
 //! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
+//! | `sat` | remembered separating axes, tried before GJK |
 //! | [`geom`] | `Geom`: a shape on a body |
 //! | [`pairs`] | candidate pairs with MuJoCo's filters |
 //! | `broad` | the per-pose broad phase (bounding spheres) |
 //! | [`model`] | `RobotModel`: the validated, derived robot |
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
+//! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
@@ -36,6 +38,7 @@ mod broad;
 pub mod collide;
 pub mod desc;
 pub mod error;
+pub mod fastpath;
 pub mod geom;
 pub mod hull;
 pub mod interpolate;
@@ -44,6 +47,7 @@ pub mod model;
 pub mod pairs;
 pub mod plan;
 pub mod sample;
+mod sat;
 pub mod shapes;
 pub mod threads;
 
@@ -53,6 +57,7 @@ mod python;
 pub use collide::{label_batch, Label, LabelBatch, LabelOptions};
 pub use desc::ModelDesc;
 pub use error::{Error, Result};
+pub use fastpath::collides_batch;
 pub use geom::Geom;
 pub use interpolate::interpolate_so2;
 pub use kinematics::forward_kinematics;

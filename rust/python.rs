@@ -13,6 +13,7 @@ use pyo3::types::{PyBytes, PyDict, PyType};
 use crate::collide::{label_batch, LabelOptions};
 use crate::desc::ModelDesc;
 use crate::error::Error;
+use crate::fastpath::collides_batch;
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
@@ -277,6 +278,17 @@ impl PyRobotModel {
             out.set_item("colliding_pairs", PyArray1::from_vec(py, flat).reshape([m, 2])?)?;
         }
         Ok(out)
+    }
+
+    /// `(B,)` bool: whether each pose collides (`label(..)["collides"]`, by the fast path).
+    #[pyo3(signature = (poses, *, threads=None))]
+    fn collides<'py>(&self, py: Python<'py>, poses: &Bound<'py, PyAny>, threads: Option<usize>) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let model = &self.model;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
+        let out = py.detach(|| with_threads(threads, || collides_batch(model, q))).map_err(to_py)?.map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, out))
     }
 
     /// A free path from `start` to `goal` (see `_core.pyi` and `plan.rs`).

@@ -1,12 +1,14 @@
 """profrobot: collision-aware robot pose optimisation.
 
 The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.label`` (Rust,
-``rust/collide.rs``).
+``rust/collide.rs``); booleans only, faster: :func:`collides` → ``Robot.core.collides``
+(``rust/fastpath.rs``).
 
 >>> import profrobot
 >>> robot = profrobot.scenes.load("panda_blocks")
 >>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
 >>> labels = profrobot.label_poses(robot, poses)                 # exact, parallel
+>>> hit = profrobot.collides(robot, poses)                       # == labels.collides, faster
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
 >>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
@@ -34,7 +36,7 @@ from ._core import __version__  # noqa: E402
 from ._gl import RendererUnavailableError  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
-from .labels import Labels, interpolate, label_poses, sample_poses  # noqa: E402
+from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 
@@ -53,7 +55,7 @@ _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
     "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
-    "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
+    "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",

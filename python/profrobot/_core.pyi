@@ -66,6 +66,9 @@ class RobotModel:
         """Labels (B, K) float64 poses. Keys: collides, self_collides, scene_collides
         (B,) bool; n_pairs (B,) int32; with ``distance``, min_distance (B,) float64 metres
         (negative: penetration); with ``pairs``, colliding_pairs (M, 2) int64 (pose, pair index)."""
+    def collides(self, poses: npt.NDArray[np.float64], *, threads: int | None = None) -> npt.NDArray[np.bool_]:
+        """(B,) bool for (B, K) float64 poses: ``label(poses)["collides"]``, bit for bit, by the
+        booleans-only fast path (stops at the first pair in contact, likeliest pairs first)."""
     def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
                   max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
                   shortcut_rounds: int = 200, verify: int = 10, threads: int | None = None) -> dict[str, object]:
