@@ -11,7 +11,7 @@
 //! centres (~1e-15 m), so a dropped pair is separated by more than that, and the narrow phase
 //! (exact for such pairs: GJK never reports an intersection, nor a distance below the margin,
 //! for shapes that far apart) would have reported it apart too. Labels do not depend on this
-//! file; it only decides how few pairs reach `collide::pair_in_contact`.
+//! file; it only decides how few pairs reach `collide::Scratch::in_contact`.
 //!
 //! Pairs with a plane (a half-space) are tested against the plane by the geom's sphere.
 
@@ -64,8 +64,10 @@ pub(crate) struct Broad {
     bodies: Vec<u32>,
     /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.
     body_centre: Vec<Vector3<f64>>,
-    /// Per geom: centre of its sphere in its body's frame, and its body.
+    /// Per geom: centre of its sphere (its box's centre) in its body's frame, its rotation in
+    /// its body's frame as a matrix, and its body.
     geom_centre: Vec<Vector3<f64>>,
+    geom_rot: Vec<Matrix3<f64>>,
     geom_body: Vec<u32>,
     /// Non-plane geoms of some pair, whose world sphere centres are needed per pose.
     geoms: Vec<u32>,
@@ -101,6 +103,7 @@ impl Broad {
         let is_plane = |g: usize| geoms[g].shape.is_half_space();
         let geom_centre: Vec<Vector3<f64>> = geoms.iter().map(|g| (g.local * nalgebra::Point3::from(g.shape.obb_center)).coords).collect();
         let geom_body: Vec<u32> = geoms.iter().map(|g| g.body as u32).collect();
+        let geom_rot: Vec<Matrix3<f64>> = geoms.iter().map(|g| g.local.rotation.to_rotation_matrix().into_inner()).collect();
 
         // Non-plane pairs by body pair (ordered ids), planes apart.
         let mut by_bodies: std::collections::BTreeMap<(u32, u32), Vec<u32>> = Default::default();
@@ -180,7 +183,7 @@ impl Broad {
         for (i, p) in planes.iter().enumerate() {
             of_pair[p.pair as usize] = i as u32 | PLANE;
         }
-        Broad { bodies, body_centre, geom_centre, geom_body, geoms, groups, members, planes, plane_geoms, of_pair }
+        Broad { bodies, body_centre, geom_centre, geom_rot, geom_body, geoms, groups, members, planes, plane_geoms, of_pair }
     }
 
     /// The plane geoms whose world frames `near_pairs` needs.
@@ -219,6 +222,13 @@ impl Broad {
             let normal = x.rotation * Vector3::z();
             s.plane[g as usize] = (normal, normal.dot(&x.translation.vector));
         }
+    }
+
+    /// The placed world box frame of geom `g` (a non-plane geom of some pair): its rotation,
+    /// the body's rotation matrix times the geom's, and its centre, the sphere centre.
+    #[inline]
+    pub(crate) fn geom_box(&self, s: &BroadScratch, g: usize) -> (Matrix3<f64>, Vector3<f64>) {
+        (s.rot[self.geom_body[g] as usize] * self.geom_rot[g], s.geom_world[g])
     }
 
     /// Whether candidate pair `k` passes its own sphere test in the placed pose (`near_pairs`

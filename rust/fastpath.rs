@@ -3,7 +3,7 @@
 //!
 //! # Same answer as `label_pose`
 //! `label_pose(..).collides()` is "some candidate pair is in contact", each pair decided by
-//! `collide::pair_in_contact`, a pure function of the pose; which pairs the broad phase lets
+//! `collide::Scratch::in_contact`, a pure function of the pose; which pairs the broad phase lets
 //! through does not change it (`broad.rs`: a pair it drops is one the narrow phase would find
 //! apart). Here every pair is decided by the same function on the same frames, and "some pair
 //! is in contact" does not depend on the order in which pairs are tried, nor on stopping at
