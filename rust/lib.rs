@@ -28,6 +28,7 @@
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
 //! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
+//! | [`oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
@@ -44,6 +45,7 @@ pub mod hull;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;
+pub mod oracle;
 pub mod pairs;
 pub mod plan;
 pub mod sample;
@@ -62,6 +64,7 @@ pub use geom::Geom;
 pub use interpolate::interpolate_so2;
 pub use kinematics::forward_kinematics;
 pub use model::RobotModel;
+pub use oracle::{nearest_free, NearestFree, OracleOptions};
 pub use pairs::{CandidatePair, PairKind};
 pub use plan::{plan_path, PlanOptions, PlanResult, PlanStatus};
 pub use sample::sample_uniform;

@@ -9,6 +9,7 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 >>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
 >>> labels = profrobot.label_poses(robot, poses)                 # exact, parallel
 >>> hit = profrobot.collides(robot, poses)                       # == labels.collides, faster
+>>> near = profrobot.nearest_free(robot, poses[hit][:10])        # the Δθ oracle: smallest move found
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
 >>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
@@ -37,6 +38,7 @@ from ._gl import RendererUnavailableError  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
 from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
+from .oracle import NearestFree, nearest_free  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 
@@ -59,7 +61,7 @@ __all__ = [
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "problems", "joints", "equalities",
+    "plan_path", "PathResult", "nearest_free", "NearestFree", "problems", "joints", "equalities",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 
