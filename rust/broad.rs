@@ -11,7 +11,7 @@
 //! centres (~1e-15 m), so a dropped pair is separated by more than that, and the narrow phase
 //! (exact for such pairs: GJK never reports an intersection, nor a distance below the margin,
 //! for shapes that far apart) would have reported it apart too. Labels do not depend on this
-//! file; it only decides how few pairs reach `collide::pair_in_contact`.
+//! file; it only decides how few pairs reach `collide::Scratch::in_contact`.
 //!
 //! Pairs with a plane (a half-space) are tested against the plane by the geom's sphere.
 
@@ -64,8 +64,10 @@ pub(crate) struct Broad {
     bodies: Vec<u32>,
     /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.
     body_centre: Vec<Vector3<f64>>,
-    /// Per geom: centre of its sphere in its body's frame, and its body.
+    /// Per geom: centre of its sphere (its box's centre) in its body's frame, its rotation in
+    /// its body's frame as a matrix, and its body.
     geom_centre: Vec<Vector3<f64>>,
+    geom_rot: Vec<Matrix3<f64>>,
     geom_body: Vec<u32>,
     /// Non-plane geoms of some pair, whose world sphere centres are needed per pose.
     geoms: Vec<u32>,
@@ -74,7 +76,15 @@ pub(crate) struct Broad {
     planes: Vec<PlanePair>,
     /// The plane geoms of `planes`, once each.
     plane_geoms: Vec<u32>,
+    /// Per candidate pair: its index in `members`, or in `planes` with the `PLANE` bit set
+    /// (`NONE` for a plane-plane pair, which is never a candidate).
+    of_pair: Vec<u32>,
 }
+
+/// Tag of an `of_pair` entry that indexes `planes`.
+const PLANE: u32 = 1 << 31;
+/// An `of_pair` entry for a pair in neither list.
+const NONE: u32 = u32::MAX;
 
 /// Per-thread buffers of the broad phase (world sphere centres of one pose).
 #[derive(Clone, Debug)]
@@ -93,6 +103,7 @@ impl Broad {
         let is_plane = |g: usize| geoms[g].shape.is_half_space();
         let geom_centre: Vec<Vector3<f64>> = geoms.iter().map(|g| (g.local * nalgebra::Point3::from(g.shape.obb_center)).coords).collect();
         let geom_body: Vec<u32> = geoms.iter().map(|g| g.body as u32).collect();
+        let geom_rot: Vec<Matrix3<f64>> = geoms.iter().map(|g| g.local.rotation.to_rotation_matrix().into_inner()).collect();
 
         // Non-plane pairs by body pair (ordered ids), planes apart.
         let mut by_bodies: std::collections::BTreeMap<(u32, u32), Vec<u32>> = Default::default();
@@ -165,7 +176,14 @@ impl Broad {
         let mut plane_geoms: Vec<u32> = planes.iter().map(|p| p.plane).collect();
         plane_geoms.sort_unstable();
         plane_geoms.dedup();
-        Broad { bodies, body_centre, geom_centre, geom_body, geoms, groups, members, planes, plane_geoms }
+        let mut of_pair = vec![NONE; pairs.len()];
+        for (i, m) in members.iter().enumerate() {
+            of_pair[m.pair as usize] = i as u32;
+        }
+        for (i, p) in planes.iter().enumerate() {
+            of_pair[p.pair as usize] = i as u32 | PLANE;
+        }
+        Broad { bodies, body_centre, geom_centre, geom_rot, geom_body, geoms, groups, members, planes, plane_geoms, of_pair }
     }
 
     /// The plane geoms whose world frames `near_pairs` needs.
@@ -184,9 +202,9 @@ impl Broad {
         }
     }
 
-    /// Appends to `near` the candidate pairs that may touch in the pose whose body frames are
-    /// `bodies` (`geom_poses` must hold the world frames of the plane geoms), in pair order.
-    pub(crate) fn near_pairs(&self, bodies: &[Isometry3<f64>], geom_poses: &[Isometry3<f64>], s: &mut BroadScratch, near: &mut Vec<u32>) {
+    /// Places the spheres for the pose whose body frames are `bodies` (`geom_poses` must hold
+    /// the world frames of the plane geoms): what `near_pairs` and `may_touch` test.
+    pub(crate) fn place(&self, bodies: &[Isometry3<f64>], geom_poses: &[Isometry3<f64>], s: &mut BroadScratch) {
         for &b in &self.bodies {
             let b = b as usize;
             let x = &bodies[b];
@@ -199,6 +217,40 @@ impl Broad {
             let b = self.geom_body[g] as usize;
             s.geom_world[g] = bodies[b].translation.vector + s.rot[b] * self.geom_centre[g];
         }
+        for &g in &self.plane_geoms {
+            let x = &geom_poses[g as usize];
+            let normal = x.rotation * Vector3::z();
+            s.plane[g as usize] = (normal, normal.dot(&x.translation.vector));
+        }
+    }
+
+    /// The placed world box frame of geom `g` (a non-plane geom of some pair): its rotation,
+    /// the body's rotation matrix times the geom's, and its centre, the sphere centre.
+    #[inline]
+    pub(crate) fn geom_box(&self, s: &BroadScratch, g: usize) -> (Matrix3<f64>, Vector3<f64>) {
+        (s.rot[self.geom_body[g] as usize] * self.geom_rot[g], s.geom_world[g])
+    }
+
+    /// Whether candidate pair `k` passes its own sphere test in the placed pose (`near_pairs`
+    /// keeps exactly the pairs that pass it and their body pair's test).
+    #[inline]
+    pub(crate) fn may_touch(&self, s: &BroadScratch, k: usize) -> bool {
+        let i = self.of_pair[k];
+        if i == NONE {
+            false
+        } else if i & PLANE != 0 {
+            let p = &self.planes[(i & !PLANE) as usize];
+            let (normal, offset) = s.plane[p.plane as usize];
+            normal.dot(&s.geom_world[p.geom as usize]) - offset < p.reach
+        } else {
+            let m = &self.members[i as usize];
+            (s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize]).norm_squared() <= m.reach2
+        }
+    }
+
+    /// Appends to `near` the candidate pairs that may touch in the placed pose (see `place`),
+    /// in no particular order.
+    pub(crate) fn near_pairs(&self, s: &mut BroadScratch, near: &mut Vec<u32>) {
         // Without branches (few pass, unpredictably): one bit per group in 64-group words,
         // then one bit per member of each surviving group, then the survivors.
         let buf = &mut s.buf;
@@ -225,11 +277,6 @@ impl Broad {
                 }
             }
         }
-        for &g in &self.plane_geoms {
-            let x = &geom_poses[g as usize];
-            let normal = x.rotation * Vector3::z();
-            s.plane[g as usize] = (normal, normal.dot(&x.translation.vector));
-        }
         for p in &self.planes {
             let (normal, offset) = s.plane[p.plane as usize];
             if normal.dot(&s.geom_world[p.geom as usize]) - offset < p.reach {
@@ -238,6 +285,5 @@ impl Broad {
             }
         }
         near.extend_from_slice(&buf[..n]);
-        near.sort_unstable();
     }
 }

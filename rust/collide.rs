@@ -16,6 +16,7 @@ use crate::geom::Geom;
 use crate::kinematics::body_poses;
 use crate::model::RobotModel;
 use crate::pairs::{CandidatePair, PairKind};
+use crate::sat::intersection_test_remembering;
 use crate::shapes::{Convex, Solid};
 
 /// What a caller wants beyond the four labels.
@@ -52,17 +53,29 @@ pub struct LabelBatch {
 }
 
 /// Reusable per-thread buffers: one pose's body frames, and the geom frames and boxes
-/// computed so far for it (only geoms of pairs the broad phase keeps need them).
+/// computed so far for it (only geoms of pairs the broad phase keeps need boxes, and only
+/// those of pairs whose boxes overlap need frames).
 pub struct Scratch {
     bodies: Vec<Isometry3<f64>>,
     geoms: Vec<Isometry3<f64>>,
     obbs: Vec<Obb>,
-    /// `geoms[g]` and `obbs[g]` belong to the current pose when `stamp[g] == pose`.
+    /// `geoms[g]` belongs to the current pose when `stamp[g] == pose`, `obbs[g]` when
+    /// `obb_stamp[g] == pose`.
     stamp: Vec<u32>,
+    obb_stamp: Vec<u32>,
     pose: u32,
-    broad: BroadScratch,
-    /// The pairs the broad phase keeps, in pair order.
-    near: Vec<u32>,
+    pub(crate) broad: BroadScratch,
+    /// The pairs the broad phase keeps.
+    pub(crate) near: Vec<u32>,
+    /// Per candidate pair: `tested[k] == pose` once the fast path (`fastpath.rs`) has decided
+    /// pair `k` for the current pose.
+    pub(crate) tested: Vec<u32>,
+    /// Per candidate pair: the separating axis GJK last found for it on this thread, in its
+    /// first geom's frame (zero: none), tried before GJK on the next pose (`sat.rs`).
+    axes: Vec<Vector3<f64>>,
+    /// The last pair the fast path found in contact (`u32::MAX`: none yet), tried first on
+    /// the next pose: nearby poses (a bisection, a path) tend to hit the same pair.
+    pub(crate) last_hit: u32,
 }
 
 impl Scratch {
@@ -73,34 +86,129 @@ impl Scratch {
             geoms: vec![Isometry3::identity(); n],
             obbs: vec![Obb { rot: Matrix3::identity(), center: Vector3::zeros() }; n],
             stamp: vec![0; n],
+            obb_stamp: vec![0; n],
             pose: 0,
             broad: model.broad.scratch(),
             near: Vec::new(),
+            tested: vec![0; model.pairs.len()],
+            axes: vec![Vector3::zeros(); model.pairs.len()],
+            last_hit: u32::MAX,
         }
     }
 
-    /// Starts a new pose: every geom frame is stale.
-    fn next_pose(&mut self) {
+    /// Starts a new pose: every geom frame and box is stale, no pair is tested.
+    pub(crate) fn next_pose(&mut self) {
         self.pose = self.pose.wrapping_add(1);
         if self.pose == 0 {
             self.stamp.fill(0);
+            self.obb_stamp.fill(0);
+            self.tested.fill(0);
             self.pose = 1;
         }
     }
 
-    /// Computes geom `g`'s world frame and box for this pose, once.
+    pub(crate) fn pose_stamp(&self) -> u32 {
+        self.pose
+    }
+
+    /// Forward kinematics of `q`, the plane geoms' frames (every geom's with `all_geoms`) and
+    /// the broad phase's spheres: what every pair test of the pose needs first.
+    pub(crate) fn place(&mut self, model: &RobotModel, q: &[f64], all_geoms: bool) {
+        body_poses(model, q, &mut self.bodies);
+        self.next_pose();
+        if all_geoms {
+            for g in 0..model.geoms.len() {
+                self.frame(model, g);
+            }
+        } else {
+            for &g in model.broad.plane_geoms() {
+                self.frame(model, g as usize);
+            }
+        }
+        model.broad.place(&self.bodies, &self.geoms, &mut self.broad);
+    }
+
+    /// Whether candidate pair `k` is in contact (signed distance below its margin) in the
+    /// placed pose: the exact narrow phase, behind box tests that reject only pairs it would.
+    ///
+    /// The pair's remembered separating axis (`sat.rs`) only ever saves GJK a run whose answer
+    /// it has proven, so the result is a function of the pose alone, whatever this scratch saw
+    /// before.
+    pub(crate) fn in_contact(&mut self, model: &RobotModel, k: usize) -> bool {
+        let pair = &model.pairs[k];
+        let (g1, g2) = (pair.g1, pair.g2);
+        let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
+        match (&a.shape.solid, &b.shape.solid) {
+            (Solid::HalfSpace, Solid::Convex { convex, .. }) => self.plane_pair_in_contact(model, g1, g2, convex, pair.margin),
+            (Solid::Convex { convex, .. }, Solid::HalfSpace) => self.plane_pair_in_contact(model, g2, g1, convex, pair.margin),
+            // Never a candidate (`pairs.rs` drops them): MuJoCo has no plane-plane collider.
+            (Solid::HalfSpace, Solid::HalfSpace) => false,
+            (Solid::Convex { convex: ca, shape: sa }, Solid::Convex { convex: cb, shape: sb }) => {
+                // (The bounding-sphere culls ran before, in `broad.rs`.)
+                self.obb(model, g1);
+                self.obb(model, g2);
+                if !obbs_overlap(a, &self.obbs[g1], b, &self.obbs[g2], pair.margin) {
+                    return false;
+                }
+                self.frame(model, g1);
+                self.frame(model, g2);
+                let (pa, pb) = (&self.geoms[g1], &self.geoms[g2]);
+                if pair.margin == 0.0 {
+                    return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]);
+                }
+                query::distance(pa, sa.as_ref(), pb, sb.as_ref()).map(|d| d < pair.margin).unwrap_or(false)
+            }
+        }
+    }
+
+    /// Half-space test of the convex geom `g` against the plane geom `plane` (whose frame
+    /// `place` computed): the geom's bounding box must reach below `margin + BOX_SLACK` before
+    /// the exact support point of its `convex` shape is computed.
+    ///
+    /// Exactness: the box's lowest point is a lower bound on the geom's, up to the rounding of
+    /// the box (~1e-15 m, see `obb`); a box that stays `BOX_SLACK` (1e-9 m) above the margin
+    /// proves the exact test false too.
+    fn plane_pair_in_contact(&mut self, model: &RobotModel, plane: usize, g: usize, convex: &Convex, margin: f64) -> bool {
+        self.obb(model, g);
+        let (x, obb) = (&self.geoms[plane], &self.obbs[g]);
+        let n = x.rotation * Vector3::z();
+        let reach = obb.rot.tr_mul(&n).abs().dot(&model.geoms[g].shape.obb_half);
+        if n.dot(&(obb.center - x.translation.vector)) - reach >= margin + BOX_SLACK {
+            return false;
+        }
+        self.frame(model, g);
+        plane_distance(&self.geoms[plane], convex, &self.geoms[g]) < margin
+    }
+
+    /// Computes geom `g`'s world frame for this pose, once.
     #[inline]
     fn frame(&mut self, model: &RobotModel, g: usize) {
         if self.stamp[g] != self.pose {
             self.stamp[g] = self.pose;
             let geom = &model.geoms[g];
-            let p = self.bodies[geom.body] * geom.local;
-            let rot = p.rotation.to_rotation_matrix().into_inner();
-            self.obbs[g] = Obb { rot, center: p.translation.vector + rot * geom.shape.obb_center };
-            self.geoms[g] = p;
+            self.geoms[g] = self.bodies[geom.body] * geom.local;
+        }
+    }
+
+    /// Computes the (non-plane) geom `g`'s bounding box for this pose, once, from what the
+    /// broad phase placed: its body's rotation matrix times the geom's fixed rotation, and its
+    /// sphere centre (the box centre). This is the box of `frame`'s geom frame up to rounding
+    /// (~1e-15 m for geoms within metres of the origin), far inside the slack of the box tests
+    /// (`obbs_overlap`, `plane_pair_in_contact`), which therefore reject only pairs the exact
+    /// narrow phase rejects as well.
+    #[inline]
+    fn obb(&mut self, model: &RobotModel, g: usize) {
+        if self.obb_stamp[g] != self.pose {
+            self.obb_stamp[g] = self.pose;
+            let (rot, center) = model.broad.geom_box(&self.broad, g);
+            self.obbs[g] = Obb { rot, center };
         }
     }
 }
+
+/// Absolute slack (metres) by which a box must clear a half-space beyond the margin to reject
+/// the pair (see `Scratch::plane_pair_in_contact`).
+const BOX_SLACK: f64 = 1e-9;
 
 /// A geom's bounding box in the world for one pose: its rotation and world centre (the half
 /// extents are fixed, in `GeomShape`). Computed once per pose, shared by all its pairs.
@@ -120,6 +228,11 @@ fn plane_distance(plane: &Isometry3<f64>, g: &Convex, pose: &Isometry3<f64>) -> 
 }
 
 /// Separating-axis test of two oriented boxes, inflated by `margin`: `false` proves them apart.
+///
+/// Every projected radius is inflated by 1e-9 times the box half extents it sums (`abs_r` +
+/// 1e-9), 1e-12 m for boxes a millimetre across, a thousand times the rounding of the boxes
+/// (~1e-15 m): a pair rejected here is apart in exact arithmetic, where the exact narrow phase
+/// (GJK, parry's distance) rejects it too.
 fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
     let (ha, hb) = (&a.shape.obb_half, &b.shape.obb_half);
     // Everything in a's frame.
@@ -154,33 +267,12 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
     true
 }
 
-/// Whether one candidate pair is in contact (signed distance below its margin).
-fn pair_in_contact(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], obbs: &[Obb]) -> bool {
-    let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
-    let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
-    match (&a.shape.solid, &b.shape.solid) {
-        (Solid::HalfSpace, Solid::Convex { convex, .. }) => plane_pair_in_contact(pa, b, convex, pb, &obbs[pair.g2], pair.margin),
-        (Solid::Convex { convex, .. }, Solid::HalfSpace) => plane_pair_in_contact(pb, a, convex, pa, &obbs[pair.g1], pair.margin),
-        // Never a candidate (`pairs.rs` drops them): MuJoCo has no plane-plane collider.
-        (Solid::HalfSpace, Solid::HalfSpace) => false,
-        (Solid::Convex { convex: ca, shape: sa }, Solid::Convex { convex: cb, shape: sb }) => {
-            // (The bounding-sphere culls ran before, in `broad.rs`.)
-            if !obbs_overlap(a, &obbs[pair.g1], b, &obbs[pair.g2], pair.margin) {
-                return false;
-            }
-            if pair.margin == 0.0 {
-                return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb);
-            }
-            query::distance(pa, sa.as_ref(), pb, sb.as_ref()).map(|d| d < pair.margin).unwrap_or(false)
-        }
-    }
-}
-
 /// `query::intersection_test` for two convex geoms (each as its `Convex` and its parry shape),
 /// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
-/// `dyn Shape`.
-fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>) -> bool {
+/// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
+/// GJK would find apart).
+fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>, axis: &mut Vector3<f64>) -> bool {
     use parry3d_f64::query::details;
     let pos12 = pa.inv_mul(pb);
     match (a.0, b.0) {
@@ -188,20 +280,8 @@ fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex,
         (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
         (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
         (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
-        (ca, cb) => details::intersection_test_support_map_support_map(&pos12, ca, cb),
+        (ca, cb) => intersection_test_remembering(ca, cb, &pos12, axis),
     }
-}
-
-/// Half-space test: the geom's bounding box must reach below `margin` before the exact
-/// support point of its `convex` shape is computed (the box's lowest point is a lower bound
-/// on the geom's).
-fn plane_pair_in_contact(plane: &Isometry3<f64>, g: &Geom, convex: &Convex, pg: &Isometry3<f64>, obb: &Obb, margin: f64) -> bool {
-    let n = plane.rotation * Vector3::z();
-    let reach = obb.rot.tr_mul(&n).abs().dot(&g.shape.obb_half);
-    if n.dot(&(obb.center - plane.translation.vector)) - reach >= margin {
-        return false;
-    }
-    plane_distance(plane, convex, pg) < margin
 }
 
 /// Exact signed distance of a pair (negative: penetration depth), or `None` when the pair is
@@ -212,7 +292,7 @@ fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isome
     match (&a.shape.solid, &b.shape.solid) {
         (Solid::HalfSpace, Solid::Convex { convex, .. }) => Some(plane_distance(pa, convex, pb)),
         (Solid::Convex { convex, .. }, Solid::HalfSpace) => Some(plane_distance(pb, convex, pa)),
-        // Never a candidate (see `pair_in_contact`).
+        // Never a candidate (see `Scratch::in_contact`).
         (Solid::HalfSpace, Solid::HalfSpace) => None,
         (Solid::Convex { shape: sa, .. }, Solid::Convex { shape: sb, .. }) => {
             let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
@@ -230,26 +310,18 @@ fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isome
 
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked.
 pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
-    body_poses(model, q, &mut scratch.bodies);
-    scratch.next_pose();
-    if opts.distance {
-        for g in 0..model.geoms.len() {
-            scratch.frame(model, g);
-        }
-    } else {
-        for &g in model.broad.plane_geoms() {
-            scratch.frame(model, g as usize);
-        }
-    }
+    scratch.place(model, q, opts.distance);
     let mut near = std::mem::take(&mut scratch.near);
     near.clear();
-    model.broad.near_pairs(&scratch.bodies, &scratch.geoms, &mut scratch.broad, &mut near);
+    model.broad.near_pairs(&mut scratch.broad, &mut near);
+    if opts.pairs {
+        // Colliding pairs are reported in pair order; the labels do not depend on the order.
+        near.sort_unstable();
+    }
     let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
     for &k in &near {
-        let pair = &model.pairs[k as usize];
-        scratch.frame(model, pair.g1);
-        scratch.frame(model, pair.g2);
-        if pair_in_contact(model, pair, &scratch.geoms, &scratch.obbs) {
+        if scratch.in_contact(model, k as usize) {
+            let pair = &model.pairs[k as usize];
             label.n_pairs += 1;
             match pair.kind {
                 PairKind::SelfCollision => label.self_collides = true,
@@ -415,12 +487,9 @@ mod tests {
     /// Whether each candidate pair is in contact, every pair through the narrow phase (no
     /// broad phase), with every geom frame computed.
     fn contacts_without_broad_phase(model: &RobotModel, q: &[f64], s: &mut Scratch) -> Vec<u32> {
-        body_poses(model, q, &mut s.bodies);
-        s.next_pose();
-        for g in 0..model.geoms.len() {
-            s.frame(model, g);
-        }
-        (0..model.pairs.len() as u32).filter(|&k| pair_in_contact(model, &model.pairs[k as usize], &s.geoms, &s.obbs)).collect()
+        s.place(model, q, true);
+        s.axes.fill(Vector3::zeros());
+        (0..model.pairs.len() as u32).filter(|&k| s.in_contact(model, k as usize)).collect()
     }
 
     #[test]

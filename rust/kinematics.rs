@@ -5,7 +5,7 @@
 //!   `x <- anchor_world - R * anchor_local`;
 //! - slide: translate along the world axis, `x <- x + R * axis * (q - qpos0)`.
 
-use nalgebra::{Isometry3, Point3, UnitQuaternion};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::error::Result;
@@ -31,11 +31,17 @@ pub fn body_poses(model: &RobotModel, q: &[f64], out: &mut [Isometry3<f64>]) {
         for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
             let angle = qj - jnt.qpos0;
             if jnt.hinge {
-                let anchor_world: Point3<f64> = x * Point3::from(jnt.anchor);
                 let mut rot = x.rotation * UnitQuaternion::from_axis_angle(&jnt.axis, angle);
                 rot.renormalize_fast();
+                // A hinge at the body origin (every bundled robot's) leaves the translation
+                // as it is, bit for bit: the rotated zero anchor is +-0 in every component, and
+                // t + (+-0) - (+-0) == t for t != 0. (A zero component could change sign, so
+                // it takes the general formula.)
+                if jnt.anchor != Vector3::zeros() || x.translation.vector.iter().any(|&t| t == 0.0) {
+                    let anchor_world: Point3<f64> = x * Point3::from(jnt.anchor);
+                    x.translation.vector = anchor_world.coords - rot * jnt.anchor;
+                }
                 x.rotation = rot;
-                x.translation.vector = anchor_world.coords - rot * jnt.anchor;
             } else {
                 x.translation.vector += x.rotation * (jnt.axis.into_inner() * angle);
             }

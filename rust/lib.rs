@@ -20,12 +20,15 @@
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
 //! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
+//! | `sat` | remembered separating axes, tried before GJK |
 //! | [`geom`] | `Geom`: a shape on a body |
 //! | [`pairs`] | candidate pairs with MuJoCo's filters |
 //! | `broad` | the per-pose broad phase (bounding spheres) |
 //! | [`model`] | `RobotModel`: the validated, derived robot |
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
+//! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
+//! | [`oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
 //! | [`splat`] | Gaussian-splat tile rasterizer: forward compositing and its exact backward |
@@ -37,14 +40,17 @@ mod broad;
 pub mod collide;
 pub mod desc;
 pub mod error;
+pub mod fastpath;
 pub mod geom;
 pub mod hull;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;
+pub mod oracle;
 pub mod pairs;
 pub mod plan;
 pub mod sample;
+mod sat;
 pub mod shapes;
 pub mod splat;
 pub mod threads;
@@ -55,10 +61,12 @@ mod python;
 pub use collide::{label_batch, Label, LabelBatch, LabelOptions};
 pub use desc::ModelDesc;
 pub use error::{Error, Result};
+pub use fastpath::collides_batch;
 pub use geom::Geom;
 pub use interpolate::interpolate_so2;
 pub use kinematics::forward_kinematics;
 pub use model::RobotModel;
+pub use oracle::{nearest_free, NearestFree, OracleOptions};
 pub use pairs::{CandidatePair, PairKind};
 pub use plan::{plan_path, PlanOptions, PlanResult, PlanStatus};
 pub use sample::sample_uniform;

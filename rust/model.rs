@@ -36,6 +36,9 @@ pub struct RobotModel {
     pub(crate) pairs: Vec<CandidatePair>,
     /// Bounding spheres by body pair and by pair, for the per-pose broad phase.
     pub(crate) broad: Broad,
+    /// The pairs the booleans-only fast path tries first, likeliest first: derived from a
+    /// seeded sample on first use by `fastpath.rs` (a heuristic: no answer depends on it).
+    pub(crate) likely_pairs: std::sync::OnceLock<Vec<u32>>,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -224,6 +227,7 @@ impl RobotModel {
             geoms,
             pairs,
             broad,
+            likely_pairs: std::sync::OnceLock::new(),
         })
     }
 

@@ -5,6 +5,9 @@
 //! path's segments are exactly the motions the SO(2) interpolation (and the certification in
 //! Python) will replay.
 //!
+//! States are checked by the booleans-only fast path (`fastpath.rs`: the labeller's answer, bit
+//! for bit, stopping at the first pair in contact).
+//!
 //! An edge `a → b` is free when every state `a + (i/n)·Δ`, `i = 1..n`, is free with
 //! `n = ceil(max_k |Δ_k| / resolution)`: no joint moves more than `resolution` between two
 //! checked states. States are checked coarse-to-fine (the end, then midpoints breadth-first) in
@@ -23,7 +26,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::collide::{label_pose, LabelOptions, Scratch};
+use crate::collide::Scratch;
+use crate::fastpath::collides_pose;
 use crate::error::{invalid_input, Result};
 use crate::model::RobotModel;
 
@@ -162,15 +166,13 @@ struct Checker<'m> {
     space: Space,
     resolution: f64,
     scratch: Scratch,
-    hits: Vec<u32>,
     checks: u64,
 }
 
 impl<'m> Checker<'m> {
     fn free(&mut self, q: &[f64]) -> bool {
         self.checks += 1;
-        self.hits.clear();
-        !label_pose(self.model, q, &mut self.scratch, LabelOptions::default(), &mut self.hits).collides()
+        !collides_pose(self.model, q, &mut self.scratch)
     }
 
     /// Whether the SO(2) segment `a → b` is free at `resolution` (`a` is taken as free).
@@ -199,19 +201,17 @@ impl<'m> Checker<'m> {
             let model = self.model;
             let collides = if batch.len() >= PARALLEL_FROM {
                 batch.par_iter().map_init(
-                    || (Scratch::new(model), Vec::new(), vec![0.0; k]),
-                    |(s, h, q), &i| {
+                    || (Scratch::new(model), vec![0.0; k]),
+                    |(s, q), &i| {
                         state(i, q);
-                        h.clear();
-                        label_pose(model, q, s, LabelOptions::default(), h).collides()
+                        collides_pose(model, q, s)
                     },
                 ).any(|c| c)
             } else {
                 let mut q = vec![0.0; k];
                 batch.iter().any(|&i| {
                     state(i, &mut q);
-                    self.hits.clear();
-                    label_pose(model, &q, &mut self.scratch, LabelOptions::default(), &mut self.hits).collides()
+                    collides_pose(model, &q, &mut self.scratch)
                 })
             };
             if collides {
@@ -330,7 +330,6 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         space,
         resolution: opts.resolution,
         scratch: Scratch::new(model),
-        hits: Vec::new(),
         checks: 0,
     };
     for (q, what) in [(start, "start"), (goal, "goal")] {

@@ -16,9 +16,11 @@ use pyo3::types::{PyBytes, PyDict, PyType};
 use crate::collide::{label_batch, LabelOptions};
 use crate::desc::ModelDesc;
 use crate::error::Error;
+use crate::fastpath::collides_batch;
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
+use crate::oracle::{nearest_free, OracleOptions};
 use crate::pairs::PairKind;
 use crate::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::sample::sample_uniform;
@@ -280,6 +282,48 @@ impl PyRobotModel {
             let flat: Vec<i64> = batch.colliding_pairs.iter().flat_map(|&[p, k]| [p as i64, k as i64]).collect();
             out.set_item("colliding_pairs", PyArray1::from_vec(py, flat).reshape([m, 2])?)?;
         }
+        Ok(out)
+    }
+
+    /// `(B,)` bool: whether each pose collides (`label(..)["collides"]`, by the fast path).
+    #[pyo3(signature = (poses, *, threads=None))]
+    fn collides<'py>(&self, py: Python<'py>, poses: &Bound<'py, PyAny>, threads: Option<usize>) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let model = &self.model;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
+        let out = py.detach(|| with_threads(threads, || collides_batch(model, q))).map_err(to_py)?.map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, out))
+    }
+
+    /// The nearest free pose found for each pose (see `_core.pyi` and `oracle.rs`).
+    #[pyo3(signature = (poses, *, directions=256, step=0.02, tolerance=1e-4, refine=1024, max_distance=None, seed=0, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn nearest_free<'py>(
+        &self,
+        py: Python<'py>,
+        poses: &Bound<'py, PyAny>,
+        directions: usize,
+        step: f64,
+        tolerance: f64,
+        refine: usize,
+        max_distance: Option<f64>,
+        seed: u64,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let model = &self.model;
+        let k = model.njoint();
+        let poses = pose_array(poses, k, "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
+        let max_distance = max_distance.unwrap_or(f64::INFINITY);
+        let opts = OracleOptions { directions, step, tolerance, refine, max_distance, seed };
+        let r = py.detach(|| with_threads(threads, || nearest_free(model, q, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let b = r.distance.len();
+        let out = PyDict::new(py);
+        out.set_item("distance", PyArray1::from_vec(py, r.distance))?;
+        out.set_item("poses", PyArray1::from_vec(py, r.poses).reshape([b, k])?)?;
+        out.set_item("checks", PyArray1::from_iter(py, r.checks.iter().map(|&c| c as i64)))?;
         Ok(out)
     }
 

@@ -35,16 +35,20 @@ pub fn sample_uniform(ranges: &[[f64; 2]], n: usize, seed: u64) -> Result<Vec<f6
         }
     }
     let mut out = vec![0.0; n * k];
-    out.par_chunks_mut(BLOCK * k).enumerate().for_each(|(c, block)| {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(c as u64);
-        for q in block.chunks_exact_mut(k) {
-            for (v, &[lo, hi]) in q.iter_mut().zip(ranges) {
-                *v = lo + (hi - lo) * rng.random::<f64>();
-            }
-        }
-    });
+    out.par_chunks_mut(BLOCK * k).enumerate().for_each(|(c, block)| fill_block(ranges, seed, c, block));
     Ok(out)
+}
+
+/// Fills `block` (at most [`BLOCK`] poses, row-major) with block `c` of `sample_uniform(ranges,
+/// .., seed)`, on the calling thread (`ranges` already checked).
+pub(crate) fn fill_block(ranges: &[[f64; 2]], seed: u64, c: usize, block: &mut [f64]) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(c as u64);
+    for q in block.chunks_exact_mut(ranges.len()) {
+        for (v, &[lo, hi]) in q.iter_mut().zip(ranges) {
+            *v = lo + (hi - lo) * rng.random::<f64>();
+        }
+    }
 }
 
 #[cfg(test)]

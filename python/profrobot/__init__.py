@@ -1,12 +1,15 @@
 """profrobot: collision-aware robot pose optimisation.
 
 The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.label`` (Rust,
-``rust/collide.rs``).
+``rust/collide.rs``); booleans only, faster: :func:`collides` → ``Robot.core.collides``
+(``rust/fastpath.rs``).
 
 >>> import profrobot
 >>> robot = profrobot.scenes.load("panda_blocks")
 >>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
 >>> labels = profrobot.label_poses(robot, poses)                 # exact, parallel
+>>> hit = profrobot.collides(robot, poses)                       # == labels.collides, faster
+>>> near = profrobot.nearest_free(robot, poses[hit][:10])        # the Δθ oracle: smallest move found
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
 >>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
@@ -34,7 +37,8 @@ from ._core import __version__  # noqa: E402
 from ._gl import RendererUnavailableError  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
-from .labels import Labels, interpolate, label_poses, sample_poses  # noqa: E402
+from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
+from .oracle import NearestFree, nearest_free  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 
@@ -56,13 +60,13 @@ _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
     "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
-    "label_poses", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
+    "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "problems", "joints", "equalities", "executors", "inverse",
-    "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult", "scorers",
-    "actions_from_video",
+    "plan_path", "PathResult", "nearest_free", "NearestFree", "problems", "joints", "equalities", "executors",
+    "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
+    "scorers", "actions_from_video",
     "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
 ]
 

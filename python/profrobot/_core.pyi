@@ -67,6 +67,19 @@ class RobotModel:
         """Labels (B, K) float64 poses. Keys: collides, self_collides, scene_collides
         (B,) bool; n_pairs (B,) int32; with ``distance``, min_distance (B,) float64 metres
         (negative: penetration); with ``pairs``, colliding_pairs (M, 2) int64 (pose, pair index)."""
+    def collides(self, poses: npt.NDArray[np.float64], *, threads: int | None = None) -> npt.NDArray[np.bool_]:
+        """(B,) bool for (B, K) float64 poses: ``label(poses)["collides"]``, bit for bit, by the
+        booleans-only fast path (stops at the first pair in contact, likeliest pairs first)."""
+    def nearest_free(self, poses: npt.NDArray[np.float64], *, directions: int = 256, step: float = 0.02,
+                     tolerance: float = 1e-4, refine: int = 1024, max_distance: float | None = None, seed: int = 0,
+                     threads: int | None = None) -> dict[str, npt.NDArray]:
+        """The nearest free pose found for each of (B, K) poses within their joint limits: rays
+        ``q + t u`` from each colliding pose along ``directions`` seeded unit directions, marched
+        by ``step`` and bisected to ``tolerance`` (radians / metres, L2), then ``refine``
+        perturbations of the best direction; every state labelled exactly. Keys: distance (B,)
+        float64 (0 for a free pose, inf when none was found within ``max_distance``, default the
+        diagonal of the joint ranges), poses (B, K) float64 (free; NaN rows when none found),
+        checks (B,) int64 (states labelled). Same seed, same answer, for any thread count."""
     def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
                   max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
                   shortcut_rounds: int = 200, verify: int = 10, threads: int | None = None) -> dict[str, object]:

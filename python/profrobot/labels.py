@@ -104,6 +104,17 @@ def label_poses(robot: Robot, poses, *, pairs: bool = False, distance: bool = Fa
     return Labels(**out)
 
 
+def collides(robot: Robot, poses, *, check_limits: bool = False, threads: int | None = None) -> np.ndarray:
+    """Whether each of ``poses`` (B, K) (radians / metres, MuJoCo joint order) collides: (B,) bool.
+
+    Exactly ``label_poses(robot, poses).collides``, faster: the Rust fast path stops at the first
+    pair in contact, trying the pairs likeliest to be in contact first. Same validation,
+    threads and GIL release as :func:`label_poses`; the same answer for any thread count.
+    """
+    q = as_poses(robot, poses, check_limits=check_limits)
+    return robot.core.collides(q, threads=check_threads(threads))
+
+
 def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = None,
                  equalities: EqualityMode = "auto") -> np.ndarray:
     """``n`` poses (n, K) drawn uniformly within the joint limits (continuous hinges: [-pi, pi]).

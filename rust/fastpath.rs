@@ -1,0 +1,178 @@
+//! The booleans-only fast path: whether each pose collides, stopping at the first pair in
+//! contact, with the likeliest pairs tried first.
+//!
+//! # Same answer as `label_pose`
+//! `label_pose(..).collides()` is "some candidate pair is in contact", each pair decided by
+//! `collide::Scratch::in_contact`, a pure function of the pose; which pairs the broad phase lets
+//! through does not change it (`broad.rs`: a pair it drops is one the narrow phase would find
+//! apart). Here every pair is decided by the same function on the same frames, and "some pair
+//! is in contact" does not depend on the order in which pairs are tried, nor on stopping at
+//! the first that is; pairs tried early are skipped later (`Scratch::tested`), never decided
+//! twice. So the answer is `label_pose`'s, bit for bit, whatever the order.
+//!
+//! # Order
+//! 1. the pair that hit on the previous pose of this thread (nearby poses, as in a bisection
+//!    or along a path, tend to hit the same pair);
+//! 2. the model's likely pairs (`likely_pairs`): a greedy cover of the colliding poses of a
+//!    seeded sample, so that one of the first few pairs tried is in contact in most colliding
+//!    poses; each behind its own bounding-sphere test;
+//! 3. the rest, through the broad phase.
+//!
+//! Free poses cost what `label_pose` costs (every pair must be cleared); colliding poses
+//! usually stop after one or two narrow-phase tests.
+
+use rayon::prelude::*;
+
+use crate::collide::{label_pose, LabelOptions, Scratch};
+use crate::error::Result;
+use crate::model::RobotModel;
+use crate::sample::{fill_block, BLOCK};
+
+/// Poses per parallel work item (fixed, so the split never depends on the thread count).
+const CHUNK: usize = 256;
+
+/// Sample behind `likely_pairs`: poses, seed.
+const SAMPLE_POSES: usize = 512;
+const SAMPLE_SEED: u64 = 0x6c69_6b65_6c79; // "likely"
+
+/// At most this many likely pairs (each costs every free pose a sphere test); a pair joins
+/// only if it is in contact in at least `MIN_SHARE` of the sample's colliding poses that no
+/// earlier pair covers. (16 and 0.5%: within 2% of the fewest instructions per pose of the
+/// settings tried, 4 to 48 pairs and 0.5% to 2%, on every bundled scene.)
+const MAX_LIKELY: usize = 16;
+const MIN_SHARE: f64 = 0.005;
+
+/// No pair (`Scratch::last_hit` before any hit).
+const NO_PAIR: u32 = u32::MAX;
+
+/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path.
+pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> bool {
+    s.place(model, q, false);
+    let pose = s.pose_stamp();
+    let last = s.last_hit;
+    let first = (last != NO_PAIR).then_some(last);
+    for k in first.into_iter().chain(likely_pairs(model).iter().copied()) {
+        let k = k as usize;
+        if s.tested[k] == pose {
+            continue;
+        }
+        s.tested[k] = pose;
+        if model.broad.may_touch(&s.broad, k) && s.in_contact(model, k) {
+            s.last_hit = k as u32;
+            return true;
+        }
+    }
+    let mut near = std::mem::take(&mut s.near);
+    near.clear();
+    model.broad.near_pairs(&mut s.broad, &mut near);
+    let mut hit = false;
+    for &k in &near {
+        if s.tested[k as usize] != pose && s.in_contact(model, k as usize) {
+            s.last_hit = k;
+            hit = true;
+            break;
+        }
+    }
+    s.near = near;
+    hit
+}
+
+/// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
+/// rayon's current pool. Every pose is decided alone, so the result does not depend on the
+/// number of threads.
+pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
+    model.check_poses(poses)?;
+    let k = model.njoint();
+    likely_pairs(model);
+    let chunks: Vec<Vec<bool>> = poses
+        .par_chunks(CHUNK * k)
+        .map_init(|| Scratch::new(model), |s, chunk| chunk.chunks_exact(k).map(|q| collides_pose(model, q, s)).collect())
+        .collect();
+    Ok(chunks.concat())
+}
+
+/// The model's likely pairs, computed on first use (on the calling thread, without rayon:
+/// a worker that waits here can never be asked to run this initialisation itself).
+pub fn likely_pairs(model: &RobotModel) -> &[u32] {
+    model.likely_pairs.get_or_init(|| greedy_cover(model))
+}
+
+/// A greedy cover of the colliding poses of a seeded uniform sample: repeatedly the pair in
+/// contact in the most colliding poses that no earlier pair covers (ties: the lower index).
+/// Empty when the model has no sampling ranges (an unlimited slide joint).
+fn greedy_cover(model: &RobotModel) -> Vec<u32> {
+    let Ok(ranges) = model.sampling_ranges() else {
+        return Vec::new();
+    };
+    let k = ranges.len();
+    if k == 0 || model.pairs.is_empty() {
+        return Vec::new();
+    }
+    let mut poses = vec![0.0; SAMPLE_POSES * k];
+    for (c, block) in poses.chunks_mut(BLOCK * k).enumerate() {
+        fill_block(&ranges, SAMPLE_SEED, c, block);
+    }
+    let mut scratch = Scratch::new(model);
+    let opts = LabelOptions { pairs: true, distance: false };
+    // Per pair, the colliding sample poses it is in contact in.
+    let mut poses_of: Vec<Vec<u32>> = vec![Vec::new(); model.pairs.len()];
+    let mut hits = Vec::new();
+    let mut colliding = 0usize;
+    for (i, q) in poses.chunks_exact(k).enumerate() {
+        hits.clear();
+        if label_pose(model, q, &mut scratch, opts, &mut hits).collides() {
+            colliding += 1;
+            for &p in &hits {
+                poses_of[p as usize].push(i as u32);
+            }
+        }
+    }
+    let min_gain = ((colliding as f64 * MIN_SHARE).ceil() as usize).max(1);
+    let mut covered = vec![false; SAMPLE_POSES];
+    let mut order = Vec::new();
+    while order.len() < MAX_LIKELY {
+        let gain = |p: &[u32]| p.iter().filter(|&&i| !covered[i as usize]).count();
+        let Some((best, n)) = poses_of.iter().enumerate().map(|(p, of)| (p, gain(of))).rev().max_by_key(|&(_, n)| n) else {
+            break;
+        };
+        if n < min_gain {
+            break;
+        }
+        for &i in &poses_of[best] {
+            covered[i as usize] = true;
+        }
+        order.push(best as u32);
+    }
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collide::label_batch;
+    use crate::desc::ModelDesc;
+    use crate::sample::sample_uniform;
+
+    #[test]
+    fn fast_path_agrees_with_the_labels_on_any_thread_count() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_pos[1][2] = 0.45; // the bob reaches 0.05 below the floor when hanging
+        let model = RobotModel::new(desc).unwrap();
+        let poses = sample_uniform(&model.sampling_ranges().unwrap(), 5000, 2).unwrap();
+        let labels = label_batch(&model, &poses, LabelOptions::default()).unwrap();
+        let want: Vec<bool> = labels.labels.iter().map(|l| l.collides()).collect();
+        assert!(want.iter().any(|&c| c) && want.iter().any(|&c| !c));
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            assert_eq!(pool.install(|| collides_batch(&model, &poses).unwrap()), want);
+        }
+        assert_eq!(likely_pairs(&model), &[0]);
+    }
+
+    #[test]
+    fn bad_poses_are_errors_not_panics() {
+        let model = RobotModel::new(ModelDesc::example_pendulum()).unwrap();
+        assert!(collides_batch(&model, &[]).is_err());
+        assert!(collides_batch(&model, &[f64::INFINITY]).is_err());
+    }
+}
