@@ -322,10 +322,10 @@ impl Splats {
         let mut cursor = tile_start.clone();
         let mut order = vec![0u32; m];
         for &(_, g) in &by_depth {
-            for e in gauss_start[g]..gauss_start[g + 1] {
-                let t = entry_tile[e] as usize;
-                order[cursor[t]] = e as u32;
-                cursor[t] += 1;
+            let entries = gauss_start[g]..gauss_start[g + 1];
+            for (e, &t) in entries.clone().zip(&entry_tile[entries]) {
+                order[cursor[t as usize]] = e as u32;
+                cursor[t as usize] += 1;
             }
         }
         Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, tile_start, rows }
