@@ -290,7 +290,7 @@ def video(a):
         t0 = time.perf_counter()
         kw = dict(robot=scene) if field is None else dict(sdf=field)
         r = actions_from_video(model, dict(rgb=views.rgb, depth=views.depth, mask=views.mask), cams, init=init,
-                               steps_per_frame=a.steps_per_frame, joint_iters=a.joint_iters,
+                               steps_per_frame=a.steps_per_frame, joint_iters=a.joint_iters, lr=a.lr,
                                background=views.background, **kw)
         err = np.abs(r.path - truth)[:, arm]
         row = dict(setting=label, median_joint_err_rad=float(np.median(err)), p90_joint_err_rad=float(np.percentile(err, 90)),
@@ -409,7 +409,8 @@ def main(argv=None):
     sp.set_defaults(fn=t8)
     sp = sub.add_parser("video", help="actions from a 3-camera MuJoCo video of a certified-free trajectory")
     sp.add_argument("--frames", type=int, default=60)
-    sp.add_argument("--steps-per-frame", type=int, default=5)
+    sp.add_argument("--steps-per-frame", type=int, default=15)
+    sp.add_argument("--lr", type=float, default=0.01)
     sp.add_argument("--joint-iters", type=int, default=50)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--out", default=os.path.join(HERE, "out", "inverse"))

@@ -1,7 +1,8 @@
 """Joint trajectories from multi-view video (paper supplement, "actions from video"):
 
 1. per frame, ``steps_per_frame`` Adam steps on the image loss, warm-started from the previous
-   frame's answer (the first from ``init``);
+   frames' answers extrapolated at constant velocity (the first frame from ``init``, with
+   ``first_frame_steps`` steps: it has no history to start from);
 2. all frames jointly: image loss + ``w_tv`` TV (mean ‖θ_{t+1} − θ_t‖₁), ``joint_iters`` steps;
 3. with a field: the same joint refinement with ``beta`` ReLU(g − l_thres) on every frame; then
    the exact labeller on every frame and a ``density``× denser sampling of every segment. Frames
@@ -30,6 +31,7 @@ __all__ = ["actions_from_video"]
 
 
 def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_per_frame: int = 5, lr: float = 0.01,
+                       first_frame_steps: int = 50,
                        joint_iters: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
                        background=None, robot: Robot | None = None, batch: int = 20) -> TrajectoryResult:
@@ -45,6 +47,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     elif not isinstance(robot, Robot):
         raise ProfrobotError("actions_from_video without a field needs robot= (the scene to certify against)")
     steps_per_frame = positive("steps_per_frame", steps_per_frame, integer=True, allow_zero=True)
+    first_frame_steps = positive("first_frame_steps", first_frame_steps, integer=True, allow_zero=True)
     joint_iters = positive("joint_iters", joint_iters, integer=True, allow_zero=True)
     lr, joint_lr = positive("lr", lr), positive("joint_lr", joint_lr)
     w_tv, beta, l_thres = finite("w_tv", w_tv), finite("beta", beta), finite("l_thres", l_thres)
@@ -73,13 +76,14 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
         flat = lambda t: t[idx].reshape(len(idx) * C, *t.shape[2:])
         return pose_loss(out, flat(tr), flat(td), flat(tm), w_depth=w_depth, w_mask=w_mask).reshape(-1, C).mean(1)
 
-    # 1. frame by frame, warm-started
+    # 1. frame by frame, warm-started at constant velocity
     traj = torch.empty(T, model.njoint, device=dev)
     prev = limits.clamp_or_wrap(torch.as_tensor(q0, dtype=torch.float32, device=dev)[None])
     for t in range(T):
-        th = torch.nn.Parameter(prev.clone())
+        guess = prev if t < 2 else limits.clamp_or_wrap(2 * traj[t - 1:t] - traj[t - 2:t - 1])
+        th = torch.nn.Parameter(guess.clone())
         opt = torch.optim.Adam([th], lr=lr)
-        for _ in range(steps_per_frame):
+        for _ in range(first_frame_steps if t == 0 else steps_per_frame):
             loss = img_loss(th, [t]).sum()
             opt.zero_grad()
             loss.backward()
@@ -110,7 +114,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
         traj.copy_(th.detach())
 
     joint(joint_iters, False)
-    method, iterations = "video", T * steps_per_frame + joint_iters
+    method, iterations = "video", (T - 1) * steps_per_frame + first_frame_steps + joint_iters
     lim = Limits.of(robot)
     if sdf is not None:
         joint(joint_iters, True)
