@@ -41,7 +41,6 @@ error, colliding frames and segments, seconds per frame; a GIF of the recovered 
 from __future__ import annotations
 
 import argparse
-import functools
 import importlib.util
 import json
 import os
@@ -133,10 +132,17 @@ def picture(scene, path, target, base, ours, base_col, ours_col, camera=None):
 T7_CAMS = dict(n=4, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
 
 
-@functools.lru_cache(maxsize=1)
+_MODELS: dict = {}
+
+
 def _t7_models():
-    robot_img = profrobot.Robot.from_menagerie("franka_emika_panda")
-    return robot_img, gaussian_panda(robot_img), _bench("fields").field("panda_blocks")
+    """The image robot, the Gaussian Panda and the Panda-blocks field, loaded once per process
+    (a plain dict, not functools.lru_cache: Ray pickles this script's functions by value, and an
+    lru_cache wrapper would be looked up by name on the worker, where it does not exist)."""
+    if "m" not in _MODELS:
+        robot_img = profrobot.Robot.from_menagerie("franka_emika_panda")
+        _MODELS["m"] = robot_img, gaussian_panda(robot_img), _bench("fields").field("panda_blocks")
+    return _MODELS["m"]
 
 
 def t7_group(scene, group: str, gi: int, o: dict):
@@ -190,6 +196,7 @@ def t7(a):
         from profrobot.executors import RayExecutor
 
         ex = RayExecutor(a.address, workers=a.workers)
+        _MODELS.clear()          # t7_group travels by value with this dict: empty, not holding MjSpecs
         try:
             done = ex.map(t7_group, items, robot=scene, desc="Table 7 rows")
         finally:
