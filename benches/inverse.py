@@ -129,7 +129,9 @@ def picture(scene, path, target, base, ours, base_col, ours_col, camera=None):
     write_png(path, np.concatenate([np.asarray(f.convert("RGB")) for f in frames], axis=1))
 
 
-T7_CAMS = dict(n=4, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
+def t7_cameras(n: int = 4):
+    """The pose benchmarks' ring: ``n`` cameras at 128^2, 1.5 m from the Panda's middle."""
+    return ring_cameras(n, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
 
 
 _MODELS: dict = {}
@@ -150,7 +152,7 @@ def t7_group(scene, group: str, gi: int, o: dict):
     poses for its picture."""
     t0 = time.perf_counter()
     robot_img, model, sdf = _t7_models()
-    cams = ring_cameras(T7_CAMS["n"], **{k: v for k, v in T7_CAMS.items() if k != "n"})
+    cams = t7_cameras()
     arm = np.array([t == "hinge" for t in scene.joint_types])
     lim = scene.joint_limits
     target, ncon = group_targets(scene, group, o["instances"], o["seed"] + gi)
@@ -233,7 +235,7 @@ def t8(a):
     os.makedirs(out, exist_ok=True)
     scene = scenes.panda_blocks()
     robot_img, model, sdf = _t7_models()
-    cams = ring_cameras(T7_CAMS["n"], **{k: v for k, v in T7_CAMS.items() if k != "n"})
+    cams = t7_cameras()
     ends, _ = group_targets(scene, "0", 2 * a.instances, a.seed + 100)          # ncon == 0, as the paper
     starts, goals = ends[: a.instances], ends[a.instances:]
     views = make_views(robot_img, goals, cams, progress=False)
@@ -285,7 +287,7 @@ def video(a):
     ends, _ = group_targets(scene, "0", 2, a.seed + 200)
     plan = plan_path(scene, ends[0], ends[1], seed=a.seed)
     truth = resample_path(scene, plan.path, a.frames)
-    cams = ring_cameras(3, size=128, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
+    cams = t7_cameras(3)
     views = make_views(robot_img, truth, cams, progress=False)
     arm = np.array([t == "hinge" for t in scene.joint_types])
     rng = np.random.default_rng(a.seed)

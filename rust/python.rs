@@ -132,13 +132,13 @@ fn pose_array<'py>(obj: &Bound<'py, PyAny>, k: usize, what: &str) -> PyResult<Py
     Ok(a)
 }
 
-/// The rows of `a` as one row-major buffer: borrowed when `a` is C-contiguous, otherwise copied
+/// The elements of `a` (any dimension) as one row-major buffer: borrowed when `a` is C-contiguous, otherwise copied
 /// element by element through its strides (Fortran order, negative strides, sliced views).
 ///
 /// Exactness: rust-numpy's `as_slice` succeeds for *any* contiguous array, Fortran order
 /// included, and would hand back the memory in storage order; reading it as rows silently
 /// transposes the poses. Only `is_c_contiguous` guarantees storage order == row order.
-fn rows_of<'a>(a: &'a PyReadonlyArray2<'_, f64>) -> Cow<'a, [f64]> {
+fn rows_of<'a, D: numpy::ndarray::Dimension>(a: &'a numpy::PyReadonlyArray<'_, f64, D>) -> Cow<'a, [f64]> {
     if a.is_c_contiguous() {
         if let Ok(s) = a.as_slice() {
             return Cow::Borrowed(s);
@@ -429,11 +429,7 @@ fn splat_array(obj: &Bound<'_, PyAny>, name: &str, cn: Option<(usize, usize)>, t
     if !ok {
         return Err(ProfrobotError::new_err(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
     }
-    let v = match a.as_slice() {
-        Ok(s) => s.to_vec(),
-        Err(_) => a.as_array().iter().copied().collect(),
-    };
-    Ok((v, shape[0], shape[1]))
+    Ok((rows_of(&a).into_owned(), shape[0], shape[1]))
 }
 
 type SplatOut<'py> = (
@@ -520,10 +516,7 @@ fn splat_backward<'py>(
         if a.shape() != want.as_slice() {
             return Err(ProfrobotError::new_err(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));
         }
-        Ok(match a.as_slice() {
-            Ok(s) => s.to_vec(),
-            Err(_) => a.as_array().iter().copied().collect(),
-        })
+        Ok(rows_of(&a).into_owned())
     };
     let (gr, ga, gd) = (img(grad_rgb, "grad_rgb", &[3])?, img(grad_alpha, "grad_alpha", &[])?, img(grad_dsum, "grad_dsum", &[])?);
     let st = &state.state;

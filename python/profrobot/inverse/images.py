@@ -27,12 +27,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError, RobotMismatchError
+from ..errors import ProfrobotError
 from ..joints import Limits
 from ..optim._batched_adam import BatchedAdam
-from ..optim._inputs import check_field, field_robot, finite, positive
+from ..optim._inputs import finite, positive
 from ..optim.certify import certify_poses
-from ..render.pose import _as_targets, fit_pose, pose_loss
+from ..render.pose import fit_pose, pose_loss
+from ._common import check_field_matches_model, labeller_robot, target_tensors
 
 __all__ = ["InverseResult", "pose_from_images", "check_field_matches_model"]
 
@@ -88,20 +89,6 @@ class InverseResult:
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
 
 
-def check_field_matches_model(sdf, model) -> None:
-    """The field and the Gaussian robot must move the same joints: same count and limits
-    (the field's scene may add obstacles the images do not show; the joints are the robot's)."""
-    check_field(sdf)
-    if sdf.njoint != model.njoint:
-        raise RobotMismatchError(f"the field is for robot {getattr(sdf, 'robot_name', '?')!r} with {sdf.njoint} joints; "
-                                 f"the Gaussian model {model.robot_name!r} has {model.njoint}")
-    a = sdf.joint_limits.detach().double().cpu().numpy()
-    b = model.limits.detach().double().cpu().numpy()
-    if a.shape != b.shape or not np.allclose(a, b, atol=1e-4):
-        raise RobotMismatchError(f"the field's robot {getattr(sdf, 'robot_name', '?')!r} and the Gaussian model's "
-                                 f"{model.robot_name!r} have different joint limits: not the same arm")
-
-
 def _image_losses(model, theta, vm, Ks, W, H, bg, tr, td, tm, C, w_depth, w_mask):
     """(B,) mean image loss over the C views of each of B poses."""
     out = model._render(theta, vm, Ks, W, H, background=bg)
@@ -131,11 +118,9 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
-    if sdf is not None:
-        check_field_matches_model(sdf, model)
-        robot = field_robot(sdf, robot)
+    robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False)
     if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise ProfrobotError("targets must be a dict with 'rgb', 'depth' and 'mask'")
+        raise ProfrobotError("pose_from_images: targets must be a dict with 'rgb', 'depth' and 'mask'")
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:
         init = init[None]
@@ -153,9 +138,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
 
     H, W = cameras.height, cameras.width
     dev = model.means.device
-    tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float().to(dev)
-    td = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float().to(dev)
-    tm = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool().to(dev)
+    tr, td, tm = target_tensors(targets, B, cameras, dev, "pose_from_images")
     flat = lambda t: t.reshape(B * C, *t.shape[2:])
     tr, td, tm = flat(tr), flat(td), flat(tm)
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)

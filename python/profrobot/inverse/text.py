@@ -14,10 +14,10 @@ import torch
 
 from ..errors import ProfrobotError
 from ..joints import Limits
-from ..optim._inputs import field_robot, finite, positive
+from ..optim._inputs import finite, positive
 from ..optim.certify import certify_poses
 from ..robot import Robot
-from .images import check_field_matches_model
+from ._common import labeller_robot
 
 __all__ = ["TextResult", "pose_from_text"]
 
@@ -68,11 +68,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     t0 = time.perf_counter()
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):
         raise TypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
-    if sdf is not None:
-        check_field_matches_model(sdf, model)
-        robot = field_robot(sdf, robot)
-    elif not isinstance(robot, Robot):
-        raise ProfrobotError("pose_from_text without a field needs robot= (the robot to certify against)")
+    robot = labeller_robot(sdf, model, robot, "pose_from_text")
     if len(camera) != 1:
         raise ProfrobotError(f"pose_from_text renders from one camera; got {len(camera)}")
     runs, steps = positive("runs", runs, integer=True), positive("steps", steps, integer=True, allow_zero=True)

@@ -15,12 +15,12 @@ import torch
 
 from ..errors import ProfrobotError
 from ..joints import Limits
-from ..optim._inputs import field_robot, finite, poses_array, positive
-from ..optim.certify import check_path, certify_poses
+from ..optim._inputs import finite, poses_array, positive
+from ..optim.certify import certify_poses, check_path
 from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap, plan_trajectory
-from ..render.pose import _as_targets, pose_loss
+from ..render.pose import pose_loss
 from ..robot import Robot
-from .images import check_field_matches_model
+from ._common import certified_path, labeller_robot, target_tensors
 
 __all__ = ["trajectory_from_images"]
 
@@ -45,11 +45,7 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     says which of these produced the path.
     """
     t0 = time.perf_counter()
-    if sdf is not None:
-        check_field_matches_model(sdf, model)
-        robot = field_robot(sdf, robot)
-    elif not isinstance(robot, Robot):
-        raise ProfrobotError("trajectory_from_images without a field needs robot= (the scene to certify against)")
+    robot = labeller_robot(sdf, model, robot, "trajectory_from_images")
     steps = positive("steps", steps, integer=True)
     if steps < 3:
         raise ProfrobotError(f"steps must be >= 3; got {steps}")
@@ -60,15 +56,9 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     if s.shape[1] != model.njoint:
         raise ProfrobotError(f"start must have {model.njoint} joints; got {s.shape[1]}")
     gl = None if goal is None else poses_array(robot, np.asarray(goal, dtype=np.float64).reshape(1, -1), "goal")
-    if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise ProfrobotError("targets must be a dict with 'rgb', 'depth' and 'mask'")
     C, H, W = len(cameras), cameras.height, cameras.width
     dev = model.means.device
-    tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), 1, C, torch.float32).float().to(dev)[0]
-    td = _as_targets(targets["depth"], "depth", (H, W), 1, C, torch.float32).float().to(dev)[0]
-    tm = _as_targets(targets["mask"], "mask", (H, W), 1, C, torch.float32).bool().to(dev)[0]
-    if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
-        raise ProfrobotError("trajectory_from_images: targets contain NaN or inf")
+    tr, td, tm = (t[0] for t in target_tensors(targets, 1, cameras, dev, "trajectory_from_images"))
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     if vm.shape != (C, 4, 4):
@@ -117,12 +107,4 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
                                    density=density)
             if plan.free:
                 path, method = _unwrap(plan.path, lim.cont_np), "images+planner"
-    path = lim.numpy(path)
-    chk = check_path(robot, path, density)
-    g = (np.full(len(path), np.nan) if sdf is None else
-         sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
-    return TrajectoryResult(path=path, free=chk.free, waypoint_collides=chk.waypoint_collides,
-                            segment_collides=chk.segment_collides, g=g, method=method, iterations=iterations,
-                            length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
-                            straight_length=float(np.linalg.norm(lim.diff(path[-1], path[0]))),
-                            seconds=time.perf_counter() - t0, check=chk)
+    return certified_path(robot, sdf, path, density, method, iterations, t0)

@@ -20,12 +20,12 @@ import torch
 
 from ..errors import ProfrobotError
 from ..joints import Limits
-from ..optim._inputs import field_robot, finite, positive
+from ..optim._inputs import finite, positive
 from ..optim.certify import certify_poses, check_path
 from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap
-from ..render.pose import _as_targets, pose_loss
+from ..render.pose import pose_loss
 from ..robot import Robot
-from .images import check_field_matches_model
+from ._common import certified_path, labeller_robot, target_tensors
 
 __all__ = ["actions_from_video"]
 
@@ -41,11 +41,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``free`` per the dense check,
     ``method`` "video" or "video+field")."""
     t0 = time.perf_counter()
-    if sdf is not None:
-        check_field_matches_model(sdf, model)
-        robot = field_robot(sdf, robot)
-    elif not isinstance(robot, Robot):
-        raise ProfrobotError("actions_from_video without a field needs robot= (the scene to certify against)")
+    robot = labeller_robot(sdf, model, robot, "actions_from_video")
     steps_per_frame = positive("steps_per_frame", steps_per_frame, integer=True, allow_zero=True)
     first_frame_steps = positive("first_frame_steps", first_frame_steps, integer=True, allow_zero=True)
     joint_iters = positive("joint_iters", joint_iters, integer=True, allow_zero=True)
@@ -58,11 +54,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
         raise ProfrobotError(f"a video needs at least 2 frames; got {T}")
     C, H, W = len(cameras), cameras.height, cameras.width
     dev = model.means.device
-    tr = _as_targets(frames["rgb"], "rgb", (H, W, 3), T, C, torch.float32).float().to(dev)
-    td = _as_targets(frames["depth"], "depth", (H, W), T, C, torch.float32).float().to(dev)
-    tm = _as_targets(frames["mask"], "mask", (H, W), T, C, torch.float32).bool().to(dev)
-    if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
-        raise ProfrobotError("actions_from_video: frames contain NaN or inf")
+    tr, td, tm = target_tensors(frames, T, cameras, dev, "actions_from_video")
     q0 = np.asarray(init, dtype=np.float64).reshape(-1)
     if q0.shape != (model.njoint,) or not np.isfinite(q0).all():
         raise ProfrobotError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
@@ -146,12 +138,4 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
                 _penalty(sdf, Limits.of(robot, sdf.joint_limits), robot, sub, l_thres, 1.0, 1.0, 0.05, 300, 10,
                          density, 0.05, 0.0, True)
                 path[a:b + 1] = sub[0]
-    path = lim.numpy(path)
-    chk = check_path(robot, path, density)
-    g = (np.full(T, np.nan) if sdf is None else
-         sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
-    return TrajectoryResult(path=path, free=chk.free, waypoint_collides=chk.waypoint_collides,
-                            segment_collides=chk.segment_collides, g=g, method=method, iterations=iterations,
-                            length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
-                            straight_length=float(np.linalg.norm(lim.diff(path[-1], path[0]))),
-                            seconds=time.perf_counter() - t0, check=chk)
+    return certified_path(robot, sdf, path, density, method, iterations, t0)

@@ -1,0 +1,72 @@
+"""What the inverse problems share: the labeller's robot, the target images as tensors, and a
+path's certificate as a :class:`~profrobot.TrajectoryResult`."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from ..errors import ProfrobotError, RobotMismatchError
+from ..joints import Limits
+from ..optim._inputs import check_field, field_robot
+from ..optim.certify import check_path
+from ..optim.trajectory import TrajectoryResult
+from ..render.pose import _as_targets
+from ..robot import Robot
+
+
+def check_field_matches_model(sdf, model) -> None:
+    """The field and the Gaussian robot must move the same joints: same count and limits
+    (the field's scene may add obstacles the images do not show; the joints are the robot's)."""
+    check_field(sdf)
+    if sdf.njoint != model.njoint:
+        raise RobotMismatchError(f"the field is for robot {getattr(sdf, 'robot_name', '?')!r} with {sdf.njoint} joints; "
+                                 f"the Gaussian model {model.robot_name!r} has {model.njoint}")
+    a = sdf.joint_limits.detach().double().cpu().numpy()
+    b = model.limits.detach().double().cpu().numpy()
+    if a.shape != b.shape or not np.allclose(a, b, atol=1e-4):
+        raise RobotMismatchError(f"the field's robot {getattr(sdf, 'robot_name', '?')!r} and the Gaussian model's "
+                                 f"{model.robot_name!r} have different joint limits: not the same arm")
+
+
+def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Robot | None:
+    """The scene the exact labeller certifies against: the field's (checked against ``model``'s
+    joints and ``robot`` if given), else ``robot``, which ``who`` needs when ``required``."""
+    if sdf is not None:
+        check_field_matches_model(sdf, model)
+        return field_robot(sdf, robot)
+    if required and not isinstance(robot, Robot):
+        raise ProfrobotError(f"{who} without a field needs robot= (the scene to certify against)")
+    return robot
+
+
+def target_tensors(targets, B: int, cameras, device, who: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``targets`` (dict of ``rgb`` uint8 or [0, 1], ``depth`` metres, ``mask``) as (B, C, H, W, 3)
+    float32, (B, C, H, W) float32 and bool tensors on ``device``; errors name what is wrong."""
+    if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
+        raise ProfrobotError(f"{who}: targets must be a dict with 'rgb', 'depth' and 'mask'")
+    C, H, W = len(cameras), cameras.height, cameras.width
+    tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float().to(device)
+    td = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float().to(device)
+    tm = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool().to(device)
+    if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
+        raise ProfrobotError(f"{who}: targets contain NaN or inf")
+    return tr, td, tm
+
+
+def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,
+                   t0: float) -> TrajectoryResult:
+    """``path`` (S, K) wrapped into the limits, labelled at every waypoint and ``density``× finer
+    along every segment, with the field along it (NaN without one)."""
+    lim = Limits.of(robot)
+    path = lim.numpy(path)
+    chk = check_path(robot, path, density)
+    g = (np.full(len(path), np.nan) if sdf is None else
+         sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
+    return TrajectoryResult(path=path, free=chk.free, waypoint_collides=chk.waypoint_collides,
+                            segment_collides=chk.segment_collides, g=g, method=method, iterations=iterations,
+                            length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
+                            straight_length=float(np.linalg.norm(lim.diff(path[-1], path[0]))),
+                            seconds=time.perf_counter() - t0, check=chk)
