@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 import profrobot
-from profrobot._io import atomic_path
+from profrobot.files import atomic_path
 from profrobot.crosscheck import mujoco_labels
 from profrobot.field import train_sdf
 from profrobot.problems import colliding_poses

@@ -283,7 +283,7 @@ def main() -> None:
                                      args.field and scene in args.field_scenes.split(","), args.ompl, args.recipe,
                                      executor))
             Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-            from profrobot._io import atomic_path
+            from profrobot.files import atomic_path
 
             with atomic_path(args.out) as tmp:
                 Path(tmp).write_text(markdown(results, args))

@@ -9,9 +9,10 @@ use numpy::{
 };
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::{PyException, PyTypeError, PyValueError};
+use pyo3::sync::PyOnceLock;
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict, PyType};
+use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
 use crate::desc::ModelDesc;
@@ -30,37 +31,73 @@ use crate::threads::with_threads;
 create_exception!(
     profrobot._core,
     ProfrobotError,
-    PyValueError,
-    "Base of every error profrobot raises on purpose (a ValueError)."
+    PyException,
+    "Root of every error profrobot raises on purpose (profrobot.errors lists the family)."
 );
-create_exception!(
-    profrobot._core,
-    ModelError,
-    ProfrobotError,
-    "A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints)."
-);
+
+// The error classes with two bases (ours and Python's own: bad input stays a ValueError, a wrong
+// dtype a TypeError). `create_exception!` takes one base, so they are made once, at import, with
+// `type(name, bases, namespace)`, and kept here for the raising code.
+static INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static INPUT_TYPE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static MODEL_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+fn new_class<'py>(
+    py: Python<'py>,
+    name: &str,
+    bases: Vec<Bound<'py, PyType>>,
+    doc: &str,
+) -> PyResult<Py<PyType>> {
+    let ns = PyDict::new(py);
+    ns.set_item("__module__", "profrobot._core")?;
+    ns.set_item("__doc__", doc)?;
+    let bases = PyTuple::new(py, bases)?;
+    Ok(py.get_type::<PyType>().call1((name, bases, ns))?.cast_into::<PyType>()?.unbind())
+}
+
+fn raise(cell: &PyOnceLock<Py<PyType>>, msg: String) -> PyErr {
+    Python::attach(|py| match cell.get(py) {
+        Some(t) => PyErr::from_type(t.bind(py).clone(), msg),
+        None => ProfrobotError::new_err(msg), // not reached: the module's init fills the cells
+    })
+}
+
+/// Bad input (a shape, a NaN, an option): `profrobot.errors.InputError`, a ValueError.
+fn input_error(msg: impl Into<String>) -> PyErr {
+    raise(&INPUT_ERROR, msg.into())
+}
+
+/// A wrong type or dtype: `profrobot.errors.InputTypeError`, a TypeError.
+fn type_error(msg: impl Into<String>) -> PyErr {
+    raise(&INPUT_TYPE_ERROR, msg.into())
+}
+
+/// A model the core cannot label exactly: `profrobot.errors.ModelError`, an InputError.
+fn model_error(msg: impl Into<String>) -> PyErr {
+    raise(&MODEL_ERROR, msg.into())
+}
 
 fn to_py(e: Error) -> PyErr {
     match e {
-        Error::InvalidModel(_) => ModelError::new_err(e.to_string()),
-        Error::InvalidInput(_) => ProfrobotError::new_err(e.to_string()),
+        Error::InvalidModel(_) => model_error(e.to_string()),
+        Error::InvalidInput(_) => input_error(e.to_string()),
     }
 }
 
 fn item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-    d.get_item(key)?.ok_or_else(|| PyValueError::new_err(format!("model arrays lack '{key}'")))
+    d.get_item(key)?.ok_or_else(|| input_error(format!("model arrays lack '{key}'")))
 }
 
 /// Extracts `d[key]` as `T`; on failure a TypeError saying what was `expected`.
 fn typed<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, expected: &str) -> PyResult<T> {
-    item(d, key)?.extract::<T>().map_err(|_| PyTypeError::new_err(format!("model array '{key}' must be {expected}")))
+    item(d, key)?.extract::<T>().map_err(|_| type_error(format!("model array '{key}' must be {expected}")))
 }
 
 fn rows<const N: usize>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[f64; N]>> {
     let a: PyReadonlyArray2<f64> = typed(d, key, &format!("a float64 array of shape (n, {N})"))?;
     let shape = a.shape();
     if shape[1] != N {
-        return Err(PyValueError::new_err(format!("model array '{key}' must have {N} columns; got shape {shape:?}")));
+        return Err(input_error(format!("model array '{key}' must have {N} columns; got shape {shape:?}")));
     }
     let a = a.as_array();
     Ok(a.rows().into_iter().map(|r| std::array::from_fn(|i| r[i])).collect())
@@ -69,7 +106,7 @@ fn rows<const N: usize>(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[f64; 
 fn int_rows(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<[i32; 2]>> {
     let a: PyReadonlyArray2<i32> = typed(d, key, "an int32 array of shape (n, 2)")?;
     if a.shape()[1] != 2 {
-        return Err(PyValueError::new_err(format!("model array '{key}' must have 2 columns")));
+        return Err(input_error(format!("model array '{key}' must have 2 columns")));
     }
     Ok(a.as_array().rows().into_iter().map(|r| [r[0], r[1]]).collect())
 }
@@ -123,11 +160,11 @@ fn pose_array<'py>(obj: &Bound<'py, PyAny>, k: usize, what: &str) -> PyResult<Py
             (Ok(d), Ok(n)) => format!("a {n}-D {d} array"),
             _ => format!("a {}", obj.get_type().name().map(|n| n.to_string()).unwrap_or_default()),
         };
-        PyTypeError::new_err(format!("{what} must be a 2-D float64 numpy array of shape (B, {k}); got {got}"))
+        type_error(format!("{what} must be a 2-D float64 numpy array of shape (B, {k}); got {got}"))
     })?;
     let shape = a.shape();
     if shape[1] != k {
-        return Err(ProfrobotError::new_err(format!("{what} must have shape (B, {k}); got {shape:?}")));
+        return Err(input_error(format!("{what} must have shape (B, {k}); got {shape:?}")));
     }
     Ok(a)
 }
@@ -187,7 +224,7 @@ impl PyRobotModel {
     fn _from_state(_cls: &Bound<'_, PyType>, state: &Bound<'_, PyAny>) -> PyResult<Self> {
         let bytes = state.cast::<PyBytes>().map_err(|_| {
             let got = state.get_type().name().map(|n| n.to_string()).unwrap_or_default();
-            PyTypeError::new_err(format!("RobotModel state must be bytes; got {got}"))
+            type_error(format!("RobotModel state must be bytes; got {got}"))
         })?;
         Self::from_desc(ModelDesc::from_bytes(bytes.as_bytes()).map_err(to_py)?)
     }
@@ -347,7 +384,7 @@ impl PyRobotModel {
         let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
             let a: PyReadonlyArray1<'py, f64> = obj
                 .extract()
-                .map_err(|_| PyTypeError::new_err(format!("{what} must be a 1-D float64 numpy array of shape (K,)")))?;
+                .map_err(|_| type_error(format!("{what} must be a 1-D float64 numpy array of shape (K,)")))?;
             Ok(a.as_array().to_vec())
         };
         let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
@@ -393,7 +430,7 @@ fn interpolate<'py>(
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let continuous: PyReadonlyArray1<'py, bool> = continuous
         .extract()
-        .map_err(|_| PyTypeError::new_err("continuous must be a 1-D bool numpy array of shape (K,)"))?;
+        .map_err(|_| type_error("continuous must be a 1-D bool numpy array of shape (K,)"))?;
     let cont = continuous.as_array().to_vec();
     let k = cont.len();
     let (start, goal) = (pose_array(start, k, "start")?, pose_array(goal, k, "goal")?);
@@ -420,14 +457,14 @@ fn splat_array(obj: &Bound<'_, PyAny>, name: &str, cn: Option<(usize, usize)>, t
         }
     };
     let a: PyReadonlyArrayDyn<'_, f64> = obj.extract().map_err(|_| {
-        PyTypeError::new_err(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want()))
+        type_error(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want()))
     })?;
     let shape = a.shape().to_vec();
     let ok = shape.len() == 2 + tail.len()
         && shape[2..] == *tail
         && cn.is_none_or(|(c, n)| shape[0] == c && shape[1] == n);
     if !ok {
-        return Err(ProfrobotError::new_err(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
+        return Err(input_error(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
     }
     Ok((rows_of(&a).into_owned(), shape[0], shape[1]))
 }
@@ -460,7 +497,7 @@ fn splat_forward<'py>(
     let cutoff = match cutoff {
         "soft" => Cutoff::Soft,
         "hard" => Cutoff::Hard,
-        other => return Err(ProfrobotError::new_err(format!("splat_forward: cutoff must be 'soft' or 'hard'; got {other:?}"))),
+        other => return Err(input_error(format!("splat_forward: cutoff must be 'soft' or 'hard'; got {other:?}"))),
     };
     let (uv, c, n) = splat_array(means2d, "means2d", None, &[2])?;
     let cn = Some((c, n));
@@ -511,10 +548,10 @@ fn splat_backward<'py>(
     let img = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<f64>> {
         let a: PyReadonlyArrayDyn<'py, f64> = obj
             .extract()
-            .map_err(|_| PyTypeError::new_err(format!("splat_backward: {name} must be a float64 numpy array")))?;
+            .map_err(|_| type_error(format!("splat_backward: {name} must be a float64 numpy array")))?;
         let want: Vec<usize> = [c, h, w].iter().chain(tail).copied().collect();
         if a.shape() != want.as_slice() {
-            return Err(ProfrobotError::new_err(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));
+            return Err(input_error(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));
         }
         Ok(rows_of(&a).into_owned())
     };
@@ -533,8 +570,33 @@ fn splat_backward<'py>(
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRobotModel>()?;
-    m.add("ProfrobotError", m.py().get_type::<ProfrobotError>())?;
-    m.add("ModelError", m.py().get_type::<ModelError>())?;
+    let py = m.py();
+    let root = py.get_type::<ProfrobotError>();
+    let input = new_class(
+        py,
+        "InputError",
+        vec![root.clone(), py.get_type::<PyValueError>()],
+        "Bad input: a shape, a NaN, an option out of range (a ValueError).",
+    )?;
+    let model = new_class(
+        py,
+        "ModelError",
+        vec![input.bind(py).clone()],
+        "A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints).",
+    )?;
+    let typed = new_class(
+        py,
+        "InputTypeError",
+        vec![root.clone(), py.get_type::<PyTypeError>()],
+        "An argument of the wrong type or dtype (a TypeError).",
+    )?;
+    m.add("ProfrobotError", root)?;
+    m.add("InputError", input.bind(py))?;
+    m.add("ModelError", model.bind(py))?;
+    m.add("InputTypeError", typed.bind(py))?;
+    let _ = INPUT_ERROR.set(py, input);
+    let _ = MODEL_ERROR.set(py, model);
+    let _ = INPUT_TYPE_ERROR.set(py, typed);
     m.add_class::<PySplatState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
     m.add_function(wrap_pyfunction!(splat_forward, m)?)?;

@@ -10,7 +10,7 @@ import torch
 
 import profrobot
 from conftest import scene
-from profrobot._io import atomic_dir, atomic_path, check_robot
+from profrobot.files import atomic_dir, atomic_path, check_robot
 from profrobot.errors import CorruptFileError, ModelError, ProfrobotError, RobotMismatchError
 
 

@@ -3,8 +3,9 @@
 Shapes: B poses, K joints (MuJoCo joint order; radians for hinges, metres for slides), nbody
 bodies (the world included), P candidate geom pairs. Arrays are read in any memory layout
 (C or Fortran order, negative strides, sliced views): rows are read through the strides, never
-reinterpreted. Invalid input raises :class:`ProfrobotError` (a ValueError), a bad robot model
-:class:`ModelError`, a wrong dtype or object TypeError naming the dtype wanted; never a panic.
+reinterpreted. Invalid input raises :class:`InputError` (a ValueError), a bad robot model :class:`ModelError`, a
+wrong dtype or object :class:`InputTypeError` (a TypeError) naming the dtype wanted; all three are
+:class:`ProfrobotError`s; never a panic.
 """
 
 from collections.abc import Callable
@@ -13,16 +14,21 @@ from typing import Literal, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "ModelError", "interpolate", "SplatState", "splat_forward", "splat_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "SplatState", "splat_forward", "splat_backward",
            "__version__"]
 
 __version__: str
 
-class ProfrobotError(ValueError):
-    """Base of every error profrobot raises on purpose (a ValueError)."""
+class ProfrobotError(Exception):
+    """Root of every error profrobot raises on purpose (profrobot.errors lists the family)."""
 
-@final
-class ModelError(ProfrobotError):
+class InputError(ProfrobotError, ValueError):
+    """Bad input: a shape, a NaN, an option out of range (a ValueError)."""
+
+class InputTypeError(ProfrobotError, TypeError):
+    """An argument of the wrong type or dtype (a TypeError)."""
+
+class ModelError(InputError):
     """A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints)."""
 
 @final

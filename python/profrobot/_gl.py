@@ -45,7 +45,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from ._core import ProfrobotError
+from .errors import RendererUnavailableError
 
 __all__ = ["RendererUnavailableError", "backend", "status", "import_mujoco", "install_triton_guard",
            "RenderWorkers", "close_workers"]
@@ -55,16 +55,6 @@ INSTALL_HINT = ("install OSMesa for CPU rendering (Debian/Ubuntu: `apt-get insta
                 "MUJOCO_GL to a backend that works here (egl, osmesa, glfw with a display)")
 _GL_OFF = ("disable", "disabled", "off", "false", "0")
 
-
-class RendererUnavailableError(ProfrobotError, RuntimeError):
-    """MuJoCo cannot render in this environment: no OpenGL backend works (or the one named by
-    ``MUJOCO_GL`` does not). The message says which backends were tried, why each failed, and
-    what to install. Labels, fields and optimisation never need a renderer."""
-
-
-# --------------------------------------------------------------------------------------------
-# 2. mujoco without its GL stack
-# --------------------------------------------------------------------------------------------
 
 def import_mujoco():
     """``import mujoco`` with MuJoCo's GL disabled, unless it is imported already; the GL stack

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
-from .errors import ProfrobotError
+from .errors import InputError
 from .labels import Labels, as_poses, label_poses
 from .robot import Robot
 
@@ -60,7 +60,7 @@ def mujoco_labels(robot: Robot, poses, *, progress: bool = False, executor=None,
             ncon, pairs = _mujoco_chunk(robot, q, bar)
         return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ProfrobotError(f"chunk must be a positive integer; got {chunk!r}")
+        raise InputError(f"chunk must be a positive integer; got {chunk!r}")
     bounds = [(i, min(i + chunk, len(q))) for i in range(0, len(q), chunk)]
     ref = executor.put(q)  # once, through the object store; each chunk names its rows
     parts = executor.map_chunks(robot, "mujoco_labels", [(ref, a, b) for a, b in bounds],

@@ -14,12 +14,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _core
-from ._io import atomic_path, check_robot
+from .files import atomic_path, check_robot
 from .errors import CorruptFileError
 from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
-from .errors import ProfrobotError
+from .errors import InputError
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
 
@@ -45,7 +45,7 @@ class Dataset:
     def split(self, test_fraction: float = 0.1, seed: int = 0) -> tuple["Dataset", "Dataset"]:
         """A seeded (train, test) split, each keeping the metadata."""
         if not 0 < test_fraction < 1:
-            raise ProfrobotError(f"test_fraction must be in (0, 1); got {test_fraction}")
+            raise InputError(f"test_fraction must be in (0, 1); got {test_fraction}")
         idx = np.random.default_rng(seed).permutation(len(self))
         n_test = max(1, int(round(len(self) * test_fraction)))
         return self._take(idx[n_test:]), self._take(idx[:n_test])
@@ -58,7 +58,7 @@ class Dataset:
         renamed over ``path``, so an interrupted save never leaves a half-written file."""
         path = os.fspath(path)
         if not path.endswith(".npz"):
-            raise ProfrobotError(f"dataset files end in .npz; got {path!r}")
+            raise InputError(f"dataset files end in .npz; got {path!r}")
         with atomic_path(path) as tmp:
             np.savez(tmp, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
                      metadata=np.array(json.dumps(self.metadata)))
@@ -129,11 +129,11 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ProfrobotError(f"n must be a positive integer; got {n!r}")
+        raise InputError(f"n must be a positive integer; got {n!r}")
     if not 0.0 <= collided_fraction <= 1.0:
-        raise ProfrobotError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
+        raise InputError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
     if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
-        raise ProfrobotError(f"batch must be a positive integer; got {batch!r}")
+        raise InputError(f"batch must be a positive integer; got {batch!r}")
     threads = check_threads(threads)
     executor = check_executor(executor)
     want_coll = int(round(n * collided_fraction))
@@ -165,7 +165,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     try:
         while have[True] < want[True] or have[False] < want[False]:
             if drawn >= max_samples:
-                raise ProfrobotError(f"could not fill the quotas for {robot.name} after {drawn} samples "
+                raise InputError(f"could not fill the quotas for {robot.name} after {drawn} samples "
                                      f"(collision rate {seen_colliding / drawn:.3%}); lower collided_fraction "
                                      "or raise max_samples")
             q, *lab = next(rounds)

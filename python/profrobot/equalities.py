@@ -35,7 +35,7 @@ from typing import Literal
 
 import mujoco
 import numpy as np
-from .errors import ProfrobotError
+from .errors import InputError
 
 EqualityMode = Literal["auto", "settle", "ignore"]
 EQUALITY_MODES = ("auto", "settle", "ignore")
@@ -161,7 +161,7 @@ class JointCouplings:
         deps = {}
         for r in rows:
             if r[0] in deps:
-                raise ProfrobotError(f"joint {joint_names[r[0]]!r} is the dependent joint of two joint equalities "
+                raise InputError(f"joint {joint_names[r[0]]!r} is the dependent joint of two joint equalities "
                                  f"({deps[r[0]][5]!r} and {r[5]!r}); sampling cannot satisfy both")
             deps[r[0]] = r
         order, state = [], {}
@@ -171,7 +171,7 @@ class JointCouplings:
                 return
             if state.get(j) == "busy":
                 names = " -> ".join(joint_names[k] for k in path + [j])
-                raise ProfrobotError(f"joint equalities form a cycle ({names}); sampling needs an independent joint")
+                raise InputError(f"joint equalities form a cycle ({names}); sampling needs an independent joint")
             state[j] = "busy"
             if deps[j][1] >= 0:
                 visit(deps[j][1], path + [j])

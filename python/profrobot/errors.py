@@ -1,21 +1,49 @@
 """profrobot's exceptions: one family, told apart by type, never by message text.
 
-``ProfrobotError`` (a ``ValueError``, so ``except ValueError`` keeps working) is the root;
-``ModelError`` is raised by the Rust core (invalid model or input), ``RobotMismatchError`` when a
-file or object was made for another robot (fingerprints differ), ``CorruptFileError`` when a
-file cannot be read as what it claims to be.
+::
+
+    ProfrobotError                      every error profrobot raises on purpose (root)
+    ├── InputError (ValueError)         bad input: a shape, a NaN, an option out of range
+    │   ├── ModelError                  a model the Rust core cannot label exactly
+    │   ├── RobotMismatchError          a file or object made for another robot
+    │   └── CorruptFileError            a file that cannot be read back as what it claims to be
+    ├── InputTypeError (TypeError)      an argument of the wrong type or dtype (from the Rust core)
+    ├── ClusterError (RuntimeError)     a Ray cluster that cannot be reached or lost work
+    ├── RendererUnavailableError        no OpenGL backend can draw (RuntimeError)
+    └── BackendUnavailableError         a backend asked for by name cannot run (RuntimeError)
+
+The root is not a ``ValueError``: a missing renderer or a dead cluster is not a bad value. Every
+bad-input error still is one (``except ValueError`` keeps catching them), and the Rust core raises
+``InputError``, ``ModelError`` and ``InputTypeError`` itself: every deliberate error from Rust is a
+``ProfrobotError``.
 """
 
 from __future__ import annotations
 
-from ._core import ModelError, ProfrobotError
+from ._core import InputError, InputTypeError, ModelError, ProfrobotError
 
-__all__ = ["ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError"]
+__all__ = ["ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError",
+           "CorruptFileError", "ClusterError", "RendererUnavailableError", "BackendUnavailableError"]
 
 
-class RobotMismatchError(ProfrobotError):
+class RobotMismatchError(InputError):
     """A dataset, checkpoint, view set or fitted model was made for another robot."""
 
 
-class CorruptFileError(ProfrobotError):
-    """A file is missing parts, truncated, or not in the format it should be."""
+class CorruptFileError(InputError):
+    """A file is missing parts, truncated, or not in the format it should be (or written by a
+    newer profrobot: the message names both versions)."""
+
+
+class ClusterError(ProfrobotError, RuntimeError):
+    """The Ray cluster cannot be reached, cannot start workers, or lost a chunk more times than
+    ``max_retries`` allows. The message names the address and the time-out that ran out."""
+
+
+class RendererUnavailableError(ProfrobotError, RuntimeError):
+    """No OpenGL backend could render here; the message says what to install."""
+
+
+class BackendUnavailableError(ProfrobotError, RuntimeError):
+    """A compute backend asked for by name (``backend="gsplat"``) cannot run here; the message
+    says why. ``backend="auto"`` never raises it: it picks one that runs."""

@@ -46,14 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ProfrobotError
+from .errors import ClusterError, InputError
 
 __all__ = ["RayExecutor", "ClusterError", "RunStats", "check_executor"]
-
-
-class ClusterError(ProfrobotError, RuntimeError):
-    """The Ray cluster cannot be reached, cannot start workers, or lost a chunk more times than
-    ``max_retries`` allows. The message names the address and the time-out that ran out."""
 
 
 def _import_ray():
@@ -359,11 +354,11 @@ class RayExecutor:
                  per_actor: int = 2, runtime_env: dict | None = None):
         for name, v in (("workers", workers), ("num_cpus", num_cpus)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
-                raise ProfrobotError(f"{name} must be a positive integer or None; got {v!r}")
+                raise InputError(f"{name} must be a positive integer or None; got {v!r}")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-            raise ProfrobotError(f"threads must be a positive integer; got {threads!r}")
+            raise InputError(f"threads must be a positive integer; got {threads!r}")
         if address is not None and not isinstance(address, str):
-            raise ProfrobotError(f"address must be None or a string such as 'auto' or 'ray://host:10001'; got {address!r}")
+            raise InputError(f"address must be None or a string such as 'auto' or 'ray://host:10001'; got {address!r}")
         self.address = address
         self.workers = None if workers is None else int(workers)
         self.threads = int(threads)

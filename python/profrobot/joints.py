@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import torch
-from .errors import ProfrobotError
+from .errors import InputError
 
 __all__ = ["Limits"]
 
@@ -34,10 +34,10 @@ class Limits:
         self.lim_np = np.stack([np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)], axis=1)
         self.cont_np = np.asarray(continuous, dtype=bool).reshape(-1)
         if self.lim_np.ndim != 2 or self.lim_np.shape[0] != len(self.cont_np):
-            raise ProfrobotError(f"lower, upper and continuous must all have shape (K,); got {self.lim_np.shape[0]} "
+            raise InputError(f"lower, upper and continuous must all have shape (K,); got {self.lim_np.shape[0]} "
                              f"limits and {len(self.cont_np)} flags")
         if not np.isfinite(self.lim_np).all() or (self.lim_np[:, 1] < self.lim_np[:, 0]).any():
-            raise ProfrobotError("joint limits must be finite with lower <= upper")
+            raise InputError("joint limits must be finite with lower <= upper")
         self.lower = torch.as_tensor(self.lim_np[:, 0], dtype=dtype, device=device)
         self.upper = torch.as_tensor(self.lim_np[:, 1], dtype=dtype, device=device)
         self.continuous = torch.as_tensor(self.cont_np, device=device)

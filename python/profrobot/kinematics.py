@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from .errors import ProfrobotError
+from .errors import InputError
 
 __all__ = ["Kinematics", "BodyPoses", "quat_to_matrix", "axis_angle_matrix"]
 
@@ -123,7 +123,7 @@ class Kinematics(torch.nn.Module):
 
     def forward(self, q: torch.Tensor) -> BodyPoses:
         if q.ndim != 2 or q.shape[1] != self.njoint:
-            raise ProfrobotError(f"q must have shape (B, {self.njoint}); got {tuple(q.shape)}")
+            raise InputError(f"q must have shape (B, {self.njoint}); got {tuple(q.shape)}")
         B = q.shape[0]
         a = q - self.qpos0
         eye = torch.eye(3, dtype=q.dtype, device=q.device).expand(B, 1, 3, 3)

@@ -12,7 +12,7 @@ import numpy as np
 
 from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
-from .errors import ProfrobotError
+from .errors import InputError
 
 
 def as_poses(robot: Robot, poses, *, name: str = "poses", check_limits: bool = False, atol: float = 1e-9) -> np.ndarray:
@@ -32,21 +32,21 @@ def as_poses(robot: Robot, poses, *, name: str = "poses", check_limits: bool = F
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != k:
-        raise ProfrobotError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
+        raise InputError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
     if arr.shape[0] == 0:
-        raise ProfrobotError(f"{name} is empty: at least one pose is needed")
+        raise InputError(f"{name} is empty: at least one pose is needed")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
     bad = ~np.isfinite(arr)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise ProfrobotError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
+        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
     if check_limits:
         lim = robot.joint_limits
         limited = ~robot.continuous
         out = ((arr < lim[:, 0] - atol) | (arr > lim[:, 1] + atol)) & limited
         if out.any():
             i, j = np.argwhere(out)[0]
-            raise ProfrobotError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
+            raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
                              f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
     return arr
 
@@ -55,7 +55,7 @@ def check_threads(threads) -> int | None:
     if threads is None:
         return None
     if not isinstance(threads, (int, np.integer)) or isinstance(threads, bool) or threads < 1:
-        raise ProfrobotError(f"threads must be a positive integer or None; got {threads!r}")
+        raise InputError(f"threads must be a positive integer or None; got {threads!r}")
     return int(threads)
 
 
@@ -130,11 +130,11 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ProfrobotError(f"n must be a positive integer; got {n!r}")
+        raise InputError(f"n must be a positive integer; got {n!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise ProfrobotError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
     if equalities not in EQUALITY_MODES:
-        raise ProfrobotError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
+        raise InputError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
     threads = check_threads(threads)
     poses = robot.core.sample(int(n), int(seed), threads=threads)
     if equalities == "ignore":
@@ -162,7 +162,7 @@ def _settled(robot: Robot, poses: np.ndarray, n: int, seed: int, threads: int | 
         have += len(kept[-1])
         r += 1
         if r > 50 and have == 0:
-            raise ProfrobotError(f"{robot.name}: no pose settled onto its equality constraints within the joint "
+            raise InputError(f"{robot.name}: no pose settled onto its equality constraints within the joint "
                                f"limits after {r * n} draws")
     return np.concatenate(kept)
 
@@ -175,9 +175,9 @@ def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:
     s = as_poses(robot, start, name="start", check_limits=True)
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != g.shape:
-        raise ProfrobotError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
+        raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
-        raise ProfrobotError(f"steps must be an integer >= 2 (both end points included); got {steps!r}")
+        raise InputError(f"steps must be an integer >= 2 (both end points included); got {steps!r}")
     from . import _core
 
     path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ProfrobotError
+from .errors import InputError
 from .labels import as_poses, check_threads
 from .robot import Robot
 
@@ -40,14 +40,14 @@ class NearestFree:
 
 def _count(value, name: str, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise ProfrobotError(f"{name} must be an integer >= {low}; got {value!r}")
+        raise InputError(f"{name} must be an integer >= {low}; got {value!r}")
     return int(value)
 
 
 def _positive(value, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
             or not np.isfinite(value) or value <= 0:
-        raise ProfrobotError(f"{name} must be a positive finite number; got {value!r}")
+        raise InputError(f"{name} must be a positive finite number; got {value!r}")
     return float(value)
 
 
@@ -69,10 +69,10 @@ def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 10
     lim, limited = robot.joint_limits, ~robot.continuous
     q = np.where(limited, np.clip(q, lim[:, 0], lim[:, 1]), q)  # within the 1e-9 tolerance
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise ProfrobotError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
     step, tolerance = _positive(step, "step"), _positive(tolerance, "tolerance")
     if tolerance > step:
-        raise ProfrobotError(f"tolerance ({tolerance}) must not exceed step ({step})")
+        raise InputError(f"tolerance ({tolerance}) must not exceed step ({step})")
     out = robot.core.nearest_free(
         np.ascontiguousarray(q), directions=_count(directions, "directions", 1), step=step, tolerance=tolerance,
         refine=_count(refine, "refine", 0), max_distance=None if max_distance is None else _positive(max_distance, "max_distance"),

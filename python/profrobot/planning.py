@@ -17,7 +17,7 @@ import numpy as np
 
 from .labels import as_poses, check_threads, label_poses
 from .robot import Robot
-from .errors import ProfrobotError
+from .errors import InputError
 
 PlanStatus = Literal["direct", "connected", "time_out", "iteration_limit"]
 
@@ -94,20 +94,20 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     s = as_poses(robot, start, name="start", check_limits=True)
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != (1, robot.njoint) or g.shape != (1, robot.njoint):
-        raise ProfrobotError(f"start and goal must each be one pose of {robot.njoint} joints; got shapes "
+        raise InputError(f"start and goal must each be one pose of {robot.njoint} joints; got shapes "
                          f"{np.shape(start)} and {np.shape(goal)}")
     for name, v in (("resolution", resolution), ("max_time", max_time)):
         if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
-            raise ProfrobotError(f"{name} must be a positive number; got {v!r}")
+            raise InputError(f"{name} must be a positive number; got {v!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise ProfrobotError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
     if isinstance(verify, bool) or not isinstance(verify, (int, np.integer)) or verify < 1:
-        raise ProfrobotError(f"verify must be a positive integer (1: no verification); got {verify!r}")
+        raise InputError(f"verify must be a positive integer (1: no verification); got {verify!r}")
     for name, q in (("start", s), ("goal", g)):
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
             (k,) = lab.colliding_pairs[:1, 1]
-            raise ProfrobotError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+            raise InputError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
                                range=float(range), max_iterations=int(max_iterations),
                                shortcut_rounds=int(shortcut_rounds), verify=int(verify),
@@ -136,7 +136,7 @@ def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
     p = as_poses(robot, path, name="path")
     m = len(p)
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < max(m, 2):
-        raise ProfrobotError(f"steps must be an integer >= the path's {m} waypoints (and >= 2); got {steps!r}")
+        raise InputError(f"steps must be an integer >= the path's {m} waypoints (and >= 2); got {steps!r}")
     if m == 1:
         return np.repeat(p, steps, axis=0)
     seg = np.linalg.norm(so2_steps(robot, p), axis=1)

@@ -11,14 +11,14 @@ import numpy as np
 from .dataset import make_dataset
 from .labels import check_threads, interpolate, label_poses
 from .robot import Robot
-from .errors import ProfrobotError
+from .errors import InputError
 
 __all__ = ["colliding_poses", "free_poses", "hard_pairs"]
 
 
 def _count(name: str, n) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ProfrobotError(f"{name} must be a positive integer; got {n!r}")
+        raise InputError(f"{name} must be a positive integer; got {n!r}")
     return int(n)
 
 
@@ -85,7 +85,7 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
     steps = _count("steps", steps)
     density = _count("density", density)
     if steps < 2:
-        raise ProfrobotError(f"steps must be at least 2; got {steps}")
+        raise InputError(f"steps must be at least 2; got {steps}")
     threads = check_threads(threads)
     max_pairs = max_pairs or 200 * n
     from .optim.certify import certify_poses  # the certification's own clearance rule
@@ -95,7 +95,7 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
     r = 0
     while found < n:
         if tried >= max_pairs:
-            raise ProfrobotError(f"only {found} of {n} start/goal pairs with a colliding straight path among "
+            raise InputError(f"only {found} of {n} start/goal pairs with a colliding straight path among "
                              f"{tried} free pairs; raise max_pairs")
         m = drawn = min(max_pairs - tried, max(16, 2 * (n - found)))
         round_seed = int(np.random.SeedSequence([seed, r]).generate_state(1, np.uint64)[0] >> 1)

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import _core
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
-from .errors import ProfrobotError
+from .errors import InputError
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                                   mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE))
@@ -47,9 +47,9 @@ class Obstacle(abc.ABC):
         pos = np.asarray(self.pos, dtype=float)
         quat = np.asarray(self.quat, dtype=float)
         if pos.shape != (3,) or quat.shape != (4,) or not (np.isfinite(pos).all() and np.isfinite(quat).all()):
-            raise ProfrobotError(f"{type(self).__name__} {self.name!r}: pos must be 3 finite numbers and quat 4")
+            raise InputError(f"{type(self).__name__} {self.name!r}: pos must be 3 finite numbers and quat 4")
         if not np.linalg.norm(quat) > 0:
-            raise ProfrobotError(f"{type(self).__name__} {self.name!r}: quat is zero")
+            raise InputError(f"{type(self).__name__} {self.name!r}: quat is zero")
         kwargs = dict(pos=pos, quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
                       **self._geom_args(spec))
         if self.name:
@@ -62,7 +62,7 @@ def _positive(owner: str, **values: float) -> list[float]:
     for key, v in values.items():
         v = float(v)
         if not (np.isfinite(v) and v > 0):
-            raise ProfrobotError(f"{owner}: {key} must be a positive length in metres; got {v}")
+            raise InputError(f"{owner}: {key} must be a positive length in metres; got {v}")
         out.append(v)
     return out
 
@@ -128,7 +128,7 @@ class Mesh(Obstacle):
     def _geom_args(self, spec):
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4 or not np.isfinite(v).all():
-            raise ProfrobotError(f"Mesh {self.name!r}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
+            raise InputError(f"Mesh {self.name!r}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
         mesh_name = f"{self.name or 'obstacle'}_mesh_{len(spec.meshes)}"
         spec.add_mesh(name=mesh_name, uservert=v.ravel())
         return dict(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name)
@@ -171,7 +171,7 @@ def _frame(pos: np.ndarray, quat: np.ndarray, sameframe: int, inertial: tuple[np
         return pos, one
     if sf == 4:
         return pos, iquat
-    raise ProfrobotError(f"unknown MuJoCo sameframe flag {sf}")
+    raise InputError(f"unknown MuJoCo sameframe flag {sf}")
 
 
 def geom_local_frames(m: mujoco.MjModel, gids) -> tuple[np.ndarray, np.ndarray]:
@@ -223,10 +223,10 @@ class Robot:
         if bad:
             kinds = {_FREE: "free", _BALL: "ball"}
             desc = ", ".join(f"{n!r} ({kinds.get(t, t)})" for n, t in bad)
-            raise ProfrobotError(f"{name}: only hinge and slide joints are supported; found {desc}. "
+            raise InputError(f"{name}: only hinge and slide joints are supported; found {desc}. "
                              "Remove free-floating objects and ball joints from the scene.")
         if m.njnt == 0:
-            raise ProfrobotError(f"{name}: the model has no joints, so there is no pose to label")
+            raise InputError(f"{name}: the model has no joints, so there is no pose to label")
 
         self.joint_names: list[str] = [_name(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(m.njnt)]
         self.joint_types: list[str] = ["hinge" if t == _HINGE else "slide" for t in m.jnt_type]
@@ -260,9 +260,9 @@ class Robot:
         try:
             spec = mm.get(name).spec(entry)
         except mm.UnknownRobotError as e:
-            raise ProfrobotError(f"unknown Menagerie robot {name!r}; known: {', '.join(mm.names())}") from e
+            raise InputError(f"unknown Menagerie robot {name!r}; known: {', '.join(mm.names())}") from e
         except mm.UnknownEntryPointError as e:
-            raise ProfrobotError(str(e)) from e
+            raise InputError(str(e)) from e
         return cls.from_spec(spec, name=name if entry is None else f"{name}/{entry}")
 
     @classmethod
@@ -274,7 +274,7 @@ class Robot:
         try:
             spec = mujoco.MjSpec.from_file(path)
         except Exception as e:  # mujoco raises ValueError with the parser's message
-            raise ProfrobotError(f"could not read MJCF {path!r}: {e}") from e
+            raise InputError(f"could not read MJCF {path!r}: {e}") from e
         return cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
 
     @classmethod
@@ -283,7 +283,7 @@ class Robot:
         try:
             model = spec.compile()
         except Exception as e:
-            raise ProfrobotError(f"could not compile {name!r}: {e}") from e
+            raise InputError(f"could not compile {name!r}: {e}") from e
         return cls(model, name=name, spec=spec)
 
     @classmethod
@@ -295,7 +295,7 @@ class Robot:
         """A new Robot: this scene plus static ``obstacles`` (Box, Sphere, Capsule, Cylinder,
         Plane, Mesh) fixed to the world. The original is left unchanged."""
         if self._spec is None:
-            raise ProfrobotError(f"{self.name}: obstacles need the MjSpec; build the robot with from_menagerie, "
+            raise InputError(f"{self.name}: obstacles need the MjSpec; build the robot with from_menagerie, "
                              "from_mjcf or from_spec rather than from_model")
         spec = self._spec.copy()
         for ob in obstacles:

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .errors import ProfrobotError
+from .errors import InputError
 
 __all__ = ["Scorer", "CLIPScorer", "ImageGoalScorer"]
 
@@ -49,7 +49,7 @@ def _features(out) -> torch.Tensor:
 def _check_images(images) -> torch.Tensor:
     if not isinstance(images, torch.Tensor) or images.ndim != 4 or images.shape[-1] != 3:
         shape = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
-        raise ProfrobotError(f"images must be a (B, H, W, 3) tensor in [0, 1]; got {shape}")
+        raise InputError(f"images must be a (B, H, W, 3) tensor in [0, 1]; got {shape}")
     return images
 
 
@@ -60,7 +60,7 @@ class CLIPScorer:
     def __init__(self, model, tokenizer, *, mode: Literal["dot", "cosine"] = "dot", size: int = 224,
                  mean=CLIP_MEAN, std=CLIP_STD):
         if mode not in ("dot", "cosine"):
-            raise ProfrobotError(f"mode must be 'dot' (the paper) or 'cosine'; got {mode!r}")
+            raise InputError(f"mode must be 'dot' (the paper) or 'cosine'; got {mode!r}")
         self.model = model.eval()
         for p in self.model.parameters():
             p.requires_grad_(False)
@@ -83,7 +83,7 @@ class CLIPScorer:
             model = CLIPModel.from_pretrained(path_or_name).to(device)
             tokenizer = AutoTokenizer.from_pretrained(path_or_name)
         except OSError as e:
-            raise ProfrobotError(f"could not load a CLIP model from {path_or_name!r}: {e}") from e
+            raise InputError(f"could not load a CLIP model from {path_or_name!r}: {e}") from e
         mean, std, size = CLIP_MEAN, CLIP_STD, model.config.vision_config.image_size
         try:
             from transformers import CLIPImageProcessor
@@ -106,7 +106,7 @@ class CLIPScorer:
     @torch.no_grad()
     def encode_text(self, prompt: str) -> torch.Tensor:
         if not isinstance(prompt, str) or not prompt:
-            raise ProfrobotError("prompt must be a non-empty string")
+            raise InputError("prompt must be a non-empty string")
         dev = next(self.model.parameters()).device
         enc = self.tokenizer([prompt], return_tensors="pt", padding=True)
         return _features(self.model.get_text_features(**{k: v.to(dev) for k, v in enc.items()}))[0]
@@ -124,10 +124,10 @@ class ImageGoalScorer:
     def __init__(self, goal, *, size: int = 64):
         g = np.asarray(goal)
         if g.ndim != 3 or g.shape[-1] != 3:
-            raise ProfrobotError(f"goal must be an (H, W, 3) image; got shape {g.shape}")
+            raise InputError(f"goal must be an (H, W, 3) image; got shape {g.shape}")
         g = g.astype(np.float32) / 255.0 if g.dtype == np.uint8 else g.astype(np.float32)
         if not np.isfinite(g).all():
-            raise ProfrobotError("goal image contains NaN or inf")
+            raise InputError("goal image contains NaN or inf")
         self.size = int(size)
         self.goal = self.encode_image(torch.as_tensor(g)[None])[0]
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ._io import atomic_path
-from .errors import ProfrobotError
+from .files import atomic_path
+from .errors import InputError
 
 
 def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
@@ -37,7 +37,7 @@ def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarra
     i, j = (int(k) for k in joints)
     K = robot.njoint
     if not (0 <= i < K and 0 <= j < K and i != j):
-        raise ProfrobotError(f"joints must be two distinct indices in [0, {K}); got {joints}")
+        raise InputError(f"joints must be two distinct indices in [0, {K}); got {joints}")
     lim = robot.joint_limits
     base = lim.mean(1) if base_pose is None else np.asarray(base_pose, dtype=np.float64).reshape(K)
     a = np.linspace(lim[i, 0], lim[i, 1], resolution)

@@ -12,7 +12,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .._io import atomic_dir, atomic_path, check_robot
+from ..files import atomic_dir, atomic_path, check_robot
 from ..errors import CorruptFileError
 from ..robot import Robot
 from .model import PoseSDF

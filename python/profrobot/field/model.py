@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 Encoder = Literal["kinematic", "hierarchical", "flat"]
 Objective = Literal["sdf", "ndf"]
@@ -69,11 +69,11 @@ class PoseSDF(nn.Module):
                  spheres_per_body: int = 4):
         super().__init__()
         if encoder not in ENCODERS:
-            raise ProfrobotError(f"encoder must be one of {ENCODERS}; got {encoder!r}")
+            raise InputError(f"encoder must be one of {ENCODERS}; got {encoder!r}")
         if objective not in OBJECTIVES:
-            raise ProfrobotError(f"objective must be one of {OBJECTIVES}; got {objective!r}")
+            raise InputError(f"objective must be one of {OBJECTIVES}; got {objective!r}")
         if not hidden or any(int(h) <= 0 for h in hidden):
-            raise ProfrobotError(f"hidden must be a non-empty list of positive widths; got {hidden!r}")
+            raise InputError(f"hidden must be a non-empty list of positive widths; got {hidden!r}")
         self.config = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
                            learn_scale=bool(learn_scale), init_scale=float(init_scale), lipschitz=bool(lipschitz),
                            objective=objective, spheres_per_body=int(spheres_per_body))
@@ -111,7 +111,7 @@ class PoseSDF(nn.Module):
         if not isinstance(theta, torch.Tensor):
             raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
-            raise ProfrobotError(f"theta must have shape (B, {self.njoint}) for robot {self.robot_name!r}; "
+            raise InputError(f"theta must have shape (B, {self.njoint}) for robot {self.robot_name!r}; "
                              f"got {tuple(theta.shape)}")
         if not theta.is_floating_point():
             raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")

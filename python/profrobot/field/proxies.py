@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 # MuJoCo geom types
 PLANE, SPHERE, CAPSULE, CYLINDER, BOX, MESH = 0, 2, 3, 5, 6, 7
@@ -42,7 +42,7 @@ def _surface_points(kind: int, size: np.ndarray, hull: np.ndarray | None) -> np.
         a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
         ring = np.stack([size[0] * np.cos(a), size[0] * np.sin(a), np.zeros_like(a)], 1)
         return np.concatenate([ring + [0, 0, size[1]], ring - [0, 0, size[1]]])
-    raise ProfrobotError(f"no point set for geom type {kind}")
+    raise InputError(f"no point set for geom type {kind}")
 
 
 def cover_spheres(points: np.ndarray, count: int, iters: int = 20) -> tuple[np.ndarray, np.ndarray]:
@@ -114,7 +114,7 @@ class PairClearance(torch.nn.Module):
                 v = hull(i)
                 off, size, kind = (v.max(0) + v.min(0)) / 2, (v.max(0) - v.min(0)) / 2, BOX
             elif kind not in (PLANE, SPHERE, CAPSULE, CYLINDER, BOX):
-                raise ProfrobotError(f"{robot.name}: no clearance proxy for static geom type {kind}")
+                raise InputError(f"{robot.name}: no clearance proxy for static geom type {kind}")
             st_kind.append(kind), st_size.append(size), st_off.append(off)
         self.register_buffer("st_rot", f(np.array(st_rot).reshape(-1, 3, 3)), persistent=False)
         self.register_buffer("st_pos", f(np.array(st_pos).reshape(-1, 3)), persistent=False)

@@ -26,12 +26,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .._io import check_robot
+from ..files import check_robot
 from ..dataset import Dataset, make_dataset
 from ..robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 Schedule = Literal["cosine", "paper", "constant"]
 Preset = Literal["cpu", "paper"]
@@ -70,7 +70,7 @@ PRESETS: dict[str, dict] = {
 
 def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     if preset not in PRESETS:
-        raise ProfrobotError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
+        raise InputError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
     merged = {**PRESETS[preset], **options}
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     unknown = set(merged) - fields - set(MODEL_OPTIONS)
@@ -79,9 +79,9 @@ def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     model_opts = {k: v for k, v in merged.items() if k in MODEL_OPTIONS}
     cfg = TrainConfig(**{k: v for k, v in merged.items() if k in fields})
     if cfg.schedule not in get_args(Schedule):
-        raise ProfrobotError(f"schedule must be 'cosine', 'paper' or 'constant'; got {cfg.schedule!r}")
+        raise InputError(f"schedule must be 'cosine', 'paper' or 'constant'; got {cfg.schedule!r}")
     if cfg.batch_size < 2 or cfg.iterations < 1 or cfg.lr <= 0:
-        raise ProfrobotError("batch_size >= 2, iterations >= 1 and lr > 0 are required")
+        raise InputError("batch_size >= 2, iterations >= 1 and lr > 0 are required")
     return model_opts, cfg
 
 
@@ -140,7 +140,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
 
             name = data.metadata.get("robot")
             if name not in scenes.names():
-                raise ProfrobotError("pass robot= with a Dataset whose robot is not a bundled scene")
+                raise InputError("pass robot= with a Dataset whose robot is not a bundled scene")
             robot = scenes.load(name)
         check_robot(data.metadata, robot, "the dataset", missing_ok=True)
     else:

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError, RobotMismatchError
+from ..errors import InputError, RobotMismatchError
 from ..joints import Limits
 from ..optim._inputs import check_field, field_robot
 from ..optim.certify import check_path
@@ -38,7 +38,7 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Rob
         check_field_matches_model(sdf, model)
         return field_robot(sdf, robot)
     if required and not isinstance(robot, Robot):
-        raise ProfrobotError(f"{who} without a field needs robot= (the scene to certify against)")
+        raise InputError(f"{who} without a field needs robot= (the scene to certify against)")
     return robot
 
 
@@ -46,13 +46,13 @@ def target_tensors(targets, B: int, cameras, device, who: str) -> tuple[torch.Te
     """``targets`` (dict of ``rgb`` uint8 or [0, 1], ``depth`` metres, ``mask``) as (B, C, H, W, 3)
     float32, (B, C, H, W) float32 and bool tensors on ``device``; errors name what is wrong."""
     if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise ProfrobotError(f"{who}: targets must be a dict with 'rgb', 'depth' and 'mask'")
+        raise InputError(f"{who}: targets must be a dict with 'rgb', 'depth' and 'mask'")
     C, H, W = len(cameras), cameras.height, cameras.width
     tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float().to(device)
     td = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float().to(device)
     tm = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool().to(device)
     if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
-        raise ProfrobotError(f"{who}: targets contain NaN or inf")
+        raise InputError(f"{who}: targets contain NaN or inf")
     return tr, td, tm
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError
+from ..errors import InputError
 from ..joints import Limits
 from ..optim._batched_adam import BatchedAdam
 from ..optim._inputs import finite, positive
@@ -120,15 +120,15 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     field_lr = positive("field_lr", field_lr)
     robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False)
     if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise ProfrobotError("pose_from_images: targets must be a dict with 'rgb', 'depth' and 'mask'")
+        raise InputError("pose_from_images: targets must be a dict with 'rgb', 'depth' and 'mask'")
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:
         init = init[None]
     if init.ndim != 2 or init.shape[1] != model.njoint:
-        raise ProfrobotError(f"init must have shape (B, {model.njoint}); got {init.shape}")
+        raise InputError(f"init must have shape (B, {model.njoint}); got {init.shape}")
     B, C = init.shape[0], len(cameras)
     if np.asarray(targets["mask"]).shape[:2] != (B, C) and not (B == 1 and np.asarray(targets["mask"]).ndim == 3):
-        raise ProfrobotError(f"targets hold {np.asarray(targets['mask']).shape[:2]} (targets, cameras) images; "
+        raise InputError(f"targets hold {np.asarray(targets['mask']).shape[:2]} (targets, cameras) images; "
                              f"init has {B} targets and there are {C} cameras")
 
     # 1. image phase (validates targets, cameras and init; restarts and coarse-to-fine as fit_pose)

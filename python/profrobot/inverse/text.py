@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError
+from ..errors import InputError
 from ..joints import Limits
 from ..optim._inputs import finite, positive
 from ..optim.certify import certify_poses
@@ -70,7 +70,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
         raise TypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
     robot = labeller_robot(sdf, model, robot, "pose_from_text")
     if len(camera) != 1:
-        raise ProfrobotError(f"pose_from_text renders from one camera; got {len(camera)}")
+        raise InputError(f"pose_from_text renders from one camera; got {len(camera)}")
     runs, steps = positive("runs", runs, integer=True), positive("steps", steps, integer=True, allow_zero=True)
     lr, beta, l_thres, noise = positive("lr", lr), finite("beta", beta), finite("l_thres", l_thres), finite("noise", noise)
     dev = model.means.device
@@ -78,7 +78,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     K = model.njoint
     q0 = np.zeros(K) if init is None else np.asarray(init, dtype=np.float64).reshape(-1)
     if q0.shape != (K,) or not np.isfinite(q0).all():
-        raise ProfrobotError(f"init must be {K} finite joint values; got {np.asarray(init).shape}")
+        raise InputError(f"init must be {K} finite joint values; got {np.asarray(init).shape}")
     q0 = np.clip(q0, limits.lim_np[:, 0], limits.lim_np[:, 1])
     gen = torch.Generator().manual_seed(seed)
     start = torch.as_tensor(q0, dtype=torch.float32).repeat(runs, 1) + noise * torch.randn(runs, K, generator=gen)

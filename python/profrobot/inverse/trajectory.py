@@ -13,7 +13,7 @@ import time
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError
+from ..errors import InputError
 from ..joints import Limits
 from ..optim._inputs import finite, poses_array, positive
 from ..optim.certify import certify_poses, check_path
@@ -48,13 +48,13 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     robot = labeller_robot(sdf, model, robot, "trajectory_from_images")
     steps = positive("steps", steps, integer=True)
     if steps < 3:
-        raise ProfrobotError(f"steps must be >= 3; got {steps}")
+        raise InputError(f"steps must be >= 3; got {steps}")
     lr, smooth_lr = positive("lr", lr), positive("smooth_lr", smooth_lr)
     w_pull, beta, l_thres = finite("w_pull", w_pull), finite("beta", beta), finite("l_thres", l_thres)
     smooth_iters = positive("smooth_iters", smooth_iters, integer=True, allow_zero=True)
     s = poses_array(robot, np.asarray(start, dtype=np.float64).reshape(1, -1), "start")
     if s.shape[1] != model.njoint:
-        raise ProfrobotError(f"start must have {model.njoint} joints; got {s.shape[1]}")
+        raise InputError(f"start must have {model.njoint} joints; got {s.shape[1]}")
     gl = None if goal is None else poses_array(robot, np.asarray(goal, dtype=np.float64).reshape(1, -1), "goal")
     C, H, W = len(cameras), cameras.height, cameras.width
     dev = model.means.device
@@ -62,7 +62,7 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     if vm.shape != (C, 4, 4):
-        raise ProfrobotError(f"cameras must give world_to_cam ({C}, 4, 4); got {tuple(vm.shape)}")
+        raise InputError(f"cameras must give world_to_cam ({C}, 4, 4); got {tuple(vm.shape)}")
     bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
 
     limits = Limits.of(model, like=model.means)

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import torch
 
-from ..errors import ProfrobotError
+from ..errors import InputError
 from ..joints import Limits
 from ..optim._inputs import finite, positive
 from ..optim.certify import certify_poses, check_path
@@ -48,16 +48,16 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     lr, joint_lr = positive("lr", lr), positive("joint_lr", joint_lr)
     w_tv, beta, l_thres = finite("w_tv", w_tv), finite("beta", beta), finite("l_thres", l_thres)
     if not isinstance(frames, dict) or not {"rgb", "depth", "mask"} <= set(frames):
-        raise ProfrobotError("frames must be a dict with 'rgb', 'depth' and 'mask'")
+        raise InputError("frames must be a dict with 'rgb', 'depth' and 'mask'")
     T = int(np.asarray(frames["mask"]).shape[0])
     if T < 2:
-        raise ProfrobotError(f"a video needs at least 2 frames; got {T}")
+        raise InputError(f"a video needs at least 2 frames; got {T}")
     C, H, W = len(cameras), cameras.height, cameras.width
     dev = model.means.device
     tr, td, tm = target_tensors(frames, T, cameras, dev, "actions_from_video")
     q0 = np.asarray(init, dtype=np.float64).reshape(-1)
     if q0.shape != (model.njoint,) or not np.isfinite(q0).all():
-        raise ProfrobotError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
+        raise InputError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)

@@ -9,10 +9,10 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from .._io import check_robot
+from ..files import check_robot
 from ..labels import as_poses
 from ..robot import Robot
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 
 def check_field(sdf) -> None:
@@ -40,7 +40,7 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
 
         name = getattr(sdf, "robot_name", None)
         if name not in scenes.names():
-            raise ProfrobotError(f"the field's robot {name!r} is not a bundled scene; pass robot= so that "
+            raise InputError(f"the field's robot {name!r} is not a bundled scene; pass robot= so that "
                              "results can be certified by the exact labeller")
         robot = _bundled(name)
     if not isinstance(robot, Robot):
@@ -60,11 +60,11 @@ def positive(name: str, value, *, integer: bool = False, allow_zero: bool = Fals
         bad = not float(value).is_integer()
     if bad or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
         kind = "integer" if integer else "number"
-        raise ProfrobotError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} {kind}; got {value!r}")
+        raise InputError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} {kind}; got {value!r}")
     return int(value) if integer else float(value)
 
 
 def finite(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
-        raise ProfrobotError(f"{name} must be a finite number; got {value!r}")
+        raise InputError(f"{name} must be a finite number; got {value!r}")
     return float(value)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..labels import interpolate, label_poses
 from ..robot import Robot
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 
 # Touching is not free: MuJoCo reports a contact at zero distance (e.g. a joint clamped at the
@@ -60,9 +60,9 @@ def check_path(robot: Robot, path: np.ndarray, density: int = 10, clearance: flo
     with every candidate pair more than ``clearance`` metres apart."""
     path = np.asarray(path, dtype=np.float64)
     if path.ndim != 2 or len(path) < 2:
-        raise ProfrobotError(f"path must have shape (S >= 2, K); got {path.shape}")
+        raise InputError(f"path must have shape (S >= 2, K); got {path.shape}")
     if isinstance(density, bool) or not isinstance(density, (int, np.integer)) or density < 1:
-        raise ProfrobotError(f"density must be a positive integer; got {density!r}")
+        raise InputError(f"density must be a positive integer; got {density!r}")
     S, K = path.shape
     # (S−1, density+1, K): each segment with both its end points, so every segment is whole
     seg = interpolate(robot, path[:-1], path[1:], int(density) + 1)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._io import atomic_path
-from ..errors import ProfrobotError
+from ..files import atomic_path
+from ..errors import InputError
 
 
 def _field(args):
@@ -21,7 +21,7 @@ def _pose(text: str, name: str) -> np.ndarray:
     try:
         return np.array([float(v) for v in text.split(",")])
     except ValueError as e:
-        raise ProfrobotError(f"--{name} must be comma-separated numbers (radians / metres); got {text!r}") from e
+        raise InputError(f"--{name} must be comma-separated numbers (radians / metres); got {text!r}") from e
 
 
 def _save_npz(path: str, **arrays) -> None:
@@ -56,7 +56,7 @@ def cmd_plan(args) -> int:
 
     robot, sdf = _field(args)
     if (args.start is None) != (args.goal is None):
-        raise ProfrobotError("give both --start and --goal, or neither (a random hard problem)")
+        raise InputError("give both --start and --goal, or neither (a random hard problem)")
     if args.start is not None:
         start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
     else:  # two free poses whose straight interpolation collides

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from ._inputs import check_field, finite
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 
 def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1) -> torch.Tensor:
@@ -23,10 +23,10 @@ def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1) -> torch.
     if not theta.is_floating_point():
         raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
     if theta.ndim == 0 or theta.shape[-1] != sdf.njoint:
-        raise ProfrobotError(f"theta must have shape (..., {sdf.njoint}) for robot {getattr(sdf, 'robot_name', '?')!r}; "
+        raise InputError(f"theta must have shape (..., {sdf.njoint}) for robot {getattr(sdf, 'robot_name', '?')!r}; "
                          f"got {tuple(theta.shape)}")
     if not torch.isfinite(theta).all():
-        raise ProfrobotError("theta contains NaN or inf")
+        raise InputError("theta contains NaN or inf")
     lead = theta.shape[:-1]
     g = sdf(theta.reshape(-1, sdf.njoint))
     return torch.relu(g - l_thres).reshape(lead)

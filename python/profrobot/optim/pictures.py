@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_path
+from ..files import atomic_path
 from ..labels import label_poses
 from ..robot import Robot
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 # A view from the front-left, above the table; override with ``camera=``.
 DEFAULT_CAMERA = dict(lookat=(0.25, 0.0, 0.35), distance=2.3, azimuth=60.0, elevation=-25.0)
@@ -33,7 +33,7 @@ def _frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[in
     m = robot.mj_model
     width, height = size
     if width > m.vis.global_.offwidth or height > m.vis.global_.offheight:
-        raise ProfrobotError(f"size {size} exceeds the model's offscreen buffer "
+        raise InputError(f"size {size} exceeds the model's offscreen buffer "
                          f"({m.vis.global_.offwidth}×{m.vis.global_.offheight})")
     views = "profrobot.render.views"
     with RenderWorkers(1) as worker:
@@ -67,10 +67,10 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4"):
-        raise ProfrobotError(f"out must end in .gif or .mp4; got {out.name!r}")
+        raise InputError(f"out must end in .gif or .mp4; got {out.name!r}")
     collides = label_poses(robot, path).collides if collides is None else np.asarray(collides, dtype=bool)
     if collides.shape != (len(path),):
-        raise ProfrobotError(f"collides must have shape ({len(path)},); got {collides.shape}")
+        raise InputError(f"collides must have shape ({len(path)},); got {collides.shape}")
     frames = _frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})
     with atomic_path(out) as tmp:
         if suffix == ".gif":
@@ -79,7 +79,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
             try:
                 import imageio.v3 as iio
             except ImportError as e:
-                raise ProfrobotError("MP4 output needs imageio with its ffmpeg plugin; write a .gif instead") from e
+                raise InputError("MP4 output needs imageio with its ffmpeg plugin; write a .gif instead") from e
             iio.imwrite(tmp, np.stack([np.asarray(f) for f in frames]), fps=fps)
     return out
 

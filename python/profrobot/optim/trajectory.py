@@ -34,7 +34,7 @@ from ..robot import Robot
 from ._batched_adam import BatchedAdam
 from ._inputs import field_robot, finite, poses_array, positive
 from .certify import PathCheck, check_path, path_free_at
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 Method = Literal["penalty", "tangent"]
 GoalNorm = Literal["l1", "l2"]
@@ -307,27 +307,27 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     t0 = time.perf_counter()
     if sdf is None:
         if not isinstance(robot, Robot):
-            raise ProfrobotError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")
+            raise InputError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")
     else:
         robot = field_robot(sdf, robot)
     if method not in METHODS:
-        raise ProfrobotError(f"method must be one of {METHODS}; got {method!r}")
+        raise InputError(f"method must be one of {METHODS}; got {method!r}")
     if init not in INITS:
-        raise ProfrobotError(f"init must be one of {INITS}; got {init!r}")
+        raise InputError(f"init must be one of {INITS}; got {init!r}")
     if sdf is None and init == "straight":
-        raise ProfrobotError("init='straight' optimises with the field; with sdf=None use init='auto' or 'planner'")
+        raise InputError("init='straight' optimises with the field; with sdf=None use init='auto' or 'planner'")
     if goal_norm not in get_args(GoalNorm):
-        raise ProfrobotError(f"goal_norm must be 'l1' or 'l2'; got {goal_norm!r}")
+        raise InputError(f"goal_norm must be 'l1' or 'l2'; got {goal_norm!r}")
     if planner is not None and not isinstance(planner, dict):
         raise TypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
     single = np.ndim(start) == 1 and np.ndim(goal) == 1
     s = poses_array(robot, start, "start")
     g = poses_array(robot, goal, "goal")
     if s.shape != g.shape:
-        raise ProfrobotError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
+        raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
     steps = positive("steps", steps, integer=True)
     if steps < 3:
-        raise ProfrobotError(f"steps must be >= 3 (the end points are fixed); got {steps}")
+        raise InputError(f"steps must be >= 3 (the end points are fixed); got {steps}")
     l_thres = finite("l_thres", l_thres)
     gamma1, gamma2 = positive("gamma1", gamma1, allow_zero=True), positive("gamma2", gamma2, allow_zero=True)
     lr, delta = positive("lr", lr), positive("delta", delta)

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .._io import check_robot
+from ..files import check_robot
 from ..kinematics import quat_to_matrix
 from .gaussians import GaussianRobot
 from .rasterize import Backend

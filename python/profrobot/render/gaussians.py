@@ -32,10 +32,10 @@ import numpy as np
 import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
-from .._io import atomic_path, check_robot
+from ..files import atomic_path, check_robot
 from ..errors import CorruptFileError
 from .rasterize import Backend, Cutoff, RenderOut, rasterize, rasterize_unchecked
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
 
@@ -94,7 +94,7 @@ def sample_visual_surface(m: mujoco.MjModel, n: int, seed: int = 0):
         rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
         cols.append(np.tile(rgba[:3], (len(f), 1)))
     if not tris:
-        raise ProfrobotError("the robot has no visible mesh geoms to put Gaussians on")
+        raise InputError("the robot has no visible mesh geoms to put Gaussians on")
     T, B, Cl = np.concatenate(tris), np.concatenate(bodies), np.concatenate(cols)
     cr = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
     area = 0.5 * np.linalg.norm(cr, axis=1)
@@ -130,7 +130,7 @@ class GaussianRobot(torch.nn.Module):
                  hidden: int = 64):
         super().__init__()
         if skinning not in get_args(Skinning):
-            raise ProfrobotError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
+            raise InputError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
         self.robot_fingerprint = robot.fingerprint
         self.robot_name = robot.name
         self.njoint = robot.njoint
@@ -164,9 +164,9 @@ class GaussianRobot(torch.nn.Module):
         the spacing of the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times
         that along the normal. ``sh_degree`` 0, 1 or 2."""
         if sh_degree not in (0, 1, 2):
-            raise ProfrobotError(f"sh_degree must be 0, 1 or 2; got {sh_degree}")
+            raise InputError(f"sh_degree must be 0, 1 or 2; got {sh_degree}")
         if n < 1:
-            raise ProfrobotError(f"n must be positive; got {n}")
+            raise InputError(f"n must be positive; got {n}")
         body, pts, nrm, rgb, area = sample_visual_surface(robot.mj_model, n, seed)
         spacing = math.sqrt(area)
         log_s = np.log(np.array([0.5 * spacing, 0.5 * spacing, thickness * 0.5 * spacing]))
@@ -199,9 +199,9 @@ class GaussianRobot(torch.nn.Module):
         if theta.ndim == 1:
             theta = theta[None]
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
-            raise ProfrobotError(f"theta must have shape (B, {self.njoint}) or ({self.njoint},); got {tuple(theta.shape)}")
+            raise InputError(f"theta must have shape (B, {self.njoint}) or ({self.njoint},); got {tuple(theta.shape)}")
         if not torch.isfinite(theta).all():
-            raise ProfrobotError("theta contains NaN or inf")
+            raise InputError("theta contains NaN or inf")
         return theta
 
     def skin_weights(self) -> torch.Tensor:

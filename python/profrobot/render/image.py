@@ -8,8 +8,8 @@ import zlib
 
 import numpy as np
 
-from .._io import atomic_path
-from ..errors import ProfrobotError
+from ..files import atomic_path
+from ..errors import InputError
 
 __all__ = ["psnr", "mask_iou", "write_png", "to_uint8", "depth_to_rgb"]
 
@@ -42,7 +42,7 @@ def write_png(path: str | os.PathLike, img: np.ndarray) -> None:
     """Write an (H, W, 3) or (H, W) uint8 image as an 8-bit PNG (written atomically)."""
     img = np.asarray(img)
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
-        raise ProfrobotError(f"write_png needs a uint8 (H, W) or (H, W, 3) array; got {img.dtype} {img.shape}")
+        raise InputError(f"write_png needs a uint8 (H, W) or (H, W, 3) array; got {img.dtype} {img.shape}")
     h, w = img.shape[:2]
     colour = 2 if img.ndim == 3 else 0
     raw = b"".join(b"\x00" + img[y].tobytes() for y in range(h))      # filter type 0 per row

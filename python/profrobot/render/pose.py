@@ -28,7 +28,7 @@ import torch
 from ..joints import Limits
 from .gaussians import GaussianRobot
 from .views import Cameras
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 __all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets"]
 
@@ -65,7 +65,7 @@ def _as_targets(x, name, shape_tail, B, C, dtype):
     if t.ndim == len(shape_tail) + 1:
         t = t[None]
     if t.shape[:2] != (B, C) or tuple(t.shape[2:]) != tuple(shape_tail):
-        raise ProfrobotError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
+        raise InputError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
     return t
 
 
@@ -81,7 +81,7 @@ def downsample_targets(targets: dict, factor: int) -> dict:
     mask = np.asarray(targets["mask"]).astype(np.float32)
     H, W = mask.shape[-2:]
     if factor < 1 or H % factor or W % factor:
-        raise ProfrobotError(f"downsample_targets: the image size {W}x{H} is not divisible by factor {factor}")
+        raise InputError(f"downsample_targets: the image size {W}x{H} is not divisible by factor {factor}")
     blocks = lambda a: a.reshape(*a.shape[:-2], H // factor, factor, W // factor, factor).sum((-3, -1))
     n = float(factor * factor)
     m = blocks(mask)
@@ -95,10 +95,10 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     factor = int(coarse.pop("factor", 2))
     H, W = cameras.height, cameras.width
     if factor < 1 or H % factor or W % factor:
-        raise ProfrobotError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
+        raise InputError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
     unknown = set(coarse) - {"iters", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
     if unknown:
-        raise ProfrobotError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
+        raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
     kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed")} | coarse
     c = fit_pose(model, downsample_targets(targets, factor), cameras.resized(W // factor, H // factor), init, **kw)
     f = fit_pose(model, targets, cameras, c.theta, **fine)
@@ -136,26 +136,26 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         init = init[None]
     K = model.njoint
     if init.ndim != 2 or init.shape[1] != K:
-        raise ProfrobotError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
+        raise InputError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
     if not torch.isfinite(init).all():
-        raise ProfrobotError("fit_pose: init contains NaN or inf")
+        raise InputError("fit_pose: init contains NaN or inf")
     B, C, H, W = init.shape[0], len(cameras), cameras.height, cameras.width
     rgb_t = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float()
     depth_t = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float()
     mask_t = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool()
     if not (torch.isfinite(rgb_t).all() and torch.isfinite(depth_t).all()):
-        raise ProfrobotError("fit_pose: targets contain NaN or inf")
+        raise InputError("fit_pose: targets contain NaN or inf")
     vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
     Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
     if vm.shape != (C, 4, 4) or Ks.shape != (C, 3, 3):
-        raise ProfrobotError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
+        raise InputError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
                          f"got {tuple(vm.shape)} and {tuple(Ks.shape)}")
     bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
     # everything the loop renders from is checked here, once (the loop then makes no host syncs)
     for name, t in (("cameras", vm), ("cameras", Ks), ("background", bg),
                     *((f"model.{n}", p) for n, p in model.named_parameters())):
         if t is not None and not torch.isfinite(t).all():
-            raise ProfrobotError(f"fit_pose: {name} contains NaN or inf")
+            raise InputError(f"fit_pose: {name} contains NaN or inf")
 
     limits = Limits.of(model)                                          # CPU, float32
     R = restarts + 1

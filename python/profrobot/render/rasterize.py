@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import torch
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 Cutoff = Literal["soft", "hard"]
 Backend = Literal["auto", "torch", "rust", "gsplat"]
@@ -67,7 +67,7 @@ def _check(name, t, shape_desc, ok):
     if not isinstance(t, torch.Tensor):
         raise TypeError(f"rasterize: {name} must be a torch.Tensor; got {type(t).__name__}")
     if not ok:
-        raise ProfrobotError(f"rasterize: {name} must have shape {shape_desc}; got {tuple(t.shape)}")
+        raise InputError(f"rasterize: {name} must have shape {shape_desc}; got {tuple(t.shape)}")
 
 
 def _validate(means, covs, opacities, colors, viewmats, Ks):
@@ -80,13 +80,13 @@ def _validate(means, covs, opacities, colors, viewmats, Ks):
     _check("opacities", opacities, f"({N},) or (C, {N})", opacities.shape[-1] == N and opacities.ndim in (1, 2))
     _check("colors", colors, f"({N}, 3) or (C, {N}, 3)", colors.shape[-2:] == (N, 3) and colors.ndim in (2, 3))
     if N == 0:
-        raise ProfrobotError("rasterize: the Gaussian set is empty (means has N = 0 rows)")
+        raise InputError("rasterize: the Gaussian set is empty (means has N = 0 rows)")
     for name, t in (("means", means), ("covs", covs), ("opacities", opacities), ("colors", colors),
                     ("viewmats", viewmats), ("Ks", Ks)):
         if t.dtype not in (torch.float32, torch.float64):
             raise TypeError(f"rasterize: {name} must be float32 or float64; got {t.dtype}")
         if not torch.isfinite(t).all():
-            raise ProfrobotError(f"rasterize: {name} contains NaN or inf")
+            raise InputError(f"rasterize: {name} contains NaN or inf")
     return C, N
 
 
@@ -384,12 +384,12 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     core); its results are identical for any count.
     """
     if cutoff not in get_args(Cutoff):
-        raise ProfrobotError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
+        raise InputError(f"rasterize: cutoff must be 'soft' or 'hard'; got {cutoff!r}")
     if backend not in get_args(Backend):
-        raise ProfrobotError(f"rasterize: backend must be one of {get_args(Backend)}; got {backend!r}")
+        raise InputError(f"rasterize: backend must be one of {get_args(Backend)}; got {backend!r}")
     width, height = int(width), int(height)
     if width < 1 or height < 1:
-        raise ProfrobotError(f"rasterize: image size must be positive; got {width}x{height}")
+        raise InputError(f"rasterize: image size must be positive; got {width}x{height}")
     _validate(means, covs, opacities, colors, viewmats, Ks)
     return rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width, height, background=background,
                                cutoff=cutoff, backend=backend, threads=threads)

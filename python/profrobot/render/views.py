@@ -23,9 +23,9 @@ import mujoco
 import numpy as np
 
 from .._gl import RenderWorkers
-from .._io import atomic_path
-from .._io import check_robot
-from ..errors import CorruptFileError, ProfrobotError
+from ..files import atomic_path
+from ..files import check_robot
+from ..errors import CorruptFileError, InputError
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "Views", "make_views", "robot_visual_model"]
 
@@ -61,13 +61,13 @@ class Cameras:
             object.__setattr__(self, k, v)
         vals = np.concatenate([la.ravel(), *arrs.values(), [self.fovy]])
         if not np.isfinite(vals).all():
-            raise ProfrobotError("Cameras: lookat, distance, azimuth, elevation and fovy must be finite")
+            raise InputError("Cameras: lookat, distance, azimuth, elevation and fovy must be finite")
         if (arrs["distance"] <= 0).any():
-            raise ProfrobotError("Cameras: distance must be positive (metres)")
+            raise InputError("Cameras: distance must be positive (metres)")
         if not 0 < self.fovy < 180:
-            raise ProfrobotError(f"Cameras: fovy must be in (0, 180) degrees; got {self.fovy}")
+            raise InputError(f"Cameras: fovy must be in (0, 180) degrees; got {self.fovy}")
         if int(self.width) < 1 or int(self.height) < 1:
-            raise ProfrobotError(f"Cameras: image size must be positive; got {self.width}x{self.height}")
+            raise InputError(f"Cameras: image size must be positive; got {self.width}x{self.height}")
 
     def __len__(self) -> int:
         return len(self.lookat)
@@ -357,7 +357,7 @@ class Views:
             z = np.load(os.fspath(path))
             header = json.loads(z["header"].tobytes().decode())
             if header.get("format") != "profrobot.views/1":
-                raise ProfrobotError(f"unknown format {header.get('format')!r}")
+                raise InputError(f"unknown format {header.get('format')!r}")
             mask = np.unpackbits(z["mask"], axis=-1, count=int(z["mask_width"])).astype(bool)
             v = cls(z["poses"], Cameras.from_dict(header["cameras"]), z["rgb"], z["depth"], mask,
                     header["robot_fingerprint"], header["robot_name"], header.get("meta", {}))
@@ -394,9 +394,9 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     executor = check_executor(executor)
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != robot.njoint:
-        raise ProfrobotError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
+        raise InputError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
     if not np.isfinite(poses).all():
-        raise ProfrobotError("poses contain NaN or inf")
+        raise InputError("poses contain NaN or inf")
     if not isinstance(cameras, Cameras):
         raise TypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
     if size is not None:
@@ -405,7 +405,7 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     qpos = np.tile(m.qpos0, (len(poses), 1))
     qpos[:, robot.qpos_adr] = poses
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ProfrobotError(f"chunk must be a positive integer; got {chunk!r}")
+        raise InputError(f"chunk must be a positive integer; got {chunk!r}")
     if executor is not None:
         bounds = [(i, min(i + chunk, len(qpos))) for i in range(0, len(qpos), chunk)]
         ref = executor.put(qpos)  # once, through the object store; each chunk names its rows

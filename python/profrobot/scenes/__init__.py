@@ -18,7 +18,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
-from ..errors import ProfrobotError
+from ..errors import InputError
 
 FLOOR = Plane(pos=(0, 0, 0), name="floor", rgba=(0.9, 0.9, 0.9, 1))
 
@@ -102,5 +102,5 @@ def load(name: str) -> Robot:
     try:
         builder = _BUILDERS[name]
     except KeyError:
-        raise ProfrobotError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}") from None
+        raise InputError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}") from None
     return builder()
