@@ -53,7 +53,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import profrobot  # noqa: E402
-import profrobot.optim.certify  # noqa: E402
+import profrobot.certification  # noqa: E402
 from profrobot import scenes  # noqa: E402
 from profrobot.crosscheck import mujoco_labels  # noqa: E402
 from profrobot.inverse import pose_from_images  # noqa: E402
@@ -292,7 +292,7 @@ def video(a):
     arm = np.array([t == "hinge" for t in scene.joint_types])
     rng = np.random.default_rng(a.seed)
     init = truth[0] + np.where(arm, 0.05 * rng.standard_normal(len(arm)), 0.0)
-    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.optim.certify.check_path(scene, truth).free),
+    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.certification.check_path(scene, truth).free),
                loadavg_start=os.getloadavg())
     rows = []
     for label, field in (("without field", None), ("with field", sdf)):

@@ -13,50 +13,7 @@ import numpy as np
 from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
 from .errors import InputError
-
-
-def as_poses(robot: Robot, poses, *, name: str = "poses", check_limits: bool = False, atol: float = 1e-9) -> np.ndarray:
-    """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
-
-    Accepts a single pose (K,) as a batch of one. Rejects non-float dtypes, wrong widths, empty
-    batches, NaN/inf, and (with ``check_limits``) joints outside their limits.
-    """
-    if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor
-        poses = poses.detach().cpu().numpy()
-    arr = np.asarray(poses)
-    if arr.dtype.kind not in "f":
-        raise TypeError(f"{name} must be a floating-point array (radians / metres); got dtype {arr.dtype}")
-    k = robot.njoint
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != k:
-        raise InputError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
-    if arr.shape[0] == 0:
-        raise InputError(f"{name} is empty: at least one pose is needed")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        i, j = np.argwhere(bad)[0]
-        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
-    if check_limits:
-        lim = robot.joint_limits
-        limited = ~robot.continuous
-        out = ((arr < lim[:, 0] - atol) | (arr > lim[:, 1] + atol)) & limited
-        if out.any():
-            i, j = np.argwhere(out)[0]
-            raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
-                             f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
-    return arr
-
-
-def check_threads(threads) -> int | None:
-    if threads is None:
-        return None
-    if not isinstance(threads, (int, np.integer)) or isinstance(threads, bool) or threads < 1:
-        raise InputError(f"threads must be a positive integer or None; got {threads!r}")
-    return int(threads)
+from .validate import as_poses, seed as check_seed, threads as check_threads
 
 
 @dataclass
@@ -131,8 +88,7 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InputError(f"n must be a positive integer; got {n!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
+    seed = check_seed(seed)
     if equalities not in EQUALITY_MODES:
         raise InputError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
     threads = check_threads(threads)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .labels import as_poses, check_threads
+from . import validate
+from .validate import as_poses
 from .robot import Robot
 
 
@@ -38,19 +39,6 @@ class NearestFree:
         return len(self.distance)
 
 
-def _count(value, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-        raise InputError(f"{name} must be an integer >= {low}; got {value!r}")
-    return int(value)
-
-
-def _positive(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(value) or value <= 0:
-        raise InputError(f"{name} must be a positive finite number; got {value!r}")
-    return float(value)
-
-
 def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 1024, step: float = 0.02,
                  tolerance: float = 1e-4, max_distance: float | None = None, seed: int = 0,
                  threads: int | None = None) -> NearestFree:
@@ -68,13 +56,12 @@ def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 10
     q = as_poses(robot, poses, check_limits=True)
     lim, limited = robot.joint_limits, ~robot.continuous
     q = np.where(limited, np.clip(q, lim[:, 0], lim[:, 1]), q)  # within the 1e-9 tolerance
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
-    step, tolerance = _positive(step, "step"), _positive(tolerance, "tolerance")
+    seed = validate.seed(seed)
+    step, tolerance = validate.positive("step", step), validate.positive("tolerance", tolerance)
     if tolerance > step:
         raise InputError(f"tolerance ({tolerance}) must not exceed step ({step})")
     out = robot.core.nearest_free(
-        np.ascontiguousarray(q), directions=_count(directions, "directions", 1), step=step, tolerance=tolerance,
-        refine=_count(refine, "refine", 0), max_distance=None if max_distance is None else _positive(max_distance, "max_distance"),
-        seed=int(seed), threads=check_threads(threads))
+        np.ascontiguousarray(q), directions=validate.count("directions", directions), step=step, tolerance=tolerance,
+        refine=validate.count("refine", refine, 0), max_distance=None if max_distance is None else validate.positive("max_distance", max_distance),
+        seed=int(seed), threads=validate.threads(threads))
     return NearestFree(**out)

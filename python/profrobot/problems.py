@@ -9,21 +9,17 @@ from __future__ import annotations
 import numpy as np
 
 from .dataset import make_dataset
+from . import validate
 from .labels import check_threads, interpolate, label_poses
 from .robot import Robot
+from .certification import certify_poses
 from .errors import InputError
 
 __all__ = ["colliding_poses", "free_poses", "hard_pairs"]
 
 
-def _count(name: str, n) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise InputError(f"{name} must be a positive integer; got {n!r}")
-    return int(n)
-
-
 def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, threads: int | None) -> np.ndarray:
-    n = _count("n", n)
+    n = validate.count("n", n)
     # rounds sized for a rare class (Panda-blocks: ~12 % of uniform poses collide)
     batch = min(100_000, max(1024, 16 * n))
     ds = make_dataset(robot, n, collided_fraction=1.0 if collides else 0.0, seed=seed, batch=batch,
@@ -81,14 +77,13 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
     pairs (``reachable=False``) can lie in different components of free space, with no path at
     all: a ±2π shoulder joint, say, on the other side of the floor, which a limited joint cannot
     wrap around; no planner can solve those."""
-    n = _count("n", n)
-    steps = _count("steps", steps)
-    density = _count("density", density)
+    n = validate.count("n", n)
+    steps = validate.count("steps", steps)
+    density = validate.count("density", density)
     if steps < 2:
         raise InputError(f"steps must be at least 2; got {steps}")
     threads = check_threads(threads)
     max_pairs = max_pairs or 200 * n
-    from .optim.certify import certify_poses  # the certification's own clearance rule
 
     starts, goals = [], []
     tried = found = 0
@@ -113,14 +108,9 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
                 r += 1
                 continue
         dense = interpolate(robot, a, b, (steps - 1) * density + 1)        # (m, D, K)
-        flat = dense.reshape(-1, robot.njoint)
-        # the plain labels first (cheap); the clearance rule (distances, ~15x dearer) only where
-        # they find the straight path free, since it can only add collisions
-        straight_collides = label_poses(robot, flat, threads=threads).collides.reshape(m, -1).any(axis=1)
-        rest = np.flatnonzero(~straight_collides)
-        if len(rest):
-            strict = ~certify_poses(robot, dense[rest].reshape(-1, robot.njoint))
-            straight_collides[rest] = strict.reshape(len(rest), -1).any(axis=1)
+        # not certified somewhere along the straight path (certify_poses screens with the cheap
+        # boolean labels first and pays for distances only where they find it free)
+        straight_collides = ~certify_poses(robot, dense.reshape(-1, robot.njoint), threads=threads).reshape(m, -1).all(axis=1)
         take = np.flatnonzero(straight_collides)[: n - found]
         starts.append(a[take])
         goals.append(b[take])

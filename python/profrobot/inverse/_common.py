@@ -1,5 +1,4 @@
-"""What the inverse problems share: the labeller's robot, the target images as tensors, and a
-path's certificate as a :class:`~profrobot.TrajectoryResult`."""
+"""What the inverse problems share: the labeller's robot and a path's certificate as a :class:`~profrobot.TrajectoryResult`."""
 
 from __future__ import annotations
 
@@ -10,10 +9,9 @@ import torch
 
 from ..errors import InputError, RobotMismatchError
 from ..joints import Limits
-from ..optim._inputs import check_field, field_robot
-from ..optim.certify import check_path
+from ..field.identity import check_field, field_robot
+from ..certification import check_path
 from ..optim.trajectory import TrajectoryResult
-from ..render.pose import _as_targets
 from ..robot import Robot
 
 
@@ -40,20 +38,6 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Rob
     if required and not isinstance(robot, Robot):
         raise InputError(f"{who} without a field needs robot= (the scene to certify against)")
     return robot
-
-
-def target_tensors(targets, B: int, cameras, device, who: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``targets`` (dict of ``rgb`` uint8 or [0, 1], ``depth`` metres, ``mask``) as (B, C, H, W, 3)
-    float32, (B, C, H, W) float32 and bool tensors on ``device``; errors name what is wrong."""
-    if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise InputError(f"{who}: targets must be a dict with 'rgb', 'depth' and 'mask'")
-    C, H, W = len(cameras), cameras.height, cameras.width
-    tr = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float().to(device)
-    td = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float().to(device)
-    tm = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool().to(device)
-    if not (torch.isfinite(tr).all() and torch.isfinite(td).all()):
-        raise InputError(f"{who}: targets contain NaN or inf")
-    return tr, td, tm
 
 
 def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,

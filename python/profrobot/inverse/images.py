@@ -29,11 +29,12 @@ import torch
 
 from ..errors import InputError
 from ..joints import Limits
-from ..optim._batched_adam import BatchedAdam
-from ..optim._inputs import finite, positive
-from ..optim.certify import certify_poses
-from ..render.pose import fit_pose, pose_loss
-from ._common import check_field_matches_model, labeller_robot, target_tensors
+from ..optim.adam import BatchedAdam
+from ..validate import finite, positive
+from ..certification import certified_summary, certify_poses, failures_of
+from ..render.pose import fit_pose
+from ..render.targets import ImageTargets
+from ._common import check_field_matches_model, labeller_robot
 
 __all__ = ["InverseResult", "pose_from_images", "check_field_matches_model"]
 
@@ -45,8 +46,10 @@ class InverseResult:
     Attributes:
         poses: (B, K) float64 returned poses (radians / metres, within the joint limits).
         image_loss: (B,) the image loss at the returned poses (mean over the C views).
-        certified: (B,) bool, the exact labeller finds the returned pose free (with the field's
-            scene; the baseline is labelled too, not corrected).
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`,
+            against the field's scene; the baseline is certified too, not corrected), or None
+            when there was no scene to check against (no field and no ``robot=``): never True
+            for a pose that was not checked.
         iterations: (B,) int, field-phase Adam steps (0 for the baseline, or a pose the field
             already called free).
         image_iterations: image-phase steps (all poses).
@@ -54,20 +57,21 @@ class InverseResult:
         threshold: (B,) the last threshold each pose was driven to.
         field_free_before_certify: (B,) bool, g <= l_thres when the field phase first stopped
             (the paper's criterion; the certificate is the labeller's).
-        certified_before_continue: (B,) bool, the labeller's verdict before certify-and-continue.
+        certified_before_continue: (B,) bool, the verdict before certify-and-continue (None when
+            not checked).
         poses_before_continue: (B, K) the poses it was given (the paper's answers).
         seconds: wall time.
     """
 
     poses: np.ndarray
     image_loss: np.ndarray
-    certified: np.ndarray
+    certified: np.ndarray | None
     iterations: np.ndarray
     image_iterations: int
     g: np.ndarray
     threshold: np.ndarray
     field_free_before_certify: np.ndarray
-    certified_before_continue: np.ndarray
+    certified_before_continue: np.ndarray | None
     seconds: float
     rounds: int = 0
     poses_before_continue: np.ndarray | None = None
@@ -77,22 +81,17 @@ class InverseResult:
         return len(self.poses)
 
     @property
-    def failures(self) -> np.ndarray:
-        """Indices of returned poses the exact labeller finds colliding."""
-        return np.flatnonzero(~self.certified)
+    def failures(self) -> np.ndarray | None:
+        """Indices of returned poses that are not certified free (None when not checked)."""
+        return failures_of(self.certified)
 
     def summary(self) -> str:
         n = len(self)
-        return (f"{n} poses: {self.certified.mean():.1%} certified free ({len(self.failures)} colliding), "
-                f"{self.certified_before_continue.mean():.1%} before certify-and-continue; mean image loss "
+        before = ("" if self.certified_before_continue is None else
+                  f", {self.certified_before_continue.mean():.1%} before certify-and-continue")
+        return (f"{n} poses: {certified_summary(self.certified)}{before}; mean image loss "
                 f"{self.image_loss.mean():.4f}; mean field steps {self.iterations.mean():.1f}; {self.seconds:.1f} s "
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
-
-
-def _image_losses(model, theta, vm, Ks, W, H, bg, tr, td, tm, C, w_depth, w_mask):
-    """(B,) mean image loss over the C views of each of B poses."""
-    out = model._render(theta, vm, Ks, W, H, background=bg)
-    return pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(-1, C).mean(1)
 
 
 def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
@@ -108,8 +107,9 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     Dr. Robot baseline. ``beta``, ``l_thres``: the penalty ``beta ReLU(g - l_thres)``;
     ``iters``/``lr``/``coarse``: the image phase (:func:`~profrobot.render.fit_pose`);
     ``field_iters``/``field_lr``: the field phase (Adam in joint space); ``refine_rounds``,
-    ``refine_step``: certify-and-continue. ``robot``: the labeller's scene (default: the field's;
-    for the baseline, required to label the results, else they are labelled against nothing).
+    ``refine_step``: certify-and-continue. ``robot``: the labeller's scene (default: the field's).
+    Without a field and without ``robot`` nothing can be checked: ``result.certified`` is None and
+    ``summary()`` says "not checked".
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
@@ -119,35 +119,21 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
     robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False)
-    if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-        raise InputError("pose_from_images: targets must be a dict with 'rgb', 'depth' and 'mask'")
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:
         init = init[None]
     if init.ndim != 2 or init.shape[1] != model.njoint:
         raise InputError(f"init must have shape (B, {model.njoint}); got {init.shape}")
-    B, C = init.shape[0], len(cameras)
-    if np.asarray(targets["mask"]).shape[:2] != (B, C) and not (B == 1 and np.asarray(targets["mask"]).ndim == 3):
-        raise InputError(f"targets hold {np.asarray(targets['mask']).shape[:2]} (targets, cameras) images; "
-                             f"init has {B} targets and there are {C} cameras")
+    B = init.shape[0]
+    dev = model.means.device
+    tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
+                                  w_mask=w_mask, who="pose_from_images")
+    img_loss = lambda theta, rows: tg.losses(model, theta, rows)     # (len(rows),) mean over the C views
 
-    # 1. image phase (validates targets, cameras and init; restarts and coarse-to-fine as fit_pose)
+    # 1. image phase (restarts and coarse-to-fine as fit_pose)
     fit = fit_pose(model, targets, cameras, init, iters=iters, lr=lr, w_depth=w_depth, w_mask=w_mask,
                    background=background, coarse=coarse, seed=seed)
     theta_img = fit.theta
-
-    H, W = cameras.height, cameras.width
-    dev = model.means.device
-    tr, td, tm = target_tensors(targets, B, cameras, dev, "pose_from_images")
-    flat = lambda t: t.reshape(B * C, *t.shape[2:])
-    tr, td, tm = flat(tr), flat(td), flat(tm)
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
-    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
-
-    def img_loss(theta, rows):
-        sel = (rows[:, None] * C + torch.arange(C, device=dev)).reshape(-1)
-        return _image_losses(model, theta, vm, Ks, W, H, bg, tr[sel], td[sel], tm[sel], C, w_depth, w_mask)
 
     limits = Limits.of(model, like=model.means)
     theta = torch.as_tensor(theta_img, dtype=torch.float32, device=dev).clone()
@@ -186,10 +172,14 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
         field_free = (g.numpy() <= thresholds)
 
     poses = limits.numpy(theta.detach().cpu().numpy().astype(np.float64))
-    certified = certify_poses(robot, poses) if robot is not None else np.ones(B, dtype=bool)
-    before = certified.copy()
     poses_before = poses.copy()
-    history.append(dict(round=0, certified=int(certified.sum())))
+    if robot is None:  # the baseline with no scene: nothing was checked, so nothing is certified
+        certified = before = None
+        history.append(dict(round=0, certified=None))
+    else:
+        certified = certify_poses(robot, poses)
+        before = certified.copy()
+        history.append(dict(round=0, certified=int(certified.sum())))
     if sdf is not None:
         while rounds < refine_rounds and not certified.all():
             rounds += 1

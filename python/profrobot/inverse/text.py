@@ -14,8 +14,8 @@ import torch
 
 from ..errors import InputError
 from ..joints import Limits
-from ..optim._inputs import finite, positive
-from ..optim.certify import certify_poses
+from ..validate import finite, positive
+from ..certification import certify_poses
 from ..robot import Robot
 from ._common import labeller_robot
 

@@ -15,12 +15,12 @@ import torch
 
 from ..errors import InputError
 from ..joints import Limits
-from ..optim._inputs import finite, poses_array, positive
-from ..optim.certify import certify_poses, check_path
+from ..validate import finite, positive, poses_within_limits
+from ..certification import certify_poses, check_path
 from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap, plan_trajectory
-from ..render.pose import pose_loss
+from ..render.targets import ImageTargets
 from ..robot import Robot
-from ._common import certified_path, labeller_robot, target_tensors
+from ._common import certified_path, labeller_robot
 
 __all__ = ["trajectory_from_images"]
 
@@ -52,18 +52,13 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     lr, smooth_lr = positive("lr", lr), positive("smooth_lr", smooth_lr)
     w_pull, beta, l_thres = finite("w_pull", w_pull), finite("beta", beta), finite("l_thres", l_thres)
     smooth_iters = positive("smooth_iters", smooth_iters, integer=True, allow_zero=True)
-    s = poses_array(robot, np.asarray(start, dtype=np.float64).reshape(1, -1), "start")
+    s = poses_within_limits(robot, np.asarray(start, dtype=np.float64).reshape(1, -1), "start")
     if s.shape[1] != model.njoint:
         raise InputError(f"start must have {model.njoint} joints; got {s.shape[1]}")
-    gl = None if goal is None else poses_array(robot, np.asarray(goal, dtype=np.float64).reshape(1, -1), "goal")
-    C, H, W = len(cameras), cameras.height, cameras.width
+    gl = None if goal is None else poses_within_limits(robot, np.asarray(goal, dtype=np.float64).reshape(1, -1), "goal")
     dev = model.means.device
-    tr, td, tm = (t[0] for t in target_tensors(targets, 1, cameras, dev, "trajectory_from_images"))
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
-    if vm.shape != (C, 4, 4):
-        raise InputError(f"cameras must give world_to_cam ({C}, 4, 4); got {tuple(vm.shape)}")
-    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+    tg = ImageTargets.from_images(targets, cameras, 1, device=dev, background=background, w_depth=w_depth,
+                                  w_mask=w_mask, who="trajectory_from_images")
 
     limits = Limits.of(model, like=model.means)
     theta = torch.nn.Parameter(torch.as_tensor(s, dtype=torch.float32, device=dev).clone())
@@ -72,8 +67,7 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     sdf_dev = None if sdf is None else sdf.joint_limits.device
     frames = [s[0].copy()]
     for _ in range(steps - 1):
-        out = model._render(theta, vm, Ks, W, H, background=bg)
-        loss = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).mean()
+        loss = tg.losses(model, theta).sum()                 # the mean over the C views
         if goal_t is not None:
             loss = loss + w_pull * (theta - goal_t).abs().sum()
         if sdf is not None:

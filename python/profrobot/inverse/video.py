@@ -20,12 +20,12 @@ import torch
 
 from ..errors import InputError
 from ..joints import Limits
-from ..optim._inputs import finite, positive
-from ..optim.certify import certify_poses, check_path
+from ..validate import finite, positive
+from ..certification import certify_poses, check_path
 from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap
-from ..render.pose import pose_loss
+from ..render.targets import ImageTargets
 from ..robot import Robot
-from ._common import certified_path, labeller_robot, target_tensors
+from ._common import certified_path, labeller_robot
 
 __all__ = ["actions_from_video"]
 
@@ -52,21 +52,15 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     T = int(np.asarray(frames["mask"]).shape[0])
     if T < 2:
         raise InputError(f"a video needs at least 2 frames; got {T}")
-    C, H, W = len(cameras), cameras.height, cameras.width
     dev = model.means.device
-    tr, td, tm = target_tensors(frames, T, cameras, dev, "actions_from_video")
+    tg = ImageTargets.from_images(frames, cameras, T, device=dev, background=background, w_depth=w_depth,
+                                  w_mask=w_mask, who="actions_from_video")
     q0 = np.asarray(init, dtype=np.float64).reshape(-1)
     if q0.shape != (model.njoint,) or not np.isfinite(q0).all():
         raise InputError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
-    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
     limits = Limits.of(model, like=model.means)
 
-    def img_loss(theta, idx):                      # (len(idx),) mean over views
-        out = model._render(theta, vm, Ks, W, H, background=bg)
-        flat = lambda t: t[idx].reshape(len(idx) * C, *t.shape[2:])
-        return pose_loss(out, flat(tr), flat(td), flat(tm), w_depth=w_depth, w_mask=w_mask).reshape(-1, C).mean(1)
+    img_loss = lambda theta, idx: tg.losses(model, theta, idx)   # (len(idx),) mean over the C views
 
     # 1. frame by frame, warm-started at constant velocity
     traj = torch.empty(T, model.njoint, device=dev)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from ._inputs import check_field, finite
+from ..field.identity import check_field
+from ..validate import finite
 from ..errors import InputError
 
 

@@ -10,10 +10,11 @@ import numpy as np
 import torch
 
 from ..robot import Robot
-from ._batched_adam import BatchedAdam
+from .adam import BatchedAdam
 from ..joints import Limits
-from ._inputs import field_robot, finite, poses_array, positive
-from .certify import certify_poses
+from ..field.identity import field_robot
+from ..validate import finite, positive, poses_within_limits
+from ..certification import certify_poses
 
 
 @dataclass
@@ -97,7 +98,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
     """
     start = time.perf_counter()
     robot = field_robot(sdf, robot)
-    q0 = poses_array(robot, poses)
+    q0 = poses_within_limits(robot, poses)
     l_thres = finite("l_thres", l_thres)
     lr = positive("lr", lr)
     max_iters = positive("max_iters", max_iters, integer=True, allow_zero=True)

@@ -16,7 +16,7 @@ certified path, the certified planner path itself is returned, never a colliding
 ``sdf=None`` runs the exact planner alone.
 
 Every result is verified by the exact labeller at the waypoints and on a dense re-interpolation
-between them (:func:`~profrobot.optim.certify.check_path`).
+between them (:func:`~profrobot.certification.check_path`).
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ import torch
 from ..joints import Limits
 from ..labels import interpolate
 from ..robot import Robot
-from ._batched_adam import BatchedAdam
-from ._inputs import field_robot, finite, poses_array, positive
-from .certify import PathCheck, check_path, path_free_at
+from .adam import BatchedAdam
+from ..field.identity import field_robot
+from ..validate import finite, positive, poses_within_limits
+from ..certification import PathCheck, check_path, path_free_at
 from ..errors import InputError
 
 Method = Literal["penalty", "tangent"]
@@ -321,8 +322,8 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     if planner is not None and not isinstance(planner, dict):
         raise TypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
     single = np.ndim(start) == 1 and np.ndim(goal) == 1
-    s = poses_array(robot, start, "start")
-    g = poses_array(robot, goal, "goal")
+    s = poses_within_limits(robot, start, "start")
+    g = poses_within_limits(robot, goal, "goal")
     if s.shape != g.shape:
         raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
     steps = positive("steps", steps, integer=True)

@@ -259,15 +259,16 @@ class GaussianRobot(torch.nn.Module):
         ``backend``, ``cutoff``, ``threads``: see :func:`profrobot.render.rasterize`."""
         viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
         Ks = torch.as_tensor(Ks, dtype=self.means.dtype, device=self.means.device)
-        return self._render(self._check_theta(theta), viewmats, Ks, width, height, background=background,
+        return self.render_unchecked(self._check_theta(theta), viewmats, Ks, width, height, background=background,
                             cutoff=cutoff, backend=backend, threads=threads, check=True)
 
-    def _render(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, *,
-                background=None, cutoff: Cutoff = "soft", backend: Backend = "auto", threads: int | None = None,
-                check: bool = False) -> RenderOut:
-        """:meth:`render` for callers that validated their inputs once (``theta`` (B, K),
-        ``viewmats``, ``Ks`` tensors on the model's device): no per-call finiteness checks, no host
-        syncs, unless ``check``."""
+    def render_unchecked(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int,
+                         height: int, *, background=None, cutoff: Cutoff = "soft", backend: Backend = "auto",
+                         threads: int | None = None, check: bool = False) -> RenderOut:
+        """:meth:`render` for inner loops whose inputs were validated once, at entry (``theta``
+        (B, K), ``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3) tensors on the model's device, e.g. from
+        :class:`profrobot.render.ImageTargets`): no per-call finiteness checks and no host syncs,
+        unless ``check``."""
         mu, A, Ab = self._world_frames(theta)                                          # Ab: body motion (B, N, 3, 3)
         B, C = mu.shape[0], viewmats.shape[0]
         cov = self.covariances(A)

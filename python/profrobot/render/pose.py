@@ -9,7 +9,7 @@ depths ``D*`` (metres) and robot masks ``M*``:
              + extra(theta)                               (e.g. beta * L_SDF, the collision penalty)
 
 where ``M = M* | (alpha > 1/2)`` (the target's and the render's robot pixels, so that a robot
-drawn in the wrong place is penalised too). Adam on joints normalised to [-1, 1] over their
+drawn in the wrong place is penalised too; :mod:`profrobot.render.targets`). Adam on joints normalised to [-1, 1] over their
 limits (Dr. Robot: lr 0.02), projected back into joint space after each step (limited joints
 clamped, continuous hinges wrapped: :class:`profrobot.joints.Limits`), learning rate decayed
 ten-fold (cosine); restarts perturb the start and keep the best final loss. Inputs are
@@ -27,10 +27,11 @@ import torch
 
 from ..joints import Limits
 from .gaussians import GaussianRobot
+from .targets import ImageTargets, pose_loss
 from .views import Cameras
 from ..errors import InputError
 
-__all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets"]
+__all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets", "ImageTargets"]
 
 
 @dataclass
@@ -43,30 +44,6 @@ class PoseFit:
     history: np.ndarray
     start: np.ndarray
     all_losses: np.ndarray = field(default=None)
-
-
-def pose_loss(out, rgb_t, depth_t, mask_t, *, w_depth: float = 1.0, w_mask: float = 0.5) -> torch.Tensor:
-    """Per-image loss (N,) of renders ``out`` against targets (N, H, W, 3), (N, H, W), (N, H, W)."""
-    mt = mask_t.to(out.rgb.dtype)
-    drawn = (out.alpha.detach() > 0.5).to(out.rgb.dtype)
-    m = torch.maximum(mt, drawn)
-    msum = m.sum((1, 2)).clamp_min(1)
-    l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * m).sum((1, 2)) / msum
-    md = mt * drawn
-    l_d = ((out.depth - depth_t).abs() * md).sum((1, 2)) / md.sum((1, 2)).clamp_min(1)
-    l_m = (out.alpha - mt).abs().mean((1, 2))
-    return l_rgb + w_depth * l_d + w_mask * l_m
-
-
-def _as_targets(x, name, shape_tail, B, C, dtype):
-    t = torch.as_tensor(np.asarray(x))
-    if t.dtype == torch.uint8:
-        t = t.to(dtype) / 255.0
-    if t.ndim == len(shape_tail) + 1:
-        t = t[None]
-    if t.shape[:2] != (B, C) or tuple(t.shape[2:]) != tuple(shape_tail):
-        raise InputError(f"fit_pose: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}); got {tuple(t.shape)}")
-    return t
 
 
 def downsample_targets(targets: dict, factor: int) -> dict:
@@ -139,23 +116,13 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         raise InputError(f"fit_pose: init must have shape (B, {K}); got {tuple(init.shape)}")
     if not torch.isfinite(init).all():
         raise InputError("fit_pose: init contains NaN or inf")
-    B, C, H, W = init.shape[0], len(cameras), cameras.height, cameras.width
-    rgb_t = _as_targets(targets["rgb"], "rgb", (H, W, 3), B, C, torch.float32).float()
-    depth_t = _as_targets(targets["depth"], "depth", (H, W), B, C, torch.float32).float()
-    mask_t = _as_targets(targets["mask"], "mask", (H, W), B, C, torch.float32).bool()
-    if not (torch.isfinite(rgb_t).all() and torch.isfinite(depth_t).all()):
-        raise InputError("fit_pose: targets contain NaN or inf")
-    vm = torch.as_tensor(cameras.world_to_cam, dtype=torch.float32, device=dev)
-    Ks = torch.as_tensor(cameras.K, dtype=torch.float32, device=dev)
-    if vm.shape != (C, 4, 4) or Ks.shape != (C, 3, 3):
-        raise InputError(f"fit_pose: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
-                         f"got {tuple(vm.shape)} and {tuple(Ks.shape)}")
-    bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32, device=dev)
+    B = init.shape[0]
+    tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
+                                  w_mask=w_mask, who="fit_pose")
     # everything the loop renders from is checked here, once (the loop then makes no host syncs)
-    for name, t in (("cameras", vm), ("cameras", Ks), ("background", bg),
-                    *((f"model.{n}", p) for n, p in model.named_parameters())):
-        if t is not None and not torch.isfinite(t).all():
-            raise InputError(f"fit_pose: {name} contains NaN or inf")
+    for name, p in model.named_parameters():
+        if not torch.isfinite(p).all():
+            raise InputError(f"fit_pose: model.{name} contains NaN or inf")
 
     limits = Limits.of(model)                                          # CPU, float32
     R = restarts + 1
@@ -168,14 +135,12 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     limits = Limits.of(model, like=model.means)
     u = torch.nn.Parameter(limits.normalise(starts.to(dev)))          # normalised joints in [-1, 1]
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
-    rep = lambda t: t.to(dev)[:, None].expand(B, R, *t.shape[1:]).reshape(B * R * C, *t.shape[2:])
-    tr, td, tm = rep(rgb_t), rep(depth_t), rep(mask_t)
+    tr = tg.take(torch.arange(B, device=dev).repeat_interleave(R))  # (B·R) targets: one per start
     hist = []
     for it in range(iters):
         opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))  # to lr/10
         theta = limits.denormalise(u)
-        out = model._render(theta, vm, Ks, W, H, background=bg)
-        per = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B * R, C).mean(1)
+        per = tr.losses(model, theta)
         total = per.sum()
         if extra_loss is not None:
             total = total + extra_loss(theta)
@@ -186,8 +151,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         hist.append(per.detach().reshape(B, R))
     with torch.no_grad():
         theta = limits.denormalise(u)
-        out = model._render(theta, vm, Ks, W, H, background=bg)
-        final = pose_loss(out, tr, td, tm, w_depth=w_depth, w_mask=w_mask).reshape(B, R, C).mean(-1)
+        final = tr.losses(model, theta).reshape(B, R)
     if not bool(torch.isfinite(theta).all()):
         raise FloatingPointError("fit_pose: the optimisation diverged (NaN or inf joints); lower lr or check "
                                  "extra_loss")

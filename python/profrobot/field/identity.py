@@ -1,18 +1,21 @@
-"""Validation shared by the optimisers: which robot a field belongs to, poses as tensors, and
-option checks. Each failure is a clear Python exception naming the problem."""
+"""Which robot a field belongs to: the scene the exact labeller certifies its answers against.
+
+Every torch-side entry point that takes a field (``resolve``, ``plan_trajectory``, the inverse
+problems) resolves its labeller's robot here, so a field for another arm is refused the same way
+everywhere (:class:`~profrobot.errors.RobotMismatchError`).
+"""
 
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
-import numpy as np
 import torch
 
-from ..files import check_robot
-from ..labels import as_poses
-from ..robot import Robot
 from ..errors import InputError
+from ..files import check_robot
+from ..robot import Robot
+
+__all__ = ["check_field", "field_robot"]
 
 
 def check_field(sdf) -> None:
@@ -47,24 +50,3 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
         raise TypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
     check_robot(sdf.fingerprint, robot, "the field", made_for=getattr(sdf, "robot_name", None))
     return robot
-
-
-def poses_array(robot: Robot, poses, name: str = "poses") -> np.ndarray:
-    """(B, K) float64 poses within the joint limits, or a ValueError/TypeError naming the problem."""
-    return as_poses(robot, poses, name=name, check_limits=True, atol=1e-6)
-
-
-def positive(name: str, value, *, integer: bool = False, allow_zero: bool = False) -> float | int:
-    bad = isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
-    if integer and not bad:
-        bad = not float(value).is_integer()
-    if bad or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        kind = "integer" if integer else "number"
-        raise InputError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} {kind}; got {value!r}")
-    return int(value) if integer else float(value)
-
-
-def finite(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
-        raise InputError(f"{name} must be a finite number; got {value!r}")
-    return float(value)

@@ -1,0 +1,127 @@
+"""What "certified" means, once, for every pose and path profrobot returns as safe.
+
+**Definition.** A pose is *certified free* when the exact labeller (``rust/collide.rs``: MuJoCo's
+collision rules, exact shapes) finds no candidate geom pair in contact **and** every candidate
+pair more than :data:`CLEARANCE` metres apart. A path is certified free when every waypoint and
+every pose of its dense SO(2) re-interpolation is. Nothing else in profrobot says "certified":
+not the learned field (never on its word alone), not the plain labels.
+
+Why a clearance and not 0: touching is not free. MuJoCo reports a contact at zero distance (two
+links that just meet, a joint clamped at the limit where fingers close), so a pose at distance
+0 is a contact to MuJoCo and to a real robot; 1 µm keeps such poses out of what we call safe.
+The plain labels (:func:`profrobot.label_poses`, :func:`profrobot.collides`) stay MuJoCo's own
+verdict (contact at distance ≤ margin); certification is that verdict plus the clearance.
+
+How it is computed, cheaply and exactly: the boolean fast path (:func:`profrobot.collides`)
+first; only poses it finds free pay for the signed distances (about 15× dearer), since the
+clearance can only add collisions. The verdict is identical to labelling every pose with
+distances. This module is torch-free (the base layer).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .labels import as_poses, check_threads, collides, interpolate, label_poses
+from .robot import Robot
+
+__all__ = ["CLEARANCE", "certify_poses", "check_path", "path_free_at", "PathCheck", "certified_summary", "failures_of"]
+
+#: metres: the least distance every candidate pair keeps in a certified pose (module docs).
+CLEARANCE = 1e-6
+
+
+def certify_poses(robot: Robot, poses, *, threads: int | None = None) -> np.ndarray:
+    """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres) is certified
+    free (module docs: no contact, every candidate pair more than :data:`CLEARANCE` apart)."""
+    q = as_poses(robot, poses)
+    threads = check_threads(threads)
+    free = ~collides(robot, q, threads=threads)
+    rest = np.flatnonzero(free)
+    if len(rest):
+        lab = label_poses(robot, q[rest], distance=True, threads=threads)
+        free[rest] = ~lab.collides & (lab.min_distance > CLEARANCE)
+    return free
+
+
+@dataclass
+class PathCheck:
+    """The exact labeller's verdict on a path of S waypoints.
+
+    Attributes:
+        certified: the whole path is certified free: every waypoint and every dense sample.
+        waypoint_collides: (S,) bool, waypoint i is not certified free.
+        segment_collides: (S−1,) bool, segment i joins waypoints i and i+1 (its end points included).
+        dense: ((S−1)·density + 1, K) the poses checked, radians / metres.
+        dense_collides: (D,) bool.
+    """
+
+    certified: bool
+    waypoint_collides: np.ndarray
+    segment_collides: np.ndarray
+    dense: np.ndarray
+    dense_collides: np.ndarray
+
+    @property
+    def free(self) -> bool:
+        """Deprecated name of :attr:`certified`."""
+        return self.certified
+
+    @property
+    def colliding_segments(self) -> np.ndarray:
+        """Indices i of segments [i, i+1] that are not certified free somewhere."""
+        return np.flatnonzero(self.segment_collides)
+
+
+def check_path(robot: Robot, path, density: int = 10) -> PathCheck:
+    """Certifies ``path`` (S, K) waypoints and ``density − 1`` SO(2)-interpolated poses between
+    each consecutive pair (``density`` times finer than the waypoints)."""
+    path = np.asarray(path, dtype=np.float64)
+    if path.ndim != 2 or len(path) < 2:
+        raise InputError(f"path must have shape (S >= 2, K); got {path.shape}")
+    if isinstance(density, bool) or not isinstance(density, (int, np.integer)) or density < 1:
+        raise InputError(f"density must be a positive integer; got {density!r}")
+    S, K = path.shape
+    # (S−1, density+1, K): each segment with both its end points, so every segment is whole
+    seg = interpolate(robot, path[:-1], path[1:], int(density) + 1)
+    dense = np.concatenate([seg[:, :-1].reshape(-1, K), path[-1:]], axis=0)
+    hit = ~certify_poses(robot, dense)
+    seg_hit = np.zeros(S - 1, dtype=bool)
+    idx = np.arange(len(dense))
+    # dense sample j lies in segment j // density; a shared end point belongs to both neighbours
+    seg_hit[np.minimum(idx[hit] // density, S - 2)] = True
+    ends = idx[hit][(idx[hit] % density == 0) & (idx[hit] > 0)] // density - 1
+    seg_hit[ends[ends >= 0]] = True
+    return PathCheck(certified=not hit.any(), waypoint_collides=hit[::density], segment_collides=seg_hit,
+                     dense=dense, dense_collides=hit)
+
+
+def path_free_at(robot: Robot, path, resolution: float) -> bool:
+    """Whether ``path`` (S, K) is certified free when re-interpolated (SO(2)) so that no joint
+    moves more than ``resolution`` (rad / m) between two checked poses: the planner's own
+    guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
+    from .planning import so2_steps
+
+    path = np.asarray(path, dtype=np.float64)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be a positive number; got {resolution!r}")
+    d = so2_steps(robot, path)
+    counts = np.maximum(np.ceil(np.abs(d).max(axis=1) / resolution).astype(int), 1)
+    poses = np.concatenate([interpolate(robot, a, b, int(n) + 1)[1:] for a, b, n in zip(path[:-1], path[1:], counts)])
+    return bool(certify_poses(robot, np.concatenate([path[:1], poses])).all())
+
+
+def certified_summary(certified) -> str:
+    """"87.5% certified free (1 of 8 not)" for a (B,) bool verdict, "not checked" for None."""
+    if certified is None:
+        return "not checked (no scene to certify against: pass robot= or a field)"
+    c = np.asarray(certified, dtype=bool)
+    return f"{c.mean():.1%} certified free ({int((~c).sum())} of {c.size} not)"
+
+
+def failures_of(certified) -> np.ndarray | None:
+    """Indices where a (B,) verdict is not certified free; None when nothing was checked."""
+    return None if certified is None else np.flatnonzero(~np.asarray(certified, dtype=bool))

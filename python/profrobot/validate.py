@@ -1,0 +1,111 @@
+"""Argument checks shared by every public entry point, written once (base layer, no torch).
+
+Each returns the value in its canonical Python type or raises an :class:`~profrobot.errors.InputError`
+(a ValueError) or ``TypeError`` that names the argument and what it got, e.g.
+``poses[1, 2] (joint3) is inf; poses must be finite``.
+"""
+
+from __future__ import annotations
+
+import math
+from numbers import Integral, Real
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .errors import InputError
+
+if TYPE_CHECKING:  # annotations only: robot.py imports this module
+    from .robot import Robot
+
+__all__ = ["as_poses", "poses_within_limits", "positive", "finite", "count", "seed", "threads"]
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool)
+
+
+def positive(name: str, value, *, integer: bool = False, allow_zero: bool = False) -> float | int:
+    """``value`` > 0 (>= 0 with ``allow_zero``), finite, an integer with ``integer``."""
+    bad = not _is_number(value)
+    if integer and not bad:
+        bad = not float(value).is_integer()
+    if bad or not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        kind = "integer" if integer else "number"
+        raise InputError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} {kind}; got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def finite(name: str, value) -> float:
+    """Any finite real number."""
+    if not _is_number(value) or not math.isfinite(value):
+        raise InputError(f"{name} must be a finite number; got {value!r}")
+    return float(value)
+
+
+def count(name: str, value, low: int = 1) -> int:
+    """An integer (not a bool, not a float) >= ``low``."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
+        raise InputError(f"{name} must be an integer >= {low}; got {value!r}")
+    return int(value)
+
+
+def seed(value, name: str = "seed") -> int:
+    """A seed for the Rust samplers: an integer in [0, 2**64)."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value < 2**64:
+        raise InputError(f"{name} must be an integer in [0, 2**64); got {value!r}")
+    return int(value)
+
+
+def threads(value) -> int | None:
+    """None (every core) or a positive thread count."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
+        raise InputError(f"threads must be a positive integer or None; got {value!r}")
+    return int(value)
+
+
+def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool = False,
+             atol: float = 1e-9) -> np.ndarray:
+    """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
+
+    Accepts a single pose (K,) as a batch of one, and torch tensors. Rejects non-float dtypes,
+    wrong widths, empty batches, NaN/inf, and (with ``check_limits``) limited joints outside
+    their limits by more than ``atol``.
+    """
+    from .robot import Robot
+
+    if not isinstance(robot, Robot):
+        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor
+        poses = poses.detach().cpu().numpy()
+    arr = np.asarray(poses)
+    if arr.dtype.kind not in "f":
+        raise TypeError(f"{name} must be a floating-point array (radians / metres); got dtype {arr.dtype}")
+    k = robot.njoint
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != k:
+        raise InputError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
+    if arr.shape[0] == 0:
+        raise InputError(f"{name} is empty: at least one pose is needed")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
+    if check_limits:
+        lim = robot.joint_limits
+        limited = ~robot.continuous
+        out = ((arr < lim[:, 0] - atol) | (arr > lim[:, 1] + atol)) & limited
+        if out.any():
+            i, j = np.argwhere(out)[0]
+            raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
+                             f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
+    return arr
+
+
+def poses_within_limits(robot: "Robot", poses, name: str = "poses") -> np.ndarray:
+    """:func:`as_poses` with the joint limits checked to 1e-6 (float32 round trips from torch)."""
+    return as_poses(robot, poses, name=name, check_limits=True, atol=1e-6)
