@@ -121,11 +121,11 @@ PANDA_VIEW = dict(lookat=(0.25, 0.0, 0.35), distance=2.0, azimuth=60.0, elevatio
 
 def picture(scene, path, target, base, ours, base_col, ours_col, camera=None):
     """MuJoCo renders (with the scene's obstacles) of target | baseline | ours, collisions framed red."""
-    from profrobot.optim.pictures import _frames
+    from profrobot.optim.pictures import trajectory_frames
     from profrobot.render.image import write_png
 
-    frames = _frames(scene, np.stack([target, base, ours]), np.array([False, base_col, ours_col]), (320, 240),
-                     camera or PANDA_VIEW)
+    frames = trajectory_frames(scene, np.stack([target, base, ours]), np.array([False, base_col, ours_col]),
+                               (320, 240), camera or PANDA_VIEW)
     write_png(path, np.concatenate([np.asarray(f.convert("RGB")) for f in frames], axis=1))
 
 
@@ -204,7 +204,9 @@ def t7(a):
         finally:
             ex.shutdown()
     else:
-        done = [t7_group(scene, *it) for it in items]
+        from profrobot.executors import LocalExecutor
+
+        done = LocalExecutor().map(t7_group, items, robot=scene, desc="Table 7 rows")   # here, in order
     rows = []
     for (group, _, _), (r, pic) in zip(items, done):
         rows.append(r)
@@ -250,7 +252,7 @@ def t8(a):
             r = trajectory_from_images(model, starts[i], tg, cams, goal=goals[i], steps=a.steps, lr=0.05, w_pull=10.0,
                                        background=views.background, **kw)
             bad_frames += int(r.waypoint_collides.any())
-            bad_any += int(not r.free)
+            bad_any += int(not r.certified)
             if i == 0:
                 from profrobot.optim.pictures import render_trajectory
 
@@ -292,7 +294,7 @@ def video(a):
     arm = np.array([t == "hinge" for t in scene.joint_types])
     rng = np.random.default_rng(a.seed)
     init = truth[0] + np.where(arm, 0.05 * rng.standard_normal(len(arm)), 0.0)
-    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.certification.check_path(scene, truth).free),
+    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.certification.check_path(scene, truth).certified),
                loadavg_start=os.getloadavg())
     rows = []
     for label, field in (("without field", None), ("with field", sdf)):
@@ -304,7 +306,7 @@ def video(a):
         err = np.abs(r.path - truth)[:, arm]
         row = dict(setting=label, median_joint_err_rad=float(np.median(err)), p90_joint_err_rad=float(np.percentile(err, 90)),
                    colliding_frames=int(r.waypoint_collides.sum()), colliding_segments=int(r.segment_collides.sum()),
-                   free=bool(r.free), seconds_per_frame=(time.perf_counter() - t0) / a.frames)
+                   free=bool(r.certified), seconds_per_frame=(time.perf_counter() - t0) / a.frames)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if field is not None:

@@ -91,11 +91,11 @@ def bench_trajectories(scene: str, n: int, methods) -> dict:
         t = time.perf_counter()
         res = plan_trajectory(sdf, starts, goals, steps=100, robot=robot, **kw)
         wall = time.perf_counter() - t
-        free = np.array([r.free for r in res])
+        free = np.array([r.certified for r in res])
         # independent re-check: any path reported free must be free under the exact labeller
-        false_free = sum(bool(profrobot.label_poses(robot, r.check.dense).collides.any()) for r in res if r.free)
+        false_free = sum(bool(profrobot.label_poses(robot, r.check.dense).collides.any()) for r in res if r.certified)
         out[name] = dict(free=float(free.mean()), relative_length=float(np.mean([r.relative_length for r in res])),
-                         relative_length_free=float(np.mean([r.relative_length for r in res if r.free])) if free.any() else None,
+                         relative_length_free=float(np.mean([r.relative_length for r in res if r.certified])) if free.any() else None,
                          wall=wall, wall_per_problem=wall / len(res), reported_free_but_colliding=false_free,
                          mean_iterations=float(np.mean([r.iterations for r in res])))
         print(scene, name, out[name], flush=True)
@@ -113,7 +113,7 @@ def bench_gif() -> dict:
     results = plan_trajectory(sdf, starts, goals, steps=100, robot=robot, lr=0.05, iterations=200, check_every=5)
     hits = [profrobot.label_poses(robot, profrobot.interpolate(robot, a, b, 100)).scene_collides.sum()
             for a, b in zip(starts, goals)]
-    solved = [i for i, r in enumerate(results) if r.free] or list(range(len(results)))
+    solved = [i for i, r in enumerate(results) if r.certified] or list(range(len(results)))
     worst = max(solved, key=lambda i: hits[i])
     res = results[worst]
     straight = profrobot.interpolate(robot, starts[worst], goals[worst], 100)
@@ -123,7 +123,7 @@ def bench_gif() -> dict:
         g_straight = sdf(torch.as_tensor(straight, dtype=torch.float32)).numpy()
     plot_trajectory(res, OUT / "ur5e_wall_box_trajectory.png", joint_names=robot.joint_names, straight=g_straight)
     print("gif", gif, res.summary(), flush=True)
-    return dict(gif=str(Path(gif).resolve().relative_to(Path(__file__).resolve().parents[1])), free=res.free, summary=res.summary(),
+    return dict(gif=str(Path(gif).resolve().relative_to(Path(__file__).resolve().parents[1])), free=res.certified, summary=res.summary(),
                 straight_colliding_waypoints=int(profrobot.label_poses(robot, straight).collides.sum()))
 
 

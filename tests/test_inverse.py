@@ -93,10 +93,10 @@ def test_trajectory_from_images_frames_and_certificate(panda, setup):
     r = trajectory_from_images(model, a, t, cams, goal=b, steps=12, robot=panda)
     assert r.path.shape == (12, panda.njoint) and np.allclose(r.path[0], a) and r.method == "images"
     assert np.linalg.norm(r.path[-1] - b) < np.linalg.norm(a - b)            # moved towards the goal
-    assert r.free == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
     f = trajectory_from_images(model, a, t, cams, goal=b, steps=12, sdf=_field(panda, -100.0), smooth_iters=5)
-    assert f.free or f.method != "images+planner"
-    assert f.free == (not f.waypoint_collides.any() and not f.segment_collides.any())
+    assert f.certified or f.method != "images+planner"
+    assert f.certified == (not f.waypoint_collides.any() and not f.segment_collides.any())
     with pytest.raises(ProfrobotError, match="robot="):
         trajectory_from_images(model, a, t, cams, steps=5)
     with pytest.raises(ProfrobotError, match="steps"):
@@ -118,12 +118,12 @@ def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
     r = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3, robot=panda)
     assert r.path.shape == (4, panda.njoint) and r.method == "video"
     assert np.median(np.abs(r.path - path)[:, :7]) < 0.03
-    assert r.free == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
     rf = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3,
                             sdf=_field(panda, -100.0))
     # the field's stage adds joint_iters more steps (its penalty is 0 here): only image refinement
     assert rf.method == "video+field" and np.abs(rf.path - r.path).max() < 0.02
-    assert rf.free == (not rf.waypoint_collides.any() and not rf.segment_collides.any())
+    assert rf.certified == (not rf.waypoint_collides.any() and not rf.segment_collides.any())
     with pytest.raises(ProfrobotError, match="2 frames"):
         actions_from_video(model, {k: v[:1] for k, v in f.items()}, cams, init=path[0], robot=panda)
     with pytest.raises(ProfrobotError, match="init"):

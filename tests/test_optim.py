@@ -172,7 +172,7 @@ def test_check_path_finds_collisions_between_free_waypoints(panda):
     assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.free
     assert len(chk.dense) == 51
     full = check_path(panda, profrobot.interpolate(panda, a, b, 30), density=4)
-    assert not full.free and full.colliding_segments.size > 0
+    assert not full.certified and full.colliding_segments.size > 0
     hit = np.flatnonzero(full.dense_collides)
     assert set(np.minimum(hit // 4, 28)) <= set(full.colliding_segments)
 
@@ -184,7 +184,7 @@ def test_plan_reports_collisions_the_field_misses(panda):
     for method in ("penalty", "tangent"):
         res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method, init="straight",
                               iterations=10, tangent_iters=500, delta=0.05)
-        assert not res.free and res.colliding_segments.size > 0
+        assert not res.certified and res.colliding_segments.size > 0
         np.testing.assert_array_equal(res.path[0], a)
         np.testing.assert_array_equal(res.path[-1], b)
         assert res.path.shape == (20, panda.njoint)
@@ -267,14 +267,14 @@ def test_trained_field_resolves_and_plans(panda):
     assert profrobot.label_poses(panda, res.poses[res.certified]).collides.sum() == 0
     a, b = _hard_pair(panda, seed=12)
     path = plan_trajectory(sdf, a, b, steps=50)
-    if path.free:   # a path reported free must be free under the exact labeller
+    if path.certified:   # a path reported free must be free under the exact labeller
         assert not profrobot.label_poses(panda, path.check.dense).collides.any()
 
 
 # ---- command line ----------------------------------------------------------------------------
 
 def test_cli_resolve_and_plan(tmp_path, panda, capsys):
-    from profrobot import _gl
+    from profrobot import gl
     from profrobot.cli import main
 
     ckpt = profrobot.save_sdf(shifted_field(panda, -100.0), tmp_path / "field")
@@ -289,7 +289,7 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     code = main(["plan", "--field", str(ckpt), "--steps", "5", "--iterations", "5", "--init", "straight",
                  "--gif", str(tmp_path / "p.gif"),
                  "--plot", str(tmp_path / "p.png")])
-    if _gl.status()[0] is None:   # no MuJoCo renderer here: one clear error, exit status 2
+    if gl.status()[0] is None:   # no MuJoCo renderer here: one clear error, exit status 2
         assert code == 2 and "libosmesa6" in capsys.readouterr().err
     else:
         assert code == 1 and "COLLIDES" in capsys.readouterr().out
@@ -338,7 +338,7 @@ def test_problems_are_seeded_and_what_they_say(panda):
     assert starts.shape == goals.shape == (3, panda.njoint)
     assert not profrobot.label_poses(panda, np.concatenate([starts, goals])).collides.any()
     for a, b in zip(starts, goals):
-        assert not check_path(panda, profrobot.interpolate(panda, a, b, 20)).free
+        assert not check_path(panda, profrobot.interpolate(panda, a, b, 20)).certified
     s2, g2 = problems.hard_pairs(panda, 3, seed=4, steps=20)
     np.testing.assert_array_equal(s2, starts) and np.testing.assert_array_equal(g2, goals)
     with pytest.raises(ValueError, match="n must be"):

@@ -125,12 +125,12 @@ def test_plan_trajectory_falls_back_to_the_planner_and_smooths_without_losing_ce
     robot = scene("ur5e_wall_box")
     starts, goals = hard_pairs(robot, 3, seed=13)
     exact = profrobot.plan_trajectory(None, starts, goals, robot=robot, steps=60)
-    assert all(r.free and r.init == "planner" and r.method == "planner" for r in exact)
+    assert all(r.certified and r.init == "planner" and r.method == "planner" for r in exact)
     sdf = profrobot.train_sdf(robot, hidden=(64, 64), n_poses=20_000, iterations=60, batch_size=1024,
                               progress=False, seed=0)
     smoothed = profrobot.plan_trajectory(sdf, starts, goals, steps=60, smooth_iters=60, check_every=10)
     for r, e in zip(smoothed, exact):
-        assert r.free and r.init == "planner" and r.planner.found
+        assert r.certified and r.init == "planner" and r.planner.found
         assert r.length <= r.length_before + 1e-9          # the shortest certified iterate, never longer
         assert _mujoco_free(robot, r.path)
         np.testing.assert_allclose(r.path[0], e.path[0]) and np.testing.assert_allclose(r.path[-1], e.path[-1])

@@ -11,7 +11,7 @@ from ..errors import InputError, RobotMismatchError
 from ..joints import Limits
 from ..field.identity import check_field, field_robot
 from ..certification import check_path
-from ..optim.trajectory import TrajectoryResult
+from ..optim.trajectory import TrajectoryResult, trajectory_result
 from ..robot import Robot
 
 
@@ -42,15 +42,10 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Rob
 
 def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,
                    t0: float) -> TrajectoryResult:
-    """``path`` (S, K) wrapped into the limits, labelled at every waypoint and ``density``× finer
+    """``path`` (S, K) wrapped into the limits, certified at every waypoint and ``density``× finer
     along every segment, with the field along it (NaN without one)."""
-    lim = Limits.of(robot)
-    path = lim.numpy(path)
-    chk = check_path(robot, path, density)
+    path = Limits.of(robot).numpy(path)
     g = (np.full(len(path), np.nan) if sdf is None else
          sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
-    return TrajectoryResult(path=path, free=chk.free, waypoint_collides=chk.waypoint_collides,
-                            segment_collides=chk.segment_collides, g=g, method=method, iterations=iterations,
-                            length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
-                            straight_length=float(np.linalg.norm(lim.diff(path[-1], path[0]))),
-                            seconds=time.perf_counter() - t0, check=chk)
+    return trajectory_result(robot, path, check_path(robot, path, density), g=g, method=method,
+                             iterations=iterations, seconds=time.perf_counter() - t0)

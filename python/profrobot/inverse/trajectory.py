@@ -17,7 +17,8 @@ from ..errors import InputError
 from ..joints import Limits
 from ..validate import finite, positive, poses_within_limits
 from ..certification import certify_poses, check_path
-from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap, plan_trajectory
+from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
+from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
 from ..robot import Robot
 from ._common import certified_path, labeller_robot
@@ -79,7 +80,7 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
             limits.clamp_or_wrap_(theta)
         frames.append(theta.detach().cpu().numpy()[0].astype(np.float64))
     lim = Limits.of(robot)
-    path = _unwrap(lim.numpy(np.stack(frames)), lim.cont_np)
+    path = unwrap_path(lim.numpy(np.stack(frames)), lim.cont_np)
     method, iterations = "images", steps - 1
 
     if sdf is not None:
@@ -89,16 +90,15 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
             r = resolve(sdf, lim.numpy(path[-1:]), l_thres=l_thres, robot=robot)
             if r.certified[0]:
                 path[-1] = path[-2] + lim.diff(r.poses, path[-2:-1])[0]
-        like = sdf.joint_limits
-        plim = Limits.of(robot, like)
-        if not check_path(robot, lim.numpy(path), density).free and smooth_iters > 0:
+        if not check_path(robot, lim.numpy(path), density).certified and smooth_iters > 0:
             paths = path[None].copy()
-            n = _penalty(sdf, plim, robot, paths, l_thres, 1.0, 1.0, smooth_lr, smooth_iters, 10, density, 0.05, 0.0,
-                         True)
+            n = penalty_descent(sdf, robot, paths, PenaltyOptions(
+                l_thres=l_thres, gamma1=1.0, gamma2=1.0, lr=smooth_lr, iterations=smooth_iters, density=density,
+                midpoints=True))
             path, iterations, method = paths[0], iterations + int(n[0]), "images+field"
-        if not check_path(robot, lim.numpy(path), density).free and certify_poses(robot, lim.numpy(path[[0, -1]])).all():
+        if not check_path(robot, lim.numpy(path), density).certified and certify_poses(robot, lim.numpy(path[[0, -1]])).all():
             plan = plan_trajectory(sdf, lim.numpy(path[0]), lim.numpy(path[-1]), steps, robot=robot, init="planner",
                                    density=density)
-            if plan.free:
-                path, method = _unwrap(plan.path, lim.cont_np), "images+planner"
+            if plan.certified:
+                path, method = unwrap_path(plan.path, lim.cont_np), "images+planner"
     return certified_path(robot, sdf, path, density, method, iterations, t0)

@@ -22,7 +22,8 @@ from ..errors import InputError
 from ..joints import Limits
 from ..validate import finite, positive
 from ..certification import certify_poses, check_path
-from ..optim.trajectory import TrajectoryResult, _penalty, _unwrap
+from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
+from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
 from ..robot import Robot
 from ._common import certified_path, labeller_robot
@@ -105,7 +106,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     if sdf is not None:
         joint(joint_iters, True)
         method, iterations = "video+field", iterations + joint_iters
-    path = _unwrap(lim.numpy(traj.cpu().numpy().astype(np.float64)), lim.cont_np)
+    path = unwrap_path(lim.numpy(traj.cpu().numpy().astype(np.float64)), lim.cont_np)
     if sdf is not None:
         from ..optim import resolve
 
@@ -117,7 +118,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
                     ref = path[b - 1] if b > 0 else path[b]
                     path[b] = ref + lim.diff(r.poses[i:i + 1], ref[None])[0]
         chk = check_path(robot, lim.numpy(path), density)
-        if not chk.free:                                          # colliding segments between free frames
+        if not chk.certified:                                          # colliding segments between free frames
             free = ~chk.waypoint_collides
             for seg in np.flatnonzero(chk.segment_collides):
                 a = seg
@@ -129,7 +130,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
                 if b - a < 2:
                     continue                                      # no interior frame to move
                 sub = path[a:b + 1][None].copy()
-                _penalty(sdf, Limits.of(robot, sdf.joint_limits), robot, sub, l_thres, 1.0, 1.0, 0.05, 300, 10,
-                         density, 0.05, 0.0, True)
+                penalty_descent(sdf, robot, sub, PenaltyOptions(l_thres=l_thres, gamma1=1.0, gamma2=1.0, lr=0.05,
+                                                                iterations=300, density=density, midpoints=True))
                 path[a:b + 1] = sub[0]
     return certified_path(robot, sdf, path, density, method, iterations, t0)

@@ -4,7 +4,10 @@ the penalty, batched collision resolution and trajectories, all certified by the
 from ..certification import PathCheck, certify_poses, check_path
 from .penalty import collision_penalty
 from .resolve import ResolveResult, resolve
-from .trajectory import TrajectoryResult, plan_trajectory
+from .adam import BatchedAdam
+from .paths import PenaltyOptions, TangentOptions, penalty_descent, smooth_certified, tangent_walk, unwrap_path
+from .trajectory import TrajectoryResult, plan_trajectory, trajectory_result
 
 __all__ = ["collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-           "certify_poses", "check_path", "PathCheck"]
+           "certify_poses", "check_path", "PathCheck", "PenaltyOptions", "TangentOptions", "penalty_descent",
+           "smooth_certified", "tangent_walk", "unwrap_path", "trajectory_result", "BatchedAdam"]

@@ -65,7 +65,7 @@ def cmd_plan(args) -> int:
                           iterations=args.iterations, tangent_iters=6 * args.iterations)
     print(res.summary())
     if args.out:
-        _save_npz(args.out, path=res.path, free=res.free, segment_collides=res.segment_collides, g=res.g)
+        _save_npz(args.out, path=res.path, free=res.certified, segment_collides=res.segment_collides, g=res.g)
         print(f"saved {args.out}")
     if args.gif:
         from .pictures import render_trajectory
@@ -75,4 +75,4 @@ def cmd_plan(args) -> int:
         from .pictures import plot_trajectory
 
         print(f"saved {plot_trajectory(res, args.plot, joint_names=robot.joint_names)}")
-    return 0 if res.free else 1
+    return 0 if res.certified else 1

@@ -2,7 +2,8 @@
 installed), colliding frames marked; joint curves and g along the path as a matplotlib plot.
 
 MuJoCo renders in a worker process with a backend it chose (``MUJOCO_GL`` if set, else EGL, then
-OSMesa); :class:`profrobot.RendererUnavailableError` says what to install when none works.
+OSMesa: :mod:`profrobot.gl`); :class:`profrobot.RendererUnavailableError` says what to install
+when none works.
 """
 
 from __future__ import annotations
@@ -21,26 +22,25 @@ from ..errors import InputError
 DEFAULT_CAMERA = dict(lookat=(0.25, 0.0, 0.35), distance=2.3, azimuth=60.0, elevation=-25.0)
 
 
-def _frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera: dict,
-            chunk: int = 32) -> list:
-    """MuJoCo renders the poses in a render worker (:mod:`profrobot._gl`); Pillow marks them here."""
-    import pickle
-
+def trajectory_frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera: dict,
+                      chunk: int = 32) -> list:
+    """``path`` (S, K) as S Pillow images of ``size`` (width, height) from the free ``camera``
+    (lookat, distance, azimuth, elevation), the whole scene drawn, frames where ``collides``
+    framed red and captioned. MuJoCo draws ``chunk`` poses at a time in a render worker
+    (:func:`profrobot.render.mjviews.render_frames_chunk` on a
+    :class:`~profrobot.executors.LocalExecutor`); Pillow marks them here."""
     from PIL import Image, ImageDraw
 
-    from .._gl import RenderWorkers
+    from ..executors import LocalExecutor, chunk_bounds
+    from ..render.mjviews import render_frames_chunk
 
     m = robot.mj_model
     width, height = size
     if width > m.vis.global_.offwidth or height > m.vis.global_.offheight:
         raise InputError(f"size {size} exceeds the model's offscreen buffer "
                          f"({m.vis.global_.offwidth}×{m.vis.global_.offheight})")
-    views = "profrobot.render.views"
-    with RenderWorkers(1) as worker:
-        worker.call(views, "_frames_init", pickle.dumps(m), np.asarray(robot.qpos_adr), (width, height), camera)
-        rgb = np.concatenate(list(worker.map(views, "_frames_render",
-                                             [path[i:i + chunk] for i in range(0, len(path), chunk)])))
-        worker.call(views, "_release")
+    chunks = [(path[a:b], (width, height), camera) for a, b in chunk_bounds(len(path), chunk)]
+    rgb = np.concatenate(LocalExecutor(processes=1).map(render_frames_chunk, chunks, robot=robot, progress=False))
     frames = []
     for i, pixels in enumerate(rgb):
         img = Image.fromarray(pixels)
@@ -71,7 +71,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     collides = label_poses(robot, path).collides if collides is None else np.asarray(collides, dtype=bool)
     if collides.shape != (len(path),):
         raise InputError(f"collides must have shape ({len(path)},); got {collides.shape}")
-    frames = _frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})
+    frames = trajectory_frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})
     with atomic_path(out) as tmp:
         if suffix == ".gif":
             frames[0].save(tmp, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
