@@ -62,7 +62,7 @@ def row_report(name, sdf, robot, colliding: np.ndarray, seconds: float) -> dict:
     if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, default)"):
         # paper §4.2's protocol: Adam (lr 0.01) on g, each pose frozen once g <= -0.1, at most
         # 1000 steps, no refinement rounds; the result re-labelled by MuJoCo
-        res = profrobot.resolve(sdf, colliding, l_thres=-0.1, lr=0.01, max_iters=1000, robot=robot, refine=False)
+        res = profrobot.resolve(sdf, colliding, l_thres=-0.1, lr=0.01, iterations=1000, robot=robot, refine=False)
         out["iters"] = float(res.iterations.mean())
         out["after"] = 100 * float(np.mean(mujoco_labels(robot, res.poses).collides))
     return out

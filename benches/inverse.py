@@ -160,10 +160,10 @@ def t7_group(scene, group: str, gi: int, o: dict):
     rng = np.random.default_rng(o["seed"] + gi)
     start = np.clip(target + 0.1 * rng.random(target.shape), lim[:, 0], lim[:, 1])
     tg = dict(rgb=views.rgb, depth=views.depth, mask=views.mask)
-    base = pose_from_images(model, tg, cams, init=start, robot=scene, iters=o["refine_iters"], lr=0.005, w_depth=10.0,
-                            coarse=dict(iters=o["iters"], lr=0.02, w_depth=1.0), background=views.background)
-    ours = pose_from_images(model, tg, cams, init=base.poses, sdf=sdf, iters=0, beta=o["beta"], l_thres=o["l_thres"],
-                            field_iters=o["field_iters"], background=views.background)
+    base = pose_from_images(model, tg, cams, init=start, robot=scene, image_iterations=o["refine_iters"], lr=0.005, w_depth=10.0,
+                            coarse=dict(iterations=o["iters"], lr=0.02, w_depth=1.0), background=views.background)
+    ours = pose_from_images(model, tg, cams, init=base.poses, sdf=sdf, image_iterations=0, beta=o["beta"], l_thres=o["l_thres"],
+                            field_iterations=o["field_iters"], background=views.background)
     mj = lambda q: mujoco_labels(scene, q).ncon > 0
     err = lambda q: np.median(np.abs(q - target)[:, arm])
     r = dict(group=group, n=len(target), target_ncon_mean=float(ncon.mean()),
@@ -249,7 +249,7 @@ def t8(a):
         for i in range(a.instances):
             tg = dict(rgb=views.rgb[i], depth=views.depth[i], mask=views.mask[i])
             kw = dict(robot=scene) if field is None else dict(sdf=field, l_thres=thr, beta=5.0)
-            r = trajectory_from_images(model, starts[i], tg, cams, goal=goals[i], steps=a.steps, lr=0.05, w_pull=10.0,
+            r = trajectory_from_images(model, tg, cams, start=starts[i], goal=goals[i], steps=a.steps, lr=0.05, w_pull=10.0,
                                        background=views.background, **kw)
             bad_frames += int(r.waypoint_collides.any())
             bad_any += int(not r.certified)
@@ -301,7 +301,7 @@ def video(a):
         t0 = time.perf_counter()
         kw = dict(robot=scene) if field is None else dict(sdf=field)
         r = actions_from_video(model, dict(rgb=views.rgb, depth=views.depth, mask=views.mask), cams, init=init,
-                               steps_per_frame=a.steps_per_frame, joint_iters=a.joint_iters, lr=a.lr,
+                               iterations_per_frame=a.steps_per_frame, joint_iterations=a.joint_iters, lr=a.lr,
                                background=views.background, **kw)
         err = np.abs(r.path - truth)[:, arm]
         row = dict(setting=label, median_joint_err_rad=float(np.median(err)), p90_joint_err_rad=float(np.percentile(err, 90)),
@@ -340,7 +340,7 @@ def gaussian_hand(hand, out):
     views = make_views(hand, profrobot.problems.free_poses(hand, 40, 1), cams, processes=2)
     model = GaussianRobot.from_robot(hand, 8000, seed=0)
     t = time.perf_counter()
-    fit_gaussians(model, views, iters=500, max_gaussians=16000)
+    fit_gaussians(model, views, iterations=500, max_gaussians=16000)
     print(f"Shadow Hand Gaussians fitted in {time.perf_counter() - t:.0f} s ({model.n} Gaussians)", flush=True)
     model.save(path)
     return model
@@ -367,7 +367,7 @@ def t9(a):
     res, rows = dict(scorer=name, runs=a.runs, steps=a.steps, loadavg_start=os.getloadavg()), []
     for label, field in (("without field", None), ("with field", sdf)):
         t0 = time.perf_counter()
-        r = pose_from_text(model, prompt, scorer, camera=cam, sdf=field, runs=a.runs, steps=a.steps, lr=a.lr,
+        r = pose_from_text(model, prompt, scorer, camera=cam, sdf=field, runs=a.runs, iterations=a.steps, lr=a.lr,
                            beta=10.0, l_thres=-0.1, noise=0.05, seed=a.seed, robot=hand, background=bg)
         mj_before = mujoco_labels(hand, r.poses if field is None else r.poses).ncon > 0
         row = dict(setting=label, score_mean=float(r.score_before_repair.mean()), score_std=float(r.score_before_repair.std()),

@@ -32,7 +32,7 @@ import profrobot  # noqa: E402
 from profrobot.render import GaussianRobot, Views, fit_gaussians, fit_pose, make_views, ring_cameras, sphere_cameras
 from profrobot.problems import free_poses  # noqa: E402
 from profrobot.render.image import mask_iou, psnr, to_uint8, write_png  # noqa: E402
-from profrobot.render.views import robot_visual_model  # noqa: E402
+from profrobot.render import robot_visual_model  # noqa: E402
 
 LOOKAT = (0.0, 0.0, 0.45)
 DIST = 1.5
@@ -86,10 +86,10 @@ def mujoco_render_time(robot, cams, n=20):
     """Seconds per RGB frame of MuJoCo's own offscreen renderer (update_scene + render)."""
     import mujoco
 
-    from profrobot import _gl
+    from profrobot import gl
 
     # the in-process renderer needs a GL backend: the one profrobot's probe picks (EGL or OSMesa)
-    os.environ.setdefault("MUJOCO_GL", _gl.backend())
+    os.environ.setdefault("MUJOCO_GL", gl.backend())
     m = robot_visual_model(robot)
     m.vis.global_.fovy = cams.fovy
     d = mujoco.MjData(m)
@@ -175,9 +175,9 @@ def pose_benchmark(robot, model, n, iters, refine_iters, size, batch, seed, out_
         # coarse to fine: into the basin at half resolution with the paper's balance (lr 0.02,
         # depth weight 1; restarts chosen there), then refine at full resolution with depth
         # weighted 10x at a quarter of the rate (depth pins the wrist joints)
-        f = fit_pose(model, tg, cams, start[sl], iters=refine_iters, lr=0.005, w_depth=10.0,
-                     background=targets.background, coarse=dict(iters=iters, lr=0.02, w_depth=1.0, restarts=restarts))
-        fits.append(f.theta)
+        f = fit_pose(model, tg, cams, start[sl], iterations=refine_iters, lr=0.005, w_depth=10.0,
+                     background=targets.background, coarse=dict(iterations=iters, lr=0.02, w_depth=1.0, restarts=restarts))
+        fits.append(f.poses)
         print(f"    pose targets {sl.stop}/{n}: {time.perf_counter() - t0:.0f} s", flush=True)
     theta = np.concatenate(fits)
     err = np.abs(theta - targets.poses)
@@ -247,7 +247,7 @@ def main(argv=None):
         res["fidelity_before_fit"] = fidelity(model, te)[0]
         print("before fit:", res["fidelity_before_fit"], flush=True)
         t = time.perf_counter()
-        hist = fit_gaussians(model, tr, iters=a.iters, max_gaussians=int(2.5 * a.gaussians))
+        hist = fit_gaussians(model, tr, iterations=a.iters, max_gaussians=int(2.5 * a.gaussians))
         res["fit"] = dict(seconds=time.perf_counter() - t, iters=a.iters, gaussians_start=a.gaussians, gaussians_end=model.n,
                           last=[h for h in hist if "total" in h][-1])
         model.save(mpath)

@@ -37,7 +37,7 @@ def _field(robot, shift):
 
 def test_baseline_labels_but_does_not_correct(panda, setup):
     model, cams, target, t = setup
-    r = pose_from_images(model, t, cams, init=target + 0.02, iters=5, robot=panda)
+    r = pose_from_images(model, t, cams, init=target + 0.02, image_iterations=5, robot=panda)
     assert r.poses.shape == target.shape and r.image_iterations == 5 and (r.iterations == 0).all()
     assert np.isnan(r.g).all()
     # the images do not show the blocks: the answer stays near the colliding target
@@ -50,12 +50,12 @@ def test_field_phase_stops_at_the_threshold_and_failures_are_reported(panda, set
     # a field that calls every pose free (g ~ -100): the field phase takes no step, the labeller
     # still finds the collisions, certify-and-continue cannot help (g is already below every
     # lowered threshold) and the failures are reported, not hidden
-    r = pose_from_images(model, t, cams, init=target, iters=2, sdf=_field(panda, -100.0), refine_rounds=2)
+    r = pose_from_images(model, t, cams, init=target, image_iterations=2, sdf=_field(panda, -100.0), refine_rounds=2)
     assert (r.iterations == 0).all() and r.field_free_before_certify.all()
     assert (~r.certified).any() and r.rounds == 2
     assert np.allclose(r.threshold[r.failures], -0.1 - 2 * 0.05)
     # a field that calls every pose colliding (g ~ +100): every pose runs its whole budget
-    r = pose_from_images(model, t, cams, init=target, iters=0, sdf=_field(panda, 100.0), field_iters=3,
+    r = pose_from_images(model, t, cams, init=target, image_iterations=0, sdf=_field(panda, 100.0), field_iterations=3,
                          refine_rounds=0)
     assert (r.iterations == 3).all() and not r.field_free_before_certify.any()
 
@@ -70,7 +70,7 @@ def test_bad_input(panda, ur5e, setup):
         pose_from_images(model, t, ring_cameras(3, size=32), init=target)
     bad = dict(t, rgb=np.full_like(t["rgb"], np.nan))
     with pytest.raises(ProfrobotError, match="NaN"):
-        pose_from_images(model, bad, cams, init=target, iters=1)
+        pose_from_images(model, bad, cams, init=target, image_iterations=1)
     with pytest.raises(ProfrobotError, match="targets"):
         pose_from_images(model, dict(rgb=t["rgb"]), cams, init=target)
     with pytest.raises(ProfrobotError, match="beta"):
@@ -90,17 +90,17 @@ def test_trajectory_from_images_frames_and_certificate(panda, setup):
     with torch.no_grad():
         out = model.render_views(torch.as_tensor(b[None], dtype=torch.float32), cams)
     t = dict(rgb=out.rgb.numpy(), depth=out.depth.numpy(), mask=(out.alpha > 0.5).numpy())
-    r = trajectory_from_images(model, a, t, cams, goal=b, steps=12, robot=panda)
+    r = trajectory_from_images(model, t, cams, start=a, goal=b, steps=12, robot=panda)
     assert r.path.shape == (12, panda.njoint) and np.allclose(r.path[0], a) and r.method == "images"
     assert np.linalg.norm(r.path[-1] - b) < np.linalg.norm(a - b)            # moved towards the goal
     assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
-    f = trajectory_from_images(model, a, t, cams, goal=b, steps=12, sdf=_field(panda, -100.0), smooth_iters=5)
+    f = trajectory_from_images(model, t, cams, start=a, goal=b, steps=12, sdf=_field(panda, -100.0), smooth_iterations=5)
     assert f.certified or f.method != "images+planner"
     assert f.certified == (not f.waypoint_collides.any() and not f.segment_collides.any())
     with pytest.raises(ProfrobotError, match="robot="):
-        trajectory_from_images(model, a, t, cams, steps=5)
+        trajectory_from_images(model, t, cams, start=a, steps=5)
     with pytest.raises(ProfrobotError, match="steps"):
-        trajectory_from_images(model, a, t, cams, steps=2, robot=panda)
+        trajectory_from_images(model, t, cams, start=a, steps=2, robot=panda)
 
 
 def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
@@ -115,13 +115,13 @@ def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
         out = model.render_views(torch.as_tensor(path, dtype=torch.float32), cams)
     f = dict(rgb=out.rgb.reshape(4, 2, 32, 32, 3).numpy(), depth=out.depth.reshape(4, 2, 32, 32).numpy(),
              mask=(out.alpha > 0.5).reshape(4, 2, 32, 32).numpy())
-    r = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3, robot=panda)
+    r = actions_from_video(model, f, cams, init=path[0] + 0.01, iterations_per_frame=4, joint_iterations=3, robot=panda)
     assert r.path.shape == (4, panda.njoint) and r.method == "video"
     assert np.median(np.abs(r.path - path)[:, :7]) < 0.03
     assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
-    rf = actions_from_video(model, f, cams, init=path[0] + 0.01, steps_per_frame=4, joint_iters=3,
+    rf = actions_from_video(model, f, cams, init=path[0] + 0.01, iterations_per_frame=4, joint_iterations=3,
                             sdf=_field(panda, -100.0))
-    # the field's stage adds joint_iters more steps (its penalty is 0 here): only image refinement
+    # the field's stage adds joint_iterations more steps (its penalty is 0 here): only image refinement
     assert rf.method == "video+field" and np.abs(rf.path - r.path).max() < 0.02
     assert rf.certified == (not rf.waypoint_collides.any() and not rf.segment_collides.any())
     with pytest.raises(ProfrobotError, match="2 frames"):

@@ -106,7 +106,7 @@ def test_joint_limits_are_respected(panda):
     w = np.zeros(panda.njoint); w[3] = -1.0           # g falls as joint 3 rises: pushes it to its upper limit
     field = LinearField(panda, w, 100.0)
     q = profrobot.sample_poses(panda, 5, seed=0)
-    res = resolve(field, q, lr=0.5, max_iters=50, refine=False)
+    res = resolve(field, q, lr=0.5, iterations=50, refine=False)
     lim = panda.joint_limits
     assert (res.poses >= lim[:, 0]).all() and (res.poses <= lim[:, 1]).all()
     np.testing.assert_array_equal(res.poses[:, 3], lim[3, 1])
@@ -116,7 +116,7 @@ def test_joint_limits_are_respected(panda):
 def test_certification_catches_poses_the_field_wrongly_calls_free(panda):
     colliding, _ = colliding_and_free(panda)
     sdf = shifted_field(panda, -100.0)               # calls everything free: nothing to optimise
-    res = resolve(sdf, colliding[:20], refine_rounds=2, max_iters=5)
+    res = resolve(sdf, colliding[:20], refine_rounds=2, iterations=5)
     assert (res.iterations == 0).all()               # the field was satisfied at once ...
     assert not res.certified.any()                    # ... but the exact labeller was not
     assert len(res.failures) == 20 and res.rounds == 2
@@ -152,8 +152,8 @@ def test_resolve_bad_input(panda, ur5e):
         resolve(sdf, q, robot=ur5e)
     with pytest.raises(ValueError, match="lr"):
         resolve(sdf, q, lr=0)
-    with pytest.raises(ValueError, match="max_iters"):
-        resolve(sdf, q, max_iters=-1)
+    with pytest.raises(ValueError, match="iterations"):
+        resolve(sdf, q, iterations=-1)
     with pytest.raises(TypeError, match="floating"):
         resolve(sdf, q.astype(np.int64))
 

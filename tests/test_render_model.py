@@ -96,7 +96,7 @@ def test_save_load_roundtrip_and_errors(arm, panda, tmp_path, cams):
 def test_fit_reduces_loss(arm, cams, renderer):
     v = make_views(arm, np.array([[0.0, 0.5], [1.0, -0.5]]), cams, progress=False)
     g = GaussianRobot.from_robot(arm, 200, seed=0)
-    hist = fit_gaussians(g, v, iters=12, cams_per_step=3, densify_every=5, log_every=4, progress=False, seed=0)
+    hist = fit_gaussians(g, v, iterations=12, cams_per_step=3, densify_every=5, log_every=4, progress=False, seed=0)
     losses = [h["total"] for h in hist if "total" in h]
     assert losses[-1] < losses[0]
     assert any(h.get("event") == "densify" for h in hist) and g.n >= 200 * 0.9
@@ -115,9 +115,9 @@ def test_fit_pose_recovers_joints_and_respects_limits(arm, cams):
         calls.append(theta.shape)
         return 0.0 * theta.sum()
 
-    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iters=40, lr=0.02, extra_loss=extra)
-    assert np.abs(fit.theta - target.numpy()).max() < 0.02, fit.theta
-    assert (fit.theta[:, 1] <= 2.0 + 1e-6).all() and fit.history.shape == (40, 1) and len(calls) == 40
+    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iterations=40, lr=0.02, extra_loss=extra)
+    assert np.abs(fit.poses - target.numpy()).max() < 0.02, fit.poses
+    assert (fit.poses[:, 1] <= 2.0 + 1e-6).all() and fit.history.shape == (40, 1) and len(calls) == 40
     with pytest.raises(ValueError, match="rgb"):
         fit_pose(g, dict(rgb=np.zeros((1, 2, 32, 32, 3)), depth=targets["depth"], mask=targets["mask"]), cams, target.numpy())
     with pytest.raises(ValueError, match="init"):
@@ -176,12 +176,12 @@ def test_fit_pose_wraps_continuous_hinges(cams):
     with torch.no_grad():
         out = g.render_views(target, cams)
     targets = dict(rgb=out.rgb[None].numpy(), depth=out.depth[None].numpy(), mask=(out.alpha > 0.5)[None].numpy())
-    fit = fit_pose(g, targets, cams, np.array([[-3.0, 1.0]]), iters=40, lr=0.02)
-    d = np.remainder(fit.theta[0, 0] - 3.0 + np.pi, 2 * np.pi) - np.pi
-    assert abs(d) < 0.02 and abs(fit.theta[0, 1] - 1.0) < 0.02, fit.theta
-    assert -np.pi <= fit.theta[0, 0] < np.pi
+    fit = fit_pose(g, targets, cams, np.array([[-3.0, 1.0]]), iterations=40, lr=0.02)
+    d = np.remainder(fit.poses[0, 0] - 3.0 + np.pi, 2 * np.pi) - np.pi
+    assert abs(d) < 0.02 and abs(fit.poses[0, 1] - 1.0) < 0.02, fit.poses
+    assert -np.pi <= fit.poses[0, 0] < np.pi
     # a start past pi is wrapped, not clamped
-    fit = fit_pose(g, targets, cams, np.array([[3.0 + 2 * np.pi, 1.0]]), iters=0)
+    fit = fit_pose(g, targets, cams, np.array([[3.0 + 2 * np.pi, 1.0]]), iterations=0)
     np.testing.assert_allclose(fit.start[0], [3.0, 1.0], atol=1e-5)
 
 
@@ -189,15 +189,15 @@ def test_fit_pose_validates_at_entry(arm, cams):
     g = GaussianRobot.from_robot(arm, 50, seed=0)
     good = dict(rgb=np.zeros((1, 3, 32, 32, 3)), depth=np.zeros((1, 3, 32, 32)), mask=np.zeros((1, 3, 32, 32), bool))
     with pytest.raises(ValueError, match="init contains NaN"):
-        fit_pose(g, good, cams, np.array([[np.nan, 0.0]]), iters=1)
+        fit_pose(g, good, cams, np.array([[np.nan, 0.0]]), iterations=1)
     with pytest.raises(ValueError, match="targets contain NaN"):
-        fit_pose(g, dict(good, depth=np.full((1, 3, 32, 32), np.inf)), cams, np.zeros((1, 2)), iters=1)
+        fit_pose(g, dict(good, depth=np.full((1, 3, 32, 32), np.inf)), cams, np.zeros((1, 2)), iterations=1)
     with pytest.raises(ValueError, match="background"):
-        fit_pose(g, good, cams, np.zeros((1, 2)), iters=1, background=[np.nan, 0, 0])
+        fit_pose(g, good, cams, np.zeros((1, 2)), iterations=1, background=[np.nan, 0, 0])
     with torch.no_grad():
         g.means[0, 0] = float("nan")
     with pytest.raises(ValueError, match="model.means"):
-        fit_pose(g, good, cams, np.zeros((1, 2)), iters=1)
+        fit_pose(g, good, cams, np.zeros((1, 2)), iterations=1)
 
 
 def test_downsampled_targets_match_a_half_resolution_render(arm):
@@ -237,11 +237,11 @@ def test_fit_pose_coarse_to_fine(arm, cams):
     with torch.no_grad():
         out = g.render_views(target, cams)
     targets = dict(rgb=out.rgb[None].numpy(), depth=out.depth[None].numpy(), mask=(out.alpha > 0.5)[None].numpy())
-    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iters=20, lr=0.005,
-                   coarse=dict(iters=30, lr=0.02, restarts=2))
+    fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iterations=20, lr=0.005,
+                   coarse=dict(iterations=30, lr=0.02, restarts=2))
     assert fit.history.shape == (50, 1) and fit.all_losses.shape == (1, 3)
-    assert np.abs(fit.theta - target.numpy()).max() < 0.02, fit.theta
+    assert np.abs(fit.poses - target.numpy()).max() < 0.02, fit.poses
     with pytest.raises(ValueError, match="unknown coarse"):
         fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3))
     with pytest.raises(ValueError, match="does not divide"):
-        fit_pose(g, targets, cams, target.numpy(), coarse=dict(iters=3, factor=5))
+        fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3, factor=5))

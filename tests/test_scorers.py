@@ -77,7 +77,7 @@ def test_clip_scorer_loads_and_its_gradient_reaches_the_joints(tiny_clip, arm):
     assert px.shape == (2, 3, 224, 224)
     assert torch.allclose(px[0, :, 0, 0], (1 - scorer.mean[0, :, 0, 0]) / scorer.std[0, :, 0, 0])
 
-    r = pose_from_text(model, "ok", scorer, camera=cam, runs=2, steps=3, noise=0.1, robot=arm)
+    r = pose_from_text(model, "ok", scorer, camera=cam, runs=2, iterations=3, noise=0.1, robot=arm)
     assert r.poses.shape == (2, 2) and r.history.shape == (3, 2) and r.certified.all()
     assert not np.allclose(r.poses, 0.0)                            # the score moved the joints
 
@@ -89,7 +89,7 @@ def test_image_goal_scorer_prefers_the_goal_pose(arm):
     with torch.no_grad():
         goal = model.render_views(goal_theta, cam, background=torch.ones(3)).rgb[0].numpy()
     sc = ImageGoalScorer(goal, size=16)
-    r = pose_from_text(model, "bent", sc, camera=cam, init=[0.0, 0.6], steps=60, lr=0.02, robot=arm)
+    r = pose_from_text(model, "bent", sc, camera=cam, init=[0.0, 0.6], iterations=60, lr=0.02, robot=arm)
     assert abs(r.poses[0, 1] - 1.0) < abs(0.6 - 1.0)
     assert r.score[0] > r.history[0, 0]
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .deprecation import deprecated_alias
 from .errors import InputError
 from .labels import as_poses, check_threads, collides, interpolate, label_poses
 from .robot import Robot
@@ -65,10 +66,7 @@ class PathCheck:
     dense: np.ndarray
     dense_collides: np.ndarray
 
-    @property
-    def free(self) -> bool:
-        """Deprecated name of :attr:`certified`."""
-        return self.certified
+    free = deprecated_alias("certified")
 
     @property
     def colliding_segments(self) -> np.ndarray:

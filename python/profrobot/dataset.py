@@ -3,7 +3,6 @@ to one ``.npz`` file with poses, labels and metadata. Nothing is pickled."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import zipfile
@@ -98,11 +97,12 @@ def _round_seed(seed: int, round_index: int) -> int:
     return int(np.random.SeedSequence([seed, round_index]).generate_state(1, np.uint64)[0])
 
 
-def _round(robot: Robot, seed: int, r: int, batch: int, threads: int | None,
-           equalities: EqualityMode) -> tuple[np.ndarray, ...]:
+def sample_round(robot: Robot, seed: int, r: int, batch: int, threads: int | None,
+                 equalities: EqualityMode) -> tuple[np.ndarray, ...]:
     """Sampling round ``r``: ``batch`` poses from the round's own seed and their labels,
     ``(poses, collides, self_collides, scene_collides, n_pairs)``. A pure function of its
-    arguments (whatever ``threads``): the chunk the local loop and a Ray worker both compute."""
+    arguments (whatever ``threads``): make_dataset's chunk function, the same wherever an
+    executor runs it."""
     q = sample_poses(robot, batch, _round_seed(seed, r), threads=threads, equalities=equalities)
     lab = label_poses(robot, q, threads=threads)
     return (q, *(getattr(lab, k) for k in _LABELS))
@@ -119,10 +119,12 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     collision rate seen. Same seed, same dataset, whatever the thread count. ``equalities``
     chooses how coupled joints are sampled (see :func:`profrobot.sample_poses`).
 
-    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`, whose workers
-    draw and label the rounds (a round is a pure function of ``seed`` and its index) while the
-    quotas are filled here, in round order: the same dataset as the local run, whatever the
-    number of workers (``threads`` is then each worker's, the executor's ``threads``).
+    ``executor``: ``None`` (here, round by round) or an executor
+    (:mod:`profrobot.executors`; e.g. a :class:`~profrobot.executors.RayExecutor`), whose
+    workers draw and label the rounds (:func:`sample_round`, a pure function of ``seed`` and the
+    round's index) while the quotas are filled here, in round order: the same dataset as the
+    local run, whatever the number of workers (``threads`` is then the executor's ``threads``
+    when it sets them).
     """
     from .executors import check_executor
 
@@ -153,14 +155,10 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
         need = [-(-(want[c] - have[c]) // max(1, int(batch * rate[c]))) for c in (True, False) if have[c] < want[c]]
         return max(need, default=1)
 
-    stream = None
-    if executor is None:
-        rounds: Iterator[tuple[np.ndarray, ...]] = (_round(robot, seed, r, batch, threads, equalities)
-                                                   for r in itertools.count())
-    else:
-        stream = executor.ordered(robot, "dataset_round", lambda r: (int(seed), r, int(batch), equalities),
-                                  max_rounds, rounds_needed)
-        rounds = (value for _, value in stream)
+    round_threads = threads if executor.threads is None else executor.threads
+    stream = executor.ordered(sample_round, lambda r: (int(seed), r, int(batch), round_threads, equalities),
+                              max_rounds, rounds_needed, robot=robot)
+    rounds: Iterator[tuple[np.ndarray, ...]] = (value for _, value in stream)
     bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=not progress)
     try:
         while have[True] < want[True] or have[False] < want[False]:
@@ -180,12 +178,11 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
                     bar.update(len(idx))
     finally:
         bar.close()
-        if stream is not None:
-            stream.close()  # a Ray run cancels the rounds it no longer needs
+        stream.close()  # cancels the rounds no longer needed (in flight on workers)
     parts = kept[True] + kept[False]
     order = np.random.default_rng(seed).permutation(n)
     poses, *labels = (np.concatenate(column)[order] for column in zip(*parts))
-    from . import __version__
+    from ._core import __version__
 
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
                     seed=int(seed), equalities=equalities, collided_fraction=float(collided_fraction), samples_drawn=int(drawn),

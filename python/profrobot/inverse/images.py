@@ -7,7 +7,7 @@ For B targets seen by C cameras:
    ``L_img = L_RGB + w_depth L_D + w_mask L_mask`` (masked, see :func:`profrobot.render.pose_loss`);
 2. **field phase** (``sdf`` given; the paper's "ours"): from the image-phase result, Adam on
    ``L_img + beta ReLU(g(theta) - l_thres)``, each pose stopping as soon as ``g <= l_thres``
-   (the paper's rule), at most ``field_iters`` steps;
+   (the paper's rule), at most ``field_iterations`` steps;
 3. **certify and continue**: every returned pose is labelled by the exact labeller (against the
    field's scene: robot *and* obstacles, which the images do not show); a pose that still
    collides goes on with its threshold lowered by ``refine_step``, for up to ``refine_rounds``
@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..deprecation import renamed_arguments
 from ..errors import InputError
 from ..joints import Limits
 from ..optim.adam import BatchedAdam
@@ -94,8 +95,9 @@ class InverseResult:
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
 
 
+@renamed_arguments(iters="image_iterations", field_iters="field_iterations")
 def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
-                     iters: int = 100, lr: float = 0.02, field_iters: int = 300, field_lr: float = 0.005,
+                     image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
                      background=None, coarse: dict | None = None, robot=None, seed: int = 0) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
@@ -105,16 +107,16 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     ``cameras``: the C :class:`~profrobot.render.Cameras`; ``init`` (B, K) starts. ``sdf``: a
     PoseSDF for the same arm (its scene's obstacles are what must not be hit), or None for the
     Dr. Robot baseline. ``beta``, ``l_thres``: the penalty ``beta ReLU(g - l_thres)``;
-    ``iters``/``lr``/``coarse``: the image phase (:func:`~profrobot.render.fit_pose`);
-    ``field_iters``/``field_lr``: the field phase (Adam in joint space); ``refine_rounds``,
+    ``image_iterations``/``lr``/``coarse``: the image phase (:func:`~profrobot.render.fit_pose`);
+    ``field_iterations``/``field_lr``: the field phase (Adam in joint space); ``refine_rounds``,
     ``refine_step``: certify-and-continue. ``robot``: the labeller's scene (default: the field's).
     Without a field and without ``robot`` nothing can be checked: ``result.certified`` is None and
     ``summary()`` says "not checked".
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
-    iters = positive("iters", iters, integer=True, allow_zero=True)
-    field_iters = positive("field_iters", field_iters, integer=True, allow_zero=True)
+    image_iterations = positive("image_iterations", image_iterations, integer=True, allow_zero=True)
+    field_iterations = positive("field_iterations", field_iterations, integer=True, allow_zero=True)
     refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
@@ -131,13 +133,13 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     img_loss = lambda theta, rows: tg.losses(model, theta, rows)     # (len(rows),) mean over the C views
 
     # 1. image phase (restarts and coarse-to-fine as fit_pose)
-    fit = fit_pose(model, targets, cameras, init, iters=iters, lr=lr, w_depth=w_depth, w_mask=w_mask,
+    fit = fit_pose(model, targets, cameras, init, iterations=image_iterations, lr=lr, w_depth=w_depth, w_mask=w_mask,
                    background=background, coarse=coarse, seed=seed)
-    theta_img = fit.theta
+    theta_img = fit.poses
 
     limits = Limits.of(model, like=model.means)
     theta = torch.as_tensor(theta_img, dtype=torch.float32, device=dev).clone()
-    iterations = np.zeros(B, dtype=np.int64)
+    steps_taken = np.zeros(B, dtype=np.int64)
     g = torch.full((B,), float("nan"))
     thresholds = np.full(B, l_thres)
     history: list = []
@@ -166,9 +168,9 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                 (grad,) = torch.autograd.grad(loss.sum(), th)
                 opt.step(theta, active, grad)
                 limits.clamp_or_wrap_(theta)
-                iterations[active.cpu().numpy()] += 1
+                steps_taken[active.cpu().numpy()] += 1
 
-        field_phase(np.arange(B), field_iters)
+        field_phase(np.arange(B), field_iterations)
         field_free = (g.numpy() <= thresholds)
 
     poses = limits.numpy(theta.detach().cpu().numpy().astype(np.float64))
@@ -186,7 +188,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
             bad = np.flatnonzero(~certified)
             thresholds[bad] = l_thres - rounds * refine_step     # the field is too kind here: ask for more margin
             opt.reset(torch.as_tensor(bad, device=dev))
-            field_phase(bad, field_iters)
+            field_phase(bad, field_iterations)
             poses[bad] = limits.numpy(theta[torch.as_tensor(bad, device=dev)].detach().cpu().numpy().astype(np.float64))
             certified[bad] = certify_poses(robot, poses[bad])
             history.append(dict(round=rounds, threshold=l_thres - rounds * refine_step, certified=int(certified.sum())))
@@ -203,7 +205,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     with torch.no_grad():
         final = img_loss(torch.as_tensor(poses, dtype=torch.float32, device=dev), torch.arange(B, device=dev))
     return InverseResult(poses=poses, image_loss=final.cpu().numpy().astype(np.float64), certified=certified,
-                         iterations=iterations, image_iterations=iters, g=g.numpy().astype(np.float64),
+                         iterations=steps_taken, image_iterations=image_iterations, g=g.numpy().astype(np.float64),
                          threshold=thresholds, field_free_before_certify=field_free,
                          certified_before_continue=before, seconds=time.perf_counter() - t0, rounds=rounds,
                          history=history, poses_before_continue=poses_before)

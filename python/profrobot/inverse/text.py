@@ -12,10 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..deprecation import renamed_arguments
 from ..errors import InputError
 from ..joints import Limits
 from ..validate import finite, positive
-from ..certification import certify_poses
+from ..certification import certified_summary, certify_poses, failures_of
 from ..robot import Robot
 from ._common import labeller_robot
 
@@ -31,7 +32,8 @@ class TextResult:
         product); score_before_repair: (R,) at the end of the optimisation; certified: (R,) the
         exact labeller finds the returned pose free; collided_before_repair: (R,) it found the
         optimised pose colliding (then it was resolved on the field); g: (R,) the field at the
-        returned pose (NaN without one); history: (steps, R) score per step; seconds.
+        returned pose (NaN without one); history: (iterations, R) score per step;
+        iterations: Adam steps per run; seconds.
     """
 
     poses: np.ndarray
@@ -42,18 +44,21 @@ class TextResult:
     g: np.ndarray
     history: np.ndarray
     seconds: float
+    iterations: int = 0
 
     @property
     def failures(self) -> np.ndarray:
-        return np.flatnonzero(~self.certified)
+        """Indices of runs whose returned pose is not certified free."""
+        return failures_of(self.certified)
 
     def summary(self) -> str:
         return (f"{len(self.poses)} runs: score {self.score.mean():.3f} ± {self.score.std():.3f}, "
                 f"{self.collided_before_repair.mean():.0%} collided before repair, "
-                f"{self.certified.mean():.0%} certified free; {self.seconds:.1f} s")
+                f"{certified_summary(self.certified)}; {self.seconds:.1f} s")
 
 
-def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, steps: int = 200,
+@renamed_arguments(steps="iterations")
+def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, iterations: int = 200,
                    lr: float = 0.01, beta: float = 10.0, l_thres: float = -0.1, background=(1.0, 1.0, 1.0),
                    noise: float = 0.0, seed: int = 0, robot: Robot | None = None) -> TextResult:
     """Joint angles whose render from ``camera`` (a one-camera :class:`~profrobot.render.Cameras`)
@@ -61,7 +66,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
 
     ``init`` (K,) start (default: the zero pose, clipped into the limits, as the paper's hand);
     ``runs`` starts optimised as one batch, perturbed by ``noise`` radians (seeded). Adam
-    (``lr``, ``steps`` steps) on −score + ``beta`` ReLU(g − l_thres) (the latter with ``sdf``).
+    (``lr``, ``iterations`` steps) on −score + ``beta`` ReLU(g − l_thres) (the latter with ``sdf``).
     Then every pose is labelled by the exact labeller (``robot``: default the field's; without a
     field required to label); with a field, colliding poses are resolved and re-certified.
     """
@@ -71,7 +76,8 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     robot = labeller_robot(sdf, model, robot, "pose_from_text")
     if len(camera) != 1:
         raise InputError(f"pose_from_text renders from one camera; got {len(camera)}")
-    runs, steps = positive("runs", runs, integer=True), positive("steps", steps, integer=True, allow_zero=True)
+    runs = positive("runs", runs, integer=True)
+    iterations = positive("iterations", iterations, integer=True, allow_zero=True)
     lr, beta, l_thres, noise = positive("lr", lr), finite("beta", beta), finite("l_thres", l_thres), finite("noise", noise)
     dev = model.means.device
     limits = Limits.of(model, like=model.means)
@@ -91,11 +97,11 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     W, H = camera.width, camera.height
 
     def score(th):
-        out = model._render(th, vm, Ks, W, H, background=bg)
+        out = model.render_unchecked(th, vm, Ks, W, H, background=bg)
         return scorer.score(scorer.encode_image(out.rgb), goal)
 
     hist = []
-    for _ in range(steps):
+    for _ in range(iterations):
         s = score(theta)
         loss = -s.sum()
         if sdf is not None:
@@ -125,4 +131,4 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
          sdf(torch.as_tensor(poses, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
     return TextResult(poses=poses, score=after, score_before_repair=before, certified=certified,
                       collided_before_repair=collided, g=np.asarray(g, dtype=np.float64),
-                      history=np.array(hist).reshape(steps, runs), seconds=time.perf_counter() - t0)
+                      history=np.array(hist).reshape(iterations, runs), iterations=iterations, seconds=time.perf_counter() - t0)

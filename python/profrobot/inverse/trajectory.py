@@ -9,10 +9,12 @@ between the same end points (exact planner, then the field's smoothing), never r
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 import torch
 
+from ..deprecation import renamed_arguments
 from ..errors import InputError
 from ..joints import Limits
 from ..validate import finite, positive, poses_within_limits
@@ -26,9 +28,10 @@ from ._common import certified_path, labeller_robot
 __all__ = ["trajectory_from_images"]
 
 
-def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, sdf=None, steps: int = 100,
+@renamed_arguments(smooth_iters="smooth_iterations")
+def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None, goal=None, sdf=None, steps: int = 100,
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
-                           smooth_iters: int = 1000, smooth_lr: float = 0.1, density: int = 10,
+                           smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
                            w_depth: float = 1.0, w_mask: float = 0.5, background=None,
                            robot: Robot | None = None) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
@@ -39,20 +42,30 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
     ``beta`` ReLU(g − l_thres). Adam (``lr``), ``steps − 1`` steps; the iterates are the frames.
     With ``sdf``: a final frame the labeller finds colliding is first resolved
     (:func:`profrobot.resolve`), then the interior frames are optimised on mean ReLU(g − l_thres)
-    + mean ‖Δθ‖ (Adam ``smooth_lr``, at most ``smooth_iters`` steps, stopping once the dense
+    + mean ‖Δθ‖ (Adam ``smooth_lr``, at most ``smooth_iterations`` steps, stopping once the dense
     check passes); a path still colliding is replaced by :func:`profrobot.plan_trajectory` with
     the planner between the same ends. ``robot``: the labeller's scene (default: the field's;
     required without a field). Returns a :class:`~profrobot.TrajectoryResult` whose ``method``
     says which of these produced the path.
     """
     t0 = time.perf_counter()
+    if isinstance(cameras, dict):   # the order of earlier releases: (model, start, targets, cameras)
+        if len(old_order) != 1 or start is not None:
+            raise TypeError("trajectory_from_images(model, targets, cameras, *, start=...)")
+        warnings.warn("trajectory_from_images(model, start, targets, cameras) is deprecated; use "
+                      "trajectory_from_images(model, targets, cameras, start=...)", DeprecationWarning, stacklevel=3)
+        start, targets, cameras = targets, cameras, old_order[0]
+    elif old_order:
+        raise TypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")
+    if start is None:
+        raise InputError("trajectory_from_images needs start= (K,), the first frame's pose")
     robot = labeller_robot(sdf, model, robot, "trajectory_from_images")
     steps = positive("steps", steps, integer=True)
     if steps < 3:
         raise InputError(f"steps must be >= 3; got {steps}")
     lr, smooth_lr = positive("lr", lr), positive("smooth_lr", smooth_lr)
     w_pull, beta, l_thres = finite("w_pull", w_pull), finite("beta", beta), finite("l_thres", l_thres)
-    smooth_iters = positive("smooth_iters", smooth_iters, integer=True, allow_zero=True)
+    smooth_iterations = positive("smooth_iterations", smooth_iterations, integer=True, allow_zero=True)
     s = poses_within_limits(robot, np.asarray(start, dtype=np.float64).reshape(1, -1), "start")
     if s.shape[1] != model.njoint:
         raise InputError(f"start must have {model.njoint} joints; got {s.shape[1]}")
@@ -90,10 +103,10 @@ def trajectory_from_images(model, start, targets: dict, cameras, *, goal=None, s
             r = resolve(sdf, lim.numpy(path[-1:]), l_thres=l_thres, robot=robot)
             if r.certified[0]:
                 path[-1] = path[-2] + lim.diff(r.poses, path[-2:-1])[0]
-        if not check_path(robot, lim.numpy(path), density).certified and smooth_iters > 0:
+        if not check_path(robot, lim.numpy(path), density).certified and smooth_iterations > 0:
             paths = path[None].copy()
             n = penalty_descent(sdf, robot, paths, PenaltyOptions(
-                l_thres=l_thres, gamma1=1.0, gamma2=1.0, lr=smooth_lr, iterations=smooth_iters, density=density,
+                l_thres=l_thres, gamma1=1.0, gamma2=1.0, lr=smooth_lr, iterations=smooth_iterations, density=density,
                 midpoints=True))
             path, iterations, method = paths[0], iterations + int(n[0]), "images+field"
         if not check_path(robot, lim.numpy(path), density).certified and certify_poses(robot, lim.numpy(path[[0, -1]])).all():

@@ -1,9 +1,9 @@
 """Joint trajectories from multi-view video (paper supplement, "actions from video"):
 
-1. per frame, ``steps_per_frame`` Adam steps on the image loss, warm-started from the previous
+1. per frame, ``iterations_per_frame`` Adam steps on the image loss, warm-started from the previous
    frames' answers extrapolated at constant velocity (the first frame from ``init``, with
-   ``first_frame_steps`` steps: it has no history to start from);
-2. all frames jointly: image loss + ``w_tv`` TV (mean ‖θ_{t+1} − θ_t‖₁), ``joint_iters`` steps;
+   ``first_frame_iterations`` steps: it has no history to start from);
+2. all frames jointly: image loss + ``w_tv`` TV (mean ‖θ_{t+1} − θ_t‖₁), ``joint_iterations`` steps;
 3. with a field: the same joint refinement with ``beta`` ReLU(g − l_thres) on every frame; then
    the exact labeller on every frame and a ``density``× denser sampling of every segment. Frames
    it finds colliding are resolved (:func:`profrobot.resolve`), and segments still colliding are
@@ -18,6 +18,7 @@ import time
 import numpy as np
 import torch
 
+from ..deprecation import renamed_arguments
 from ..errors import InputError
 from ..joints import Limits
 from ..validate import finite, positive
@@ -31,9 +32,11 @@ from ._common import certified_path, labeller_robot
 __all__ = ["actions_from_video"]
 
 
-def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_per_frame: int = 5, lr: float = 0.01,
-                       first_frame_steps: int = 50,
-                       joint_iters: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
+@renamed_arguments(steps_per_frame="iterations_per_frame", first_frame_steps="first_frame_iterations",
+                   joint_iters="joint_iterations")
+def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iterations_per_frame: int = 5, lr: float = 0.01,
+                       first_frame_iterations: int = 50,
+                       joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
                        background=None, robot: Robot | None = None, batch: int = 20) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
@@ -43,9 +46,9 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
     ``method`` "video" or "video+field")."""
     t0 = time.perf_counter()
     robot = labeller_robot(sdf, model, robot, "actions_from_video")
-    steps_per_frame = positive("steps_per_frame", steps_per_frame, integer=True, allow_zero=True)
-    first_frame_steps = positive("first_frame_steps", first_frame_steps, integer=True, allow_zero=True)
-    joint_iters = positive("joint_iters", joint_iters, integer=True, allow_zero=True)
+    iterations_per_frame = positive("iterations_per_frame", iterations_per_frame, integer=True, allow_zero=True)
+    first_frame_iterations = positive("first_frame_iterations", first_frame_iterations, integer=True, allow_zero=True)
+    joint_iterations = positive("joint_iterations", joint_iterations, integer=True, allow_zero=True)
     lr, joint_lr = positive("lr", lr), positive("joint_lr", joint_lr)
     w_tv, beta, l_thres = finite("w_tv", w_tv), finite("beta", beta), finite("l_thres", l_thres)
     if not isinstance(frames, dict) or not {"rgb", "depth", "mask"} <= set(frames):
@@ -70,7 +73,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
         guess = prev if t < 2 else limits.clamp_or_wrap(2 * traj[t - 1:t] - traj[t - 2:t - 1])
         th = torch.nn.Parameter(guess.clone())
         opt = torch.optim.Adam([th], lr=lr)
-        for _ in range(first_frame_steps if t == 0 else steps_per_frame):
+        for _ in range(first_frame_iterations if t == 0 else iterations_per_frame):
             loss = img_loss(th, [t]).sum()
             opt.zero_grad()
             loss.backward()
@@ -100,12 +103,12 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, steps_pe
                 limits.clamp_or_wrap_(th)
         traj.copy_(th.detach())
 
-    joint(joint_iters, False)
-    method, iterations = "video", (T - 1) * steps_per_frame + first_frame_steps + joint_iters
+    joint(joint_iterations, False)
+    method, iterations = "video", (T - 1) * iterations_per_frame + first_frame_iterations + joint_iterations
     lim = Limits.of(robot)
     if sdf is not None:
-        joint(joint_iters, True)
-        method, iterations = "video+field", iterations + joint_iters
+        joint(joint_iterations, True)
+        method, iterations = "video+field", iterations + joint_iterations
     path = unwrap_path(lim.numpy(traj.cpu().numpy().astype(np.float64)), lim.cont_np)
     if sdf is not None:
         from ..optim import resolve

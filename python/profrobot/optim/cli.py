@@ -38,7 +38,7 @@ def cmd_resolve(args) -> int:
         poses = np.load(args.poses)
     else:  # colliding poses drawn uniformly
         poses = colliding_poses(robot, args.n, args.seed)
-    res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, max_iters=args.max_iters, robot=robot,
+    res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, iterations=args.max_iters, robot=robot,
                   refine=not args.no_refine)
     print(res.summary())
     if len(res.failures):

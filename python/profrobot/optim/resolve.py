@@ -14,7 +14,8 @@ from .adam import BatchedAdam
 from ..joints import Limits
 from ..field.identity import field_robot
 from ..validate import finite, positive, poses_within_limits
-from ..certification import certify_poses
+from ..certification import certified_summary, certify_poses, failures_of
+from ..deprecation import renamed_arguments
 
 
 @dataclass
@@ -50,29 +51,28 @@ class ResolveResult:
     @property
     def failures(self) -> np.ndarray:
         """Indices of poses the exact labeller still finds colliding."""
-        return np.flatnonzero(~self.certified)
+        return failures_of(self.certified)
 
     def summary(self) -> str:
         n = len(self)
-        return (f"{n} poses: {self.certified.mean():.1%} certified free "
-                f"({len(self.failures)} failures), mean iterations {self.iterations.mean():.2f}, "
+        return (f"{n} poses: {certified_summary(self.certified)}, mean iterations {self.iterations.mean():.2f}, "
                 f"mean Δθ {self.delta.mean():.3f} rad, {self.seconds:.2f} s "
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
 
 
 def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Tensor, opt: BatchedAdam,
-             limits: Limits, max_iters: int, iterations: torch.Tensor, g_out: torch.Tensor) -> None:
+             limits: Limits, budget: int, iterations: torch.Tensor, g_out: torch.Tensor) -> None:
     """Adam on g for poses ``rows`` until each meets g ≤ its threshold (then it is frozen) or
-    ``max_iters`` steps; updates θ, iteration counts and g in place."""
+    ``budget`` steps; updates θ, iteration counts and g in place."""
     active = rows
-    for it in range(max_iters + 1):
+    for it in range(budget + 1):
         if len(active) == 0:
             break
         x = theta[active].detach().requires_grad_(True)
         g = sdf(x)
         g_out[active] = g.detach()
         todo = g.detach() > thresholds[active]
-        if it == max_iters or not todo.any():
+        if it == budget or not todo.any():
             break
         (grad,) = torch.autograd.grad(g.sum(), x)  # per-pose gradients: poses are independent
         opt.step(theta, active[todo], grad[todo])
@@ -81,18 +81,19 @@ def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Ten
         active = active[todo]
 
 
-def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int = 1000, *,
+@renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
+def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, iterations: int = 1000, *,
             robot: Robot | None = None, refine: bool = True, refine_rounds: int = 4,
-            refine_step: float = 0.1, refine_iters: int | None = None) -> ResolveResult:
+            refine_step: float = 0.1, refine_iterations: int | None = None) -> ResolveResult:
     """Resolve collisions of ``poses`` (B, K) (radians / metres, within joint limits) with the
     learned field ``sdf``: Adam (``lr``) on g(θ), all poses in one batch, each pose frozen as soon
-    as g ≤ ``l_thres`` (at most ``max_iters`` steps); joint limits are enforced after each step
+    as g ≤ ``l_thres`` (at most ``iterations`` steps); joint limits are enforced after each step
     (clamped; continuous hinges wrapped). Every result is then labelled by the exact labeller
     (``certified``).
 
     ``refine`` (default): poses the labeller still finds colliding continue with the threshold
-    lowered by ``refine_step`` per round, for up to ``refine_rounds`` rounds of ``refine_iters``
-    steps (default ``max_iters``) each, until certified. Poses left colliding are reported in
+    lowered by ``refine_step`` per round, for up to ``refine_rounds`` rounds of ``refine_iterations``
+    steps (default ``iterations``) each, until certified. Poses left colliding are reported in
     ``result.failures``, never hidden. ``robot``: the labeller's robot (default: the bundled
     scene the field was trained on).
     """
@@ -101,10 +102,10 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
     q0 = poses_within_limits(robot, poses)
     l_thres = finite("l_thres", l_thres)
     lr = positive("lr", lr)
-    max_iters = positive("max_iters", max_iters, integer=True, allow_zero=True)
+    iterations = positive("iterations", iterations, integer=True, allow_zero=True)
     refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
     refine_step = positive("refine_step", refine_step)
-    refine_iters = max_iters if refine_iters is None else positive("refine_iters", refine_iters, integer=True)
+    refine_iterations = iterations if refine_iterations is None else positive("refine_iterations", refine_iterations, integer=True)
 
     like = sdf.joint_limits
     theta = torch.as_tensor(q0, dtype=like.dtype, device=like.device).clone()
@@ -112,7 +113,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
     limits = Limits.of(robot, theta)
     opt = BatchedAdam((B, K), lr, theta)
     thresholds = torch.full((B,), l_thres, dtype=theta.dtype, device=theta.device)
-    iterations = torch.zeros(B, dtype=torch.long, device=theta.device)
+    steps_taken = torch.zeros(B, dtype=torch.long, device=theta.device)
     g = torch.empty(B, dtype=theta.dtype, device=theta.device)
     rows = torch.arange(B, device=theta.device)
 
@@ -123,7 +124,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
         moved = (theta[sel] - theta_in[sel]).cpu().numpy().astype(np.float64)
         return limits.numpy(q0[sel] + moved)
 
-    _descend(sdf, theta, rows, thresholds, opt, limits, max_iters, iterations, g)
+    _descend(sdf, theta, rows, thresholds, opt, limits, iterations, steps_taken, g)
     out = result()
     certified = certify_poses(robot, out)
     history = [dict(round=0, threshold=l_thres, certified=int(certified.sum()))]
@@ -134,7 +135,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
         bad = torch.as_tensor(np.flatnonzero(~certified), device=theta.device)
         thresholds[bad] = l_thres - rounds * refine_step
         opt.reset(bad)
-        _descend(sdf, theta, bad, thresholds, opt, limits, refine_iters, iterations, g)
+        _descend(sdf, theta, bad, thresholds, opt, limits, refine_iterations, steps_taken, g)
         idx = bad.cpu().numpy()
         out[idx] = result(idx)
         certified[idx] = certify_poses(robot, out[idx])
@@ -142,7 +143,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, max_iters: int 
 
     g_np = g.cpu().numpy()
     thr = thresholds.cpu().numpy().astype(np.float64)
-    return ResolveResult(poses=out, iterations=iterations.cpu().numpy(),
+    return ResolveResult(poses=out, iterations=steps_taken.cpu().numpy(),
                          delta=np.linalg.norm(limits.diff(out, q0), axis=1), certified=certified,
                          g=g_np, reached=g_np <= thr, threshold=thr,
                          seconds=time.perf_counter() - start, rounds=rounds, history=history)

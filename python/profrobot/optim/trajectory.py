@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from ..certification import PathCheck, check_path
+from ..deprecation import deprecated_alias
 from ..errors import InputError
 from ..field.identity import field_robot
 from ..joints import Limits
@@ -82,11 +83,7 @@ class TrajectoryResult:
     smoothed: bool = False
     length_before: float = float("nan")                 # the resampled planner path's length
 
-    @property
-    def free(self) -> bool:
-        """Deprecated name of :attr:`certified`."""
-        warnings.warn("TrajectoryResult.free is deprecated; use .certified", DeprecationWarning, stacklevel=2)
-        return self.certified
+    free = deprecated_alias("certified")
 
     @property
     def relative_length(self) -> float:

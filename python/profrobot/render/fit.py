@@ -27,6 +27,7 @@ from ..kinematics import quat_to_matrix
 from .gaussians import GaussianRobot
 from .rasterize import Backend
 from .views import Views
+from ..deprecation import renamed_arguments
 
 __all__ = ["fit_gaussians", "ssim", "image_losses"]
 
@@ -164,7 +165,8 @@ def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int
     return best
 
 
-def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_per_step: int = 4, w_ssim: float = 0.2,
+@renamed_arguments(iters="iterations")
+def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, cams_per_step: int = 4, w_ssim: float = 0.2,
                   w_depth: float = 1.0, w_mask: float = 0.5, densify_every: int = 100, densify_until: float = 0.7,
                   densify_top: float = 0.05, max_gaussians: int = 30000, min_opacity: float = 0.02,
                   min_contrib: float = 0.02, prune_hidden_first: bool = True, seed: int = 0, progress: bool = True,
@@ -195,7 +197,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
     zeros = lambda: torch.zeros(model.n, device=dev)
     grad_acc, seen, contrib = zeros(), zeros(), zeros()
     t0 = time.perf_counter()
-    bar = tqdm(range(iters), desc="fit Gaussians", disable=not progress)
+    bar = tqdm(range(iterations), desc="fit Gaussians", disable=not progress)
     for it in bar:
         p = int(rng.integers(len(views)))
         cs = rng.choice(len(cams), size=min(cams_per_step, len(cams)), replace=False)
@@ -217,7 +219,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
         with torch.no_grad():
             model.quats.data = model.quats / model.quats.norm(dim=-1, keepdim=True)
             model.log_scales.data.clamp_(max=math.log(0.05))           # no Gaussian wider than 5 cm
-        if (it + 1) % densify_every == 0 and it + 1 < densify_until * iters:
+        if (it + 1) % densify_every == 0 and it + 1 < densify_until * iterations:
             # contrib over one interval sees few views: only prune what was drawn nowhere at all
             old = {name: getattr(model, name) for name in _PARAMS}
             info, rows = _densify(model, grad_acc / seen.clamp_min(1), densify_top, max_gaussians, min_opacity,
@@ -225,7 +227,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iters: int = 500, cams_
             _remap_optimizer(opt, old, model, rows)
             grad_acc, seen, contrib = zeros(), zeros(), zeros()
             history.append(dict(step=it + 1, event="densify", **info))
-        if (it + 1) % log_every == 0 or it + 1 == iters:
+        if (it + 1) % log_every == 0 or it + 1 == iterations:
             rec = {k: float(v.detach()) for k, v in terms.items()}
             rec.update(step=it + 1, n=model.n, seconds=time.perf_counter() - t0)
             history.append(rec)

@@ -19,6 +19,7 @@ validated once, at entry: the loop itself makes no host syncs.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from collections.abc import Callable
 
@@ -29,6 +30,7 @@ from ..joints import Limits
 from .gaussians import GaussianRobot
 from .targets import ImageTargets, pose_loss
 from .views import Cameras
+from ..deprecation import deprecated_alias, renamed_arguments
 from ..errors import InputError
 
 __all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets", "ImageTargets"]
@@ -36,14 +38,17 @@ __all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets", "ImageTarge
 
 @dataclass
 class PoseFit:
-    """``theta`` (B, K) the fitted poses, ``loss`` (B,) their final image loss, ``history``
-    (iters, B) the loss of the kept start per step, ``start`` (B, K) the start that was kept."""
+    """``poses`` (B, K) the fitted poses, ``loss`` (B,) their final image loss, ``history``
+    (iterations, B) the loss of the kept start per step, ``start`` (B, K) the start that was kept."""
 
-    theta: np.ndarray
+    poses: np.ndarray
     loss: np.ndarray
     history: np.ndarray
     start: np.ndarray
     all_losses: np.ndarray = field(default=None)
+    iterations: int = 0
+
+    theta = deprecated_alias("poses")
 
 
 def downsample_targets(targets: dict, factor: int) -> dict:
@@ -73,17 +78,22 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     H, W = cameras.height, cameras.width
     if factor < 1 or H % factor or W % factor:
         raise InputError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
-    unknown = set(coarse) - {"iters", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
+    if "iters" in coarse:   # the name of earlier releases
+        warnings.warn("fit_pose(coarse=dict(iters=...)) is deprecated; use iterations=...", DeprecationWarning,
+                      stacklevel=3)
+        coarse["iterations"] = coarse.pop("iters")
+    unknown = set(coarse) - {"iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
     if unknown:
         raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
     kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed")} | coarse
     c = fit_pose(model, downsample_targets(targets, factor), cameras.resized(W // factor, H // factor), init, **kw)
-    f = fit_pose(model, targets, cameras, c.theta, **fine)
-    return PoseFit(theta=f.theta, loss=f.loss, history=np.concatenate([c.history, f.history]), start=c.start,
+    f = fit_pose(model, targets, cameras, c.poses, **fine)
+    return PoseFit(poses=f.poses, loss=f.loss, iterations=c.iterations + f.iterations, history=np.concatenate([c.history, f.history]), start=c.start,
                    all_losses=c.all_losses)
 
 
-def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iters: int = 100, lr: float = 0.02,
+@renamed_arguments(iters="iterations")
+def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iterations: int = 100, lr: float = 0.02,
              restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
              extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
              seed: int = 0, coarse: dict | None = None) -> PoseFit:
@@ -99,13 +109,13 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     ``coarse``: coarse-to-fine. A dict of keyword arguments for a first stage run on the
     targets and cameras downsampled by ``factor`` (default 2: 128^2 -> 64^2; RGB averaged over
     2x2 blocks, the mask kept where at least half the block is robot, depth averaged over the
-    block's robot pixels), e.g. ``dict(iters=45, lr=0.02, restarts=3)``; the restarts are
+    block's robot pixels), e.g. ``dict(iterations=45, lr=0.02, restarts=3)``; the restarts are
     chosen there (a coarse render is ~4x cheaper), and the full-resolution stage starts from
-    the best coarse pose with this call's ``iters``, ``lr`` and weights. ``history`` then
+    the best coarse pose with this call's ``iterations``, ``lr`` and weights. ``history`` then
     holds both stages.
     """
     if coarse is not None:
-        return _coarse_to_fine(model, targets, cameras, init, coarse, iters=iters, lr=lr, w_depth=w_depth,
+        return _coarse_to_fine(model, targets, cameras, init, coarse, iterations=iterations, lr=lr, w_depth=w_depth,
                                w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed)
     dev = model.means.device
     init = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=torch.float32)
@@ -137,8 +147,8 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
     tr = tg.take(torch.arange(B, device=dev).repeat_interleave(R))  # (B·R) targets: one per start
     hist = []
-    for it in range(iters):
-        opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iters, 1))))  # to lr/10
+    for it in range(iterations):
+        opt.param_groups[0]["lr"] = lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * it / max(iterations, 1))))  # to lr/10
         theta = limits.denormalise(u)
         per = tr.losses(model, theta)
         total = per.sum()
@@ -159,7 +169,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     best = final.argmin(1)
     ar = torch.arange(B)
     history = torch.stack(hist).cpu().numpy() if hist else np.zeros((0, B, R))
-    return PoseFit(theta=limits.numpy(theta.reshape(B, R, K)[ar, best].numpy()), loss=final[ar, best].numpy(),
+    return PoseFit(iterations=iterations, poses=limits.numpy(theta.reshape(B, R, K)[ar, best].numpy()), loss=final[ar, best].numpy(),
                    history=history[:, np.arange(B), best.numpy()] if len(history) else np.zeros((0, B)),
                    start=starts.reshape(B, R, K)[ar, best].numpy().astype(np.float64), all_losses=final.numpy())
 

@@ -1,0 +1,196 @@
+"""The layers hold (issue 19): no import cycle anywhere in profrobot's import graph (imports inside
+functions included: a lazy import is still a dependency), no module reaching into another
+package's private names, and every public name of the facade documented in the README's API table.
+
+import-linter (``lint-imports`` in ``.ci/run``, contracts in ``pyproject.toml``) checks the layers
+and private *modules*; these tests check what it cannot see: cycles through package
+``__init__``s and private *names* (``from .dataset import _round``, ``model._render(...)``).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+import profrobot
+
+PKG = Path(profrobot.__file__).parent
+ROOT = PKG.parents[1]
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for p in sorted(PKG.rglob("*.py")):
+        rel = p.relative_to(PKG.parent).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = p
+    out["profrobot._core"] = PKG / "_core.pyi"   # the native module, described by its stub
+    return out
+
+
+def _package_of(module: str, path: Path) -> str:
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _resolve(module: str, path: Path, node: ast.ImportFrom) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = _package_of(module, path).split(".")
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """module -> the profrobot modules it imports (anywhere in the file)."""
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for m, p in modules.items():
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                src = _resolve(m, p, node)
+                # `from pkg import sub` imports the submodule when there is one, else a name of pkg
+                targets = [f"{src}.{a.name}" if f"{src}.{a.name}" in modules else src for a in node.names]
+            for t in targets:
+                while t and t not in modules:   # a name inside a module: the module
+                    t = t.rpartition(".")[0]
+                if t and t != m:
+                    graph[m].add(t)
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            for w in it:
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                    break
+                if w in on:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    comp = []
+                    while True:
+                        w = stack.pop()
+                        on.discard(w)
+                        comp.append(w)
+                        if w == v:
+                            break
+                    if len(comp) > 1:
+                        out.append(sorted(comp))
+    return out
+
+
+def test_no_import_cycle_anywhere():
+    graph = _imports(_modules())
+    # the facade imports its parts eagerly; a part importing the facade back is a cycle
+    assert _cycles(graph) == []
+
+
+def test_the_cycle_finder_finds_cycles():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+_PRIVATE = re.compile(r"^_[A-Za-z0-9]\w*$")   # _name, not __dunder__
+
+
+def _private_definitions(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """package -> the private names its modules define (functions, classes, attributes assigned
+    on any object, module-level names)."""
+    out: dict[str, set[str]] = {}
+    for m, p in modules.items():
+        names = out.setdefault(_package_of(m, p), set())
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                names.add(node.attr)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                names.add(node.id)
+    return out
+
+
+def _private_name_uses(modules: dict[str, Path]) -> list[str]:
+    """``from X import _name`` where X is in another package, and ``obj._name`` where no module
+    of this package defines ``_name`` (so it belongs to another package's object)."""
+    bad = []
+    defined = _private_definitions(modules)
+    for m, p in modules.items():
+        if p.suffix == ".pyi":
+            continue
+        tree = ast.parse(p.read_text(), str(p))
+        pkg = _package_of(m, p)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                src = _resolve(m, p, node)
+                if not src.startswith("profrobot"):
+                    continue
+                src_pkg = src if src in modules and modules[src].name == "__init__.py" else src.rpartition(".")[0]
+                for a in node.names:
+                    target = f"{src}.{a.name}"
+                    target_pkg = src if target in modules else src_pkg
+                    if _PRIVATE.match(a.name) and target_pkg != pkg and not (target == "profrobot._core"):
+                        bad.append(f"{m}: from {src} import {a.name}")
+            elif (isinstance(node, ast.Attribute) and _PRIVATE.match(node.attr) and node.attr not in defined[pkg]
+                  and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))):
+                bad.append(f"{m}:{node.lineno}: {ast.unparse(node)}")
+    return bad
+
+
+def test_no_module_reaches_into_another_packages_private_names():
+    assert _private_name_uses(_modules()) == []
+
+
+def test_readme_api_table_matches_the_facade():
+    """Every name of ``profrobot.__all__`` (but modules) has a row in the README's API table,
+    and every row names something the facade exports."""
+    text = (ROOT / "README.md").read_text()
+    start = text.index("## The public API")
+    table = text[start:text.index("\n## ", start + 5)]
+    rows = re.findall(r"^\| `([A-Za-z_][\w.]*)`", table, flags=re.M)
+    named = {r.split(".")[-1] for r in rows if not r.startswith(("render.", "optim.", "field.", "executors."))}
+    names = {n for n in profrobot.__all__ if not isinstance(getattr(profrobot, n), type(profrobot))}
+    assert names - named == set(), f"in __all__ but not in the README's API table: {sorted(names - named)}"
+    assert named - names == set(), f"in the README's API table but not in __all__: {sorted(named - names)}"
+
+
+@pytest.mark.parametrize("sub", ["render", "optim", "field", "executors"])
+def test_readme_api_table_rows_of_subpackages_exist(sub):
+    import importlib
+
+    text = (ROOT / "README.md").read_text()
+    start = text.index("## The public API")
+    table = text[start:text.index("\n## ", start + 5)]
+    mod = importlib.import_module(f"profrobot.{sub}")
+    for name in re.findall(rf"^\| `{sub}\.(\w+)`", table, flags=re.M):
+        assert name in mod.__all__, f"README's API table names profrobot.{sub}.{name}, which is not in its __all__"
