@@ -180,11 +180,14 @@ def ompl_row(robot, i: int, start, goal, resolution: float, max_time: float) -> 
 
 
 def rows(fn, robot, problems: list[tuple], executor, desc: str) -> list[dict]:
-    """``fn(robot, *problem)`` for each problem: here, or one problem per task on the executor's
-    workers (each holding the scene's robot), in problem order either way."""
-    if executor is None:
-        return [fn(robot, *p) for p in problems]
-    if __name__ != "__main__":  # imported (not run as a script): send this module's functions by value
+    """``fn(robot, *problem)`` (a chunk function: one problem per chunk) for each problem: here
+    (``executor=None``), or one problem per task on the executor's workers (each holding the
+    scene's robot), in problem order either way."""
+    from profrobot.executors import RayExecutor, check_executor
+
+    executor = check_executor(executor)
+    if isinstance(executor, RayExecutor) and __name__ != "__main__":
+        # imported (not run as a script): send this module's functions by value
         from ray import cloudpickle
 
         cloudpickle.register_pickle_by_value(sys.modules[__name__])

@@ -9,7 +9,7 @@ same dataset (checked, byte for byte). Times are best of ``--repeats``, local an
 the Ray actors are started (robot loaded, one warm-up call) before timing, as the long-lived
 actors of a session are; their cold start is printed beside. make_views: ``--views`` poses times
 ``--cameras`` cameras at ``--size``², MuJoCo offscreen in the actors (backend as
-:mod:`profrobot._gl` chooses), with 1 then 2 workers (renderers made before timing); the ratio
+:mod:`profrobot.gl` chooses), with 1 then 2 workers (renderers made before timing); the ratio
 is the speed-up. The load average (``uptime``) is printed before and after: other work on the
 machine shows there.
 """

@@ -39,7 +39,7 @@ fn main() {
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     for q in poses.chunks_exact(model.njoint()) {
         hits.clear();
-        let l = label_pose(&model, q, &mut s, opts, &mut hits);
+        let l = label_pose(&model, q, &mut s, opts, &mut hits).expect("a decidable pose");
         let bits = l.min_distance.to_bits();
         let (c, sc, ss) = (l.collides() as u8, l.self_collides as u8, l.scene_collides as u8);
         writeln!(out, "{c} {sc} {ss} {} {bits:x} {hits:?}", l.n_pairs).expect("stdout");

@@ -23,8 +23,8 @@ fn run(model: &RobotModel, poses: &[f64], mode: &str) -> usize {
     poses
         .chunks_exact(k)
         .filter(|q| match mode {
-            "collides" => collides_pose(model, q, &mut scratch),
-            _ => label_pose(model, q, &mut scratch, opts, &mut hits).collides(),
+            "collides" => collides_pose(model, q, &mut scratch).expect("a decidable pose"),
+            _ => label_pose(model, q, &mut scratch, opts, &mut hits).expect("a decidable pose").collides(),
         })
         .count()
 }

@@ -4,6 +4,17 @@
 //! A pair is in contact when its signed distance is below its margin. Planes are half-spaces
 //! (decided by the other geom's support point); everything else is convex (meshes as their
 //! hulls), tested with parry's GJK.
+//!
+//! # A pair parry cannot decide is an error, never "free"
+//! parry's generic queries (`distance`, `contact`) answer `Err(Unsupported)` for a shape pair
+//! they have no algorithm for. Every shape this crate builds is a support map or a half-space,
+//! which parry supports, so this should not happen; if it does, the pose's label is unknown.
+//! Calling the pair "not in contact" would certify an unchecked pose as free; calling it "in
+//! contact" would keep a planner safe but silently mislabel a dataset (a false positive is as
+//! wrong as a false negative for an exact labeller) and hide the model defect. So neither: the
+//! pair test returns [`Undecided`], every caller propagates it (`?`), and the public calls
+//! (`label_batch`, `collides_batch`, `nearest_free`, `plan_path`) fail with
+//! [`Error::Undecided`] naming the pose and the pair (a `ModelError` in Python).
 
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use parry3d_f64::query;
@@ -11,13 +22,40 @@ use parry3d_f64::shape::{Shape, SupportMap};
 use rayon::prelude::*;
 
 use crate::broad::BroadScratch;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::geom::Geom;
 use crate::kinematics::body_poses;
 use crate::model::RobotModel;
 use crate::pairs::{CandidatePair, PairKind};
 use crate::sat::intersection_test_remembering;
 use crate::shapes::{Convex, Solid};
+
+/// A candidate pair (index into `RobotModel::pairs`) that the narrow phase could not decide in
+/// the placed pose: parry answered `Unsupported` for its shapes (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Undecided {
+    pub pair: u32,
+}
+
+impl Undecided {
+    /// The caller's error: `at` names the pose (e.g. `"pose 3"`), the message the pair by its
+    /// MuJoCo geom ids.
+    pub fn error(self, model: &RobotModel, at: impl std::fmt::Display) -> Error {
+        let pair = &model.pairs[self.pair as usize];
+        let (a, b) = (model.geoms[pair.g1].mujoco_id, model.geoms[pair.g2].mujoco_id);
+        Error::Undecided(format!(
+            "{at}: the narrow phase (parry) has no query for candidate pair {} (MuJoCo geoms {a} and {b}); \
+             its contact is unknown, so the pose is labelled neither free nor colliding",
+            self.pair
+        ))
+    }
+}
+
+/// The first error of per-item results in item order (items evaluated in parallel each stop at
+/// their own first error), so the error reported does not depend on the thread count.
+pub(crate) fn first_error<T>(parts: Vec<std::result::Result<T, Error>>) -> Result<Vec<T>> {
+    parts.into_iter().collect()
+}
 
 /// What a caller wants beyond the four labels.
 #[derive(Clone, Copy, Debug, Default)]
@@ -133,30 +171,34 @@ impl Scratch {
     ///
     /// The pair's remembered separating axis (`sat.rs`) only ever saves GJK a run whose answer
     /// it has proven, so the result is a function of the pose alone, whatever this scratch saw
-    /// before.
-    pub(crate) fn in_contact(&mut self, model: &RobotModel, k: usize) -> bool {
+    /// before. `Err` when parry cannot decide the pair (module docs): never "free".
+    pub(crate) fn in_contact(&mut self, model: &RobotModel, k: usize) -> std::result::Result<bool, Undecided> {
         let pair = &model.pairs[k];
         let (g1, g2) = (pair.g1, pair.g2);
         let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
         match (&a.shape.solid, &b.shape.solid) {
-            (Solid::HalfSpace, Solid::Convex { convex, .. }) => self.plane_pair_in_contact(model, g1, g2, convex, pair.margin),
-            (Solid::Convex { convex, .. }, Solid::HalfSpace) => self.plane_pair_in_contact(model, g2, g1, convex, pair.margin),
+            (Solid::HalfSpace, Solid::Convex { convex, .. }) => Ok(self.plane_pair_in_contact(model, g1, g2, convex, pair.margin)),
+            (Solid::Convex { convex, .. }, Solid::HalfSpace) => Ok(self.plane_pair_in_contact(model, g2, g1, convex, pair.margin)),
             // Never a candidate (`pairs.rs` drops them): MuJoCo has no plane-plane collider.
-            (Solid::HalfSpace, Solid::HalfSpace) => false,
+            (Solid::HalfSpace, Solid::HalfSpace) => Ok(false),
             (Solid::Convex { convex: ca, shape: sa }, Solid::Convex { convex: cb, shape: sb }) => {
                 // (The bounding-sphere culls ran before, in `broad.rs`.)
                 self.obb(model, g1);
                 self.obb(model, g2);
                 if !obbs_overlap(a, &self.obbs[g1], b, &self.obbs[g2], pair.margin) {
-                    return false;
+                    return Ok(false);
                 }
                 self.frame(model, g1);
                 self.frame(model, g2);
                 let (pa, pb) = (&self.geoms[g1], &self.geoms[g2]);
                 if pair.margin == 0.0 {
-                    return intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]);
+                    // (parry's intersection tests for these shapes cannot fail.)
+                    return Ok(intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]));
                 }
-                query::distance(pa, sa.as_ref(), pb, sb.as_ref()).map(|d| d < pair.margin).unwrap_or(false)
+                match query::distance(pa, sa.as_ref(), pb, sb.as_ref()) {
+                    Ok(d) => Ok(d < pair.margin),
+                    Err(query::Unsupported) => Err(Undecided { pair: k as u32 }),
+                }
             }
         }
     }
@@ -272,7 +314,13 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
 /// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
 /// GJK would find apart).
-fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex, &dyn Shape), pb: &Isometry3<f64>, axis: &mut Vector3<f64>) -> bool {
+fn intersection_test(
+    a: (&Convex, &dyn Shape),
+    pa: &Isometry3<f64>,
+    b: (&Convex, &dyn Shape),
+    pb: &Isometry3<f64>,
+    axis: &mut Vector3<f64>,
+) -> bool {
     use parry3d_f64::query::details;
     let pos12 = pa.inv_mul(pb);
     match (a.0, b.0) {
@@ -284,32 +332,42 @@ fn intersection_test(a: (&Convex, &dyn Shape), pa: &Isometry3<f64>, b: (&Convex,
     }
 }
 
-/// Exact signed distance of a pair (negative: penetration depth), or `None` when the pair is
-/// provably farther apart than `bound` (so it cannot lower the running minimum).
-fn pair_signed_distance(model: &RobotModel, pair: &CandidatePair, poses: &[Isometry3<f64>], bound: f64) -> Option<f64> {
+/// Exact signed distance of pair `k` (negative: penetration depth), or `None` when the pair is
+/// provably farther apart than `bound` (so it cannot lower the running minimum); `Err` when
+/// parry cannot compute it (module docs).
+fn pair_signed_distance(model: &RobotModel, k: usize, poses: &[Isometry3<f64>], bound: f64) -> std::result::Result<Option<f64>, Undecided> {
+    let pair: &CandidatePair = &model.pairs[k];
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
     match (&a.shape.solid, &b.shape.solid) {
-        (Solid::HalfSpace, Solid::Convex { convex, .. }) => Some(plane_distance(pa, convex, pb)),
-        (Solid::Convex { convex, .. }, Solid::HalfSpace) => Some(plane_distance(pb, convex, pa)),
+        (Solid::HalfSpace, Solid::Convex { convex, .. }) => Ok(Some(plane_distance(pa, convex, pb))),
+        (Solid::Convex { convex, .. }, Solid::HalfSpace) => Ok(Some(plane_distance(pb, convex, pa))),
         // Never a candidate (see `Scratch::in_contact`).
-        (Solid::HalfSpace, Solid::HalfSpace) => None,
+        (Solid::HalfSpace, Solid::HalfSpace) => Ok(None),
         (Solid::Convex { shape: sa, .. }, Solid::Convex { shape: sb, .. }) => {
             let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
             if lower >= bound {
-                return None;
+                return Ok(None);
             }
             let (sa, sb) = (sa.as_ref(), sb.as_ref());
-            match query::contact(pa, sa, pb, sb, 0.0) {
-                Ok(Some(c)) => Some(c.dist.min(0.0)),
-                _ => query::distance(pa, sa, pb, sb).ok(),
+            let undecided = |_: query::Unsupported| Undecided { pair: k as u32 };
+            match query::contact(pa, sa, pb, sb, 0.0).map_err(undecided)? {
+                Some(c) => Ok(Some(c.dist.min(0.0))),
+                None => query::distance(pa, sa, pb, sb).map(Some).map_err(undecided),
             }
         }
     }
 }
 
-/// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked.
-pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: LabelOptions, hits: &mut Vec<u32>) -> Label {
+/// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked;
+/// `Err` for a pair the narrow phase cannot decide (module docs).
+pub fn label_pose(
+    model: &RobotModel,
+    q: &[f64],
+    scratch: &mut Scratch,
+    opts: LabelOptions,
+    hits: &mut Vec<u32>,
+) -> std::result::Result<Label, Undecided> {
     scratch.place(model, q, opts.distance);
     let mut near = std::mem::take(&mut scratch.near);
     near.clear();
@@ -320,7 +378,14 @@ pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: La
     }
     let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
     for &k in &near {
-        if scratch.in_contact(model, k as usize) {
+        let hit = match scratch.in_contact(model, k as usize) {
+            Ok(hit) => hit,
+            Err(e) => {
+                scratch.near = near;
+                return Err(e);
+            }
+        };
+        if hit {
             let pair = &model.pairs[k as usize];
             label.n_pairs += 1;
             match pair.kind {
@@ -334,13 +399,13 @@ pub fn label_pose(model: &RobotModel, q: &[f64], scratch: &mut Scratch, opts: La
     }
     scratch.near = near;
     if opts.distance {
-        for pair in &model.pairs {
-            if let Some(d) = pair_signed_distance(model, pair, &scratch.geoms, label.min_distance) {
+        for k in 0..model.pairs.len() {
+            if let Some(d) = pair_signed_distance(model, k, &scratch.geoms, label.min_distance)? {
                 label.min_distance = label.min_distance.min(d);
             }
         }
     }
-    label
+    Ok(label)
 }
 
 /// Poses per parallel work item: large enough to amortise scheduling, small enough to balance.
@@ -352,7 +417,9 @@ const CHUNK: usize = 256;
 pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Result<LabelBatch> {
     model.check_poses(poses)?;
     let k = model.njoint();
-    let chunks: Vec<(Vec<Label>, Vec<[u32; 2]>)> = poses
+    // Per chunk of poses: its labels and colliding (pose, pair)s, or its first error.
+    type Chunk = Result<(Vec<Label>, Vec<[u32; 2]>)>;
+    let chunks: Vec<Chunk> = poses
         .par_chunks(CHUNK * k)
         .enumerate()
         .map_init(
@@ -362,14 +429,15 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
                 let mut pairs = Vec::new();
                 for (i, q) in chunk.chunks_exact(k).enumerate() {
                     hits.clear();
-                    labels.push(label_pose(model, q, scratch, opts, hits));
-                    let pose = (c * CHUNK + i) as u32;
-                    pairs.extend(hits.iter().map(|&p| [pose, p]));
+                    let pose = c * CHUNK + i;
+                    labels.push(label_pose(model, q, scratch, opts, hits).map_err(|e| e.error(model, format!("pose {pose}")))?);
+                    pairs.extend(hits.iter().map(|&p| [pose as u32, p]));
                 }
-                (labels, pairs)
+                Ok((labels, pairs))
             },
         )
         .collect();
+    let chunks = first_error(chunks)?;
     let mut out = LabelBatch::default();
     for (labels, pairs) in chunks {
         out.labels.extend(labels);
@@ -394,14 +462,14 @@ mod tests {
         let mut s = Scratch::new(&model);
         let opts = LabelOptions { pairs: true, distance: true };
         let mut hits = Vec::new();
-        let l = label_pose(&model, &[0.0], &mut s, opts, &mut hits);
+        let l = label_pose(&model, &[0.0], &mut s, opts, &mut hits).unwrap();
         assert!(!l.collides());
         assert!((l.min_distance - 0.05).abs() < 1e-12, "{}", l.min_distance);
 
         let mut desc = ModelDesc::example_pendulum();
         desc.geom_margin = vec![0.03, 0.03];
         let model = RobotModel::new(desc).unwrap();
-        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut hits);
+        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut hits).unwrap();
         assert!(l.scene_collides && l.n_pairs == 1 && hits == vec![0]);
     }
 
@@ -411,11 +479,11 @@ mod tests {
         desc.body_pos[1][2] = 0.45; // bob bottom at -0.05
         let model = RobotModel::new(desc).unwrap();
         let opts = LabelOptions { pairs: false, distance: true };
-        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut Vec::new());
+        let l = label_pose(&model, &[0.0], &mut Scratch::new(&model), opts, &mut Vec::new()).unwrap();
         assert!(l.scene_collides && !l.self_collides);
         assert!((l.min_distance + 0.05).abs() < 1e-12);
         // Swung to horizontal the bob rises to z = 0.45 and clears the floor.
-        let l = label_pose(&model, &[std::f64::consts::FRAC_PI_2], &mut Scratch::new(&model), opts, &mut Vec::new());
+        let l = label_pose(&model, &[std::f64::consts::FRAC_PI_2], &mut Scratch::new(&model), opts, &mut Vec::new()).unwrap();
         assert!(!l.collides());
     }
 
@@ -470,10 +538,28 @@ mod tests {
             [0.0, 0.05, 0.3],
             [0.05, 0.0, 0.35],
         ];
-        desc.geom_quat = vec![[1.0, 0.0, 0.0, 0.0], [0.9, 0.1, 0.3, 0.0], [0.8, 0.0, 0.2, 0.4], [1.0, 0.0, 0.0, 0.0], [0.9, 0.2, 0.0, 0.1],
-            [1.0, 0.0, 0.0, 0.0], [0.7, 0.7, 0.0, 0.0], [0.9, 0.0, 0.0, 0.3], [1.0, 0.0, 0.0, 0.0]];
-        desc.geom_size = vec![[1.0, 1.0, 0.1], [0.1, 0.2, 0.1], [0.0; 3], [0.04, 0.12, 0.0], [0.03, 0.05, 0.08], [0.07, 0.0, 0.0],
-            [0.04, 0.1, 0.0], [0.0; 3], [0.02, 0.06, 0.03]];
+        desc.geom_quat = vec![
+            [1.0, 0.0, 0.0, 0.0],
+            [0.9, 0.1, 0.3, 0.0],
+            [0.8, 0.0, 0.2, 0.4],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.9, 0.2, 0.0, 0.1],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.7, 0.7, 0.0, 0.0],
+            [0.9, 0.0, 0.0, 0.3],
+            [1.0, 0.0, 0.0, 0.0],
+        ];
+        desc.geom_size = vec![
+            [1.0, 1.0, 0.1],
+            [0.1, 0.2, 0.1],
+            [0.0; 3],
+            [0.04, 0.12, 0.0],
+            [0.03, 0.05, 0.08],
+            [0.07, 0.0, 0.0],
+            [0.04, 0.1, 0.0],
+            [0.0; 3],
+            [0.02, 0.06, 0.03],
+        ];
         desc.geom_contype = vec![1; 9];
         desc.geom_conaffinity = vec![1; 9];
         desc.geom_margin = vec![0.0, 0.01, 0.0, 0.0, 0.005, 0.02, 0.0, 0.0, 0.0];
@@ -489,7 +575,7 @@ mod tests {
     fn contacts_without_broad_phase(model: &RobotModel, q: &[f64], s: &mut Scratch) -> Vec<u32> {
         s.place(model, q, true);
         s.axes.fill(Vector3::zeros());
-        (0..model.pairs.len() as u32).filter(|&k| s.in_contact(model, k as usize)).collect()
+        (0..model.pairs.len() as u32).filter(|&k| s.in_contact(model, k as usize).unwrap()).collect()
     }
 
     #[test]
@@ -503,7 +589,7 @@ mod tests {
         for q in poses.chunks_exact(3) {
             let want = contacts_without_broad_phase(&model, q, &mut s);
             hits.clear();
-            let l = label_pose(&model, q, &mut s, opts, &mut hits);
+            let l = label_pose(&model, q, &mut s, opts, &mut hits).unwrap();
             assert_eq!(hits, want, "pose {q:?}");
             assert_eq!(l.n_pairs as usize, want.len());
             touched += !want.is_empty() as usize;
@@ -512,6 +598,59 @@ mod tests {
         // The arm collides often, and the broad phase still drops most pairs.
         assert!(touched > 5_000, "{touched}");
         assert!(dropped > 15 * poses.len() / 3, "{dropped}");
+    }
+
+    /// A pendulum over a box (MuJoCo geoms 0 and 1, margin 0.1 in all) whose parry shapes are
+    /// swapped for half-spaces, a pair parry's `distance` and `contact` answer `Unsupported`
+    /// for: hanging (q = 0) the pair reaches the narrow phase, swung up (q = ±π/2) the box tests
+    /// cull it.
+    fn undecidable_pendulum() -> RobotModel {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.geom_type = vec![6, 2];
+        desc.geom_margin = vec![0.05, 0.05];
+        let mut model = RobotModel::new(desc).unwrap();
+        for g in &mut model.geoms {
+            if let Solid::Convex { shape, .. } = &mut g.shape.solid {
+                *shape = Box::new(parry3d_f64::shape::HalfSpace::new(Vector3::z_axis()));
+            }
+        }
+        model
+    }
+
+    /// Issue 19: a parry error (`Unsupported`) used to become "not in contact", i.e. free.
+    #[test]
+    fn parry_error_is_never_free() {
+        let model = undecidable_pendulum();
+        let (up, down) = (std::f64::consts::FRAC_PI_2, 0.0);
+        // The pair test itself, and one pose, with and without distances.
+        let mut s = Scratch::new(&model);
+        s.place(&model, &[down], true);
+        assert_eq!(s.in_contact(&model, 0), Err(Undecided { pair: 0 }));
+        for distance in [false, true] {
+            let opts = LabelOptions { pairs: true, distance };
+            assert_eq!(label_pose(&model, &[down], &mut s, opts, &mut Vec::new()), Err(Undecided { pair: 0 }));
+            let l = label_pose(&model, &[up], &mut s, LabelOptions { pairs: true, distance: false }, &mut Vec::new());
+            assert_eq!(l.map(|l| l.collides()), Ok(false), "a culled pair needs no narrow phase");
+        }
+        // Every public call fails, naming the first undecidable pose and the pair.
+        let poses = [up, down, down];
+        let undecided = |r: Result<()>| match r {
+            Err(e @ Error::Undecided(_)) => e.to_string(),
+            other => panic!("{other:?}"),
+        };
+        let msg = undecided(label_batch(&model, &poses, LabelOptions::default()).map(drop));
+        assert!(msg.contains("pose 1:") && msg.contains("MuJoCo geoms 0 and 1"), "{msg}");
+        let msg = undecided(crate::fastpath::collides_batch(&model, &poses).map(drop));
+        assert!(msg.contains("pose 1:") && msg.contains("MuJoCo geoms 0 and 1"), "{msg}");
+        let opts = crate::oracle::OracleOptions { directions: 2, refine: 2, ..Default::default() };
+        let msg = undecided(crate::oracle::nearest_free(&model, &poses, &opts).map(drop));
+        assert!(msg.contains("pose 1") && msg.contains("MuJoCo geoms 0 and 1"), "{msg}");
+        // The planner: a start it cannot decide, and an edge through an undecidable state.
+        let plan = |a: f64, b: f64| crate::plan::plan_path(&model, &[a], &[b], &crate::plan::PlanOptions::default()).map(drop);
+        let msg = undecided(plan(down, up));
+        assert!(msg.contains("start [0.0]") && msg.contains("MuJoCo geoms 0 and 1"), "{msg}");
+        let msg = undecided(plan(-up, up));
+        assert!(msg.contains("planning state") && msg.contains("MuJoCo geoms 0 and 1"), "{msg}");
     }
 
     #[test]

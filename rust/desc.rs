@@ -174,7 +174,8 @@ mod tests {
         desc.jnt_range = vec![[f64::NEG_INFINITY, f64::from_bits(0x7ff8_dead_beef_0001)]];
         desc.body_pos[1] = [0.1 + 0.2, f64::MIN_POSITIVE / 3.0, -0.0];
         let mut back = ModelDesc::from_bytes(&desc.to_bytes()).unwrap();
-        let bits = |d: &ModelDesc| d.jnt_range.as_flattened().iter().chain(d.body_pos.as_flattened()).map(|v| v.to_bits()).collect::<Vec<_>>();
+        let bits =
+            |d: &ModelDesc| d.jnt_range.as_flattened().iter().chain(d.body_pos.as_flattened()).map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&back), bits(&desc));
         (desc.jnt_range, back.jnt_range) = (vec![], vec![]); // (NaN != NaN)
         assert_eq!(back, desc);

@@ -1,4 +1,5 @@
-//! The one error type of the core; `python.rs` maps it to `ValueError`.
+//! The one error type of the core; `python.rs` maps it to `profrobot.errors`' classes
+//! (`ModelError`, `InputError`: ValueErrors and ProfrobotErrors).
 
 /// Everything the core can reject. Messages name the offending item so that the Python
 /// exception is actionable without a traceback into Rust.
@@ -10,6 +11,12 @@ pub enum Error {
     /// A call's arguments (poses, counts, shapes) are unusable.
     #[error("{0}")]
     InvalidInput(String),
+    /// The narrow phase could not decide a candidate pair in some pose (parry has no query for
+    /// the pair's shapes). Never turned into "free" (nor into "in contact"): the call fails,
+    /// naming the pose and the pair (`collide::Undecided`). A model the core cannot label
+    /// exactly, so Python sees a `ModelError`.
+    #[error("cannot label exactly: {0}")]
+    Undecided(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

@@ -20,10 +20,15 @@
 //!
 //! Free poses cost what `label_pose` costs (every pair must be cleared); colliding poses
 //! usually stop after one or two narrow-phase tests.
+//!
+//! A pair the narrow phase cannot decide is an error here too (`collide.rs`, "never free"):
+//! `collides_pose` stops at it, and `collides_batch` fails naming the pose and the pair. (A pose
+//! with another pair in contact may stop at that pair first and answer `true`, which is right
+//! whatever the undecided pair would say.)
 
 use rayon::prelude::*;
 
-use crate::collide::{label_pose, LabelOptions, Scratch};
+use crate::collide::{first_error, label_pose, LabelOptions, Scratch, Undecided};
 use crate::error::Result;
 use crate::model::RobotModel;
 use crate::sample::{fill_block, BLOCK};
@@ -45,8 +50,9 @@ const MIN_SHARE: f64 = 0.005;
 /// No pair (`Scratch::last_hit` before any hit).
 const NO_PAIR: u32 = u32::MAX;
 
-/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path.
-pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> bool {
+/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
+/// for a pair the narrow phase cannot decide, met before any pair in contact.
+pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
     s.place(model, q, false);
     let pose = s.pose_stamp();
     let last = s.last_hit;
@@ -57,20 +63,24 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> bool {
             continue;
         }
         s.tested[k] = pose;
-        if model.broad.may_touch(&s.broad, k) && s.in_contact(model, k) {
+        if model.broad.may_touch(&s.broad, k) && s.in_contact(model, k)? {
             s.last_hit = k as u32;
-            return true;
+            return Ok(true);
         }
     }
     let mut near = std::mem::take(&mut s.near);
     near.clear();
     model.broad.near_pairs(&mut s.broad, &mut near);
-    let mut hit = false;
+    let mut hit = Ok(false);
     for &k in &near {
-        if s.tested[k as usize] != pose && s.in_contact(model, k as usize) {
-            s.last_hit = k;
-            hit = true;
-            break;
+        if s.tested[k as usize] != pose {
+            hit = s.in_contact(model, k as usize);
+            if hit != Ok(false) {
+                if hit.is_ok() {
+                    s.last_hit = k;
+                }
+                break;
+            }
         }
     }
     s.near = near;
@@ -84,11 +94,19 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
     model.check_poses(poses)?;
     let k = model.njoint();
     likely_pairs(model);
-    let chunks: Vec<Vec<bool>> = poses
+    let chunks: Vec<Result<Vec<bool>>> = poses
         .par_chunks(CHUNK * k)
-        .map_init(|| Scratch::new(model), |s, chunk| chunk.chunks_exact(k).map(|q| collides_pose(model, q, s)).collect())
+        .enumerate()
+        .map_init(
+            || Scratch::new(model),
+            |s, (c, chunk)| {
+                let one =
+                    |(i, q): (usize, &[f64])| collides_pose(model, q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)));
+                chunk.chunks_exact(k).enumerate().map(one).collect()
+            },
+        )
         .collect();
-    Ok(chunks.concat())
+    Ok(first_error(chunks)?.concat())
 }
 
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:
@@ -99,7 +117,9 @@ pub fn likely_pairs(model: &RobotModel) -> &[u32] {
 
 /// A greedy cover of the colliding poses of a seeded uniform sample: repeatedly the pair in
 /// contact in the most colliding poses that no earlier pair covers (ties: the lower index).
-/// Empty when the model has no sampling ranges (an unlimited slide joint).
+/// Empty when the model has no sampling ranges (an unlimited slide joint). A sample pose the
+/// narrow phase cannot decide is left out: the cover only orders pairs, it labels nothing (the
+/// caller's own call on such a pose fails).
 fn greedy_cover(model: &RobotModel) -> Vec<u32> {
     let Ok(ranges) = model.sampling_ranges() else {
         return Vec::new();
@@ -120,7 +140,7 @@ fn greedy_cover(model: &RobotModel) -> Vec<u32> {
     let mut colliding = 0usize;
     for (i, q) in poses.chunks_exact(k).enumerate() {
         hits.clear();
-        if label_pose(model, q, &mut scratch, opts, &mut hits).collides() {
+        if label_pose(model, q, &mut scratch, opts, &mut hits).is_ok_and(|l| l.collides()) {
             colliding += 1;
             for &p in &hits {
                 poses_of[p as usize].push(i as u32);

@@ -265,8 +265,9 @@ pub(crate) mod tests {
         // Directions pushed into the corners and edges of every certified cell, where a wrong
         // certificate would first show, and the cell's own corner directions.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let cloud: Vec<Point3<f64>> =
-            (0..150).map(|_| Point3::new(rng.random_range(-0.1..0.1), rng.random_range(-0.05..0.05), rng.random_range(-0.2..0.2))).collect();
+        let cloud: Vec<Point3<f64>> = (0..150)
+            .map(|_| Point3::new(rng.random_range(-0.1..0.1), rng.random_range(-0.05..0.05), rng.random_range(-0.2..0.2)))
+            .collect();
         let hull = Hull::new(&cloud).unwrap();
         let mut sole = 0;
         for cell in 0..6 * CUBE * CUBE {

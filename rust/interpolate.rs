@@ -1,14 +1,9 @@
 //! Interpolation on SO(2)^K: continuous joints take the shortest arc, limited ones the straight
-//! segment (which stays inside the limits when both ends do).
+//! segment (which stays inside the limits when both ends do). The short arc is `angles::wrap` of
+//! the difference, the planner's (`plan.rs`): a half turn, exactly ±π, moves the negative way.
 
-use std::f64::consts::PI;
-
+use crate::angles::wrap;
 use crate::error::{invalid_input, Result};
-
-/// Wraps an angle difference to `[-pi, pi)`.
-fn shortest_arc(delta: f64) -> f64 {
-    (delta + PI).rem_euclid(2.0 * PI) - PI
-}
 
 /// Interpolates `B` start/goal pairs (`(B, K)` row-major each) at `steps` evenly spaced times
 /// including both ends; returns `(B, steps, K)` row-major. `continuous[k]` marks joints that wrap.
@@ -38,7 +33,7 @@ pub fn interpolate_so2(start: &[f64], goal: &[f64], steps: usize, continuous: &[
     let mut out = Vec::with_capacity(b * steps * k);
     for p in 0..b {
         let (s, g) = (&start[p * k..(p + 1) * k], &goal[p * k..(p + 1) * k]);
-        let delta: Vec<f64> = (0..k).map(|j| if continuous[j] { shortest_arc(g[j] - s[j]) } else { g[j] - s[j] }).collect();
+        let delta: Vec<f64> = (0..k).map(|j| if continuous[j] { wrap(g[j] - s[j]) } else { g[j] - s[j] }).collect();
         for t in 0..steps {
             let a = t as f64 / (steps - 1) as f64;
             out.extend((0..k).map(|j| if t == steps - 1 && !continuous[j] { g[j] } else { s[j] + a * delta[j] }));
@@ -49,6 +44,8 @@ pub fn interpolate_so2(start: &[f64], goal: &[f64], steps: usize, continuous: &[
 
 #[cfg(test)]
 mod tests {
+    use std::f64::consts::PI;
+
     use super::*;
 
     #[test]
@@ -66,6 +63,17 @@ mod tests {
         assert!(step < 0.0 && (step * 10.0 + (2.0 * PI - 6.0)).abs() < 1e-12);
         let end = path[10].rem_euclid(2.0 * PI);
         assert!((end - 3.0_f64.rem_euclid(2.0 * PI)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_half_turn_moves_the_negative_way_from_either_end() {
+        // From 0 to ±π, and from π to 0: the difference is -π (`angles::wrap`), both ways.
+        for goal in [PI, -PI] {
+            let path = interpolate_so2(&[0.0], &[goal], 3, &[true]).unwrap();
+            assert_eq!(path, vec![0.0, -PI / 2.0, -PI]);
+        }
+        let path = interpolate_so2(&[PI], &[0.0], 3, &[true]).unwrap();
+        assert_eq!(path, vec![PI, PI / 2.0, 0.0]);
     }
 
     #[test]

@@ -72,23 +72,19 @@ pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>
     let (k, nb) = (model.njoint(), model.nbody());
     let mut xpos = vec![0.0; b * nb * 3];
     let mut xquat = vec![0.0; b * nb * 4];
-    poses
-        .par_chunks(CHUNK * k)
-        .zip(xpos.par_chunks_mut(CHUNK * nb * 3))
-        .zip(xquat.par_chunks_mut(CHUNK * nb * 4))
-        .for_each_init(
-            || vec![Isometry3::identity(); nb],
-            |frames, ((q, pos), quat)| {
-                for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
-                    body_poses(model, qi, frames);
-                    for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
-                        p.copy_from_slice(f.translation.vector.as_slice());
-                        let q = f.rotation.quaternion();
-                        r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
-                    }
+    poses.par_chunks(CHUNK * k).zip(xpos.par_chunks_mut(CHUNK * nb * 3)).zip(xquat.par_chunks_mut(CHUNK * nb * 4)).for_each_init(
+        || vec![Isometry3::identity(); nb],
+        |frames, ((q, pos), quat)| {
+            for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
+                body_poses(model, qi, frames);
+                for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+                    p.copy_from_slice(f.translation.vector.as_slice());
+                    let q = f.rotation.quaternion();
+                    r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
                 }
-            },
-        );
+            }
+        },
+    );
     Ok((xpos, xquat))
 }
 
@@ -104,7 +100,9 @@ mod tests {
         desc.jnt_pos = vec![[0.01, 0.02, -0.1]];
         let model = RobotModel::new(desc).unwrap();
         let poses: Vec<f64> = (0..1000).map(|i| -3.0 + 6.0 * i as f64 / 1000.0).collect();
-        let run = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| forward_kinematics(&model, &poses).unwrap());
+        let run = |n: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| forward_kinematics(&model, &poses).unwrap())
+        };
         let (xpos, xquat) = run(1);
         assert_eq!((xpos.clone(), xquat.clone()), run(2));
         let mut frames = vec![Isometry3::identity(); model.nbody()];

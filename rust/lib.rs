@@ -17,6 +17,7 @@
 //! | module | concern |
 //! |---|---|
 //! | [`error`] | the one error type |
+//! | [`angles`] | the one angle wrap (SO(2), shortest arcs) |
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
 //! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
@@ -36,6 +37,7 @@
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
 
+pub mod angles;
 mod broad;
 pub mod collide;
 pub mod desc;

@@ -4,9 +4,9 @@
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
 use crate::broad::Broad;
-use crate::desc::{JOINT_HINGE, JOINT_SLIDE};
 /// (Also reachable here, where it lived before `desc.rs`.)
 pub use crate::desc::ModelDesc;
+use crate::desc::{JOINT_HINGE, JOINT_SLIDE};
 use crate::error::{invalid_input, invalid_model, Result};
 use crate::geom::Geom;
 use crate::pairs::{candidate_pairs, CandidatePair};
@@ -93,9 +93,7 @@ impl RobotModel {
                 return invalid_model(format!("body {b} has weld id {w}"));
             }
         }
-        let body_local = (0..nbody)
-            .map(|b| iso(desc.body_pos[b], desc.body_quat[b]))
-            .collect::<Result<Vec<_>>>()?;
+        let body_local = (0..nbody).map(|b| iso(desc.body_pos[b], desc.body_quat[b])).collect::<Result<Vec<_>>>()?;
 
         // Joints.
         let njnt = desc.jnt_type.len();

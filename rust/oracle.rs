@@ -23,12 +23,15 @@
 //!
 //! Deterministic: pose `i` draws its directions from ChaCha8 seeded with `seed` on stream `i`,
 //! and its search runs on one thread, so the answer does not depend on the thread count.
+//!
+//! A state whose pair the narrow phase cannot decide (`collide.rs`: never "free") ends the
+//! search of its pose, and the call fails naming that input pose, the state and the pair.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::collide::Scratch;
+use crate::collide::{first_error, Scratch, Undecided};
 use crate::error::{invalid_input, Result};
 use crate::fastpath::{collides_pose, likely_pairs};
 use crate::model::RobotModel;
@@ -106,11 +109,9 @@ pub fn nearest_free(model: &RobotModel, poses: &[f64], opts: &OracleOptions) -> 
     };
     likely_pairs(model); // once, before the workers need it
     let search = Search { model, limits: &limits, opts, max_distance };
-    let found: Vec<(f64, Vec<f64>, u64)> = poses
-        .par_chunks(k)
-        .enumerate()
-        .map_init(|| Scratch::new(model), |s, (i, q0)| search.pose(q0, i as u64, s))
-        .collect();
+    let found: Vec<Result<(f64, Vec<f64>, u64)>> =
+        poses.par_chunks(k).enumerate().map_init(|| Scratch::new(model), |s, (i, q0)| search.pose(q0, i as u64, s)).collect();
+    let found = first_error(found)?;
     let mut out = NearestFree { distance: Vec::with_capacity(b), poses: Vec::with_capacity(b * k), checks: Vec::with_capacity(b) };
     for (d, q, c) in found {
         out.distance.push(d);
@@ -154,28 +155,28 @@ impl Rays<'_, '_> {
     }
 
     /// Whether the pose `at(u, t)` placed is free.
-    fn free(&mut self) -> bool {
+    fn free(&mut self) -> std::result::Result<bool, Undecided> {
         self.checks += 1;
-        !collides_pose(self.search.model, &self.q, self.scratch)
+        Ok(!collides_pose(self.search.model, &self.q, self.scratch)?)
     }
 
     /// Bisects `[lo, hi]` along `u` (`lo` colliding, `hi` free) to `tolerance`; the free end.
-    fn bisect(&mut self, u: &[f64], mut lo: f64, mut hi: f64) -> f64 {
+    fn bisect(&mut self, u: &[f64], mut lo: f64, mut hi: f64) -> std::result::Result<f64, Undecided> {
         while hi - lo > self.search.opts.tolerance {
             let mid = 0.5 * (lo + hi);
             self.at(u, mid);
-            if self.free() {
+            if self.free()? {
                 hi = mid;
             } else {
                 lo = mid;
             }
         }
-        hi
+        Ok(hi)
     }
 
     /// The first free state along `u` (marching by `step`) nearer than `bound`: its ray
     /// parameter and distance.
-    fn march(&mut self, u: &[f64], bound: f64) -> Option<(f64, f64)> {
+    fn march(&mut self, u: &[f64], bound: f64) -> std::result::Result<Option<(f64, f64)>, Undecided> {
         let step = self.search.opts.step;
         let (mut lo, mut last) = (0.0, 0.0);
         for n in 1.. {
@@ -183,25 +184,36 @@ impl Rays<'_, '_> {
             let d = self.at(u, t);
             // Beyond the bound, or every moving joint pinned at a limit (nothing new ahead).
             if d >= bound || t > self.search.max_distance || d == last {
-                return None;
+                return Ok(None);
             }
-            if self.free() {
-                let t = self.bisect(u, lo, t);
-                return Some((t, self.at(u, t)));
+            if self.free()? {
+                let t = self.bisect(u, lo, t)?;
+                return Ok(Some((t, self.at(u, t))));
             }
             (lo, last) = (t, d);
         }
-        None
+        Ok(None)
     }
 }
 
 impl Search<'_> {
-    /// The search from one pose (see the module docs): `(distance, pose, checks)`.
-    fn pose(&self, q0: &[f64], index: u64, scratch: &mut Scratch) -> (f64, Vec<f64>, u64) {
-        let k = q0.len();
+    /// The search from one pose (see the module docs): `(distance, pose, checks)`; the error
+    /// names input pose `index`, the state and the pair when a state cannot be decided.
+    fn pose(&self, q0: &[f64], index: u64, scratch: &mut Scratch) -> Result<(f64, Vec<f64>, u64)> {
         let mut rays = Rays { search: self, q0, scratch, q: q0.to_vec(), checks: 1 };
-        if !collides_pose(self.model, q0, rays.scratch) {
-            return (0.0, q0.to_vec(), 1);
+        match self.search_from(&mut rays, index) {
+            Ok(found) => Ok(found),
+            Err(e) => {
+                let at = if rays.q == q0 { format!("pose {index}") } else { format!("pose {index} (its search state {:?})", rays.q) };
+                Err(e.error(self.model, at))
+            }
+        }
+    }
+
+    fn search_from(&self, rays: &mut Rays, index: u64) -> std::result::Result<(f64, Vec<f64>, u64), Undecided> {
+        let (q0, k) = (rays.q0, rays.q0.len());
+        if !collides_pose(self.model, q0, rays.scratch)? {
+            return Ok((0.0, q0.to_vec(), 1));
         }
         let mut rng = ChaCha8Rng::seed_from_u64(self.opts.seed);
         rng.set_stream(index);
@@ -212,13 +224,13 @@ impl Search<'_> {
         let mut u = vec![0.0; k];
         for _ in 0..self.opts.directions {
             random_unit(&mut rng, &mut u);
-            if let Some((t, d)) = rays.march(&u, best_d) {
+            if let Some((t, d)) = rays.march(&u, best_d)? {
                 best_d = d;
                 found.push((d, u.clone(), t));
             }
         }
         let Some((_, mut best_u, mut best_t)) = found.last().cloned() else {
-            return (f64::INFINITY, vec![f64::NAN; k], rays.checks);
+            return Ok((f64::INFINITY, vec![f64::NAN; k], rays.checks));
         };
         // (1+1) searches around the last RESTARTS improvements of the march (the best last),
         // `refine / RESTARTS` probes each; `sigma` is the perturbation's length. A probe at ray
@@ -240,8 +252,8 @@ impl Search<'_> {
                 }
                 u.iter_mut().for_each(|v| *v /= norm);
                 rays.at(&u, best_d);
-                if rays.free() {
-                    let t = rays.bisect(&u, 0.0, best_d);
+                if rays.free()? {
+                    let t = rays.bisect(&u, 0.0, best_d)?;
                     let d = rays.at(&u, t);
                     if d < best_d {
                         (best_d, best_t) = (d, t);
@@ -256,7 +268,7 @@ impl Search<'_> {
         }
         // The best state, labelled free by the bisection that found it.
         let d = rays.at(&best_u, best_t);
-        (d, rays.q.clone(), rays.checks)
+        Ok((d, rays.q.clone(), rays.checks))
     }
 }
 
@@ -312,7 +324,8 @@ mod tests {
         let model = lowered_pendulum();
         let poses: Vec<f64> = (0..40).map(|i| -0.4 + 0.02 * i as f64).collect();
         let opts = OracleOptions { directions: 3, refine: 5, seed: 7, ..Default::default() };
-        let run = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| nearest_free(&model, &poses, &opts).unwrap());
+        let run =
+            |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| nearest_free(&model, &poses, &opts).unwrap());
         let (a, b) = (run(1), run(2));
         assert_eq!((a.distance, a.poses, a.checks), (b.distance, b.poses, b.checks));
     }

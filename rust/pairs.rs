@@ -65,11 +65,7 @@ pub(crate) fn candidate_pairs(desc: &ModelDesc, body_parent: &[usize], geoms: &[
         }
     }
 
-    let excluded: HashSet<(usize, usize)> = desc
-        .exclude
-        .iter()
-        .map(|&[a, b]| (a.min(b) as usize, a.max(b) as usize))
-        .collect();
+    let excluded: HashSet<(usize, usize)> = desc.exclude.iter().map(|&[a, b]| (a.min(b) as usize, a.max(b) as usize)).collect();
     for i in 0..geoms.len() {
         for j in i + 1..geoms.len() {
             let (b1, b2) = (geoms[i].body, geoms[j].body);

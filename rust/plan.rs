@@ -1,12 +1,14 @@
 //! Global paths over the exact labeller: RRT-Connect in joint space, then shortcutting.
 //!
 //! The configuration space is a product of intervals (limited joints) and circles (continuous
-//! hinges, SO(2)): differences on a circle take the short arc, as `interpolate_so2` does, so a
-//! path's segments are exactly the motions the SO(2) interpolation (and the certification in
-//! Python) will replay.
+//! hinges, SO(2)): differences on a circle take the short arc, by the same function as
+//! `interpolate_so2` (`angles::wrap`: a half turn moves the negative way), and states and
+//! waypoints on a circle are wrapped into `[-π, π)` by it too, so a path's segments are exactly
+//! the motions the SO(2) interpolation (and the certification in Python) will replay.
 //!
 //! States are checked by the booleans-only fast path (`fastpath.rs`: the labeller's answer, bit
-//! for bit, stopping at the first pair in contact).
+//! for bit, stopping at the first pair in contact). A state whose pair the narrow phase cannot
+//! decide (`collide.rs`: never "free") ends the call with an error naming the state and the pair.
 //!
 //! An edge `a → b` is free when every state `a + (i/n)·Δ`, `i = 1..n`, is free with
 //! `n = ceil(max_k |Δ_k| / resolution)`: no joint moves more than `resolution` between two
@@ -19,16 +21,16 @@
 //! one toward a uniform sample by at most `range` (L2, radians/metres), then greedily connects
 //! the other tree to the new node; the trees swap roles every iteration.
 
-use std::f64::consts::PI;
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
+use crate::angles::wrap;
 use crate::collide::Scratch;
-use crate::fastpath::collides_pose;
 use crate::error::{invalid_input, Result};
+use crate::fastpath::collides_pose;
 use crate::model::RobotModel;
 
 /// What a planning call may spend and how finely it checks edges.
@@ -95,12 +97,6 @@ struct Space {
     lo: Vec<f64>,
     hi: Vec<f64>,
     wraps: Vec<bool>,
-}
-
-/// `x` wrapped into [-π, π).
-fn wrap(x: f64) -> f64 {
-    let y = (x + PI).rem_euclid(2.0 * PI) - PI;
-    if y >= PI { y - 2.0 * PI } else { y }
 }
 
 impl Space {
@@ -170,13 +166,17 @@ struct Checker<'m> {
 }
 
 impl<'m> Checker<'m> {
-    fn free(&mut self, q: &[f64]) -> bool {
+    /// Whether `q` (the call's `what`: start or goal) is free.
+    fn free(&mut self, q: &[f64], what: &str) -> Result<bool> {
         self.checks += 1;
-        !collides_pose(self.model, q, &mut self.scratch)
+        match collides_pose(self.model, q, &mut self.scratch) {
+            Ok(c) => Ok(!c),
+            Err(e) => Err(e.error(self.model, format!("{what} {q:?}"))),
+        }
     }
 
     /// Whether the SO(2) segment `a → b` is free at `resolution` (`a` is taken as free).
-    fn edge_free(&mut self, a: &[f64], b: &[f64]) -> bool {
+    fn edge_free(&mut self, a: &[f64], b: &[f64]) -> Result<bool> {
         let k = a.len();
         let mut d = vec![0.0; k];
         self.space.delta(a, b, &mut d);
@@ -199,26 +199,41 @@ impl<'m> Checker<'m> {
                 }
             };
             let model = self.model;
-            let collides = if batch.len() >= PARALLEL_FROM {
-                batch.par_iter().map_init(
-                    || (Scratch::new(model), vec![0.0; k]),
-                    |(s, q), &i| {
-                        state(i, q);
-                        collides_pose(model, q, s)
-                    },
-                ).any(|c| c)
+            // The first state of the batch, in check order, that collides or cannot be decided
+            // (the first either way, so the answer does not depend on the thread count).
+            let stops = |(_, r): &(usize, std::result::Result<bool, _>)| *r != Ok(false);
+            let first = if batch.len() >= PARALLEL_FROM {
+                batch
+                    .par_iter()
+                    .map_init(
+                        || (Scratch::new(model), vec![0.0; k]),
+                        |(s, q), &i| {
+                            state(i, q);
+                            (i, collides_pose(model, q, s))
+                        },
+                    )
+                    .find_first(stops)
             } else {
                 let mut q = vec![0.0; k];
-                batch.iter().any(|&i| {
-                    state(i, &mut q);
-                    collides_pose(model, &q, &mut self.scratch)
-                })
+                batch
+                    .iter()
+                    .map(|&i| {
+                        state(i, &mut q);
+                        (i, collides_pose(model, &q, &mut self.scratch))
+                    })
+                    .find(stops)
             };
-            if collides {
-                return false;
+            match first {
+                None => {}
+                Some((_, Ok(_))) => return Ok(false),
+                Some((i, Err(e))) => {
+                    let mut q = vec![0.0; k];
+                    state(i, &mut q);
+                    return Err(e.error(model, format!("planning state {q:?}")));
+                }
             }
         }
-        true
+        Ok(true)
     }
 }
 
@@ -277,7 +292,7 @@ enum Extend {
 }
 
 /// Grows `tree` from its node nearest `target` by at most `range` toward it.
-fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) -> Extend {
+fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) -> Result<Extend> {
     let near = tree.nearest(&checker.space, target);
     let from = tree.node(near).to_vec();
     let dist = checker.space.distance(&from, target);
@@ -288,11 +303,11 @@ fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) ->
         checker.space.delta(&from, target, &mut d);
         checker.space.along(&from, &d, range / dist, &mut q);
     }
-    if !checker.edge_free(&from, &q) {
-        return Extend::Trapped;
+    if !checker.edge_free(&from, &q)? {
+        return Ok(Extend::Trapped);
     }
     let i = tree.push(&q, near);
-    if reached { Extend::Reached(i) } else { Extend::Advanced(i) }
+    Ok(if reached { Extend::Reached(i) } else { Extend::Advanced(i) })
 }
 
 /// Plans a collision-free path from `start` to `goal` (length K each, free, within limits).
@@ -318,20 +333,10 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         return invalid_input(format!("range must be >= 0; got {}", opts.range));
     }
     let ranges = model.sampling_ranges()?;
-    let space = Space {
-        lo: ranges.iter().map(|r| r[0]).collect(),
-        hi: ranges.iter().map(|r| r[1]).collect(),
-        wraps: model.continuous(),
-    };
+    let space = Space { lo: ranges.iter().map(|r| r[0]).collect(), hi: ranges.iter().map(|r| r[1]).collect(), wraps: model.continuous() };
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
     let range = if opts.range > 0.0 { opts.range } else { 0.2 * diagonal };
-    let mut checker = Checker {
-        model,
-        space,
-        resolution: opts.resolution,
-        scratch: Scratch::new(model),
-        checks: 0,
-    };
+    let mut checker = Checker { model, space, resolution: opts.resolution, scratch: Scratch::new(model), checks: 0 };
     for (q, what) in [(start, "start"), (goal, "goal")] {
         let sp = &checker.space;
         for (j, &v) in q.iter().enumerate() {
@@ -339,7 +344,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
                 return invalid_input(format!("{what}[{j}] = {v} is outside the joint's limits"));
             }
         }
-        if !checker.free(q) {
+        if !checker.free(q, what)? {
             return invalid_input(format!("{what} collides"));
         }
     }
@@ -356,15 +361,15 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     };
     let deadline = |c: &Instant| c.elapsed().as_secs_f64() > opts.max_time;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let (path, status, iterations, sizes, raw) = if checker.edge_free(&start, &goal) {
+    let (path, status, iterations, sizes, raw) = if checker.edge_free(&start, &goal)? {
         (vec![start.clone(), goal.clone()], PlanStatus::Direct, 0, [1, 1], 2)
     } else {
-        let search = rrt_connect(&mut checker, &mut rng, &start, &goal, range, opts.max_iterations, || deadline(&clock));
+        let search = rrt_connect(&mut checker, &mut rng, &start, &goal, range, opts.max_iterations, || deadline(&clock))?;
         let Some(order) = search.path else {
             return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0));
         };
         let raw = order.len();
-        let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock));
+        let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock))?;
         (path, search.status, search.iterations, search.sizes, raw)
     };
     if opts.verify <= 1 {
@@ -379,17 +384,17 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     let mut out = vec![path[0].clone()];
     let mut iterations = iterations;
     for w in path.windows(2) {
-        if checker.edge_free(&w[0], &w[1]) {
+        if checker.edge_free(&w[0], &w[1])? {
             out.push(w[1].clone());
             continue;
         }
         let budget = opts.max_iterations.saturating_sub(iterations).max(1);
-        let sub = rrt_connect(&mut checker, &mut rng, &w[0], &w[1], range, budget, || deadline(&clock));
+        let sub = rrt_connect(&mut checker, &mut rng, &w[0], &w[1], range, budget, || deadline(&clock))?;
         iterations += sub.iterations;
         let Some(sub_path) = sub.path else {
             return Ok(finish(Vec::new(), sub.status, checker.checks, iterations, sizes, raw));
         };
-        let sub_path = shortcut(sub_path, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock));
+        let sub_path = shortcut(sub_path, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock))?;
         out.extend(sub_path.into_iter().skip(1));
     }
     Ok(finish(out.concat(), status, checker.checks, iterations, sizes, raw))
@@ -405,8 +410,15 @@ struct Search {
 
 /// RRT-Connect from `start` to `goal` with `checker`'s resolution, at most `max_iterations`
 /// extensions or until `out_of_time`.
-fn rrt_connect(checker: &mut Checker, rng: &mut ChaCha8Rng, start: &[f64], goal: &[f64], range: f64,
-               max_iterations: usize, out_of_time: impl Fn() -> bool) -> Search {
+fn rrt_connect(
+    checker: &mut Checker,
+    rng: &mut ChaCha8Rng,
+    start: &[f64],
+    goal: &[f64],
+    range: f64,
+    max_iterations: usize,
+    out_of_time: impl Fn() -> bool,
+) -> Result<Search> {
     let k = start.len();
     let mut trees = [Tree::new(start), Tree::new(goal)];
     let mut target = vec![0.0; k];
@@ -421,13 +433,13 @@ fn rrt_connect(checker: &mut Checker, rng: &mut ChaCha8Rng, start: &[f64], goal:
         iterations += 1;
         let (a, b) = if iterations % 2 == 1 { (0, 1) } else { (1, 0) };
         checker.space.sample(rng, &mut target);
-        let new = match extend(&mut trees[a], checker, &target, range) {
+        let new = match extend(&mut trees[a], checker, &target, range)? {
             Extend::Trapped => continue,
             Extend::Advanced(i) | Extend::Reached(i) => i,
         };
         let q_new = trees[a].node(new).to_vec();
         loop {
-            match extend(&mut trees[b], checker, &q_new, range) {
+            match extend(&mut trees[b], checker, &q_new, range)? {
                 Extend::Advanced(_) => continue,
                 Extend::Trapped => break,
                 Extend::Reached(j) => {
@@ -448,38 +460,34 @@ fn rrt_connect(checker: &mut Checker, rng: &mut ChaCha8Rng, start: &[f64], goal:
         order.extend(trees[1].branch(i1).into_iter().skip(1).map(|i| trees[1].node(i).to_vec()));
         order
     });
-    Search { path, status, iterations, sizes }
+    Ok(Search { path, status, iterations, sizes })
 }
 
 /// Random shortcutting: join two waypoints directly when the segment between them is free.
-fn shortcut(mut path: Vec<Vec<f64>>, checker: &mut Checker, rng: &mut ChaCha8Rng, rounds: usize,
-            out_of_time: impl Fn() -> bool) -> Vec<Vec<f64>> {
+fn shortcut(
+    mut path: Vec<Vec<f64>>,
+    checker: &mut Checker,
+    rng: &mut ChaCha8Rng,
+    rounds: usize,
+    out_of_time: impl Fn() -> bool,
+) -> Result<Vec<Vec<f64>>> {
     for _ in 0..rounds {
         if path.len() < 3 || out_of_time() {
             break;
         }
         let i = rng.random_range(0..path.len() - 2);
         let j = rng.random_range(i + 2..path.len());
-        if checker.edge_free(&path[i], &path[j]) {
+        if checker.edge_free(&path[i], &path[j])? {
             path.drain(i + 1..j);
         }
     }
-    path
+    Ok(path)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::model::ModelDesc;
-
-    #[test]
-    fn wrap_maps_into_half_open_circle() {
-        for x in [-7.0, -PI, -1.0, 0.0, 3.0, PI, 9.5] {
-            let y = wrap(x);
-            assert!((-PI..PI).contains(&y), "{x} -> {y}");
-            assert!(((x - y) / (2.0 * PI)).fract().abs() < 1e-12 || ((x - y) / (2.0 * PI)).fract().abs() > 1.0 - 1e-12);
-        }
-    }
 
     #[test]
     fn check_order_visits_every_state_once_end_first() {
@@ -500,6 +508,44 @@ mod tests {
         assert!(r.found());
         let p = &r.path;
         assert!((p[0] - 0.3).abs() < 1e-12 && (p[p.len() - 1] + 0.3).abs() < 1e-12);
+    }
+
+    /// Issue 19: `interpolate.rs` and this file wrapped differently at ±π. A continuous
+    /// pendulum (free at every angle) planned between ±π, 0 and the float just below -π: the
+    /// direct edge's checked states are the wrapped states of `interpolate_so2` between the same
+    /// waypoints, bit for bit, and a half turn moves the negative way in both.
+    #[test]
+    fn planned_edges_replay_through_interpolate_at_a_half_turn() {
+        use std::f64::consts::PI;
+
+        use crate::interpolate::interpolate_so2;
+
+        let mut desc = ModelDesc::example_pendulum();
+        desc.jnt_limited = vec![false];
+        let model = RobotModel::new(desc).unwrap();
+        let below = f64::from_bits((-PI).to_bits() + 1);
+        let space = Space { lo: vec![-PI], hi: vec![PI], wraps: vec![true] };
+        let opts = PlanOptions { resolution: 0.1, ..PlanOptions::default() };
+        for (s, g) in [(PI, 0.0), (-PI, 0.0), (0.0, PI), (0.0, -PI), (PI, -PI), (below, 0.0), (0.0, below), (3.0 * PI, 1.0)] {
+            let r = plan_path(&model, &[s], &[g], &opts).unwrap();
+            assert_eq!(r.status, PlanStatus::Direct, "{s} -> {g}");
+            assert_eq!(r.path, vec![wrap(s), wrap(g)], "{s} -> {g}");
+            let (a, b) = (&r.path[0..1], &r.path[1..2]);
+            let mut d = [0.0];
+            space.delta(a, b, &mut d);
+            assert!(d[0] < PI && d[0] >= -PI);
+            let n = ((d[0].abs() / opts.resolution).ceil() as usize).max(1);
+            let replay = interpolate_so2(a, b, n + 1, &[true]).unwrap();
+            for (i, x) in replay.iter().enumerate().take(n) {
+                let mut q = [0.0];
+                space.along(a, &d, i as f64 / n as f64, &mut q);
+                assert_eq!(q[0].to_bits(), wrap(*x).to_bits(), "{s} -> {g}, state {i}");
+            }
+            assert!((wrap(replay[n]) - b[0]).abs() < 1e-15 || (wrap(replay[n]) - b[0]).abs() > 2.0 * PI - 1e-15);
+            if (b[0] - a[0]).abs() == PI {
+                assert!(d[0] == -PI && replay[1] < replay[0], "a half turn moves the negative way: {s} -> {g}");
+            }
+        }
     }
 
     #[test]

@@ -3,15 +3,12 @@
 
 use std::borrow::Cow;
 
-use numpy::{
-    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn,
-    PyUntypedArrayMethods,
-};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyTypeError, PyValueError};
-use pyo3::sync::PyOnceLock;
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
@@ -42,12 +39,7 @@ static INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INPUT_TYPE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static MODEL_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
-fn new_class<'py>(
-    py: Python<'py>,
-    name: &str,
-    bases: Vec<Bound<'py, PyType>>,
-    doc: &str,
-) -> PyResult<Py<PyType>> {
+fn new_class<'py>(py: Python<'py>, name: &str, bases: Vec<Bound<'py, PyType>>, doc: &str) -> PyResult<Py<PyType>> {
     let ns = PyDict::new(py);
     ns.set_item("__module__", "profrobot._core")?;
     ns.set_item("__doc__", doc)?;
@@ -79,7 +71,9 @@ fn model_error(msg: impl Into<String>) -> PyErr {
 
 fn to_py(e: Error) -> PyErr {
     match e {
-        Error::InvalidModel(_) => model_error(e.to_string()),
+        // A pair the narrow phase cannot decide (`collide.rs`): the model cannot be labelled
+        // exactly; never a label.
+        Error::InvalidModel(_) | Error::Undecided(_) => model_error(e.to_string()),
         Error::InvalidInput(_) => input_error(e.to_string()),
     }
 }
@@ -256,11 +250,7 @@ impl PyRobotModel {
         let ids: Vec<i32> = pairs.iter().flat_map(|p| [geoms[p.g1].mujoco_id, geoms[p.g2].mujoco_id]).collect();
         let is_self: Vec<bool> = pairs.iter().map(|p| p.kind == PairKind::SelfCollision).collect();
         let margin: Vec<f64> = pairs.iter().map(|p| p.margin).collect();
-        Ok((
-            PyArray1::from_vec(py, ids).reshape([pairs.len(), 2])?,
-            PyArray1::from_vec(py, is_self),
-            PyArray1::from_vec(py, margin),
-        ))
+        Ok((PyArray1::from_vec(py, ids).reshape([pairs.len(), 2])?, PyArray1::from_vec(py, is_self), PyArray1::from_vec(py, margin)))
     }
 
     fn sampling_ranges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
@@ -274,12 +264,7 @@ impl PyRobotModel {
     }
 
     #[pyo3(signature = (poses, threads=None))]
-    fn forward_kinematics<'py>(
-        &self,
-        py: Python<'py>,
-        poses: &Bound<'py, PyAny>,
-        threads: Option<usize>,
-    ) -> PyResult<FrameArrays<'py>> {
+    fn forward_kinematics<'py>(&self, py: Python<'py>, poses: &Bound<'py, PyAny>, threads: Option<usize>) -> PyResult<FrameArrays<'py>> {
         let model = &self.model;
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
@@ -382,9 +367,8 @@ impl PyRobotModel {
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
-            let a: PyReadonlyArray1<'py, f64> = obj
-                .extract()
-                .map_err(|_| type_error(format!("{what} must be a 1-D float64 numpy array of shape (K,)")))?;
+            let a: PyReadonlyArray1<'py, f64> =
+                obj.extract().map_err(|_| type_error(format!("{what} must be a 1-D float64 numpy array of shape (K,)")))?;
             Ok(a.as_array().to_vec())
         };
         let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
@@ -428,9 +412,8 @@ fn interpolate<'py>(
     steps: usize,
     continuous: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
-    let continuous: PyReadonlyArray1<'py, bool> = continuous
-        .extract()
-        .map_err(|_| type_error("continuous must be a 1-D bool numpy array of shape (K,)"))?;
+    let continuous: PyReadonlyArray1<'py, bool> =
+        continuous.extract().map_err(|_| type_error("continuous must be a 1-D bool numpy array of shape (K,)"))?;
     let cont = continuous.as_array().to_vec();
     let k = cont.len();
     let (start, goal) = (pose_array(start, k, "start")?, pose_array(goal, k, "goal")?);
@@ -456,13 +439,10 @@ fn splat_array(obj: &Bound<'_, PyAny>, name: &str, cn: Option<(usize, usize)>, t
             None => format!("(C, N{t})"),
         }
     };
-    let a: PyReadonlyArrayDyn<'_, f64> = obj.extract().map_err(|_| {
-        type_error(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want()))
-    })?;
+    let a: PyReadonlyArrayDyn<'_, f64> =
+        obj.extract().map_err(|_| type_error(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want())))?;
     let shape = a.shape().to_vec();
-    let ok = shape.len() == 2 + tail.len()
-        && shape[2..] == *tail
-        && cn.is_none_or(|(c, n)| shape[0] == c && shape[1] == n);
+    let ok = shape.len() == 2 + tail.len() && shape[2..] == *tail && cn.is_none_or(|(c, n)| shape[0] == c && shape[1] == n);
     if !ok {
         return Err(input_error(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
     }
@@ -524,13 +504,8 @@ fn splat_forward<'py>(
     ))
 }
 
-type SplatGrads<'py> = (
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray2<f64>>,
-);
+type SplatGrads<'py> =
+    (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>);
 
 /// Gradients w.r.t. `splat_forward`'s inputs (see `_core.pyi`).
 #[pyfunction]
@@ -546,9 +521,8 @@ fn splat_backward<'py>(
     let s = &state.state.splats;
     let (c, n, h, w) = (s.cameras, s.n, s.height, s.width);
     let img = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<f64>> {
-        let a: PyReadonlyArrayDyn<'py, f64> = obj
-            .extract()
-            .map_err(|_| type_error(format!("splat_backward: {name} must be a float64 numpy array")))?;
+        let a: PyReadonlyArrayDyn<'py, f64> =
+            obj.extract().map_err(|_| type_error(format!("splat_backward: {name} must be a float64 numpy array")))?;
         let want: Vec<usize> = [c, h, w].iter().chain(tail).copied().collect();
         if a.shape() != want.as_slice() {
             return Err(input_error(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));

@@ -259,7 +259,8 @@ mod tests {
 
     #[test]
     fn convex_hull_support_points_are_parrys() {
-        let cloud: Vec<Point3<f64>> = random_dirs(100, 11).iter().map(|d| Point3::from(d.component_mul(&Vector3::new(0.1, 0.2, 0.05)))).collect();
+        let cloud: Vec<Point3<f64>> =
+            random_dirs(100, 11).iter().map(|d| Point3::from(d.component_mul(&Vector3::new(0.1, 0.2, 0.05)))).collect();
         let (shape, _) = GeomShape::new(GeomType::Mesh, [0.0; 3], &cloud, 0).unwrap();
         let Solid::Convex { convex, shape } = &shape.solid else { panic!("a mesh is convex") };
         let poly = shape.as_convex_polyhedron().expect("a mesh is parry's ConvexPolyhedron");
@@ -271,7 +272,8 @@ mod tests {
     #[test]
     fn broad_phase_radius_holds_every_support_point_and_is_tight_for_hulls() {
         // Points on an ellipsoid: its hull reaches 0.2 from the centre, its box corners 0.27.
-        let cloud: Vec<Point3<f64>> = random_dirs(200, 9).iter().map(|d| Point3::from(d.normalize().component_mul(&Vector3::new(0.2, 0.15, 0.1)))).collect();
+        let cloud: Vec<Point3<f64>> =
+            random_dirs(200, 9).iter().map(|d| Point3::from(d.normalize().component_mul(&Vector3::new(0.2, 0.15, 0.1)))).collect();
         let shapes = [
             (GeomType::Sphere, [0.1, 0.0, 0.0]),
             (GeomType::Capsule, [0.05, 0.2, 0.0]),
@@ -294,5 +296,4 @@ mod tests {
             }
         }
     }
-
 }

@@ -151,14 +151,22 @@ struct Bins {
 #[inline(always)]
 fn floor(x: f64) -> f64 {
     let t = x as i64 as f64;
-    if t > x { t - 1.0 } else { t }
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
 }
 
 /// `ceil`, as [`floor`].
 #[inline(always)]
 fn ceil(x: f64) -> f64 {
     let t = x as i64 as f64;
-    if t < x { t + 1.0 } else { t }
+    if t < x {
+        t + 1.0
+    } else {
+        t
+    }
 }
 
 /// Pixel box `[x0, x1] × [y0, y1]` (inclusive, clipped to the image) of a drawable Gaussian.
@@ -280,8 +288,7 @@ impl Splats {
         let boxes: Vec<Option<PixelBox>> = (0..total).into_par_iter().map(|g| self.pixel_box(g)).collect();
         let rects: Vec<Option<[usize; 4]>> =
             boxes.iter().map(|b| b.as_ref().map(|b| [b.x0 / TILE, b.x1 / TILE, b.y0 / TILE, b.y1 / TILE])).collect();
-        let rows: Vec<[u32; 2]> =
-            boxes.iter().map(|b| b.as_ref().map_or([1, 0], |b| [b.y0 as u32, b.y1 as u32])).collect();
+        let rows: Vec<[u32; 2]> = boxes.iter().map(|b| b.as_ref().map_or([1, 0], |b| [b.y0 as u32, b.y1 as u32])).collect();
         let mut gauss_start = Vec::with_capacity(total + 1);
         gauss_start.push(0usize);
         for r in &rects {
@@ -307,8 +314,7 @@ impl Splats {
         // Tile by tile, front to back. The drawn Gaussians are sorted once by (camera, z, g),
         // a total order (z > NEAR > 0, so its bits order like the numbers); a counting sort of
         // their entries by tile, taken in that order, keeps each tile's list front to back.
-        let mut by_depth: Vec<(usize, usize)> =
-            (0..total).filter(|&g| rects[g].is_some()).map(|g| (g / self.n, g)).collect();
+        let mut by_depth: Vec<(usize, usize)> = (0..total).filter(|&g| rects[g].is_some()).map(|g| (g / self.n, g)).collect();
         let depth = &self.depth;
         by_depth.par_sort_unstable_by_key(|&(c, g)| (c, depth[g].to_bits(), g));
         let ntiles = self.cameras * per_cam;
@@ -569,7 +575,7 @@ fn backward_tile(st: &State, t: usize, g_rgb: &[f64], g_alpha: &[f64], g_dsum: &
                 if j >= last[i] {
                     continue;
                 }
-                                let (alpha, raw, dx, dy) = ts.alpha(j, x as f64, py, s.cutoff);
+                let (alpha, raw, dx, dy) = ts.alpha(j, x as f64, py, s.cutoff);
                 if alpha <= 0.0 {
                     continue;
                 }
@@ -617,8 +623,7 @@ pub fn backward(st: &State, g_rgb: &[f64], g_alpha: &[f64], g_dsum: &[f64]) -> R
     }
     let bins = &st.bins;
     let ntiles = bins.tile_start.len() - 1;
-    let tiles: Vec<Vec<EntryGrad>> =
-        (0..ntiles).into_par_iter().map(|t| backward_tile(st, t, g_rgb, g_alpha, g_dsum)).collect();
+    let tiles: Vec<Vec<EntryGrad>> = (0..ntiles).into_par_iter().map(|t| backward_tile(st, t, g_rgb, g_alpha, g_dsum)).collect();
     // Entry gradients back in Gaussian-major numbering, then one fixed-order sum per Gaussian.
     let mut by_entry = vec![[0.0; 10]; bins.entry_gauss.len()];
     for (t, tg) in tiles.iter().enumerate() {

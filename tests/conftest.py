@@ -38,9 +38,9 @@ def ur5e():
 def renderer() -> str:
     """The MuJoCo GL backend render workers use (probed once, in a subprocess); tests that draw
     with MuJoCo take this fixture and skip, with what to install, where no backend works."""
-    from profrobot import _gl
+    from profrobot import gl as profrobot_gl
 
-    gl, why = _gl.status()
+    gl, why = profrobot_gl.status()
     if gl is None:
         pytest.skip(why)
     return gl

@@ -5,6 +5,7 @@ Subprocess tests run a fresh interpreter: what they check (a GL library loaded, 
 abort) cannot be undone or survived inside the test process."""
 
 import glob
+import math
 import os
 import subprocess
 import sys
@@ -14,8 +15,10 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot import _gl
-from profrobot.errors import ProfrobotError
+from profrobot import gl
+from profrobot.errors import ProfrobotError, RendererUnavailableError
+from profrobot.executors import LocalExecutor, close_workers
+from profrobot.gl import backends
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -34,17 +37,18 @@ def run(code: str, timeout: float = 600, **env) -> subprocess.CompletedProcess:
 @pytest.fixture
 def no_backend(monkeypatch):
     """Every probe fails, as on a headless machine without OSMesa or an EGL driver."""
-    monkeypatch.setattr(_gl, "_CHOICE", {})
-    monkeypatch.setattr(_gl, "_probe", lambda gl, timeout=120.0: f"no {gl or 'default'} here")
-    _gl.close_workers()
+    backends.forget()
+    monkeypatch.setattr(backends, "probe", lambda gl, timeout=120.0, script=None: f"no {gl or 'default'} here")
+    close_workers()
     yield
-    _gl.close_workers()
+    backends.forget()
+    close_workers()
 
 
 def test_error_type_is_in_the_family_and_a_runtime_error():
-    assert issubclass(_gl.RendererUnavailableError, RuntimeError)
-    assert issubclass(_gl.RendererUnavailableError, ProfrobotError)
-    assert profrobot.RendererUnavailableError is _gl.RendererUnavailableError
+    assert issubclass(RendererUnavailableError, RuntimeError)
+    assert issubclass(RendererUnavailableError, ProfrobotError)
+    assert profrobot.RendererUnavailableError is RendererUnavailableError is gl.RendererUnavailableError
 
 
 def test_candidates_follow_mujoco_gl_and_display(monkeypatch):
@@ -52,24 +56,24 @@ def test_candidates_follow_mujoco_gl_and_display(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     if sys.platform.startswith("linux"):
-        assert _gl._candidates()[0] == ["egl", "osmesa"]
+        assert backends.candidates()[0] == ["egl", "osmesa"]
         monkeypatch.setenv("DISPLAY", ":0")
-        assert _gl._candidates()[0] == ["glfw", "egl", "osmesa"]
+        assert backends.candidates()[0] == ["glfw", "egl", "osmesa"]
     monkeypatch.setenv("MUJOCO_GL", "OSMesa")
-    assert _gl._candidates()[0] == ["osmesa"]   # the user's choice, and only it
+    assert backends.candidates()[0] == ["osmesa"]   # the user's choice, and only it
 
 
 def test_no_backend_is_one_clear_error(no_backend, panda, tmp_path):
-    gl, why = _gl.status()
-    assert gl is None and "apt-get install libosmesa6" in why and "EGL" in why
-    with pytest.raises(_gl.RendererUnavailableError, match="libosmesa6"):
-        _gl.backend()
+    chosen, why = gl.status()
+    assert chosen is None and "apt-get install libosmesa6" in why and "EGL" in why
+    with pytest.raises(RendererUnavailableError, match="libosmesa6"):
+        gl.backend()
     from profrobot.optim.pictures import render_trajectory
     from profrobot.render import make_views, ring_cameras
 
-    with pytest.raises(_gl.RendererUnavailableError, match="libosmesa6"):
+    with pytest.raises(RendererUnavailableError, match="libosmesa6"):
         make_views(panda, np.zeros((1, panda.njoint)), ring_cameras(2, size=8), progress=False)
-    with pytest.raises(_gl.RendererUnavailableError, match="libosmesa6"):
+    with pytest.raises(RendererUnavailableError, match="libosmesa6"):
         render_trajectory(panda, np.zeros((2, panda.njoint)), tmp_path / "t.gif")
     assert not (tmp_path / "t.gif").exists()
     # labels never needed a renderer
@@ -89,23 +93,60 @@ def test_cli_without_a_renderer_exits_2_with_the_message(no_backend, capsys, tmp
     assert err.startswith("profrobot: error: MuJoCo cannot render here") and "libosmesa6" in err
 
 
-def test_a_probe_that_crashes_is_a_reason_not_a_crash(monkeypatch):
-    assert "invalid value" in _gl._probe("bogus")             # mujoco refuses the name
-    monkeypatch.setattr(_gl, "_PROBE", "import os; os.abort()")  # GLFW without a display does this
-    assert "SIGABRT" in _gl._probe("egl")
+def test_a_probe_that_crashes_is_a_reason_not_a_crash():
+    assert "invalid value" in gl.probe("bogus")                          # mujoco refuses the name
+    assert "SIGABRT" in gl.probe("egl", script="import os; os.abort()")  # GLFW without a display does this
 
 
-def test_a_worker_that_dies_raises_and_is_not_reused(monkeypatch):
-    monkeypatch.setattr(_gl, "backend", lambda: "egl")  # the worker needs no GL for this
-    with pytest.raises(_gl.RendererUnavailableError, match="SIGABRT"):
-        with _gl.RenderWorkers(1) as w:
-            w.call("os", "abort")
-    with _gl.RenderWorkers(2) as w:                      # errors in the worker come back as they are
-        assert w.call("math", "sqrt", 4.0) == [2.0, 2.0]
-        assert list(w.map("math", "sqrt", [1.0, 9.0, 16.0])) == [1.0, 3.0, 4.0]
-        with pytest.raises(ValueError):
-            w.call("math", "sqrt", -1.0)
-    _gl.close_workers()
+# chunk functions for the worker tests (module-level: the workers import them from here)
+@gl.uses_gl
+def drawing_pid(robot) -> int:
+    return os.getpid()
+
+
+@gl.uses_gl
+def drawing_abort(robot):
+    os.abort()
+
+
+def sqrt_pid(robot, x: float) -> tuple[float, int]:
+    return math.sqrt(x), os.getpid()
+
+
+def test_a_worker_that_dies_raises_and_is_not_reused(monkeypatch, panda):
+    monkeypatch.setattr(backends, "backend", lambda: "egl")  # these chunk functions draw nothing
+    close_workers()
+    ex = LocalExecutor()
+    assert not ex.in_process(drawing_pid) and ex.in_process(sqrt_pid)
+    first = ex.map(drawing_pid, [()], robot=panda, progress=False)[0]
+    assert first != os.getpid()                          # drawing happens in a worker, never here
+    assert ex.map(drawing_pid, [()], robot=panda, progress=False) == [first]   # kept idle, reused
+    with pytest.raises(RendererUnavailableError, match="SIGABRT"):
+        ex.map(drawing_abort, [()], robot=panda, progress=False)               # that worker dies
+    again = ex.map(drawing_pid, [()], robot=panda, progress=False)[0]
+    assert again not in (first, os.getpid())             # a new one: the dead one is not reused
+    # chunk functions that do not draw: here with one process, in workers with more
+    assert ex.map(sqrt_pid, [4.0, 9.0], robot=panda, progress=False) == [(2.0, os.getpid()), (3.0, os.getpid())]
+    two = LocalExecutor(processes=2)
+    got = two.map(sqrt_pid, [(1.0,), (9.0,), (16.0,)], robot=panda, progress=False)
+    assert [v for v, _ in got] == [1.0, 3.0, 4.0]
+    assert len({p for _, p in got}) == 2 and os.getpid() not in {p for _, p in got}
+    with pytest.raises(ValueError):                      # errors in a worker come back as they are
+        two.map(sqrt_pid, [(-1.0,)], robot=panda, progress=False)
+    close_workers()
+
+
+def test_ordered_stops_early_and_keeps_its_workers(panda):
+    close_workers()
+    ex = LocalExecutor(processes=2)
+    stream = ex.ordered(sqrt_pid, lambda i: (float(i * i),), 100, lambda: 2, robot=panda)
+    got = [next(stream) for _ in range(5)]
+    stream.close()                                       # the rest is not computed
+    assert [(i, v) for i, (v, _) in got] == [(i, float(i)) for i in range(5)]
+    pids = {p for _, (_, p) in got}
+    again = ex.map(sqrt_pid, [(1.0,), (4.0,)], robot=panda, progress=False)
+    assert {p for _, p in again} == pids                 # the same two workers, idle in between
+    close_workers()
 
 
 def test_a_missing_mujoco_gl_backend_does_not_break_import_or_labels():
@@ -188,7 +229,7 @@ robot = profrobot.scenes.load("panda_blocks")
 sdf = profrobot.train_sdf(robot, hidden=(16,), n_poses=2000, iterations=3, batch_size=256, eikonal_batch=32,
                           progress=False, seed=0)
 q = profrobot.sample_poses(robot, 200, seed=1)
-res = profrobot.resolve(sdf, q[profrobot.label_poses(robot, q).collides][:5], max_iters=5, refine=False)
+res = profrobot.resolve(sdf, q[profrobot.label_poses(robot, q).collides][:5], iterations=5, refine=False)
 from profrobot.render import GaussianRobot, fit_pose, make_views, ring_cameras
 ARM = '''<mujoco><compiler angle="radian"/><statistic extent="1" center="0 0 0.3"/>
   <asset><mesh name="bar" vertex="-.04 -.04 0 .04 -.04 0 .04 .04 0 -.04 .04 0 -.04 -.04 .3 .04 -.04 .3 .04 .04 .3 -.04 .04 .3"/>
@@ -201,7 +242,7 @@ arm = profrobot.Robot.from_spec(mujoco.MjSpec.from_string(ARM), name="arm")
 cams = ring_cameras(2, size=16, distance=1.4, elevation=-20, lookat=(0, 0, 0.3))
 v = make_views(arm, np.array([[0.3, 0.8]]), cams, progress=False)
 g = GaussianRobot.from_robot(arm, 100, seed=0)
-fit = fit_pose(g, dict(rgb=v.rgb, depth=v.depth, mask=v.mask), cams, np.array([[0.2, 0.7]]), iters=3)
+fit = fit_pose(g, dict(rgb=v.rgb, depth=v.depth, mask=v.mask), cams, np.array([[0.2, 0.7]]), iterations=3)
 from profrobot.optim.pictures import render_trajectory
 gif = render_trajectory(robot, profrobot.interpolate(robot, q[0], q[1], 5), sys.argv[1], size=(64, 48))
 r = mujoco.Renderer(m, 16, 16); r.update_scene(d); r.render(); r.close()  # the user's renderer still works
@@ -214,7 +255,7 @@ print("flow-ok", "triton" in sys.modules)
 def test_import_order_full_flow(gl, tmp_path):
     """``import mujoco`` (and a render of the user's own) before ``import profrobot``, then train a
     field, resolve poses, fit a pose and write a GIF, in one process: exit status 0."""
-    why = _gl._probe(gl)
+    why = backends.probe(gl)
     if why:
         pytest.skip(f"MUJOCO_GL={gl} cannot render here: {why}")
     env = dict(os.environ, MUJOCO_GL=gl, OMP_NUM_THREADS="1")

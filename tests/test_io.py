@@ -166,7 +166,7 @@ def test_png_gif_and_figure_modes(tmp_path, umask022, monkeypatch):
     assert Image.open(tmp_path / "a.png").size == (5, 4)
 
     # the GIF writer without a GL renderer: frames drawn by a stand-in
-    monkeypatch.setattr(pictures, "_frames", lambda robot, path, collides, size, cam:
+    monkeypatch.setattr(pictures, "trajectory_frames", lambda robot, path, collides, size, cam:
                         [Image.new("RGB", (8, 6), (i * 40, 0, 0)) for i in range(len(path))])
     panda = scene("panda_blocks")
     poses = np.zeros((3, panda.njoint))

@@ -113,7 +113,92 @@ def test_model_errors_are_model_error():
     arrays["geom_body"] = arrays["geom_body"] + 1000
     with pytest.raises(_core.ModelError, match="invalid robot model"):
         _core.RobotModel(arrays)
-    assert issubclass(_core.ModelError, _core.ProfrobotError) and issubclass(_core.ProfrobotError, ValueError)
+    assert issubclass(_core.ModelError, _core.InputError) and issubclass(_core.InputError, _core.ProfrobotError)
+    assert issubclass(_core.ModelError, ValueError) and not issubclass(_core.ProfrobotError, ValueError)
+
+
+def _bad_core_calls(robot):
+    """(what, call, the class it must raise, the built-in base it must have): every deliberate
+    error path of the native surface that a Python caller can reach with bad input."""
+    core, k = robot.core, robot.njoint
+    q = np.zeros((2, k))
+    arrays = robot.core_arrays()
+    missing = {key: v for key, v in arrays.items() if key != "exclude"}
+    wrong_dtype = dict(arrays, jnt_axis=arrays["jnt_axis"].astype(np.float32))
+    bad_model = dict(arrays, geom_body=arrays["geom_body"] + 1000)
+    one = np.zeros((1, 1, 2))
+    return [
+        ("label: wrong width", lambda: core.label(np.zeros((2, k + 1))), _core.InputError, ValueError),
+        ("label: NaN", lambda: core.label(np.full((2, k), np.nan)), _core.InputError, ValueError),
+        ("label: empty", lambda: core.label(np.zeros((0, k))), _core.InputError, ValueError),
+        ("label: float32", lambda: core.label(q.astype(np.float32)), _core.InputTypeError, TypeError),
+        ("label: a list", lambda: core.label(q.tolist()), _core.InputTypeError, TypeError),
+        ("label: threads=0", lambda: core.label(q, threads=0), _core.InputError, ValueError),
+        ("collides: 1-D", lambda: core.collides(np.zeros(k)), _core.InputTypeError, TypeError),
+        ("collides: inf", lambda: core.collides(np.full((1, k), np.inf)), _core.InputError, ValueError),
+        ("forward_kinematics: wrong width", lambda: core.forward_kinematics(np.zeros((1, k - 1))), _core.InputError,
+         ValueError),
+        ("nearest_free: directions=0", lambda: core.nearest_free(q, directions=0), _core.InputError, ValueError),
+        ("nearest_free: tolerance > step", lambda: core.nearest_free(q, step=0.01, tolerance=0.1), _core.InputError,
+         ValueError),
+        ("plan_path: max_time=0", lambda: core.plan_path(q[0], q[0], max_time=0.0), _core.InputError, ValueError),
+        ("plan_path: wrong length", lambda: core.plan_path(q[0, :-1], q[0], max_time=1.0), _core.InputError,
+         ValueError),
+        ("plan_path: 2-D start", lambda: core.plan_path(q, q[0]), _core.InputTypeError, TypeError),
+        ("sample: n=0", lambda: core.sample(0, 0), _core.InputError, ValueError),
+        ("RobotModel: missing key", lambda: _core.RobotModel(missing), _core.InputError, ValueError),
+        ("RobotModel: float32 array", lambda: _core.RobotModel(wrong_dtype), _core.InputTypeError, TypeError),
+        ("RobotModel: bad body index", lambda: _core.RobotModel(bad_model), _core.ModelError, ValueError),
+        ("_from_state: not bytes", lambda: _core.RobotModel._from_state("x"), _core.InputTypeError, TypeError),
+        ("_from_state: garbage", lambda: _core.RobotModel._from_state(b"garbage"), _core.ProfrobotError, ValueError),
+        ("interpolate: steps=1", lambda: _core.interpolate(q, q, 1, np.zeros(k, bool)), _core.InputError, ValueError),
+        ("interpolate: NaN", lambda: _core.interpolate(q * np.nan, q, 3, np.zeros(k, bool)), _core.InputError,
+         ValueError),
+        ("interpolate: float flags", lambda: _core.interpolate(q, q, 3, np.zeros(k)), _core.InputTypeError, TypeError),
+        ("splat_forward: cutoff", lambda: _core.splat_forward(one, np.ones((1, 1, 3)), np.ones((1, 1)),
+                                                              np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4, cutoff="x"),
+         _core.InputError, ValueError),
+        ("splat_forward: NaN", lambda: _core.splat_forward(one * np.nan, np.ones((1, 1, 3)), np.ones((1, 1)),
+                                                           np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4),
+         _core.InputError, ValueError),
+        ("splat_forward: shapes", lambda: _core.splat_forward(one, np.ones((1, 2, 3)), np.ones((1, 1)),
+                                                              np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4),
+         _core.InputError, ValueError),
+        ("splat_forward: int dtype", lambda: _core.splat_forward(one.astype(np.int64), np.ones((1, 1, 3)),
+                                                                 np.ones((1, 1)), np.ones((1, 1, 3)),
+                                                                 np.ones((1, 1)), 4, 4),
+         _core.InputTypeError, TypeError),
+    ]
+
+
+def test_every_core_error_is_a_profrobot_error():
+    """Issue 19: every deliberate error from Rust is a ProfrobotError, and still the built-in
+    error (ValueError, TypeError) callers catch; the classes are profrobot.errors'."""
+    from profrobot import errors
+
+    assert (errors.ProfrobotError, errors.InputError, errors.InputTypeError, errors.ModelError) == (
+        _core.ProfrobotError, _core.InputError, _core.InputTypeError, _core.ModelError)
+    robot = scene("ur5e_wall_box")
+    for what, call, cls, base in _bad_core_calls(robot):
+        with pytest.raises(Exception) as info:
+            call()
+        e = info.value
+        assert isinstance(e, cls) and isinstance(e, base) and isinstance(e, errors.ProfrobotError), (what, type(e), e)
+        assert str(e), what
+
+
+def test_core_error_classes_and_instances_pickle():
+    import pickle
+
+    for cls in (_core.ProfrobotError, _core.InputError, _core.InputTypeError, _core.ModelError):
+        assert cls.__module__ == "profrobot._core" and pickle.loads(pickle.dumps(cls)) is cls
+        e = pickle.loads(pickle.dumps(cls("pose 3: why")))
+        assert type(e) is cls and e.args == ("pose 3: why",)
+    robot = scene("ur5e_wall_box")
+    with pytest.raises(_core.InputError) as info:
+        robot.core.label(np.zeros((1, robot.njoint + 1)))
+    back = pickle.loads(pickle.dumps(info.value))
+    assert type(back) is _core.InputError and back.args == info.value.args
 
 
 # --------------------------------------------------------------------------------------------

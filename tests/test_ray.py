@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot.executors import ClusterError, RayExecutor
+from profrobot.executors import ClusterError, LocalExecutor, RayExecutor, chunk_bounds
 
 from conftest import scene
 
@@ -54,7 +54,7 @@ class KillOnce(RayExecutor):
         self.after, self.seen, self.killed = after, 0, None
         return self.pids
 
-    def _on_chunk(self, index: int, actor: int) -> None:
+    def on_chunk(self, index: int, actor: int) -> None:
         self.seen += 1
         if self.pids is not None and self.seen == self.after:
             time.sleep(0.03)  # its next chunk reaches it and starts
@@ -107,6 +107,7 @@ def test_make_dataset_errors_come_back_as_ours(ray_executor):
                                executor=ray_executor)
     with pytest.raises(TypeError, match="executor must be None"):
         profrobot.make_dataset(robot, 100, executor="ray")
+    assert profrobot.errors.ClusterError is ClusterError
 
 
 def test_crosscheck_identical_to_local(ray_executor):
@@ -171,6 +172,33 @@ def test_map_runs_a_function_on_the_workers(ray_executor):
     got = ray_executor.map(profrobot.sample_poses, [(50, s) for s in range(5)], robot=robot, progress=False)
     for s, q in enumerate(got):
         assert same_array(q, profrobot.sample_poses(robot, 50, s))
+    # put: a handle that arrives as the value itself, top-level in a chunk's arguments
+    q = profrobot.sample_poses(robot, 40, seed=6)
+    ref = ray_executor.put(q)
+    bounds = chunk_bounds(len(q), 16)
+    assert bounds == [(0, 16), (16, 32), (32, 40)]
+    got = ray_executor.map(rows_collide, [(ref, a, b) for a, b in bounds], robot=robot, progress=False)
+    assert same_array(np.concatenate(got), profrobot.collides(robot, q))
+
+
+def rows_collide(robot, poses, start, stop):
+    """A chunk function (module-level, pure): collisions of ``poses[start:stop]``."""
+    return profrobot.collides(robot, poses[start:stop])
+
+
+def test_the_same_protocol_locally():
+    """The chunk functions Ray runs, on a LocalExecutor with worker processes: the same results."""
+    robot = scene("ur5e_wall_box")
+    q = profrobot.sample_poses(robot, 300, seed=8)
+    here = profrobot.crosscheck(robot, q, chunk=64)
+    two = profrobot.crosscheck(robot, q, chunk=64, executor=LocalExecutor(processes=2))
+    assert same_array(here.reference.ncon, two.reference.ncon) and here.reference.pairs == two.reference.pairs
+    local = LocalExecutor(processes=2, threads=1)
+    ds = profrobot.make_dataset(robot, 600, 0.5, seed=3, batch=200, progress=False, executor=local)
+    assert same_dataset(profrobot.make_dataset(robot, 600, 0.5, seed=3, batch=200, progress=False), ds)
+    ref = local.put(q)
+    got = local.map(rows_collide, [(ref, a, b) for a, b in chunk_bounds(len(q), 128)], robot=robot, progress=False)
+    assert same_array(np.concatenate(got), profrobot.collides(robot, q))
 
 
 # --------------------------------------------------------------------------------------------

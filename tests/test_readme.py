@@ -28,11 +28,11 @@ def test_readme_has_the_two_setup_commands_first():
 
 @pytest.mark.slow
 def test_readme_python_blocks_run(tmp_path):
-    from profrobot import _gl
+    from profrobot import gl as profrobot_gl
 
     code = blocks()
     assert len(code) >= 4
-    gl, why = _gl.status()
+    gl, why = profrobot_gl.status()
     run = [b for b in code if gl is not None or "make_views" not in b]
     script = "\n\n".join(run)
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")

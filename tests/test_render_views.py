@@ -1,11 +1,14 @@
 """MuJoCo multi-view data: cameras that match MuJoCo's pixels, masks, depth, saved datasets."""
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 
 import profrobot
-from profrobot.render import Cameras, Views, make_views, ring_cameras, sphere_cameras
-from profrobot.render.views import _MjViews, robot_visual_model
+from profrobot.render import Cameras, Views, make_views, ring_cameras, robot_visual_model, sphere_cameras
+from profrobot.render.mjviews import MjViews
 
 # A ball on a hinge: its projected centre must land where Cameras.K @ world_to_cam puts it.
 BALL = """<mujoco><statistic extent="1" center="0 0 0.3"/><worldbody>
@@ -22,7 +25,7 @@ def ball():
 
 def test_cameras_match_mujoco_gl_camera(ball):
     cams = sphere_cameras(5, size=32, seed=3)
-    mv = _MjViews(robot_visual_model(ball), cams)
+    mv = MjViews(robot_visual_model(ball), cams)
     pos, fwd, up = cams.frames()
     for c in range(len(cams)):
         g = mv.gl_camera(c)
@@ -83,3 +86,19 @@ def test_bad_input(ball):
         make_views(ball, np.zeros((1, 1)), "front", progress=False)
     with pytest.raises(ValueError, match="distance"):
         Cameras(np.zeros((1, 3)), -1.0, 0.0, 0.0)
+
+
+def test_cameras_and_views_pickle_and_deepcopy(ball, renderer):
+    cams = sphere_cameras(3, size=16, seed=1, jitter=0.05).resized(20, 12)
+    for other in (pickle.loads(pickle.dumps(cams)), copy.deepcopy(cams), copy.copy(cams)):
+        assert other == cams and hash(other) == hash(cams) and other.to_dict() == cams.to_dict()
+        assert (other.width, other.height) == (20, 12) and np.array_equal(other.world_to_cam, cams.world_to_cam)
+    assert cams != cams.resized(16) and cams != "cams"
+    v = make_views(ball, np.array([[0.0], [0.4]]), ring_cameras(2, size=12, distance=1.0, lookat=(0, 0, .3)),
+                   progress=False)
+    for w in (pickle.loads(pickle.dumps(v)), copy.deepcopy(v)):
+        assert w.cameras == v.cameras and w.meta == v.meta and w.meta is not v.meta
+        assert (w.robot_fingerprint, w.robot_name) == (v.robot_fingerprint, v.robot_name)
+        for k in ("poses", "rgb", "depth", "mask"):
+            a, b = getattr(w, k), getattr(v, k)
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes() and a is not b

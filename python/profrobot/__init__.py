@@ -27,14 +27,15 @@ import importlib
 # Before anything imports mujoco or torch: mujoco without its GL stack (a MUJOCO_GL whose library
 # is missing cannot break the import; rendering happens in worker processes), and triton's LLVM
 # kept apart from Mesa's (a libLLVM mapped before triton loads crashed torch._dynamo's import).
-from . import _gl
+from . import gl
 
-_gl.install_triton_guard()
-_gl.import_mujoco()
+gl.install_triton_guard()
+gl.import_mujoco()
 
 from . import scenes  # noqa: E402
 from ._core import __version__  # noqa: E402
-from ._gl import RendererUnavailableError  # noqa: E402
+from .errors import RendererUnavailableError  # noqa: E402
+from .certification import CLEARANCE, PathCheck, certify_poses, check_path  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
 from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
@@ -50,12 +51,13 @@ _LAZY = {
     "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
-    "CorruptFileError": ".errors",
+    "CorruptFileError": ".errors", "InputError": ".errors", "InputTypeError": ".errors",
+    "BackendUnavailableError": ".errors", "ClusterError": ".errors",
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
     "pose_from_text": ".inverse", "TextResult": ".inverse", "actions_from_video": ".inverse",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
-                "inverse", "scorers")
+                "inverse", "scorers", "certification", "validate", "angles")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -67,7 +69,9 @@ __all__ = [
     "plan_path", "PathResult", "nearest_free", "NearestFree", "problems", "joints", "equalities", "executors",
     "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "scorers", "actions_from_video",
-    "ProfrobotError", "ModelError", "RobotMismatchError", "CorruptFileError",
+    "certification", "certify_poses", "check_path", "PathCheck", "CLEARANCE",
+    "ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError", "CorruptFileError",
+    "BackendUnavailableError", "ClusterError",
 ]
 
 

@@ -5,7 +5,14 @@ bodies (the world included), P candidate geom pairs. Arrays are read in any memo
 (C or Fortran order, negative strides, sliced views): rows are read through the strides, never
 reinterpreted. Invalid input raises :class:`InputError` (a ValueError), a bad robot model :class:`ModelError`, a
 wrong dtype or object :class:`InputTypeError` (a TypeError) naming the dtype wanted; all three are
-:class:`ProfrobotError`s; never a panic.
+:class:`ProfrobotError`s; never a panic. A pose whose geom pair the narrow phase (parry) cannot
+decide is never labelled (neither free nor colliding): the labelling, oracle and planning calls
+raise :class:`ModelError` naming the pose and the pair (MuJoCo geom ids).
+
+Angles: continuous hinges wrap into [-pi, pi) and shortest arcs are ``wrap(b - a)`` by one
+function (``rust/angles.rs``; ``profrobot.angles.wrap`` is its Python twin): values already in
+[-pi, pi) are unchanged, pi goes to -pi, so a half turn moves the negative way in
+:func:`interpolate` and in :meth:`RobotModel.plan_path` alike.
 """
 
 from collections.abc import Callable
@@ -94,15 +101,17 @@ class RobotModel:
         moves more than ``resolution`` between labelled poses; the answer is then verified ``verify``
         times finer (failing segments re-planned at that resolution; 1: off). Keys: path (M, K) float64 (0 rows
         when none was found), status ('direct' | 'connected' | 'time_out' | 'iteration_limit'),
-        checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Same seed, same path, for any
-        thread count."""
+        checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Continuous hinges of the path
+        are wrapped into [-pi, pi) (start and goal too); each segment is the motion
+        :func:`interpolate` replays between its ends. Same seed, same path, for any thread count."""
     def sample(self, n: int, seed: int, threads: int | None = None) -> npt.NDArray[np.float64]:
         """(n, K) uniform poses within the sampling ranges; identical for any thread count."""
 
 def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], steps: int,
                 continuous: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
     """(B, steps, K) poses from (B, K) start to goal, both ends included: shortest arc where
-    ``continuous`` (K,), straight otherwise."""
+    ``continuous`` (K,) (``start + t * wrap(goal - start)``, not wrapped itself; a half turn
+    moves the negative way), straight otherwise."""
 
 
 @final

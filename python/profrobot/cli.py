@@ -152,7 +152,7 @@ def cmd_render(args) -> int:
     train = make_views(robot, sample_poses(robot, args.n, args.seed), train_cams, processes=args.processes)
     test = make_views(robot, sample_poses(robot, 4, args.seed + 1), test_cams, processes=args.processes)
     model = GaussianRobot.from_robot(robot, args.gaussians, seed=args.seed)
-    fit_gaussians(model, train, iters=args.iters, seed=args.seed, backend=args.backend)
+    fit_gaussians(model, train, iterations=args.iters, seed=args.seed, backend=args.backend)
     model.save(args.out)
     with torch.no_grad():
         out = model.render_views(torch.tensor(test.poses, dtype=torch.float32), test_cams,

@@ -9,9 +9,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
-from tqdm.auto import tqdm
 
-from .errors import InputError
 from .labels import Labels, as_poses, label_poses
 from .robot import Robot
 
@@ -25,9 +23,11 @@ class MujocoLabels:
     pairs: list[set[tuple[int, int]]]  # per pose, colliding (geom1, geom2) MuJoCo ids, sorted
 
 
-def _mujoco_chunk(robot: Robot, q: np.ndarray, bar=None) -> tuple[np.ndarray, list[set[tuple[int, int]]]]:
-    """MuJoCo's contact count and colliding geom pairs for each pose of ``q`` (a pure function
-    of the poses: the chunk the local loop and a Ray worker both compute)."""
+def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
+                        stop: int) -> tuple[np.ndarray, list[set[tuple[int, int]]]]:
+    """MuJoCo's contact count and colliding geom pairs for each of ``poses[start:stop]``: the
+    chunk function of :func:`mujoco_labels` (pure: every pose is labelled on its own)."""
+    q = poses[start:stop]
     m = robot.mj_model
     d = mujoco.MjData(m)
     ncon = np.zeros(len(q), dtype=np.int64)
@@ -40,32 +40,27 @@ def _mujoco_chunk(robot: Robot, q: np.ndarray, bar=None) -> tuple[np.ndarray, li
         ncon[i] = d.ncon
         g = d.contact.geom[: d.ncon]
         pairs.append({(int(min(a, b)), int(max(a, b))) for a, b in g})
-        if bar is not None:
-            bar.update(1)
     return ncon, pairs
 
 
 def mujoco_labels(robot: Robot, poses, *, progress: bool = False, executor=None, chunk: int = 2000) -> MujocoLabels:
-    """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded).
+    """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded), in
+    chunks of ``chunk`` poses (:func:`mujoco_labels_chunk`).
 
-    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`, whose workers
-    label chunks of ``chunk`` poses each (the same labels: every pose is labelled on its own).
+    ``executor``: ``None`` (here) or an executor (:mod:`profrobot.executors`): a
+    :class:`~profrobot.executors.LocalExecutor` with ``processes > 1`` or a
+    :class:`~profrobot.executors.RayExecutor` labels the chunks in parallel (the same labels:
+    every pose is labelled on its own).
     """
-    from .executors import check_executor
+    from .executors import check_executor, chunk_bounds, chunk_sizes
 
     q = as_poses(robot, poses)
     executor = check_executor(executor)
-    if executor is None:
-        with tqdm(total=len(q), disable=not progress, desc="mujoco", unit="pose") as bar:
-            ncon, pairs = _mujoco_chunk(robot, q, bar)
-        return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise InputError(f"chunk must be a positive integer; got {chunk!r}")
-    bounds = [(i, min(i + chunk, len(q))) for i in range(0, len(q), chunk)]
-    ref = executor.put(q)  # once, through the object store; each chunk names its rows
-    parts = executor.map_chunks(robot, "mujoco_labels", [(ref, a, b) for a, b in bounds],
-                                sizes=[b - a for a, b in bounds], desc="mujoco", unit="pose", progress=progress)
-    ncon = np.concatenate([p[0] for p in parts])
+    bounds = chunk_bounds(len(q), chunk)
+    ref = executor.put(q)  # once (Ray: through the object store); each chunk names its rows
+    parts = executor.map(mujoco_labels_chunk, [(ref, a, b) for a, b in bounds], robot=robot,
+                         sizes=chunk_sizes(bounds), desc="mujoco", unit="pose", progress=progress)
+    ncon = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
     pairs = [s for p in parts for s in p[1]]
     return MujocoLabels(ncon=ncon, collides=ncon > 0, pairs=pairs)
 
@@ -125,7 +120,7 @@ def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: boo
     Every disagreement comes with MuJoCo's signed distance (``mj_geomDistance``) of the geom
     pair the two labellers disagree on; grazing contacts are |distance| < 1e-4 m.
 
-    ``executor``: ``None`` (here) or a :class:`profrobot.executors.RayExecutor`: MuJoCo's labels
+    ``executor``: ``None`` (here) or an executor (:mod:`profrobot.executors`): MuJoCo's labels
     (the slow, single-threaded side) are then computed by its workers, ``chunk`` poses per task;
     the report is identical to the local one.
     """

@@ -2,7 +2,9 @@
 and pose fitting (``profrobot.render.pose``).
 
 Limited joints (hinges with a range, slides) are clamped to their range; continuous hinges
-(no range) are wrapped to [-pi, pi): clamping them at ±pi would block a turn through pi.
+(no range) are wrapped to [-pi, pi): clamping them at ±pi would block a turn through pi. The
+wrap is :func:`profrobot.angles.wrap` (the Rust core's, bit for bit) on numpy arrays and its
+torch twin :func:`_wrap` (the same formula) on tensors: pi goes to -pi.
 """
 
 from __future__ import annotations
@@ -11,13 +13,23 @@ import math
 
 import numpy as np
 import torch
+
+from .angles import wrap
 from .errors import InputError
 
 __all__ = ["Limits"]
 
 
-def _wrap(x: torch.Tensor) -> torch.Tensor:
-    return torch.remainder(x + math.pi, 2 * math.pi) - math.pi
+def _wrap(x: torch.Tensor, half: float = math.pi) -> torch.Tensor:
+    """x wrapped into [-half, half): :func:`profrobot.angles.wrap`'s formula, written for tensors
+    (gradient 1). With ``half = pi`` on float64 it equals ``angles.wrap`` bit for bit (values in
+    range unchanged, pi to -pi, fmod with Rust's ``rem_euclid`` correction);
+    ``tests/test_wrapping.py`` checks it. In float32 the same steps round in float32."""
+    r = torch.fmod(x + half, 2 * half)
+    r = torch.where(r < 0, r + 2 * half, r)
+    y = r - half
+    y = torch.where(y >= half, y - 2 * half, y)
+    return torch.where((x >= -half) & (x < half), x, y)
 
 
 class Limits:
@@ -99,7 +111,7 @@ class Limits:
     def clamp_or_wrap_normalised_(self, u: torch.Tensor) -> torch.Tensor:
         """In place on normalised joints u (..., K): limited clamped to [-1, 1], continuous
         wrapped to [-1, 1) (the same as :meth:`clamp_or_wrap` on θ)."""
-        u.copy_(torch.where(self.continuous, torch.remainder(u + 1, 2) - 1, u.clamp(-1, 1)))
+        u.copy_(torch.where(self.continuous, _wrap(u, 1.0), u.clamp(-1, 1)))
         return u
 
     # ---- numpy (float64) -----------------------------------------------------------------------
@@ -107,10 +119,9 @@ class Limits:
         """float64 copy of θ (..., K) inside the limits. A float32 optimiser can round a clamped
         joint just past a float64 limit; this makes returned poses exactly in range."""
         q = np.asarray(theta, dtype=np.float64)
-        wrapped = np.remainder(q + np.pi, 2 * np.pi) - np.pi
-        return np.where(self.cont_np, wrapped, np.clip(q, self.lim_np[:, 0], self.lim_np[:, 1]))
+        return np.where(self.cont_np, wrap(q), np.clip(q, self.lim_np[:, 0], self.lim_np[:, 1]))
 
     def diff(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """a − b with continuous joints taken the short way round, (..., K)."""
         d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
-        return np.where(self.cont_np, np.remainder(d + np.pi, 2 * np.pi) - np.pi, d)
+        return np.where(self.cont_np, wrap(d), d)

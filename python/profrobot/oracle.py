@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .certification import certify_poses
 from .errors import InputError
 from . import validate
 from .validate import as_poses
@@ -29,11 +30,15 @@ class NearestFree:
         poses: (B, K) float64, the free poses (exactly free per :func:`label_poses`), within the
             joint limits; continuous joints are not wrapped. NaN rows where none was found.
         checks: (B,) int64, poses labelled for each search.
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`:
+            the search stops on the labeller's boundary, so a pose it finds may still be within
+            the certification's clearance of contact); False where none was found.
     """
 
     distance: np.ndarray
     poses: np.ndarray
     checks: np.ndarray
+    certified: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.distance)
@@ -64,4 +69,8 @@ def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 10
         np.ascontiguousarray(q), directions=validate.count("directions", directions), step=step, tolerance=tolerance,
         refine=validate.count("refine", refine, 0), max_distance=None if max_distance is None else validate.positive("max_distance", max_distance),
         seed=int(seed), threads=validate.threads(threads))
-    return NearestFree(**out)
+    found = np.isfinite(out["distance"])
+    certified = np.zeros(len(q), dtype=bool)
+    if found.any():
+        certified[found] = certify_poses(robot, out["poses"][found])
+    return NearestFree(**out, certified=certified)

@@ -5,7 +5,7 @@ it tries the straight SO(2) path, then grows two trees (RRT-Connect) whose every
 densely (no joint moves more than ``resolution`` between two labelled poses), then shortcuts the
 path, then verifies the answer ``verify`` (10) times finer, re-planning any segment that fails. Every segment of the result is an SO(2) interpolation that was checked at that
 resolution, so :func:`profrobot.interpolate` between consecutive waypoints replays exactly the
-motion that was certified. Same seed, same path, whatever the thread count.
+motion that was checked (``PathResult.certified`` adds the certification's clearance). Same seed, same path, whatever the thread count.
 """
 
 from __future__ import annotations
@@ -15,8 +15,10 @@ from typing import Literal
 
 import numpy as np
 
+from .angles import wrap
 from .labels import as_poses, check_threads, label_poses
 from .robot import Robot
+from .deprecation import renamed_arguments
 from .errors import InputError
 
 PlanStatus = Literal["direct", "connected", "time_out", "iteration_limit"]
@@ -29,7 +31,11 @@ class PathResult:
     Attributes:
         path: (M, K) waypoints, start first and goal last (radians / metres; continuous hinges
             in [-pi, pi)); (0, K) when none was found.
-        found: whether ``path`` joins start and goal.
+        found: whether ``path`` joins start and goal (the planner's own verdict: every edge
+            labelled at ``resolution``).
+        certified: the path is certified free (:mod:`profrobot.certification`: every pose on it,
+            re-interpolated at ``resolution``, clear by the certification's clearance); False
+            when nothing was found.
         status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
             ``"time_out"`` or ``"iteration_limit"`` (none found within the budget).
         checks: poses labelled by the exact labeller.
@@ -49,11 +55,13 @@ class PathResult:
     tree_sizes: tuple[int, int]
     raw_waypoints: int
     reason: str = ""
+    certified: bool = False
 
     def summary(self) -> str:
         if not self.found:
             return f"no path: {self.reason}"
         return (f"{self.status}: {len(self.path)} waypoints (from {self.raw_waypoints}), "
+                f"{'certified free' if self.certified else 'NOT certified (a contact within the clearance)'}, "
                 f"{self.checks} checks, {self.seconds * 1e3:.1f} ms")
 
 
@@ -61,7 +69,7 @@ def so2_steps(robot: Robot, path: np.ndarray) -> np.ndarray:
     """(M−1, K) joint moves between consecutive waypoints of ``path`` (M, K): continuous hinges
     along the short arc, as :func:`profrobot.interpolate` moves them."""
     d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
-    d[:, robot.continuous] = (d[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi
+    d[:, robot.continuous] = wrap(d[:, robot.continuous])
     return d
 
 
@@ -70,8 +78,9 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
     return float(np.linalg.norm(so2_steps(robot, path), axis=1).sum())
 
 
+@renamed_arguments(max_iterations="iterations")
 def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
-              range: float = 0.0, max_iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
+              range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
               threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
@@ -82,7 +91,7 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
         seed: the sampler's seed; the same seed gives the same path for any thread count.
         range: longest tree extension (L2 in joint space); 0 picks 0.2 × the joint-space
             diagonal, OMPL's default.
-        max_iterations: a deterministic budget of tree extensions.
+        iterations: a deterministic budget of tree extensions.
         shortcut_rounds: shortcut attempts on the found path.
         verify: the answer is re-checked ``verify`` times finer than ``resolution`` (a thin
             feature or a grazing contact can slip between two samples of the search); a segment
@@ -109,7 +118,7 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             (k,) = lab.colliding_pairs[:1, 1]
             raise InputError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
-                               range=float(range), max_iterations=int(max_iterations),
+                               range=float(range), max_iterations=int(iterations),
                                shortcut_rounds=int(shortcut_rounds), verify=int(verify),
                                threads=check_threads(threads))
     status = out["status"]
@@ -117,12 +126,14 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     reason = "" if found else {
         "time_out": f"no path within max_time={max_time} s ({out['iterations']} extensions, trees of "
                     f"{out['tree_sizes'][0]} and {out['tree_sizes'][1]} nodes); the goal may be enclosed",
-        "iteration_limit": f"no path within max_iterations={max_iterations}; the goal may be enclosed",
+        "iteration_limit": f"no path within iterations={iterations}; the goal may be enclosed",
     }[status]
-    return PathResult(path=np.asarray(out["path"]).reshape(-1, robot.njoint), found=found, status=status,
+    path = np.asarray(out["path"]).reshape(-1, robot.njoint)
+    from .certification import path_free_at  # TODO(lead): top-level once so2 steps live in the angles module
+    return PathResult(path=path, found=found, status=status,
                       checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
                       tree_sizes=tuple(int(t) for t in out["tree_sizes"]), raw_waypoints=int(out["raw_waypoints"]),
-                      reason=reason)
+                      reason=reason, certified=found and path_free_at(robot, path, float(resolution)))
 
 
 def resample_path(robot: Robot, path, steps: int) -> np.ndarray:

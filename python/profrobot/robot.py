@@ -3,14 +3,20 @@ arrays the Rust core (`profrobot._core.RobotModel`) labels with.
 
 One description feeds every back end: the arrays below are copied from MuJoCo's *compiled*
 model (``mjModel``), never re-parsed from XML, so bodies, hulls and filters are MuJoCo's own.
+
+A Robot pickles (multiprocessing, DataLoader workers, Ray, ``torch.save``) and deep-copies; see
+:meth:`Robot.__getstate__` for what a pickle carries.
 """
 
 from __future__ import annotations
 
 import abc
+import copy
 import hashlib
 import os
 import warnings
+import xml.etree.ElementTree as ET
+import zlib
 from dataclasses import dataclass, field
 from collections.abc import Sequence
 
@@ -19,7 +25,7 @@ import numpy as np
 
 from . import _core
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
-from .errors import InputError
+from .errors import CorruptFileError, InputError, RobotMismatchError
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                                   mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE))
@@ -135,6 +141,147 @@ class Mesh(Obstacle):
 
 
 # --------------------------------------------------------------------------------------------
+# The editable MjSpec in a form that pickles (MjSpec itself does not)
+# --------------------------------------------------------------------------------------------
+
+def _zip(files: dict[str, bytes]) -> dict[str, bytes]:
+    return {k: zlib.compress(v, 1) for k, v in files.items()}
+
+
+def _unzip(files: dict[str, bytes]) -> dict[str, bytes]:
+    return {k: zlib.decompress(v) for k, v in files.items()}
+
+
+@dataclass(frozen=True, eq=False)
+class _Mjcf:
+    """An MJCF model as bytes: the main file's text, the files it includes and every asset file
+    its meshes, textures, height fields and skins read (zlib-compressed), keyed by the name
+    MuJoCo looks them up by (the compiler folder joined with the ``file`` attribute), and the
+    folder it was read from (``modelfiledir``: names in MuJoCo's compiled ``paths`` stay the
+    same; the carried assets take precedence over any file there).
+
+    ``exact``: the very files the model was parsed from (``from_mjcf``, ``from_menagerie``), so
+    they compile to the same ``MjModel``, bit for bit. False for a spec given to ``from_spec``:
+    written out with ``MjSpec.to_xml`` (6 significant digits), it may compile to another robot,
+    which :meth:`Robot._restore` detects.
+    """
+
+    xml: str
+    include: dict
+    assets: dict
+    modelfiledir: str
+    exact: bool
+
+    def spec(self) -> mujoco.MjSpec:
+        spec = mujoco.MjSpec.from_string(self.xml, include=_unzip(self.include) or None,
+                                         assets=_unzip(self.assets) or None)
+        spec.modelfiledir = self.modelfiledir
+        return spec
+
+
+def _asset_files(spec: mujoco.MjSpec) -> list[tuple[str, str]]:
+    """(name MuJoCo looks up, path on disk) of every file the spec's assets read: meshes, height
+    fields and skins in ``meshdir``, textures (and cube faces) in ``texturedir``."""
+    out = []
+
+    def add(name: str, folder: str) -> None:
+        if name:
+            key = name if os.path.isabs(name) or not folder else os.path.join(folder, name)
+            out.append((key, key if os.path.isabs(key) else os.path.join(spec.modelfiledir or "", key)))
+
+    for m in spec.meshes:
+        add(m.file, spec.meshdir)
+    for h in spec.hfields:
+        add(h.file, spec.meshdir)
+    for sk in spec.skins:
+        add(sk.file, spec.meshdir)
+    for t in spec.textures:
+        for name in (t.file, *t.cubefiles):
+            add(name, spec.texturedir)
+    return out
+
+
+def _read(path: str) -> bytes:
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def _read_mjcf(path: str) -> _Mjcf:
+    """The MJCF file ``path`` and everything it reads, as :class:`_Mjcf` (exact unless it uses
+    what this does not carry: attached ``<model>`` files, files no asset lists, two assets with
+    the same base name, which MuJoCo's asset dictionary cannot tell apart)."""
+    path = os.path.abspath(path)
+    folder = os.path.dirname(path)
+    xml = _read(path).decode("utf-8")
+    include: dict[str, bytes] = {}
+    exact, attrs, pending, seen = True, [], [path], set()
+    while pending:
+        p = pending.pop()
+        if p in seen:
+            continue
+        seen.add(p)
+        for el in ET.parse(p).getroot().iter():
+            if el.tag == "include" and el.get("file"):
+                name = el.get("file")
+                full = next((c for c in (os.path.join(folder, name), os.path.join(os.path.dirname(p), name))
+                             if os.path.isfile(c)), os.path.join(folder, name))
+                include[name] = _read(full)
+                pending.append(full)
+            elif el.tag == "model":
+                exact = False
+            else:
+                attrs += [v for k, v in el.attrib.items() if k.startswith("file") and v]
+    spec = mujoco.MjSpec.from_file(path)  # parsed, not compiled: the asset files with MuJoCo's folders
+    assets = {key: _read(full) for key, full in _asset_files(spec)}
+    bases = [os.path.basename(k).casefold() for k in assets]
+    if len(set(bases)) < len(bases) or any(os.path.basename(v).casefold() not in bases for v in attrs):
+        exact = False
+    return _Mjcf(xml, _zip(include), _zip(assets), spec.modelfiledir, exact)
+
+
+def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
+    """A spec given to ``from_spec`` as :class:`_Mjcf`: ``to_xml`` (not exact) and its assets,
+    those in ``spec.assets`` and those on disk."""
+    assets = dict(spec.assets)
+    for key, full in _asset_files(spec):
+        if key not in assets and os.path.basename(key) not in assets and os.path.isfile(full):
+            assets[key] = _read(full)
+    return _Mjcf(spec.to_xml(), {}, _zip(assets), spec.modelfiledir or "", exact=False)
+
+
+@dataclass(frozen=True, eq=False)
+class _SpecSource:
+    """How a robot's MjSpec was made: ``root`` plus the ``obstacles`` added since, in order.
+
+    ``root`` is where the model came from until the first pickle reads it: an MJCF file's path
+    (``from_mjcf``, ``from_menagerie``) or the ``MjSpec`` given to ``from_spec``; from then on the
+    bytes (:class:`_Mjcf`), shared by the robots ``with_obstacles`` derives.
+    """
+
+    root: "str | mujoco.MjSpec | _Mjcf"
+    obstacles: tuple = ()
+
+    def loaded(self) -> "_SpecSource":
+        if isinstance(self.root, _Mjcf):
+            return self
+        root = _read_mjcf(self.root) if isinstance(self.root, str) else _spec_mjcf(self.root)
+        return _SpecSource(root, self.obstacles)
+
+    def spec(self) -> mujoco.MjSpec:
+        root = self.loaded().root
+        spec = root.spec()
+        for ob in self.obstacles:
+            ob.add_to(spec)
+        return spec
+
+    def then(self, obstacles: tuple) -> "_SpecSource":
+        return _SpecSource(self.root, self.obstacles + tuple(obstacles))
+
+
+_STATE_FORMAT = "profrobot.Robot/1"
+
+
+# --------------------------------------------------------------------------------------------
 # Robot
 # --------------------------------------------------------------------------------------------
 
@@ -200,6 +347,65 @@ def _hull_vertices(m: mujoco.MjModel, mesh: int) -> np.ndarray:
     return np.ascontiguousarray(verts, dtype=np.float64)
 
 
+def _core_arrays(m: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """The flat arrays (ModelDesc) the Rust core labels with, from a compiled model."""
+    f64 = lambda a, cols=None: np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, cols) if cols
+                                                    else np.asarray(a, dtype=np.float64))
+    i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32)
+    collidable = (m.geom_contype != 0) | (m.geom_conaffinity != 0)
+    collidable[m.pair_geom1] = True
+    collidable[m.pair_geom2] = True
+    gids = np.flatnonzero(collidable)
+    override = bool(m.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE)
+    geom_margin = m.geom_margin[gids].copy()
+    pair_margin = m.pair_margin.copy()
+    if override:  # mj_assignMargin: every contact uses o_margin
+        geom_margin[:] = m.opt.o_margin / 2
+        pair_margin[:] = m.opt.o_margin
+
+    mesh_ids = sorted({int(m.geom_dataid[g]) for g in gids if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH})
+    mesh_index = {mid: i for i, mid in enumerate(mesh_ids)}
+    hulls = [_hull_vertices(m, mid) for mid in mesh_ids]
+    adr = np.cumsum([0] + [len(h) for h in hulls])[:-1]
+    geom_mesh = [mesh_index.get(int(m.geom_dataid[g]), -1) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else -1
+                 for g in gids]
+    geom_pos, geom_quat = geom_local_frames(m, gids)
+    excl = np.array([[s >> 16, s & 0xFFFF] for s in m.exclude_signature], dtype=np.int32).reshape(-1, 2)
+    dis = m.opt.disableflags
+    return dict(
+        body_parent=i32(m.body_parentid), body_weld=i32(m.body_weldid),
+        body_pos=f64(m.body_pos, 3), body_quat=f64(m.body_quat, 4),
+        jnt_type=i32(m.jnt_type), jnt_body=i32(m.jnt_bodyid), jnt_pos=f64(m.jnt_pos, 3),
+        jnt_axis=f64(m.jnt_axis, 3), jnt_qpos0=f64(m.qpos0[m.jnt_qposadr]),
+        jnt_range=f64(m.jnt_range, 2), jnt_limited=np.ascontiguousarray(m.jnt_limited != 0),
+        geom_id=i32(gids), geom_type=i32(m.geom_type[gids]), geom_body=i32(m.geom_bodyid[gids]),
+        geom_pos=f64(geom_pos, 3), geom_quat=f64(geom_quat, 4),
+        geom_size=f64(m.geom_size[gids], 3),
+        geom_contype=np.ascontiguousarray(m.geom_contype[gids], dtype=np.uint32),
+        geom_conaffinity=np.ascontiguousarray(m.geom_conaffinity[gids], dtype=np.uint32),
+        geom_margin=f64(geom_margin), geom_mesh=i32(geom_mesh),
+        mesh_vert_adr=np.ascontiguousarray(adr, dtype=np.uint32),
+        mesh_vert_num=np.ascontiguousarray([len(h) for h in hulls], dtype=np.uint32),
+        mesh_vert=f64(np.concatenate(hulls) if hulls else np.zeros((0, 3)), 3),
+        exclude=excl,
+        pair_geom=np.ascontiguousarray(np.stack([m.pair_geom1, m.pair_geom2], axis=1), dtype=np.int32).reshape(-1, 2),
+        pair_margin=f64(pair_margin),
+        filter_parent=not (dis & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT),
+        contact_enabled=not (dis & (mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)),
+    )
+
+
+def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray]) -> str:
+    """sha256 of everything that decides labels: joints, bodies, geoms, hulls, filters."""
+    h = hashlib.sha256()
+    h.update("\0".join(joint_names).encode())
+    for key in sorted(arrays):
+        v = np.asarray(arrays[key])
+        h.update(key.encode())
+        h.update(np.ascontiguousarray(np.round(v, 12) if v.dtype.kind == "f" else v).tobytes())
+    return h.hexdigest()[:32]
+
+
 class Robot:
     """A MuJoCo robot scene ready for exact collision labelling.
 
@@ -209,14 +415,19 @@ class Robot:
 
     Build one with :meth:`from_menagerie`, :meth:`from_mjcf`, :meth:`from_model`, or
     ``profrobot.scenes.load(name)``.
+
+    A Robot pickles and deep-copies: the copy labels byte for byte like the original, has its
+    fingerprint, and ``with_obstacles`` works on it (see :meth:`__getstate__`).
     """
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
             raise TypeError(f"Robot needs a mujoco.MjModel; got {type(model).__name__}")
-        self.mj_model = model
+        self._mj_model: mujoco.MjModel | None = model
         self.name = name
         self._spec = spec
+        self._source: _SpecSource | None = _SpecSource(spec) if spec is not None else None
+        self._spec_lost: str | None = None  # why a pickle could not carry the spec
         m = model
         bad = [(_name(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint"), int(t)) for j, t in enumerate(m.jnt_type)
                if t not in (_HINGE, _SLIDE)]
@@ -243,10 +454,10 @@ class Robot:
             warnings.warn(f"{name}: uniform sampling leaves these couplings free: {loose}. "
                           "sample_poses(..., equalities='settle') projects poses onto them "
                           "(robot.equalities lists every equality).", EqualityWarning, stacklevel=3)
-        self._arrays = self._core_arrays()
+        self._arrays = _core_arrays(m)
         self.core = _core.RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
-        self.fingerprint = self._fingerprint()
+        self.fingerprint = _fingerprint(self.joint_names, self._arrays)
 
     # ---- constructors ------------------------------------------------------------------------
     @classmethod
@@ -258,12 +469,14 @@ class Robot:
         import mujoco_menagerie as mm
 
         try:
-            spec = mm.get(name).spec(entry)
+            path = str(mm.get(name).xml(entry))
         except mm.UnknownRobotError as e:
             raise InputError(f"unknown Menagerie robot {name!r}; known: {', '.join(mm.names())}") from e
         except mm.UnknownEntryPointError as e:
             raise InputError(str(e)) from e
-        return cls.from_spec(spec, name=name if entry is None else f"{name}/{entry}")
+        robot = cls.from_spec(mujoco.MjSpec.from_file(path), name=name if entry is None else f"{name}/{entry}")
+        robot._source = _SpecSource(path)  # a pickle carries the files themselves (exact)
+        return robot
 
     @classmethod
     def from_mjcf(cls, path: str | os.PathLike) -> "Robot":
@@ -275,7 +488,9 @@ class Robot:
             spec = mujoco.MjSpec.from_file(path)
         except Exception as e:  # mujoco raises ValueError with the parser's message
             raise InputError(f"could not read MJCF {path!r}: {e}") from e
-        return cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
+        robot = cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
+        robot._source = _SpecSource(os.path.abspath(path))  # a pickle carries the files themselves (exact)
+        return robot
 
     @classmethod
     def from_spec(cls, spec: mujoco.MjSpec, *, name: str = "robot") -> "Robot":
@@ -294,15 +509,23 @@ class Robot:
     def with_obstacles(self, obstacles: Sequence[Obstacle], *, name: str | None = None) -> "Robot":
         """A new Robot: this scene plus static ``obstacles`` (Box, Sphere, Capsule, Cylinder,
         Plane, Mesh) fixed to the world. The original is left unchanged."""
-        if self._spec is None:
+        base = self.spec
+        if base is None:
+            if self._spec_lost:
+                raise InputError(f"{self.name}: obstacles need the MjSpec, which this robot's pickle could not carry "
+                                 f"({self._spec_lost}); add them to the original robot")
             raise InputError(f"{self.name}: obstacles need the MjSpec; build the robot with from_menagerie, "
                              "from_mjcf or from_spec rather than from_model")
-        spec = self._spec.copy()
+        spec = base.copy()
+        obstacles = tuple(obstacles)
         for ob in obstacles:
             if not isinstance(ob, Obstacle):
                 raise TypeError(f"obstacles must be profrobot Obstacle objects; got {type(ob).__name__}")
             ob.add_to(spec)
-        return Robot.from_spec(spec, name=name or self.name)
+        robot = Robot.from_spec(spec, name=name or self.name)
+        if self._source is not None:
+            robot._source = self._source.then(obstacles)
+        return robot
 
     # ---- description ---------------------------------------------------------------------------
     @property
@@ -315,7 +538,18 @@ class Robot:
         return self.core.sampling_ranges()
 
     @property
+    def mj_model(self) -> mujoco.MjModel:
+        """The compiled MuJoCo model (an unpickled robot compiles it again on first use)."""
+        if self._mj_model is None:
+            self._restore()
+        return self._mj_model
+
+    @property
     def spec(self) -> mujoco.MjSpec | None:
+        """The editable ``mujoco.MjSpec`` (None for :meth:`from_model`; an unpickled robot rebuilds
+        it on first use)."""
+        if self._spec is None and self._source is not None:
+            self._restore()
         return self._spec
 
     def _joint_parents(self) -> list[int]:
@@ -361,63 +595,100 @@ class Robot:
                 f"candidate pairs={self.core.npair})")
 
     # ---- the flat arrays -----------------------------------------------------------------------
-    def _core_arrays(self) -> dict[str, np.ndarray]:
-        m = self.mj_model
-        f64 = lambda a, cols=None: np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, cols) if cols
-                                                        else np.asarray(a, dtype=np.float64))
-        i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32)
-        collidable = (m.geom_contype != 0) | (m.geom_conaffinity != 0)
-        collidable[m.pair_geom1] = True
-        collidable[m.pair_geom2] = True
-        gids = np.flatnonzero(collidable)
-        override = bool(m.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE)
-        geom_margin = m.geom_margin[gids].copy()
-        pair_margin = m.pair_margin.copy()
-        if override:  # mj_assignMargin: every contact uses o_margin
-            geom_margin[:] = m.opt.o_margin / 2
-            pair_margin[:] = m.opt.o_margin
-
-        mesh_ids = sorted({int(m.geom_dataid[g]) for g in gids if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH})
-        mesh_index = {mid: i for i, mid in enumerate(mesh_ids)}
-        hulls = [_hull_vertices(m, mid) for mid in mesh_ids]
-        adr = np.cumsum([0] + [len(h) for h in hulls])[:-1]
-        geom_mesh = [mesh_index.get(int(m.geom_dataid[g]), -1) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else -1
-                     for g in gids]
-        geom_pos, geom_quat = geom_local_frames(m, gids)
-        excl = np.array([[s >> 16, s & 0xFFFF] for s in m.exclude_signature], dtype=np.int32).reshape(-1, 2)
-        dis = m.opt.disableflags
-        return dict(
-            body_parent=i32(m.body_parentid), body_weld=i32(m.body_weldid),
-            body_pos=f64(m.body_pos, 3), body_quat=f64(m.body_quat, 4),
-            jnt_type=i32(m.jnt_type), jnt_body=i32(m.jnt_bodyid), jnt_pos=f64(m.jnt_pos, 3),
-            jnt_axis=f64(m.jnt_axis, 3), jnt_qpos0=f64(m.qpos0[m.jnt_qposadr]),
-            jnt_range=f64(m.jnt_range, 2), jnt_limited=np.ascontiguousarray(m.jnt_limited != 0),
-            geom_id=i32(gids), geom_type=i32(m.geom_type[gids]), geom_body=i32(m.geom_bodyid[gids]),
-            geom_pos=f64(geom_pos, 3), geom_quat=f64(geom_quat, 4),
-            geom_size=f64(m.geom_size[gids], 3),
-            geom_contype=np.ascontiguousarray(m.geom_contype[gids], dtype=np.uint32),
-            geom_conaffinity=np.ascontiguousarray(m.geom_conaffinity[gids], dtype=np.uint32),
-            geom_margin=f64(geom_margin), geom_mesh=i32(geom_mesh),
-            mesh_vert_adr=np.ascontiguousarray(adr, dtype=np.uint32),
-            mesh_vert_num=np.ascontiguousarray([len(h) for h in hulls], dtype=np.uint32),
-            mesh_vert=f64(np.concatenate(hulls) if hulls else np.zeros((0, 3)), 3),
-            exclude=excl,
-            pair_geom=np.ascontiguousarray(np.stack([m.pair_geom1, m.pair_geom2], axis=1), dtype=np.int32).reshape(-1, 2),
-            pair_margin=f64(pair_margin),
-            filter_parent=not (dis & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT),
-            contact_enabled=not (dis & (mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)),
-        )
-
-    def _fingerprint(self) -> str:
-        """sha256 of everything that decides labels: joints, bodies, geoms, hulls, filters."""
-        h = hashlib.sha256()
-        h.update("\0".join(self.joint_names).encode())
-        for key in sorted(self._arrays):
-            v = np.asarray(self._arrays[key])
-            h.update(key.encode())
-            h.update(np.ascontiguousarray(np.round(v, 12) if v.dtype.kind == "f" else v).tobytes())
-        return h.hexdigest()[:32]
-
     def core_arrays(self) -> dict[str, np.ndarray]:
         """A copy of the flat arrays handed to the Rust core (also the JSON schema of ModelDesc)."""
         return {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in self._arrays.items()}
+
+    # ---- pickling and copies -------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """What a pickle of a Robot carries (format ``profrobot.Robot/1``), a dict of:
+
+        - ``format``: ``"profrobot.Robot/1"`` (another is refused with ``CorruptFileError``);
+        - what labelling needs, as built: ``core`` (the Rust ``RobotModel``, whose own pickle keeps
+          every float to the bit), the flat arrays ``_arrays``, ``fingerprint``, ``name``, joint
+          and body names, ``joint_types``, ``qpos_adr``, ``continuous``, ``joint_parents``,
+          ``equalities``, ``tendons``, ``couplings``, ``pair_geoms``, ``pair_is_self``,
+          ``pair_margin``: an unpickled robot labels at once, byte for byte like this one;
+        - ``source``: how to rebuild the editable ``MjSpec`` (``MjSpec`` does not pickle, and its
+          ``to_xml`` keeps 6 significant digits): the MJCF text, its included files and every
+          mesh / texture file it reads, zlib-compressed, plus the obstacles added since, in order;
+          None for :meth:`from_model`. Files are read once, at the first pickle, and then kept;
+        - ``mj_model``: the compiled ``MjModel`` as MuJoCo's own pickle state (its binary model,
+          bytes: any pickle protocol; MuJoCo's pickling aborts the process under protocols 0 and 1)
+          only where the source cannot rebuild it exactly (``from_model``, ``from_spec``); for
+          ``from_mjcf`` / ``from_menagerie`` robots it is left out (the meshes are already in the
+          source: half the size) and compiled again on first use of :attr:`mj_model` or
+          :attr:`spec`.
+
+        Whatever is rebuilt is checked: the rebuilt model must have this robot's fingerprint, else
+        :class:`~profrobot.errors.RobotMismatchError` (e.g. a ``from_spec`` spec that its XML
+        does not reproduce, or a spec edited after the robot was built). A Panda scene pickles to
+        about 6 MB (the meshes' files, compressed).
+        """
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source")}
+        source = self._source
+        if source is not None and not isinstance(source.root, _Mjcf):
+            try:
+                source = self._source = source.loaded()  # read once, kept for later pickles
+            except Exception as e:  # a file gone, unreadable, a spec to_xml refuses
+                source = None
+                state["_spec_lost"] = f"{type(e).__name__}: {e}"
+        model = self._mj_model
+        if model is None and (source is None or not source.root.exact):
+            model = self.mj_model  # never the case for robots built here; compiled to be safe
+        state["format"] = _STATE_FORMAT
+        state["source"] = source
+        state["mj_model"] = None if source is not None and source.root.exact else model.__getstate__()
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        fmt = state.pop("format", None)
+        if fmt != _STATE_FORMAT:
+            raise CorruptFileError(f"not a pickled profrobot Robot of format {_STATE_FORMAT!r} (got {fmt!r}); "
+                                   "it was written by another profrobot version")
+        model, source = state.pop("mj_model"), state.pop("source")
+        if model is not None:
+            data, model = model, mujoco.MjModel.__new__(mujoco.MjModel)
+            model.__setstate__(data)
+        self.__dict__.update(state)
+        self._mj_model, self._spec, self._source = model, None, source
+
+    def __copy__(self) -> "Robot":
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        return new
+
+    def __deepcopy__(self, memo: dict) -> "Robot":
+        """An independent robot equal to a pickled copy: the same labels, fingerprint and name,
+        a copy of the MuJoCo model and of the editable spec (``MjSpec.copy``)."""
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            if key == "_spec":
+                value = None if value is None else value.copy()
+            elif key != "_source":  # immutable; its root may be an MjSpec, which deepcopy cannot copy
+                value = copy.deepcopy(value, memo)
+            new.__dict__[key] = value
+        return new
+
+    def _restore(self) -> None:
+        """Rebuild the MjSpec (and the MjModel, if the pickle left it out) from the source, and
+        check that it compiles to this very robot."""
+        try:
+            spec = self._source.spec()
+            model = spec.compile()
+        except Exception as e:
+            raise CorruptFileError(f"{self.name}: could not rebuild the MuJoCo model from the MJCF this robot "
+                                   f"carries: {type(e).__name__}: {e}") from e
+        names = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt)]
+        if _fingerprint(names, _core_arrays(model)) != self.fingerprint:
+            how = ("its MjSpec, written out with MjSpec.to_xml (6 significant digits), compiles to another robot"
+                   if not self._source.loaded().root.exact else
+                   "the MJCF files it was built from now compile to another robot (edited since, another MuJoCo "
+                   "version, or its spec was edited after the robot was built)")
+            raise RobotMismatchError(f"{self.name}: cannot rebuild the MuJoCo model of this robot: {how}. "
+                                     "Labelling is unaffected; rebuild the robot itself for obstacles.")
+        self._spec = spec
+        if self._mj_model is None:
+            self._mj_model = model

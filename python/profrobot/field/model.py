@@ -35,7 +35,10 @@ class LipschitzLinear(nn.Linear):
 
 class _Shared:
     """Holds the field's Robot: copies of the module (deepcopy, snapshots) share it, since a
-    Robot is immutable, instead of copying MuJoCo models and the Rust collision model."""
+    Robot is immutable, instead of copying MuJoCo models and the Rust collision model. A pickle
+    (``pickle``, ``torch.save``, DataLoader workers) carries the Robot itself (see
+    ``Robot.__getstate__``): the unpickled field labels, certifies and adds obstacles like this
+    one."""
 
     __slots__ = ("value",)
 
@@ -44,6 +47,9 @@ class _Shared:
 
     def __deepcopy__(self, memo):
         return self
+
+    def __reduce__(self):  # any protocol (the default slots pickling needs protocol 2)
+        return (_Shared, (self.value,))
 
 
 class PoseSDF(nn.Module):
@@ -61,6 +67,11 @@ class PoseSDF(nn.Module):
     - ``lipschitz``: Lipschitz-constrained MLP layers;
     - ``objective``: "sdf" (classifier field) or "ndf" (the baseline: g regresses the distance
       to the nearest free pose, minus a threshold fitted on training data).
+
+    A field pickles with its robot (``pickle``, ``torch.save`` / ``torch.load(...,
+    weights_only=False)``, DataLoader workers): the copy gives the same g and ∂g/∂θ. ``deepcopy``
+    copies the weights and shares the (immutable) robot. Checkpoints to keep are
+    :func:`profrobot.save_sdf`'s (safetensors, nothing unpickled).
     """
 
     def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,

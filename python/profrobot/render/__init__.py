@@ -1,14 +1,18 @@
 """Differentiable robot splat renderer (Dr. Robot-style): torch projection, the Rust tile kernel on a
 CPU, gsplat on CUDA, a pure-PyTorch reference.
 
-- :mod:`.views`: MuJoCo multi-view data (RGB, metric depth, robot mask) and OpenCV cameras;
+- :mod:`.cameras`: MuJoCo free cameras and their OpenCV matrices (:class:`Cameras`);
+- :mod:`.views`: multi-view data (RGB, metric depth, robot mask; :class:`Views`, :func:`make_views`);
+- :mod:`.mjviews`: MuJoCo's offscreen renderer and the chunk functions that draw in workers;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
 - :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
   ``rust`` (``rust/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
+- :mod:`.targets`: target images validated once and the image loss (:class:`ImageTargets`);
 - :mod:`.pose`: :func:`fit_pose`, joint angles from images.
 
-The MuJoCo side (:mod:`.views`) needs no torch; the torch side loads on first use of its names.
+The MuJoCo side (:mod:`.cameras`, :mod:`.views`, :mod:`.mjviews`) needs no torch; the torch side loads
+on first use of its names.
 """
 
 from __future__ import annotations
@@ -17,13 +21,16 @@ import importlib
 import sys
 import types
 
-from .views import Cameras, Views, make_views, ring_cameras, sphere_cameras
+from .cameras import Cameras, ring_cameras, sphere_cameras
+from .mjviews import robot_visual_model
+from .views import Views, make_views
 
 _LAZY = {"GaussianRobot": ".gaussians", "rasterize": ".rasterize", "RenderOut": ".rasterize",
-         "fit_gaussians": ".fit", "fit_pose": ".pose", "PoseFit": ".pose"}
+         "fit_gaussians": ".fit", "fit_pose": ".pose", "PoseFit": ".pose", "ImageTargets": ".targets",
+         "pose_loss": ".targets"}
 
-__all__ = ["make_views", "Cameras", "Views", "ring_cameras", "sphere_cameras", "GaussianRobot", "rasterize",
-           "RenderOut", "fit_gaussians", "fit_pose", "PoseFit"]
+__all__ = ["make_views", "Cameras", "Views", "ring_cameras", "sphere_cameras", "robot_visual_model", "GaussianRobot",
+           "rasterize", "RenderOut", "fit_gaussians", "fit_pose", "PoseFit", "ImageTargets", "pose_loss"]
 
 
 def __getattr__(name: str):

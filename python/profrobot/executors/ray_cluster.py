@@ -1,22 +1,24 @@
-"""Beyond one machine: the same work, cut into the same seeded chunks, on a Ray cluster.
+"""Beyond one machine: the same chunk functions, cut into the same chunks, on a Ray cluster.
 
-``executor=None`` (the default everywhere) runs locally, as always. ``executor=RayExecutor(...)``
-runs the chunks on Ray actors instead: :func:`profrobot.make_dataset` (its seeded sampling rounds),
-:func:`profrobot.render.make_views` (its pose chunks), :func:`profrobot.crosscheck` (MuJoCo's
-labels, per chunk of poses) and the batch benches (``benches/planning.py --executor ray``).
+``executor=RayExecutor(...)`` runs the chunks of :func:`profrobot.make_dataset` (its seeded
+sampling rounds), :func:`profrobot.render.make_views` (its pose chunks), :func:`profrobot.crosscheck`
+(MuJoCo's labels, per chunk of poses) and the batch benches on Ray actors.
 
-Why the output is identical to the local run, whatever the number of workers: the local and the
-Ray paths cut the work with the same plan (a chunk is a pure function of the robot, the seed and
-the chunk's index: never of the worker that runs it or of when it runs), and the results are
-placed by chunk index; what is computed from them afterwards (make_dataset's quota filling, the
-concatenations) runs in the caller, in chunk order, exactly as locally.
+Why the output is identical to the local run, whatever the number of workers: every client cuts
+its work with :func:`~profrobot.executors.base.chunk_bounds` (or seeded rounds), a chunk function
+is a pure function of the robot and its arguments (never of the worker that runs it or of when it
+runs), and the results are placed by chunk index; what is computed from them afterwards
+(make_dataset's quota filling, the concatenations) runs in the caller, in chunk order, exactly as
+locally.
 
-How it runs: one pool of long-lived actors per robot (``workers`` of them, one CPU each). The
-robot is pickled once, put in Ray's object store once, and loaded once per actor; MuJoCo's
-renderer (one GL context) lives in the actor beside it, with ``MUJOCO_GL`` chosen the way
-profrobot's local render workers choose it (:mod:`profrobot._gl`, probed on the actor's node).
-Large inputs go through the object store (``ray.put`` once per call, never pickled per task);
-results stream back with ``ray.wait`` into a progress bar.
+How it runs: one pool of long-lived actors per robot (``workers`` of them, ``threads`` CPUs
+each). The robot is pickled once, put in Ray's object store once, and loaded once per actor; a
+chunk function's per-process caches (MuJoCo's renderer, one GL context) live in its module, in
+the actor, beside the robot. An actor asked to run a chunk function marked with
+:func:`profrobot.gl.uses_gl` first sets ``MUJOCO_GL`` the way profrobot's local render workers
+get it (:func:`profrobot.gl.select_backend`, probed on the actor's node). Large inputs go through
+the object store (:meth:`RayExecutor.put` once per call, never pickled per task); results stream
+back with ``ray.wait`` into a progress bar.
 
 Faults: a chunk whose actor dies (its process killed, its node lost) is submitted again, to
 another actor when there is one, while Ray restarts the dead one (``max_restarts``); each chunk's
@@ -32,7 +34,6 @@ only when an executor first connects.
 from __future__ import annotations
 
 import collections
-import copy
 import hashlib
 import os
 import pickle
@@ -46,9 +47,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ClusterError, InputError
+from ..errors import ClusterError, InputError
+from .base import ChunkFn, progress_bar
 
-__all__ = ["RayExecutor", "ClusterError", "RunStats", "check_executor"]
+__all__ = ["RayExecutor", "ClusterError", "RunStats"]
 
 
 def _import_ray():
@@ -72,11 +74,10 @@ def _actor_errors(ray) -> tuple[type[BaseException], ...]:
 # --------------------------------------------------------------------------------------------
 
 class _RobotWorker:
-    """A Ray actor holding one robot (unpickled once) and, when asked to render, one MuJoCo
-    renderer for the cameras of the current call. Every method is a pure function of its
-    arguments and the robot, so a restarted actor (Ray re-runs ``__init__``) computes the same."""
+    """A Ray actor holding one robot (unpickled once). :meth:`run` calls a chunk function on it;
+    chunk functions are pure, so a restarted actor (Ray re-runs ``__init__``) computes the same."""
 
-    def __init__(self, robot_ref: list, threads: int = 1):
+    def __init__(self, robot_ref: list):
         import ray
 
         import profrobot  # noqa: F401  (mujoco with its GL deferred, before anything else loads it)
@@ -84,10 +85,6 @@ class _RobotWorker:
         # the robot's bytes, from the object store (nested in a list, so that Ray hands over the
         # reference and this actor, on every restart too, reads the one stored copy)
         self.robot = pickle.loads(ray.get(robot_ref[0]))
-        self.threads = int(threads)
-        self._views = None
-        self._views_key = None
-        self._gl: str | None = None
 
     def pid(self) -> int:
         return os.getpid()
@@ -95,54 +92,23 @@ class _RobotWorker:
     def ping(self) -> int:
         return os.getpid()
 
-    # ---- make_dataset -------------------------------------------------------------------------
-    def dataset_round(self, seed: int, r: int, batch: int, equalities: str):
-        from .dataset import _round
+    def run(self, fn: ChunkFn, *args):
+        """``fn(robot, *args)``; a drawing chunk function first gets the backend that renders on
+        this node in ``MUJOCO_GL``, before MuJoCo's GL stack loads (its first renderer)."""
+        from ..gl import needs_gl, select_backend
 
-        return _round(self.robot, seed, r, batch, self.threads, equalities)
-
-    # ---- crosscheck -----------------------------------------------------------------------------
-    def mujoco_labels(self, poses: np.ndarray, start: int, stop: int):
-        from .crosscheck import _mujoco_chunk
-
-        return _mujoco_chunk(self.robot, poses[start:stop])
-
-    # ---- make_views -----------------------------------------------------------------------------
-    def render(self, cameras, qpos: np.ndarray, start: int, stop: int):
-        from .render import views
-
-        key = pickle.dumps(cameras.to_dict())
-        if self._views is None or self._views_key != key:
-            if self._views is not None:
-                self._views.close()
-                self._views = None
-            if self._gl is None:
-                from . import _gl
-
-                # as profrobot's render worker processes do: the backend that renders on this
-                # node, in the environment before MuJoCo's GL stack loads (first renderer)
-                self._gl = _gl.backend()
-                os.environ["MUJOCO_GL"] = self._gl
-            self._views = views._MjViews(views.robot_visual_model(self.robot), cameras)
-            self._views_key = key
-        out = [self._views.render(q) for q in qpos[start:stop]]
-        return tuple(np.stack(x) for x in zip(*out))
-
-    # ---- anything else (benches) ----------------------------------------------------------------
-    def apply(self, fn: Callable, args: tuple):
+        if needs_gl(fn):
+            select_backend()
         return fn(self.robot, *args)
 
 
 def _robot_bytes(robot) -> bytes:
-    """The robot pickled for the workers: everything but its editable MjSpec (not picklable;
-    only :meth:`Robot.with_obstacles` needs it, never a worker)."""
-    from .robot import Robot
+    """The robot pickled for the workers (once per pool)."""
+    from ..robot import Robot
 
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    r = copy.copy(robot)
-    r._spec = None
-    return pickle.dumps(r, protocol=pickle.HIGHEST_PROTOCOL)
+    return pickle.dumps(robot, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 # --------------------------------------------------------------------------------------------
@@ -175,7 +141,7 @@ class _Pool:
         opts: dict[str, Any] = dict(num_cpus=threads, max_restarts=max_restarts, max_task_retries=0)
         if runtime_env:
             opts["runtime_env"] = runtime_env
-        self.actors = [cls.options(**opts).remote([self.robot_ref], threads) for _ in range(n)]
+        self.actors = [cls.options(**opts).remote([self.robot_ref]) for _ in range(n)]
         try:
             self.pids = ray.get([a.ping.remote() for a in self.actors], timeout=start_timeout)
         except ray.exceptions.GetTimeoutError:
@@ -199,39 +165,40 @@ class _Pool:
 
 
 class _Run:
-    """One call's chunks on a pool: ``submit(index, method, *args)``, then ``next()`` yields
-    ``(index, result)`` as results arrive. A chunk whose actor died is resubmitted (to another
+    """One call's chunks on a pool: ``submit(index, *args)`` (``actor.run(fn_ref, *args)``), then
+    ``next()`` yields ``(index, result)`` as results arrive. A chunk whose actor died is resubmitted (to another
     actor when there is one); a result for an index already placed is dropped."""
 
-    def __init__(self, executor: "RayExecutor", pool: _Pool, per_actor: int):
+    def __init__(self, executor: "RayExecutor", pool: _Pool, per_actor: int, fn: ChunkFn):
         self.ex, self.pool, self.ray = executor, pool, executor._ray
+        self.fn = self.ray.put(fn)  # once per call: the chunk function, through the object store
         self.per_actor = max(1, int(per_actor))
         n = len(pool.actors)
         self.load = [0] * n
         self.down: dict[int, Any] = {}                        # actor -> its ping while Ray restarts it
         self.gone: set[int] = set()                           # actors that will not come back
-        self.queue: collections.deque = collections.deque()   # (index, method, args, attempt, avoid)
-        self.pending: dict = {}                               # ObjectRef -> (index, method, args, attempt, actor)
+        self.queue: collections.deque = collections.deque()   # (index, args, attempt, avoid)
+        self.pending: dict = {}                               # ObjectRef -> (index, args, attempt, actor)
         self.pings: dict = {}                                 # ObjectRef -> (actor, tries)
         self.placed: collections.Counter = collections.Counter()
         self.stats = RunStats(placed=self.placed)
         self.dead = _actor_errors(self.ray)
         executor.last_run = self.stats
 
-    def submit(self, index: int, method: str, *args) -> None:
-        self.queue.append((index, method, args, 0, -1))
+    def submit(self, index: int, *args) -> None:
+        self.queue.append((index, args, 0, -1))
         self._fill()
 
     def _fill(self) -> None:
         up = [a for a in range(len(self.load)) if a not in self.down and a not in self.gone]
         while self.queue and up:
-            index, method, args, attempt, avoid = self.queue[0]
+            index, args, attempt, avoid = self.queue[0]
             a = min(up, key=lambda a: (a == avoid, self.load[a], a))
             if self.load[a] >= self.per_actor:
                 return
             self.queue.popleft()
-            ref = getattr(self.pool.actors[a], method).remote(*args)
-            self.pending[ref] = (index, method, args, attempt, a)
+            ref = self.pool.actors[a].run.remote(self.fn, *args)
+            self.pending[ref] = (index, args, attempt, a)
             self.load[a] += 1
             self.stats.submitted += 1
 
@@ -278,7 +245,7 @@ class _Run:
                         self._mark_down(a, tries + 1)
                 self._fill()
                 continue
-            index, method, args, attempt, a = self.pending.pop(ref)
+            index, args, attempt, a = self.pending.pop(ref)
             self.load[a] -= 1
             try:
                 value = ray.get(ref)
@@ -288,7 +255,7 @@ class _Run:
                                        f"{self.ex.max_retries}); last: {type(e).__name__}: {str(e)[:300]}") from e
                 self.stats.retries += 1
                 self._mark_down(a)
-                self.queue.appendleft((index, method, args, attempt + 1, a))
+                self.queue.appendleft((index, args, attempt + 1, a))
                 self._fill()
                 continue
             except ray.exceptions.RayTaskError as e:  # the chunk itself raised: the caller's exception
@@ -300,7 +267,7 @@ class _Run:
                 continue
             self.placed[index] += 1
             self.stats.chunks += 1
-            self.ex._on_chunk(index, a)
+            self.ex.on_chunk(index, a)
             return index, value
 
     def cancel(self) -> None:
@@ -333,7 +300,8 @@ class RayExecutor:
             Client.
         workers: actors per robot (one CPU each, ``threads`` CPUs with ``threads``); default:
             the cluster's CPUs divided by ``threads``.
-        threads: labeller threads (and CPUs reserved) per actor.
+        threads: labeller threads (and CPUs reserved) per actor: what chunk functions that
+            label use there (:attr:`threads` of the executor protocol).
         num_cpus: CPUs of the local cluster started when ``address`` is ``None``.
         connect_timeout: seconds to reach the cluster before :class:`ClusterError`.
         start_timeout: seconds for the workers to start before :class:`ClusterError`.
@@ -443,27 +411,31 @@ class RayExecutor:
         """``value`` in the object store, once (an ObjectRef to pass as a chunk argument)."""
         return self.connect().put(value)
 
-    def _run(self, robot) -> _Run:
-        return _Run(self, self._pool(robot), self.per_actor)
+    def _run(self, robot, fn: ChunkFn) -> _Run:
+        return _Run(self, self._pool(robot), self.per_actor, fn)
 
-    def _on_chunk(self, index: int, actor: int) -> None:
+    def on_chunk(self, index: int, actor: int) -> None:
         """Called as chunk ``index``'s result, from actor ``actor`` (its position in
         :meth:`worker_pids`), is placed: a hook for tests and subclasses."""
 
-    # ---- generic maps ---------------------------------------------------------------------------
-    def map_chunks(self, robot, method: str, chunk_args: Sequence[tuple], *, sizes: Sequence[int] | None = None,
-                   desc: str = "chunks", unit: str = "chunk", progress: bool = True) -> list:
-        """``[actor.method(*args) for args in chunk_args]`` on the robot's actors, in order."""
-        from tqdm.auto import tqdm
-
-        sizes = list(sizes) if sizes is not None else [1] * len(chunk_args)
-        out: list = [None] * len(chunk_args)
-        run = self._run(robot)
-        for i, args in enumerate(chunk_args):
-            run.submit(i, method, *args)
-        with tqdm(total=sum(sizes), desc=desc, unit=unit, disable=not progress) as bar:
+    # ---- the executor protocol ------------------------------------------------------------------
+    def map(self, fn: ChunkFn, chunks: Iterable, *, robot, sizes: Sequence[int] | None = None,
+            desc: str = "chunks", unit: str = "chunk", progress: bool = True) -> list:
+        """``[fn(robot, *args) for args in chunks]`` (a non-tuple item is one argument) on the
+        robot's actors, results in order. ``fn`` travels once through the object store
+        (functions defined in a script's ``__main__`` travel by value; others must be importable
+        on the workers); top-level :meth:`put` handles among the arguments arrive as values."""
+        chunks = [tuple(c) if isinstance(c, tuple) else (c,) for c in chunks]
+        sizes = list(sizes) if sizes is not None else [1] * len(chunks)
+        out: list = [None] * len(chunks)
+        if not chunks:
+            return out
+        run = self._run(robot, fn)
+        for i, args in enumerate(chunks):
+            run.submit(i, *args)
+        with progress_bar(sum(sizes), desc, unit, progress) as bar:
             try:
-                for _ in range(len(chunk_args)):
+                for _ in range(len(chunks)):
                     i, value = run.next()
                     out[i] = value
                     bar.update(sizes[i])
@@ -472,28 +444,20 @@ class RayExecutor:
                 raise
         return out
 
-    def map(self, fn: Callable, items: Iterable, *, robot, desc: str = "tasks", progress: bool = True) -> list:
-        """``[fn(robot, *item) for item in items]`` on the robot's actors, results in order.
-        ``fn`` travels once through the object store (functions defined in a script's
-        ``__main__`` travel by value; others must be importable on the workers)."""
-        items = [tuple(it) if isinstance(it, tuple) else (it,) for it in items]
-        fref = self.put(fn)
-        return self.map_chunks(robot, "apply", [(fref, it) for it in items], desc=desc, unit="task", progress=progress)
-
-    def ordered(self, robot, method: str, args_of: Callable[[int], tuple], limit: int,
-                demand: Callable[[], int]) -> Iterator[tuple[int, Any]]:
+    def ordered(self, fn: ChunkFn, args_of: Callable[[int], tuple], limit: int, demand: Callable[[], int], *,
+                robot) -> Iterator[tuple[int, Any]]:
         """Chunks ``0, 1, 2, ...`` (< ``limit``) yielded in index order, ``args_of(i)`` their
         arguments. At most ``demand()`` chunks (asked after each one is consumed: the caller's
         estimate of how many more it needs) are in flight or buffered beyond those consumed;
         closing the generator cancels the rest."""
-        run = self._run(robot)
+        run = self._run(robot, fn)
         buffered: dict[int, Any] = {}
         nxt = sub = 0
         try:
             while nxt < limit:
                 want = max(1, int(demand()))
                 while sub < limit and sub - nxt < want:
-                    run.submit(sub, method, *args_of(sub))
+                    run.submit(sub, *args_of(sub))
                     sub += 1
                 while nxt not in buffered:
                     i, value = run.next()
@@ -527,12 +491,6 @@ class RayExecutor:
 
     def __exit__(self, *exc) -> None:
         self.shutdown()
-
-
-def check_executor(executor) -> "RayExecutor | None":
-    if executor is None or isinstance(executor, RayExecutor):
-        return executor
-    raise TypeError(f"executor must be None (local) or a profrobot.executors.RayExecutor; got {type(executor).__name__}")
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,166 @@
+"""MuJoCo's offscreen renderer for profrobot: multi-view renders of the robot alone (RGB, metric
+depth, mask) and trajectory frames of the whole scene, and the chunk functions executors run for
+them in drawing processes (never in the caller's: see :mod:`profrobot.gl`).
+
+Each drawing process keeps one renderer per kind (and its GL context) for the robot and cameras
+of its last chunk, here, beside the chunk functions; :func:`release_renderers` frees them (local
+workers do when a call ends, :func:`profrobot.executors.on_release`).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+
+from ..executors.base import on_release
+from ..gl import uses_gl
+from .cameras import Cameras, free_camera
+
+__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk",
+           "release_renderers"]
+
+
+def robot_visual_model(robot) -> mujoco.MjModel:
+    """A copy of the robot's model in which only the robot is drawn: world-body geoms (floor,
+    obstacles) get alpha 0, which MuJoCo's scene builder skips."""
+    m = copy.deepcopy(robot.mj_model)
+    world = m.geom_bodyid == 0
+    m.geom_rgba[world, 3] = 0.0
+    m.geom_matid[world] = -1
+    return m
+
+
+class MjViews:
+    """One MuJoCo renderer (one GL context, made on first use of :attr:`r`) for one model and
+    camera set; :meth:`gl_camera` needs no GL."""
+
+    def __init__(self, model: mujoco.MjModel, cameras: Cameras):
+        self.m = model
+        self.m.vis.global_.fovy = cameras.fovy
+        self.d = mujoco.MjData(model)
+        self.cams = cameras
+        self._r = None
+        robot_geom = np.asarray(model.geom_bodyid) != 0
+        self.robot_geom = np.concatenate([robot_geom, [False]])  # index -1 (background) → False
+
+    @property
+    def r(self) -> mujoco.Renderer:
+        """The renderer, made (with its GL context) on first use."""
+        if self._r is None:
+            self._r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
+        return self._r
+
+    def camera(self, c: int) -> mujoco.MjvCamera:
+        return self.cams.mjv_camera(c)
+
+    def render(self, qpos: np.ndarray):
+        """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
+        robot), mask (C,H,W) bool."""
+        m, d, cams = self.m, self.d, self.cams
+        r = self.r
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_camlight(m, d)
+        C, H, W = len(cams), cams.height, cams.width
+        rgb = np.empty((C, H, W, 3), np.uint8)
+        depth = np.empty((C, H, W), np.float32)
+        mask = np.empty((C, H, W), bool)
+        for c in range(C):
+            r.update_scene(d, self.camera(c))
+            rgb[c] = r.render()
+            r.enable_depth_rendering()
+            depth[c] = r.render()
+            r.disable_depth_rendering()
+            r.enable_segmentation_rendering()
+            seg = r.render()
+            r.disable_segmentation_rendering()
+            is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+            mask[c] = is_geom & self.robot_geom[np.where(is_geom, seg[..., 0], -1)]
+        depth[~mask] = 0.0
+        return rgb, depth, mask
+
+    def gl_camera(self, c: int):
+        """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
+        scn = mujoco.MjvScene(self.m, maxgeom=max(1, self.m.ngeom))
+        mujoco.mjv_updateScene(self.m, self.d, mujoco.MjvOption(), None, self.camera(c),
+                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+        return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
+
+    def close(self):
+        if self._r is not None:
+            self._r.close()
+            self._r = None
+
+
+class MjFrames:
+    """RGB frames of poses from one free camera, the whole scene drawn and contact points shown:
+    trajectory pictures. ``size`` is (width, height); ``camera`` a dict of lookat, distance,
+    azimuth, elevation."""
+
+    def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera: dict):
+        self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
+        width, height = size
+        self.cam = free_camera(camera["lookat"], camera["distance"], camera["azimuth"], camera["elevation"])
+        self.opt = mujoco.MjvOption()
+        self.opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
+        self.r = mujoco.Renderer(model, height, width)
+
+    def render(self, poses: np.ndarray) -> np.ndarray:
+        out = []
+        for q in poses:
+            self.d.qpos[self.adr] = q
+            mujoco.mj_forward(self.m, self.d)
+            self.r.update_scene(self.d, camera=self.cam, scene_option=self.opt)
+            out.append(self.r.render())
+        return np.stack(out)
+
+    def close(self):
+        self.r.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Chunk functions (run by executors in drawing processes) and their per-process renderers
+# --------------------------------------------------------------------------------------------
+
+_VIEWS: tuple[object, Cameras, MjViews] | None = None      # (robot, cameras, renderer)
+_FRAMES: tuple[object, tuple, MjFrames] | None = None      # (robot, (size, camera), renderer)
+
+
+@uses_gl
+def render_views_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, stop: int):
+    """Rows ``start:stop`` of ``qpos`` (P, nq: full MuJoCo qpos) rendered from ``cameras`` →
+    ``(rgb, depth, mask)``, each stacked over the chunk's poses (see :meth:`MjViews.render`)."""
+    global _VIEWS
+    if _VIEWS is None or _VIEWS[0] is not robot or _VIEWS[1] != cameras:
+        if _VIEWS is not None:
+            _VIEWS[2].close()
+            _VIEWS = None
+        _VIEWS = (robot, cameras, MjViews(robot_visual_model(robot), cameras))
+    views = _VIEWS[2]
+    out = [views.render(q) for q in qpos[start:stop]]
+    return tuple(np.stack(x) for x in zip(*out))
+
+
+@uses_gl
+def render_frames_chunk(robot, poses: np.ndarray, size: tuple[int, int], camera: dict) -> np.ndarray:
+    """``poses`` (S, K) drawn with the whole scene from one free camera → (S, H, W, 3) uint8."""
+    global _FRAMES
+    key = (tuple(int(s) for s in size), repr(sorted(camera.items())))
+    if _FRAMES is None or _FRAMES[0] is not robot or _FRAMES[1] != key:
+        if _FRAMES is not None:
+            _FRAMES[2].close()
+            _FRAMES = None
+        _FRAMES = (robot, key, MjFrames(robot.mj_model, robot.qpos_adr, size, camera))
+    return _FRAMES[2].render(poses)
+
+
+@on_release
+def release_renderers() -> None:
+    """Close this process's renderers (their GL contexts)."""
+    global _VIEWS, _FRAMES
+    for cached in (_VIEWS, _FRAMES):
+        if cached is not None:
+            cached[2].close()
+    _VIEWS = _FRAMES = None
