@@ -129,7 +129,7 @@ def main(argv=None) -> int:
         header = f"# {scene}: our default field, {minutes:g} min budget (dataset generation excluded)"
         if args.command == "default":
             OUT.mkdir(exist_ok=True)
-            profrobot.save_sdf(sdf, OUT / "panda_blocks_default")
+            sdf.save(OUT / "panda_blocks_default")
             from profrobot.viz import sdf_slice
 
             sdf_slice(sdf, robot, path=OUT / "panda_blocks_sdf_slice.png")

@@ -24,9 +24,9 @@ def field(scene: str, *, progress: bool = True) -> profrobot.PoseSDF:
     robot = profrobot.scenes.load(scene)
     path = OUT / scene
     if path.is_dir():
-        return profrobot.load_sdf(path, robot)
+        return profrobot.PoseSDF.load(path, robot)
     sdf = profrobot.train_sdf(robot, progress=progress, **RECIPE)
-    profrobot.save_sdf(sdf, path)
+    sdf.save(path)
     return sdf
 
 

@@ -49,7 +49,7 @@ def main() -> None:
 
         sdf = field("panda_blocks")
     else:
-        sdf = profrobot.load_sdf(args.field, robot)
+        sdf = profrobot.PoseSDF.load(args.field, robot)
     poses = colliding_poses(robot, args.poses, seed=100)
     t = time.perf_counter()
     oracle = profrobot.nearest_free(robot, poses, directions=args.directions, refine=args.refine)

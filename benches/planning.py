@@ -134,9 +134,9 @@ def field_for(scene: str, recipe: str):
         robot = profrobot.scenes.load(scene)
         path = OUT / "fields_quick" / scene
         if path.is_dir():
-            return profrobot.load_sdf(path, robot)
+            return profrobot.PoseSDF.load(path, robot)
         sdf = profrobot.train_sdf(robot, progress=False, **QUICK)
-        profrobot.save_sdf(sdf, path)
+        sdf.save(path)
         print(scene, "quick field", {k: round(v, 4) for k, v in sdf.metrics.items() if isinstance(v, float)}, flush=True)
         return sdf
     sys.path.insert(0, str(Path(__file__).resolve().parent))

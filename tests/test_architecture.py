@@ -45,11 +45,25 @@ def _resolve(module: str, path: Path, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
+def _runtime_nodes(tree: ast.AST):
+    """Every node but those under ``if TYPE_CHECKING:`` (annotations only, never imported)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and isinstance(child.test, ast.Name) and child.test.id == "TYPE_CHECKING":
+                stack.extend(child.orelse)
+                continue
+            stack.append(child)
+
+
 def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
-    """module -> the profrobot modules it imports (anywhere in the file)."""
+    """module -> the profrobot modules it imports (anywhere in the file: at the top, inside
+    functions; not under ``if TYPE_CHECKING:``)."""
     graph: dict[str, set[str]] = {m: set() for m in modules}
     for m, p in modules.items():
-        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+        for node in _runtime_nodes(ast.parse(p.read_text(), str(p))):
             targets = []
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]

@@ -35,6 +35,6 @@ def test_train_command_saves_a_loadable_checkpoint(tmp_path, capsys):
                  "--batch-size", "256", "--out", str(ckpt), "--plot", str(tmp_path / "slice.png")]) == 0
     out = capsys.readouterr().out
     assert "accuracy" in out and "false_free_rate" in out
-    sdf = profrobot.load_sdf(ckpt, profrobot.scenes.load("ur5e_wall_box"))
+    sdf = profrobot.PoseSDF.load(ckpt, profrobot.scenes.load("ur5e_wall_box"))
     assert sdf.metrics["iterations"] == 3
     assert (tmp_path / "slice.png").is_file()

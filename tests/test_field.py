@@ -61,8 +61,8 @@ def test_checkpoint_round_trips_bit_exactly(panda, tmp_path):
     with torch.no_grad():
         sdf.s_raw.fill_(3.1)
     sdf.metrics = {"accuracy": 0.5}
-    profrobot.save_sdf(sdf, tmp_path / "ckpt")
-    back = profrobot.load_sdf(tmp_path / "ckpt", panda)
+    sdf.save(tmp_path / "ckpt")
+    back = profrobot.PoseSDF.load(tmp_path / "ckpt", panda)
     for (k, v), (k2, v2) in zip(sdf.state_dict().items(), back.state_dict().items()):
         assert k == k2 and torch.equal(v, v2), k
     q = torch.as_tensor(profrobot.sample_poses(panda, 100, seed=5), dtype=torch.float32)
@@ -70,38 +70,38 @@ def test_checkpoint_round_trips_bit_exactly(panda, tmp_path):
         assert torch.equal(sdf(q), back(q))
     assert back.metrics["accuracy"] == 0.5
     # saving again replaces the directory atomically, leaving no temporary files behind
-    profrobot.save_sdf(sdf, tmp_path / "ckpt")
+    sdf.save(tmp_path / "ckpt")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ckpt"]
 
 
 def test_checkpoint_for_another_robot_fails(panda, ur5e, tmp_path):
-    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), tmp_path / "ckpt")
+    PoseSDF(panda, hidden=(8,)).save(tmp_path / "ckpt")
     with pytest.raises(RobotMismatchError, match="made for robot 'panda_blocks'"):
-        profrobot.load_sdf(tmp_path / "ckpt", ur5e)
+        profrobot.PoseSDF.load(tmp_path / "ckpt", ur5e)
     # the same arm with one obstacle fewer is another robot too
     with pytest.raises(RobotMismatchError, match="fingerprint"):
-        profrobot.load_sdf(tmp_path / "ckpt", profrobot.Robot.from_menagerie("franka_emika_panda"))
+        profrobot.PoseSDF.load(tmp_path / "ckpt", profrobot.Robot.from_menagerie("franka_emika_panda"))
 
 
 def test_corrupt_checkpoints_fail_clearly(panda, tmp_path):
     path = tmp_path / "ckpt"
-    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), path)
+    PoseSDF(panda, hidden=(8,)).save(path)
     w = path / "model.safetensors"
     w.write_bytes(w.read_bytes()[:100])
     with pytest.raises(ValueError, match="corrupt checkpoint weights"):
-        profrobot.load_sdf(path, panda)
+        profrobot.PoseSDF.load(path, panda)
     (path / "config.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt checkpoint config"):
-        profrobot.load_sdf(path, panda)
+        profrobot.PoseSDF.load(path, panda)
     with pytest.raises(ValueError, match="not a PoseSDF checkpoint"):
-        profrobot.load_sdf(tmp_path / "missing", panda)
+        profrobot.PoseSDF.load(tmp_path / "missing", panda)
     # weights that do not fit the config's architecture
-    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), path)
+    PoseSDF(panda, hidden=(8,)).save(path)
     cfg = json.loads((path / "config.json").read_text())
     cfg["model"]["hidden"] = [16]
     (path / "config.json").write_text(json.dumps(cfg))
     with pytest.raises(ValueError, match="do not fit"):
-        profrobot.load_sdf(path, panda)
+        profrobot.PoseSDF.load(path, panda)
 
 
 def test_export_matches_the_module(panda, tmp_path):

@@ -70,7 +70,7 @@ def test_every_public_name_resolves_and_dir_is_complete():
     assert set(profrobot.__all__) <= set(dir(profrobot))
     import profrobot.field.checkpoint as checkpoint
     import profrobot.optim as optim
-    assert profrobot.train_sdf is profrobot.field.train_sdf and profrobot.save_sdf is checkpoint.save_sdf
+    assert profrobot.train_sdf is profrobot.field.train_sdf and profrobot.export_sdf is checkpoint.export_sdf
     assert profrobot.resolve is optim.resolve and profrobot.plan_trajectory is optim.plan_trajectory
     assert set(profrobot.render.__all__) <= set(dir(profrobot.render))
     for name in profrobot.render.__all__:

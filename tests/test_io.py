@@ -32,10 +32,22 @@ def only(tmp_path, *names):
 
 
 def test_error_family():
-    for e in (ModelError, RobotMismatchError, CorruptFileError):
+    """Issue 19: one root, not a ValueError; bad input stays a ValueError, environment failures
+    (a missing renderer, a dead cluster, a backend asked for by name) are RuntimeErrors."""
+    from profrobot.errors import (BackendUnavailableError, ClusterError, InputError, InputTypeError,
+                                  RendererUnavailableError)
+
+    for e in (ModelError, RobotMismatchError, CorruptFileError, InputError, InputTypeError, ClusterError,
+              RendererUnavailableError, BackendUnavailableError):
         assert issubclass(e, ProfrobotError)
-    assert issubclass(ProfrobotError, ValueError)
+    assert not issubclass(ProfrobotError, ValueError)
+    for e in (ModelError, RobotMismatchError, CorruptFileError, InputError):
+        assert issubclass(e, ValueError)
+    assert issubclass(InputTypeError, TypeError)
+    for e in (ClusterError, RendererUnavailableError, BackendUnavailableError):
+        assert issubclass(e, RuntimeError) and not issubclass(e, ValueError)
     assert ProfrobotError is profrobot._core.ProfrobotError and ModelError is profrobot._core.ModelError
+    assert InputError is profrobot._core.InputError
 
 
 def test_atomic_path_keeps_umask_and_suffix(tmp_path, umask022):
@@ -127,10 +139,10 @@ def test_corrupt_files_raise_corrupt_file_error(tmp_path):
     with pytest.raises(CorruptFileError):
         profrobot.Dataset.load(bad)
     ck = tmp_path / "ck"
-    profrobot.save_sdf(PoseSDF(panda, hidden=(8,)), ck)
+    PoseSDF(panda, hidden=(8,)).save(ck)
     (ck / "config.json").write_text("{not json")
     with pytest.raises(CorruptFileError):
-        profrobot.load_sdf(ck, panda)
+        profrobot.PoseSDF.load(ck, panda)
 
 
 def test_checkpoint_and_export_modes(tmp_path, umask022):
@@ -140,11 +152,11 @@ def test_checkpoint_and_export_modes(tmp_path, umask022):
     panda = scene("panda_blocks")
     sdf = PoseSDF(panda, hidden=(8,))
     ck = tmp_path / "ck"
-    profrobot.save_sdf(sdf, ck)
+    sdf.save(ck)
     assert mode(ck) == 0o755
     for f in ck.iterdir():
         assert mode(f) == 0o644, f
-    profrobot.save_sdf(sdf, ck)                       # replacing leaves nothing beside it
+    sdf.save(ck)                       # replacing leaves nothing beside it
     only(tmp_path, "ck")
     pt2 = tmp_path / "g.pt2"
     export_sdf(sdf, pt2, batch=4)

@@ -277,7 +277,7 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     from profrobot import gl
     from profrobot.cli import main
 
-    ckpt = profrobot.save_sdf(shifted_field(panda, -100.0), tmp_path / "field")
+    ckpt = shifted_field(panda, -100.0).save(tmp_path / "field")
     # a field that calls everything free: the labeller's failures must show in the exit status
     assert main(["resolve", "--field", str(ckpt), "-n", "5", "--max-iters", "3",
                  "--out", str(tmp_path / "r.npz")]) == 1

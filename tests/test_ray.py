@@ -172,17 +172,21 @@ def test_map_runs_a_function_on_the_workers(ray_executor):
     got = ray_executor.map(profrobot.sample_poses, [(50, s) for s in range(5)], robot=robot, progress=False)
     for s, q in enumerate(got):
         assert same_array(q, profrobot.sample_poses(robot, 50, s))
-    # put: a handle that arrives as the value itself, top-level in a chunk's arguments
+    # put: a handle that arrives as the value itself, top-level in a chunk's arguments (a chunk
+    # function importable on the workers: profrobot's own)
+    from profrobot.crosscheck import mujoco_labels_chunk
+
     q = profrobot.sample_poses(robot, 40, seed=6)
     ref = ray_executor.put(q)
     bounds = chunk_bounds(len(q), 16)
     assert bounds == [(0, 16), (16, 32), (32, 40)]
-    got = ray_executor.map(rows_collide, [(ref, a, b) for a, b in bounds], robot=robot, progress=False)
-    assert same_array(np.concatenate(got), profrobot.collides(robot, q))
+    got = ray_executor.map(mujoco_labels_chunk, [(ref, a, b) for a, b in bounds], robot=robot, progress=False)
+    assert same_array(np.concatenate([ncon for ncon, _ in got]), mujoco_labels_chunk(robot, q, 0, len(q))[0])
 
 
 def rows_collide(robot, poses, start, stop):
-    """A chunk function (module-level, pure): collisions of ``poses[start:stop]``."""
+    """A chunk function (module-level, pure): collisions of ``poses[start:stop]``. Local worker
+    processes import it from here (they get this process's ``sys.path``)."""
     return profrobot.collides(robot, poses[start:stop])
 
 

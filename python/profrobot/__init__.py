@@ -46,7 +46,7 @@ from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere 
 # name → the module that defines it; loaded on first access
 _LAZY = {
     "PoseSDF": ".field", "train_sdf": ".field",
-    "save_sdf": ".field.checkpoint", "load_sdf": ".field.checkpoint", "export_sdf": ".field.checkpoint",
+    "save_sdf": ".field", "load_sdf": ".field", "export_sdf": ".field",
     "Kinematics": ".kinematics",
     "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",

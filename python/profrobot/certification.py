@@ -26,7 +26,7 @@ import numpy as np
 
 from .deprecation import deprecated_alias
 from .errors import InputError
-from .labels import as_poses, check_threads, collides, interpolate, label_poses
+from .labels import as_poses, check_threads, collides, interpolate, label_poses, so2_steps
 from .robot import Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "check_path", "path_free_at", "PathCheck", "certified_summary", "failures_of"]
@@ -101,8 +101,6 @@ def path_free_at(robot: Robot, path, resolution: float) -> bool:
     """Whether ``path`` (S, K) is certified free when re-interpolated (SO(2)) so that no joint
     moves more than ``resolution`` (rad / m) between two checked poses: the planner's own
     guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
-    from .planning import so2_steps
-
     path = np.asarray(path, dtype=np.float64)
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number; got {resolution!r}")

@@ -97,7 +97,7 @@ def cmd_dataset(args) -> int:
 def cmd_train(args) -> int:
     """Train a PoseSDF on a scene, print the held-out metrics, save a checkpoint (atomically)."""
     from .field import format_metrics, train_sdf
-    from .field.checkpoint import export_sdf, save_sdf
+    from .field.checkpoint import export_sdf
 
     robot = _robot(args)
     opts = dict(seed=args.seed, threads=args.threads)
@@ -108,7 +108,7 @@ def cmd_train(args) -> int:
         opts["time_budget"] = args.minutes * 60
     sdf = train_sdf(robot, preset=args.preset, **opts)
     print(f"{sdf}\n{format_metrics(sdf.metrics)}")
-    save_sdf(sdf, args.out)
+    sdf.save(args.out)
     print(f"saved checkpoint {args.out}")
     if args.plot:
         from .viz import sdf_slice

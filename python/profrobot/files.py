@@ -16,7 +16,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from .errors import RobotMismatchError
+from .errors import CorruptFileError, RobotMismatchError
 
 __all__ = ["atomic_path", "atomic_dir", "check_robot", "current_umask"]
 
@@ -142,3 +142,32 @@ def check_robot(meta: Mapping[str, Any] | str | None, robot: Any, what: str, *,
     given = getattr(robot, "name", None) or getattr(robot, "robot_name", None)
     raise RobotMismatchError(f"{what} was made for robot {made_for!r} (fingerprint {fingerprint}), "
                              f"not for {given!r} (fingerprint {given_fp})")
+
+
+def format_tag(kind: str, version: int) -> str:
+    """The tag every profrobot file (and pickle state) carries: ``"profrobot.<kind>/<version>"``."""
+    return f"profrobot.{kind}/{version}"
+
+
+def check_format(found: Any, kind: str, version: int, where: str, *, missing: int | None = None) -> int:
+    """The version of a file whose tag is ``found`` (see :func:`format_tag`), which must be a
+    ``kind`` file that this release reads (version 1 … ``version``); ``missing``: the version
+    assumed for files written before they carried a tag (None: a tag is required).
+
+    A newer version raises :class:`~profrobot.errors.CorruptFileError` naming both versions and
+    what to do; anything that is not a ``kind`` tag raises it saying what was found.
+    """
+    if found is None and missing is not None:
+        return missing
+    prefix = f"profrobot.{kind}/"
+    if isinstance(found, str) and found.startswith(prefix) and found[len(prefix):].isdigit():
+        v = int(found[len(prefix):])
+        if 1 <= v <= version:
+            return v
+        if v > version:
+            from ._core import __version__
+
+            raise CorruptFileError(f"{where} is a {kind} file of format version {v}, written by a newer profrobot; "
+                                   f"profrobot {__version__} reads versions up to {version}: upgrade profrobot "
+                                   f"(pip install -U profrobot) to read it")
+    raise CorruptFileError(f"{where} is not a profrobot {kind} file (format {found!r}; expected {format_tag(kind, version)!r})")

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .angles import wrap
 from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
 from .errors import InputError
@@ -138,3 +139,12 @@ def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:
 
     path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))
     return path[0] if single else path
+
+
+def so2_steps(robot: Robot, path) -> np.ndarray:
+    """(M−1, K) joint moves between consecutive waypoints of ``path`` (M, K) (radians / metres):
+    continuous hinges along the short arc (:func:`profrobot.angles.wrap`), as :func:`interpolate`
+    moves them."""
+    d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
+    d[:, robot.continuous] = wrap(d[:, robot.continuous])
+    return d

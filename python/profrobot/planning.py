@@ -15,9 +15,9 @@ from typing import Literal
 
 import numpy as np
 
-from .angles import wrap
-from .labels import as_poses, check_threads, label_poses
+from .labels import as_poses, check_threads, label_poses, so2_steps
 from .robot import Robot
+from .certification import path_free_at
 from .deprecation import renamed_arguments
 from .errors import InputError
 
@@ -63,14 +63,6 @@ class PathResult:
         return (f"{self.status}: {len(self.path)} waypoints (from {self.raw_waypoints}), "
                 f"{'certified free' if self.certified else 'NOT certified (a contact within the clearance)'}, "
                 f"{self.checks} checks, {self.seconds * 1e3:.1f} ms")
-
-
-def so2_steps(robot: Robot, path: np.ndarray) -> np.ndarray:
-    """(M−1, K) joint moves between consecutive waypoints of ``path`` (M, K): continuous hinges
-    along the short arc, as :func:`profrobot.interpolate` moves them."""
-    d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
-    d[:, robot.continuous] = wrap(d[:, robot.continuous])
-    return d
 
 
 def so2_length(robot: Robot, path: np.ndarray) -> float:
@@ -129,7 +121,6 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
         "iteration_limit": f"no path within iterations={iterations}; the goal may be enclosed",
     }[status]
     path = np.asarray(out["path"]).reshape(-1, robot.njoint)
-    from .certification import path_free_at  # TODO(lead): top-level once so2 steps live in the angles module
     return PathResult(path=path, found=found, status=status,
                       checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
                       tree_sizes=tuple(int(t) for t in out["tree_sizes"]), raw_waypoints=int(out["raw_waypoints"]),

@@ -308,10 +308,8 @@ class LocalExecutor:
     """
 
     def __init__(self, processes: int = 1, *, threads: int | None = None):
-        for name, v, low in (("processes", processes, 1), ("threads", threads, 1)):
-            if v is None and name == "threads":
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+        for name, v in (("processes", processes), ("threads", 1 if threads is None else threads)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name} must be a positive integer; got {v!r}")
         self.processes = int(processes)
         self.threads = None if threads is None else int(threads)

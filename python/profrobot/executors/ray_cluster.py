@@ -80,7 +80,9 @@ class _RobotWorker:
     def __init__(self, robot_ref: list):
         import ray
 
-        import profrobot  # noqa: F401  (mujoco with its GL deferred, before anything else loads it)
+        from ..gl import import_mujoco
+
+        import_mujoco()  # mujoco with its GL deferred (done already by profrobot's import; never twice)
 
         # the robot's bytes, from the object store (nested in a list, so that Ray hands over the
         # reference and this actor, on every restart too, reads the one stored copy)

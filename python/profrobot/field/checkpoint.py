@@ -7,21 +7,25 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from ..files import atomic_dir, atomic_path, check_robot
+from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError
 from ..robot import Robot
-from .model import PoseSDF
 
-FORMAT = "profrobot.PoseSDF/1"
+if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
+    from .model import PoseSDF
+
+FORMAT_VERSION = 1
+FORMAT = format_tag("PoseSDF", FORMAT_VERSION)
 
 
-def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
-    """Save ``sdf`` to the directory ``path`` (created or replaced atomically)."""
+def write_checkpoint(sdf: "PoseSDF", path: str | os.PathLike) -> Path:
+    """Save ``sdf`` to the directory ``path`` (created or replaced atomically): :meth:`PoseSDF.save`."""
     path = Path(path)
     tensors = {k: v.detach().cpu().contiguous() for k, v in sdf.state_dict().items()}
     config = dict(format=FORMAT, robot=sdf.robot_name, robot_fingerprint=sdf.fingerprint,
@@ -34,8 +38,9 @@ def save_sdf(sdf: PoseSDF, path: str | os.PathLike) -> Path:
     return path
 
 
-def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
-    """Load a checkpoint saved by :func:`save_sdf` for ``robot``.
+def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot) -> "PoseSDF":
+    """Load a checkpoint saved by :func:`write_checkpoint` for ``robot`` as a ``cls``:
+    :meth:`PoseSDF.load`.
 
     Raises :class:`~profrobot.errors.RobotMismatchError` if the checkpoint is for another robot
     (its fingerprint differs), :class:`~profrobot.errors.CorruptFileError` if its files are
@@ -49,17 +54,20 @@ def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
         config = json.loads(cfg_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise CorruptFileError(f"corrupt checkpoint config {cfg_path}: {e}") from e
-    if not isinstance(config, dict) or config.get("format") != FORMAT or not isinstance(config.get("model"), dict):
+    if not isinstance(config, dict):
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config")
+    check_format(config.get("format"), "PoseSDF", FORMAT_VERSION, str(cfg_path))
+    if not isinstance(config.get("model"), dict):
+        raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
     if not isinstance(robot, Robot):
-        raise TypeError(f"load_sdf needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
+        raise TypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
     check_robot(config, robot, f"checkpoint {path}")
     try:
         tensors = load_file(str(w_path))
     except (SafetensorError, OSError, ValueError) as e:
         raise CorruptFileError(f"corrupt checkpoint weights {w_path}: {e}") from e
     try:
-        sdf = PoseSDF(robot, **config["model"])
+        sdf = cls(robot, **config["model"])
     except (TypeError, ValueError) as e:
         raise CorruptFileError(f"{cfg_path} describes no valid PoseSDF: {e}") from e
     try:
@@ -74,7 +82,7 @@ def load_sdf(path: str | os.PathLike, robot: Robot) -> PoseSDF:
 class _Deployable(torch.nn.Module):
     """θ (B, K) → g (B,), without the Python-side checks (export traces tensors only)."""
 
-    def __init__(self, sdf: PoseSDF):
+    def __init__(self, sdf: "PoseSDF"):
         super().__init__()
         self.sdf = sdf
 
@@ -82,7 +90,7 @@ class _Deployable(torch.nn.Module):
         return self.sdf.head_g(self.sdf.encoder(theta))
 
 
-def export_sdf(sdf: PoseSDF, path: str | os.PathLike, *, batch: int = 1024) -> int:
+def export_sdf(sdf: "PoseSDF", path: str | os.PathLike, *, batch: int = 1024) -> int:
     """Export ``sdf`` with ``torch.export`` to a ``.pt2`` file (dynamic batch size); returns its
     size in bytes. Load it with ``torch.export.load(path).module()``."""
     path = Path(path)

@@ -34,7 +34,7 @@ def _bundled(name: str) -> Robot:
 def field_robot(sdf, robot: Robot | None) -> Robot:
     """The robot the exact labeller certifies against: ``robot`` if given (it must be the one the
     field was trained for), else the field's own robot (``sdf.robot``, set by ``train_sdf`` and
-    ``load_sdf``), else the bundled scene named by ``sdf.robot_name``."""
+    ``PoseSDF.load``), else the bundled scene named by ``sdf.robot_name``."""
     check_field(sdf)
     if robot is None:
         robot = getattr(sdf, "robot", None)

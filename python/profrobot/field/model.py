@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 from typing import Literal, get_args
 
 import torch
 from torch import nn
 
+from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
 from ..errors import InputError
 
@@ -71,7 +74,7 @@ class PoseSDF(nn.Module):
     A field pickles with its robot (``pickle``, ``torch.save`` / ``torch.load(...,
     weights_only=False)``, DataLoader workers): the copy gives the same g and ∂g/∂θ. ``deepcopy``
     copies the weights and shares the (immutable) robot. Checkpoints to keep are
-    :func:`profrobot.save_sdf`'s (safetensors, nothing unpickled).
+    :meth:`save`'s (safetensors, nothing unpickled).
     """
 
     def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
@@ -153,6 +156,20 @@ class PoseSDF(nn.Module):
     def robot(self):
         """The :class:`profrobot.Robot` this field was built for (certification labels with it)."""
         return self._robot.value
+
+    # ---- persistence ---------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Save to the directory ``path`` (``model.safetensors`` + ``config.json``: architecture,
+        robot fingerprint, metrics, format version), created or replaced atomically."""
+        return write_checkpoint(self, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, robot) -> "PoseSDF":
+        """A field saved by :meth:`save`, for ``robot`` (the :class:`~profrobot.Robot` it was
+        trained for). Raises :class:`~profrobot.errors.RobotMismatchError` for another robot and
+        :class:`~profrobot.errors.CorruptFileError` for missing, corrupt or newer files. Nothing
+        is unpickled."""
+        return read_checkpoint(cls, path, robot)
 
     def __repr__(self) -> str:
         n = sum(p.numel() for p in self.parameters())

@@ -29,7 +29,8 @@ Drawing itself never happens in the caller's process: a chunk function marked wi
 from __future__ import annotations
 
 from ..errors import RendererUnavailableError
-from .backends import INSTALL_HINT, backend, forget, needs_gl, probe, select_backend, status, uses_gl
+from .backends import backend, forget, needs_gl, probe, select_backend, status, uses_gl
+from .hints import INSTALL_HINT
 from .imports import import_mujoco
 from .triton_guard import install_triton_guard, llvm_mapped
 

@@ -13,14 +13,10 @@ from collections.abc import Callable
 from typing import TypeVar
 
 from ..errors import RendererUnavailableError
-from .imports import GL_OFF
+from .hints import GL_OFF, INSTALL_HINT, plain_reason
 
-__all__ = ["INSTALL_HINT", "PROBE_SCRIPT", "candidates", "probe", "status", "backend", "forget", "select_backend",
-           "explain_exit", "plain_reason", "uses_gl", "needs_gl"]
-
-INSTALL_HINT = ("install OSMesa for CPU rendering (Debian/Ubuntu: `apt-get install libosmesa6`) or an EGL "
-                "driver (Mesa: `apt-get install libegl1 libgl1-mesa-dri`, or the NVIDIA driver), or set "
-                "MUJOCO_GL to a backend that works here (egl, osmesa, glfw with a display)")
+__all__ = ["PROBE_SCRIPT", "candidates", "probe", "status", "backend", "forget", "select_backend", "explain_exit",
+           "uses_gl", "needs_gl"]
 
 # what a probe runs in a fresh interpreter: one 8x8 frame
 PROBE_SCRIPT = """
@@ -71,13 +67,6 @@ def explain_exit(done: subprocess.CompletedProcess | None, timeout: float) -> st
             sig = f"signal {-done.returncode}"
         return f"the process died ({sig})" + (f": {tail}" if tail else "")
     return tail[:300] or f"exit status {done.returncode}"
-
-
-def plain_reason(gl: str, why: str) -> str:
-    """PyOpenGL's way of saying libOSMesa is missing, in words."""
-    if gl == "osmesa" and "glGetError" in why:
-        return f"libOSMesa not found ({why})"
-    return why
 
 
 def probe(gl: str, timeout: float = 120.0, script: str = PROBE_SCRIPT) -> str:

@@ -8,11 +8,9 @@ import sys
 import threading
 
 from ..errors import RendererUnavailableError
+from .hints import GL_OFF, INSTALL_HINT, plain_reason
 
-__all__ = ["import_mujoco", "GL_OFF"]
-
-# MUJOCO_GL values that turn MuJoCo's rendering off
-GL_OFF = ("disable", "disabled", "off", "false", "0")
+__all__ = ["import_mujoco"]
 
 
 def import_mujoco():
@@ -49,8 +47,6 @@ def _defer_gl(mujoco) -> None:
                 try:
                     importlib.reload(glc)  # reads MUJOCO_GL now, as ``import mujoco`` would have
                 except Exception as e:
-                    from .backends import INSTALL_HINT, plain_reason
-
                     gl = os.environ.get("MUJOCO_GL", "")
                     why = plain_reason(gl.strip().lower(), f"{type(e).__name__}: {e}")
                     raise RendererUnavailableError(

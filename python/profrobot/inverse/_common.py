@@ -23,7 +23,7 @@ def check_field_matches_model(sdf, model) -> None:
         raise RobotMismatchError(f"the field is for robot {getattr(sdf, 'robot_name', '?')!r} with {sdf.njoint} joints; "
                                  f"the Gaussian model {model.robot_name!r} has {model.njoint}")
     a = sdf.joint_limits.detach().double().cpu().numpy()
-    b = model.limits.detach().double().cpu().numpy()
+    b = model.joint_limits.detach().double().cpu().numpy()
     if a.shape != b.shape or not np.allclose(a, b, atol=1e-4):
         raise RobotMismatchError(f"the field's robot {getattr(sdf, 'robot_name', '?')!r} and the Gaussian model's "
                                  f"{model.robot_name!r} have different joint limits: not the same arm")

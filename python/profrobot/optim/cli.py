@@ -11,10 +11,10 @@ from ..errors import InputError
 
 def _field(args):
     from .. import scenes
-    from ..field.checkpoint import load_sdf
+    from ..field import PoseSDF
 
     robot = scenes.load(args.scene)
-    return robot, load_sdf(args.field, robot)
+    return robot, PoseSDF.load(args.field, robot)
 
 
 def _pose(text: str, name: str) -> np.ndarray:

@@ -21,6 +21,7 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
+from ..angles import unwrap
 from ..certification import check_path, path_free_at
 from ..joints import Limits
 from ..robot import Robot
@@ -108,11 +109,12 @@ class TangentOptions:
 
 def unwrap_path(path: np.ndarray, continuous: np.ndarray) -> np.ndarray:
     """(..., S, K) with continuous joints (``continuous`` (K,) bool) unwrapped along the steps
-    axis, so that consecutive waypoints differ by the short arc and paths are continuous."""
+    axis (:func:`profrobot.angles.unwrap`), so that consecutive waypoints differ by the short arc,
+    as :func:`profrobot.interpolate` moves them, and paths are continuous."""
     out = np.array(path, dtype=np.float64, copy=True)
     cont = np.asarray(continuous, dtype=bool)
     if cont.any():
-        out[..., cont] = np.unwrap(out[..., cont], axis=-2)
+        out[..., cont] = unwrap(out[..., cont], axis=-2)
     return out
 
 

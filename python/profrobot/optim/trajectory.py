@@ -119,9 +119,6 @@ def trajectory_result(robot: Robot, path: np.ndarray, check: PathCheck, *, g: np
                             straight_length=float(straight_length), seconds=float(seconds), check=check, **extra)
 
 
-_unwrap = unwrap_path   # the name the inverse problems used; :func:`unwrap_path` is the public one
-
-
 def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, options: dict) -> list:
     """A certified planner path per problem, resampled to ``steps`` waypoints (None when the
     planner found none, or needs more waypoints than ``steps``)."""

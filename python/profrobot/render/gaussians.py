@@ -32,17 +32,19 @@ import numpy as np
 import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
-from ..files import atomic_path, check_robot
+from ..files import atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError
 from .rasterize import Backend, Cutoff, RenderOut, rasterize, rasterize_unchecked
 from ..errors import InputError
+from ..deprecation import deprecated_alias
 
 __all__ = ["GaussianRobot", "sample_visual_surface"]
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-_FORMAT = "profrobot.gaussian_robot/1"
+_FORMAT_VERSION = 1
+_FORMAT = format_tag("gaussian_robot", _FORMAT_VERSION)
 Skinning = Literal["rigid", "lbs"]
 
 
@@ -125,13 +127,16 @@ class GaussianRobot(torch.nn.Module):
     :meth:`load` keep a fitted model (safetensors + JSON, robot fingerprint checked).
     """
 
+    limits = deprecated_alias("joint_limits")
+    robot_fingerprint = deprecated_alias("fingerprint")
+
     def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
                  opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid", canonical=None,
                  hidden: int = 64):
         super().__init__()
         if skinning not in get_args(Skinning):
             raise InputError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
-        self.robot_fingerprint = robot.fingerprint
+        self.fingerprint = robot.fingerprint
         self.robot_name = robot.name
         self.njoint = robot.njoint
         self.kin = Kinematics.from_robot(robot)
@@ -142,7 +147,7 @@ class GaussianRobot(torch.nn.Module):
         self.skinning = skinning
         self.hidden = hidden
         can = np.asarray(robot.mj_model.qpos0[robot.qpos_adr] if canonical is None else canonical, dtype=np.float64)
-        self.register_buffer("limits", torch.as_tensor(np.asarray(robot.joint_limits), dtype=torch.float32).clone())
+        self.register_buffer("joint_limits", torch.as_tensor(np.asarray(robot.joint_limits), dtype=torch.float32).clone())
         # continuous hinges wrap (pose fitting); not saved: it is the robot's, checked on load
         self.register_buffer("continuous", torch.as_tensor(np.asarray(robot.continuous, dtype=bool)).clone(),
                              persistent=False)
@@ -255,7 +260,7 @@ class GaussianRobot(torch.nn.Module):
     def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: Cutoff = "soft",
                backend: Backend = "auto", threads: int | None = None) -> RenderOut:
         """Draw B poses ``theta`` (B, K) from C cameras (``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3)
-        OpenCV, see :mod:`profrobot.render.views`). Outputs are (B*C, H, W, ...) pose-major.
+        OpenCV, see :mod:`profrobot.render.cameras`). Outputs are (B*C, H, W, ...) pose-major.
         ``backend``, ``cutoff``, ``threads``: see :func:`profrobot.render.rasterize`."""
         viewmats = torch.as_tensor(viewmats, dtype=self.means.dtype, device=self.means.device)
         Ks = torch.as_tensor(Ks, dtype=self.means.dtype, device=self.means.device)
@@ -316,7 +321,7 @@ class GaussianRobot(torch.nn.Module):
 
         path = os.fspath(path)
         tensors = {k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}
-        meta = dict(format=_FORMAT, robot_fingerprint=self.robot_fingerprint, robot_name=self.robot_name,
+        meta = dict(format=_FORMAT, robot_fingerprint=self.fingerprint, robot_name=self.robot_name,
                     skinning=self.skinning, hidden=self.hidden, n=self.n, sh_degree=self.sh_degree)
         with atomic_path(path) as tmp:
             save_file(tensors, str(tmp), metadata={"profrobot": json.dumps(meta)})
@@ -335,8 +340,8 @@ class GaussianRobot(torch.nn.Module):
                 tensors = {k: f.get_tensor(k) for k in f.keys()}
         except Exception as e:  # safetensors raises its own error types on corrupt headers
             raise CorruptFileError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
-        if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
-            raise CorruptFileError(f"{path}: unknown format {(meta.get('format') if isinstance(meta, dict) else meta)!r}")
+        check_format(meta.get("format") if isinstance(meta, dict) else meta, "gaussian_robot", _FORMAT_VERSION,
+                     str(path))
         check_robot(meta, robot, f"Gaussian robot {path}")
         t = lambda k: tensors[k].numpy()
         try:

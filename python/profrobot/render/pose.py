@@ -29,7 +29,7 @@ import torch
 from ..joints import Limits
 from .gaussians import GaussianRobot
 from .targets import ImageTargets, pose_loss
-from .views import Cameras
+from .cameras import Cameras
 from ..deprecation import deprecated_alias, renamed_arguments
 from ..errors import InputError
 

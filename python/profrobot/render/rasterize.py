@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import torch
-from ..errors import InputError
+from ..errors import BackendUnavailableError, InputError
 
 Cutoff = Literal["soft", "hard"]
 Backend = Literal["auto", "torch", "rust", "gsplat"]
@@ -380,7 +380,8 @@ def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: 
     on CUDA when installed, else the Rust kernel, which copies tensors of another device to the
     CPU and its results back),
     "rust", "torch" (the reference) or "gsplat" (gsplat ignores ``cutoff``: its kernel cuts
-    hard; and returns no ``contrib``). ``threads``: the Rust kernel's thread count (None: every
+    hard; and returns no ``contrib``; asked for by name it runs or raises
+    :class:`~profrobot.errors.BackendUnavailableError`, never silently falls back). ``threads``: the Rust kernel's thread count (None: every
     core); its results are identical for any count.
     """
     if cutoff not in get_args(Cutoff):
@@ -402,9 +403,22 @@ def rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width: int
     width, height = int(width), int(height)
     if background is not None:
         background = torch.as_tensor(background, dtype=means.dtype, device=means.device)
-    # gsplat's CUDA kernel always uses the hard cutoff; on a GPU its speed wins over exact gradients
-    use_gsplat = backend == "gsplat" or (backend == "auto" and _gsplat_available(means.device))
-    if use_gsplat:
+    # gsplat's CUDA kernel always uses the hard cutoff; on a GPU its speed wins over exact gradients.
+    # Asked for by name, gsplat runs or raises; only "auto" falls back to the Rust kernel.
+    if backend == "gsplat":
+        if means.device.type != "cuda":
+            raise BackendUnavailableError(f"rasterize(backend='gsplat') needs CUDA tensors; got {means.device} "
+                                          "(backend='auto' picks the Rust CPU kernel)")
+        try:
+            import gsplat  # noqa: F401
+        except ImportError as e:
+            raise BackendUnavailableError("rasterize(backend='gsplat'): gsplat is not installed "
+                                          "(pip install gsplat), or use backend='auto'") from e
+        try:
+            return _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background)
+        except (TypeError, RuntimeError) as e:
+            raise BackendUnavailableError(f"rasterize(backend='gsplat') failed: {type(e).__name__}: {e}") from e
+    if backend == "auto" and _gsplat_available(means.device):
         try:
             return _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background)
         except (ImportError, TypeError, RuntimeError) as e:
