@@ -45,6 +45,16 @@ def test_baseline_labels_but_does_not_correct(panda, setup):
     assert "certified" in r.summary()
 
 
+def test_uncertified_baseline_is_never_reported_certified(setup):
+    """Issue 19: with no field and no robot= there is no scene to check against; the poses hit
+    the blocks, and the old answer called every one of them certified."""
+    model, cams, target, t = setup
+    r = pose_from_images(model, t, cams, init=target + 0.02, image_iterations=2)
+    assert r.certified is None and r.certified_before_continue is None and r.failures is None
+    assert "not checked" in r.summary() and "certified free" not in r.summary()
+    assert r.poses.shape == target.shape and np.isfinite(r.image_loss).all()
+
+
 def test_field_phase_stops_at_the_threshold_and_failures_are_reported(panda, setup):
     model, cams, target, t = setup
     # a field that calls every pose free (g ~ -100): the field phase takes no step, the labeller

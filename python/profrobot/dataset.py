@@ -13,7 +13,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import _core
-from .files import atomic_path, check_robot
+from .files import atomic_path, check_format, check_robot, format_tag
 from .errors import CorruptFileError
 from .equalities import EqualityMode
 from .labels import check_threads, label_poses, sample_poses
@@ -22,6 +22,8 @@ from .errors import InputError
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
 
+
+FORMAT_VERSION = 1  # the .npz layout: poses, the label arrays, metadata (JSON)
 
 @dataclass
 class Dataset:
@@ -58,9 +60,10 @@ class Dataset:
         path = os.fspath(path)
         if not path.endswith(".npz"):
             raise InputError(f"dataset files end in .npz; got {path!r}")
+        metadata = {**self.metadata, "format": format_tag("dataset", FORMAT_VERSION)}
         with atomic_path(path) as tmp:
             np.savez(tmp, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
-                     metadata=np.array(json.dumps(self.metadata)))
+                     metadata=np.array(json.dumps(metadata)))
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
@@ -83,6 +86,8 @@ class Dataset:
             raise CorruptFileError(f"{path!r} is not a profrobot dataset: it lacks {', '.join(missing)}")
         if not isinstance(metadata, dict):
             raise CorruptFileError(f"{path!r} is corrupt: its metadata is not a JSON object")
+        # files of earlier releases carry no tag: version 1's layout
+        check_format(metadata.pop("format", None), "dataset", FORMAT_VERSION, repr(path), missing=1)
         ds = cls(**data, metadata=metadata)
         n = len(ds.poses)
         if ds.poses.ndim != 2 or any(getattr(ds, k).ndim != 1 or len(getattr(ds, k)) != n for k in _LABELS):

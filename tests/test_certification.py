@@ -1,0 +1,69 @@
+"""One definition of "certified" (issue 19): no contact and every candidate pair more than
+CLEARANCE apart, computed the cheap way (fast path first) with the same verdict as labelling
+every pose with distances; paths, planner results and the oracle use the same rule."""
+
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot import certification
+from profrobot.certification import CLEARANCE, certify_poses, check_path, path_free_at
+
+
+def _by_definition(robot, poses):
+    lab = profrobot.label_poses(robot, poses, distance=True)
+    return ~lab.collides & (lab.min_distance > CLEARANCE)
+
+
+def test_certify_poses_is_the_definition(panda):
+    poses = profrobot.sample_poses(panda, 3000, seed=3)
+    got = certify_poses(panda, poses)
+    assert got.dtype == bool and got.shape == (3000,)
+    np.testing.assert_array_equal(got, _by_definition(panda, poses))
+    assert got.any() and (~got).any()
+
+
+def test_touching_is_not_certified(panda):
+    """A pose the labels call free but whose closest pair is within CLEARANCE: bisect from a free
+    to a colliding pose until the distance is below the clearance."""
+    free = profrobot.problems.free_poses(panda, 1, seed=0)[0]
+    hit = profrobot.problems.colliding_poses(panda, 1, seed=0)[0]
+    a, b = free, hit
+    for _ in range(80):
+        m = 0.5 * (a + b)
+        if profrobot.collides(panda, m[None])[0]:
+            b = m
+        else:
+            a = m
+    lab = profrobot.label_poses(panda, a[None], distance=True)
+    assert not lab.collides[0] and lab.min_distance[0] <= CLEARANCE
+    assert not certify_poses(panda, a[None])[0]          # free to the labels, not certified
+
+
+def test_paths_use_the_same_rule(panda):
+    s, g = profrobot.problems.hard_pairs(panda, 1, seed=0, steps=20)
+    path = profrobot.interpolate(panda, s[0], g[0], 20)
+    chk = check_path(panda, path, density=5)
+    np.testing.assert_array_equal(chk.dense_collides, ~_by_definition(panda, chk.dense))
+    assert not chk.certified and chk.segment_collides.any()
+    assert not path_free_at(panda, path, 0.01)
+    with pytest.warns(DeprecationWarning):
+        assert chk.free == chk.certified
+
+
+def test_planner_and_oracle_report_the_same_certificate(panda):
+    s, g = profrobot.problems.hard_pairs(panda, 1, seed=1, steps=20)
+    res = profrobot.plan_path(panda, s[0], g[0], max_time=20.0, seed=0)
+    assert res.found
+    assert res.certified == path_free_at(panda, res.path, 0.01)
+    hit = profrobot.problems.colliding_poses(panda, 4, seed=5)
+    near = profrobot.nearest_free(panda, hit, directions=32, refine=32)
+    found = np.isfinite(near.distance)
+    np.testing.assert_array_equal(near.certified[found], certify_poses(panda, near.poses[found]))
+    assert not near.certified[~found].any()
+
+
+def test_certified_summary_and_failures():
+    assert "not checked" in certification.certified_summary(None)
+    assert certification.failures_of(None) is None
+    assert certification.failures_of(np.array([True, False, True])).tolist() == [1]

@@ -1,0 +1,95 @@
+"""One vocabulary (issue 19): old argument and attribute names still work for one release with a
+DeprecationWarning; versioned files refuse a newer version with a message naming both; a backend
+asked for by name fails loudly instead of falling back."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from profrobot.errors import BackendUnavailableError, CorruptFileError, ProfrobotError
+from profrobot.field import PoseSDF
+
+
+def test_renamed_arguments_warn_and_still_work(panda):
+    torch.manual_seed(0)
+    sdf = PoseSDF(panda, hidden=(8,))
+    q = profrobot.problems.colliding_poses(panda, 2, seed=0)
+    with pytest.warns(DeprecationWarning, match="max_iters"):
+        old = profrobot.resolve(sdf, q, max_iters=2, refine=False)
+    new = profrobot.resolve(sdf, q, iterations=2, refine=False)
+    np.testing.assert_array_equal(old.poses, new.poses)
+    with pytest.raises(TypeError, match="both"):
+        profrobot.resolve(sdf, q, max_iters=2, iterations=2)
+    with pytest.warns(DeprecationWarning, match="plan_path"):
+        profrobot.plan_path(panda, *profrobot.problems.free_poses(panda, 2, seed=0), max_iterations=10, max_time=1.0)
+
+
+def test_deprecated_save_and_load_names(panda, tmp_path):
+    sdf = PoseSDF(panda, hidden=(8,))
+    with pytest.warns(DeprecationWarning):
+        profrobot.save_sdf(sdf, tmp_path / "f")
+    with pytest.warns(DeprecationWarning):
+        back = profrobot.load_sdf(tmp_path / "f", panda)
+    theta = torch.as_tensor(profrobot.sample_poses(panda, 4, seed=0), dtype=torch.float32)
+    assert torch.equal(back(theta), PoseSDF.load(tmp_path / "f", panda)(theta))
+
+
+def test_a_newer_file_is_refused_with_both_versions(panda, tmp_path):
+    PoseSDF(panda, hidden=(8,)).save(tmp_path / "f")
+    cfg = tmp_path / "f" / "config.json"
+    config = json.loads(cfg.read_text())
+    config["format"] = "profrobot.PoseSDF/7"
+    cfg.write_text(json.dumps(config))
+    with pytest.raises(CorruptFileError, match=r"version 7.*newer profrobot.*up to 1"):
+        PoseSDF.load(tmp_path / "f", panda)
+    config["format"] = "profrobot.views/1"
+    cfg.write_text(json.dumps(config))
+    with pytest.raises(CorruptFileError, match="not a profrobot PoseSDF file"):
+        PoseSDF.load(tmp_path / "f", panda)
+
+
+def test_dataset_files_carry_a_version(panda, tmp_path):
+    ds = profrobot.make_dataset(panda, 200, seed=0, progress=False)
+    ds.save(tmp_path / "d.npz")
+    with np.load(tmp_path / "d.npz") as z:
+        meta = json.loads(str(z["metadata"]))
+    assert meta["format"] == "profrobot.dataset/1"
+    meta["format"] = "profrobot.dataset/2"
+    with np.load(tmp_path / "d.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["metadata"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / "new.npz", **arrays)
+    with pytest.raises(CorruptFileError, match="version 2"):
+        profrobot.Dataset.load(tmp_path / "new.npz")
+
+
+def test_gsplat_by_name_fails_loudly_on_a_cpu():
+    from profrobot.render import rasterize
+
+    means = torch.zeros(1, 3) + torch.tensor([0.0, 0.0, 1.0])
+    covs = torch.eye(3)[None] * 1e-3
+    args = (means, covs, torch.ones(1) * 0.5, torch.ones(1, 3), torch.eye(4)[None],
+            torch.tensor([[[20.0, 0, 8], [0, 20.0, 8], [0, 0, 1]]]), 16, 16)
+    with pytest.raises(BackendUnavailableError, match="gsplat") as e:
+        rasterize(*args, backend="gsplat")
+    assert isinstance(e.value, RuntimeError) and not isinstance(e.value, ValueError)
+    assert isinstance(e.value, ProfrobotError)
+    out = rasterize(*args, backend="auto")                   # auto picks what runs here
+    assert float(out.alpha.max()) > 0
+
+
+def test_result_names_are_shared(panda):
+    """``poses``/``path``, ``certified``, ``iterations``, ``seconds`` on every result."""
+    torch.manual_seed(0)
+    sdf = PoseSDF(panda, hidden=(8,))
+    q = profrobot.problems.colliding_poses(panda, 2, seed=0)
+    r = profrobot.resolve(sdf, q, iterations=1, refine=False)
+    s, g = profrobot.problems.free_poses(panda, 2, seed=4)
+    t = profrobot.plan_trajectory(None, s, g, robot=panda, steps=5)
+    p = profrobot.plan_path(panda, s, g, max_time=5.0)
+    for res, answer in ((r, "poses"), (t, "path"), (p, "path")):
+        for name in (answer, "certified", "iterations", "seconds"):
+            assert hasattr(res, name), (type(res).__name__, name)
