@@ -111,11 +111,12 @@ def path_free_at(robot: Robot, path, resolution: float) -> bool:
 
 
 def certified_summary(certified) -> str:
-    """"87.5% certified free (1 of 8 not)" for a (B,) bool verdict, "not checked" for None."""
+    """"87.5% certified free (1 failure)" for a (B,) bool verdict, "not checked" for None."""
     if certified is None:
         return "not checked (no scene to certify against: pass robot= or a field)"
     c = np.asarray(certified, dtype=bool)
-    return f"{c.mean():.1%} certified free ({int((~c).sum())} of {c.size} not)"
+    n = int((~c).sum())
+    return f"{c.mean():.1%} certified free ({n} failure{'s' * (n != 1)})"
 
 
 def failures_of(certified) -> np.ndarray | None:

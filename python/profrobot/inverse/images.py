@@ -31,6 +31,7 @@ from ..deprecation import renamed_arguments
 from ..errors import InputError
 from ..joints import Limits
 from ..optim.adam import BatchedAdam
+from ..optim.resolve import certify_and_continue
 from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
@@ -183,15 +184,15 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
         before = certified.copy()
         history.append(dict(round=0, certified=int(certified.sum())))
     if sdf is not None:
-        while rounds < refine_rounds and not certified.all():
-            rounds += 1
-            bad = np.flatnonzero(~certified)
-            thresholds[bad] = l_thres - rounds * refine_step     # the field is too kind here: ask for more margin
+        def again(bad: np.ndarray, threshold: float) -> np.ndarray:
+            thresholds[bad] = threshold
             opt.reset(torch.as_tensor(bad, device=dev))
             field_phase(bad, field_iterations)
             poses[bad] = limits.numpy(theta[torch.as_tensor(bad, device=dev)].detach().cpu().numpy().astype(np.float64))
-            certified[bad] = certify_poses(robot, poses[bad])
-            history.append(dict(round=rounds, threshold=l_thres - rounds * refine_step, certified=int(certified.sum())))
+            return poses[bad]
+
+        rounds = certify_and_continue(robot, certified, again, l_thres=l_thres, step=refine_step,
+                                      rounds=refine_rounds, history=history)
         if not certified.all():
             # last resort: the field alone (no image term pulling back into the obstacle), with
             # resolve's own certify-and-continue from the deepest threshold reached

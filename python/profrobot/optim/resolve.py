@@ -4,6 +4,7 @@ fixed field, all poses in one batch, then certify each result with the exact lab
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,6 +82,26 @@ def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Ten
         active = active[todo]
 
 
+def certify_and_continue(robot: Robot, certified: np.ndarray, again: Callable[[np.ndarray, float], np.ndarray], *,
+                         l_thres: float, step: float, rounds: int, history: list | None = None) -> int:
+    """The paper's certify-and-continue, the one loop every field-driven answer runs: while some
+    of B poses are not certified (``certified`` (B,) bool, updated in place), lower their field
+    threshold by ``step`` per round (``l_thres − r·step`` in round r: the field called them free
+    enough, the labeller did not) and ``again(rows, threshold)`` continues the descent of those
+    rows (its optimiser moments restarted) and returns their new poses (len(rows), K), which are
+    certified again. At most ``rounds`` rounds; returns how many ran. ``history`` (a list) gets one
+    dict per round: round, threshold, certified count."""
+    r = 0
+    while r < rounds and not certified.all():
+        r += 1
+        bad = np.flatnonzero(~certified)
+        threshold = l_thres - r * step
+        certified[bad] = certify_poses(robot, again(bad, threshold))
+        if history is not None:
+            history.append(dict(round=r, threshold=threshold, certified=int(certified.sum())))
+    return r
+
+
 @renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
 def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, iterations: int = 1000, *,
             robot: Robot | None = None, refine: bool = True, refine_rounds: int = 4,
@@ -128,18 +149,17 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, iterations: int
     out = result()
     certified = certify_poses(robot, out)
     history = [dict(round=0, threshold=l_thres, certified=int(certified.sum()))]
-    rounds = 0
-    while refine and rounds < refine_rounds and not certified.all():
-        rounds += 1
-        # the field calls these free enough but they collide: ask for a deeper margin
-        bad = torch.as_tensor(np.flatnonzero(~certified), device=theta.device)
-        thresholds[bad] = l_thres - rounds * refine_step
-        opt.reset(bad)
-        _descend(sdf, theta, bad, thresholds, opt, limits, refine_iterations, steps_taken, g)
-        idx = bad.cpu().numpy()
-        out[idx] = result(idx)
-        certified[idx] = certify_poses(robot, out[idx])
-        history.append(dict(round=rounds, threshold=l_thres - rounds * refine_step, certified=int(certified.sum())))
+
+    def again(bad: np.ndarray, threshold: float) -> np.ndarray:
+        rows_t = torch.as_tensor(bad, device=theta.device)
+        thresholds[rows_t] = threshold
+        opt.reset(rows_t)
+        _descend(sdf, theta, rows_t, thresholds, opt, limits, refine_iterations, steps_taken, g)
+        out[bad] = result(bad)
+        return out[bad]
+
+    rounds = certify_and_continue(robot, certified, again, l_thres=l_thres, step=refine_step,
+                                  rounds=refine_rounds if refine else 0, history=history)
 
     g_np = g.cpu().numpy()
     thr = thresholds.cpu().numpy().astype(np.float64)
