@@ -279,7 +279,7 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
 
     ckpt = shifted_field(panda, -100.0).save(tmp_path / "field")
     # a field that calls everything free: the labeller's failures must show in the exit status
-    assert main(["resolve", "--field", str(ckpt), "-n", "5", "--max-iters", "3",
+    assert main(["resolve", "--field", str(ckpt), "-n", "5", "--iterations", "3",
                  "--out", str(tmp_path / "r.npz")]) == 1
     out = capsys.readouterr().out
     assert "5 failures" in out and "still colliding" in out
@@ -292,7 +292,7 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     if gl.status()[0] is None:   # no MuJoCo renderer here: one clear error, exit status 2
         assert code == 2 and "libosmesa6" in capsys.readouterr().err
     else:
-        assert code == 1 and "COLLIDES" in capsys.readouterr().out
+        assert code == 1 and "NOT certified" in capsys.readouterr().out
         assert (tmp_path / "p.gif").stat().st_size > 0 and (tmp_path / "p.png").stat().st_size > 0
     assert main(["plan", "--field", str(ckpt), "--start", "0,0"]) == 2   # --goal missing: a clear error
 

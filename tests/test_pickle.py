@@ -335,7 +335,7 @@ def test_gaussian_robot_pickle_torch_save_deepcopy(panda, panda_poses, splats, s
         with torch.no_grad():
             same(want, twin.render_views(theta, cams))
         same(model.state_dict(), twin.state_dict())
-        assert (twin.robot_fingerprint, twin.skinning, twin.n) == (model.robot_fingerprint, model.skinning, model.n)
+        assert (twin.fingerprint, twin.skinning, twin.n) == (model.fingerprint, model.skinning, model.n)
     copies(want)                                          # RenderOut
 
 

@@ -98,7 +98,7 @@ def test_cameras_and_views_pickle_and_deepcopy(ball, renderer):
                    progress=False)
     for w in (pickle.loads(pickle.dumps(v)), copy.deepcopy(v)):
         assert w.cameras == v.cameras and w.meta == v.meta and w.meta is not v.meta
-        assert (w.robot_fingerprint, w.robot_name) == (v.robot_fingerprint, v.robot_name)
+        assert (w.fingerprint, w.robot_name) == (v.fingerprint, v.robot_name)
         for k in ("poses", "rgb", "depth", "mask"):
             a, b = getattr(w, k), getattr(v, k)
             assert a.dtype == b.dtype and a.tobytes() == b.tobytes() and a is not b

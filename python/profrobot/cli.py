@@ -219,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
     sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1)
     sp.add_argument("--lr", type=float, default=0.01)
-    sp.add_argument("--max-iters", dest="max_iters", type=int, default=1000)
+    sp.add_argument("--iterations", "--max-iters", dest="iterations", type=int, default=1000,
+                    help="Adam steps per pose at most (--max-iters: the name of earlier releases)")
     sp.add_argument("--no-refine", dest="no_refine", action="store_true",
                     help="do not retry poses the exact labeller still finds colliding")
     sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")
@@ -244,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--cameras", type=int, default=8, help="training cameras per pose")
     sp.add_argument("--size", type=int, default=128, help="image size (pixels)")
     sp.add_argument("--gaussians", type=int, default=10_000)
-    sp.add_argument("--iters", type=int, default=600)
+    sp.add_argument("--iterations", "--iters", dest="iters", type=int, default=600,
+                    help="appearance-fit steps (--iters: the name of earlier releases)")
     sp.add_argument("--distance", type=float, default=1.5, help="camera distance (metres)")
     sp.add_argument("--lookat", default="0,0,0.45", help="x,y,z the cameras look at (metres)")
     sp.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")

@@ -43,7 +43,7 @@ def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
     return ncon, pairs
 
 
-def mujoco_labels(robot: Robot, poses, *, progress: bool = False, executor=None, chunk: int = 2000) -> MujocoLabels:
+def mujoco_labels(robot: Robot, poses, *, progress: bool = True, executor=None, chunk: int = 2000) -> MujocoLabels:
     """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded), in
     chunks of ``chunk`` poses (:func:`mujoco_labels_chunk`).
 
@@ -113,7 +113,7 @@ class CrosscheckReport:
         return "\n".join(lines)
 
 
-def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = False, executor=None,
+def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = True, executor=None,
                chunk: int = 2000) -> CrosscheckReport:
     """Labels ``poses`` with both our labeller and MuJoCo and compares them pose by pose.
 

@@ -38,7 +38,7 @@ def cmd_resolve(args) -> int:
         poses = np.load(args.poses)
     else:  # colliding poses drawn uniformly
         poses = colliding_poses(robot, args.n, args.seed)
-    res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, iterations=args.max_iters, robot=robot,
+    res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, iterations=args.iterations, robot=robot,
                   refine=not args.no_refine)
     print(res.summary())
     if len(res.failures):
@@ -52,6 +52,7 @@ def cmd_resolve(args) -> int:
 
 def cmd_plan(args) -> int:
     from ..problems import hard_pairs
+    from .paths import PenaltyOptions, TangentOptions
     from .trajectory import plan_trajectory
 
     robot, sdf = _field(args)
@@ -62,10 +63,11 @@ def cmd_plan(args) -> int:
     else:  # two free poses whose straight interpolation collides
         (start,), (goal,) = hard_pairs(robot, 1, args.seed, steps=args.steps)
     res = plan_trajectory(sdf, start, goal, steps=args.steps, method=args.method, robot=robot, init=args.init,
-                          iterations=args.iterations, tangent_iters=6 * args.iterations)
+                          penalty=PenaltyOptions(iterations=args.iterations),
+                          tangent=TangentOptions(iterations=6 * args.iterations))
     print(res.summary())
     if args.out:
-        _save_npz(args.out, path=res.path, free=res.certified, segment_collides=res.segment_collides, g=res.g)
+        _save_npz(args.out, path=res.path, certified=res.certified, segment_collides=res.segment_collides, g=res.g)
         print(f"saved {args.out}")
     if args.gif:
         from .pictures import render_trajectory

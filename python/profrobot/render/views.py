@@ -16,12 +16,15 @@ import numpy as np
 
 from ..errors import CorruptFileError, InputError
 from ..executors import chunk_bounds, chunk_sizes, check_executor
-from ..files import atomic_path, check_robot
+from ..deprecation import deprecated_alias
+from ..files import atomic_path, check_format, check_robot, format_tag
 from .cameras import Cameras
 from .mjviews import render_views_chunk, robot_visual_model
 
 __all__ = ["Views", "make_views", "robot_visual_model"]
 
+
+FORMAT_VERSION = 1  # compressed .npz: a JSON header (format, robot, cameras, meta), poses, rgb, depth, packed mask
 
 @dataclass
 class Views:
@@ -36,9 +39,11 @@ class Views:
     rgb: np.ndarray
     depth: np.ndarray
     mask: np.ndarray
-    robot_fingerprint: str = ""
+    fingerprint: str = ""
     robot_name: str = ""
     meta: dict = field(default_factory=dict)
+
+    robot_fingerprint = deprecated_alias("fingerprint")
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -51,13 +56,13 @@ class Views:
     def __getitem__(self, idx) -> "Views":
         idx = np.atleast_1d(np.arange(len(self))[idx])
         return Views(self.poses[idx], self.cameras, self.rgb[idx], self.depth[idx], self.mask[idx],
-                     self.robot_fingerprint, self.robot_name, dict(self.meta))
+                     self.fingerprint, self.robot_name, dict(self.meta))
 
     def save(self, path: str | os.PathLike) -> None:
         """Compressed ``.npz`` with a JSON header (robot fingerprint, cameras); written to a
         temporary file in the same directory and renamed, so a crash never leaves half a file."""
         path = os.fspath(path)
-        header = dict(format="profrobot.views/1", robot_fingerprint=self.robot_fingerprint,
+        header = dict(format=format_tag("views", FORMAT_VERSION), robot_fingerprint=self.fingerprint,
                       robot_name=self.robot_name, cameras=self.cameras.to_dict(), meta=self.meta)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
@@ -66,19 +71,22 @@ class Views:
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot=None) -> "Views":
-        """Load a dataset; with ``robot``, refuse one rendered from another robot."""
+        """Load a view set saved by :meth:`save`; with ``robot``, refuse one rendered from another
+        robot. A newer or foreign file raises :class:`~profrobot.errors.CorruptFileError`."""
         try:
             z = np.load(os.fspath(path))
             header = json.loads(z["header"].tobytes().decode())
-            if header.get("format") != "profrobot.views/1":
-                raise InputError(f"unknown format {header.get('format')!r}")
+        except (OSError, KeyError, ValueError, EOFError) as e:
+            raise CorruptFileError(f"{path}: not a readable profrobot views file ({e})") from e
+        check_format(header.get("format") if isinstance(header, dict) else header, "views", FORMAT_VERSION, str(path))
+        try:
             mask = np.unpackbits(z["mask"], axis=-1, count=int(z["mask_width"])).astype(bool)
             v = cls(z["poses"], Cameras.from_dict(header["cameras"]), z["rgb"], z["depth"], mask,
                     header["robot_fingerprint"], header["robot_name"], header.get("meta", {}))
         except (OSError, KeyError, ValueError, EOFError) as e:
             raise CorruptFileError(f"{path}: not a readable profrobot views file ({e})") from e
         if robot is not None:
-            check_robot(dict(robot_fingerprint=v.robot_fingerprint, robot_name=v.robot_name), robot, f"views {path}")
+            check_robot(dict(robot_fingerprint=v.fingerprint, robot_name=v.robot_name), robot, f"views {path}")
         return v
 
 
