@@ -34,7 +34,7 @@ def same_dataset(a, b) -> bool:
 
 def same_views(a, b) -> bool:
     return (all(same_array(getattr(a, k), getattr(b, k)) for k in ("poses", "rgb", "depth", "mask"))
-            and a.meta == b.meta and a.cameras.to_dict() == b.cameras.to_dict())
+            and a.metadata == b.metadata and a.cameras.to_dict() == b.cameras.to_dict())
 
 
 class KillOnce(RayExecutor):

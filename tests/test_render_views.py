@@ -97,7 +97,7 @@ def test_cameras_and_views_pickle_and_deepcopy(ball, renderer):
     v = make_views(ball, np.array([[0.0], [0.4]]), ring_cameras(2, size=12, distance=1.0, lookat=(0, 0, .3)),
                    progress=False)
     for w in (pickle.loads(pickle.dumps(v)), copy.deepcopy(v)):
-        assert w.cameras == v.cameras and w.meta == v.meta and w.meta is not v.meta
+        assert w.cameras == v.cameras and w.metadata == v.metadata and w.metadata is not v.metadata
         assert (w.fingerprint, w.robot_name) == (v.fingerprint, v.robot_name)
         for k in ("poses", "rgb", "depth", "mask"):
             a, b = getattr(w, k), getattr(v, k)

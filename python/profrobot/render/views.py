@@ -41,9 +41,10 @@ class Views:
     mask: np.ndarray
     fingerprint: str = ""
     robot_name: str = ""
-    meta: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
 
     robot_fingerprint = deprecated_alias("fingerprint")
+    meta = deprecated_alias("metadata")
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -51,19 +52,19 @@ class Views:
     @property
     def background(self) -> np.ndarray:
         """(3,) background colour in [0, 1] (the median off-robot pixel of the renders)."""
-        return np.asarray(self.meta.get("background", [0.0, 0.0, 0.0]), dtype=np.float64)
+        return np.asarray(self.metadata.get("background", [0.0, 0.0, 0.0]), dtype=np.float64)
 
     def __getitem__(self, idx) -> "Views":
         idx = np.atleast_1d(np.arange(len(self))[idx])
         return Views(self.poses[idx], self.cameras, self.rgb[idx], self.depth[idx], self.mask[idx],
-                     self.fingerprint, self.robot_name, dict(self.meta))
+                     self.fingerprint, self.robot_name, dict(self.metadata))
 
     def save(self, path: str | os.PathLike) -> None:
         """Compressed ``.npz`` with a JSON header (robot fingerprint, cameras); written to a
         temporary file in the same directory and renamed, so a crash never leaves half a file."""
         path = os.fspath(path)
         header = dict(format=format_tag("views", FORMAT_VERSION), robot_fingerprint=self.fingerprint,
-                      robot_name=self.robot_name, cameras=self.cameras.to_dict(), meta=self.meta)
+                      robot_name=self.robot_name, cameras=self.cameras.to_dict(), meta=self.metadata)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
                                 poses=self.poses, rgb=self.rgb, depth=self.depth, mask=np.packbits(self.mask, axis=-1),
