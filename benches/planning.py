@@ -35,6 +35,8 @@ import numpy as np
 import profrobot
 from profrobot.planning import plan_path, so2_length
 from profrobot.problems import hard_pairs
+from profrobot.angles import wrap
+from profrobot.labels import so2_steps
 
 OUT = Path(__file__).resolve().parent / "out"
 
@@ -44,13 +46,12 @@ def dense_check(robot, path: np.ndarray, resolution: float) -> tuple[bool, bool,
     denser than ``resolution``."""
     poses = []
     for a, b in zip(path[:-1], path[1:]):
-        d = b - a
-        d[robot.continuous] = (d[robot.continuous] + np.pi) % (2 * np.pi) - np.pi
+        d = so2_steps(robot, np.stack([a, b]))[0]
         n = int(np.ceil(np.abs(d).max() / (resolution / 10))) + 1
         poses.append(profrobot.interpolate(robot, a, b, max(n, 2)))
     dense = np.concatenate(poses)
     step = np.abs(np.diff(dense, axis=0))
-    step[:, robot.continuous] = np.abs((step[:, robot.continuous] + np.pi) % (2 * np.pi) - np.pi)
+    step[:, robot.continuous] = np.abs(wrap(step[:, robot.continuous]))
     ours = not profrobot.label_poses(robot, dense).collides.any()
     m, data = robot.mj_model, mujoco.MjData(robot.mj_model)
     theirs = True
@@ -105,7 +106,7 @@ def ompl_plan(robot, start, goal, resolution: float, max_time: float, seed: int)
         st = space.allocState()
         for j in range(k):
             if cont[j]:
-                st[j].value = float((q[j] + np.pi) % (2 * np.pi) - np.pi)
+                st[j].value = wrap(float(q[j]))
             else:
                 st[j][0] = float(q[j])
         states.append(st)

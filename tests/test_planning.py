@@ -11,13 +11,14 @@ from profrobot.planning import plan_path, resample_path, so2_length
 from profrobot.problems import hard_pairs
 
 from conftest import scene
+from profrobot.angles import wrap
+from profrobot.labels import so2_steps
 
 
 def _dense_free(robot, path, resolution=0.01, factor=10) -> bool:
     """Every segment re-interpolated ``factor``x denser than the planner's checks."""
     for a, b in zip(path[:-1], path[1:]):
-        d = b - a
-        d[robot.continuous] = (d[robot.continuous] + np.pi) % (2 * np.pi) - np.pi
+        d = so2_steps(robot, np.stack([a, b]))[0]
         steps = int(np.ceil(np.abs(d).max() / resolution * factor)) + 1
         if profrobot.label_poses(robot, profrobot.interpolate(robot, a, b, max(steps, 2))).collides.any():
             return False
@@ -43,7 +44,7 @@ def test_hard_problems_are_solved_and_certified(name):
         res = plan_path(robot, s, g, seed=i, max_time=20.0)
         assert res.found, res.summary()
         np.testing.assert_allclose(res.path[0], s, atol=1e-12)
-        wrapped = (res.path[-1] - g + np.pi) % (2 * np.pi) - np.pi
+        wrapped = wrap(res.path[-1] - g)
         np.testing.assert_allclose(np.where(robot.continuous, wrapped, res.path[-1] - g), 0, atol=1e-12)
         assert _dense_free(robot, res.path)
         dense = resample_path(robot, res.path, max(100, len(res.path)))

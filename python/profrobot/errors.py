@@ -4,7 +4,8 @@
 
     ProfrobotError                      every error profrobot raises on purpose (root)
     ├── InputError (ValueError)         bad input: a shape, a NaN, an option out of range
-    │   ├── ModelError                  a model the Rust core cannot label exactly
+    │   ├── ModelError                  a model the Rust core cannot label exactly (also a geom pair
+    │   │                               its narrow phase cannot decide: never read as "free")
     │   ├── RobotMismatchError          a file or object made for another robot
     │   └── CorruptFileError            a file that cannot be read back as what it claims to be
     ├── InputTypeError (TypeError)      an argument of the wrong type or dtype (from the Rust core)

@@ -14,6 +14,7 @@ from .labels import check_threads, interpolate, label_poses
 from .robot import Robot
 from .certification import certify_poses
 from .errors import InputError
+from .angles import wrap
 
 __all__ = ["colliding_poses", "free_poses", "hard_pairs"]
 
@@ -55,7 +56,7 @@ def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk
         d = rng.normal(size=(m, k))
         d *= step / np.linalg.norm(d, axis=1, keepdims=True)
         cand = q + d
-        cand[:, cont] = (cand[:, cont] + np.pi) % (2 * np.pi) - np.pi
+        cand[:, cont] = wrap(cand[:, cont])
         cand[:, ~cont] = np.clip(cand[:, ~cont], lim[~cont, 0], lim[~cont, 1])
         seg = interpolate(robot, q, cand, d_count)                               # (m, D, K)
         ok = ~label_poses(robot, seg.reshape(-1, k)).collides.reshape(m, -1).any(axis=1)
