@@ -371,7 +371,7 @@ def t9(a):
                            beta=10.0, l_thres=-0.1, noise=0.05, seed=a.seed, robot=hand, background=bg)
         mj_before = mujoco_labels(hand, r.poses if field is None else r.poses).ncon > 0
         row = dict(setting=label, score_mean=float(r.score_before_repair.mean()), score_std=float(r.score_before_repair.std()),
-                   collide_pct_labeller=100 * float(r.collided_before_repair.mean()),
+                   collide_pct_labeller=100 * float((~r.certified_before_repair).mean()),
                    collide_pct_mujoco_returned=100 * float(mj_before.mean()),
                    certified_pct_returned=100 * float(r.certified.mean()),
                    score_after_repair_mean=float(r.score.mean()), seconds=time.perf_counter() - t0)
@@ -379,7 +379,7 @@ def t9(a):
         print(json.dumps(row), flush=True)
         np.save(os.path.join(out, f"poses_{label.replace(' ', '_')}.npy"), r.poses)
         picture(hand, os.path.join(out, f"t9_{label.replace(' ', '_')}.png"), goal_q, r.poses[0], r.poses[-1],
-                bool(r.collided_before_repair[0]), not bool(r.certified[-1]),
+                not bool(r.certified_before_repair[0]), not bool(r.certified[-1]),
                 camera=dict(lookat=(0.15, 0.0, 0.0), distance=0.45, azimuth=90.0, elevation=-60.0))
     res["rows"], res["loadavg_end"] = rows, os.getloadavg()
     json.dump(res, open(os.path.join(out, "t9.json"), "w"), indent=1)

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 import profrobot
-from profrobot.optim import plan_trajectory, resolve
+from profrobot.optim import PenaltyOptions, TangentOptions, plan_trajectory, resolve
 from profrobot.problems import colliding_poses, hard_pairs
 
 from fields import OUT as FIELDS_OUT, field
@@ -110,7 +110,8 @@ def bench_gif() -> dict:
     starts, goals = hard_pairs(robot, 30, seed=300)
     # of the problems solved, the one whose straight path hits the wall or box (not only the
     # floor or itself) the most: the clearest demonstration
-    results = plan_trajectory(sdf, starts, goals, steps=100, robot=robot, lr=0.05, iterations=200, check_every=5)
+    results = plan_trajectory(sdf, starts, goals, steps=100, robot=robot,
+                              penalty=PenaltyOptions(lr=0.05, iterations=200, check_every=5))
     hits = [profrobot.label_poses(robot, profrobot.interpolate(robot, a, b, 100)).scene_collides.sum()
             for a, b in zip(starts, goals)]
     solved = [i for i, r in enumerate(results) if r.certified] or list(range(len(results)))
@@ -181,9 +182,9 @@ def main() -> None:
     results = {}
     sections = args.sections.split(",")
     # lr 0.05 / δ 0.03: fewer steps on two shared cores (100 problems × 100 waypoints per step)
-    methods = {"penalty": dict(method="penalty", lr=0.05, iterations=200, check_every=5),
-               "tangent": dict(method="tangent", delta=0.03, tangent_iters=1500),
-               "tangent_l2": dict(method="tangent", delta=0.03, tangent_iters=1500, goal_norm="l2")}
+    methods = {"penalty": dict(method="penalty", penalty=PenaltyOptions(lr=0.05, iterations=200, check_every=5)),
+               "tangent": dict(method="tangent", tangent=TangentOptions(delta=0.03, iterations=1500)),
+               "tangent_l2": dict(method="tangent", tangent=TangentOptions(delta=0.03, iterations=1500, goal_norm="l2"))}
     methods = {k: methods[k] for k in args.methods.split(",")}
     if "resolve" in sections:
         results["resolve"] = bench_resolve(args.poses)

@@ -212,8 +212,8 @@ def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field
         wall = (time.perf_counter() - t) / n
         field_rows = []
         for r in res:
-            ok_o, ok_m, step = dense_check(robot, r.path, resolution) if r.free else (False, False, float("nan"))
-            field_rows.append(dict(found=r.free, seconds=wall, checks=r.planner.checks if r.planner else 0,
+            ok_o, ok_m, step = dense_check(robot, r.path, resolution) if r.certified else (False, False, float("nan"))
+            field_rows.append(dict(found=r.certified, seconds=wall, checks=r.planner.checks if r.planner else 0,
                                    length=r.length, max_step=step, dense_ours=ok_o, dense_mujoco=ok_m))
         out["ours (exact + field smoothing)"] = field_rows
         before = np.array([r.length_before for r in res])

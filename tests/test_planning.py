@@ -89,7 +89,7 @@ def test_enclosed_goal_reports_none_found_within_max_time():
     # the budget ends it (status time_out), not a hang; no wall-clock assertion in a test
     res = plan_path(robot, [-0.5, 0.0], [0.5, 0.0], max_time=0.5)
     assert not res.found and res.status == "time_out" and "enclosed" in res.reason and res.path.shape == (0, 2)
-    res = plan_path(robot, [-0.5, 0.0], [0.5, 0.0], max_iterations=200, max_time=60)
+    res = plan_path(robot, [-0.5, 0.0], [0.5, 0.0], iterations=200, max_time=60)
     assert not res.found and res.status == "iteration_limit"
     assert plan_path(robot, [-0.5, 0.0], [-0.5, 0.9]).found
 

@@ -242,6 +242,6 @@ def test_fit_pose_coarse_to_fine(arm, cams):
     assert fit.history.shape == (50, 1) and fit.all_losses.shape == (1, 3)
     assert np.abs(fit.poses - target.numpy()).max() < 0.02, fit.poses
     with pytest.raises(ValueError, match="unknown coarse"):
-        fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3))
+        fit_pose(g, targets, cams, target.numpy(), coarse=dict(steps=3))
     with pytest.raises(ValueError, match="does not divide"):
         fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3, factor=5))

@@ -93,3 +93,36 @@ def test_result_names_are_shared(panda):
     for res, answer in ((r, "poses"), (t, "path"), (p, "path")):
         for name in (answer, "certified", "iterations", "seconds"):
             assert hasattr(res, name), (type(res).__name__, name)
+
+
+def test_gaussian_robot_files_of_the_previous_release_load(tmp_path):
+    """The joint-limits buffer was called ``limits``: such files (and state dicts) still load."""
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    from profrobot.render import GaussianRobot
+
+    arm = profrobot.scenes.load("panda_blocks")
+    model = GaussianRobot.from_robot(arm, 200, seed=0)
+    model.save(tmp_path / "new.safetensors")
+    with safe_open(str(tmp_path / "new.safetensors"), framework="pt") as f:
+        meta, tensors = f.metadata(), {k: f.get_tensor(k) for k in f.keys()}
+    tensors["limits"] = tensors.pop("joint_limits")
+    save_file(tensors, str(tmp_path / "old.safetensors"), metadata=meta)
+    old = GaussianRobot.load(tmp_path / "old.safetensors", arm)
+    assert torch.equal(old.joint_limits, model.joint_limits) and torch.equal(old.means, model.means)
+    state = {("limits" if k == "joint_limits" else k): v for k, v in model.state_dict().items()}
+    twin = GaussianRobot.from_robot(arm, 200, seed=0)
+    twin.load_state_dict(state)
+    with pytest.warns(DeprecationWarning):
+        assert torch.equal(twin.limits, model.joint_limits)
+
+
+def test_clearance_argument_of_earlier_releases(panda):
+    from profrobot.certification import CLEARANCE, certify_poses
+
+    q = profrobot.sample_poses(panda, 50, seed=1)
+    with pytest.warns(DeprecationWarning, match="one clearance"):
+        np.testing.assert_array_equal(certify_poses(panda, q, clearance=CLEARANCE), certify_poses(panda, q))
+    with pytest.warns(DeprecationWarning), pytest.raises(ProfrobotError, match="one clearance"):
+        certify_poses(panda, q, clearance=0.0)

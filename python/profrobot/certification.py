@@ -20,6 +20,7 @@ distances. This module is torch-free (the base layer).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,9 +36,21 @@ __all__ = ["CLEARANCE", "certify_poses", "check_path", "path_free_at", "PathChec
 CLEARANCE = 1e-6
 
 
-def certify_poses(robot: Robot, poses, *, threads: int | None = None) -> np.ndarray:
+def _one_clearance(clearance, who: str) -> None:
+    """The ``clearance=`` argument of earlier releases: warned about, and only the one value."""
+    if clearance is None:
+        return
+    warnings.warn(f"{who}(clearance=...) is deprecated: certification has one clearance, "
+                  f"profrobot.certification.CLEARANCE", DeprecationWarning, stacklevel=3)
+    if clearance != CLEARANCE:
+        raise InputError(f"{who}: certification has one clearance, CLEARANCE = {CLEARANCE} m; got clearance="
+                         f"{clearance!r} (for other distances use label_poses(..., distance=True))")
+
+
+def certify_poses(robot: Robot, poses, *, threads: int | None = None, clearance: float | None = None) -> np.ndarray:
     """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres) is certified
     free (module docs: no contact, every candidate pair more than :data:`CLEARANCE` apart)."""
+    _one_clearance(clearance, "certify_poses")
     q = as_poses(robot, poses)
     threads = check_threads(threads)
     free = ~collides(robot, q, threads=threads)
@@ -74,9 +87,10 @@ class PathCheck:
         return np.flatnonzero(self.segment_collides)
 
 
-def check_path(robot: Robot, path, density: int = 10) -> PathCheck:
+def check_path(robot: Robot, path, density: int = 10, *, clearance: float | None = None) -> PathCheck:
     """Certifies ``path`` (S, K) waypoints and ``density − 1`` SO(2)-interpolated poses between
     each consecutive pair (``density`` times finer than the waypoints)."""
+    _one_clearance(clearance, "check_path")
     path = np.asarray(path, dtype=np.float64)
     if path.ndim != 2 or len(path) < 2:
         raise InputError(f"path must have shape (S >= 2, K); got {path.shape}")

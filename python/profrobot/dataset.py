@@ -6,19 +6,19 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+from pathlib import Path
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import _core
-from .files import atomic_path, check_format, check_robot, format_tag
-from .errors import CorruptFileError
+from . import _core, validate
 from .equalities import EqualityMode
+from .errors import CorruptFileError, InputError
+from .files import atomic_path, check_format, check_robot, format_tag
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
-from .errors import InputError
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
 
@@ -51,10 +51,15 @@ class Dataset:
         n_test = max(1, int(round(len(self) * test_fraction)))
         return self._take(idx[n_test:]), self._take(idx[:n_test])
 
+    @property
+    def fingerprint(self) -> str | None:
+        """The fingerprint of the robot the poses were labelled for (None if unknown)."""
+        return self.metadata.get("robot_fingerprint")
+
     def _take(self, idx: np.ndarray) -> "Dataset":
         return Dataset(self.poses[idx], *(getattr(self, k)[idx] for k in _LABELS), metadata=dict(self.metadata))
 
-    def save(self, path: str | os.PathLike) -> None:
+    def save(self, path: str | os.PathLike) -> Path:
         """Writes one ``.npz`` atomically: a temporary file in the same folder, fsynced, then
         renamed over ``path``, so an interrupted save never leaves a half-written file."""
         path = os.fspath(path)
@@ -64,6 +69,7 @@ class Dataset:
         with atomic_path(path) as tmp:
             np.savez(tmp, poses=self.poses, **{k: getattr(self, k) for k in _LABELS},
                      metadata=np.array(json.dumps(metadata)))
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
@@ -135,12 +141,11 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
 
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise InputError(f"n must be a positive integer; got {n!r}")
+    n = validate.count("n", n)
+    collided_fraction = validate.finite("collided_fraction", collided_fraction)
     if not 0.0 <= collided_fraction <= 1.0:
         raise InputError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")
-    if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
-        raise InputError(f"batch must be a positive integer; got {batch!r}")
+    batch = validate.count("batch", batch)
     threads = check_threads(threads)
     executor = check_executor(executor)
     want_coll = int(round(n * collided_fraction))

@@ -14,7 +14,7 @@ from .angles import wrap
 from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
 from .errors import InputError
-from .validate import as_poses, seed as check_seed, threads as check_threads
+from .validate import as_poses, count, seed as check_seed, threads as check_threads
 
 
 @dataclass
@@ -87,8 +87,7 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise InputError(f"n must be a positive integer; got {n!r}")
+    n = count("n", n)
     seed = check_seed(seed)
     if equalities not in EQUALITY_MODES:
         raise InputError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
@@ -133,8 +132,7 @@ def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != g.shape:
         raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
-        raise InputError(f"steps must be an integer >= 2 (both end points included); got {steps!r}")
+    steps = count("steps", steps, 2, why="both end points included")
     from . import _core
 
     path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))

@@ -18,6 +18,7 @@ import numpy as np
 from .labels import as_poses, check_threads, label_poses, so2_steps
 from .robot import Robot
 from .certification import path_free_at
+from . import validate
 from .deprecation import renamed_arguments
 from .errors import InputError
 
@@ -97,13 +98,9 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     if s.shape != (1, robot.njoint) or g.shape != (1, robot.njoint):
         raise InputError(f"start and goal must each be one pose of {robot.njoint} joints; got shapes "
                          f"{np.shape(start)} and {np.shape(goal)}")
-    for name, v in (("resolution", resolution), ("max_time", max_time)):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name} must be a positive number; got {v!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
-        raise InputError(f"seed must be an integer in [0, 2**64); got {seed!r}")
-    if isinstance(verify, bool) or not isinstance(verify, (int, np.integer)) or verify < 1:
-        raise InputError(f"verify must be a positive integer (1: no verification); got {verify!r}")
+    resolution, max_time = validate.positive("resolution", resolution), validate.positive("max_time", max_time)
+    seed = validate.seed(seed)
+    verify = validate.count("verify", verify, why="1: no verification")
     for name, q in (("start", s), ("goal", g)):
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
@@ -137,8 +134,7 @@ def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
 
     p = as_poses(robot, path, name="path")
     m = len(p)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < max(m, 2):
-        raise InputError(f"steps must be an integer >= the path's {m} waypoints (and >= 2); got {steps!r}")
+    steps = validate.count("steps", steps, max(m, 2), why=f"the path's {m} waypoints, and at least 2")
     if m == 1:
         return np.repeat(p, steps, axis=0)
     seg = np.linalg.norm(so2_steps(robot, p), axis=1)

@@ -9,14 +9,11 @@ from __future__ import annotations
 
 import math
 from numbers import Integral, Real
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import InputError
-
-if TYPE_CHECKING:  # annotations only: robot.py imports this module
-    from .robot import Robot
+from .robot import Robot
 
 __all__ = ["as_poses", "poses_within_limits", "positive", "finite", "count", "seed", "threads"]
 
@@ -43,10 +40,11 @@ def finite(name: str, value) -> float:
     return float(value)
 
 
-def count(name: str, value, low: int = 1) -> int:
-    """An integer (not a bool, not a float) >= ``low``."""
+def count(name: str, value, low: int = 1, why: str = "") -> int:
+    """An integer (not a bool, not a float) >= ``low``; ``why`` is added to the message."""
     if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
-        raise InputError(f"{name} must be an integer >= {low}; got {value!r}")
+        what = "a positive integer" if low == 1 else f"an integer >= {low}"
+        raise InputError(f"{name} must be {what}{f' ({why})' if why else ''}; got {value!r}")
     return int(value)
 
 
@@ -74,8 +72,6 @@ def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool =
     wrong widths, empty batches, NaN/inf, and (with ``check_limits``) limited joints outside
     their limits by more than ``atol``.
     """
-    from .robot import Robot
-
     if not isinstance(robot, Robot):
         raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor

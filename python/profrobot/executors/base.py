@@ -14,9 +14,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol, runtime_checkable
 
-import numpy as np
 
-from ..errors import InputError
+from ..validate import count
 
 __all__ = ["ChunkFn", "Executor", "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "progress_bar"]
 
@@ -28,11 +27,7 @@ def chunk_bounds(n: int, chunk: int) -> list[tuple[int, int]]:
     """``[(start, stop), ...]``: rows ``0..n`` cut into consecutive chunks of ``chunk`` rows (the
     last may be shorter). Every client cuts its work here, so a chunk's rows depend only on
     ``n`` and ``chunk``."""
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise InputError(f"chunk must be a positive integer; got {chunk!r}")
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise InputError(f"n must be a non-negative integer; got {n!r}")
-    n, chunk = int(n), int(chunk)
+    chunk, n = count("chunk", chunk), count("n", n, 0)
     return [(i, min(i + chunk, n)) for i in range(0, n, chunk)]
 
 

@@ -32,11 +32,11 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
-from ..errors import InputError, RendererUnavailableError
+from ..errors import RendererUnavailableError
 from ..gl import backends
 from .base import ChunkFn, progress_bar, release_caches
+from ..validate import count, threads as validate_threads
 
 __all__ = ["LocalExecutor", "close_workers", "serve"]
 
@@ -308,11 +308,8 @@ class LocalExecutor:
     """
 
     def __init__(self, processes: int = 1, *, threads: int | None = None):
-        for name, v in (("processes", processes), ("threads", 1 if threads is None else threads)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise InputError(f"{name} must be a positive integer; got {v!r}")
-        self.processes = int(processes)
-        self.threads = None if threads is None else int(threads)
+        self.processes = count("processes", processes)
+        self.threads = validate_threads(threads)
 
     def __repr__(self) -> str:
         return f"LocalExecutor(processes={self.processes}, threads={self.threads})"

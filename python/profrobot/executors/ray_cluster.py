@@ -45,10 +45,10 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 
 from ..errors import ClusterError, InputError
 from .base import ChunkFn, progress_bar
+from ..validate import count
 
 __all__ = ["RayExecutor", "ClusterError", "RunStats"]
 
@@ -323,10 +323,9 @@ class RayExecutor:
                  task_timeout: float | None = None, max_retries: int = 3, max_restarts: int = 4,
                  per_actor: int = 2, runtime_env: dict | None = None):
         for name, v in (("workers", workers), ("num_cpus", num_cpus)):
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
-                raise InputError(f"{name} must be a positive integer or None; got {v!r}")
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-            raise InputError(f"threads must be a positive integer; got {threads!r}")
+            if v is not None:
+                count(name, v)
+        count("threads", threads)
         if address is not None and not isinstance(address, str):
             raise InputError(f"address must be None or a string such as 'auto' or 'ray://host:10001'; got {address!r}")
         self.address = address

@@ -45,14 +45,14 @@ def _surface_points(kind: int, size: np.ndarray, hull: np.ndarray | None) -> np.
     raise InputError(f"no point set for geom type {kind}")
 
 
-def cover_spheres(points: np.ndarray, count: int, iters: int = 20) -> tuple[np.ndarray, np.ndarray]:
+def cover_spheres(points: np.ndarray, count: int, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """``count`` spheres (centres (m, 3), radii (m,)) covering ``points`` (P, 3): deterministic
     k-means (seeded along the principal axis), each radius the farthest point of its cluster."""
     mean = points.mean(0)
     _, _, vt = np.linalg.svd(points - mean, full_matrices=False)
     t = (points - mean) @ vt[0]
     centres = mean + np.outer(np.quantile(t, (np.arange(count) + 0.5) / count), vt[0])
-    for _ in range(iters):
+    for _ in range(iterations):
         nearest = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)
         centres = np.stack([points[nearest == i].mean(0) if np.any(nearest == i) else centres[i] for i in range(count)])
     nearest = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)

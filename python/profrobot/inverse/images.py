@@ -16,7 +16,8 @@ For B targets seen by C cameras:
    image term no longer pulls them back towards the unseen obstacle). Poses left colliding are
    reported in ``result.failures``, never hidden.
 
-``sdf=None`` is the baseline: the image phase only, labelled but not corrected.
+``sdf=None`` is the baseline: the image phase only, certified against ``robot=`` but not corrected
+(without ``robot=`` nothing is checked: ``certified`` is None).
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ certified by the exact labeller, and one that still collides is resolved on the 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,8 +31,8 @@ class TextResult:
     Attributes:
         poses: (R, K) returned poses; score: (R,) the scorer's value at them (CLIP: raw dot
         product); score_before_repair: (R,) at the end of the optimisation; certified: (R,) the
-        exact labeller finds the returned pose free; collided_before_repair: (R,) it found the
-        optimised pose colliding (then it was resolved on the field); g: (R,) the field at the
+        returned pose is certified free (:mod:`profrobot.certification`); certified_before_repair:
+        (R,) the optimised pose was (the others were then resolved on the field); g: (R,) the field at the
         returned pose (NaN without one); history: (iterations, R) score per step;
         iterations: Adam steps per run; seconds.
     """
@@ -40,11 +41,18 @@ class TextResult:
     score: np.ndarray
     score_before_repair: np.ndarray
     certified: np.ndarray
-    collided_before_repair: np.ndarray
+    certified_before_repair: np.ndarray
     g: np.ndarray
     history: np.ndarray
     seconds: float
     iterations: int = 0
+
+    @property
+    def collided_before_repair(self) -> np.ndarray:
+        """Deprecated: ``~certified_before_repair``."""
+        warnings.warn("TextResult.collided_before_repair is deprecated; use ~certified_before_repair",
+                      DeprecationWarning, stacklevel=2)
+        return ~self.certified_before_repair
 
     @property
     def failures(self) -> np.ndarray:
@@ -53,7 +61,7 @@ class TextResult:
 
     def summary(self) -> str:
         return (f"{len(self.poses)} runs: score {self.score.mean():.3f} ± {self.score.std():.3f}, "
-                f"{self.collided_before_repair.mean():.0%} collided before repair, "
+                f"{1 - self.certified_before_repair.mean():.0%} not certified before repair, "
                 f"{certified_summary(self.certified)}; {self.seconds:.1f} s")
 
 
@@ -130,5 +138,5 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     g = (np.full(runs, np.nan) if sdf is None else
          sdf(torch.as_tensor(poses, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())
     return TextResult(poses=poses, score=after, score_before_repair=before, certified=certified,
-                      collided_before_repair=collided, g=np.asarray(g, dtype=np.float64),
+                      certified_before_repair=~collided, g=np.asarray(g, dtype=np.float64),
                       history=np.array(hist).reshape(iterations, runs), iterations=iterations, seconds=time.perf_counter() - t0)

@@ -42,7 +42,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
-    :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``free`` per the dense check,
+    :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` per the dense check,
     ``method`` "video" or "video+field")."""
     t0 = time.perf_counter()
     robot = labeller_robot(sdf, model, robot, "actions_from_video")

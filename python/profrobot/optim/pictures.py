@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_path
-from ..labels import label_poses
+from ..certification import certify_poses
 from ..robot import Robot
 from ..errors import InputError
 
@@ -57,8 +57,8 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
                       size: tuple[int, int] = (480, 360), camera: dict | None = None) -> Path:
     """Render ``path`` (S, K) with MuJoCo to ``out`` (.gif, or .mp4 with imageio installed).
 
-    ``collides`` (S,) bool marks frames with a red border (default: the exact labeller's verdict
-    on each pose). ``camera``: lookat, distance, azimuth, elevation of a free camera. The file is
+    ``collides`` (S,) bool marks frames with a red border (default: the poses that are
+    not certified free, :mod:`profrobot.certification`). ``camera``: lookat, distance, azimuth, elevation of a free camera. The file is
     written atomically.
     """
     from ..labels import as_poses
@@ -68,7 +68,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise InputError(f"out must end in .gif or .mp4; got {out.name!r}")
-    collides = label_poses(robot, path).collides if collides is None else np.asarray(collides, dtype=bool)
+    collides = ~certify_poses(robot, path) if collides is None else np.asarray(collides, dtype=bool)
     if collides.shape != (len(path),):
         raise InputError(f"collides must have shape ({len(path)},); got {collides.shape}")
     frames = trajectory_frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})

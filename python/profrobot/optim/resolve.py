@@ -27,7 +27,7 @@ class ResolveResult:
         poses: (B, K) float64 resolved poses, radians / metres, within the joint limits.
         iterations: (B,) int, Adam steps each pose took (0: it already met the threshold).
         delta: (B,) float64, ‖θ_out − θ_in‖₂ in radians (continuous joints the short way round).
-        certified: (B,) bool, the exact labeller finds the returned pose free.
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`).
         g: (B,) float32, the field at the returned pose.
         reached: (B,) bool, the pose met its (final) field threshold within the budget.
         threshold: (B,) float64, the last threshold each pose was driven to (l_thres, or lower
@@ -51,7 +51,7 @@ class ResolveResult:
 
     @property
     def failures(self) -> np.ndarray:
-        """Indices of poses the exact labeller still finds colliding."""
+        """Indices of poses that are not certified free."""
         return failures_of(self.certified)
 
     def summary(self) -> str:

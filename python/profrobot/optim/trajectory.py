@@ -77,13 +77,14 @@ class TrajectoryResult:
     straight_length: float
     seconds: float
     check: PathCheck = field(repr=False)
-    initial_free: bool = False
+    initial_certified: bool = False                     # the straight interpolation was certified
     init: str = "straight"
     planner: object = field(default=None, repr=False)   # the PathResult when init used the planner
     smoothed: bool = False
     length_before: float = float("nan")                 # the resampled planner path's length
 
     free = deprecated_alias("certified")
+    initial_free = deprecated_alias("initial_certified")
 
     @property
     def relative_length(self) -> float:
@@ -198,9 +199,9 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
 
     limits = Limits.of(robot, sdf.joint_limits if sdf is not None else None)
     straight = interpolate(robot, s, g, steps)          # (B, S, K): SO(2), from the Rust core
-    initial_free = np.array([check_path(robot, p, density).certified for p in straight], dtype=bool)
+    initial_certified = np.array([check_path(robot, p, density).certified for p in straight], dtype=bool)
     use_planner = np.ones(len(s), dtype=bool) if init == "planner" else (
-        ~initial_free if init == "auto" else np.zeros(len(s), dtype=bool))
+        ~initial_certified if init == "auto" else np.zeros(len(s), dtype=bool))
     paths = limits.numpy(straight.copy())
     n_iter = np.zeros(len(s), dtype=np.int64)
     straight_rows = np.flatnonzero(~use_planner)
@@ -245,7 +246,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
             robot, p, check_path(robot, p, density), g=gs[b], iterations=int(n_iter[b]), seconds=seconds,
             method=method if not use_planner[b] else ("planner+smooth" if sdf is not None else "planner"),
             straight_length=float(np.linalg.norm(limits.diff(g[b], s[b]))),
-            initial_free=bool(initial_free[b]), init="planner" if use_planner[b] else "straight",
+            initial_certified=bool(initial_certified[b]), init="planner" if use_planner[b] else "straight",
             planner=plans.get(b), smoothed=bool(smoothed[b]), length_before=before.get(b, float("nan"))))
     return results[0] if single else results
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from pathlib import Path
 import warnings
 from typing import Literal, get_args
 
@@ -313,8 +314,15 @@ class GaussianRobot(torch.nn.Module):
             setattr(self, name, torch.nn.Parameter(torch.cat([getattr(self, name).detach(), v.detach()])))
         self.body = torch.cat([self.body, body])
 
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # state dicts of earlier releases name the joint-limits buffer "limits"
+        old = prefix + "limits"
+        if old in state_dict and prefix + "joint_limits" not in state_dict:
+            state_dict[prefix + "joint_limits"] = state_dict.pop(old)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     # ---- persistence ---------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike) -> None:
+    def save(self, path: str | os.PathLike) -> Path:
         """safetensors file with a JSON header (format, robot fingerprint, configuration); written
         to a temporary file and renamed (atomic)."""
         from safetensors.torch import save_file
@@ -325,6 +333,7 @@ class GaussianRobot(torch.nn.Module):
                     skinning=self.skinning, hidden=self.hidden, n=self.n, sh_degree=self.sh_degree)
         with atomic_path(path) as tmp:
             save_file(tensors, str(tmp), metadata={"profrobot": json.dumps(meta)})
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot) -> "GaussianRobot":
@@ -347,6 +356,8 @@ class GaussianRobot(torch.nn.Module):
         try:
             model = cls(robot, t("body"), t("means"), t("quats"), t("log_scales"), t("opacity_logits"), t("sh"),
                         skinning=meta["skinning"], canonical=t("canonical")[0], hidden=meta["hidden"])
+            if "limits" in tensors and "joint_limits" not in tensors:   # files of earlier releases
+                tensors["joint_limits"] = tensors.pop("limits")
             model.load_state_dict(tensors, strict=True)
         except (KeyError, RuntimeError) as e:
             raise CorruptFileError(f"{path}: inconsistent Gaussian robot file ({e})") from e

@@ -80,7 +80,7 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
         raise InputError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
     if "iters" in coarse:   # the name of earlier releases
         warnings.warn("fit_pose(coarse=dict(iters=...)) is deprecated; use iterations=...", DeprecationWarning,
-                      stacklevel=3)
+                      stacklevel=5)   # _coarse_to_fine < fit_pose < renamed_arguments' wrapper < the caller
         coarse["iterations"] = coarse.pop("iters")
     unknown = set(coarse) - {"iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
     if unknown:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,7 +19,7 @@ from ..errors import CorruptFileError, InputError
 from ..executors import chunk_bounds, chunk_sizes, check_executor
 from ..deprecation import deprecated_alias
 from ..files import atomic_path, check_format, check_robot, format_tag
-from .cameras import Cameras
+from .cameras import Cameras, ring_cameras, sphere_cameras  # noqa: F401  (their home before the split)
 from .mjviews import render_views_chunk, robot_visual_model
 
 __all__ = ["Views", "make_views", "robot_visual_model"]
@@ -59,7 +60,7 @@ class Views:
         return Views(self.poses[idx], self.cameras, self.rgb[idx], self.depth[idx], self.mask[idx],
                      self.fingerprint, self.robot_name, dict(self.metadata))
 
-    def save(self, path: str | os.PathLike) -> None:
+    def save(self, path: str | os.PathLike) -> Path:
         """Compressed ``.npz`` with a JSON header (robot fingerprint, cameras); written to a
         temporary file in the same directory and renamed, so a crash never leaves half a file."""
         path = os.fspath(path)
@@ -69,6 +70,7 @@ class Views:
             np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8),
                                 poses=self.poses, rgb=self.rgb, depth=self.depth, mask=np.packbits(self.mask, axis=-1),
                                 mask_width=np.int64(self.mask.shape[-1]))
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | os.PathLike, robot=None) -> "Views":
