@@ -17,13 +17,13 @@ import os
 import warnings
 import xml.etree.ElementTree as ET
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
-from . import _core
+from . import _core, urdf
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 from .errors import CorruptFileError, InputError, RobotMismatchError
 
@@ -250,6 +250,29 @@ def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
 
 
 @dataclass(frozen=True, eq=False)
+class _Urdf(_Mjcf):
+    """A URDF as bytes (:func:`profrobot.urdf.read_urdf`: mesh filenames replaced by asset names,
+    the meshes carried) and what :meth:`Robot.from_urdf` adds to its spec: a joint equality for
+    each ``<mimic>`` that MuJoCo's URDF reader did not make one of (MuJoCo 4 makes them all), and
+    the ``<exclude>``s of disabled link pairs. Exact: the same bytes and edits give the same model."""
+
+    mimics: tuple = ()      # (joint, mimicked joint, multiplier, offset)
+    excludes: tuple = ()    # (body1, body2)
+
+    def spec(self) -> mujoco.MjSpec:
+        spec = super().spec()
+        coupled = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT}
+        for joint, other, mult, offset in self.mimics:
+            if joint not in coupled:
+                eq = spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
+                                       name1=joint, name2=other)
+                eq.data[:5] = [offset, mult, 0.0, 0.0, 0.0]
+        for b1, b2 in self.excludes:
+            spec.add_exclude(bodyname1=b1, bodyname2=b2)
+        return spec
+
+
+@dataclass(frozen=True, eq=False)
 class _SpecSource:
     """How a robot's MjSpec was made: ``root`` plus the ``obstacles`` added since, in order.
 
@@ -406,6 +429,16 @@ def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()[:32]
 
 
+def _root_tag(path: str) -> str | None:
+    """The root element's tag of an XML file (None if it cannot be read)."""
+    try:
+        for _, el in ET.iterparse(path, events=("start",)):
+            return el.tag
+    except (ET.ParseError, OSError):
+        return None
+    return None
+
+
 class Robot:
     """A MuJoCo robot scene ready for exact collision labelling.
 
@@ -413,12 +446,17 @@ class Robot:
     slides in metres); free and ball joints are rejected. Static obstacles are the world-body
     geoms of the model (and those added with :meth:`with_obstacles`).
 
-    Build one with :meth:`from_menagerie`, :meth:`from_mjcf`, :meth:`from_model`, or
-    ``profrobot.scenes.load(name)``.
+    Build one with :meth:`from_menagerie`, :meth:`from_mjcf`, :meth:`from_urdf`,
+    :meth:`from_model`, or ``profrobot.scenes.load(name)``.
 
     A Robot pickles and deep-copies: the copy labels byte for byte like the original, has its
     fingerprint, and ``with_obstacles`` works on it (see :meth:`__getstate__`).
     """
+
+    #: link (body) pairs whose collisions profrobot was asked not to check (``from_urdf``'s
+    #: ``srdf=`` / ``collision_matrix="auto"``), applied as MuJoCo ``<exclude>``s: (body1, body2, reason)
+    disabled_pairs: tuple = ()
+    _collision_notes: str = ""
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
@@ -480,10 +518,13 @@ class Robot:
 
     @classmethod
     def from_mjcf(cls, path: str | os.PathLike) -> "Robot":
-        """An MJCF file on disk (its meshes resolved relative to it)."""
+        """An MJCF file on disk (its meshes resolved relative to it); a URDF (``.urdf``, or a
+        ``<robot>`` root) goes to :meth:`from_urdf` with its defaults."""
         path = os.fspath(path)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"no MJCF file at {path!r}")
+        if path.lower().endswith(".urdf") or _root_tag(path) == "robot":
+            return cls.from_urdf(path)
         try:
             spec = mujoco.MjSpec.from_file(path)
         except Exception as e:  # mujoco raises ValueError with the parser's message
@@ -491,6 +532,145 @@ class Robot:
         robot = cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
         robot._source = _SpecSource(os.path.abspath(path))  # a pickle carries the files themselves (exact)
         return robot
+
+    @classmethod
+    def from_urdf(cls, path: str | os.PathLike, *, package_dirs=None, srdf: str | os.PathLike | None = None,
+                  collision_matrix: str | None = None, name: str | None = None) -> "Robot":
+        """A URDF file, compiled by MuJoCo's URDF compiler with its meshes resolved.
+
+        ``package_dirs``: where ``package://pkg/...`` meshes live, as ``{"pkg": "/path/to/pkg"}``
+        or a list of folders that contain ``pkg/``; then ``ROS_PACKAGE_PATH``,
+        ``AMENT_PREFIX_PATH`` (``share/pkg``) and a folder named ``pkg`` above the URDF are
+        tried. Relative mesh paths are relative to the URDF's folder. A mesh that cannot be found
+        raises :class:`InputError` naming the URDF, the URI, where it looked and what to pass.
+
+        Collision geometry only (MuJoCo's ``discardvisual``, unless the URDF's ``<mujoco>``
+        section says otherwise); meshes collide as MuJoCo's convex hulls. Joint limits are the
+        URDF's; ``continuous`` joints (and revolute joints without limits) are unlimited hinges,
+        ``robot.continuous``. A ``<mimic>`` joint becomes a MuJoCo joint equality
+        (``polycoef = offset, multiplier``), enforced by ``sample_poses``' ``equalities="auto"``.
+        Floating, planar and spherical joints are refused (profrobot labels fixed-base robots).
+
+        Collisions: by default the pairs are MuJoCo's (labels agree with MuJoCo's compile of the
+        file), and link pairs that collide in >= 99 % of 2000 seeded uniform poses are warned
+        about (:class:`profrobot.urdf.UrdfWarning`), typically a base link overlapping link 1 (a
+        link welded to the world is not filtered against its child). ``srdf=``: a MoveIt SRDF
+        whose ``<disable_collisions>`` pairs are disabled. ``collision_matrix="auto"``: disable
+        the pairs that collide in >= 99 % of those poses and the adjacent pairs (one moving joint
+        apart, fixed joints collapsed) that collide in any; nothing else. Disabled pairs are MuJoCo
+        ``<exclude>``s on the spec, so :func:`profrobot.crosscheck` still compares like with like;
+        ``robot.disabled_pairs`` lists them and ``robot.collision_report()`` says why.
+        """
+        if collision_matrix not in (None, "auto"):
+            raise InputError(f"collision_matrix must be None or 'auto'; got {collision_matrix!r}")
+        files = urdf.read_urdf(path, package_dirs)
+        name = name or files.name
+        for note in files.notes:
+            warnings.warn(f"{name} ({files.path}): {note}", urdf.UrdfWarning, stacklevel=2)
+        root = _Urdf(files.xml, {}, _zip(files.assets), files.folder, True, mimics=files.mimics)
+        robot = cls._from_urdf_root(root, files, name)
+        disabled: list[urdf.DisabledPair] = []
+        if srdf is not None:
+            srdf_path = os.path.abspath(os.fspath(srdf))
+            pairs = urdf.read_srdf(srdf_path)
+            known = set(robot.body_names[1:])
+            unknown = sorted({link for p in pairs for link in p[:2] if link not in known})
+            if unknown:
+                warnings.warn(f"{name}: {srdf_path} names links that are not bodies of {files.path} (or the world, "
+                              f"which would also hide obstacles): {', '.join(unknown)}; their pairs are skipped",
+                              urdf.UrdfWarning, stacklevel=2)
+            seen: set = set()
+            for p in pairs:
+                key = frozenset(p[:2])
+                if p.body1 in unknown or p.body2 in unknown or key in seen or len(key) < 2:
+                    continue
+                seen.add(key)
+                disabled.append(p)
+            if disabled:
+                robot = cls._from_urdf_root(replace(root, excludes=tuple(p[:2] for p in disabled)), files, name)
+        rates, n = urdf.body_pair_rates(robot)
+        m, bn = robot.mj_model, robot.body_names
+        always = {k: r for k, r in rates.items() if r >= urdf.ALWAYS}
+        before = None
+        if collision_matrix == "auto":
+            auto = []
+            for (a, b), r in sorted(rates.items()):
+                if a == 0:   # a link fused into the world: excluding the world would hide obstacles too
+                    continue
+                if r > 0 and urdf.adjacent(m, a, b):
+                    reason = f"Adjacent: one joint apart, collide in {urdf.pct(r)} of {n} uniform poses"
+                elif r >= urdf.ALWAYS:
+                    reason = f"Always: collide in {urdf.pct(r)} of {n} uniform poses"
+                else:
+                    continue
+                auto.append(urdf.DisabledPair(bn[a], bn[b], reason))
+            if auto:
+                before = robot
+                disabled += auto
+                robot = cls._from_urdf_root(replace(root, excludes=tuple(p[:2] for p in disabled)), files, name)
+        left = {k: r for k, r in always.items() if collision_matrix != "auto" or k[0] == 0}
+        if left:
+            listed = ", ".join(f"{bn[a]}–{bn[b]} ({urdf.pct(r)})" for (a, b), r in sorted(left.items()))
+            world = (" Pairs with 'world' are links fused into it (the URDF's <mujoco><compiler fusestatic=\"true\"/>): "
+                     "disable them with srdf= naming the link, never the world." if any(a == 0 for a, _ in left) else "")
+            warnings.warn(f"{name} ({files.path}): {len(left)} link pair(s) collide in (nearly) every pose (>= "
+                          f"{urdf.pct(urdf.ALWAYS)} of {n} uniform poses): {listed}. These are MuJoCo's labels for this "
+                          "URDF (a link welded to the world is not filtered against its child); pass srdf= (MoveIt "
+                          "<disable_collisions>) or collision_matrix='auto' to disable such pairs; "
+                          f"robot.collision_report() has the details.{world}", urdf.UrdfWarning, stacklevel=2)
+        robot.disabled_pairs = tuple(disabled)
+        robot._collision_notes = robot._urdf_report(files, rates, n, left, before)
+        return robot
+
+    @classmethod
+    def _from_urdf_root(cls, root: "_Urdf", files: "urdf.UrdfFiles", name: str) -> "Robot":
+        try:
+            spec = root.spec()
+            model = spec.compile()
+        except Exception as e:
+            raise InputError(f"{files.path}: MuJoCo could not compile the URDF: "
+                             f"{urdf.explain_compile_error(files, e)}") from e
+        free = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt) if model.jnt_type[j] == _FREE]
+        if free:
+            raise InputError(f"{files.path}: the compiled model has a free joint ({', '.join(map(repr, free))}): a "
+                             "floating base, which profrobot cannot label; fix the base link to the world")
+        robot = cls(model, name=name, spec=spec)
+        robot._source = _SpecSource(root)   # the URDF text and mesh bytes: pickles rebuild it exactly
+        return robot
+
+    def _urdf_report(self, files: "urdf.UrdfFiles", rates: dict, n: int, always: dict, before: "Robot | None") -> str:
+        bn = self.body_names
+        lines = [f"{self.name}: from URDF {files.path} ({len(files.assets)} mesh file{'' if len(files.assets) == 1 else 's'}; links kept as bodies)"]
+        cont = [j for j, c in zip(self.joint_names, self.continuous) if c]
+        lines.append(f"  {self.njoint} joints; continuous: {', '.join(cont) or 'none'}")
+        for joint, other, mult, offset in files.mimics:
+            lines.append(f"  mimic: {joint} = {mult:g}·{other} {'-' if offset < 0 else '+'} {abs(offset):g} (a MuJoCo "
+                         "joint equality)")
+        if self.disabled_pairs:
+            lines.append("  collisions not checked (MuJoCo <exclude>):")
+            lines += [f"    {p.body1} – {p.body2}: {p.reason}" for p in self.disabled_pairs]
+        else:
+            lines.append("  collisions not checked: none beyond MuJoCo's own filters")
+        if always:
+            lines.append(f"  checked, colliding in >= {urdf.pct(urdf.ALWAYS)} of {n} uniform poses (srdf= or "
+                         "collision_matrix='auto' would disable them):")
+            lines += [f"    {bn[a]} – {bn[b]}: {urdf.pct(r)}" for (a, b), r in sorted(always.items())]
+        never = sum(1 for r in rates.values() if r == 0)
+        lines.append(f"  {never} checked link pairs never touched in the {n} poses (kept: a sample does not prove never)")
+        poses = self.core.sample(n, urdf.SEED, threads=None)
+        self.couplings.apply(poses)
+        rate = float(np.mean(self.core.collides(poses, threads=None)))
+        was = "" if before is None else f" ({urdf.pct(float(np.mean(before.core.collides(poses, threads=None))))} before the matrix)"
+        lines.append(f"  collides in {urdf.pct(rate)} of those {n} uniform poses{was}")
+        return "\n".join(lines)
+
+    def collision_report(self) -> str:
+        """What profrobot disabled among this robot's collision pairs, and why (``from_urdf``);
+        for other robots, that MuJoCo's filters and the model's own ``<exclude>``s apply."""
+        if self._collision_notes:
+            return self._collision_notes
+        n = len(self._arrays["exclude"])
+        return f"{self.name}: no collision pairs disabled by profrobot (MuJoCo's filters and the model's {n} <exclude>s apply)"
 
     @classmethod
     def from_spec(cls, spec: mujoco.MjSpec, *, name: str = "robot") -> "Robot":
@@ -525,6 +705,8 @@ class Robot:
         robot = Robot.from_spec(spec, name=name or self.name)
         if self._source is not None:
             robot._source = self._source.then(obstacles)
+        if self.disabled_pairs or self._collision_notes:
+            robot.disabled_pairs, robot._collision_notes = self.disabled_pairs, self._collision_notes
         return robot
 
     # ---- description ---------------------------------------------------------------------------
@@ -616,7 +798,9 @@ class Robot:
         - ``mj_model``: the compiled ``MjModel`` as MuJoCo's own pickle state (its binary model,
           bytes: any pickle protocol; MuJoCo's pickling aborts the process under protocols 0 and 1)
           only where the source cannot rebuild it exactly (``from_model``, ``from_spec``); for
-          ``from_mjcf`` / ``from_menagerie`` robots it is left out (the meshes are already in the
+          ``from_mjcf`` / ``from_menagerie`` / ``from_urdf`` robots (a URDF's source is its text with
+          mesh names made asset names, the mesh bytes, the mimic equalities and ``<exclude>``s
+          added) it is left out (the meshes are already in the
           source: half the size) and compiled again on first use of :attr:`mj_model` or
           :attr:`spec`.
 
