@@ -17,8 +17,8 @@ import pytest
 
 import profrobot
 
-PKG = Path(profrobot.__file__).parent
-ROOT = PKG.parents[1]
+ROOT = Path(__file__).resolve().parents[1]      # the checkout (the package may be installed elsewhere)
+PKG = ROOT / "python" / "profrobot"
 
 
 def _modules() -> dict[str, Path]:

@@ -8,7 +8,8 @@ import torch
 import profrobot
 from profrobot import problems
 from profrobot.field import PoseSDF
-from profrobot.optim import check_path, collision_penalty, plan_trajectory, resolve
+from profrobot.optim import (PenaltyOptions, TangentOptions, check_path, collision_penalty, plan_trajectory,
+                             resolve)
 from profrobot.errors import RobotMismatchError
 
 
@@ -169,7 +170,7 @@ def _hard_pair(robot, seed=5):
 def test_check_path_finds_collisions_between_free_waypoints(panda):
     a, b = _hard_pair(panda)
     chk = check_path(panda, np.stack([a, b]), density=50)
-    assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.free
+    assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.certified
     assert len(chk.dense) == 51
     full = check_path(panda, profrobot.interpolate(panda, a, b, 30), density=4)
     assert not full.certified and full.colliding_segments.size > 0
@@ -183,7 +184,7 @@ def test_plan_reports_collisions_the_field_misses(panda):
     a, b = _hard_pair(panda)
     for method in ("penalty", "tangent"):
         res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method, init="straight",
-                              iterations=10, tangent_iters=500, delta=0.05)
+                              penalty=PenaltyOptions(iterations=10), tangent=TangentOptions(iterations=500, delta=0.05))
         assert not res.certified and res.colliding_segments.size > 0
         np.testing.assert_array_equal(res.path[0], a)
         np.testing.assert_array_equal(res.path[-1], b)
@@ -198,7 +199,8 @@ def test_plan_penalty_moves_waypoints_along_the_field_gradient(panda):
     starts, goals = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
     w = np.zeros(panda.njoint); w[0] = 1.0
     field = LinearField(panda, w, 5.0)
-    res = plan_trajectory(field, starts, goals, steps=10, iterations=20, check_every=1000, init="straight")
+    res = plan_trajectory(field, starts, goals, steps=10, penalty=PenaltyOptions(iterations=20, check_every=1000),
+                          init="straight")
     assert len(res) == 2
     for r, a, b in zip(res, starts, goals):
         straight = profrobot.interpolate(panda, a, b, 10)
@@ -213,9 +215,11 @@ def test_plan_tangent_walk_reaches_the_goal_in_free_space(panda):
     """Far from the threshold the projection is off: the walk is straight to the goal."""
     _, free = colliding_and_free(panda)
     field = LinearField(panda, np.zeros(panda.njoint), -10.0)
-    res = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, goal_norm="l2", init="straight")
+    res = plan_trajectory(field, free[0], free[1], steps=15, method="tangent",
+                          tangent=TangentOptions(delta=0.05, goal_norm="l2"), init="straight")
     np.testing.assert_allclose(res.path, profrobot.interpolate(panda, free[0], free[1], 15), atol=1e-4)
-    l1 = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", delta=0.05, init="straight")   # the paper's L1
+    l1 = plan_trajectory(field, free[0], free[1], steps=15, method="tangent", tangent=TangentOptions(delta=0.05),
+                         init="straight")   # the paper's L1
     np.testing.assert_array_equal(l1.path[[0, -1]], np.stack([free[0], free[1]]))
     assert l1.iterations > 0 and l1.relative_length >= 1 - 1e-6
 
@@ -245,7 +249,7 @@ def test_gif_and_plot(tmp_path, panda, renderer):
     from profrobot.optim.pictures import plot_trajectory, render_trajectory
 
     a, b = _hard_pair(panda)
-    res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=6, iterations=0)
+    res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=6, penalty=PenaltyOptions(iterations=0))
     gif = render_trajectory(panda, res.path, tmp_path / "t.gif", size=(96, 72))
     with Image.open(gif) as im:
         assert im.n_frames == 6 and im.size == (96, 72)
@@ -301,11 +305,17 @@ def test_plan_penalty_options_keep_the_ends_and_limits(panda):
     """midpoints and the path-energy term (beyond the paper) change the loss, not the contract."""
     a, b = _hard_pair(panda)
     w = np.zeros(panda.njoint); w[0] = 1.0
-    res = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0, init="straight")
+    res = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8,
+                          penalty=PenaltyOptions(iterations=5, midpoints=True, gamma3=1.0), init="straight")
     np.testing.assert_array_equal(res.path[[0, -1]], np.stack([a, b]))
     assert res.iterations == 5 and (res.path[1:-1, 0] < profrobot.interpolate(panda, a, b, 8)[1:-1, 0]).all()
     with pytest.raises(ValueError, match="gamma3"):
-        plan_trajectory(LinearField(panda, w, 5.0), a, b, gamma3=-1.0)
+        plan_trajectory(LinearField(panda, w, 5.0), a, b, penalty=PenaltyOptions(gamma3=-1.0))
+    # the flat options of earlier releases still work, with a warning naming the new home
+    with pytest.warns(DeprecationWarning, match="PenaltyOptions"):
+        old = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0,
+                              init="straight")
+    np.testing.assert_array_equal(old.path, res.path)
 
 
 def test_limits_clamp_limited_wrap_continuous():

@@ -70,7 +70,7 @@ def test_more_search_never_hurts_much_and_single_pose(panda):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(directions=0), "directions must be an integer >= 1"),
+    (dict(directions=0), "directions must be a positive integer"),
     (dict(directions=2.5), "directions"),
     (dict(refine=-1), "refine"),
     (dict(step=0.0), "step must be a positive"),
