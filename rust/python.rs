@@ -39,12 +39,23 @@ static INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INPUT_TYPE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static MODEL_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
-fn new_class<'py>(py: Python<'py>, name: &str, bases: Vec<Bound<'py, PyType>>, doc: &str) -> PyResult<Py<PyType>> {
+/// Makes the class `name(*bases)`, adds it to the module `m` and keeps it in `cell`.
+fn add_error_class<'py>(
+    m: &Bound<'py, PyModule>,
+    cell: &PyOnceLock<Py<PyType>>,
+    name: &str,
+    bases: Vec<Bound<'py, PyType>>,
+    doc: &str,
+) -> PyResult<Bound<'py, PyType>> {
+    let py = m.py();
     let ns = PyDict::new(py);
     ns.set_item("__module__", "profrobot._core")?;
     ns.set_item("__doc__", doc)?;
     let bases = PyTuple::new(py, bases)?;
-    Ok(py.get_type::<PyType>().call1((name, bases, ns))?.cast_into::<PyType>()?.unbind())
+    let class = py.get_type::<PyType>().call1((name, bases, ns))?.cast_into::<PyType>()?;
+    m.add(name, &class)?;
+    let _ = cell.set(py, class.clone().unbind());
+    Ok(class)
 }
 
 fn raise(cell: &PyOnceLock<Py<PyType>>, msg: String) -> PyErr {
@@ -546,31 +557,28 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRobotModel>()?;
     let py = m.py();
     let root = py.get_type::<ProfrobotError>();
-    let input = new_class(
-        py,
+    m.add("ProfrobotError", &root)?;
+    let input = add_error_class(
+        m,
+        &INPUT_ERROR,
         "InputError",
         vec![root.clone(), py.get_type::<PyValueError>()],
         "Bad input: a shape, a NaN, an option out of range (a ValueError).",
     )?;
-    let model = new_class(
-        py,
+    add_error_class(
+        m,
+        &MODEL_ERROR,
         "ModelError",
-        vec![input.bind(py).clone()],
+        vec![input],
         "A robot model the core cannot label exactly (inconsistent arrays, unsupported geoms or joints).",
     )?;
-    let typed = new_class(
-        py,
+    add_error_class(
+        m,
+        &INPUT_TYPE_ERROR,
         "InputTypeError",
-        vec![root.clone(), py.get_type::<PyTypeError>()],
+        vec![root, py.get_type::<PyTypeError>()],
         "An argument of the wrong type or dtype (a TypeError).",
     )?;
-    m.add("ProfrobotError", root)?;
-    m.add("InputError", input.bind(py))?;
-    m.add("ModelError", model.bind(py))?;
-    m.add("InputTypeError", typed.bind(py))?;
-    let _ = INPUT_ERROR.set(py, input);
-    let _ = MODEL_ERROR.set(py, model);
-    let _ = INPUT_TYPE_ERROR.set(py, typed);
     m.add_class::<PySplatState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
     m.add_function(wrap_pyfunction!(splat_forward, m)?)?;

@@ -11,10 +11,14 @@ calls in its process (a MuJoCo renderer, a GL context) lives in its own module, 
 
 from __future__ import annotations
 
+import hashlib
+import pickle
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 
+from ..robot import Robot
 from ..validate import count
 
 __all__ = ["ChunkFn", "Executor", "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "progress_bar"]
@@ -92,3 +96,18 @@ def progress_bar(total: int, desc: str, unit: str, progress: bool):
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=desc, unit=unit, disable=not progress)
+
+
+_PAYLOADS: "weakref.WeakKeyDictionary[Any, tuple[str, bytes]]" = weakref.WeakKeyDictionary()
+
+
+def robot_payload(robot) -> tuple[str, bytes]:
+    """``(key, bytes)``: ``robot`` pickled once (remembered per robot object, for every executor)
+    and the sha256 of those bytes, which names the workers that hold it."""
+    if not isinstance(robot, Robot):
+        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    hit = _PAYLOADS.get(robot)
+    if hit is None:
+        data = pickle.dumps(robot, protocol=pickle.HIGHEST_PROTOCOL)
+        hit = _PAYLOADS[robot] = (hashlib.sha256(data).hexdigest(), data)
+    return hit

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import hashlib
 import itertools
 import os
 import pickle
@@ -27,7 +26,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import weakref
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,7 +33,7 @@ from typing import Any
 
 from ..errors import RendererUnavailableError
 from ..gl import backends
-from .base import ChunkFn, progress_bar, release_caches
+from .base import ChunkFn, progress_bar, release_caches, robot_payload
 from ..validate import count, threads as validate_threads
 
 __all__ = ["LocalExecutor", "close_workers", "serve"]
@@ -276,24 +274,6 @@ atexit.register(close_workers)
 # The executor
 # --------------------------------------------------------------------------------------------
 
-_ROBOT_BYTES: "weakref.WeakKeyDictionary[Any, tuple[str, bytes]]" = weakref.WeakKeyDictionary()
-
-
-def _robot_payload(robot) -> tuple[str, bytes]:
-    """The robot pickled once (remembered per robot object) and its key."""
-    try:
-        hit = _ROBOT_BYTES.get(robot)
-    except TypeError:  # not weakly referenceable (None, ...)
-        hit = None
-    if hit is not None:
-        return hit
-    data = pickle.dumps(robot, protocol=pickle.HIGHEST_PROTOCOL)
-    hit = (hashlib.sha256(data).hexdigest(), data)
-    with contextlib.suppress(TypeError):
-        _ROBOT_BYTES[robot] = hit
-    return hit
-
-
 class LocalExecutor:
     """Runs chunk functions on this machine (see the module's docstring).
 
@@ -355,7 +335,7 @@ class LocalExecutor:
             return
         if limit <= 0:
             return
-        key, data = _robot_payload(robot)
+        key, data = robot_payload(robot)
         n = max(1, min(self.processes, limit))
         workers = _borrow(n, gl)
         clean = False

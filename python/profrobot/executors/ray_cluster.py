@@ -34,20 +34,18 @@ only when an executor first connects.
 from __future__ import annotations
 
 import collections
-import hashlib
 import os
 import pickle
 import socket
 import threading
 import time
-import weakref
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 
 from ..errors import ClusterError, InputError
-from .base import ChunkFn, progress_bar
+from .base import ChunkFn, progress_bar, robot_payload
 from ..validate import count
 
 __all__ = ["RayExecutor", "ClusterError", "RunStats"]
@@ -102,15 +100,6 @@ class _RobotWorker:
         if needs_gl(fn):
             select_backend()
         return fn(self.robot, *args)
-
-
-def _robot_bytes(robot) -> bytes:
-    """The robot pickled for the workers (once per pool)."""
-    from ..robot import Robot
-
-    if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    return pickle.dumps(robot, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 # --------------------------------------------------------------------------------------------
@@ -343,7 +332,6 @@ class RayExecutor:
         self._ray = None
         self._started_ray = False
         self._pools: dict[str, _Pool] = {}
-        self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # robot -> its pool's key
 
     def __repr__(self) -> str:
         return f"RayExecutor(address={self.address!r}, workers={self.workers})"
@@ -385,13 +373,7 @@ class RayExecutor:
     # ---- pools ----------------------------------------------------------------------------------
     def _pool(self, robot) -> _Pool:
         ray = self.connect()
-        key = self._keys.get(robot)
-        pool = self._pools.get(key) if key is not None else None
-        if pool is not None and pool.actors:
-            return pool
-        data = _robot_bytes(robot)
-        key = hashlib.sha256(data).hexdigest()
-        self._keys[robot] = key
+        key, data = robot_payload(robot)
         pool = self._pools.get(key)
         if pool is not None and pool.actors:
             return pool
