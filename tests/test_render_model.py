@@ -190,7 +190,7 @@ def test_fit_pose_validates_at_entry(arm, cams):
     good = dict(rgb=np.zeros((1, 3, 32, 32, 3)), depth=np.zeros((1, 3, 32, 32)), mask=np.zeros((1, 3, 32, 32), bool))
     with pytest.raises(ValueError, match="init contains NaN"):
         fit_pose(g, good, cams, np.array([[np.nan, 0.0]]), iterations=1)
-    with pytest.raises(ValueError, match="targets contain NaN"):
+    with pytest.raises(ValueError, match="depth contains NaN"):
         fit_pose(g, dict(good, depth=np.full((1, 3, 32, 32), np.inf)), cams, np.zeros((1, 2)), iterations=1)
     with pytest.raises(ValueError, match="background"):
         fit_pose(g, good, cams, np.zeros((1, 2)), iterations=1, background=[np.nan, 0, 0])

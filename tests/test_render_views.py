@@ -37,7 +37,7 @@ def test_cameras_match_mujoco_gl_camera(ball):
 
 
 def test_projection_matches_pixels_and_depth(ball, renderer):
-    cams = Cameras(np.tile([0, 0, 0.3], (4, 1)), 1.0, [0, 77, 200, 300], [0, -33, 10, 40], width=192, height=144)
+    cams = Cameras.free(np.tile([0, 0, 0.3], (4, 1)), 1.0, [0, 77, 200, 300], [0, -33, 10, 40], width=192, height=144)
     v = make_views(ball, np.zeros((1, 1)), cams, progress=False)
     centre = np.array([0.1, 0.05, 0.3, 1.0])
     for c in range(len(cams)):
@@ -85,7 +85,7 @@ def test_bad_input(ball):
     with pytest.raises(TypeError):
         make_views(ball, np.zeros((1, 1)), "front", progress=False)
     with pytest.raises(ValueError, match="distance"):
-        Cameras(np.zeros((1, 3)), -1.0, 0.0, 0.0)
+        Cameras.free(np.zeros((1, 3)), -1.0, 0.0, 0.0)
 
 
 def test_cameras_and_views_pickle_and_deepcopy(ball, renderer):

@@ -16,9 +16,10 @@ import numpy as np
 
 from ..executors.base import on_release
 from ..gl import uses_gl
+from ..errors import InputError
 from .cameras import Cameras, free_camera
 
-__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk",
+__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk", "set_gl_camera",
            "release_renderers"]
 
 
@@ -37,8 +38,12 @@ class MjViews:
     camera set; :meth:`gl_camera` needs no GL."""
 
     def __init__(self, model: mujoco.MjModel, cameras: Cameras):
+        if cameras.distortion is not None:
+            raise InputError("MuJoCo renders pinhole images: these cameras have lens distortion; render from "
+                             "cameras.undistorted() (targets are undistorted to it: profrobot.render.distortion)")
         self.m = model
-        self.m.vis.global_.fovy = cameras.fovy
+        if cameras.is_free:
+            self.m.vis.global_.fovy = cameras.fovy
         self.d = mujoco.MjData(model)
         self.cams = cameras
         self._r = None
@@ -53,7 +58,18 @@ class MjViews:
         return self._r
 
     def camera(self, c: int) -> mujoco.MjvCamera:
-        return self.cams.mjv_camera(c)
+        """The ``MjvCamera`` to build the scene with: camera ``c`` itself for free cameras; for the
+        others any free camera, whose GL camera :meth:`update_scene` then replaces."""
+        return self.cams.mjv_camera(c) if self.cams.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
+
+    def update_scene(self, scn: mujoco.MjvScene, c: int, option=None) -> None:
+        """Build ``scn`` for camera ``c``. A camera that is not a free camera is set as the scene's
+        GL camera (both eyes): position, forward, up and the frustum from ``K`` at MuJoCo's own
+        near plane (:meth:`Cameras.gl_frustum`); the far plane, lights and geoms are MuJoCo's."""
+        mujoco.mjv_updateScene(self.m, self.d, option or mujoco.MjvOption(), None, self.camera(c),
+                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+        if not self.cams.is_free:
+            set_gl_camera(scn, self.cams, c)
 
     def render(self, qpos: np.ndarray):
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
@@ -69,6 +85,8 @@ class MjViews:
         mask = np.empty((C, H, W), bool)
         for c in range(C):
             r.update_scene(d, self.camera(c))
+            if not cams.is_free:
+                set_gl_camera(r.scene, cams, c)
             rgb[c] = r.render()
             r.enable_depth_rendering()
             depth[c] = r.render()
@@ -84,14 +102,28 @@ class MjViews:
     def gl_camera(self, c: int):
         """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
         scn = mujoco.MjvScene(self.m, maxgeom=max(1, self.m.ngeom))
-        mujoco.mjv_updateScene(self.m, self.d, mujoco.MjvOption(), None, self.camera(c),
-                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+        self.update_scene(scn, c)
         return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
 
     def close(self):
         if self._r is not None:
             self._r.close()
             self._r = None
+
+
+def set_gl_camera(scn: mujoco.MjvScene, cameras: Cameras, c: int) -> None:
+    """Make camera ``c`` of ``cameras`` the scene's GL camera (both eyes, so the mono average is
+    it): MuJoCo then renders exactly ``K`` and ``world_to_cam`` (:meth:`Cameras.gl_frustum`). The
+    headlight, which ``mjv_updateScene`` placed at the camera it was given, follows."""
+    near = scn.camera[0].frustum_near
+    pos, fwd, up, (center, half, bottom, top) = cameras.gl_frustum(c, near)
+    for g in (scn.camera[0], scn.camera[1]):
+        g.pos[:], g.forward[:], g.up[:] = pos, fwd, up
+        g.frustum_center, g.frustum_width, g.frustum_bottom, g.frustum_top = center, half, bottom, top
+        g.orthographic = 0
+    for i in range(scn.nlight):
+        if scn.lights[i].headlight:
+            scn.lights[i].pos[:], scn.lights[i].dir[:] = pos, fwd
 
 
 class MjFrames:

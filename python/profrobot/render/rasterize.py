@@ -109,11 +109,10 @@ def project(means, covs, viewmats, Ks, width, height):
     cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
     xz, yz = x * iz, y * iz
     uv = torch.stack([fx * xz + cx, fy * yz + cy], -1)
-    # the Jacobian is taken at a clamped x/z: off-screen Gaussians do not get huge footprints
-    limx = 1.3 * (0.5 * width / fx)
-    limy = 1.3 * (0.5 * height / fy)
-    txz = torch.maximum(torch.minimum(xz, limx), -limx)
-    tyz = torch.maximum(torch.minimum(yz, limy), -limy)
+    # the Jacobian is taken at an x/z clamped to the image's extent plus 15 % of its size each side
+    # (pixel edges -1/2 and W - 1/2, any principal point): off-screen Gaussians do not get huge footprints
+    txz = torch.maximum(torch.minimum(xz, (width - 0.5 - cx + 0.15 * width) / fx), (-0.5 - cx - 0.15 * width) / fx)
+    tyz = torch.maximum(torch.minimum(yz, (height - 0.5 - cy + 0.15 * height) / fy), (-0.5 - cy - 0.15 * height) / fy)
     # M = J R (2 x 3 per Gaussian), J = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]:
     # row 0 = fx/z (R_0 - x/z R_2), row 1 = fy/z (R_1 - y/z R_2)
     fxz, fyz = fx * iz, fy * iz

@@ -3,10 +3,17 @@
 For a render ``out`` of the Gaussian robot and targets ``I*`` (RGB in [0, 1]), ``D*`` (metres)
 and robot masks ``M*``, per image:
 
-    L = mean_{M} |I - I*|^2                          (L_RGB on M = M* | alpha > 1/2: a robot drawn
-                                                      in the wrong place is penalised too)
-      + w_depth * mean_{M* & alpha > 1/2} |D - D*|   (L_D, metres)
-      + w_mask  * mean |alpha - M*|                  (silhouette)
+    L = mean_{M*} |I - I*|^2                         (L_RGB on the target's robot mask only: pixels
+                                                      outside it, a photo's background, never pull)
+      + w_depth * mean_{M* & alpha > 1/2} |D - D*|   (L_D, metres; left out without depth)
+      + w_mask  * mean |alpha - M*|                  (silhouette: a robot drawn in the wrong place)
+
+and a target's loss is the weighted mean of its C views' (per-view ``weights``, default 1).
+
+Targets as they come from the world (:func:`as_pinhole_targets`): ``rgb`` with a ``mask`` (from a
+segmenter) and no depth, or ``depth`` with no mask (the mask is then ``depth > 0``); images at any
+resolution (the cameras are rescaled to it, :meth:`Cameras.resized`, keeping pixel edges); lens
+distortion undistorted once (:mod:`profrobot.render.distortion`).
 
 :class:`ImageTargets` validates a batch of targets and their cameras once, at entry, and then
 evaluates that loss for any rows of poses without host syncs: :func:`profrobot.render.fit_pose`,
@@ -22,8 +29,10 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from .cameras import Cameras
+from .distortion import undistort_images
 
-__all__ = ["pose_loss", "ImageTargets"]
+__all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
 
 
 def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
@@ -33,27 +42,79 @@ def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Ten
     (N, H, W) bool (module docs)."""
     mt = mask_t.to(out.rgb.dtype)
     drawn = (out.alpha.detach() > 0.5).to(out.rgb.dtype)
-    m = torch.maximum(mt, drawn)
-    msum = m.sum((1, 2)).clamp_min(1)
-    l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * m).sum((1, 2)) / msum
-    md = mt * drawn
-    l_d = ((out.depth - depth_t).abs() * md).sum((1, 2)) / md.sum((1, 2)).clamp_min(1)
-    l_m = (out.alpha - mt).abs().mean((1, 2))
-    return l_rgb + w_depth * l_d + w_mask * l_m
+    l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * mt).sum((1, 2)) / mt.sum((1, 2)).clamp_min(1)
+    loss = l_rgb + w_mask * (out.alpha - mt).abs().mean((1, 2))
+    if w_depth:
+        md = mt * drawn
+        loss = loss + w_depth * ((out.depth - depth_t).abs() * md).sum((1, 2)) / md.sum((1, 2)).clamp_min(1)
+    return loss
 
 
-def _as_batch(x, name: str, shape_tail: tuple, B: int, C: int, who: str) -> torch.Tensor:
-    """``x`` as a (B, C, *shape_tail) tensor (a leading B may be left out when B == 1); uint8
-    images become [0, 1] floats."""
-    t = torch.as_tensor(np.asarray(x))
-    if t.dtype == torch.uint8:
-        t = t.to(torch.float32) / 255.0
-    if t.ndim == len(shape_tail) + 1 and B == 1:
-        t = t[None]
-    if t.shape[:2] != (B, C) or tuple(t.shape[2:]) != tuple(shape_tail):
-        raise InputError(f"{who}: {name} must have shape ({B}, {C}, {', '.join(map(str, shape_tail))}) for {B} "
-                         f"target{'s' * (B != 1)} seen by {C} camera{'s' * (C != 1)}; got {tuple(t.shape)}")
-    return t
+def _shape_of(x, name: str, tail: tuple, B: int, C: int, who: str) -> np.ndarray:
+    """``x`` as a (B, C, *tail) array (a leading B may be left out when B == 1); ``tail`` may hold
+    None for "any size"."""
+    a = np.asarray(x)
+    if a.ndim == len(tail) + 1 and B == 1:
+        a = a[None]
+    ok = a.ndim == len(tail) + 2 and a.shape[:2] == (B, C) and all(t is None or t == n for t, n in zip(tail, a.shape[2:]))
+    if not ok:
+        want = ", ".join("H" if i == 0 and t is None else "W" if t is None else str(t) for i, t in enumerate(tail))
+        raise InputError(f"{who}: {name} must have shape ({B}, {C}, {want}) for {B} target{'s' * (B != 1)} seen by "
+                         f"{C} camera{'s' * (C != 1)}; got {a.shape}")
+    return a
+
+
+def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targets") -> tuple[dict, Cameras]:
+    """``targets`` and ``cameras`` made ready for the loss: the cameras rescaled to the images'
+    size, the images undistorted if the cameras have lens distortion, a mask from ``depth > 0``
+    where none is given, a zero depth and ``has_depth=False`` where none is given.
+
+    ``targets``: dict of ``rgb`` (B, C, H, W, 3) uint8 or [0, 1] floats, and ``mask`` (B, C, H, W)
+    bool and/or ``depth`` (B, C, H, W) metres (0 off the robot), optionally ``weights`` (C,) or
+    (B, C) per-view weights >= 0 (the leading B may be left out when B == 1). Returns
+    ``(dict(rgb, depth, mask, weights, has_depth), cameras)`` as numpy (B, C, ...) arrays."""
+    if not isinstance(targets, dict) or "rgb" not in targets:
+        raise InputError(f"{who}: targets must be a dict with 'rgb' and at least one of 'mask' and 'depth'")
+    if not isinstance(cameras, Cameras):
+        raise InputError(f"{who}: cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
+    unknown = set(targets) - {"rgb", "depth", "mask", "weights", "has_depth"}
+    if unknown:
+        raise InputError(f"{who}: unknown target keys {sorted(unknown)} (rgb, mask, depth, weights)")
+    C = len(cameras)
+    rgb = _shape_of(targets["rgb"], "rgb", (None, None, 3), B, C, who)
+    H, W = rgb.shape[2:4]
+    depth, mask = targets.get("depth"), targets.get("mask")
+    if depth is None and mask is None:
+        raise InputError(f"{who}: targets need a 'mask' (the robot's pixels, e.g. from a segmenter) or a 'depth' "
+                         "(metres, 0 off the robot): without either the background would pull the pose")
+    depth = None if depth is None else _shape_of(depth, "depth", (H, W), B, C, who).astype(np.float32)
+    mask = None if mask is None else _shape_of(mask, "mask", (H, W), B, C, who).astype(bool)
+    if depth is not None and not np.isfinite(depth).all():
+        raise InputError(f"{who}: depth contains NaN or inf")
+    if depth is not None and (depth < 0).any():
+        raise InputError(f"{who}: depth must be >= 0 metres (0 off the robot)")
+    weights = targets.get("weights")
+    if weights is None:
+        weights = np.ones((B, C), np.float32)
+    else:
+        weights = np.asarray(weights, dtype=np.float32)
+        weights = np.broadcast_to(weights, (B, C)).copy() if weights.shape in ((C,), (B, C)) else None
+        if weights is None or not np.isfinite(weights).all() or (weights < 0).any() or (weights.sum(1) <= 0).any():
+            raise InputError(f"{who}: weights must be finite, >= 0, shape ({C},) or ({B}, {C}), with a positive sum per target")
+    if (W, H) != (cameras.width, cameras.height):
+        cameras = cameras.resized(W, H)     # targets at any resolution: K follows the pixels
+    if cameras.distortion is not None:
+        K, dist = cameras.K, cameras.distortion
+        rgb = undistort_images(rgb, K, dist, kind="rgb")
+        mask = None if mask is None else undistort_images(mask, K, dist, kind="mask")
+        depth = None if depth is None else undistort_images(depth, K, dist, kind="depth")
+        cameras = cameras.undistorted()
+    has_depth = depth is not None and bool(targets.get("has_depth", True))
+    if mask is None:
+        mask = depth > 0
+    if depth is None:
+        depth = np.zeros(mask.shape, np.float32)
+    return dict(rgb=rgb, depth=depth, mask=mask, weights=weights, has_depth=has_depth), cameras
 
 
 @dataclass(eq=False)
@@ -65,7 +126,8 @@ class ImageTargets:
         rgb: (B·C, H, W, 3) in [0, 1]; depth: (B·C, H, W) metres; mask: (B·C, H, W) bool.
         viewmats: (C, 4, 4) world-to-camera (OpenCV); Ks: (C, 3, 3); width, height: pixels.
         background: (3,) RGB in [0, 1] or None (black).
-        w_depth, w_mask: the loss weights (module docs).
+        w_depth, w_mask: the loss weights (module docs); w_depth is 0 for targets without depth.
+        weights: (B·C,) per-view weights.
     """
 
     rgb: torch.Tensor
@@ -78,33 +140,32 @@ class ImageTargets:
     background: torch.Tensor | None
     w_depth: float = 1.0
     w_mask: float = 0.5
+    weights: torch.Tensor | None = None
 
     @classmethod
     def from_images(cls, targets: dict, cameras, B: int, *, device=None, background=None, w_depth: float = 1.0,
                     w_mask: float = 0.5, who: str = "targets") -> "ImageTargets":
-        """``targets``: dict of ``rgb`` (B, C, H, W, 3) uint8 or [0, 1], ``depth`` (B, C, H, W)
-        metres, ``mask`` (B, C, H, W) bool (the leading B may be left out when B == 1);
-        ``cameras``: the C :class:`~profrobot.render.Cameras`. Errors name ``who`` and the entry."""
-        if not isinstance(targets, dict) or not {"rgb", "depth", "mask"} <= set(targets):
-            raise InputError(f"{who}: targets must be a dict with 'rgb', 'depth' and 'mask'")
+        """``targets``: dict of ``rgb`` (B, C, H, W, 3) uint8 or [0, 1], and ``mask`` (B, C, H, W)
+        bool and/or ``depth`` (B, C, H, W) metres, optionally ``weights`` (C,) or (B, C) (the
+        leading B may be left out when B == 1; :func:`as_pinhole_targets`); ``cameras``: the C
+        :class:`~profrobot.render.Cameras`. Errors name ``who`` and the entry."""
+        t, cameras = as_pinhole_targets(targets, cameras, B, who)
         C, H, W = len(cameras), cameras.height, cameras.width
-        rgb = _as_batch(targets["rgb"], "rgb", (H, W, 3), B, C, who).float()
-        depth = _as_batch(targets["depth"], "depth", (H, W), B, C, who).float()
-        mask = _as_batch(targets["mask"], "mask", (H, W), B, C, who).bool()
-        if not (torch.isfinite(rgb).all() and torch.isfinite(depth).all()):
+        rgb = torch.as_tensor(t["rgb"])
+        rgb = rgb.to(torch.float32) / 255.0 if rgb.dtype == torch.uint8 else rgb.float()
+        depth, mask = torch.as_tensor(t["depth"]), torch.as_tensor(t["mask"])
+        if not torch.isfinite(rgb).all():
             raise InputError(f"{who}: targets contain NaN or inf")
         vm = torch.as_tensor(np.asarray(cameras.world_to_cam), dtype=torch.float32, device=device)
         Ks = torch.as_tensor(np.asarray(cameras.K), dtype=torch.float32, device=device)
-        if vm.shape != (C, 4, 4) or Ks.shape != (C, 3, 3):
-            raise InputError(f"{who}: cameras need world_to_cam ({C}, 4, 4) and K ({C}, 3, 3); "
-                             f"got {tuple(vm.shape)} and {tuple(Ks.shape)}")
         bg = None if background is None else torch.as_tensor(np.asarray(background), dtype=torch.float32,
                                                               device=device)
-        for name, t in (("cameras", vm), ("cameras", Ks), ("background", bg)):
-            if t is not None and not torch.isfinite(t).all():
-                raise InputError(f"{who}: {name} contains NaN or inf")
+        if bg is not None and not torch.isfinite(bg).all():
+            raise InputError(f"{who}: background contains NaN or inf")
         flat = lambda t: t.reshape(B * C, *t.shape[2:]).to(device)
-        return cls(flat(rgb), flat(depth), flat(mask), vm, Ks, W, H, bg, float(w_depth), float(w_mask))
+        wts = torch.as_tensor(t["weights"], dtype=torch.float32).reshape(B * C).to(device)
+        return cls(flat(rgb), flat(depth), flat(mask), vm, Ks, W, H, bg, float(w_depth) if t["has_depth"] else 0.0,
+                   float(w_mask), wts)
 
     @property
     def cameras(self) -> int:
@@ -121,20 +182,27 @@ class ImageTargets:
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.rgb.device).reshape(-1)
         sel = (rows[:, None] * C + torch.arange(C, device=rows.device)).reshape(-1)
         return ImageTargets(self.rgb[sel], self.depth[sel], self.mask[sel], self.viewmats, self.Ks, self.width,
-                            self.height, self.background, self.w_depth, self.w_mask)
+                            self.height, self.background, self.w_depth, self.w_mask, self.view_weights[sel])
 
-    def render(self, model, theta: torch.Tensor):
+    @property
+    def view_weights(self) -> torch.Tensor:
+        """(B·C,) per-view weights (ones unless given)."""
+        return self.weights if self.weights is not None else torch.ones(self.rgb.shape[0], device=self.rgb.device)
+
+    def render(self, model, theta: torch.Tensor, viewmats: torch.Tensor | None = None):
         """``model`` (a :class:`~profrobot.render.GaussianRobot`) drawn at ``theta`` (R, K) from
-        these cameras: a RenderOut of R·C images, pose-major."""
-        return model.render_unchecked(theta, self.viewmats, self.Ks, self.width, self.height,
-                                      background=self.background)
+        these cameras (or from ``viewmats`` (C, 4, 4), e.g. refined ones, differentiably): a
+        RenderOut of R·C images, pose-major."""
+        return model.render_unchecked(theta, self.viewmats if viewmats is None else viewmats, self.Ks, self.width,
+                                      self.height, background=self.background)
 
-    def losses(self, model, theta: torch.Tensor, rows=None) -> torch.Tensor:
+    def losses(self, model, theta: torch.Tensor, rows=None, viewmats: torch.Tensor | None = None) -> torch.Tensor:
         """(R,) image loss of poses ``theta`` (R, K) against targets ``rows`` (R,) (default: all
-        B, in order), each the mean over the C views."""
+        B, in order), each the weighted mean over the C views; ``viewmats`` as in :meth:`render`."""
         tg = self if rows is None else self.take(rows)
         if theta.shape[0] != len(tg):
             raise InputError(f"{theta.shape[0]} poses for {len(tg)} targets")
-        out = tg.render(model, theta)
-        return pose_loss(out, tg.rgb, tg.depth, tg.mask, w_depth=self.w_depth,
-                         w_mask=self.w_mask).reshape(-1, self.cameras).mean(1)
+        out = tg.render(model, theta, viewmats)
+        per = pose_loss(out, tg.rgb, tg.depth, tg.mask, w_depth=self.w_depth, w_mask=self.w_mask).reshape(-1, self.cameras)
+        w = tg.view_weights.reshape(-1, self.cameras)
+        return (per * w).sum(1) / w.sum(1)
