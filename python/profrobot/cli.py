@@ -1,4 +1,5 @@
-"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``resolve``, ``plan``, ``scenes``."""
+"""The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``resolve``, ``plan``,
+``render``, ``pose``, ``scenes``."""
 
 from __future__ import annotations
 
@@ -27,6 +28,16 @@ def _optim(name: str):
     ``label``, ``crosscheck``, ``dataset`` and ``scenes`` never load it)."""
     def run(args) -> int:
         from .optim import cli
+
+        return getattr(cli, name)(args)
+
+    return run
+
+
+def _inverse(name: str):
+    """``profrobot.inverse.cli.<name>``, imported when the command runs (torch, like ``_optim``)."""
+    def run(args) -> int:
+        from .inverse import cli
 
         return getattr(cli, name)(args)
 
@@ -255,6 +266,33 @@ def main(argv: list[str] | None = None) -> int:
                     help="rasterizer: auto = the Rust kernel on a CPU, gsplat on CUDA (default: auto)")
     sp.add_argument("--out", required=True, help="model file (.safetensors)")
     sp.set_defaults(fn=cmd_render)
+    sp = sub.add_parser("pose", help="a certified pose from a folder of photos, a calibration and masks",
+                        description="Fit the joint angles seen in the images (one per camera, sorted by file name, in "
+                                    "the cameras' order) with a Gaussian robot and the field, certify the pose with "
+                                    "the exact labeller, write poses.json and fit.png. Exit 0: every pose certified "
+                                    "collision-free; 3: one is not; 2: bad input.")
+    sp.add_argument("--images", required=True, help="folder of the views of one target (png/jpg, sorted by name = the "
+                                                    "cameras' order), or of one subfolder per target")
+    sp.add_argument("--cameras", required=True, help="calibration JSON (Cameras.save: K, world_to_cam, width, height, "
+                                                     "optional OpenCV distortion)")
+    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
+    sp.add_argument("--model", required=True, help="Gaussian robot file for the same robot (profrobot render --out)")
+    sp.add_argument("--masks", help="robot masks, the images' names, nonzero = robot (default: IMAGES/masks)")
+    sp.add_argument("--depth", help="metric depth maps, the images' stems + .npy (default: IMAGES/depth if it exists)")
+    sp.add_argument("--scene", default=None, help="the field's scene (default: the bundled scene its checkpoint names)")
+    sp.add_argument("--init", help="comma-separated start pose, radians / metres (default: the middle of the joint "
+                                   "limits)")
+    sp.add_argument("--iterations", type=int, default=100, help="image-phase Adam steps")
+    sp.add_argument("--field-iterations", dest="field_iterations", type=int, default=300,
+                    help="field-phase steps at most (image loss + collision penalty)")
+    sp.add_argument("--restarts", type=int, default=0, help="perturbed restarts in a half-resolution first stage "
+                                                            "(helps from far starts; image sides must be even)")
+    sp.add_argument("--lr", type=float, default=0.02, help="image-phase learning rate")
+    sp.add_argument("--refine-cameras", dest="refine_cameras", action="store_true",
+                    help="also refine the cameras' poses (written to poses.json)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--out", default="pose_out", help="output folder: poses.json, fit.png (default: ./pose_out)")
+    sp.set_defaults(fn=_inverse("cmd_pose"))
     sp = sub.add_parser("scenes", help="list the bundled scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names())) or 0)
 

@@ -36,6 +36,7 @@ from ..optim.resolve import certify_and_continue
 from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
+from ..render.cameras import Cameras
 from ..render.targets import ImageTargets
 from ._common import check_field_matches_model, labeller_robot
 
@@ -64,6 +65,7 @@ class InverseResult:
             not checked).
         poses_before_continue: (B, K) the poses it was given (the paper's answers).
         seconds: wall time.
+        cameras: the refined :class:`~profrobot.render.Cameras` with ``refine_cameras``, else None.
     """
 
     poses: np.ndarray
@@ -79,6 +81,7 @@ class InverseResult:
     rounds: int = 0
     poses_before_continue: np.ndarray | None = None
     history: list = field(default_factory=list, repr=False)
+    cameras: Cameras | None = None
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -101,7 +104,8 @@ class InverseResult:
 def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
                      image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
-                     background=None, coarse: dict | None = None, robot=None, seed: int = 0) -> InverseResult:
+                     background=None, coarse: dict | None = None, robot=None, seed: int = 0,
+                     refine_cameras: bool | dict = False, progress: bool = False) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
 
     ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
@@ -113,7 +117,9 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     ``field_iterations``/``field_lr``: the field phase (Adam in joint space); ``refine_rounds``,
     ``refine_step``: certify-and-continue. ``robot``: the labeller's scene (default: the field's).
     Without a field and without ``robot`` nothing can be checked: ``result.certified`` is None and
-    ``summary()`` says "not checked".
+    ``summary()`` says "not checked". ``refine_cameras``: refine the cameras' poses with the image
+    phase (:func:`~profrobot.render.fit_pose`); the field phase then uses the refined cameras,
+    returned as ``result.cameras``. ``progress``: progress bars for the image phase.
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
@@ -132,12 +138,16 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     dev = model.means.device
     tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
                                   w_mask=w_mask, who="pose_from_images")
-    img_loss = lambda theta, rows: tg.losses(model, theta, rows)     # (len(rows),) mean over the C views
 
-    # 1. image phase (restarts and coarse-to-fine as fit_pose)
+    # 1. image phase (restarts, coarse-to-fine and camera refinement as fit_pose)
     fit = fit_pose(model, targets, cameras, init, iterations=image_iterations, lr=lr, w_depth=w_depth, w_mask=w_mask,
-                   background=background, coarse=coarse, seed=seed)
+                   background=background, coarse=coarse, seed=seed, refine_cameras=refine_cameras, progress=progress)
     theta_img = fit.poses
+    if fit.cameras is not None:     # the field phase sees the images through the refined cameras
+        cameras = fit.cameras
+        tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
+                                      w_mask=w_mask, who="pose_from_images")
+    img_loss = lambda theta, rows: tg.losses(model, theta, rows)     # (len(rows),) weighted mean over the C views
 
     limits = Limits.of(model, like=model.means)
     theta = torch.as_tensor(theta_img, dtype=torch.float32, device=dev).clone()
@@ -210,4 +220,4 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                          iterations=steps_taken, image_iterations=image_iterations, g=g.numpy().astype(np.float64),
                          threshold=thresholds, field_free_before_certify=field_free,
                          certified_before_continue=before, seconds=time.perf_counter() - t0, rounds=rounds,
-                         history=history, poses_before_continue=poses_before)
+                         history=history, poses_before_continue=poses_before, cameras=fit.cameras)

@@ -1,9 +1,11 @@
-"""Image helpers with no imaging library: PSNR, mask IoU, depth error, and a minimal PNG writer."""
+"""Image helpers with no imaging library: PSNR, mask IoU, depth error, a minimal PNG writer and
+the picture of a pose fit (:func:`fit_picture`)."""
 
 from __future__ import annotations
 
 import os
 import struct
+from pathlib import Path
 import zlib
 
 import numpy as np
@@ -11,7 +13,7 @@ import numpy as np
 from ..files import atomic_path
 from ..errors import InputError
 
-__all__ = ["psnr", "mask_iou", "write_png", "to_uint8", "depth_to_rgb"]
+__all__ = ["psnr", "mask_iou", "write_png", "to_uint8", "depth_to_rgb", "fit_mosaic", "fit_picture"]
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -54,3 +56,69 @@ def write_png(path: str | os.PathLike, img: np.ndarray) -> None:
            + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         f.write(png)
+
+
+_RENDER_TINT = np.array([0, 255, 0], np.float64)      # the render's silhouette in the overlay: green
+_MASK_EDGE = np.array([255, 0, 255], np.uint8)        # the target mask's outline: magenta
+
+
+def _as_rgb8(img: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(img)
+    if a.dtype == np.uint8:
+        return a
+    if not np.issubdtype(a.dtype, np.floating) or not np.isfinite(a).all():
+        raise InputError(f"fit_picture: {name} must be uint8 or finite floats in [0, 1]; got {a.dtype}")
+    return to_uint8(a)
+
+
+def _edge(m: np.ndarray) -> np.ndarray:
+    """The boundary pixels of boolean masks (..., H, W): in the mask, with a 4-neighbour outside."""
+    p = np.pad(m, [(0, 0)] * (m.ndim - 2) + [(1, 1), (1, 1)])
+    inner = p[..., :-2, 1:-1] & p[..., 2:, 1:-1] & p[..., 1:-1, :-2] & p[..., 1:-1, 2:]
+    return m & ~inner
+
+
+def fit_mosaic(target, render, alpha, *, mask=None, gap: int = 2) -> np.ndarray:
+    """The picture of a fit as an (V·H + (V-1)·gap, 3·W + 2·gap, 3) uint8 array: one row per
+    view, ``target | render | overlay``, white gaps of ``gap`` pixels.
+
+    ``target`` (V, H, W, 3) the images fitted (uint8, or floats in [0, 1]); ``render`` (V, H, W, 3)
+    the model drawn at the found pose from the same cameras (uint8 or [0, 1]); ``alpha`` (V, H, W)
+    the render's opacity in [0, 1]; ``mask`` (V, H, W) bool, the target's robot mask, or None.
+    The overlay is the target with the render's silhouette (``alpha > 1/2``) tinted green and
+    outlined, and the target mask outlined in magenta: where the outlines part, the fit is off.
+    """
+    tgt, ren = _as_rgb8(target, "target"), _as_rgb8(render, "render")
+    al = np.asarray(alpha, dtype=np.float64)
+    if tgt.ndim != 4 or tgt.shape[-1] != 3 or ren.shape != tgt.shape or al.shape != tgt.shape[:3]:
+        raise InputError(f"fit_picture: target and render must be (V, H, W, 3) and alpha (V, H, W), alike; got "
+                         f"{tgt.shape}, {ren.shape} and {al.shape}")
+    if not np.isfinite(al).all():
+        raise InputError("fit_picture: alpha contains NaN or inf")
+    gap = int(gap)
+    if gap < 0:
+        raise InputError(f"fit_picture: gap must be >= 0 pixels; got {gap}")
+    V, H, W = al.shape
+    drawn = al > 0.5
+    a = 0.45 * np.clip(al, 0.0, 1.0)[..., None]
+    over = (tgt * (1.0 - a) + _RENDER_TINT * a).round().astype(np.uint8)
+    over[_edge(drawn)] = _RENDER_TINT.astype(np.uint8)
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != al.shape:
+            raise InputError(f"fit_picture: mask must have shape {al.shape}; got {m.shape}")
+        over[_edge(m)] = _MASK_EDGE
+    out = np.full((V * H + (V - 1) * gap, 3 * W + 2 * gap, 3), 255, np.uint8)
+    for v in range(V):
+        y = v * (H + gap)
+        for col, img in enumerate((tgt[v], ren[v], over[v])):
+            x = col * (W + gap)
+            out[y:y + H, x:x + W] = img
+    return out
+
+
+def fit_picture(path: str | os.PathLike, target, render, alpha, *, mask=None, gap: int = 2) -> Path:
+    """Write :func:`fit_mosaic` (one row per view: target | render | overlay) as a PNG to
+    ``path``, atomically; returns the path."""
+    write_png(path, fit_mosaic(target, render, alpha, mask=mask, gap=gap))
+    return Path(path)

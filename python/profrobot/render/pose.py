@@ -30,6 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from ..joints import Limits
 from .gaussians import GaussianRobot
@@ -132,7 +133,8 @@ def rigid_motions(w: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
     return torch.cat([top, bottom], 1)
 
 
-def _refine(model, tg: ImageTargets, theta0: torch.Tensor, opts: dict, extra_loss) -> tuple[torch.Tensor, torch.Tensor]:
+def _refine(model, tg: ImageTargets, theta0: torch.Tensor, opts: dict, extra_loss,
+            progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Poses ``theta0`` (B, K) and the C cameras' rigid motions refined jointly (module docs) →
     (poses (B, K), motions (C, 4, 4))."""
     dev = model.means.device
@@ -145,7 +147,7 @@ def _refine(model, tg: ImageTargets, theta0: torch.Tensor, opts: dict, extra_los
     opt = torch.optim.Adam([dict(params=[u], lr=rates[0]), dict(params=[w], lr=rates[1]),
                             dict(params=[tau], lr=rates[2])], eps=1e-8)
     n = opts["iterations"]
-    for it in range(n):
+    for it in tqdm(range(n), desc="fit pose + cameras", unit="step", disable=not progress, leave=False):
         for group, lr in zip(opt.param_groups, rates):
             group["lr"] = _cosine(lr, it, n)
         theta = limits.denormalise(u)
@@ -173,7 +175,7 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     unknown = set(coarse) - {"iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
     if unknown:
         raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
-    kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed")} | coarse
+    kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed", "progress")} | coarse
     c = _fit(model, downsample_targets(targets, factor), cameras.resized(W // factor, H // factor), init, **kw)
     f = _fit(model, targets, cameras, torch.as_tensor(c.poses, dtype=torch.float32), **fine)
     return PoseFit(poses=f.poses, loss=f.loss, iterations=c.iterations + f.iterations, history=np.concatenate([c.history, f.history]), start=c.start,
@@ -184,7 +186,8 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
 def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iterations: int = 100, lr: float = 0.02,
              restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
              extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
-             seed: int = 0, coarse: dict | None = None, refine_cameras: bool | dict = False) -> PoseFit:
+             seed: int = 0, coarse: dict | None = None, refine_cameras: bool | dict = False,
+             progress: bool = False) -> PoseFit:
     """Recover joint angles from multi-view images.
 
     ``targets``: dict with ``rgb`` (B, C, H, W, 3) uint8 or [0, 1] floats, and ``mask``
@@ -210,13 +213,15 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     refines every camera's pose (shared across the targets) jointly with the poses (module
     docs); the result's ``cameras`` are the refined ones. Use several targets: one pose seen
     by few cameras leaves a camera's motion and the robot's poorly separated.
+
+    ``progress``: a progress bar per stage (off by default: this is often an inner loop).
     """
     init = _check_init(model, init, "fit_pose")
     refine = _refine_options(refine_cameras)
     given = cameras
     targets, cameras = as_pinhole_targets(targets, cameras, init.shape[0], "fit_pose")
     kw = dict(iterations=iterations, lr=lr, restarts=restarts, restart_sigma=restart_sigma, w_depth=w_depth,
-              w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed)
+              w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed, progress=progress)
     if coarse is not None:
         fit = _coarse_to_fine(model, targets, cameras, init, coarse, **kw)
     else:
@@ -225,7 +230,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         return fit
     tg = ImageTargets.from_images(targets, cameras, init.shape[0], device=model.means.device, background=background,
                                   w_depth=w_depth, w_mask=w_mask, who="fit_pose")
-    theta, motion = _refine(model, tg, torch.as_tensor(fit.poses, dtype=torch.float32), refine, extra_loss)
+    theta, motion = _refine(model, tg, torch.as_tensor(fit.poses, dtype=torch.float32), refine, extra_loss, progress)
     if not bool(torch.isfinite(theta).all()) or not bool(torch.isfinite(motion).all()):
         raise FloatingPointError("fit_pose: the camera refinement diverged; lower its rates (refine_cameras=dict(...))")
     motion = motion.cpu().double().numpy()
@@ -241,7 +246,7 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
 
 def _fit(model: GaussianRobot, targets: dict, cameras: Cameras, init: torch.Tensor, *, iterations: int, lr: float,
          restarts: int = 0, restart_sigma: float = 0.3, w_depth: float, w_mask: float, extra_loss, background,
-         seed: int) -> PoseFit:
+         seed: int, progress: bool = False) -> PoseFit:
     """One stage of :func:`fit_pose` on pinhole targets (:func:`as_pinhole_targets`)."""
     dev = model.means.device
     K = model.njoint
@@ -266,7 +271,9 @@ def _fit(model: GaussianRobot, targets: dict, cameras: Cameras, init: torch.Tens
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
     tr = tg.take(torch.arange(B, device=dev).repeat_interleave(R))  # (B·R) targets: one per start
     hist = []
-    for it in range(iterations):
+    bar = tqdm(range(iterations), desc=f"fit pose {cameras.width}x{cameras.height}", unit="step", disable=not progress,
+               leave=False)
+    for it in bar:
         opt.param_groups[0]["lr"] = _cosine(lr, it, iterations)       # to lr/10
         theta = limits.denormalise(u)
         per = tr.losses(model, theta)
