@@ -111,6 +111,14 @@ def camera_error(a: Cameras, b: Cameras) -> tuple[np.ndarray, np.ndarray]:
     return np.rad2deg(np.arccos(np.clip(cos, -1, 1))), np.linalg.norm(a.centres() - b.centres(), axis=1)
 
 
+def reprojection_error(model, poses: np.ndarray, a: Cameras, b: Cameras) -> np.ndarray:
+    """Per camera, the median distance (pixels) between where ``a`` and ``b`` put the model's
+    Gaussian centres at ``poses``: the part of a calibration error that images can show."""
+    with torch.no_grad():
+        mu = model._world_frames(torch.as_tensor(poses, dtype=torch.float32))[0].reshape(-1, 3).double().numpy()
+    return np.median(np.linalg.norm(a.project(mu) - b.project(mu), axis=-1), axis=1)
+
+
 # --------------------------------------------------------------------------------------------
 # The experiment
 # --------------------------------------------------------------------------------------------

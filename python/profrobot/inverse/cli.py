@@ -297,5 +297,5 @@ def cmd_pose(args) -> int:
         bad = [names[b] for b in np.flatnonzero(~res.certified)]
         print(f"profrobot pose: {len(bad)} of {B} poses collide by the exact labeller ({', '.join(bad[:10])}): not "
               "certified; try more --field-iterations, --restarts or another --init", file=sys.stderr)
-        return 3
+        return 1
     return 0

@@ -22,10 +22,11 @@ from ..errors import InputError
 DEFAULT_CAMERA = dict(lookat=(0.25, 0.0, 0.35), distance=2.3, azimuth=60.0, elevation=-25.0)
 
 
-def trajectory_frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera: dict,
+def trajectory_frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size: tuple[int, int], camera,
                       chunk: int = 32) -> list:
-    """``path`` (S, K) as S Pillow images of ``size`` (width, height) from the free ``camera``
-    (lookat, distance, azimuth, elevation), the whole scene drawn, frames where ``collides``
+    """``path`` (S, K) as S Pillow images of ``size`` (width, height) from ``camera`` (a free
+    camera's lookat, distance, azimuth, elevation, or a one-camera
+    :class:`profrobot.render.Cameras`, e.g. a calibrated one), the whole scene drawn, frames where ``collides``
     framed red and captioned. MuJoCo draws ``chunk`` poses at a time in a render worker
     (:func:`profrobot.render.mjviews.render_frames_chunk` on a
     :class:`~profrobot.executors.LocalExecutor`); Pillow marks them here."""
@@ -54,12 +55,15 @@ def trajectory_frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size
 
 
 def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=None, fps: int = 20,
-                      size: tuple[int, int] = (480, 360), camera: dict | None = None) -> Path:
+                      size: tuple[int, int] | None = None, camera=None) -> Path:
     """Render ``path`` (S, K) with MuJoCo to ``out`` (.gif, or .mp4 with imageio installed).
 
     ``collides`` (S,) bool marks frames with a red border (default: the poses that are
-    not certified free, :mod:`profrobot.certification`). ``camera``: lookat, distance, azimuth, elevation of a free camera. The file is
-    written atomically.
+    not certified free, :mod:`profrobot.certification`). ``camera``: a dict of lookat, distance,
+    azimuth, elevation (a free camera; missing keys from the default view), or a one-camera
+    :class:`profrobot.render.Cameras` (e.g. the rig's, ``cams[2]``). ``size`` (width, height):
+    default the camera's own size for a :class:`~profrobot.render.Cameras`, else (480, 360). The
+    file is written atomically.
     """
     from ..labels import as_poses
 
@@ -71,7 +75,14 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     collides = ~certify_poses(robot, path) if collides is None else np.asarray(collides, dtype=bool)
     if collides.shape != (len(path),):
         raise InputError(f"collides must have shape ({len(path)},); got {collides.shape}")
-    frames = trajectory_frames(robot, path, collides, size, {**DEFAULT_CAMERA, **(camera or {})})
+    if hasattr(camera, "world_to_cam"):          # a profrobot.render.Cameras (duck-typed: no render import here)
+        if len(camera) != 1:
+            raise InputError(f"camera must be one camera (e.g. cams[0]); got {len(camera)}")
+        size = (camera.width, camera.height) if size is None else size
+    else:
+        camera = {**DEFAULT_CAMERA, **(camera or {})}
+        size = (480, 360) if size is None else size
+    frames = trajectory_frames(robot, path, collides, tuple(int(s) for s in size), camera)
     with atomic_path(out) as tmp:
         if suffix == ".gif":
             frames[0].save(tmp, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)

@@ -10,6 +10,7 @@ workers do when a call ends, :func:`profrobot.executors.on_release`).
 from __future__ import annotations
 
 import copy
+import json
 
 import mujoco
 import numpy as np
@@ -127,14 +128,24 @@ def set_gl_camera(scn: mujoco.MjvScene, cameras: Cameras, c: int) -> None:
 
 
 class MjFrames:
-    """RGB frames of poses from one free camera, the whole scene drawn and contact points shown:
-    trajectory pictures. ``size`` is (width, height); ``camera`` a dict of lookat, distance,
-    azimuth, elevation."""
+    """RGB frames of poses from one camera, the whole scene drawn and contact points shown:
+    trajectory pictures. ``size`` is (width, height); ``camera`` a dict of a free camera's
+    lookat, distance, azimuth, elevation, or a one-camera :class:`Cameras` (drawn at ``size``
+    through :meth:`Cameras.resized`)."""
 
-    def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera: dict):
+    def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera):
         self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
         width, height = size
-        self.cam = free_camera(camera["lookat"], camera["distance"], camera["azimuth"], camera["elevation"])
+        if isinstance(camera, Cameras):
+            if len(camera) != 1:
+                raise InputError(f"trajectory pictures take one camera; got {len(camera)}")
+            self.cams = camera.resized(width, height)
+            if self.cams.is_free:
+                model.vis.global_.fovy = self.cams.fovy
+            self.cam = self.cams.mjv_camera(0) if self.cams.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
+        else:
+            self.cams = None
+            self.cam = free_camera(camera["lookat"], camera["distance"], camera["azimuth"], camera["elevation"])
         self.opt = mujoco.MjvOption()
         self.opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
         self.r = mujoco.Renderer(model, height, width)
@@ -145,6 +156,8 @@ class MjFrames:
             self.d.qpos[self.adr] = q
             mujoco.mj_forward(self.m, self.d)
             self.r.update_scene(self.d, camera=self.cam, scene_option=self.opt)
+            if self.cams is not None and not self.cams.is_free:
+                set_gl_camera(self.r.scene, self.cams, 0)
             out.append(self.r.render())
         return np.stack(out)
 
@@ -176,15 +189,18 @@ def render_views_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, st
 
 
 @uses_gl
-def render_frames_chunk(robot, poses: np.ndarray, size: tuple[int, int], camera: dict) -> np.ndarray:
-    """``poses`` (S, K) drawn with the whole scene from one free camera → (S, H, W, 3) uint8."""
+def render_frames_chunk(robot, poses: np.ndarray, size: tuple[int, int], camera) -> np.ndarray:
+    """``poses`` (S, K) drawn with the whole scene from one camera (a free camera's dict or a
+    one-camera :class:`Cameras`, see :class:`MjFrames`) → (S, H, W, 3) uint8."""
     global _FRAMES
-    key = (tuple(int(s) for s in size), repr(sorted(camera.items())))
+    cam_key = json.dumps(camera.to_dict()) if isinstance(camera, Cameras) else repr(sorted(camera.items()))
+    key = (tuple(int(s) for s in size), cam_key)
     if _FRAMES is None or _FRAMES[0] is not robot or _FRAMES[1] != key:
         if _FRAMES is not None:
             _FRAMES[2].close()
             _FRAMES = None
-        _FRAMES = (robot, key, MjFrames(robot.mj_model, robot.qpos_adr, size, camera))
+        model = copy.deepcopy(robot.mj_model) if isinstance(camera, Cameras) else robot.mj_model
+        _FRAMES = (robot, key, MjFrames(model, robot.qpos_adr, size, camera))
     return _FRAMES[2].render(poses)
 
 

@@ -18,7 +18,10 @@ validated once, at entry: the loop itself makes no host syncs.
 Camera refinement (``refine_cameras``): calibrations are never perfect, so a last stage moves
 each camera by a small rigid motion in its own frame, ``world_to_cam <- [exp([w]x) | tau] @
 world_to_cam`` (``w`` (C, 3) radians, ``tau`` (C, 3) metres, shared by all targets), jointly with
-the targets' poses: Adam on (u, w, tau), each with its own rate, decayed as above.
+the targets' poses: Adam on (u, w, tau), each with its own rate, decayed as above. What images
+pin down is where each camera puts the robot (its reprojection); a rotation about the robot's
+centre with the matching translation changes little of that at low resolution, so the refined
+pose of a camera can stay off by a fraction of a degree while the robot's poses are right.
 """
 
 from __future__ import annotations
@@ -123,8 +126,9 @@ def _cosine(lr: float, it: int, iterations: int) -> float:
 
 
 def rigid_motions(w: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-    """(C, 4, 4) rigid motions ``[exp([w]x) | tau]`` from rotation vectors ``w`` (C, 3) radians
-    and translations ``tau`` (C, 3) metres; differentiable (``torch.linalg.matrix_exp``)."""
+    """(C, 4, 4) rigid motions ``[exp([w]x) | tau]`` of camera frames from rotation vectors ``w``
+    (C, 3) radians and translations ``tau`` (C, 3) metres; differentiable
+    (``torch.linalg.matrix_exp``)."""
     C = w.shape[0]
     z = torch.zeros(C, dtype=w.dtype, device=w.device)
     wx = torch.stack([z, -w[:, 2], w[:, 1], w[:, 2], z, -w[:, 0], -w[:, 1], w[:, 0], z], -1).reshape(C, 3, 3)
