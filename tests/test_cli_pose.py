@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -198,3 +199,42 @@ def test_fit_mosaic_rows_of_target_render_overlay(tmp_path):
     assert png_size(fit_picture(tmp_path / "fit.png", target, render, alpha)) == (25, 12)   # gap 2
     with pytest.raises(ValueError, match="alpha"):
         fit_mosaic(target, render, alpha[:1])
+
+
+def test_a_urdf_robot_with_package_meshes_from_the_command_line(tmp_path, renderer, capsys):
+    """A URDF arm (package:// and relative meshes, a continuous and a mimic joint): its field and
+    Gaussian model made in Python, the pose found from photos by `profrobot pose --robot
+    arm.urdf --package-dir ws`, certified by the labeller of the same compiled robot."""
+    import importlib.util
+
+    import profrobot
+    from profrobot import render
+    from profrobot.render.image import write_png
+
+    spec = importlib.util.spec_from_file_location("test_urdf", Path(__file__).with_name("test_urdf.py"))
+    tu = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tu)
+    tu.write_stl(tmp_path / "ws" / "mypkg" / "meshes" / "link.stl", *tu.box_mesh((-0.03, -0.03, 0.03), (0.03, 0.03, 0.28)))
+    tu.write_obj(tmp_path / "robot" / "meshes" / "bar.obj", *tu.box_mesh((-0.035, -0.03, 0.0), (0.035, 0.03, 0.3)))
+    urdf = tmp_path / "robot" / "arm.urdf"
+    urdf.write_text(tu.arm_urdf())
+    arm = profrobot.Robot.from_urdf(urdf, package_dirs=[tmp_path / "ws"])
+    truth = np.array([0.4, 0.5, 1.0, 0.2, -0.1])
+    assert profrobot.certify_poses(arm, truth[None])[0]
+    cams = render.Cameras.look_at([[1.2, 0.4, 0.8], [0.2, -1.2, 0.7]], [0, 0, 0.4], width=48, height=40)
+    views = render.make_views(arm, truth[None], cams, progress=False)
+    (tmp_path / "photos" / "masks").mkdir(parents=True)
+    for c in range(2):
+        write_png(tmp_path / "photos" / f"c{c}.png", views.rgb[0, c])
+        write_png(tmp_path / "photos" / "masks" / f"c{c}.png", views.mask[0, c].astype(np.uint8) * 255)
+    cams.save(tmp_path / "cams.json")
+    render.GaussianRobot.from_robot(arm, n=400, seed=0).save(tmp_path / "gs.safetensors")
+    profrobot.PoseSDF(arm, hidden=(16,)).save(tmp_path / "field")
+    base = ["pose", "--images", str(tmp_path / "photos"), "--cameras", str(tmp_path / "cams.json"), "--field",
+            str(tmp_path / "field"), "--model", str(tmp_path / "gs.safetensors"), "--iterations", "3",
+            "--field-iterations", "2", "--init", ",".join(map(str, truth + 0.05)), "--out", str(tmp_path / "out")]
+    assert main(base) == 2 and "--robot FILE" in capsys.readouterr().err     # not a bundled scene: say what to pass
+    assert main(base + ["--robot", str(urdf), "--package-dir", str(tmp_path / "ws")]) == 0, capsys.readouterr().err
+    doc = json.loads((tmp_path / "out" / "poses.json").read_text())
+    assert doc["certified"] is True and doc["robot_fingerprint"] == arm.fingerprint
+    assert list(doc["targets"][0]["pose"]) == arm.joint_names

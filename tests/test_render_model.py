@@ -245,3 +245,38 @@ def test_fit_pose_coarse_to_fine(arm, cams):
         fit_pose(g, targets, cams, target.numpy(), coarse=dict(steps=3))
     with pytest.raises(ValueError, match="does not divide"):
         fit_pose(g, targets, cams, target.numpy(), coarse=dict(iterations=3, factor=5))
+
+
+def test_primitive_geoms_get_gaussians_on_their_surfaces():
+    """URDF links are often boxes, cylinders and spheres: the initialiser samples them too, on the
+    surface (each point's distance to the primitive's surface ~ 0), by area."""
+    import mujoco
+
+    from profrobot.render.gaussians import sample_visual_surface
+
+    xml = """<mujoco><worldbody><body name="b" pos="0 0 0.5"><joint type="hinge"/>
+      <geom type="sphere" size="0.05" pos="0.2 0 0"/>
+      <geom type="capsule" size="0.03 0.1" pos="0 0.2 0" euler="90 0 0"/>
+      <geom type="cylinder" size="0.04 0.06" pos="0 0 0.2"/>
+      <geom type="box" size="0.05 0.02 0.03" pos="-0.2 0 0"/>
+      <geom type="ellipsoid" size="0.03 0.05 0.02" pos="0 -0.2 0"/></body></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    body, pts, nrm, rgb, area = sample_visual_surface(m, 4000, seed=0)
+    assert (body == 1).all() and np.isfinite(pts).all()
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    # each point's signed distance to the nearest geom (MuJoCo's own geom distance to a tiny sphere)
+    xpos = d.xpos[1] + pts @ d.xmat[1].reshape(3, 3).T
+    probe = mujoco.MjModel.from_xml_string(xml.replace("</worldbody>", '<body name="p" mocap="true"><geom type="sphere" '
+                                                       'size="1e-4" contype="2" conaffinity="2"/></body></worldbody>'))
+    pd = mujoco.MjData(probe)
+    dist = []
+    for p in xpos[::10]:
+        pd.mocap_pos[0] = p
+        mujoco.mj_kinematics(probe, pd)
+        dist.append(min(mujoco.mj_geomDistance(probe, pd, g, probe.ngeom - 1, 0.1, None) for g in range(5)) + 1e-4)
+    dist = np.abs(np.array(dist))
+    assert np.quantile(dist, 0.95) < 2e-3, np.quantile(dist, 0.95)     # on the surface (tessellation: < 2 mm)
+    n_box = (np.abs(pts[:, 0] + 0.2) < 0.06).sum()
+    box_area = 8 * (0.05 * 0.02 + 0.05 * 0.03 + 0.02 * 0.03)
+    assert n_box / 4000 == pytest.approx(box_area / (area * 4000), rel=0.15)   # by area

@@ -280,6 +280,9 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--masks", help="robot masks, the images' names, nonzero = robot (default: IMAGES/masks)")
     sp.add_argument("--depth", help="metric depth maps, the images' stems + .npy (default: IMAGES/depth if it exists)")
     sp.add_argument("--scene", default=None, help="the field's scene (default: the bundled scene its checkpoint names)")
+    sp.add_argument("--robot", default=None, help="the field's robot as a file: MJCF .xml or URDF .urdf (instead of --scene)")
+    sp.add_argument("--package-dir", dest="package_dir", action="append", default=None,
+                    help="where a URDF's package:// meshes live (a package's folder or a folder of packages; repeatable)")
     sp.add_argument("--init", help="comma-separated start pose, radians / metres (default: the middle of the joint "
                                    "limits)")
     sp.add_argument("--iterations", type=int, default=100, help="image-phase Adam steps")

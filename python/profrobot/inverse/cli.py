@@ -176,6 +176,21 @@ def read_folder(images: str | Path, n_cameras: int, *, masks: str | Path | None 
     return targets, [n for n, _ in groups], [[p.name for p in fs] for _, fs in groups]
 
 
+def _robot_file(path: str, package_dirs: list[str] | None):
+    """``--robot``: an MJCF (.xml) or URDF (.urdf, meshes by ``package://`` through
+    ``--package-dir``) file, e.g. the robot in its cell that the field was trained for."""
+    from ..robot import Robot
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"--robot {path}: no such file (an MJCF .xml or a URDF .urdf)")
+    if p.suffix.lower() == ".urdf":
+        return Robot.from_urdf(p, package_dirs=package_dirs)
+    if package_dirs:
+        raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
+    return Robot.from_mjcf(p)
+
+
 def _robot_of_field(field: Path, scene: str | None):
     """The scene the field was trained for: ``--scene`` or the bundled scene its config names."""
     if scene is None:
@@ -187,8 +202,8 @@ def _robot_of_field(field: Path, scene: str | None):
         except (ValueError, AttributeError, OSError) as e:
             raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
         if scene not in scenes.names():
-            raise InputError(f"--field {field}: its robot {scene!r} is not a bundled scene; pass --scene NAME "
-                             f"(one of {', '.join(scenes.names())})")
+            raise InputError(f"--field {field}: its robot {scene!r} is not a bundled scene; pass --robot FILE (the "
+                             f"MJCF or URDF it was trained for) or --scene NAME (one of {', '.join(scenes.names())})")
     return scenes.load(scene)
 
 
@@ -261,11 +276,13 @@ def cmd_pose(args) -> int:
         raise InputError(f"--images {args.images}: the images are {W}x{H} pixels but {args.cameras} was calibrated at "
                          f"{cameras.width}x{cameras.height}, another aspect ratio (a rotated or cropped photo?): "
                          "images may be scaled, not cropped")
-    robot = _robot_of_field(field, args.scene)
+    if args.robot is not None and args.scene is not None:
+        raise InputError("pass --robot FILE or --scene NAME, not both")
+    robot = _robot_file(args.robot, args.package_dir) if args.robot else _robot_of_field(field, args.scene)
     try:
         sdf = PoseSDF.load(field, robot)
     except RobotMismatchError as e:
-        raise RobotMismatchError(f"{e}; pass --scene NAME for the scene the field was trained on") from None
+        raise RobotMismatchError(f"{e}; pass --robot FILE or --scene NAME for the robot the field was trained on") from None
     model = GaussianRobot.load(args.model, robot)
     init = _init(args.init, robot)
     print(f"profrobot pose: {B} target{'s' * (B != 1)} x {C} view{'s' * (C != 1)} of {W}x{H} pixels "

@@ -1,14 +1,17 @@
 """Differentiable robot splat renderer (Dr. Robot-style): torch projection, the Rust tile kernel on a
 CPU, gsplat on CUDA, a pure-PyTorch reference.
 
-- :mod:`.cameras`: MuJoCo free cameras and their OpenCV matrices (:class:`Cameras`);
+- :mod:`.cameras`: one pinhole camera model (OpenCV K and world_to_cam; calibrated, look-at, MJCF and
+  MuJoCo free cameras; JSON) that MuJoCo, both rasterizers, fits and pictures share (:class:`Cameras`);
+- :mod:`.distortion`: OpenCV lens distortion (k1, k2, p1, p2, k3), undone once on target images;
 - :mod:`.views`: multi-view data (RGB, metric depth, robot mask; :class:`Views`, :func:`make_views`);
 - :mod:`.mjviews`: MuJoCo's offscreen renderer and the chunk functions that draw in workers;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
 - :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
   ``rust`` (``rust/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
-- :mod:`.targets`: target images validated once and the image loss (:class:`ImageTargets`);
+- :mod:`.targets`: target images (photos with masks, depth optional, any resolution) validated once and
+  the image loss (:class:`ImageTargets`);
 - :mod:`.pose`: :func:`fit_pose`, joint angles from images.
 
 The MuJoCo side (:mod:`.cameras`, :mod:`.views`, :mod:`.mjviews`) needs no torch; the torch side loads

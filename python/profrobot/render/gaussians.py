@@ -65,29 +65,73 @@ def eval_sh(sh: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
     return torch.clamp(c + 0.5, min=0.0)
 
 
-def _visible_mesh_geoms(m: mujoco.MjModel) -> list[int]:
-    """Robot geoms MuJoCo draws by default (groups 0-2, alpha > 0, not on the world body)."""
+_G = mujoco.mjtGeom
+_PRIMITIVES = tuple(int(k) for k in (_G.mjGEOM_SPHERE, _G.mjGEOM_CAPSULE, _G.mjGEOM_ELLIPSOID, _G.mjGEOM_CYLINDER,
+                                     _G.mjGEOM_BOX))
+
+
+def _visible_geoms(m: mujoco.MjModel) -> list[int]:
+    """Robot geoms MuJoCo draws by default (groups 0-2, alpha > 0, not on the world body) that
+    have a surface to sample: meshes and the primitives (URDF links are often boxes, cylinders and
+    spheres); planes, height fields and SDFs are skipped with a warning."""
     out, skipped = [], []
     for g in range(m.ngeom):
         rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
         if m.geom_bodyid[g] == 0 or m.geom_group[g] > 2 or rgba[3] <= 0:
             continue
-        (out if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else skipped).append(g)
+        (out if int(m.geom_type[g]) == int(_G.mjGEOM_MESH) or int(m.geom_type[g]) in _PRIMITIVES else skipped).append(g)
     if skipped:
-        warnings.warn(f"GaussianRobot: {len(skipped)} visible primitive (non-mesh) geoms get no Gaussians "
+        warnings.warn(f"GaussianRobot: {len(skipped)} visible geoms (planes, height fields) get no Gaussians "
                       "from the initialiser; the appearance fit must cover them", stacklevel=3)
     return out
 
 
+def _primitive_mesh(kind: int, size: np.ndarray, n: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and faces (F, 3) of a primitive in its geom frame (MuJoCo's ``size``:
+    sphere r; capsule r, half-length; ellipsoid radii; cylinder r, half-length; box half-sizes):
+    a latitude-longitude surface of ``n`` x ``n`` quads (the box exactly, 12 triangles)."""
+    if kind == int(_G.mjGEOM_BOX):
+        v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * size[:3]
+        f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+        return v, f
+    # a surface of revolution about z: rings of (radius, z) profiles, each with n points around
+    t = np.linspace(0, np.pi, n + 1)
+    if kind == int(_G.mjGEOM_CYLINDER):
+        r, h = size[0], size[1]
+        prof = np.array([[0, -h], [r, -h], [r, h], [0, h]], float)
+        scale = np.ones(3)
+    elif kind == int(_G.mjGEOM_CAPSULE):
+        r, h = size[0], size[1]
+        a = t[: n // 2 + 1]   # lower hemisphere, then the upper one
+        prof = np.concatenate([np.stack([r * np.sin(a), -h - r * np.cos(a)], 1),
+                               np.stack([r * np.sin(a[::-1]), h + r * np.cos(a[::-1])], 1)])
+        scale = np.ones(3)
+    else:   # sphere, ellipsoid: the unit sphere, scaled
+        prof = np.stack([np.sin(t), -np.cos(t)], 1)
+        scale = size[:3] if kind == int(_G.mjGEOM_ELLIPSOID) else np.full(3, size[0])
+    phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    v = np.stack([prof[:, None, 0] * np.cos(phi), prof[:, None, 0] * np.sin(phi),
+                  np.broadcast_to(prof[:, None, 1], (len(prof), n))], -1).reshape(-1, 3) * scale
+    i, j = np.meshgrid(np.arange(len(prof) - 1), np.arange(n), indexing="ij")
+    a, b = i * n + j, i * n + (j + 1) % n
+    f = np.concatenate([np.stack([a, b, b + n], -1), np.stack([a, b + n, a + n], -1)]).reshape(-1, 3)
+    return v, f
+
+
 def sample_visual_surface(m: mujoco.MjModel, n: int, seed: int = 0):
-    """``n`` points on the robot's visible meshes, by area. Returns body (n,) int, points (n, 3)
-    and normals (n, 3) in the body frame, rgb (n, 3) in [0, 1], and the area per point (m^2)."""
+    """``n`` points on the robot's visible geoms (meshes, and primitives tessellated by
+    :func:`_primitive_mesh`), by area. Returns body (n,) int, points (n, 3) and normals (n, 3)
+    in the body frame, rgb (n, 3) in [0, 1], and the area per point (m^2)."""
     rng = np.random.default_rng(seed)
     tris, bodies, cols = [], [], []
-    for g in _visible_mesh_geoms(m):
-        mid = m.geom_dataid[g]
-        v = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
-        f = m.mesh_face[m.mesh_faceadr[mid]: m.mesh_faceadr[mid] + m.mesh_facenum[mid]]
+    for g in _visible_geoms(m):
+        if int(m.geom_type[g]) == int(_G.mjGEOM_MESH):
+            mid = m.geom_dataid[g]
+            v = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
+            f = m.mesh_face[m.mesh_faceadr[mid]: m.mesh_faceadr[mid] + m.mesh_facenum[mid]]
+        else:
+            v, f = _primitive_mesh(int(m.geom_type[g]), np.asarray(m.geom_size[g], np.float64))
         # compiled mesh vertices are in the geom frame; geom_pos/quat place it in the body
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, m.geom_quat[g])
@@ -97,7 +141,7 @@ def sample_visual_surface(m: mujoco.MjModel, n: int, seed: int = 0):
         rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
         cols.append(np.tile(rgba[:3], (len(f), 1)))
     if not tris:
-        raise InputError("the robot has no visible mesh geoms to put Gaussians on")
+        raise InputError("the robot has no visible geoms to put Gaussians on")
     T, B, Cl = np.concatenate(tris), np.concatenate(bodies), np.concatenate(cols)
     cr = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
     area = 0.5 * np.linalg.norm(cr, axis=1)
