@@ -102,7 +102,8 @@ def same(a, b, path: str = "x") -> None:
     elif isinstance(a, (str, bytes, int, bool, set, frozenset, np.integer, np.bool_, type(None))):
         assert a == b, path
     else:
-        for k in vars(a):
+        keys = vars(a) if hasattr(a, "__dict__") else [k for c in type(a).__mro__ for k in getattr(c, "__slots__", ())]
+        for k in keys:
             same(getattr(a, k), getattr(b, k), f"{path}.{k}")
 
 

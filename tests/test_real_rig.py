@@ -51,13 +51,15 @@ def model_targets(model, poses, cams):
 @pytest.mark.slow
 def test_crop_stretch_rotate_recovers_poses_as_well_as_the_untouched_render(panda, model):
     """Acceptance 1 (the bench runs it at 160^2 with the full Gaussian Panda)."""
-    res = rig.run(panda, model, 20, batch=20, source=SOURCE, crop=CROP, log=print, refine=dict(iterations=80))
+    fit = dict(iterations=40, lr=0.005, w_depth=10.0, coarse=dict(iterations=30, lr=0.02, w_depth=1.0))
+    no_depth = dict(iterations=40, lr=0.005, coarse=dict(iterations=30, lr=0.02))
+    res = rig.run(panda, model, 20, batch=20, source=SOURCE, crop=CROP, log=print, fit=fit, fit_no_depth=no_depth,
+                  rows_wanted=rig.ROWS[:4])    # the refinement has its own test below
     rows = res["rows"]
     untouched, moved = rows["untouched"]["median_joint_err_rad"], rows["crop_stretch_rotate"]["median_joint_err_rad"]
     assert moved <= 0.02 and moved <= untouched + 0.005, rows
     assert rows["textured_background_mask"]["median_joint_err_rad"] <= 0.02, rows
     assert rows["rgb_mask_no_depth"]["median_joint_err_rad"] <= 0.03, rows
-    assert rows["miscalibrated_2deg_2cm_refined"]["median_joint_err_rad"] <= 0.03, rows
 
 
 def test_hand_made_cameras_put_mujocos_pixels_where_the_crop_put_them(panda, renderer):
