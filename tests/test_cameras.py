@@ -204,3 +204,39 @@ def test_trajectory_pictures_take_a_calibrated_camera(scene, renderer):
     assert np.abs(a.astype(int) - b.astype(int)).max() <= 2 and a.std() > 1
     rolled = trajectory_frames(scene, path, no, (60, 45), rolled_camera())
     assert rolled[0].size == (60, 45)
+
+
+def test_cameras_are_values_equal_hash_equal_and_forgive_rounded_calibrations(tmp_path):
+    """Review findings pinned: inputs are copied (a caller's array cannot change a camera), -0.0
+    and 0.0 hash alike, a rotation written with 5 decimals is accepted (and made exactly
+    orthonormal), malformed JSON is a CorruptFileError, never a raw ValueError."""
+    la = np.array([[0.0, 0.0, 0.4]])
+    c = Cameras.free(la, 1.8, 0.0, -20.0, 16, 16)
+    la[0, 0] = 5.0
+    p = c.free_params
+    p["fovy"], p["lookat"][0, 0] = 10.0, 7.0
+    assert c.fovy == 45.0 and c.lookat[0, 0] == 0.0 and c == pickle.loads(pickle.dumps(c))
+    T = np.eye(4)
+    a, b = Cameras.from_opencv(np.eye(3), T, 8, 8), Cameras.from_opencv(np.eye(3), T * np.where(T == 0, -1.0, 1.0), 8, 8)
+    assert a == b and hash(a) == hash(b)
+    rounded = np.round(rolled_camera().world_to_cam[0], 5)
+    cam = Cameras.from_opencv(np.diag([50.0, 50, 1]), rounded, 32, 24)
+    R = cam.world_to_cam[0, :3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(R, rounded[:3, :3], atol=1e-4)
+    bad = dict(ring_cameras(1, size=16).to_dict())
+    bad["free"] = dict(bad["free"], distance=[1.0, 2.0])
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(CorruptFileError, match="bad.json"):
+        Cameras.load(tmp_path / "bad.json")
+
+
+def test_from_mujoco_uses_the_mjcf_resolution(scene):
+    xml = SCENE.replace('fovy="50"/>', 'fovy="50" resolution="40 30"/>')
+    robot = profrobot.Robot.from_spec(mujoco.MjSpec.from_string(xml), name="cams")
+    cams = Cameras.from_mujoco(robot, "fixed")
+    assert (cams.width, cams.height) == (40, 30)
+    with pytest.raises(InputError, match="width= and height="):
+        Cameras.from_mujoco(scene, "fixed")
+    with pytest.raises(InputError, match="no camera named 'nope'"):
+        Cameras.from_mujoco(scene, ["fixed", "nope"], width=8, height=8)

@@ -270,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
                         description="Fit the joint angles seen in the images (one per camera, sorted by file name, in "
                                     "the cameras' order) with a Gaussian robot and the field, certify the pose with "
                                     "the exact labeller, write poses.json and fit.png. Exit 0: every pose certified "
-                                    "collision-free; 3: one is not; 2: bad input.")
+                                    "collision-free; 1: one is not; 2: bad input.")
     sp.add_argument("--images", required=True, help="folder of the views of one target (png/jpg, sorted by name = the "
                                                     "cameras' order), or of one subfolder per target")
     sp.add_argument("--cameras", required=True, help="calibration JSON (Cameras.save: K, world_to_cam, width, height, "

@@ -21,7 +21,7 @@ name order), masks and depth mirrored (``DIR/masks/<target>/cam0.png``).
 Output (``--out``, default ``./pose_out``), written atomically: ``poses.json`` (per target: the
 pose by joint name in radians / metres, the exact labeller's verdict, the image loss; refined
 cameras with ``--refine-cameras``) and ``fit.png`` (one row per view: target | render at the
-found pose | overlay). Exit status 0 when every pose is certified collision-free, 3 when one is
+found pose | overlay). Exit status 0 when every pose is certified collision-free, 1 when one is
 not (the files are written all the same), 2 on bad input.
 """
 

@@ -37,7 +37,7 @@ from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
 from ..render.cameras import Cameras
-from ..render.targets import ImageTargets
+from ..render.targets import ImageTargets, as_pinhole_targets
 from ._common import check_field_matches_model, labeller_robot
 
 __all__ = ["InverseResult", "pose_from_images", "check_field_matches_model"]
@@ -136,17 +136,18 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
         raise InputError(f"init must have shape (B, {model.njoint}); got {init.shape}")
     B = init.shape[0]
     dev = model.means.device
-    tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
-                                  w_mask=w_mask, who="pose_from_images")
+    given = cameras
+    targets, cameras = as_pinhole_targets(targets, cameras, B, "pose_from_images")   # undistorted, resized: once
 
     # 1. image phase (restarts, coarse-to-fine and camera refinement as fit_pose)
     fit = fit_pose(model, targets, cameras, init, iterations=image_iterations, lr=lr, w_depth=w_depth, w_mask=w_mask,
                    background=background, coarse=coarse, seed=seed, refine_cameras=refine_cameras, progress=progress)
     theta_img = fit.poses
+    refined = None
     if fit.cameras is not None:     # the field phase sees the images through the refined cameras
-        cameras = fit.cameras
-        tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
-                                      w_mask=w_mask, who="pose_from_images")
+        cameras, refined = fit.cameras, given.moved(fit.camera_motion)
+    tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
+                                  w_mask=w_mask, who="pose_from_images")
     img_loss = lambda theta, rows: tg.losses(model, theta, rows)     # (len(rows),) weighted mean over the C views
 
     limits = Limits.of(model, like=model.means)
@@ -220,4 +221,4 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                          iterations=steps_taken, image_iterations=image_iterations, g=g.numpy().astype(np.float64),
                          threshold=thresholds, field_free_before_certify=field_free,
                          certified_before_continue=before, seconds=time.perf_counter() - t0, rounds=rounds,
-                         history=history, poses_before_continue=poses_before, cameras=fit.cameras)
+                         history=history, poses_before_continue=poses_before, cameras=refined)

@@ -35,11 +35,9 @@ def trajectory_frames(robot: Robot, path: np.ndarray, collides: np.ndarray, size
     from ..executors import LocalExecutor, chunk_bounds
     from ..render.mjviews import render_frames_chunk
 
-    m = robot.mj_model
     width, height = size
-    if width > m.vis.global_.offwidth or height > m.vis.global_.offheight:
-        raise InputError(f"size {size} exceeds the model's offscreen buffer "
-                         f"({m.vis.global_.offwidth}×{m.vis.global_.offheight})")
+    if width < 1 or height < 1:
+        raise InputError(f"size must be positive (width, height) pixels; got {size}")
     chunks = [(path[a:b], (width, height), camera) for a, b in chunk_bounds(len(path), chunk)]
     rgb = np.concatenate(LocalExecutor(processes=1).map(render_frames_chunk, chunks, robot=robot, progress=False))
     frames = []

@@ -89,11 +89,10 @@ class Cameras:
     round-trips (:meth:`save` / :meth:`load`, :meth:`to_dict` / :meth:`from_dict`).
     """
 
-    __slots__ = ("_K", "_T", "width", "height", "_dist", "free_params")
+    __slots__ = ("_K", "_T", "width", "height", "_dist", "_free")
 
     width: int
     height: int
-    free_params: dict | None
 
     @property
     def K(self) -> np.ndarray:
@@ -151,9 +150,14 @@ class Cameras:
             if k[0, 0] <= 0 or k[1, 1] <= 0:
                 raise InputError(f"{who}: K[{c}] has focal lengths fx={k[0, 0]}, fy={k[1, 1]}; both must be positive (pixels)")
             R = T[c, :3, :3]
-            if (T[c, 3] != [0, 0, 0, 1]).any() or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            if (T[c, 3] != [0, 0, 0, 1]).any() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
                 raise InputError(f"{who}: world_to_cam[{c}] must be a rigid transform [[R, t], [0, 0, 0, 1]] with R a rotation "
-                                 f"(orthonormal, det +1, to 1e-6; OpenCV convention x right, y down, z forward)")
+                                 f"(orthonormal, det +1, to 1e-3; OpenCV convention x right, y down, z forward)")
+            if not np.allclose(R @ R.T, np.eye(3), rtol=0, atol=1e-12):
+                # a calibration written with few decimals: the nearest rotation (SVD), so that
+                # every later product stays rigid
+                U, _, Vt = np.linalg.svd(R)
+                T[c, :3, :3] = U @ Vt
         try:
             w, h = int(width), int(height)
         except (TypeError, ValueError):
@@ -165,7 +169,8 @@ class Cameras:
         object.__setattr__(self, "width", w)
         object.__setattr__(self, "height", h)
         object.__setattr__(self, "_dist", check_distortion(distortion, C, who))
-        object.__setattr__(self, "free_params", free_params)
+        object.__setattr__(self, "_free", None if free_params is None else
+                           {k: (np.array(v, dtype=np.float64) if k != "fovy" else float(v)) for k, v in free_params.items()})
 
     def __setattr__(self, name, value):
         raise AttributeError(f"Cameras are immutable; {name} cannot be set (make new ones)")
@@ -191,10 +196,15 @@ class Cameras:
         and ``elevation`` (C,) degrees (negative elevation looks down), one vertical ``fovy``
         (degrees), ``width`` x ``height`` pixels. MuJoCo draws them with its own ``MjvCamera``."""
         who = "Cameras.free"
-        la = np.asarray(lookat, dtype=np.float64).reshape(-1, 3)
-        n = len(la)
-        arrs = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
-                for k, v in (("distance", distance), ("azimuth", azimuth), ("elevation", elevation))}
+        try:
+            la = np.array(lookat, dtype=np.float64).reshape(-1, 3)
+            n = len(la)
+            arrs = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (n,)).copy()
+                    for k, v in (("distance", distance), ("azimuth", azimuth), ("elevation", elevation))}
+            width, height, fovy = int(width), int(height), float(fovy)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"{who}: lookat (C, 3) and distance, azimuth, elevation (C,) or scalars, integer width and "
+                             f"height and a number fovy are needed; {e}") from None
         if not np.isfinite(np.concatenate([la.ravel(), *arrs.values(), [fovy]])).all():
             raise InputError(f"{who}: lookat, distance, azimuth, elevation and fovy must be finite")
         if (arrs["distance"] <= 0).any():
@@ -284,6 +294,7 @@ class Cameras:
                     raise InputError(f"{who}: qpos must be a finite vector of shape ({m.nq},); got {q.shape}")
                 d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)          # subtree centres of mass, for trackcom / targetbodycom cameras
         mujoco.mj_camlight(m, d)
         known = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(m.ncam)]
         out = []
@@ -296,8 +307,8 @@ class Cameras:
             res = m.cam_resolution[cid]
             w = int(width) if width is not None else int(res[0])
             h = int(height) if height is not None else int(res[1])
-            if (width is None or height is None) and m.cam_sensorsize[cid][1] <= 0:
-                raise InputError(f"{who}: camera {name!r} has no resolution/sensorsize in the MJCF; pass width= and height=")
+            if (width is None or height is None) and tuple(res) == (1, 1):
+                raise InputError(f"{who}: camera {name!r} has no resolution in the MJCF; pass width= and height=")
             cam = mujoco.MjvCamera()
             cam.type, cam.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, cid
             scn = mujoco.MjvScene(m, maxgeom=max(1, m.ngeom))
@@ -315,24 +326,39 @@ class Cameras:
 
     # ---- the pinhole ----------------------------------------------------------------------------
     @property
+    def free_params(self) -> dict | None:
+        """Free cameras' MuJoCo parameters (``lookat`` (C, 3), ``distance``, ``azimuth``,
+        ``elevation`` (C,), ``fovy``; a copy), or None."""
+        return None if self._free is None else {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self._free.items()}
+
+    def _free_param(self, name: str):
+        if self._free is None:
+            raise AttributeError(f"{name}: these are not MuJoCo free cameras (see K and world_to_cam)")
+        v = self._free[name]
+        return v.copy() if isinstance(v, np.ndarray) else v
+
+    lookat = property(lambda self: self._free_param("lookat"), doc="Free cameras: (C, 3) look-at points, metres.")
+    distance = property(lambda self: self._free_param("distance"), doc="Free cameras: (C,) distances, metres.")
+    azimuth = property(lambda self: self._free_param("azimuth"), doc="Free cameras: (C,) azimuths, degrees.")
+    elevation = property(lambda self: self._free_param("elevation"), doc="Free cameras: (C,) elevations, degrees.")
+
+    @property
     def is_free(self) -> bool:
         """True for MuJoCo free cameras (:meth:`free`): MuJoCo draws them with its ``MjvCamera``."""
-        return self.free_params is not None
+        return self._free is not None
 
     @property
     def fovy(self) -> float:
         """The vertical field of view (degrees) of free cameras."""
-        if self.free_params is None:
-            raise AttributeError("fovy: these are not MuJoCo free cameras; see K")
-        return self.free_params["fovy"]
+        return self._free_param("fovy")
 
     def __len__(self) -> int:
         return len(self._K)
 
     def __getitem__(self, idx) -> "Cameras":
         idx = np.atleast_1d(np.arange(len(self))[idx])
-        if self.free_params is not None:
-            p = self.free_params
+        if self._free is not None:
+            p = self._free
             return Cameras.free(p["lookat"][idx], p["distance"][idx], p["azimuth"][idx], p["elevation"][idx],
                                 self.width, self.height, p["fovy"])
         return Cameras.from_opencv(self.K[idx], self.world_to_cam[idx], self.width, self.height,
@@ -372,8 +398,8 @@ class Cameras:
         draws them at any size."""
         height = int(height if height is not None else width)
         width = int(width)
-        if self.free_params is not None:
-            p = self.free_params
+        if self._free is not None:
+            p = self._free
             return Cameras.free(p["lookat"], p["distance"], p["azimuth"], p["elevation"], width, height, p["fovy"])
         sx, sy = width / self.width, height / self.height
         K = self.K.copy()
@@ -400,11 +426,12 @@ class Cameras:
     def to_dict(self) -> dict:
         """JSON-ready: ``{"format", "width", "height", "K", "world_to_cam", "distortion"}``, and
         ``"free"`` for free cameras (their MuJoCo parameters)."""
-        d = dict(format=_FORMAT, width=self.width, height=self.height, K=self.K.tolist(),
-                 world_to_cam=self.world_to_cam.tolist(),
-                 distortion=None if self.distortion is None else self.distortion.tolist())
-        if self.free_params is not None:
-            d["free"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.free_params.items()}
+        # + 0.0 turns -0.0 into 0.0: equal cameras give equal dicts, JSON and hashes
+        d = dict(format=_FORMAT, width=self.width, height=self.height, K=(self._K + 0.0).tolist(),
+                 world_to_cam=(self._T + 0.0).tolist(),
+                 distortion=None if self._dist is None else (self._dist + 0.0).tolist())
+        if self._free is not None:
+            d["free"] = {k: ((v + 0.0).tolist() if isinstance(v, np.ndarray) else v) for k, v in self._free.items()}
         return d
 
     @classmethod
@@ -440,7 +467,7 @@ class Cameras:
             raise CorruptFileError(f"{path}: not a readable cameras JSON file ({e})") from e
         try:
             return cls.from_dict(d)
-        except (InputError, KeyError, TypeError) as e:
+        except (InputError, KeyError, TypeError, ValueError) as e:
             raise CorruptFileError(f"{path}: {e}") from e
 
     def __eq__(self, other) -> bool:
@@ -461,10 +488,10 @@ class Cameras:
         """Free camera ``i`` as MuJoCo's ``MjvCamera`` (for ``mujoco.Renderer.update_scene``)."""
         if not 0 <= int(i) < len(self):
             raise IndexError(f"camera {i} out of range for {len(self)} cameras")
-        if self.free_params is None:
+        if self._free is None:
             raise InputError("mjv_camera: only free cameras are MjvCameras; MuJoCo draws the others through "
                              "profrobot.render.mjviews (the scene's GL camera set from K)")
-        p = self.free_params
+        p = self._free
         return free_camera(p["lookat"][i], p["distance"][i], p["azimuth"][i], p["elevation"][i])
 
 

@@ -43,6 +43,7 @@ class MjViews:
             raise InputError("MuJoCo renders pinhole images: these cameras have lens distortion; render from "
                              "cameras.undistorted() (targets are undistorted to it: profrobot.render.distortion)")
         self.m = model
+        _fit_buffer(model, cameras.width, cameras.height)
         if cameras.is_free:
             self.m.vis.global_.fovy = cameras.fovy
         self.d = mujoco.MjData(model)
@@ -112,6 +113,13 @@ class MjViews:
             self._r = None
 
 
+def _fit_buffer(model: mujoco.MjModel, width: int, height: int) -> None:
+    """Grow ``model``'s offscreen buffer (a copy's: callers pass their own) to ``width`` x
+    ``height`` pixels where it is smaller (MuJoCo's default is 640 x 480; cameras are often larger)."""
+    g = model.vis.global_
+    g.offwidth, g.offheight = max(int(g.offwidth), int(width)), max(int(g.offheight), int(height))
+
+
 def set_gl_camera(scn: mujoco.MjvScene, cameras: Cameras, c: int) -> None:
     """Make camera ``c`` of ``cameras`` the scene's GL camera (both eyes, so the mono average is
     it): MuJoCo then renders exactly ``K`` and ``world_to_cam`` (:meth:`Cameras.gl_frustum`). The
@@ -134,14 +142,17 @@ class MjFrames:
     through :meth:`Cameras.resized`)."""
 
     def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera):
-        self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
         width, height = size
+        if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
+            model = copy.deepcopy(model)
+            _fit_buffer(model, width, height)
+        self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
         if isinstance(camera, Cameras):
             if len(camera) != 1:
                 raise InputError(f"trajectory pictures take one camera; got {len(camera)}")
             self.cams = camera.resized(width, height)
             if self.cams.is_free:
-                model.vis.global_.fovy = self.cams.fovy
+                self.m.vis.global_.fovy = self.cams.fovy
             self.cam = self.cams.mjv_camera(0) if self.cams.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
         else:
             self.cams = None

@@ -51,7 +51,8 @@ class PoseFit:
     """``poses`` (B, K) the fitted poses, ``loss`` (B,) their final image loss, ``history``
     (iterations, B) the loss of the kept start per step, ``start`` (B, K) the start that was kept.
     With ``refine_cameras``: ``cameras`` the refined cameras (the given ones, moved) and
-    ``camera_motion`` (C, 4, 4) the rigid motion applied to each, in its own frame."""
+    ``camera_motion`` (C, 4, 4) the rigid motion applied to each, in its own frame; ``iterations``
+    then counts the refinement's steps too, ``history`` only the stages before it."""
 
     poses: np.ndarray
     loss: np.ndarray
@@ -209,8 +210,9 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     2x2 blocks, the mask kept where at least half the block is robot, depth averaged over the
     block's robot pixels), e.g. ``dict(iterations=45, lr=0.02, restarts=3)``; the restarts are
     chosen there (a coarse render is ~4x cheaper), and the full-resolution stage starts from
-    the best coarse pose with this call's ``iterations``, ``lr`` and weights. ``history`` then
-    holds both stages.
+    the best coarse pose with this call's ``iterations``, ``lr`` and weights (``restarts`` given
+    here are used in the coarse stage unless ``coarse`` names its own). ``history`` then holds
+    both stages.
 
     ``refine_cameras``: True, or a dict of ``iterations`` (100), ``lr`` (0.005, normalised
     joints), ``lr_rotation`` (0.002 rad) and ``lr_translation`` (0.002 m): a last stage that
@@ -227,6 +229,9 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     kw = dict(iterations=iterations, lr=lr, restarts=restarts, restart_sigma=restart_sigma, w_depth=w_depth,
               w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed, progress=progress)
     if coarse is not None:
+        # the restarts are chosen in the cheap coarse stage; the fine stage starts from its best
+        coarse = {"restarts": restarts, "restart_sigma": restart_sigma} | dict(coarse)
+        kw["restarts"] = 0
         fit = _coarse_to_fine(model, targets, cameras, init, coarse, **kw)
     else:
         fit = _fit(model, targets, cameras, init, **kw)

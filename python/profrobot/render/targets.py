@@ -102,7 +102,11 @@ def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targ
         if weights is None or not np.isfinite(weights).all() or (weights < 0).any() or (weights.sum(1) <= 0).any():
             raise InputError(f"{who}: weights must be finite, >= 0, shape ({C},) or ({B}, {C}), with a positive sum per target")
     if (W, H) != (cameras.width, cameras.height):
-        cameras = cameras.resized(W, H)     # targets at any resolution: K follows the pixels
+        # targets at any resolution: K follows the pixels (pixel edges kept; a free camera's own
+        # resizing keeps its fovy and square pixels instead, so it goes through its matrices)
+        if cameras.is_free:
+            cameras = Cameras.from_opencv(cameras.K, cameras.world_to_cam, cameras.width, cameras.height)
+        cameras = cameras.resized(W, H)
     if cameras.distortion is not None:
         K, dist = cameras.K, cameras.distortion
         rgb = undistort_images(rgb, K, dist, kind="rgb")
