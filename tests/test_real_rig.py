@@ -197,3 +197,29 @@ def test_field_answers_on_transformed_photos_are_certified(panda, renderer):
     r = pose_from_images(m, dict(rgb=rgb, mask=moved["mask"]), cams2, init=rig.starts_near(panda, poses, 0.1, 1), sdf=sdf,
                          image_iterations=5, field_iterations=5)
     assert r.certified.all() and certify_poses(panda, r.poses).all()
+
+
+def test_pixels_no_photo_pixel_covers_count_in_no_term(panda):
+    """A pincushion lens (k1 > 0) leaves the undistorted image's corners unseen: they are marked
+    invalid and the silhouette term ignores them (a barrel lens covers every pixel: no mask)."""
+    from profrobot.render import RenderOut
+    from profrobot.render.pose import downsample_targets
+    from profrobot.render.targets import pose_loss
+
+    K = np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])
+    pin = Cameras.from_opencv(K, np.eye(4), 64, 48, distortion=[0.3, 0.1, 0, 0, 0])
+    t = dict(rgb=np.zeros((1, 1, 48, 64, 3)), mask=np.zeros((1, 1, 48, 64), bool))
+    prepared, _ = as_pinhole_targets(t, pin, 1)
+    valid = prepared["valid"]
+    assert valid.shape == (1, 48, 64) and not valid[0, 0, 0] and valid[0, 24, 32] and 0.5 < valid.mean() < 0.99
+    barrel = Cameras.from_opencv(K, np.eye(4), 64, 48, distortion=[-0.3, 0.05, 0, 0, 0])
+    assert "valid" not in as_pinhole_targets(t, barrel, 1)[0]
+    alpha = torch.ones(1, 48, 64)
+    out = RenderOut(torch.zeros(1, 48, 64, 3), torch.zeros(1, 48, 64), alpha)
+    z = torch.zeros(1, 48, 64, dtype=torch.bool)
+    assert float(pose_loss(out, torch.zeros(1, 48, 64, 3), torch.zeros(1, 48, 64), z, w_mask=1.0)) == pytest.approx(1.0)
+    seen = torch.as_tensor(valid)
+    alpha2 = torch.where(seen, torch.zeros(()), torch.ones(()))    # drawn only where no photo pixel is
+    out2 = RenderOut(torch.zeros(1, 48, 64, 3), torch.zeros(1, 48, 64), alpha2)
+    assert float(pose_loss(out2, torch.zeros(1, 48, 64, 3), torch.zeros(1, 48, 64), z, w_mask=1.0, valid=seen)) == 0.0
+    assert downsample_targets(prepared, 2)["valid"].shape == (1, 24, 32)

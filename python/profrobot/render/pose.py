@@ -84,7 +84,9 @@ def downsample_targets(targets: dict, factor: int) -> dict:
     m = blocks(mask)
     rgb_d = np.moveaxis(blocks(np.moveaxis(rgb, -1, -3)), -3, -1) / n
     depth_d = np.where(m > 0, blocks(depth * mask) / np.maximum(m, 1.0), 0.0).astype(np.float32)
-    rest = {k: v for k, v in targets.items() if k not in ("rgb", "depth", "mask")}
+    rest = {k: v for k, v in targets.items() if k not in ("rgb", "depth", "mask", "valid")}
+    if targets.get("valid") is not None:      # (C, H, W): a block is seen where at least half of it is
+        rest["valid"] = blocks(np.asarray(targets["valid"]).astype(np.float32)) >= n / 2
     return dict(rgb=rgb_d.astype(np.float32), depth=depth_d, mask=m >= n / 2, **rest)
 
 

@@ -30,20 +30,26 @@ import torch
 
 from ..errors import InputError
 from .cameras import Cameras
-from .distortion import undistort_images
+from .distortion import undistort_images, undistort_map
 
 __all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
 
 
 def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
-              w_mask: float = 0.5) -> torch.Tensor:
+              w_mask: float = 0.5, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Per-image loss (N,) of renders ``out`` (a :class:`~profrobot.render.RenderOut` of N images)
     against targets ``rgb_t`` (N, H, W, 3) in [0, 1], ``depth_t`` (N, H, W) metres, ``mask_t``
-    (N, H, W) bool (module docs)."""
+    (N, H, W) bool (module docs); ``valid`` (N, H, W) bool: pixels the photo saw (after
+    undistortion, a lens may leave corners unseen), the only ones the silhouette term counts."""
     mt = mask_t.to(out.rgb.dtype)
     drawn = (out.alpha.detach() > 0.5).to(out.rgb.dtype)
     l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * mt).sum((1, 2)) / mt.sum((1, 2)).clamp_min(1)
-    loss = l_rgb + w_mask * (out.alpha - mt).abs().mean((1, 2))
+    if valid is None:
+        l_mask = (out.alpha - mt).abs().mean((1, 2))
+    else:
+        v = valid.to(out.rgb.dtype)
+        l_mask = ((out.alpha - mt).abs() * v).sum((1, 2)) / v.sum((1, 2)).clamp_min(1)
+    loss = l_rgb + w_mask * l_mask
     if w_depth:
         md = mt * drawn
         loss = loss + w_depth * ((out.depth - depth_t).abs() * md).sum((1, 2)) / md.sum((1, 2)).clamp_min(1)
@@ -72,12 +78,14 @@ def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targ
     ``targets``: dict of ``rgb`` (B, C, H, W, 3) uint8 or [0, 1] floats, and ``mask`` (B, C, H, W)
     bool and/or ``depth`` (B, C, H, W) metres (0 off the robot), optionally ``weights`` (C,) or
     (B, C) per-view weights >= 0 (the leading B may be left out when B == 1). Returns
-    ``(dict(rgb, depth, mask, weights, has_depth), cameras)`` as numpy (B, C, ...) arrays."""
+    ``(dict(rgb, depth, mask, weights, has_depth[, valid]), cameras)`` as numpy (B, C, ...)
+    arrays; ``valid`` (C, H, W), present when undistortion left pixels no photo pixel covers
+    (they count in no term of the loss)."""
     if not isinstance(targets, dict) or "rgb" not in targets:
         raise InputError(f"{who}: targets must be a dict with 'rgb' and at least one of 'mask' and 'depth'")
     if not isinstance(cameras, Cameras):
         raise InputError(f"{who}: cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
-    unknown = set(targets) - {"rgb", "depth", "mask", "weights", "has_depth"}
+    unknown = set(targets) - {"rgb", "depth", "mask", "weights", "has_depth", "valid"}
     if unknown:
         raise InputError(f"{who}: unknown target keys {sorted(unknown)} (rgb, mask, depth, weights)")
     C = len(cameras)
@@ -93,6 +101,8 @@ def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targ
         raise InputError(f"{who}: depth contains NaN or inf")
     if depth is not None and (depth < 0).any():
         raise InputError(f"{who}: depth must be >= 0 metres (0 off the robot)")
+    valid = targets.get("valid")
+    valid = None if valid is None else np.asarray(valid, dtype=bool)
     weights = targets.get("weights")
     if weights is None:
         weights = np.ones((B, C), np.float32)
@@ -112,13 +122,18 @@ def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targ
         rgb = undistort_images(rgb, K, dist, kind="rgb")
         mask = None if mask is None else undistort_images(mask, K, dist, kind="mask")
         depth = None if depth is None else undistort_images(depth, K, dist, kind="depth")
+        m = np.stack([undistort_map(K[c], dist[c], W, H) for c in range(len(K))])       # (C, H, W, 2)
+        valid = (m[..., 0] >= -0.5) & (m[..., 0] <= W - 0.5) & (m[..., 1] >= -0.5) & (m[..., 1] <= H - 0.5)
         cameras = cameras.undistorted()
     has_depth = depth is not None and bool(targets.get("has_depth", True))
     if mask is None:
         mask = depth > 0
     if depth is None:
         depth = np.zeros(mask.shape, np.float32)
-    return dict(rgb=rgb, depth=depth, mask=mask, weights=weights, has_depth=has_depth), cameras
+    out = dict(rgb=rgb, depth=depth, mask=mask, weights=weights, has_depth=has_depth)
+    if valid is not None and not valid.all():
+        out["valid"] = valid
+    return out, cameras
 
 
 @dataclass(eq=False)
@@ -131,7 +146,7 @@ class ImageTargets:
         viewmats: (C, 4, 4) world-to-camera (OpenCV); Ks: (C, 3, 3); width, height: pixels.
         background: (3,) RGB in [0, 1] or None (black).
         w_depth, w_mask: the loss weights (module docs); w_depth is 0 for targets without depth.
-        weights: (B·C,) per-view weights.
+        weights: (B·C,) per-view weights; valid: (C, H, W) bool, the pixels a photo saw (None: all).
     """
 
     rgb: torch.Tensor
@@ -145,6 +160,7 @@ class ImageTargets:
     w_depth: float = 1.0
     w_mask: float = 0.5
     weights: torch.Tensor | None = None
+    valid: torch.Tensor | None = None
 
     @classmethod
     def from_images(cls, targets: dict, cameras, B: int, *, device=None, background=None, w_depth: float = 1.0,
@@ -168,8 +184,9 @@ class ImageTargets:
             raise InputError(f"{who}: background contains NaN or inf")
         flat = lambda t: t.reshape(B * C, *t.shape[2:]).to(device)
         wts = torch.as_tensor(t["weights"], dtype=torch.float32).reshape(B * C).to(device)
+        valid = None if "valid" not in t else torch.as_tensor(t["valid"]).to(device)       # (C, H, W)
         return cls(flat(rgb), flat(depth), flat(mask), vm, Ks, W, H, bg, float(w_depth) if t["has_depth"] else 0.0,
-                   float(w_mask), wts)
+                   float(w_mask), wts, valid)
 
     @property
     def cameras(self) -> int:
@@ -186,7 +203,7 @@ class ImageTargets:
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.rgb.device).reshape(-1)
         sel = (rows[:, None] * C + torch.arange(C, device=rows.device)).reshape(-1)
         return ImageTargets(self.rgb[sel], self.depth[sel], self.mask[sel], self.viewmats, self.Ks, self.width,
-                            self.height, self.background, self.w_depth, self.w_mask, self.view_weights[sel])
+                            self.height, self.background, self.w_depth, self.w_mask, self.view_weights[sel], self.valid)
 
     @property
     def view_weights(self) -> torch.Tensor:
@@ -207,6 +224,8 @@ class ImageTargets:
         if theta.shape[0] != len(tg):
             raise InputError(f"{theta.shape[0]} poses for {len(tg)} targets")
         out = tg.render(model, theta, viewmats)
-        per = pose_loss(out, tg.rgb, tg.depth, tg.mask, w_depth=self.w_depth, w_mask=self.w_mask).reshape(-1, self.cameras)
+        valid = None if tg.valid is None else tg.valid.repeat(len(tg), 1, 1)             # (R·C, H, W)
+        per = pose_loss(out, tg.rgb, tg.depth, tg.mask, w_depth=self.w_depth, w_mask=self.w_mask,
+                        valid=valid).reshape(-1, self.cameras)
         w = tg.view_weights.reshape(-1, self.cameras)
         return (per * w).sum(1) / w.sum(1)
