@@ -289,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--field-iterations", dest="field_iterations", type=int, default=300,
                     help="field-phase steps at most (image loss + collision penalty)")
     sp.add_argument("--restarts", type=int, default=0, help="perturbed restarts in a half-resolution first stage "
-                                                            "(helps from far starts; image sides must be even)")
+                                                            "(helps from far starts)")
     sp.add_argument("--lr", type=float, default=0.02, help="image-phase learning rate")
     sp.add_argument("--refine-cameras", dest="refine_cameras", action="store_true",
                     help="also refine the cameras' poses (written to poses.json)")

@@ -173,8 +173,19 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     coarse = dict(coarse)
     factor = int(coarse.pop("factor", 2))
     H, W = cameras.height, cameras.width
-    if factor < 1 or H % factor or W % factor:
-        raise InputError(f"fit_pose: coarse factor {factor} does not divide the image size {W}x{H}")
+    fine_targets, fine_cameras = targets, cameras
+    if factor < 1 or factor > min(H, W):
+        raise InputError(f"fit_pose: coarse factor {factor} must be in [1, {min(H, W)}] for {W}x{H} images")
+    if H % factor or W % factor:
+        # the coarse stage drops the last rows / columns that do not fill a block: cutting the far
+        # edges leaves K as it is, the fine stage sees every pixel
+        Hc, Wc = H - H % factor, W - W % factor
+        targets = {k: (v[..., :Hc, :Wc, :] if k == "rgb" else v[..., :Hc, :Wc]) if k in ("rgb", "depth", "mask", "valid") else v
+                   for k, v in targets.items()}
+        cameras_c = Cameras.from_opencv(cameras.K, cameras.world_to_cam, Wc, Hc)
+    else:
+        cameras_c = cameras
+        Hc, Wc = H, W
     if "iters" in coarse:   # the name of earlier releases
         warnings.warn("fit_pose(coarse=dict(iters=...)) is deprecated; use iterations=...", DeprecationWarning,
                       stacklevel=5)   # _coarse_to_fine < fit_pose < renamed_arguments' wrapper < the caller
@@ -183,8 +194,8 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     if unknown:
         raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
     kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed", "progress")} | coarse
-    c = _fit(model, downsample_targets(targets, factor), cameras.resized(W // factor, H // factor), init, **kw)
-    f = _fit(model, targets, cameras, torch.as_tensor(c.poses, dtype=torch.float32), **fine)
+    c = _fit(model, downsample_targets(targets, factor), cameras_c.resized(Wc // factor, Hc // factor), init, **kw)
+    f = _fit(model, fine_targets, fine_cameras, torch.as_tensor(c.poses, dtype=torch.float32), **fine)
     return PoseFit(poses=f.poses, loss=f.loss, iterations=c.iterations + f.iterations, history=np.concatenate([c.history, f.history]), start=c.start,
                    all_losses=c.all_losses)
 
