@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import CorruptFileError, InputError
 from ..files import atomic_path
-from .distortion import check_distortion
+from .distortion import check_K, check_distortion, check_image_size
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "free_camera"]
 
@@ -63,6 +63,16 @@ def _world_to_cam(pos, fwd, up) -> np.ndarray:
     T[:, :3, 3] = -np.einsum("cij,cj->ci", R, pos)
     T[:, 3, 3] = 1
     return T
+
+
+def _fovy_K(fovy: float, width: int, height: int, who: str) -> np.ndarray:
+    """(3, 3) intrinsics of MuJoCo's square-pixel camera with vertical field of view ``fovy``
+    (degrees) at ``width`` x ``height``: ``fx = fy = (H/2) / tan(fovy/2)``, ``cx = W/2 - 1/2``."""
+    if not 0 < fovy < 180:
+        raise InputError(f"{who}: fovy must be in (0, 180) degrees; got {fovy}")
+    w, h = check_image_size(width, height, who)
+    f = (h / 2) / np.tan(np.deg2rad(fovy) / 2)
+    return np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1]])
 
 
 def _array(x, name: str, tail: tuple, who: str) -> np.ndarray:
@@ -143,12 +153,8 @@ class Cameras:
         if len(K) not in (1, C) or len(T) not in (1, C):
             raise InputError(f"{who}: K has {len(K)} cameras and world_to_cam {len(T)}; give one K for all or one per camera")
         K, T = np.broadcast_to(K, (C, 3, 3)).copy(), np.broadcast_to(T, (C, 4, 4)).copy()
+        check_K(K, (C, 3, 3), who)
         for c in range(C):
-            k = K[c]
-            if k[0, 1] != 0 or k[1, 0] != 0 or (k[2] != [0, 0, 1]).any():
-                raise InputError(f"{who}: K[{c}] must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew); got {k.tolist()}")
-            if k[0, 0] <= 0 or k[1, 1] <= 0:
-                raise InputError(f"{who}: K[{c}] has focal lengths fx={k[0, 0]}, fy={k[1, 1]}; both must be positive (pixels)")
             R = T[c, :3, :3]
             if (T[c, 3] != [0, 0, 0, 1]).any() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
                 raise InputError(f"{who}: world_to_cam[{c}] must be a rigid transform [[R, t], [0, 0, 0, 1]] with R a rotation "
@@ -158,12 +164,7 @@ class Cameras:
                 # every later product stays rigid
                 U, _, Vt = np.linalg.svd(R)
                 T[c, :3, :3] = U @ Vt
-        try:
-            w, h = int(width), int(height)
-        except (TypeError, ValueError):
-            raise InputError(f"{who}: width and height must be integers (pixels); got {width!r}, {height!r}") from None
-        if w < 1 or h < 1 or w != width or h != height:
-            raise InputError(f"{who}: image size must be positive integers; got {width}x{height}")
+        w, h = check_image_size(width, height, who)
         object.__setattr__(self, "_K", K)
         object.__setattr__(self, "_T", T)
         object.__setattr__(self, "width", w)
@@ -209,12 +210,7 @@ class Cameras:
             raise InputError(f"{who}: lookat, distance, azimuth, elevation and fovy must be finite")
         if (arrs["distance"] <= 0).any():
             raise InputError(f"{who}: distance must be positive (metres)")
-        if not 0 < fovy < 180:
-            raise InputError(f"{who}: fovy must be in (0, 180) degrees; got {fovy}")
-        if int(width) < 1 or int(height) < 1:
-            raise InputError(f"{who}: image size must be positive; got {width}x{height}")
-        f = (int(height) / 2) / np.tan(np.deg2rad(fovy) / 2)
-        K = np.array([[f, 0, int(width) / 2 - 0.5], [0, f, int(height) / 2 - 0.5], [0, 0, 1]])
+        K = _fovy_K(fovy, width, height, who)
         T = _world_to_cam(*_free_frames(la, arrs["distance"], arrs["azimuth"], arrs["elevation"]))
         params = dict(lookat=la, **arrs, fovy=float(fovy))
         c = object.__new__(cls)
@@ -241,10 +237,7 @@ class Cameras:
         if (un < 1e-9).any():
             raise InputError(f"{who}: up is parallel to the view direction for camera {int(np.argmax(un < 1e-9))}")
         if K is None:
-            if not 0 < fovy < 180:
-                raise InputError(f"{who}: fovy must be in (0, 180) degrees; got {fovy}")
-            f = (int(height) / 2) / np.tan(np.deg2rad(fovy) / 2)
-            K = np.array([[f, 0, int(width) / 2 - 0.5], [0, f, int(height) / 2 - 0.5], [0, 0, 1]])
+            K = _fovy_K(fovy, width, height, who)
         c = object.__new__(cls)
         c._init(K, _world_to_cam(eye, fwd, u / un[:, None]), width, height, None, None, who)
         return c

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["check_distortion", "distort_points", "undistort_map", "undistort_images"]
+__all__ = ["check_distortion", "check_K", "check_image_size", "distort_points", "undistort_map", "undistort_images"]
 
 _NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tauX", "tauY")
 _KINDS = ("rgb", "mask", "depth")
@@ -106,7 +106,18 @@ def _one_dist(dist, who: str) -> np.ndarray:
     return np.zeros(5) if d is None else d[0]
 
 
-def _check_K(K, shape: tuple, who: str) -> np.ndarray:
+def check_image_size(width, height, who: str) -> tuple[int, int]:
+    """``(width, height)`` as positive integers (pixels), else :class:`InputError` naming ``who``."""
+    try:
+        w, h = int(width), int(height)
+    except (TypeError, ValueError):
+        raise InputError(f"{who}: width and height must be integers (pixels); got {width!r}, {height!r}") from None
+    if w < 1 or h < 1 or w != width or h != height:
+        raise InputError(f"{who}: image size must be positive integers; got {width}x{height}")
+    return w, h
+
+
+def check_K(K, shape: tuple, who: str) -> np.ndarray:
     """``K`` as float64 of ``shape`` (…, 3, 3), each [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0."""
     try:
         k = np.asarray(K, dtype=np.float64)
@@ -154,14 +165,9 @@ def undistort_map(K: np.ndarray, dist: np.ndarray, width: int, height: int) -> n
     ``cv2.initUndistortRectifyMap(K, dist, None, K, (W, H), cv2.CV_32FC1)`` (in float64); all-zero
     ``dist`` gives the pixel grid exactly."""
     who = "undistort_map"
-    k = _check_K(K, (3, 3), who)
+    k = check_K(K, (3, 3), who)
     d = _one_dist(dist, who)
-    try:
-        W, H = int(width), int(height)
-    except (TypeError, ValueError):
-        raise InputError(f"{who}: width and height must be integers (pixels); got {width!r}, {height!r}") from None
-    if W < 1 or H < 1 or W != width or H != height:
-        raise InputError(f"{who}: image size must be positive integers; got {width}x{height}")
+    W, H = check_image_size(width, height, who)
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     out = np.stack([u, v], axis=-1)
@@ -221,7 +227,7 @@ def undistort_images(images, K, dist, *, kind: Literal["rgb", "mask", "depth"]) 
     if np.ndim(K) != 3:
         raise InputError(f"{who}: K must have shape (C, 3, 3) (one per camera); got {np.shape(K)}")
     C = int(np.shape(K)[0])
-    k = _check_K(K, (C, 3, 3), who)
+    k = check_K(K, (C, 3, 3), who)
     d = check_distortion(dist, C, who)
     img = np.asarray(images)
     tail = 3 if kind == "rgb" else 2

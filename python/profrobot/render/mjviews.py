@@ -20,7 +20,7 @@ from ..gl import uses_gl
 from ..errors import InputError
 from .cameras import Cameras, free_camera
 
-__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk", "set_gl_camera",
+__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk", "update_scene", "set_gl_camera",
            "release_renderers"]
 
 
@@ -59,20 +59,6 @@ class MjViews:
             self._r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
         return self._r
 
-    def camera(self, c: int) -> mujoco.MjvCamera:
-        """The ``MjvCamera`` to build the scene with: camera ``c`` itself for free cameras; for the
-        others any free camera, whose GL camera :meth:`update_scene` then replaces."""
-        return self.cams.mjv_camera(c) if self.cams.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
-
-    def update_scene(self, scn: mujoco.MjvScene, c: int, option=None) -> None:
-        """Build ``scn`` for camera ``c``. A camera that is not a free camera is set as the scene's
-        GL camera (both eyes): position, forward, up and the frustum from ``K`` at MuJoCo's own
-        near plane (:meth:`Cameras.gl_frustum`); the far plane, lights and geoms are MuJoCo's."""
-        mujoco.mjv_updateScene(self.m, self.d, option or mujoco.MjvOption(), None, self.camera(c),
-                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
-        if not self.cams.is_free:
-            set_gl_camera(scn, self.cams, c)
-
     def render(self, qpos: np.ndarray):
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
         robot), mask (C,H,W) bool."""
@@ -86,9 +72,7 @@ class MjViews:
         depth = np.empty((C, H, W), np.float32)
         mask = np.empty((C, H, W), bool)
         for c in range(C):
-            r.update_scene(d, self.camera(c))
-            if not cams.is_free:
-                set_gl_camera(r.scene, cams, c)
+            update_scene(m, d, r.scene, cams, c)
             rgb[c] = r.render()
             r.enable_depth_rendering()
             depth[c] = r.render()
@@ -104,7 +88,7 @@ class MjViews:
     def gl_camera(self, c: int):
         """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
         scn = mujoco.MjvScene(self.m, maxgeom=max(1, self.m.ngeom))
-        self.update_scene(scn, c)
+        update_scene(self.m, self.d, scn, self.cams, c)
         return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
 
     def close(self):
@@ -118,6 +102,17 @@ def _fit_buffer(model: mujoco.MjModel, width: int, height: int) -> None:
     ``height`` pixels where it is smaller (MuJoCo's default is 640 x 480; cameras are often larger)."""
     g = model.vis.global_
     g.offwidth, g.offheight = max(int(g.offwidth), int(width)), max(int(g.offheight), int(height))
+
+
+def update_scene(m: mujoco.MjModel, d: mujoco.MjData, scn: mujoco.MjvScene, cameras: Cameras, c: int,
+                 option: mujoco.MjvOption | None = None) -> None:
+    """Build ``scn`` (e.g. a ``mujoco.Renderer``'s ``scene``) for camera ``c``: a free camera
+    through MuJoCo's own ``MjvCamera``; any other from a placeholder free camera whose GL camera
+    :func:`set_gl_camera` then replaces (the far plane, lights and geoms stay MuJoCo's)."""
+    cam = cameras.mjv_camera(c) if cameras.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
+    mujoco.mjv_updateScene(m, d, option or mujoco.MjvOption(), None, cam, mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+    if not cameras.is_free:
+        set_gl_camera(scn, cameras, c)
 
 
 def set_gl_camera(scn: mujoco.MjvScene, cameras: Cameras, c: int) -> None:
@@ -147,16 +142,14 @@ class MjFrames:
             model = copy.deepcopy(model)
             _fit_buffer(model, width, height)
         self.m, self.d, self.adr = model, mujoco.MjData(model), np.asarray(qpos_adr)
-        if isinstance(camera, Cameras):
-            if len(camera) != 1:
-                raise InputError(f"trajectory pictures take one camera; got {len(camera)}")
-            self.cams = camera.resized(width, height)
-            if self.cams.is_free:
-                self.m.vis.global_.fovy = self.cams.fovy
-            self.cam = self.cams.mjv_camera(0) if self.cams.is_free else free_camera((0, 0, 0), 1.0, 0.0, -30.0)
-        else:
-            self.cams = None
-            self.cam = free_camera(camera["lookat"], camera["distance"], camera["azimuth"], camera["elevation"])
+        if not isinstance(camera, Cameras):    # a free camera's dict, with the model's own fovy
+            camera = Cameras.free([camera["lookat"]], camera["distance"], camera["azimuth"], camera["elevation"],
+                                  width, height, float(model.vis.global_.fovy))
+        if len(camera) != 1:
+            raise InputError(f"trajectory pictures take one camera; got {len(camera)}")
+        self.cams = camera.resized(width, height)
+        if self.cams.is_free:
+            self.m.vis.global_.fovy = self.cams.fovy
         self.opt = mujoco.MjvOption()
         self.opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
         self.r = mujoco.Renderer(model, height, width)
@@ -166,9 +159,7 @@ class MjFrames:
         for q in poses:
             self.d.qpos[self.adr] = q
             mujoco.mj_forward(self.m, self.d)
-            self.r.update_scene(self.d, camera=self.cam, scene_option=self.opt)
-            if self.cams is not None and not self.cams.is_free:
-                set_gl_camera(self.r.scene, self.cams, 0)
+            update_scene(self.m, self.d, self.r.scene, self.cams, 0, self.opt)
             out.append(self.r.render())
         return np.stack(out)
 
