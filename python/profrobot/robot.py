@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from . import _core, urdf
+from .family import MarkedSceneJoints, Moves, PinnedLayout, add_moving_geom, model_scene_joints
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 from .errors import CorruptFileError, InputError, RobotMismatchError
 
@@ -38,12 +39,17 @@ _GEOM_NAMES = {int(getattr(mujoco.mjtGeom, n)): n.removeprefix("mjGEOM_").lower(
 
 @dataclass(frozen=True)
 class Obstacle(abc.ABC):
-    """A static geom fixed to the world. Positions in metres, quaternions (w, x, y, z)."""
+    """A geom of the scene. Positions in metres, quaternions (w, x, y, z).
+
+    Fixed to the world, unless ``moves`` (:class:`~profrobot.family.Moves`) says how it moves
+    within a family of scenes: then it sits on scene joints named after it (``name`` required),
+    see :mod:`profrobot.family`."""
 
     pos: Sequence[float]
     quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)
     name: str | None = None
     rgba: Sequence[float] = (0.6, 0.6, 0.65, 1.0)
+    moves: Moves | None = None
 
     @abc.abstractmethod
     def _geom_args(self, spec: mujoco.MjSpec) -> dict:
@@ -56,6 +62,16 @@ class Obstacle(abc.ABC):
             raise InputError(f"{type(self).__name__} {self.name!r}: pos must be 3 finite numbers and quat 4")
         if not np.linalg.norm(quat) > 0:
             raise InputError(f"{type(self).__name__} {self.name!r}: quat is zero")
+        if self.moves is not None:
+            if not isinstance(self.moves, Moves):
+                raise TypeError(f"{type(self).__name__} {self.name!r}: moves must be a profrobot.Moves; "
+                                f"got {type(self.moves).__name__}")
+            if isinstance(self, Plane):
+                raise InputError(f"Plane {self.name!r}: an infinite plane cannot move; use a thin Box")
+            add_moving_geom(spec, f"{type(self).__name__} {self.name!r}", self.name, self.moves, pos,
+                            dict(quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
+                                 **self._geom_args(spec)))
+            return
         kwargs = dict(pos=pos, quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
                       **self._geom_args(spec))
         if self.name:
@@ -418,10 +434,13 @@ def _core_arrays(m: mujoco.MjModel) -> dict[str, np.ndarray]:
     )
 
 
-def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray]) -> str:
-    """sha256 of everything that decides labels: joints, bodies, geoms, hulls, filters."""
+def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray], scene_joints: Sequence[str] = ()) -> str:
+    """sha256 of everything that decides labels: joints, bodies, geoms, hulls, filters (and, for a
+    family of scenes, which joints are scene joints)."""
     h = hashlib.sha256()
     h.update("\0".join(joint_names).encode())
+    if scene_joints:
+        h.update(("scene:" + "\0".join(scene_joints)).encode())
     for key in sorted(arrays):
         v = np.asarray(arrays[key])
         h.update(key.encode())
@@ -495,7 +514,25 @@ class Robot:
         self._arrays = _core_arrays(m)
         self.core = _core.RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
-        self.fingerprint = _fingerprint(self.joint_names, self._arrays)
+        self.scene_joints: tuple[str, ...] = self._read_scene_joints(m)
+        self.fingerprint = _fingerprint(self.joint_names, self._arrays, self.scene_joints)
+        #: for a layout made by :meth:`at`: the family's scene-joint values (D,) and fingerprint
+        self.layout: np.ndarray | None = None
+        self.family_fingerprint: str | None = None
+
+    def _read_scene_joints(self, m: mujoco.MjModel) -> tuple[str, ...]:
+        names = model_scene_joints(m)
+        index = {n: j for j, n in enumerate(self.joint_names)}
+        for n in names:
+            j = index.get(n)
+            if j is None:
+                raise InputError(f"{self.name}: the model's profrobot:scene_joints names {n!r}, which is not a joint")
+            if not m.jnt_limited[j]:
+                raise InputError(f"{self.name}: scene joint {n!r} has no range; a family needs each scene joint's "
+                                 "range (limited=\"true\" range=\"low high\")")
+        if len(set(names)) != len(names):
+            raise InputError(f"{self.name}: profrobot:scene_joints lists a joint twice: {names}")
+        return tuple(sorted(names, key=index.__getitem__))  # MuJoCo joint order
 
     # ---- constructors ------------------------------------------------------------------------
     @classmethod
@@ -687,27 +724,151 @@ class Robot:
         return cls(model, name=name)
 
     def with_obstacles(self, obstacles: Sequence[Obstacle], *, name: str | None = None) -> "Robot":
-        """A new Robot: this scene plus static ``obstacles`` (Box, Sphere, Capsule, Cylinder,
-        Plane, Mesh) fixed to the world. The original is left unchanged."""
-        base = self.spec
-        if base is None:
-            if self._spec_lost:
-                raise InputError(f"{self.name}: obstacles need the MjSpec, which this robot's pickle could not carry "
-                                 f"({self._spec_lost}); add them to the original robot")
-            raise InputError(f"{self.name}: obstacles need the MjSpec; build the robot with from_menagerie, "
-                             "from_mjcf or from_spec rather than from_model")
-        spec = base.copy()
+        """A new Robot: this scene plus ``obstacles`` (Box, Sphere, Capsule, Cylinder, Plane, Mesh),
+        fixed to the world, or movable within ranges (``moves=Moves(...)``: the result is a family
+        of scenes, see :mod:`profrobot.family`). The original is left unchanged."""
+        spec = self._editable("obstacles")
         obstacles = tuple(obstacles)
         for ob in obstacles:
             if not isinstance(ob, Obstacle):
                 raise TypeError(f"obstacles must be profrobot Obstacle objects; got {type(ob).__name__}")
             ob.add_to(spec)
-        robot = Robot.from_spec(spec, name=name or self.name)
+        return self._derived(spec, obstacles, name or self.name)
+
+    def _derived(self, spec: mujoco.MjSpec, edits: tuple, name: str) -> "Robot":
+        """The robot of ``spec``, this robot's spec after ``edits`` (their ``add_to``), carrying
+        the edits in its source (pickles rebuild it) and this robot's collision notes."""
+        robot = Robot.from_spec(spec, name=name)
         if self._source is not None:
-            robot._source = self._source.then(obstacles)
+            robot._source = self._source.then(edits)
         if self.disabled_pairs or self._collision_notes:
             robot.disabled_pairs, robot._collision_notes = self.disabled_pairs, self._collision_notes
         return robot
+
+    def _editable(self, what: str) -> mujoco.MjSpec:
+        base = self.spec
+        if base is None:
+            if self._spec_lost:
+                raise InputError(f"{self.name}: {what} needs the MjSpec, which this robot's pickle could not carry "
+                                 f"({self._spec_lost}); use the original robot")
+            raise InputError(f"{self.name}: {what} needs the MjSpec; build the robot with from_menagerie, "
+                             "from_mjcf or from_spec rather than from_model")
+        return base.copy()
+
+    # ---- families of scenes (profrobot.family) -------------------------------------------------
+    def with_scene_joints(self, names: Sequence[str], *, name: str | None = None) -> "Robot":
+        """A family of scenes from this model: its joints ``names`` (each with a finite range) become
+        scene joints δ, the ones that move obstacles; the rest stay the robot's θ. Scene bodies get
+        ``<exclude>``s against the world and each other (see :mod:`profrobot.family`)."""
+        if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+            raise TypeError("names must be a list of joint names")
+        edit = MarkedSceneJoints(tuple(names))
+        spec = self._editable("with_scene_joints")
+        edit.add_to(spec)
+        return self._derived(spec, (edit,), name or self.name)
+
+    @property
+    def is_family(self) -> bool:
+        """Whether some joints are scene joints (a family of scenes, :mod:`profrobot.family`)."""
+        return bool(self.scene_joints)
+
+    @property
+    def scene_index(self) -> np.ndarray:
+        """(D,) indices of the scene joints δ in the pose vector."""
+        return np.array([self.joint_names.index(n) for n in self.scene_joints], dtype=np.int64)
+
+    @property
+    def robot_index(self) -> np.ndarray:
+        """(K − D,) indices of the robot's own joints θ in the pose vector (all of them for an
+        ordinary scene)."""
+        return np.setdiff1d(np.arange(self.njoint), self.scene_index)
+
+    def check_scene(self, scene, *, name: str = "scene") -> np.ndarray:
+        """A layout δ as a float64 array (D,): one value per scene joint (radians / metres, in
+        ``scene_joints`` order), finite and within the family's ranges, else :class:`InputError`
+        naming the entry. A dict ``{joint name: value}`` must name every scene joint."""
+        if not self.scene_joints:
+            raise InputError(f"{self.name} is not a family of scenes (it has no scene joints), so it takes no {name}")
+        D = len(self.scene_joints)
+        if isinstance(scene, dict):
+            unknown = sorted(set(scene) - set(self.scene_joints))
+            missing = [n for n in self.scene_joints if n not in scene]
+            if unknown or missing:
+                raise InputError(f"{name} must give every scene joint of {self.name}: "
+                                 + "; ".join(filter(None, [f"unknown {unknown}" if unknown else "",
+                                                           f"missing {missing}" if missing else ""])))
+            scene = [scene[n] for n in self.scene_joints]
+        try:
+            delta = np.array(scene, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"{name} must be {D} numbers (one per scene joint); got {scene!r}") from e
+        if delta.shape != (D,):
+            raise InputError(f"{name} must have shape ({D},), one value per scene joint {list(self.scene_joints)}; "
+                             f"got shape {delta.shape}")
+        limits = self.joint_limits[self.scene_index]
+        for i, (v, (lo, hi), n) in enumerate(zip(delta, limits, self.scene_joints)):
+            if not np.isfinite(v):
+                raise InputError(f"{name}[{i}] ({n}) is {v}")
+            if not lo - 1e-9 <= v <= hi + 1e-9:
+                raise InputError(f"{name}[{i}] ({n}) = {v:.6g} is outside the family's range [{lo:.6g}, {hi:.6g}]: the "
+                                 "field was not trained there (extrapolation); build a family with wider ranges")
+        return np.clip(delta, limits[:, 0], limits[:, 1])
+
+    def compose(self, theta, scene) -> np.ndarray:
+        """Full pose vectors (N, K) from robot poses θ (N, K − D) and a layout δ (D,) or one per
+        pose (N, D): the labeller's view of a family."""
+        theta = np.asarray(theta, dtype=np.float64)
+        one = theta.ndim == 1
+        theta = np.atleast_2d(theta)
+        scene = np.asarray(scene, dtype=np.float64)
+        deltas = scene[None] if scene.ndim == 1 else scene
+        deltas = np.stack([self.check_scene(d) for d in deltas])
+        ri = self.robot_index
+        if theta.shape[1] != len(ri):
+            raise InputError(f"theta must have {len(ri)} columns (the robot joints of {self.name}); got {theta.shape[1]}")
+        out = np.empty((len(theta), self.njoint))
+        out[:, ri] = theta
+        out[:, self.scene_index] = deltas
+        return out[0] if one else out
+
+    def at(self, scene, *, name: str | None = None) -> "Robot":
+        """The family's scene at layout δ (``scene``: (D,) or ``{scene joint: value}``): an ordinary
+        Robot whose scene bodies are pinned there (static obstacles), its pose vector θ the
+        robot joints. ``robot.layout`` keeps δ and ``robot.family_fingerprint`` the family's.
+
+        Refused (:class:`InputError`): δ outside the family's ranges, wrong length, NaN, and a
+        layout whose obstacles overlap the robot's fixed base (every pose would collide)."""
+        delta = self.check_scene(scene)
+        key = delta.tobytes()
+        cache = self.__dict__.setdefault("_layouts", {})
+        if key in cache:
+            return cache[key]
+        self._check_base_clear(delta)
+        edit = PinnedLayout(tuple(zip(self.scene_joints, (float(v) for v in delta))))
+        spec = self._editable("at(scene)")
+        edit.add_to(spec)
+        robot = self._derived(spec, (edit,), name or self.name)
+        robot.layout, robot.family_fingerprint = delta, self.fingerprint
+        if len(cache) >= 4:
+            cache.pop(next(iter(cache)))
+        cache[key] = robot
+        return robot
+
+    def _check_base_clear(self, delta: np.ndarray) -> None:
+        """Refuse a layout whose scene bodies overlap a robot body welded to the world (the base):
+        those contacts do not depend on θ."""
+        q = self.core.sample(1, 0)
+        q[0, self.scene_index] = delta
+        lab = self.core.label(q, pairs=True)
+        weld, gbody = self._arrays["body_weld"], dict(zip(self._arrays["geom_id"], self._arrays["geom_body"]))
+        scene_bodies = {int(self._arrays["jnt_body"][j]) for j in self.scene_index}
+        for _, k in lab["colliding_pairs"]:
+            b1, b2 = (int(gbody[int(g)]) for g in self.pair_geoms[k])
+            for a, b in ((b1, b2), (b2, b1)):
+                if a in scene_bodies and b != 0 and weld[b] == 0 and b not in scene_bodies:
+                    raise InputError(f"at this layout the obstacle body {self.body_names[a]!r} overlaps "
+                                     f"{self.body_names[b]!r}, which is fixed to the world (the robot's base): every "
+                                     "pose would collide; choose another layout")
 
     # ---- description ---------------------------------------------------------------------------
     @property
@@ -809,7 +970,7 @@ class Robot:
         does not reproduce, or a spec edited after the robot was built). A Panda scene pickles to
         about 6 MB (the meshes' files, compressed).
         """
-        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source")}
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source", "_layouts")}
         source = self._source
         if source is not None and not isinstance(source.root, _Mjcf):
             try:
@@ -849,7 +1010,9 @@ class Robot:
         new = object.__new__(type(self))
         memo[id(self)] = new
         for key, value in self.__dict__.items():
-            if key == "_spec":
+            if key == "_layouts":  # a cache
+                value = {}
+            elif key == "_spec":
                 value = None if value is None else value.copy()
             elif key != "_source":  # immutable; its root may be an MjSpec, which deepcopy cannot copy
                 value = copy.deepcopy(value, memo)
@@ -866,7 +1029,7 @@ class Robot:
             raise CorruptFileError(f"{self.name}: could not rebuild the MuJoCo model from the MJCF this robot "
                                    f"carries: {type(e).__name__}: {e}") from e
         names = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt)]
-        if _fingerprint(names, _core_arrays(model)) != self.fingerprint:
+        if _fingerprint(names, _core_arrays(model), tuple(n for n in names if n in model_scene_joints(model))) != self.fingerprint:
             how = ("its MjSpec, written out with MjSpec.to_xml (6 significant digits), compiles to another robot"
                    if not self._source.loaded().root.exact else
                    "the MJCF files it was built from now compile to another robot (edited since, another MuJoCo "
