@@ -297,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--out", default="pose_out", help="output folder: poses.json, fit.png (default: ./pose_out)")
     sp.set_defaults(fn=_inverse("cmd_pose"))
     sp = sub.add_parser("scenes", help="list the bundled scenes")
-    sp.set_defaults(fn=lambda a: print("\n".join(scenes.names())) or 0)
+    sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 
     args = p.parse_args(argv)
     try:

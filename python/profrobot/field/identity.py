@@ -18,6 +18,25 @@ from ..robot import Robot
 __all__ = ["check_field", "field_robot"]
 
 
+class _Shared:
+    """Holds the field's Robot: copies of the module (deepcopy, snapshots) share it, since a
+    Robot is immutable, instead of copying MuJoCo models and the Rust collision model. A pickle
+    (``pickle``, ``torch.save``, DataLoader workers) carries the Robot itself (see
+    ``Robot.__getstate__``): the unpickled field labels, certifies and adds obstacles like this
+    one."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __reduce__(self):  # any protocol (the default slots pickling needs protocol 2)
+        return (_Shared, (self.value,))
+
+
 def check_field(sdf) -> None:
     """``sdf`` must be a torch module with the PoseSDF interface (njoint, joint_limits, fingerprint)."""
     if not isinstance(sdf, torch.nn.Module) or not all(hasattr(sdf, a) for a in ("njoint", "joint_limits", "fingerprint")):
@@ -42,7 +61,7 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
         from .. import scenes
 
         name = getattr(sdf, "robot_name", None)
-        if name not in scenes.names():
+        if name not in scenes.names() + scenes.family_names():
             raise InputError(f"the field's robot {name!r} is not a bundled scene; pass robot= so that "
                              "results can be certified by the exact labeller")
         robot = _bundled(name)

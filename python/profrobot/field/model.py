@@ -7,11 +7,14 @@ import os
 from pathlib import Path
 from typing import Literal, get_args
 
+import numpy as np
 import torch
 from torch import nn
 
 from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
+from .identity import _Shared
+from .layout import LayoutField
 from ..errors import InputError
 
 Encoder = Literal["kinematic", "hierarchical", "flat"]
@@ -34,25 +37,6 @@ class LipschitzLinear(nn.Linear):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         scale = torch.clamp(self.bound() / self.weight.abs().sum(1), max=1.0)
         return nn.functional.linear(x, self.weight * scale[:, None], self.bias)
-
-
-class _Shared:
-    """Holds the field's Robot: copies of the module (deepcopy, snapshots) share it, since a
-    Robot is immutable, instead of copying MuJoCo models and the Rust collision model. A pickle
-    (``pickle``, ``torch.save``, DataLoader workers) carries the Robot itself (see
-    ``Robot.__getstate__``): the unpickled field labels, certifies and adds obstacles like this
-    one."""
-
-    __slots__ = ("value",)
-
-    def __init__(self, value):
-        self.value = value
-
-    def __deepcopy__(self, memo):
-        return self
-
-    def __reduce__(self):  # any protocol (the default slots pickling needs protocol 2)
-        return (_Shared, (self.value,))
 
 
 class PoseSDF(nn.Module):
@@ -97,6 +81,12 @@ class PoseSDF(nn.Module):
         self.joint_names = list(robot.joint_names)
         self.njoint = robot.njoint
         self.register_buffer("joint_limits", torch.as_tensor(robot.joint_limits, dtype=torch.float32))
+        # a family of scenes (profrobot.family): g(θ, δ), the scene joints δ inputs like any joint
+        self.scene_joints = list(getattr(robot, "scene_joints", ()))
+        self.register_buffer("robot_index", torch.as_tensor(robot.robot_index if self.scene_joints
+                                                            else np.arange(robot.njoint)), persistent=False)
+        self.register_buffer("scene_index", torch.as_tensor(robot.scene_index if self.scene_joints
+                                                            else np.zeros(0, np.int64)), persistent=False)
         if encoder == "hierarchical":
             self.encoder = HierarchicalEncoder(robot.joint_parents, feature_size)
         elif encoder == "flat":
@@ -135,14 +125,45 @@ class PoseSDF(nn.Module):
         g = self.head(features)[:, 0]
         return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
 
-    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+    def forward(self, theta: torch.Tensor, scene=None) -> torch.Tensor:
+        """g (B,) at poses θ (B, K); for a family field, θ (B, K − D) with ``scene`` δ, (D,) or one
+        per pose (B, D), or θ (B, K) the full vectors (θ, δ) in MuJoCo joint order."""
+        if scene is not None:
+            theta = self.compose(theta, scene)
         self.check_poses(theta)
         theta = theta.to(self.joint_limits.dtype)
         return self.head_g(self.encoder(theta))
 
-    def prob(self, theta: torch.Tensor) -> torch.Tensor:
+    def prob(self, theta: torch.Tensor, scene=None) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""
-        return torch.sigmoid(self.scale * self(theta))
+        return torch.sigmoid(self.scale * self(theta, scene))
+
+    def compose(self, theta: torch.Tensor, scene) -> torch.Tensor:
+        """Full pose vectors (B, K) from robot poses θ (B, K − D) and a layout δ, (D,) or (B, D),
+        checked against the family's ranges (:meth:`profrobot.Robot.check_scene`); differentiable
+        in θ."""
+        if not self.scene_joints:
+            raise InputError(f"the field for {self.robot_name!r} is not a family field (no scene joints); it takes no scene")
+        if not isinstance(theta, torch.Tensor) or theta.ndim != 2 or theta.shape[1] != len(self.robot_index):
+            raise InputError(f"theta must be a (B, {len(self.robot_index)}) tensor of the robot joints when scene= "
+                             f"is given; got {tuple(theta.shape) if isinstance(theta, torch.Tensor) else type(theta).__name__}")
+        d = scene.detach().cpu().double().numpy() if isinstance(scene, torch.Tensor) else np.asarray(scene, dtype=np.float64)
+        rows = d[None] if d.ndim == 1 else d
+        if d.ndim not in (1, 2) or (d.ndim == 2 and len(d) != len(theta)):
+            raise InputError(f"scene must be (D,) or (B, D) with B = {len(theta)}; got shape {d.shape}")
+        rows = np.stack([self.robot.check_scene(r, name=f"scene[{i}]" if d.ndim == 2 else "scene")
+                         for i, r in enumerate(rows)])
+        full = theta.new_empty(len(theta), self.njoint)
+        full[:, self.robot_index] = theta
+        full[:, self.scene_index] = torch.as_tensor(rows, dtype=theta.dtype, device=theta.device).expand(len(theta), -1)
+        return full
+
+    def at(self, scene) -> "nn.Module":
+        """This family field at one layout δ (``scene``: (D,) or ``{scene joint: value}``): a field
+        over the robot joints θ alone, whose ``robot`` is ``self.robot.at(scene)`` (the static
+        scene the exact labeller certifies against). What ``resolve``, ``plan_trajectory`` and the
+        inverse problems use with ``scene=``."""
+        return LayoutField(self, scene)
 
     def lipschitz_bound(self) -> torch.Tensor:
         """Product of the layers' Lipschitz bounds (1 if the MLP is unconstrained)."""
@@ -173,5 +194,6 @@ class PoseSDF(nn.Module):
 
     def __repr__(self) -> str:
         n = sum(p.numel() for p in self.parameters())
+        family = f", scene joints={len(self.scene_joints)}" if self.scene_joints else ""
         return (f"PoseSDF(robot={self.robot_name!r}, encoder={self.config['encoder']!r}, "
-                f"hidden={self.config['hidden']}, params={n:,})")
+                f"hidden={self.config['hidden']}, params={n:,}{family})")

@@ -8,6 +8,9 @@ Collision depends on where the links are, not on the angles as such. So for each
   ``c``, radius ``r`` covering its cluster);
 - a static geom (welded to the world) keeps an exact signed distance function ``sdf(p)``
   (plane, sphere, capsule, cylinder, box; a mesh by its bounding box in its own frame);
+- so does an obstacle of a family of scenes (:mod:`profrobot.family`: a body moved by scene
+  joints δ only), its SDF evaluated in the frame the FK gives it at δ: a moving obstacle is a
+  moving body, and the clearance features see exactly where it is;
 - body–body:    ``min_ij ‖c_i − c_j‖ − r_i − r_j``;
 - body–static:  ``min_i sdf(c_i) − r_i``.
 
@@ -76,7 +79,16 @@ class PairClearance(torch.nn.Module):
         weld = np.asarray(arr["body_weld"])
         gid = np.asarray(arr["geom_id"])
         gbody = np.asarray(arr["geom_body"])
-        moving = weld[gbody] != 0
+        # a body moves with the robot when a robot joint (not a scene joint) is on it or an ancestor
+        parent = np.asarray(arr["body_parent"])
+        scene = set(int(j) for j in getattr(robot, "scene_index", ()))
+        robot_moved = np.zeros(len(parent), dtype=bool)
+        for j, b in enumerate(np.asarray(arr["jnt_body"])):
+            if j not in scene:
+                robot_moved[int(b)] = True
+        for b in range(1, len(parent)):  # MuJoCo lists parents first
+            robot_moved[b] |= robot_moved[int(parent[b])]
+        moving = robot_moved[gbody]
         index_of = {int(g): i for i, g in enumerate(gid)}
 
         def hull(i):
@@ -103,11 +115,12 @@ class PairClearance(torch.nn.Module):
         # static geoms: world pose (bodies welded to the world do not move) and SDF parameters
         xpos, xquat = robot.core.forward_kinematics(np.zeros((1, robot.njoint)))
         st_idx = np.flatnonzero(~moving)
-        st_rot, st_pos, st_size, st_off, st_kind = [], [], [], [], []
+        st_rot, st_pos, st_size, st_off, st_kind, st_lrot = [], [], [], [], [], []
         for i in st_idx:
             Rb = quat_to_matrix(torch.as_tensor(xquat[0][gbody[i]])).numpy()
             Rg = quat_to_matrix(torch.as_tensor(arr["geom_quat"][i])).numpy()
             st_rot.append(Rb @ Rg)
+            st_lrot.append(Rg)
             st_pos.append(xpos[0][gbody[i]] + Rb @ arr["geom_pos"][i])
             kind, size, off = int(arr["geom_type"][i]), np.array(arr["geom_size"][i], dtype=np.float64), np.zeros(3)
             if kind == MESH:  # its box in the mesh frame
@@ -121,6 +134,12 @@ class PairClearance(torch.nn.Module):
         self.register_buffer("st_size", f(np.array(st_size).reshape(-1, 3)), persistent=False)
         self.register_buffer("st_off", f(np.array(st_off).reshape(-1, 3)), persistent=False)
         self.st_kind = np.asarray(st_kind, dtype=np.int64)
+        # obstacles of a family move with δ: their world frames come from the FK at each pose
+        self.scene_moved = bool(len(st_idx)) and bool(np.any(weld[gbody[st_idx]] != 0))
+        if self.scene_moved:
+            self.register_buffer("st_body", torch.as_tensor(gbody[st_idx], dtype=torch.int64), persistent=False)
+            self.register_buffer("st_lrot", f(np.array(st_lrot).reshape(-1, 3, 3)), persistent=False)
+            self.register_buffer("st_lpos", f(np.asarray(arr["geom_pos"])[st_idx].reshape(-1, 3)), persistent=False)
         static_slot = {int(i): s for s, i in enumerate(st_idx)}
 
         # candidate geom pairs → distinct (body, body) and (body, static geom) pairs
@@ -165,9 +184,26 @@ class PairClearance(torch.nn.Module):
         R, x = bp.rot[:, self.body_ids], bp.pos[:, self.body_ids]                 # (B, nb, 3, 3), (B, nb, 3)
         return torch.einsum("bnij,nmj->bnmi", R, self.sph_centre) + x[:, :, None]
 
-    def static_sdf(self, p: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
-        """Signed distance (B, n, m) of world points p (B, n, m, 3) to static geoms g (n,), metres."""
-        local = torch.einsum("nji,bnmj->bnmi", self.st_rot[g], p - self.st_pos[g][:, None]) - self.st_off[g][:, None]
+    def static_frames(self, bp) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """World frames of the static geoms at each pose, rotations (B, nst, 3, 3) and positions
+        (B, nst, 3), when some move with scene joints; None when all are fixed (``st_rot``,
+        ``st_pos`` then hold them)."""
+        if not self.scene_moved:
+            return None
+        Rb, xb = bp.rot[:, self.st_body], bp.pos[:, self.st_body]
+        return Rb @ self.st_lrot, xb + torch.einsum("bnij,nj->bni", Rb, self.st_lpos)
+
+    def static_sdf(self, p: torch.Tensor, g: torch.Tensor, frames=None) -> torch.Tensor:
+        """Signed distance (B, n, m) of world points p (B, n, m, 3) to static geoms g (n,), metres
+        (``frames``: :meth:`static_frames`, needed when obstacles move with scene joints)."""
+        if frames is None:
+            if self.scene_moved:
+                raise ValueError("static_sdf needs the frames of the moving obstacles (static_frames)")
+            local = torch.einsum("nji,bnmj->bnmi", self.st_rot[g], p - self.st_pos[g][:, None])
+        else:
+            R, x = frames[0][:, g], frames[1][:, g]                                # (B, n, 3, 3), (B, n, 3)
+            local = torch.einsum("bnji,bnmj->bnmi", R, p - x[:, :, None])
+        local = local - self.st_off[g][:, None]
         size = self.st_size[g][:, None]                                            # (n, 1, 3)
         out = torch.empty(local.shape[:-1], dtype=p.dtype, device=p.device)
         # one formula per kind, on its own columns, so no NaN gradient leaks from another kind
@@ -190,10 +226,14 @@ class PairClearance(torch.nn.Module):
         return out
 
     def forward(self, theta: torch.Tensor) -> torch.Tensor:
-        return self.from_centres(self.sphere_centres(theta))
+        bp = self.kin(theta)
+        R, x = bp.rot[:, self.body_ids], bp.pos[:, self.body_ids]
+        c = torch.einsum("bnij,nmj->bnmi", R, self.sph_centre) + x[:, :, None]
+        return self.from_centres(c, self.static_frames(bp))
 
-    def from_centres(self, c: torch.Tensor) -> torch.Tensor:
-        """Clearances (B, npair) from sphere centres (B, nb, m, 3)."""
+    def from_centres(self, c: torch.Tensor, frames=None) -> torch.Tensor:
+        """Clearances (B, npair) from sphere centres (B, nb, m, 3) (``frames``: the static geoms'
+        world frames, :meth:`static_frames`, when obstacles move)."""
         feats = []
         if len(self.bb_a):
             ca, cb = c[:, self.bb_a], c[:, self.bb_b]                               # (B, P, m, 3)
@@ -205,6 +245,6 @@ class PairClearance(torch.nn.Module):
             d = d - self.sph_radius[self.bb_a][:, :, None] - self.sph_radius[self.bb_b][:, None, :]
             feats.append(d.flatten(2).min(-1).values)
         if len(self.bs_a):
-            d = self.static_sdf(c[:, self.bs_a], self.bs_g) - self.sph_radius[self.bs_a]
+            d = self.static_sdf(c[:, self.bs_a], self.bs_g, frames) - self.sph_radius[self.bs_a]
             feats.append(d.min(-1).values)
         return torch.cat(feats, 1)

@@ -95,15 +95,20 @@ def _lr_factor(cfg: TrainConfig, progress: float, it: int) -> float:
 
 def eikonal_terms(sdf: PoseSDF, theta: torch.Tensor, steik: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Eikonal loss mean (‖∂g/∂θ‖ − 1)² on poses θ (B, K), and the StEik term mean |dᵀ H d|
-    (d = ∇g/‖∇g‖; zero unless ``steik``), both differentiable in the network's parameters."""
+    (d = ∇g/‖∇g‖; zero unless ``steik``), both differentiable in the network's parameters. For a
+    family field the gradient is taken over the robot joints only (δ is never optimised)."""
     theta = theta.detach().requires_grad_(True)
     (grad,) = torch.autograd.grad(sdf(theta).sum(), theta, create_graph=True)
+    if getattr(sdf, "scene_joints", None):  # a family field: Eikonal on θ, the joints optimised; δ is given
+        grad = grad[:, sdf.robot_index]
     norm = grad.norm(dim=1)
     eik = ((norm - 1) ** 2).mean()
     if not steik:
         return eik, torch.zeros((), dtype=eik.dtype)
     d = (grad / norm.clamp(min=1e-8)[:, None]).detach()
     (hd,) = torch.autograd.grad((grad * d).sum(), theta, create_graph=True)  # H d
+    if getattr(sdf, "scene_joints", None):
+        hd = hd[:, sdf.robot_index]
     return eik, (hd * d).sum(1).abs().mean()
 
 
@@ -139,7 +144,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             from .. import scenes
 
             name = data.metadata.get("robot")
-            if name not in scenes.names():
+            if name not in scenes.names() + scenes.family_names():
                 raise InputError("pass robot= with a Dataset whose robot is not a bundled scene")
             robot = scenes.load(name)
         check_robot(data.metadata, robot, "the dataset", missing_ok=True)

@@ -201,7 +201,7 @@ def _robot_of_field(field: Path, scene: str | None):
             scene = json.loads(cfg.read_text()).get("robot")
         except (ValueError, AttributeError, OSError) as e:
             raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
-        if scene not in scenes.names():
+        if scene not in scenes.names() + scenes.family_names():
             raise InputError(f"--field {field}: its robot {scene!r} is not a bundled scene; pass --robot FILE (the "
                              f"MJCF or URDF it was trained for) or --scene NAME (one of {', '.join(scenes.names())})")
     return scenes.load(scene)

@@ -39,6 +39,7 @@ from ..render.pose import fit_pose
 from ..render.cameras import Cameras
 from ..render.targets import ImageTargets, as_pinhole_targets
 from ._common import check_field_matches_model, labeller_robot
+from ..field.layout import field_at_layout
 
 __all__ = ["InverseResult", "pose_from_images", "check_field_matches_model"]
 
@@ -105,7 +106,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                      image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
                      background=None, coarse: dict | None = None, robot=None, seed: int = 0,
-                     refine_cameras: bool | dict = False, progress: bool = False) -> InverseResult:
+                     refine_cameras: bool | dict = False, progress: bool = False, scene=None) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
 
     ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
@@ -119,7 +120,8 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     Without a field and without ``robot`` nothing can be checked: ``result.certified`` is None and
     ``summary()`` says "not checked". ``refine_cameras``: refine the cameras' poses with the image
     phase (:func:`~profrobot.render.fit_pose`); the field phase then uses the refined cameras,
-    returned as ``result.cameras``. ``progress``: progress bars for the image phase.
+    returned as ``result.cameras``. ``progress``: progress bars for the image phase. ``scene``: for a field of a family of scenes
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
@@ -128,6 +130,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
+    sdf, robot = field_at_layout(sdf, robot, scene)
     robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False)
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:

@@ -23,6 +23,7 @@ from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
 from ..robot import Robot
+from ..field.layout import field_at_layout
 from ._common import certified_path, labeller_robot
 
 __all__ = ["trajectory_from_images"]
@@ -33,7 +34,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
                            w_depth: float = 1.0, w_mask: float = 0.5, background=None,
-                           robot: Robot | None = None) -> TrajectoryResult:
+                           robot: Robot | None = None, scene=None) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
     pose: ``rgb`` (C, H, W, 3), ``depth`` (C, H, W) m, ``mask`` (C, H, W), from ``cameras``).
 
@@ -46,7 +47,8 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     check passes); a path still colliding is replaced by :func:`profrobot.plan_trajectory` with
     the planner between the same ends. ``robot``: the labeller's scene (default: the field's;
     required without a field). Returns a :class:`~profrobot.TrajectoryResult` whose ``method``
-    says which of these produced the path.
+    says which of these produced the path. ``scene``: for a field of a family of scenes
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
     """
     t0 = time.perf_counter()
     if isinstance(cameras, dict):   # the order of earlier releases: (model, start, targets, cameras)
@@ -59,6 +61,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
         raise TypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")
     if start is None:
         raise InputError("trajectory_from_images needs start= (K,), the first frame's pose")
+    sdf, robot = field_at_layout(sdf, robot, scene)
     robot = labeller_robot(sdf, model, robot, "trajectory_from_images")
     steps = positive("steps", steps, integer=True)
     if steps < 3:

@@ -27,6 +27,7 @@ from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
 from ..robot import Robot
+from ..field.layout import field_at_layout
 from ._common import certified_path, labeller_robot
 
 __all__ = ["actions_from_video"]
@@ -38,13 +39,15 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                        first_frame_iterations: int = 50,
                        joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
-                       background=None, robot: Robot | None = None, batch: int = 20) -> TrajectoryResult:
+                       background=None, robot: Robot | None = None, batch: int = 20, scene=None) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
     :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` per the dense check,
-    ``method`` "video" or "video+field")."""
+    ``method`` "video" or "video+field"). ``scene``: for a field of a family of scenes
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout."""
     t0 = time.perf_counter()
+    sdf, robot = field_at_layout(sdf, robot, scene)
     robot = labeller_robot(sdf, model, robot, "actions_from_video")
     iterations_per_frame = positive("iterations_per_frame", iterations_per_frame, integer=True, allow_zero=True)
     first_frame_iterations = positive("first_frame_iterations", first_frame_iterations, integer=True, allow_zero=True)

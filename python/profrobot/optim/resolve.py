@@ -14,6 +14,7 @@ from ..robot import Robot
 from .adam import BatchedAdam
 from ..joints import Limits
 from ..field.identity import field_robot
+from ..field.layout import field_at_layout
 from ..validate import finite, positive, poses_within_limits
 from ..certification import certified_summary, certify_poses, failures_of
 from ..deprecation import renamed_arguments
@@ -105,7 +106,7 @@ def certify_and_continue(robot: Robot, certified: np.ndarray, again: Callable[[n
 @renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
 def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, iterations: int = 1000, *,
             robot: Robot | None = None, refine: bool = True, refine_rounds: int = 4,
-            refine_step: float = 0.1, refine_iterations: int | None = None) -> ResolveResult:
+            refine_step: float = 0.1, refine_iterations: int | None = None, scene=None) -> ResolveResult:
     """Resolve collisions of ``poses`` (B, K) (radians / metres, within joint limits) with the
     learned field ``sdf``: Adam (``lr``) on g(θ), all poses in one batch, each pose frozen as soon
     as g ≤ ``l_thres`` (at most ``iterations`` steps); joint limits are enforced after each step
@@ -116,9 +117,11 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float = 0.01, iterations: int
     lowered by ``refine_step`` per round, for up to ``refine_rounds`` rounds of ``refine_iterations``
     steps (default ``iterations``) each, until certified. Poses left colliding are reported in
     ``result.failures``, never hidden. ``robot``: the labeller's robot (default: the bundled
-    scene the field was trained on).
+    scene the field was trained on). ``scene``: for a field of a family of scenes
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
     """
     start = time.perf_counter()
+    sdf, robot = field_at_layout(sdf, robot, scene)
     robot = field_robot(sdf, robot)
     q0 = poses_within_limits(robot, poses)
     l_thres = finite("l_thres", l_thres)

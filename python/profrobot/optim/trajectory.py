@@ -34,6 +34,7 @@ from ..certification import PathCheck, check_path
 from ..deprecation import deprecated_alias
 from ..errors import InputError
 from ..field.identity import field_robot
+from ..field.layout import field_at_layout
 from ..joints import Limits
 from ..labels import interpolate
 from ..robot import Robot
@@ -146,7 +147,7 @@ _LEGACY = {
 def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
                     init: Init = "auto", planner: dict | None = None, penalty: PenaltyOptions | None = None,
                     tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
-                    density: int = 10, **legacy):
+                    density: int = 10, scene=None, **legacy):
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
     list of B results, optimised together.
@@ -158,7 +159,8 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     the shortest certified iterate kept; the certified planner path itself if none is shorter);
     ``"auto"`` (default) does ``"straight"`` where the straight path is certified at the dense
     check and ``"planner"`` where it is not. ``sdf=None`` (``robot`` required): exact planning and
-    shortcutting only.
+    shortcutting only. ``scene``: for a field of a family of scenes
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
 
     ``method="penalty"``: :func:`~profrobot.optim.paths.penalty_descent` with ``penalty``
     (a :class:`~profrobot.optim.PenaltyOptions`; default: ``PenaltyOptions(l_thres=l_thres,
@@ -172,6 +174,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     ``tangent_iters``, ``smooth_iters``, ...) still work, with a DeprecationWarning.
     """
     t0 = time.perf_counter()
+    sdf, robot = field_at_layout(sdf, robot, scene)
     if sdf is None:
         if not isinstance(robot, Robot):
             raise InputError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")

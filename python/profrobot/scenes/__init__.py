@@ -9,6 +9,12 @@ with ``mujoco.MjSpec``. ``load(name)`` returns a :class:`profrobot.Robot`.
 | xarm7_table     | xArm7 + gripper    | floor, table top, a cylindrical post           | self + scene       |
 | vx300s_clutter  | ViperX 300 S       | floor, sphere, capsule, cylinder               | primitives         |
 | panda_shelf     | Panda + hand       | floor, two-shelf rack, a mesh wedge            | mesh obstacle      |
+
+Families of scenes (:mod:`profrobot.family`: obstacles on scene joints δ), ``family_names()``:
+
+| name                | robot        | movable obstacles                                                  |
+|---------------------|--------------|--------------------------------------------------------------------|
+| panda_blocks_moving | Panda + hand | panda_blocks' three blocks, each ±15 cm in x and y, ±45° of yaw (δ: 9) |
 """
 
 from __future__ import annotations
@@ -17,6 +23,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+import math
+
+from ..family import Moves
 from ..robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
 from ..errors import InputError
 
@@ -87,6 +96,23 @@ def panda_shelf() -> Robot:
     ], "panda_shelf")
 
 
+#: how panda_blocks_moving's blocks move: ±15 cm along x and y, ±45° about z
+BLOCK_MOVES = Moves(x=(-0.15, 0.15), y=(-0.15, 0.15), yaw=(-math.pi / 4, math.pi / 4))
+
+
+def panda_blocks_moving() -> Robot:
+    """panda_blocks as a family: each block moves ±15 cm in x and y and ±45° in yaw (9 scene
+    joints, ``block_front_x`` ... ``block_right_yaw``); δ = 0 is panda_blocks itself."""
+    return _scene("franka_emika_panda", "panda", [
+        FLOOR,
+        Box(pos=(0.55, 0.0, 0.10), half_size=(0.10, 0.10, 0.10), name="block_front", moves=BLOCK_MOVES),
+        Box(pos=(0.30, 0.45, 0.15), half_size=(0.08, 0.08, 0.15), name="block_left", moves=BLOCK_MOVES),
+        Box(pos=(0.25, -0.45, 0.06), half_size=(0.15, 0.10, 0.06), name="block_right", moves=BLOCK_MOVES),
+    ], "panda_blocks_moving")
+
+
+_FAMILIES: dict[str, Callable[[], Robot]] = {f.__name__: f for f in (panda_blocks_moving,)}
+
 _BUILDERS: dict[str, Callable[[], Robot]] = {
     f.__name__: f for f in (panda_blocks, ur5e_wall_box, shadow_hand, xarm7_table, vx300s_clutter, panda_shelf)
 }
@@ -97,10 +123,16 @@ def names() -> list[str]:
     return list(_BUILDERS)
 
 
+def family_names() -> list[str]:
+    """Every bundled family of scenes (obstacles on scene joints, :mod:`profrobot.family`)."""
+    return list(_FAMILIES)
+
+
 def load(name: str) -> Robot:
-    """Builds the bundled scene ``name`` (see the table in this module's docstring)."""
-    try:
-        builder = _BUILDERS[name]
-    except KeyError:
-        raise InputError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}") from None
+    """Builds the bundled scene or family of scenes ``name`` (see the tables in this module's
+    docstring)."""
+    builder = _BUILDERS.get(name) or _FAMILIES.get(name)
+    if builder is None:
+        raise InputError(f"unknown scene {name!r}; bundled scenes: {', '.join(_BUILDERS)}; families: "
+                         f"{', '.join(_FAMILIES)}")
     return builder()

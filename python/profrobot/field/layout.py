@@ -1,0 +1,111 @@
+"""A family field at one layout: g(θ, δ) with δ fixed, as a field over the robot joints θ alone.
+
+``PoseSDF.at(scene)`` builds one; every torch-side entry point that takes ``scene=`` (``resolve``,
+``plan_trajectory``, ``pose_from_images``, ``trajectory_from_images``, ``actions_from_video``)
+works on it unchanged: its ``robot`` is the family's scene pinned at δ (``Robot.at``), an ordinary
+static scene, so every answer is certified by the exact labeller at exactly that layout.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import InputError
+from ..robot import Robot
+from .identity import _Shared
+
+__all__ = ["LayoutField", "field_at_layout"]
+
+
+class LayoutField(nn.Module):
+    """``g(θ) = field(θ, δ)`` for a fixed layout δ: the PoseSDF interface (``njoint``,
+    ``joint_names``, ``joint_limits``, ``fingerprint``, ``robot``, ``prob``) over the robot joints.
+
+    Attributes: ``field`` (the family :class:`PoseSDF`), ``scene`` (D,) float64 δ, ``robot`` (the
+    static Robot at δ). Gradients flow to θ only. Pickles with the family field and layout."""
+
+    def __init__(self, field, scene):  # field: a family PoseSDF
+        super().__init__()
+        if not isinstance(field, nn.Module) or not getattr(field, "scene_joints", None):
+            raise InputError("LayoutField needs a family field (a PoseSDF trained on a Robot with scene joints)")
+        family = field.robot
+        delta = family.check_scene(scene)
+        robot = family.at(delta)
+        self.field = field
+        self.scene = delta
+        self._robot = _Shared(robot)
+        self.robot_name = field.robot_name
+        self.fingerprint = robot.fingerprint
+        self.joint_names = list(robot.joint_names)
+        self.njoint = robot.njoint
+        self.scene_joints: list[str] = []
+        self.metrics = field.metrics
+        self.register_buffer("joint_limits", field.joint_limits[field.robot_index].clone())
+
+    @property
+    def robot(self) -> Robot:
+        """The family's scene at this layout (static obstacles): the labeller's robot."""
+        return self._robot.value
+
+    @property
+    def scale(self) -> torch.Tensor:
+        return self.field.scale
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        """g (B,) at robot poses θ (B, K − D) and this layout."""
+        if not isinstance(theta, torch.Tensor):
+            raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+        if theta.ndim != 2 or theta.shape[1] != self.njoint:
+            raise InputError(f"theta must have shape (B, {self.njoint}) (the robot joints of {self.robot_name!r} at "
+                             f"this layout); got {tuple(theta.shape)}")
+        f = self.field
+        full = theta.new_empty(len(theta), f.njoint)
+        full[:, f.robot_index] = theta
+        full[:, f.scene_index] = torch.as_tensor(self.scene, dtype=theta.dtype, device=theta.device)
+        return f(full)
+
+    def prob(self, theta: torch.Tensor) -> torch.Tensor:
+        """Collision probability sigmoid(s·g(θ)), (B,)."""
+        return torch.sigmoid(self.scale * self(theta))
+
+    def __repr__(self) -> str:
+        return f"LayoutField({self.field!r}, scene={np.array2string(self.scene, precision=3)})"
+
+
+def field_at_layout(sdf, robot: Robot | None, scene):
+    """The (field, robot) pair an entry point works with at a layout: ``sdf.at(scene)`` and its
+    static robot for a family field; a family field without ``scene`` takes the layout of
+    ``robot`` (a Robot made by ``family.at(δ)``); an ordinary field refuses ``scene``.
+    ``sdf=None``: ``robot`` (a family) is pinned at ``scene``."""
+    family = sdf is not None and bool(getattr(sdf, "scene_joints", None))
+    if sdf is None:
+        if scene is None:
+            return None, robot
+        if not isinstance(robot, Robot):
+            raise InputError("scene= without a field needs robot= (the family of scenes)")
+        return None, robot.at(scene)
+    if not family:
+        if scene is not None:
+            raise InputError(f"scene= was given but the field for {getattr(sdf, 'robot_name', '?')!r} is not a family "
+                             "field (trained on a Robot without scene joints)")
+        return sdf, robot
+    if scene is None:
+        layout = getattr(robot, "layout", None)
+        if layout is None:
+            raise InputError(f"the field for {sdf.robot_name!r} covers a family of scenes (scene joints "
+                             f"{', '.join(sdf.scene_joints)}): pass scene=δ, the layout to work at, or "
+                             "robot=family.at(δ)")
+        if getattr(robot, "family_fingerprint", None) != sdf.fingerprint:
+            from ..errors import RobotMismatchError
+
+            raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
+        scene = layout
+    at = sdf.at(scene)
+    if robot is not None and robot.fingerprint != at.fingerprint:
+        from ..errors import RobotMismatchError
+
+        raise RobotMismatchError(f"robot {robot.name!r} is not the field's family at this layout; pass the family's "
+                                 "robot.at(scene), or leave robot= out")
+    return at, at.robot
