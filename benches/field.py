@@ -5,6 +5,8 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
     python benches/field.py default  [--minutes 15]     # acceptance 1: our default field
     python benches/field.py paper    [--minutes 60]     # the paper's model + recipe (15 and 60 min)
     python benches/field.py shadow   [--minutes 15]     # Shadow Hand, self-collision only
+    python benches/field.py scenes   [--minutes 13] [--layouts 20] [--upper 2] [--upper-minutes 6]
+                                     # one field for a family of scenes (panda_blocks_moving)
 
 Every row trains on the same balanced dataset (exact labels) and is scored on the same held-out
 balanced split. Writes markdown to benches/out/field_<command>.md; prints wall time and threads.
@@ -92,7 +94,7 @@ def write_table(rows: list[dict], path: Path, header: str) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=("tables", "default", "paper", "shadow"))
+    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
     ap.add_argument("--iterations", type=int, default=None,
                     help="tables: iterations per row (default 400; fairer than minutes on a shared CPU)")
@@ -100,9 +102,18 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", default=None, help="comma-separated subset of table rows")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--layouts", type=int, default=20, help="scenes: held-out layouts")
+    ap.add_argument("--upper", type=int, default=2, help="scenes: layouts with a field of their own (upper bound)")
+    ap.add_argument("--upper-minutes", type=float, default=6.0, help="scenes: budget of each per-layout field")
+    ap.add_argument("--pairs", type=int, default=5, help="scenes: hard trajectory problems per held-out layout")
+    ap.add_argument("--retrain", action="store_true", help="scenes: train again even if cached")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.command == "scenes":
+        from family_bench import scenes_bench
+
+        return scenes_bench(args)
     wall = time.perf_counter()
     scene = "shadow_hand" if args.command == "shadow" else "panda_blocks"
     robot = profrobot.scenes.load(scene)

@@ -42,6 +42,8 @@ from .labels import Labels, collides, interpolate, label_poses, sample_poses  # 
 from .oracle import NearestFree, nearest_free  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
+from . import family  # noqa: E402
+from .family import Moves  # noqa: E402
 
 # name → the module that defines it; loaded on first access
 _LAZY = {
@@ -61,7 +63,7 @@ _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
-    "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh",
+    "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "family", "Moves",
     "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",

@@ -465,6 +465,11 @@ class Robot:
     slides in metres); free and ball joints are rejected. Static obstacles are the world-body
     geoms of the model (and those added with :meth:`with_obstacles`).
 
+    A *family of scenes* (:mod:`profrobot.family`) also has scene joints, the joints that move
+    obstacles (``scene_joints``; ``scene_index`` / ``robot_index`` split the pose vector into δ and
+    θ): built by ``with_obstacles`` with ``moves=``, :meth:`with_scene_joints`, or an MJCF that
+    names them. :meth:`at` pins a layout δ into an ordinary static scene.
+
     Build one with :meth:`from_menagerie`, :meth:`from_mjcf`, :meth:`from_urdf`,
     :meth:`from_model`, or ``profrobot.scenes.load(name)``.
 

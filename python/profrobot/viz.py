@@ -55,8 +55,9 @@ def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarra
     ax.contour(A, Bg, exact.astype(float), levels=[0.5], colors="yellow", linewidths=1.5, linestyles="--")
     fig.colorbar(im, ax=ax, label="g(θ)  (> 0: colliding)")
     names = robot.joint_names
-    ax.set_xlabel(f"{names[i]} (rad)")
-    ax.set_ylabel(f"{names[j]} (rad)")
+    unit = lambda k: "m" if robot.joint_types[k] == "slide" else "rad"
+    ax.set_xlabel(f"{names[i]} ({unit(i)})")
+    ax.set_ylabel(f"{names[j]} ({unit(j)})")
     agree = float(np.mean((g > 0) == exact))
     ax.set_title(f"{robot.name}: g = 0 (black) vs exact boundary (yellow)\nagreement on this slice {agree:.1%}",
                  fontsize=10)

@@ -29,7 +29,7 @@ def write_checkpoint(sdf: "PoseSDF", path: str | os.PathLike) -> Path:
     path = Path(path)
     tensors = {k: v.detach().cpu().contiguous() for k, v in sdf.state_dict().items()}
     config = dict(format=FORMAT, robot=sdf.robot_name, robot_fingerprint=sdf.fingerprint,
-                  joint_names=sdf.joint_names, model=sdf.config,
+                  joint_names=sdf.joint_names, model=sdf.config, family=family_description(sdf),
                   metrics={k: v for k, v in sdf.metrics.items() if isinstance(v, (int, float, str))})
 
     with atomic_dir(path) as d:
@@ -62,6 +62,10 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
     if not isinstance(robot, Robot):
         raise TypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
     check_robot(config, robot, f"checkpoint {path}")
+    family = config.get("family")
+    if (family or {}).get("scene_joints", []) != list(getattr(robot, "scene_joints", ())):
+        raise CorruptFileError(f"{cfg_path}: its family's scene joints {(family or {}).get('scene_joints', [])} are not "
+                               f"the robot's {list(getattr(robot, 'scene_joints', ()))}")
     try:
         tensors = load_file(str(w_path))
     except (SafetensorError, OSError, ValueError) as e:
@@ -79,6 +83,16 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
     return sdf
 
 
+def family_description(sdf: "PoseSDF") -> dict | None:
+    """For a field of a family of scenes: its scene joints and their ranges (radians / metres),
+    written beside the weights so that a reader knows what δ means; None otherwise."""
+    if not getattr(sdf, "scene_joints", None):
+        return None
+    limits = sdf.joint_limits[sdf.scene_index].double().cpu().numpy()
+    return dict(scene_joints=list(sdf.scene_joints), ranges=limits.tolist(),
+                robot_joints=[sdf.joint_names[i] for i in sdf.robot_index.tolist()])
+
+
 class _Deployable(torch.nn.Module):
     """θ (B, K) → g (B,), without the Python-side checks (export traces tensors only)."""
 
@@ -92,12 +106,17 @@ class _Deployable(torch.nn.Module):
 
 def export_sdf(sdf: "PoseSDF", path: str | os.PathLike, *, batch: int = 1024) -> int:
     """Export ``sdf`` with ``torch.export`` to a ``.pt2`` file (dynamic batch size); returns its
-    size in bytes. Load it with ``torch.export.load(path).module()``."""
+    size in bytes. Load it with ``torch.export.load(path).module()``: θ (B, K) → g (B,). The file
+    carries ``profrobot.json`` (``torch.export.load(path, extra_files={"profrobot.json": ""})``):
+    robot, fingerprint, joint names and, for a family field, its scene joints and ranges (the
+    exported program takes the full vectors (θ, δ) in that joint order)."""
     path = Path(path)
     sdf = sdf.eval()
     example = torch.zeros(batch, sdf.njoint)
     dim = torch.export.Dim("batch", min=1)
     program = torch.export.export(_Deployable(sdf), (example,), dynamic_shapes={"theta": {0: dim}})
     with atomic_path(path, suffix=".pt2") as tmp:
-        torch.export.save(program, tmp)
+        meta = dict(format=FORMAT, robot=sdf.robot_name, robot_fingerprint=sdf.fingerprint,
+                    joint_names=list(sdf.joint_names), family=family_description(sdf))
+        torch.export.save(program, tmp, extra_files={"profrobot.json": json.dumps(meta)})
     return path.stat().st_size
