@@ -70,10 +70,18 @@ pub struct ModelDesc {
     pub filter_parent: bool,
     /// `!mjDSBL_CONTACT && !mjDSBL_CONSTRAINT`.
     pub contact_enabled: bool,
+
+    /// Per joint: whether it is a *scene joint* (it moves an obstacle of a family of scenes, not
+    /// the robot); empty means none. Bodies moved by scene joints only are scene, not robot, so
+    /// robot–obstacle contacts count as scene contacts. Stored after the fields above (format 2).
+    #[serde(skip)]
+    pub jnt_scene: Vec<bool>,
 }
 
 /// Leads every [`ModelDesc::to_bytes`] buffer: names the format and its version.
-const MAGIC: &[u8; 8] = b"PRDESC01";
+const MAGIC: &[u8; 8] = b"PRDESC02";
+/// Format 1: the same without `jnt_scene` (read as "no scene joints").
+const MAGIC_V1: &[u8; 8] = b"PRDESC01";
 
 /// FNV-1a, 64 bits: catches corrupted bytes in a stored description (not an adversary).
 fn fnv1a(bytes: &[u8]) -> u64 {
@@ -85,7 +93,8 @@ impl ModelDesc {
     /// 8 bytes, so the round trip is exact, NaN and infinities included). The Python
     /// `RobotModel` pickles this.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let body = postcard::to_allocvec(self).expect("serialising plain vectors into memory cannot fail");
+        let mut body = postcard::to_allocvec(self).expect("serialising plain vectors into memory cannot fail");
+        body.extend(postcard::to_allocvec(&self.jnt_scene).expect("serialising plain vectors into memory cannot fail"));
         let mut out = Vec::with_capacity(16 + body.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&fnv1a(&body).to_le_bytes());
@@ -109,7 +118,7 @@ impl ModelDesc {
         let Some((magic, rest)) = bytes.split_first_chunk::<8>() else {
             return invalid_input(format!("{WHAT}: {} bytes is too short", bytes.len()));
         };
-        if magic != MAGIC {
+        if magic != MAGIC && magic != MAGIC_V1 {
             return invalid_input(format!("{WHAT} (expected it to start with {:?})", String::from_utf8_lossy(MAGIC)));
         }
         let Some((sum, body)) = rest.split_first_chunk::<8>() else {
@@ -118,11 +127,25 @@ impl ModelDesc {
         if u64::from_le_bytes(*sum) != fnv1a(body) {
             return invalid_input("corrupt model description: its checksum does not match (truncated or altered)");
         }
-        match postcard::take_from_bytes::<Self>(body) {
-            Ok((desc, [])) => Ok(desc),
-            Ok((_, extra)) => invalid_input(format!("corrupt model description: {} trailing bytes", extra.len())),
-            Err(e) => invalid_input(format!("corrupt model description: {e}")),
+        let (mut desc, rest) = match postcard::take_from_bytes::<Self>(body) {
+            Ok(ok) => ok,
+            Err(e) => return invalid_input(format!("corrupt model description: {e}")),
+        };
+        let rest = if magic == MAGIC {
+            match postcard::take_from_bytes::<Vec<bool>>(rest) {
+                Ok((scene, rest)) => {
+                    desc.jnt_scene = scene;
+                    rest
+                }
+                Err(e) => return invalid_input(format!("corrupt model description: {e}")),
+            }
+        } else {
+            rest
+        };
+        if !rest.is_empty() {
+            return invalid_input(format!("corrupt model description: {} trailing bytes", rest.len()));
         }
+        Ok(desc)
     }
 
     /// A one-joint pendulum: a sphere of radius 0.1 on a 0.5 m arm hinged about x at height 0.55,
@@ -159,6 +182,7 @@ impl ModelDesc {
             pair_margin: vec![],
             filter_parent: true,
             contact_enabled: true,
+            jnt_scene: vec![],
         }
     }
 }
@@ -179,6 +203,20 @@ mod tests {
         assert_eq!(bits(&back), bits(&desc));
         (desc.jnt_range, back.jnt_range) = (vec![], vec![]); // (NaN != NaN)
         assert_eq!(back, desc);
+    }
+
+    #[test]
+    fn scene_joints_round_trip_and_format_1_still_reads() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.jnt_scene = vec![true];
+        assert_eq!(ModelDesc::from_bytes(&desc.to_bytes()).unwrap(), desc);
+        // a description pickled before scene joints existed (format 1) reads as "none"
+        let plain = ModelDesc::example_pendulum();
+        let body = postcard::to_allocvec(&plain).unwrap();
+        let mut v1 = MAGIC_V1.to_vec();
+        v1.extend_from_slice(&fnv1a(&body).to_le_bytes());
+        v1.extend_from_slice(&body);
+        assert_eq!(ModelDesc::from_bytes(&v1).unwrap(), plain);
     }
 
     #[test]

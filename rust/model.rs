@@ -157,9 +157,15 @@ impl RobotModel {
             }
             r
         };
+        if !desc.jnt_scene.is_empty() {
+            check_len("jnt_scene", desc.jnt_scene.len(), njnt)?;
+        }
         let mut root_moves = vec![false; nbody];
-        for jnt in &joints {
-            root_moves[root_of[jnt.body]] = true;
+        for (j, jnt) in joints.iter().enumerate() {
+            // scene joints move obstacles, not the robot
+            if !desc.jnt_scene.get(j).copied().unwrap_or(false) {
+                root_moves[root_of[jnt.body]] = true;
+            }
         }
         let on_robot = |b: usize| b != 0 && root_moves[root_of[b]];
 

@@ -152,6 +152,7 @@ fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
         pair_margin: vec1(d, "pair_margin")?,
         filter_parent: typed(d, "filter_parent", "a bool")?,
         contact_enabled: typed(d, "contact_enabled", "a bool")?,
+        jnt_scene: if d.contains("jnt_scene")? { vec1(d, "jnt_scene")? } else { vec![] },
     })
 }
 

@@ -108,12 +108,22 @@ def test_moving_a_block_changes_the_labels(family):
 
 def test_scene_joints_from_mjcf_text_and_with_scene_joints(tmp_path):
     text = '<custom><text name="profrobot:scene_joints" data="crate_x crate_yaw"/></custom>'
+    unexcluded = tmp_path / "unexcluded.xml"
+    unexcluded.write_text(ARM_XML.replace("{custom}", text))
+    # a marked model must keep its scene bodies off the world, else a pinned layout (where MuJoCo
+    # filters the pair) would label unlike the family: refused, with the lines to add
+    with pytest.raises(InputError, match=r'(?s)lacks 1 <exclude>.*<exclude body1="world" body2="crate"/>'):
+        profrobot.Robot.from_mjcf(unexcluded)
     marked = tmp_path / "marked.xml"
-    marked.write_text(ARM_XML.replace("{custom}", text))
+    marked.write_text(ARM_XML.replace("{custom}", text + '<contact><exclude body1="world" body2="crate"/></contact>'))
     plain = tmp_path / "plain.xml"
     plain.write_text(ARM_XML.replace("{custom}", ""))
     a = profrobot.Robot.from_mjcf(marked)
     assert a.scene_joints == ("crate_x", "crate_yaw") and list(a.robot_index) == [0, 1]
+    q = profrobot.sample_poses(a, 2000, seed=5)
+    static = a.at([0.1, -0.6])
+    np.testing.assert_array_equal(profrobot.label_poses(static, q[:, :2]).collides,
+                                  profrobot.label_poses(a, a.compose(q[:, :2], [0.1, -0.6])).collides)
     b = profrobot.Robot.from_mjcf(plain)
     assert not b.is_family
     fam = b.with_scene_joints(["crate_x", "crate_yaw"])
@@ -294,3 +304,64 @@ def test_slice_picture_over_a_scene_joint(tmp_path, tiny_field, family):
 
     fig = sdf_slice(tiny_field, family, joints=(0, 9), resolution=24, path=tmp_path / "slice.png")
     assert (tmp_path / "slice.png").stat().st_size > 1000 and "block_front_x (m)" in fig.axes[0].get_ylabel()
+
+
+def test_scene_bodies_must_hang_from_the_world_and_carry_scene_joints_only(tmp_path):
+    plain = tmp_path / "plain.xml"
+    plain.write_text(ARM_XML.replace("{custom}", ""))
+    arm = profrobot.Robot.from_mjcf(plain)
+    with pytest.raises(InputError, match="'l1' also moves with robot joints"):
+        arm.with_scene_joints(["j1"])            # l2 (a robot joint) hangs below l1
+    with pytest.raises(InputError, match="'l2' hangs from 'l1', which moves"):
+        arm.with_scene_joints(["j2"])
+
+
+def test_robot_obstacle_contacts_count_as_scene_contacts(family):
+    """The blocks ride on scene joints, yet they are obstacles: a hand in a block is a scene
+    collision in the family exactly as at the pinned layout."""
+    delta = layouts(family, 1, seed=17)[0]
+    static = family.at(delta)
+    q = profrobot.sample_poses(static, 4000, seed=6)
+    a = profrobot.label_poses(static, q)
+    b = profrobot.label_poses(family, family.compose(q, delta))
+    assert a.scene_collides.any()
+    np.testing.assert_array_equal(a.self_collides, b.self_collides)
+    np.testing.assert_array_equal(a.scene_collides, b.scene_collides)
+    assert not family.pair_is_self[[i for i, (g1, g2) in enumerate(family.pair_geoms)
+                                    if "block" in " ".join(family.pair_names(i))]].any()
+
+
+def test_families_are_never_planned_as_if_obstacles_were_joints(family, tiny_field):
+    start, goal = profrobot.problems.free_poses(family.at(np.zeros(9)), 2, seed=3)
+    with pytest.raises(InputError, match="family of scenes"):
+        profrobot.plan_path(family, family.compose(start, np.zeros(9)), family.compose(goal, np.zeros(9)))
+    with pytest.raises(InputError, match="family of scenes"):
+        profrobot.nearest_free(family, family.compose(start, np.zeros(9))[None])
+    with pytest.raises(InputError, match="pass scene="):
+        profrobot.plan_trajectory(None, start, goal, robot=family)
+    with pytest.raises(InputError, match="pass scene="):
+        profrobot.collision_penalty(tiny_field, torch.zeros(2, 18))
+    pen = profrobot.collision_penalty(tiny_field, torch.as_tensor(start[None], dtype=torch.float32), scene=np.zeros(9))
+    assert pen.shape == (1,)
+    # the family itself with scene=δ is accepted where a labeller robot is asked for
+    q = profrobot.problems.colliding_poses(family.at(np.zeros(9)), 2, seed=4)
+    r = profrobot.resolve(tiny_field, q, robot=family, scene=np.zeros(9), iterations=5, refine_rounds=0)
+    np.testing.assert_array_equal(r.certified, ~profrobot.label_poses(family.at(np.zeros(9)), r.poses).collides)
+    with pytest.raises(InputError, match="save the family field"):
+        tiny_field.at(np.zeros(9)).save("x")
+
+
+def test_compose_takes_dicts_tensors_and_one_layout_per_pose(family):
+    d = {n: 0.01 * i for i, n in enumerate(family.scene_joints)}
+    theta = np.zeros((3, 9))
+    full = family.compose(theta, d)
+    np.testing.assert_allclose(full[:, family.scene_index], np.tile(list(d.values()), (3, 1)))
+    np.testing.assert_array_equal(family.compose(theta, torch.tensor(list(d.values()), dtype=torch.float64)), full)
+    with pytest.raises(InputError, match=r"one layout per pose \(3, D\)"):
+        family.compose(theta, np.zeros((2, 9)))
+    bad = np.zeros((3, 9))
+    bad[2, 1] = 1.0
+    with pytest.raises(InputError, match=r"scene\[2\]\[1\] \(block_front_y\)"):
+        family.compose(theta, bad)
+    box = profrobot.Box((0, 0, 0), (1, 0, 0, 0), "b", (1, 1, 1, 1), (0.1, 0.2, 0.3))   # positional, as before
+    assert box.half_size == (0.1, 0.2, 0.3) and box.moves is None

@@ -138,3 +138,32 @@ def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
         actions_from_video(model, {k: v[:1] for k, v in f.items()}, cams, init=path[0], robot=panda)
     with pytest.raises(ProfrobotError, match="init"):
         actions_from_video(model, f, cams, init=path[0][:3], robot=panda)
+
+
+def test_family_fields_work_at_a_layout_and_certify_there(setup):
+    """A family field (obstacles on scene joints) needs the layout; given scene=δ every inverse
+    problem certifies at exactly that layout (the front block moved 15 cm, rotated 0.5 rad)."""
+    from profrobot.inverse import actions_from_video, trajectory_from_images
+
+    model, cams, target, t = setup
+    family = profrobot.scenes.load("panda_blocks_moving")
+    sdf = _field(family, -100.0)                     # calls every pose free: the labeller decides
+    delta = np.zeros(9)
+    delta[[0, 2]] = 0.15, 0.5
+    layout = family.at(delta)
+    with pytest.raises(ProfrobotError, match="pass scene="):
+        pose_from_images(model, t, cams, init=target, sdf=sdf, image_iterations=1)
+    r = pose_from_images(model, t, cams, init=target + 0.02, sdf=sdf, scene=delta, image_iterations=2,
+                         field_iterations=2, refine_rounds=0)
+    np.testing.assert_array_equal(r.certified, ~profrobot.label_poses(layout, r.poses).collides)
+    same = pose_from_images(model, t, cams, init=target + 0.02, sdf=sdf, robot=layout, image_iterations=2,
+                            field_iterations=2, refine_rounds=0)
+    np.testing.assert_array_equal(same.poses, r.poses)
+    one = {k: v[0] for k, v in t.items()}
+    a = problems.free_poses(layout, 1, 5)[0]
+    tr = trajectory_from_images(model, one, cams, start=a, steps=6, sdf=sdf, scene=delta, smooth_iterations=2)
+    np.testing.assert_array_equal(tr.waypoint_collides, profrobot.label_poses(layout, tr.path).collides)
+    frames = {k: np.stack([v[0], v[0]]) for k, v in t.items()}
+    v = actions_from_video(model, frames, cams, init=a, sdf=sdf, scene=delta, iterations_per_frame=1,
+                           first_frame_iterations=1, joint_iterations=1)
+    np.testing.assert_array_equal(v.waypoint_collides, profrobot.label_poses(layout, v.path).collides)

@@ -117,15 +117,29 @@ def _bodies_with(spec: mujoco.MjSpec, joints: set[str]) -> list:
     return [b for b in spec.bodies if any(j.name in joints for j in b.joints)]
 
 
+def _subtree(body) -> list:
+    out = [body]
+    for child in body.bodies:
+        out += _subtree(child)
+    return out
+
+
 def _exclude_scene_bodies(spec: mujoco.MjSpec, new: list, old: list) -> None:
-    """Scene bodies ``new`` never collide with the world or with scene bodies (``old`` and each
-    other): MuJoCo ``<exclude>``s, so MuJoCo and the labeller agree."""
+    """Scene bodies ``new`` and the bodies below them never collide with the world or with the
+    other scene bodies' subtrees (``old`` and each other): MuJoCo ``<exclude>``s, so MuJoCo and
+    the labeller agree, and a layout pinned into a static scene (where MuJoCo filters those pairs
+    as welded together) labels like the family."""
     names = {(e.bodyname1, e.bodyname2) for e in spec.excludes}
     world = spec.worldbody.name or "world"
-    for i, b in enumerate(new):
-        for other in [world] + [o.name for o in old] + [o.name for o in new[:i]]:
-            if (other, b.name) not in names and (b.name, other) not in names:
-                spec.add_exclude(bodyname1=other, bodyname2=b.name)
+    done = [b.name for o in old for b in _subtree(o)]
+    for top in new:
+        group = [b.name for b in _subtree(top)]
+        for name in group:
+            for other in [world] + done:
+                if (other, name) not in names and (name, other) not in names:
+                    spec.add_exclude(bodyname1=other, bodyname2=name)
+                    names.add((other, name))
+        done += group
 
 
 def add_moving_geom(spec: mujoco.MjSpec, owner: str, name: str | None, moves: Moves, pos: np.ndarray,
@@ -161,7 +175,8 @@ def mark_scene_joints(spec: mujoco.MjSpec, names: Sequence[str]) -> None:
         raise InputError(f"no joint named {', '.join(map(repr, missing))} in the model; joints: {', '.join(sorted(known))}")
     added = [n for n in names if n not in existing]
     old = _bodies_with(spec, set(existing))
-    new = [b for b in _bodies_with(spec, set(added)) if b not in old]
+    old_names = {b.name for b in old}
+    new = [b for b in _bodies_with(spec, set(added)) if b.name not in old_names]
     _set_spec_scene_joints(spec, existing + added)
     _exclude_scene_bodies(spec, new, old)
 
@@ -188,6 +203,8 @@ class PinnedLayout:
         for body in _bodies_with(spec, set(pinned)):
             if any(j.name not in pinned for j in body.joints):
                 raise InputError(f"body {body.name!r} has scene and robot joints; pin all or none of them")
+            if body.frame is not None:
+                raise InputError(f"scene body {body.name!r} sits in a <frame>; put it directly in its parent body")
             b = m.body(body.name).id
             p = int(m.body_parentid[b])
             neg = np.zeros(4)
@@ -195,6 +212,7 @@ class PinnedLayout:
             quat, pos = np.zeros(4), np.zeros(3)
             mujoco.mju_mulQuat(quat, neg, d.xquat[b])
             mujoco.mju_rotVecQuat(pos, d.xpos[b] - d.xpos[p], neg)
+            body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # else euler/axisangle/... would override quat
             body.pos, body.quat = pos, quat
             for j in list(body.joints):
                 spec.delete(j)

@@ -58,6 +58,9 @@ def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 10
     Deterministic: the same ``seed`` gives the same answer for any thread count. Cost: about
     ``directions * distance / step + refine`` labelled poses per colliding pose.
     """
+    if getattr(robot, "is_family", False):
+        raise InputError(f"{robot.name} is a family of scenes: nearest_free would move its obstacles; search at a "
+                         "layout, robot.at(scene)")
     q = as_poses(robot, poses, check_limits=True)
     lim, limited = robot.joint_limits, ~robot.continuous
     q = np.where(limited, np.clip(q, lim[:, 0], lim[:, 1]), q)  # within the 1e-9 tolerance

@@ -93,6 +93,9 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     Raises ValueError naming the problem for a colliding or out-of-limits start or goal,
     mismatched lengths, NaN, a non-positive ``max_time`` or ``resolution``.
     """
+    if getattr(robot, "is_family", False):
+        raise InputError(f"{robot.name} is a family of scenes: plan_path would move its obstacles; plan at a layout, "
+                         "robot.at(scene)")
     s = as_poses(robot, start, name="start", check_limits=True)
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != (1, robot.njoint) or g.shape != (1, robot.njoint):

@@ -49,7 +49,7 @@ class Obstacle(abc.ABC):
     quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)
     name: str | None = None
     rgba: Sequence[float] = (0.6, 0.6, 0.65, 1.0)
-    moves: Moves | None = None
+    moves: Moves | None = field(default=None, kw_only=True)
 
     @abc.abstractmethod
     def _geom_args(self, spec: mujoco.MjSpec) -> dict:
@@ -442,6 +442,8 @@ def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray], scene_jo
     if scene_joints:
         h.update(("scene:" + "\0".join(scene_joints)).encode())
     for key in sorted(arrays):
+        if key == "jnt_scene":  # the scene joints are hashed by name above
+            continue
         v = np.asarray(arrays[key])
         h.update(key.encode())
         h.update(np.ascontiguousarray(np.round(v, 12) if v.dtype.kind == "f" else v).tobytes())
@@ -481,6 +483,11 @@ class Robot:
     #: ``srdf=`` / ``collision_matrix="auto"``), applied as MuJoCo ``<exclude>``s: (body1, body2, reason)
     disabled_pairs: tuple = ()
     _collision_notes: str = ""
+    #: the joints that move obstacles (a family of scenes, :mod:`profrobot.family`); () otherwise
+    scene_joints: tuple = ()
+    #: for a layout made by :meth:`at`: the family's scene-joint values (D,) and fingerprint
+    layout: np.ndarray | None = None
+    family_fingerprint: str | None = None
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
@@ -517,13 +524,14 @@ class Robot:
                           "sample_poses(..., equalities='settle') projects poses onto them "
                           "(robot.equalities lists every equality).", EqualityWarning, stacklevel=3)
         self._arrays = _core_arrays(m)
+        self.scene_joints = self._read_scene_joints(m)
+        if self.scene_joints:  # the labeller counts robot–obstacle contacts as scene contacts
+            self._arrays["jnt_scene"] = np.array([n in self.scene_joints for n in self.joint_names])
         self.core = _core.RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
-        self.scene_joints: tuple[str, ...] = self._read_scene_joints(m)
         self.fingerprint = _fingerprint(self.joint_names, self._arrays, self.scene_joints)
-        #: for a layout made by :meth:`at`: the family's scene-joint values (D,) and fingerprint
-        self.layout: np.ndarray | None = None
-        self.family_fingerprint: str | None = None
+        self.layout = None
+        self.family_fingerprint = None
 
     def _read_scene_joints(self, m: mujoco.MjModel) -> tuple[str, ...]:
         names = model_scene_joints(m)
@@ -537,7 +545,48 @@ class Robot:
                                  "range (limited=\"true\" range=\"low high\")")
         if len(set(names)) != len(names):
             raise InputError(f"{self.name}: profrobot:scene_joints lists a joint twice: {names}")
+        if names:
+            self._check_scene_bodies(m, {index[n] for n in names})
         return tuple(sorted(names, key=index.__getitem__))  # MuJoCo joint order
+
+    def _check_scene_bodies(self, m: mujoco.MjModel, scene: set[int]) -> None:
+        """What makes a layout pinned into a static scene label like the family: each scene body
+        carries scene joints only, hangs from a body fixed to the world, has no robot joint below
+        it, and its subtree is excluded (``<exclude>``) from the world and from the other scene
+        bodies' subtrees (pinned, MuJoCo filters those pairs as welded together)."""
+        bn = self.body_names
+        tops = sorted({int(m.jnt_bodyid[j]) for j in scene})
+        below = {t: [b for b in range(m.nbody) if int(m.body_weldid[b]) == t] for t in tops}
+        for t in tops:
+            sub = [self.joint_names[j] for j in range(m.njnt) if j not in scene and self._is_below(m, int(m.jnt_bodyid[j]), t)]
+            if sub:
+                names = sub
+                raise InputError(f"{self.name}: scene body {bn[t]!r} also moves with robot joints {names}; a scene "
+                                 "body carries scene joints only and has no robot joint below it")
+            if int(m.body_weldid[m.body_parentid[t]]) != 0:
+                raise InputError(f"{self.name}: scene body {bn[t]!r} hangs from {bn[int(m.body_parentid[t])]!r}, which "
+                                 "moves; a scene body's parent must be fixed to the world")
+        excluded = {int(s) for s in m.exclude_signature}
+        sig = lambda a, b: ((min(a, b) << 16) + max(a, b)) in excluded or ((max(a, b) << 16) + min(a, b)) in excluded
+        missing, done = [], [0]
+        for t in tops:
+            for b in below[t]:
+                missing += [(bn[o], bn[b]) for o in done if not sig(o, b)]
+            done += below[t]
+        if missing:
+            lines = "".join(f'\n  <exclude body1="{a}" body2="{b}"/>' for a, b in missing[:8])
+            raise InputError(f"{self.name}: scene bodies must not collide with the world or with each other (pinned at a "
+                             f"layout, MuJoCo would filter those pairs); the model lacks {len(missing)} <exclude>(s):{lines}"
+                             f"{' ...' if len(missing) > 8 else ''}\nAdd them to the MJCF's <contact>, or build the family "
+                             "with robot.with_scene_joints(names), which adds them")
+
+    @staticmethod
+    def _is_below(m: mujoco.MjModel, b: int, top: int) -> bool:
+        while b > 0:
+            if b == top:
+                return True
+            b = int(m.body_parentid[b])
+        return False
 
     # ---- constructors ------------------------------------------------------------------------
     @classmethod
@@ -803,6 +852,8 @@ class Robot:
                                  + "; ".join(filter(None, [f"unknown {unknown}" if unknown else "",
                                                            f"missing {missing}" if missing else ""])))
             scene = [scene[n] for n in self.scene_joints]
+        if hasattr(scene, "detach"):  # a torch tensor
+            scene = scene.detach().cpu().numpy()
         try:
             delta = np.array(scene, dtype=np.float64)
         except (TypeError, ValueError) as e:
@@ -815,8 +866,8 @@ class Robot:
             if not np.isfinite(v):
                 raise InputError(f"{name}[{i}] ({n}) is {v}")
             if not lo - 1e-9 <= v <= hi + 1e-9:
-                raise InputError(f"{name}[{i}] ({n}) = {v:.6g} is outside the family's range [{lo:.6g}, {hi:.6g}]: the "
-                                 "field was not trained there (extrapolation); build a family with wider ranges")
+                raise InputError(f"{name}[{i}] ({n}) = {v:.6g} is outside the family's range [{lo:.6g}, {hi:.6g}]: "
+                                 "refused rather than extrapolated; build a family with wider ranges")
         return np.clip(delta, limits[:, 0], limits[:, 1])
 
     def compose(self, theta, scene) -> np.ndarray:
@@ -825,12 +876,18 @@ class Robot:
         theta = np.asarray(theta, dtype=np.float64)
         one = theta.ndim == 1
         theta = np.atleast_2d(theta)
+        if isinstance(scene, dict) or hasattr(scene, "detach"):
+            scene = self.check_scene(scene)
         scene = np.asarray(scene, dtype=np.float64)
-        deltas = scene[None] if scene.ndim == 1 else scene
-        deltas = np.stack([self.check_scene(d) for d in deltas])
         ri = self.robot_index
-        if theta.shape[1] != len(ri):
-            raise InputError(f"theta must have {len(ri)} columns (the robot joints of {self.name}); got {theta.shape[1]}")
+        if theta.ndim != 2 or theta.shape[1] != len(ri):
+            raise InputError(f"theta must have {len(ri)} columns (the robot joints of {self.name}); got shape {theta.shape}")
+        if scene.ndim == 1:
+            deltas = self.check_scene(scene)[None]
+        elif scene.ndim == 2 and len(scene) == len(theta):
+            deltas = np.stack([self.check_scene(d, name=f"scene[{i}]") for i, d in enumerate(scene)])
+        else:
+            raise InputError(f"scene must be (D,) or one layout per pose ({len(theta)}, D); got shape {scene.shape}")
         out = np.empty((len(theta), self.njoint))
         out[:, ri] = theta
         out[:, self.scene_index] = deltas
@@ -844,7 +901,8 @@ class Robot:
         Refused (:class:`InputError`): δ outside the family's ranges, wrong length, NaN, and a
         layout whose obstacles overlap the robot's fixed base (every pose would collide)."""
         delta = self.check_scene(scene)
-        key = delta.tobytes()
+        delta.setflags(write=False)
+        key = (delta.tobytes(), name)
         cache = self.__dict__.setdefault("_layouts", {})
         if key in cache:
             return cache[key]
@@ -860,20 +918,21 @@ class Robot:
         return robot
 
     def _check_base_clear(self, delta: np.ndarray) -> None:
-        """Refuse a layout whose scene bodies overlap a robot body welded to the world (the base):
-        those contacts do not depend on θ."""
+        """Refuse a layout whose scene bodies overlap a body fixed to the world (the robot's base,
+        a static body): those contacts do not depend on θ (every pose would collide), and pinned,
+        MuJoCo filters them (welded together), so the layout could not label like the family."""
         q = self.core.sample(1, 0)
         q[0, self.scene_index] = delta
         lab = self.core.label(q, pairs=True)
         weld, gbody = self._arrays["body_weld"], dict(zip(self._arrays["geom_id"], self._arrays["geom_body"]))
-        scene_bodies = {int(self._arrays["jnt_body"][j]) for j in self.scene_index}
+        scene_welds = {int(self._arrays["jnt_body"][j]) for j in self.scene_index}
         for _, k in lab["colliding_pairs"]:
             b1, b2 = (int(gbody[int(g)]) for g in self.pair_geoms[k])
             for a, b in ((b1, b2), (b2, b1)):
-                if a in scene_bodies and b != 0 and weld[b] == 0 and b not in scene_bodies:
+                if int(weld[a]) in scene_welds and int(weld[b]) == 0:
                     raise InputError(f"at this layout the obstacle body {self.body_names[a]!r} overlaps "
-                                     f"{self.body_names[b]!r}, which is fixed to the world (the robot's base): every "
-                                     "pose would collide; choose another layout")
+                                     f"{self.body_names[b]!r}, which is fixed to the world (the robot's base or a static "
+                                     "body): every pose would collide; choose another layout")
 
     # ---- description ---------------------------------------------------------------------------
     @property

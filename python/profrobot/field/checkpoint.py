@@ -14,7 +14,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
-from ..errors import CorruptFileError
+from ..errors import CorruptFileError, InputError
 from ..robot import Robot
 
 if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
@@ -88,7 +88,7 @@ def family_description(sdf: "PoseSDF") -> dict | None:
     written beside the weights so that a reader knows what δ means; None otherwise."""
     if not getattr(sdf, "scene_joints", None):
         return None
-    limits = sdf.joint_limits[sdf.scene_index].double().cpu().numpy()
+    limits = sdf.robot.joint_limits[sdf.scene_index.cpu().numpy()]   # float64, as the family says
     return dict(scene_joints=list(sdf.scene_joints), ranges=limits.tolist(),
                 robot_joints=[sdf.joint_names[i] for i in sdf.robot_index.tolist()])
 
@@ -111,6 +111,9 @@ def export_sdf(sdf: "PoseSDF", path: str | os.PathLike, *, batch: int = 1024) ->
     robot, fingerprint, joint names and, for a family field, its scene joints and ranges (the
     exported program takes the full vectors (θ, δ) in that joint order)."""
     path = Path(path)
+    if not hasattr(sdf, "head_g"):
+        raise InputError(f"export_sdf needs a PoseSDF; got {type(sdf).__name__} (for a LayoutField, export its family "
+                         "field .field: it takes the full vectors (θ, δ))")
     sdf = sdf.eval()
     example = torch.zeros(batch, sdf.njoint)
     dim = torch.export.Dim("batch", min=1)

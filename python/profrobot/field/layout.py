@@ -70,6 +70,9 @@ class LayoutField(nn.Module):
         """Collision probability sigmoid(s·g(θ)), (B,)."""
         return torch.sigmoid(self.scale * self(theta))
 
+    def save(self, path):
+        raise InputError("a LayoutField is a family field at one layout: save the family field (layout_field.field.save)")
+
     def __repr__(self) -> str:
         return f"LayoutField({self.field!r}, scene={np.array2string(self.scene, precision=3)})"
 
@@ -82,6 +85,9 @@ def field_at_layout(sdf, robot: Robot | None, scene):
     family = sdf is not None and bool(getattr(sdf, "scene_joints", None))
     if sdf is None:
         if scene is None:
+            if getattr(robot, "is_family", False):
+                raise InputError(f"{robot.name} is a family of scenes: pass scene=δ, the layout to work at "
+                                 "(else its obstacles would be moved like joints)")
             return None, robot
         if not isinstance(robot, Robot):
             raise InputError("scene= without a field needs robot= (the family of scenes)")
@@ -103,6 +109,8 @@ def field_at_layout(sdf, robot: Robot | None, scene):
             raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
         scene = layout
     at = sdf.at(scene)
+    if robot is not None and robot.fingerprint == sdf.fingerprint:  # robot=family, scene=δ
+        robot = None
     if robot is not None and robot.fingerprint != at.fingerprint:
         from ..errors import RobotMismatchError
 

@@ -17,11 +17,14 @@ def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarr
 
 
 def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
-    """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term)."""
+    """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term; for
+    a family field over the robot joints θ, as its training's Eikonal term)."""
     out = []
     for i in range(0, len(poses), chunk):
         q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32).requires_grad_(True)
         (grad,) = torch.autograd.grad(sdf(q).sum(), q)
+        if getattr(sdf, "scene_joints", None):
+            grad = grad[:, sdf.robot_index]
         out.append(grad.norm(dim=1).numpy())
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 

@@ -191,7 +191,7 @@ class PairClearance(torch.nn.Module):
         if not self.scene_moved:
             return None
         Rb, xb = bp.rot[:, self.st_body], bp.pos[:, self.st_body]
-        return Rb @ self.st_lrot, xb + torch.einsum("bnij,nj->bni", Rb, self.st_lpos)
+        return torch.einsum("bnij,njk->bnik", Rb, self.st_lrot), xb + torch.einsum("bnij,nj->bni", Rb, self.st_lpos)
 
     def static_sdf(self, p: torch.Tensor, g: torch.Tensor, frames=None) -> torch.Tensor:
         """Signed distance (B, n, m) of world points p (B, n, m, 3) to static geoms g (n,), metres

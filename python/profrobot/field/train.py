@@ -177,7 +177,10 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     bs = min(cfg.batch_size, n)
     order, cursor = rng.permutation(n), 0
     start = time.perf_counter()
-    bar = tqdm(total=cfg.iterations, desc=f"train {robot.name}", unit="it", disable=not progress)
+    # a time budget with "unlimited" iterations: no iteration total (its ETA would read in years)
+    total = None if cfg.time_budget and cfg.iterations >= 10**7 else cfg.iterations
+    bar = tqdm(total=total, desc=f"train {robot.name}" + (f" ({cfg.time_budget / 60:g} min)" if cfg.time_budget else ""),
+               unit="it", disable=not progress)
     it = 0
     try:
         for it in range(cfg.iterations):

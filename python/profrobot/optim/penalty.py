@@ -9,15 +9,21 @@ from ..validate import finite
 from ..errors import InputError
 
 
-def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1) -> torch.Tensor:
+def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=None) -> torch.Tensor:
     """ReLU(g(θ) − l_thres) per pose: θ (..., K) radians / metres → (...,), differentiable in θ
     (and in the field's parameters). Zero once the field puts a pose ``-l_thres`` inside the free
     region; add ``β · penalty.mean()`` to a loss to keep its poses out of collision.
 
     Raises TypeError for a non-tensor or non-float θ, ValueError for a last dimension that is not
-    the field's joint count or for NaN/inf poses.
+    the field's joint count or for NaN/inf poses. A family field (:mod:`profrobot.family`) needs
+    ``scene``, the layout δ (θ then holds the robot joints only; δ is never moved).
     """
     check_field(sdf)
+    if scene is not None or getattr(sdf, "scene_joints", None):
+        if scene is None:
+            raise InputError("the field covers a family of scenes: pass scene=δ (or use sdf.at(δ)) so that the "
+                             "penalty moves the robot, not the obstacles")
+        sdf = sdf.at(scene) if hasattr(sdf, "at") else sdf
     l_thres = finite("l_thres", l_thres)
     if not isinstance(theta, torch.Tensor):
         raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
