@@ -11,6 +11,7 @@ from profrobot.field import PoseSDF
 from profrobot.optim import (PenaltyOptions, TangentOptions, check_path, collision_penalty, plan_trajectory,
                              resolve)
 from profrobot.errors import RobotMismatchError
+from profrobot.joints import LIMIT_INSET
 
 
 class LinearField(torch.nn.Module):
@@ -110,8 +111,25 @@ def test_joint_limits_are_respected(panda):
     res = resolve(field, q, lr=0.5, iterations=50, refine=False)
     lim = panda.joint_limits
     assert (res.poses >= lim[:, 0]).all() and (res.poses <= lim[:, 1]).all()
-    np.testing.assert_array_equal(res.poses[:, 3], lim[3, 1])
+    # a joint it moves stops LIMIT_INSET short of its limit (see the regression test below)
+    np.testing.assert_allclose(res.poses[:, 3], lim[3, 1] - LIMIT_INSET, atol=1e-6)
     assert (res.iterations == 50).all() and not res.reached.any()
+
+
+def test_regression_resolved_fingers_stop_short_of_touching(panda):
+    """The Panda's fingers closed (0 m) press their pads together at clearance 0: not a
+    collision, never certified. A field that closes the fingers used to clamp them there, and
+    such poses came back uncertified (6 % of resolved poses at some layouts); they now stop
+    LIMIT_INSET (0.1 mm) short of the limit, apart, and are certified."""
+    touching = problems.free_poses(panda, 8, 4)
+    touching[:, 7:] = 0.0
+    assert not profrobot.certify_poses(panda, touching).any()      # clearance 0 at the limit
+    w = np.zeros(panda.njoint); w[7:] = 1.0                         # g falls as the fingers close
+    q = problems.free_poses(panda, 8, 4)
+    res = resolve(LinearField(panda, w, 100.0), q, lr=0.01, iterations=60, refine=False)
+    np.testing.assert_allclose(res.poses[:, 7:], LIMIT_INSET, atol=1e-6)
+    assert res.certified.all()
+    np.testing.assert_array_equal(res.poses[:, :7], q[:, :7])       # the rest did not move
 
 
 def test_certification_catches_poses_the_field_wrongly_calls_free(panda):

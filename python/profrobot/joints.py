@@ -32,6 +32,13 @@ def _wrap(x: torch.Tensor, half: float = math.pi) -> torch.Tensor:
     return torch.where((x >= -half) & (x < half), x, y)
 
 
+#: radians / metres: how far inside its limits an optimiser keeps a joint it moves. A pose on a
+#: limit often touches: the Panda's fingers closed (0 m) press their pads together at clearance
+#: 0, which is not a collision and can never be certified (clearance > CLEARANCE is required);
+#: 0.1 mm or 0.1 mrad inside, they are apart.
+LIMIT_INSET = 1e-4
+
+
 class Limits:
     """The joint limits of a robot as tensors on one device.
 
@@ -78,21 +85,30 @@ class Limits:
         return len(self.cont_np)
 
     # ---- tensors (differentiable unless marked in place) ---------------------------------------
-    def clamp_or_wrap(self, theta: torch.Tensor) -> torch.Tensor:
-        """θ (..., K) with limited joints clamped and continuous hinges wrapped to [-pi, pi)."""
-        return torch.where(self.continuous, _wrap(theta), torch.clamp(theta, self.lower, self.upper))
+    def _bounds(self, inset: float) -> tuple[torch.Tensor, torch.Tensor]:
+        if not inset:
+            return self.lower, self.upper
+        e = torch.clamp(self.span / 2, max=float(inset))
+        return self.lower + e, self.upper - e
+
+    def clamp_or_wrap(self, theta: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
+        """θ (..., K) with limited joints clamped (``inset`` inside their limits, e.g.
+        :data:`LIMIT_INSET`) and continuous hinges wrapped to [-pi, pi)."""
+        lo, hi = self._bounds(inset)
+        return torch.where(self.continuous, _wrap(theta), torch.clamp(theta, lo, hi))
 
     @torch.no_grad()
-    def clamp_or_wrap_(self, theta: torch.Tensor) -> torch.Tensor:
+    def clamp_or_wrap_(self, theta: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
         """In place on θ (..., K)."""
-        theta.copy_(self.clamp_or_wrap(theta))
+        theta.copy_(self.clamp_or_wrap(theta, inset))
         return theta
 
     @torch.no_grad()
-    def clamp_(self, theta: torch.Tensor) -> torch.Tensor:
-        """In place on θ (..., K): limited joints clamped, continuous hinges left unwrapped (for
-        paths, whose continuous joints are unwrapped along the path)."""
-        theta.copy_(torch.where(self.continuous, theta, torch.clamp(theta, self.lower, self.upper)))
+    def clamp_(self, theta: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
+        """In place on θ (..., K): limited joints clamped (``inset`` inside), continuous hinges left
+        unwrapped (for paths, whose continuous joints are unwrapped along the path)."""
+        lo, hi = self._bounds(inset)
+        theta.copy_(torch.where(self.continuous, theta, torch.clamp(theta, lo, hi)))
         return theta
 
     def wrap(self, theta: torch.Tensor) -> torch.Tensor:

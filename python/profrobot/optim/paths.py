@@ -23,7 +23,7 @@ import torch
 
 from ..angles import unwrap
 from ..certification import check_path, path_free_at
-from ..joints import Limits
+from ..joints import LIMIT_INSET, Limits
 from ..robot import Robot
 from ..validate import finite, positive
 from ..errors import InputError
@@ -169,7 +169,7 @@ def penalty_descent(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOption
         loss = loss.sum()                               # problems independent: per-row gradients
         (grad,) = torch.autograd.grad(loss, xa)
         opt.step(x, active, grad)
-        limits.clamp_(x.view(B, S - 2, K))
+        limits.clamp_(x.view(B, S - 2, K), LIMIT_INSET)
         steps[active.cpu().numpy()] += 1
     # the float32 displacement on the float64 path: untouched waypoints stay bit for bit
     paths[:, 1:-1] += (x - x0).reshape(B, S - 2, K).cpu().numpy().astype(np.float64)
@@ -213,7 +213,7 @@ def smooth_certified(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptio
             loss = loss + gamma3 * (seg.pow(2).sum(2).mean(1) / energy0)
         (grad,) = torch.autograd.grad(loss.sum(), xa)
         opt.step(x, rows, grad)
-        limits.clamp_(x.view(B, S - 2, K))
+        limits.clamp_(x.view(B, S - 2, K), LIMIT_INSET)
         if it % check_every == 0 or it == iterations:
             cur = paths.copy()
             cur[:, 1:-1] += (x - x0).reshape(B, S - 2, K).cpu().numpy().astype(np.float64)
@@ -268,7 +268,7 @@ def tangent_walk(sdf, robot: Robot, starts: np.ndarray, goals: np.ndarray, steps
             back = torch.relu(g - l_thres)[:, None] * grad_g / norm**2    # return to the g = l_thres surface
             step = delta * D + back
             theta = torch.where(active[:, None], theta - step, theta)
-            limits.clamp_(theta)
+            limits.clamp_(theta, LIMIT_INSET)
         n_iter += active.cpu().numpy()
         walks.append(theta.cpu().numpy().copy())
     walk = np.stack(walks, axis=1)                      # (B, T, K)

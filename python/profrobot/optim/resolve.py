@@ -12,7 +12,7 @@ import torch
 
 from ..robot import Robot
 from .adam import BatchedAdam
-from ..joints import Limits
+from ..joints import LIMIT_INSET, Limits
 from ..field.identity import field_robot
 from ..field.layout import field_at_layout
 from ..validate import finite, positive, poses_within_limits
@@ -77,8 +77,11 @@ def _descend(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Ten
         if it == budget or not todo.any():
             break
         (grad,) = torch.autograd.grad(g.sum(), x)  # per-pose gradients: poses are independent
-        opt.step(theta, active[todo], grad[todo])
-        limits.clamp_or_wrap_(theta)  # joint limits respected after every step
+        stepped = active[todo]
+        opt.step(theta, stepped, grad[todo])
+        # joint limits respected after every step, LIMIT_INSET inside them for the joints it moves (a
+        # pose on a limit may touch: clearance 0, never certified); poses not stepped stay as they are
+        theta[stepped] = limits.clamp_or_wrap(theta[stepped], LIMIT_INSET)
         iterations[active[todo]] += 1
         active = active[todo]
 
