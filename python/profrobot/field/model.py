@@ -83,10 +83,13 @@ class PoseSDF(nn.Module):
         self.register_buffer("joint_limits", torch.as_tensor(robot.joint_limits, dtype=torch.float32))
         # a family of scenes (profrobot.family): g(θ, δ), the scene joints δ inputs like any joint
         self.scene_joints = list(getattr(robot, "scene_joints", ()))
-        self.register_buffer("robot_index", torch.as_tensor(robot.robot_index if self.scene_joints
-                                                            else np.arange(robot.njoint)), persistent=False)
-        self.register_buffer("scene_index", torch.as_tensor(robot.scene_index if self.scene_joints
-                                                            else np.zeros(0, np.int64)), persistent=False)
+        # (D,) and (K − D,) column indices; None for an ordinary field (an empty buffer breaks
+        # torch.export's packaging: "numel: integer multiplication overflow")
+        if self.scene_joints:
+            self.register_buffer("robot_index", torch.as_tensor(robot.robot_index), persistent=False)
+            self.register_buffer("scene_index", torch.as_tensor(robot.scene_index), persistent=False)
+        else:
+            self.robot_index = self.scene_index = None
         if encoder == "hierarchical":
             self.encoder = HierarchicalEncoder(robot.joint_parents, feature_size)
         elif encoder == "flat":
