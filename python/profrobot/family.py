@@ -8,7 +8,7 @@ pose, and :func:`profrobot.crosscheck` compares it with ``mj_collision`` unchang
 
 Scene bodies (bodies moved by scene joints only) never collide with the world body or with each
 other: the family adds those ``<exclude>``s to its spec, so MuJoCo, our reference, agrees. A layout
-is the scene with every scene joint pinned at its value (:func:`pin_scene_joints`): the bodies
+is the scene with every scene joint pinned at its value (:class:`PinnedLayout`): the bodies
 keep their world pose and lose their joints, an ordinary static scene.
 
 This module edits ``mujoco.MjSpec`` objects only; :class:`profrobot.Robot` uses it
@@ -201,8 +201,6 @@ class PinnedLayout:
             d.qpos[m.jnt_qposadr[m.joint(name).id]] = v
         mujoco.mj_kinematics(m, d)
         for body in _bodies_with(spec, set(pinned)):
-            if any(j.name not in pinned for j in body.joints):
-                raise InputError(f"body {body.name!r} has scene and robot joints; pin all or none of them")
             if body.frame is not None:
                 raise InputError(f"scene body {body.name!r} sits in a <frame>; put it directly in its parent body")
             b = m.body(body.name).id

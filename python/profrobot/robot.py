@@ -876,22 +876,25 @@ class Robot:
         theta = np.asarray(theta, dtype=np.float64)
         one = theta.ndim == 1
         theta = np.atleast_2d(theta)
-        if isinstance(scene, dict) or hasattr(scene, "detach"):
-            scene = self.check_scene(scene)
-        scene = np.asarray(scene, dtype=np.float64)
         ri = self.robot_index
         if theta.ndim != 2 or theta.shape[1] != len(ri):
             raise InputError(f"theta must have {len(ri)} columns (the robot joints of {self.name}); got shape {theta.shape}")
-        if scene.ndim == 1:
-            deltas = self.check_scene(scene)[None]
-        elif scene.ndim == 2 and len(scene) == len(theta):
-            deltas = np.stack([self.check_scene(d, name=f"scene[{i}]") for i, d in enumerate(scene)])
-        else:
-            raise InputError(f"scene must be (D,) or one layout per pose ({len(theta)}, D); got shape {scene.shape}")
         out = np.empty((len(theta), self.njoint))
         out[:, ri] = theta
-        out[:, self.scene_index] = deltas
+        out[:, self.scene_index] = self.check_scenes(scene, len(theta))
         return out[0] if one else out
+
+    def check_scenes(self, scene, n: int) -> np.ndarray:
+        """The layouts of ``n`` poses, each checked by :meth:`check_scene`: (1, D) for one layout
+        (D,) or dict shared by all, (n, D) for one layout per pose (rows named ``scene[i]``)."""
+        if hasattr(scene, "detach"):  # a torch tensor
+            scene = scene.detach().cpu().numpy()
+        if isinstance(scene, dict) or np.ndim(scene) != 2:
+            return self.check_scene(scene)[None]
+        rows = np.asarray(scene, dtype=np.float64)
+        if len(rows) != n:
+            raise InputError(f"scene must be (D,) or one layout per pose ({n}, D); got shape {rows.shape}")
+        return np.stack([self.check_scene(d, name=f"scene[{i}]") for i, d in enumerate(rows)])
 
     def at(self, scene, *, name: str | None = None) -> "Robot":
         """The family's scene at layout δ (``scene``: (D,) or ``{scene joint: value}``): an ordinary

@@ -105,8 +105,8 @@ class KinematicEncoder(nn.Module):
         rot = bp.rot[:, self.bodies].flatten(1)                                     # (B, nb·9)
         pos = bp.pos[:, self.bodies].flatten(1)                                     # (B, nb·3)
         # the same FK feeds the clearance proxies (one FK call per forward)
-        c = torch.einsum("bnij,nmj->bnmi", bp.rot[:, self.bodies], self.clearance.sph_centre) + bp.pos[:, self.bodies, None]
-        clear = self.clearance.from_centres(c, self.clearance.static_frames(bp)).clamp(max=self.clip)
+        clear = self.clearance.from_centres(self.clearance.sphere_centres(bp),
+                                            self.clearance.static_frames(bp)).clamp(max=self.clip)
         return torch.cat(ang + [pos, rot, clear], dim=1)
 
     def forward(self, theta: torch.Tensor) -> torch.Tensor:

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import InputError
+from ..errors import InputError, RobotMismatchError
 from ..robot import Robot
 from .identity import _Shared
 
@@ -60,11 +60,7 @@ class LayoutField(nn.Module):
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
             raise InputError(f"theta must have shape (B, {self.njoint}) (the robot joints of {self.robot_name!r} at "
                              f"this layout); got {tuple(theta.shape)}")
-        f = self.field
-        full = theta.new_empty(len(theta), f.njoint)
-        full[:, f.robot_index] = theta
-        full[:, f.scene_index] = torch.as_tensor(self.scene, dtype=theta.dtype, device=theta.device)
-        return f(full)
+        return self.field(self.field.scatter(theta, self.scene[None]))
 
     def prob(self, theta: torch.Tensor) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""
@@ -104,16 +100,12 @@ def field_at_layout(sdf, robot: Robot | None, scene):
                              f"{', '.join(sdf.scene_joints)}): pass scene=δ, the layout to work at, or "
                              "robot=family.at(δ)")
         if getattr(robot, "family_fingerprint", None) != sdf.fingerprint:
-            from ..errors import RobotMismatchError
-
             raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
         scene = layout
     at = sdf.at(scene)
     if robot is not None and robot.fingerprint == sdf.fingerprint:  # robot=family, scene=δ
         robot = None
     if robot is not None and robot.fingerprint != at.fingerprint:
-        from ..errors import RobotMismatchError
-
         raise RobotMismatchError(f"robot {robot.name!r} is not the field's family at this layout; pass the family's "
                                  "robot.at(scene), or leave robot= out")
     return at, at.robot

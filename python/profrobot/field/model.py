@@ -7,7 +7,6 @@ import os
 from pathlib import Path
 from typing import Literal, get_args
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -150,15 +149,14 @@ class PoseSDF(nn.Module):
         if not isinstance(theta, torch.Tensor) or theta.ndim != 2 or theta.shape[1] != len(self.robot_index):
             raise InputError(f"theta must be a (B, {len(self.robot_index)}) tensor of the robot joints when scene= "
                              f"is given; got {tuple(theta.shape) if isinstance(theta, torch.Tensor) else type(theta).__name__}")
-        d = scene.detach().cpu().double().numpy() if isinstance(scene, torch.Tensor) else np.asarray(scene, dtype=np.float64)
-        rows = d[None] if d.ndim == 1 else d
-        if d.ndim not in (1, 2) or (d.ndim == 2 and len(d) != len(theta)):
-            raise InputError(f"scene must be (D,) or (B, D) with B = {len(theta)}; got shape {d.shape}")
-        rows = np.stack([self.robot.check_scene(r, name=f"scene[{i}]" if d.ndim == 2 else "scene")
-                         for i, r in enumerate(rows)])
+        return self.scatter(theta, self.robot.check_scenes(scene, len(theta)))
+
+    def scatter(self, theta: torch.Tensor, deltas) -> torch.Tensor:
+        """Full vectors (B, K): robot joints θ (B, K − D) and checked layouts ``deltas`` (1 or B, D)
+        put in their columns; differentiable in θ."""
         full = theta.new_empty(len(theta), self.njoint)
         full[:, self.robot_index] = theta
-        full[:, self.scene_index] = torch.as_tensor(rows, dtype=theta.dtype, device=theta.device).expand(len(theta), -1)
+        full[:, self.scene_index] = torch.as_tensor(deltas, dtype=theta.dtype, device=theta.device)
         return full
 
     def at(self, scene) -> "nn.Module":

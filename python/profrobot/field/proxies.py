@@ -178,9 +178,8 @@ class PairClearance(torch.nn.Module):
         kinds = self.st_kind[g.cpu().numpy()]
         return [(int(k), torch.as_tensor(np.flatnonzero(kinds == k), device=g.device)) for k in np.unique(kinds)]
 
-    def sphere_centres(self, theta: torch.Tensor) -> torch.Tensor:
-        """World centres (B, nb, m, 3) of the covering spheres."""
-        bp = self.kin(theta)
+    def sphere_centres(self, bp) -> torch.Tensor:
+        """World centres (B, nb, m, 3) of the covering spheres, from the FK's body poses ``bp``."""
         R, x = bp.rot[:, self.body_ids], bp.pos[:, self.body_ids]                 # (B, nb, 3, 3), (B, nb, 3)
         return torch.einsum("bnij,nmj->bnmi", R, self.sph_centre) + x[:, :, None]
 
@@ -227,9 +226,7 @@ class PairClearance(torch.nn.Module):
 
     def forward(self, theta: torch.Tensor) -> torch.Tensor:
         bp = self.kin(theta)
-        R, x = bp.rot[:, self.body_ids], bp.pos[:, self.body_ids]
-        c = torch.einsum("bnij,nmj->bnmi", R, self.sph_centre) + x[:, :, None]
-        return self.from_centres(c, self.static_frames(bp))
+        return self.from_centres(self.sphere_centres(bp), self.static_frames(bp))
 
     def from_centres(self, c: torch.Tensor, frames=None) -> torch.Tensor:
         """Clearances (B, npair) from sphere centres (B, nb, m, 3) (``frames``: the static geoms'

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from ..field.identity import check_field
+from ..field.layout import field_at_layout
 from ..validate import finite
 from ..errors import InputError
 
@@ -19,11 +20,7 @@ def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=
     ``scene``, the layout δ (θ then holds the robot joints only; δ is never moved).
     """
     check_field(sdf)
-    if scene is not None or getattr(sdf, "scene_joints", None):
-        if scene is None:
-            raise InputError("the field covers a family of scenes: pass scene=δ (or use sdf.at(δ)) so that the "
-                             "penalty moves the robot, not the obstacles")
-        sdf = sdf.at(scene) if hasattr(sdf, "at") else sdf
+    sdf, _ = field_at_layout(sdf, None, scene)  # a family field at its layout: the penalty moves θ, never δ
     l_thres = finite("l_thres", l_thres)
     if not isinstance(theta, torch.Tensor):
         raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
