@@ -32,7 +32,9 @@
 //! | [`oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
+//! | [`real`] | `f32`/`f64`: the float types the renderer computes in |
 //! | [`splat`] | Gaussian-splat tile rasterizer: forward compositing and its exact backward |
+//! | [`render`] | the renderer after FK: EWA projection, SH colour, rasterization, fused backward |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
@@ -51,6 +53,8 @@ pub mod model;
 pub mod oracle;
 pub mod pairs;
 pub mod plan;
+pub mod real;
+pub mod render;
 pub mod sample;
 mod sat;
 pub mod shapes;

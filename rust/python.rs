@@ -3,7 +3,7 @@
 
 use std::borrow::Cow;
 
-use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyTypeError, PyValueError};
@@ -22,7 +22,9 @@ use crate::oracle::{nearest_free, OracleOptions};
 use crate::pairs::PairKind;
 use crate::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::sample::sample_uniform;
-use crate::splat::{self, Cutoff, Splats};
+use crate::real::Real;
+use crate::render;
+use crate::splat::Cutoff;
 use crate::threads::with_threads;
 
 create_exception!(
@@ -435,122 +437,296 @@ fn interpolate<'py>(
     PyArray1::from_vec(py, v).reshape([b, steps, k])
 }
 
-/// The backward state of one `splat_forward` call (tile lists, per-pixel compositing ends and
-/// the inputs); opaque to Python.
-#[pyclass(name = "SplatState", module = "profrobot._core", frozen)]
-struct PySplatState {
-    state: splat::State,
+/// The backward state of one `render_forward` call (the scene, the tile lists and every
+/// composited pair), in the dtype it was computed in; opaque to Python.
+enum AnyRenderState {
+    F32(render::State<f32>),
+    F64(render::State<f64>),
 }
 
-/// `name` as a float64 array of shape `(C, N, *tail)`, copied in logical order.
-fn splat_array(obj: &Bound<'_, PyAny>, name: &str, cn: Option<(usize, usize)>, tail: &[usize]) -> PyResult<(Vec<f64>, usize, usize)> {
-    let want = || {
-        let t: String = tail.iter().map(|k| format!(", {k}")).collect();
-        match cn {
-            Some((c, n)) => format!("({c}, {n}{t})"),
-            None => format!("(C, N{t})"),
-        }
+#[pyclass(name = "RenderState", module = "profrobot._core", frozen)]
+struct PyRenderState {
+    state: AnyRenderState,
+}
+
+/// `obj` as a `T` array of shape `want` (`None`: any size, which is returned), copied in
+/// logical order; errors name the argument.
+fn real_array<T: numpy::Element + Copy>(obj: &Bound<'_, PyAny>, name: &str, want: &[Option<usize>], dtype: &str) -> PyResult<(Vec<T>, Vec<usize>)> {
+    let show = || {
+        let parts: Vec<String> = want.iter().map(|d| d.map_or("*".to_string(), |k| k.to_string())).collect();
+        format!("({})", parts.join(", "))
     };
-    let a: PyReadonlyArrayDyn<'_, f64> =
-        obj.extract().map_err(|_| type_error(format!("splat_forward: {name} must be a float64 numpy array of shape {}", want())))?;
+    let a: numpy::PyReadonlyArrayDyn<'_, T> = obj
+        .extract()
+        .map_err(|_| type_error(format!("render_forward: {name} must be a {dtype} numpy array of shape {} (every float input the same dtype)", show())))?;
     let shape = a.shape().to_vec();
-    let ok = shape.len() == 2 + tail.len() && shape[2..] == *tail && cn.is_none_or(|(c, n)| shape[0] == c && shape[1] == n);
-    if !ok {
-        return Err(input_error(format!("splat_forward: {name} must have shape {}; got {shape:?}", want())));
+    if shape.len() != want.len() || shape.iter().zip(want).any(|(s, w)| w.is_some_and(|w| w != *s)) {
+        return Err(input_error(format!("render_forward: {name} must have shape {}; got {shape:?}", show())));
     }
-    Ok((rows_of(&a).into_owned(), shape[0], shape[1]))
+    let v = match a.as_slice() {
+        Ok(s) if a.is_c_contiguous() => s.to_vec(),
+        _ => a.as_array().iter().copied().collect(),
+    };
+    Ok((v, shape))
 }
 
-type SplatOut<'py> = (
-    Bound<'py, numpy::PyArray<f64, numpy::Ix4>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    u64,
-    PySplatState,
-);
-
-/// Tile rasterization of projected Gaussians (see `_core.pyi` and `splat.rs`).
-#[pyfunction]
-#[pyo3(signature = (means2d, conics, opacities, colors, depths, width, height, *, cutoff="soft", threads=None))]
-#[allow(clippy::too_many_arguments)]
-fn splat_forward<'py>(
-    py: Python<'py>,
-    means2d: &Bound<'py, PyAny>,
-    conics: &Bound<'py, PyAny>,
-    opacities: &Bound<'py, PyAny>,
-    colors: &Bound<'py, PyAny>,
-    depths: &Bound<'py, PyAny>,
+/// The inputs of `render_forward`, read for one dtype.
+struct SceneArgs<'a, 'py> {
+    opacities: &'a Bound<'py, PyAny>,
+    viewmats: &'a Bound<'py, PyAny>,
+    ks: &'a Bound<'py, PyAny>,
+    views: Vec<[usize; 2]>,
     width: usize,
     height: usize,
+    world: Option<(&'a Bound<'py, PyAny>, &'a Bound<'py, PyAny>)>,
+    frames: Option<&'a Bound<'py, PyAny>>,
+    rigid: Option<[&'a Bound<'py, PyAny>; 6]>,
+    colors: Option<&'a Bound<'py, PyAny>>,
+    sh: Option<&'a Bound<'py, PyAny>>,
+    cutoff: Cutoff,
+}
+
+fn read_scene<T: numpy::Element + Real>(a: &SceneArgs<'_, '_>, dtype: &str) -> PyResult<render::Scene<T>> {
+    let v = a.views.len();
+    let (means, covs, frames, rigid, p, n) = match (a.world, a.rigid) {
+        (Some((means, covs)), None) => {
+            let (means, ms) = real_array::<T>(means, "means", &[None, None, Some(3)], dtype)?;
+            let (p, n) = (ms[0], ms[1]);
+            let (covs, _) = real_array::<T>(covs, "covs", &[Some(p), Some(n), Some(3), Some(3)], dtype)?;
+            let frames = a.frames.map(|f| real_array::<T>(f, "frames", &[Some(p), Some(n), Some(3), Some(3)], dtype)).transpose()?;
+            (means, covs, frames.map(|f| f.0), None, p, n)
+        }
+        (None, Some([body_rot, body_pos, body, local_means, local_rots, scales])) => {
+            let (body_rot, bs) = real_array::<T>(body_rot, "body_rot", &[None, None, Some(3), Some(3)], dtype)?;
+            let (p, nb) = (bs[0], bs[1]);
+            let (body_pos, _) = real_array::<T>(body_pos, "body_pos", &[Some(p), Some(nb), Some(3)], dtype)?;
+            let body: Vec<i64> = body
+                .extract::<numpy::PyReadonlyArray1<'_, i64>>()
+                .map_err(|_| type_error("render_forward: body must be an int64 numpy array of shape (N,)"))?
+                .as_array()
+                .to_vec();
+            let n = body.len();
+            if let Some(i) = body.iter().position(|&b| b < 0 || b as usize >= nb) {
+                return Err(input_error(format!("render_forward: body[{i}] = {} is out of range ({nb} bodies)", body[i])));
+            }
+            let rigid = render::Rigid {
+                nbody: nb,
+                body_rot,
+                body_pos,
+                body: body.iter().map(|&b| b as u32).collect(),
+                means: real_array::<T>(local_means, "local_means", &[Some(n), Some(3)], dtype)?.0,
+                rots: real_array::<T>(local_rots, "local_rots", &[Some(n), Some(3), Some(3)], dtype)?.0,
+                scales: real_array::<T>(scales, "scales", &[Some(n), Some(3)], dtype)?.0,
+            };
+            (Vec::new(), Vec::new(), None, Some(rigid), p, n)
+        }
+        _ => return Err(input_error("render_forward: give either means= and covs= or the rigid arrays (body_rot=, ...)")),
+    };
+    let per_view = |obj: &Bound<'_, PyAny>, name: &str, tail: &[Option<usize>]| -> PyResult<(Vec<T>, bool)> {
+        let nd = obj.getattr("ndim")?.extract::<usize>().unwrap_or(0);
+        let per = nd == tail.len() + 2;
+        let mut want = if per { vec![Some(v), Some(n)] } else { vec![Some(n)] };
+        want.extend_from_slice(tail);
+        Ok((real_array::<T>(obj, name, &want, dtype)?.0, per))
+    };
+    let (opacity, opacity_per_view) = per_view(a.opacities, "opacities", &[])?;
+    let colors = match (a.colors, a.sh) {
+        (Some(c), None) => {
+            let (rgb, per_view) = per_view(c, "colors", &[Some(3)])?;
+            render::Colors::Rgb { per_view, rgb }
+        }
+        (None, Some(s)) => {
+            let (coeffs, shape) = real_array::<T>(s, "sh", &[Some(n), None, Some(3)], dtype)?;
+            render::Colors::Sh { nsh: shape[1], coeffs }
+        }
+        _ => return Err(input_error("render_forward: give exactly one of colors= and sh=")),
+    };
+    let (vm, vs) = real_array::<T>(a.viewmats, "viewmats", &[None, Some(4), Some(4)], dtype)?;
+    let c = vs[0];
+    let (k, _) = real_array::<T>(a.ks, "Ks", &[Some(c), Some(3), Some(3)], dtype)?;
+    let cameras = (0..c)
+        .map(|i| {
+            let m = &vm[16 * i..16 * i + 16];
+            let kk = &k[9 * i..9 * i + 9];
+            render::Camera {
+                r: [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]],
+                t: [m[3], m[7], m[11]],
+                fx: kk[0],
+                fy: kk[4],
+                cx: kk[2],
+                cy: kk[5],
+            }
+        })
+        .collect();
+    Ok(render::Scene {
+        poses: p,
+        n,
+        width: a.width,
+        height: a.height,
+        means,
+        covs,
+        frames,
+        rigid,
+        opacity,
+        opacity_per_view,
+        colors,
+        cameras,
+        views: a.views.clone(),
+        cutoff: a.cutoff,
+    })
+}
+
+/// Images and backward state: rgb `[V, H, W, 3]`, alpha, dsum `[V, H, W]`, contrib `[V, N]`.
+fn render_outputs<'py, T: numpy::Element + Real>(py: Python<'py>, f: render::Forward<T>, wrap: fn(render::State<T>) -> AnyRenderState) -> PyResult<Bound<'py, PyTuple>> {
+    let (v, n, h, w) = (f.state.scene.views.len(), f.state.scene.n, f.state.scene.height, f.state.scene.width);
+    let items: Vec<Bound<'py, PyAny>> = vec![
+        PyArray1::from_vec(py, f.rgb).reshape([v, h, w, 3])?.into_any(),
+        PyArray1::from_vec(py, f.alpha).reshape([v, h, w])?.into_any(),
+        PyArray1::from_vec(py, f.dsum).reshape([v, h, w])?.into_any(),
+        PyArray1::from_vec(py, f.contrib).reshape([v, n])?.into_any(),
+        f.npairs.into_pyobject(py)?.into_any(),
+        Bound::new(py, PyRenderState { state: wrap(f.state) })?.into_any(),
+    ];
+    PyTuple::new(py, items)
+}
+
+/// The renderer after FK: projection, SH colour, rasterization (see `_core.pyi` and `render.rs`).
+#[pyfunction]
+#[pyo3(signature = (opacities, viewmats, Ks, views, width, height, *, means=None, covs=None, frames=None, body_rot=None,
+                    body_pos=None, body=None, local_means=None, local_rots=None, scales=None, colors=None, sh=None,
+                    cutoff="soft", threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn render_forward<'py>(
+    py: Python<'py>,
+    opacities: &Bound<'py, PyAny>,
+    viewmats: &Bound<'py, PyAny>,
+    #[allow(non_snake_case)] Ks: &Bound<'py, PyAny>,
+    views: PyReadonlyArray2<'py, i64>,
+    width: usize,
+    height: usize,
+    means: Option<&Bound<'py, PyAny>>,
+    covs: Option<&Bound<'py, PyAny>>,
+    frames: Option<&Bound<'py, PyAny>>,
+    body_rot: Option<&Bound<'py, PyAny>>,
+    body_pos: Option<&Bound<'py, PyAny>>,
+    body: Option<&Bound<'py, PyAny>>,
+    local_means: Option<&Bound<'py, PyAny>>,
+    local_rots: Option<&Bound<'py, PyAny>>,
+    scales: Option<&Bound<'py, PyAny>>,
+    colors: Option<&Bound<'py, PyAny>>,
+    sh: Option<&Bound<'py, PyAny>>,
     cutoff: &str,
     threads: Option<usize>,
-) -> PyResult<SplatOut<'py>> {
+) -> PyResult<Bound<'py, PyTuple>> {
     let cutoff = match cutoff {
         "soft" => Cutoff::Soft,
         "hard" => Cutoff::Hard,
-        other => return Err(input_error(format!("splat_forward: cutoff must be 'soft' or 'hard'; got {other:?}"))),
+        other => return Err(input_error(format!("render_forward: cutoff must be 'soft' or 'hard'; got {other:?}"))),
     };
-    let (uv, c, n) = splat_array(means2d, "means2d", None, &[2])?;
-    let cn = Some((c, n));
-    let splats = Splats {
-        cameras: c,
-        n,
-        width,
-        height,
-        uv,
-        conic: splat_array(conics, "conics", cn, &[3])?.0,
-        opacity: splat_array(opacities, "opacities", cn, &[])?.0,
-        color: splat_array(colors, "colors", cn, &[3])?.0,
-        depth: splat_array(depths, "depths", cn, &[])?.0,
-        cutoff,
+    if views.shape()[1] != 2 {
+        return Err(input_error(format!("render_forward: views must have shape (V, 2); got {:?}", views.shape())));
+    }
+    let views: Vec<[usize; 2]> = views
+        .as_array()
+        .rows()
+        .into_iter()
+        .map(|r| if r[0] < 0 || r[1] < 0 { [usize::MAX, usize::MAX] } else { [r[0] as usize, r[1] as usize] })
+        .collect();
+    let world = match (means, covs) {
+        (Some(m), Some(c)) => Some((m, c)),
+        (None, None) => None,
+        _ => return Err(input_error("render_forward: means= and covs= go together")),
     };
-    let f = py.detach(|| with_threads(threads, || splat::forward(splats))).map_err(to_py)?.map_err(to_py)?;
-    Ok((
-        PyArray1::from_vec(py, f.rgb).reshape([c, height, width, 3])?,
-        PyArray1::from_vec(py, f.alpha).reshape([c, height, width])?,
-        PyArray1::from_vec(py, f.dsum).reshape([c, height, width])?,
-        PyArray1::from_vec(py, f.contrib).reshape([c, n])?,
-        f.npairs,
-        PySplatState { state: f.state },
-    ))
+    let rigid = match (body_rot, body_pos, body, local_means, local_rots, scales) {
+        (Some(a), Some(b), Some(c), Some(d), Some(e), Some(f)) => Some([a, b, c, d, e, f]),
+        (None, None, None, None, None, None) => None,
+        _ => {
+            return Err(input_error(
+                "render_forward: the rigid arrays body_rot=, body_pos=, body=, local_means=, local_rots=, scales= go together",
+            ))
+        }
+    };
+    let args = SceneArgs { opacities, viewmats, ks: Ks, views, width, height, world, frames, rigid, colors, sh, cutoff };
+    let is_f32 = opacities.getattr("dtype").and_then(|d| d.str()).map(|s| s.to_string() == "float32").unwrap_or(false);
+    if is_f32 {
+        let sc = read_scene::<f32>(&args, "float32")?;
+        let f = py.detach(|| with_threads(threads, || render::forward(sc))).map_err(to_py)?.map_err(to_py)?;
+        render_outputs(py, f, AnyRenderState::F32)
+    } else {
+        let sc = read_scene::<f64>(&args, "float64")?;
+        let f = py.detach(|| with_threads(threads, || render::forward(sc))).map_err(to_py)?.map_err(to_py)?;
+        render_outputs(py, f, AnyRenderState::F64)
+    }
 }
 
-type SplatGrads<'py> =
-    (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>);
-
-/// Gradients w.r.t. `splat_forward`'s inputs (see `_core.pyi`).
-#[pyfunction]
-#[pyo3(signature = (state, grad_rgb, grad_alpha, grad_dsum, *, threads=None))]
-fn splat_backward<'py>(
+/// Gradients of one dtype, by input name (the rigid arrays' or the world ones').
+fn render_grads<'py, T: numpy::Element + Real>(
     py: Python<'py>,
-    state: &PySplatState,
+    st: &render::State<T>,
     grad_rgb: &Bound<'py, PyAny>,
     grad_alpha: &Bound<'py, PyAny>,
     grad_dsum: &Bound<'py, PyAny>,
     threads: Option<usize>,
-) -> PyResult<SplatGrads<'py>> {
-    let s = &state.state.splats;
-    let (c, n, h, w) = (s.cameras, s.n, s.height, s.width);
-    let img = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<f64>> {
-        let a: PyReadonlyArrayDyn<'py, f64> =
-            obj.extract().map_err(|_| type_error(format!("splat_backward: {name} must be a float64 numpy array")))?;
-        let want: Vec<usize> = [c, h, w].iter().chain(tail).copied().collect();
-        if a.shape() != want.as_slice() {
-            return Err(input_error(format!("splat_backward: {name} must have shape {want:?}; got {:?}", a.shape())));
-        }
-        Ok(rows_of(&a).into_owned())
+    dtype: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let s = &st.scene;
+    let (v, n, h, w, p, c) = (s.views.len(), s.n, s.height, s.width, s.poses, s.cameras.len());
+    let img = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<T>> {
+        let want: Vec<Option<usize>> = [v, h, w].iter().chain(tail).map(|&k| Some(k)).collect();
+        real_array::<T>(obj, name, &want, dtype).map(|a| a.0).map_err(|e| {
+            let msg = e.to_string().replace("render_forward", "render_backward");
+            if e.is_instance_of::<PyTypeError>(py) { type_error(msg) } else { input_error(msg) }
+        })
     };
     let (gr, ga, gd) = (img(grad_rgb, "grad_rgb", &[3])?, img(grad_alpha, "grad_alpha", &[])?, img(grad_dsum, "grad_dsum", &[])?);
-    let st = &state.state;
-    let g = py.detach(|| with_threads(threads, || splat::backward(st, &gr, &ga, &gd))).map_err(to_py)?.map_err(to_py)?;
-    Ok((
-        PyArray1::from_vec(py, g.uv).reshape([c, n, 2])?,
-        PyArray1::from_vec(py, g.conic).reshape([c, n, 3])?,
-        PyArray1::from_vec(py, g.opacity).reshape([c, n])?,
-        PyArray1::from_vec(py, g.color).reshape([c, n, 3])?,
-        PyArray1::from_vec(py, g.depth).reshape([c, n])?,
-    ))
+    let g = py.detach(|| with_threads(threads, || render::backward(st, &gr, &ga, &gd))).map_err(to_py)?.map_err(to_py)?;
+    let colors = match &s.colors {
+        render::Colors::Sh { nsh, .. } => PyArray1::from_vec(py, g.colors).reshape([n, *nsh, 3])?.into_any(),
+        render::Colors::Rgb { per_view: true, .. } => PyArray1::from_vec(py, g.colors).reshape([v, n, 3])?.into_any(),
+        render::Colors::Rgb { per_view: false, .. } => PyArray1::from_vec(py, g.colors).reshape([n, 3])?.into_any(),
+    };
+    let opacity =
+        if s.opacity_per_view { PyArray1::from_vec(py, g.opacity).reshape([v, n])?.into_any() } else { PyArray1::from_vec(py, g.opacity).into_any() };
+    let out = PyDict::new(py);
+    match g.rigid {
+        None => {
+            out.set_item("means", PyArray1::from_vec(py, g.means).reshape([p, n, 3])?)?;
+            out.set_item("covs", PyArray1::from_vec(py, g.covs).reshape([p, n, 3, 3])?)?;
+            if let Some(f) = g.frames {
+                out.set_item("frames", PyArray1::from_vec(py, f).reshape([p, n, 3, 3])?)?;
+            }
+        }
+        Some(r) => {
+            let nb = s.rigid.as_ref().map_or(0, |r| r.nbody);
+            out.set_item("body_rot", PyArray1::from_vec(py, r.body_rot).reshape([p, nb, 3, 3])?)?;
+            out.set_item("body_pos", PyArray1::from_vec(py, r.body_pos).reshape([p, nb, 3])?)?;
+            out.set_item("local_means", PyArray1::from_vec(py, r.means).reshape([n, 3])?)?;
+            out.set_item("local_rots", PyArray1::from_vec(py, r.rots).reshape([n, 3, 3])?)?;
+            out.set_item("scales", PyArray1::from_vec(py, r.scales).reshape([n, 3])?)?;
+        }
+    }
+    out.set_item(if matches!(s.colors, render::Colors::Sh { .. }) { "sh" } else { "colors" }, colors)?;
+    out.set_item("opacities", opacity)?;
+    out.set_item("viewmats", PyArray1::from_vec(py, g.viewmats).reshape([c, 4, 4])?)?;
+    out.set_item("Ks", PyArray1::from_vec(py, g.ks).reshape([c, 3, 3])?)?;
+    Ok(out)
+}
+
+/// Gradients w.r.t. `render_forward`'s inputs (see `_core.pyi`).
+#[pyfunction]
+#[pyo3(signature = (state, grad_rgb, grad_alpha, grad_dsum, *, threads=None))]
+fn render_backward<'py>(
+    py: Python<'py>,
+    state: &PyRenderState,
+    grad_rgb: &Bound<'py, PyAny>,
+    grad_alpha: &Bound<'py, PyAny>,
+    grad_dsum: &Bound<'py, PyAny>,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    match &state.state {
+        AnyRenderState::F32(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, threads, "float32"),
+        AnyRenderState::F64(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, threads, "float64"),
+    }
 }
 
 #[pymodule]
@@ -580,10 +756,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
         vec![root, py.get_type::<PyTypeError>()],
         "An argument of the wrong type or dtype (a TypeError).",
     )?;
-    m.add_class::<PySplatState>()?;
+    m.add_class::<PyRenderState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
-    m.add_function(wrap_pyfunction!(splat_forward, m)?)?;
-    m.add_function(wrap_pyfunction!(splat_backward, m)?)?;
+    m.add_function(wrap_pyfunction!(render_forward, m)?)?;
+    m.add_function(wrap_pyfunction!(render_backward, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -1,10 +1,11 @@
 //! Tile-based Gaussian-splat rasterization on the CPU: forward compositing and its exact
 //! backward, over Gaussians already projected to the image (2D means, conics, opacities,
-//! colours, camera depths). Projection stays in torch, so autograd carries these gradients on
-//! to joint angles, Gaussian parameters and cameras; this file knows nothing of either.
+//! colours, camera depths). `render.rs` projects and colours them and chains these gradients
+//! on to the 3D Gaussians and the cameras; this file knows nothing of either. Generic over
+//! [`Real`]: `f32` (float32 tensors) or `f64` (gradient checks).
 //!
 //! # The image model (identical to `render/rasterize.py: _rasterize_torch`)
-//! For camera `c` and pixel `p = (x, y)` (pixel centres at integer coordinates), each
+//! For image `c` and pixel `p = (x, y)` (pixel centres at integer coordinates), each
 //! Gaussian `i` with centre `u_i`, conic `Q_i = [[a, b], [b, c]]` (the inverse 2D covariance)
 //! and opacity `o_i` gives
 //!
@@ -21,26 +22,39 @@
 //! Gaussian `contrib = max_p w_i(p)`.
 //!
 //! # Tiles
-//! Each camera's image is cut into `TILE × TILE` tiles. A Gaussian is listed in every tile its
+//! Each image is cut into `TILE × TILE` tiles. A Gaussian is listed in every tile its
 //! pixel box meets; the box is the tight bounding box of the ellipse where `o G >= 1/255`,
 //! half-widths `sqrt(k Σ_xx)`, `sqrt(k Σ_yy)` with `k = 2 ln(255 o)` and `Σ = Q⁻¹`. Every
 //! pixel outside it has `o G < 1/255` (because `q >= dx²/Σ_xx`), hence α ≤ 0 under either
-//! cutoff: the lists lose nothing, and the output equals compositing every Gaussian.
+//! cutoff: the lists lose nothing, and the output equals compositing every Gaussian (the
+//! boxes are widened by [`Real::HAIR`] so that rounding in `f32` cannot shrink them).
 //! Each tile's list is sorted by `(z, Gaussian index)`, a total order, so the result is the
 //! same whatever sorts it.
 //!
-//! # Backward
-//! With per-pixel upstream gradients `g_rgb`, `g_alpha`, `g_dsum`, let `F_i = g_rgb·c_i +
-//! g_alpha + g_dsum z_i`, so the pixel's loss is `L = Σ_i w_i F_i`. Then
+//! # Per-Gaussian constants, folded once
+//! Each listed Gaussian is packed once per tile into one record (`Packed`): centre, conic,
+//! opacity, colour, depth, its pixel rows, and `qmax = 2 ln(255 o)`, the `q` beyond which
+//! `o G < 1/255`: such a pair is skipped before the `exp`. On each row a Gaussian visits only
+//! the columns where its ellipse `q <= qmax` meets the row (`row_span`, one square root per
+//! row and Gaussian, not per pixel).
+//!
+//! # Backward, without searching again
+//! The forward records every composited pair of a tile, in the order it composited them,
+//! with what the backward needs: the list entry, the pixel, `α` and the transmittance `T`
+//! before it, and whether `α` was clamped at 0.99 (12 bytes per pair in `f32`; a few MB for a
+//! 4 × 128² frame, read once, sequentially). Per pixel those pairs run front to back, so the
+//! tile's record read backwards walks every pixel back to front. With per-pixel upstream
+//! gradients `g_rgb`, `g_alpha`, `g_dsum`, let `F_i = g_rgb·c_i + g_alpha + g_dsum z_i`, so
+//! the pixel's loss is `L = Σ_i w_i F_i`. Then
 //!
 //! ```text
 //! ∂L/∂c_i = w_i g_rgb,   ∂L/∂z_i = w_i g_dsum,
 //! ∂L/∂α_i = T_i F_i - (Σ_{j>i} w_j F_j) / (1 - α_i)
 //! ```
 //!
-//! walked back to front from the pixel's last composited Gaussian, recovering
-//! `T_i = T_{i+1} / (1 - α_i)` from the final transmittance (f64 throughout; α ≤ 0.99 keeps
-//! the division finite), and chained through `α(o G)`, `G(q)` and `q(u, v, a, b, c)`.
+//! (the suffix sum grows as the walk goes; α ≤ 0.99 keeps the division finite), chained
+//! through `α(o G)` (`o G = α + 1/255` under the soft cutoff, `α` under the hard one, and flat
+//! where clamped), `G(q)` and `q(u, v, a, b, c)`. No pair is searched for, no `exp` is taken.
 //!
 //! # Determinism
 //! Pixels are independent in the forward. In the backward each tile writes the gradients of
@@ -50,9 +64,12 @@
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, Result};
+use crate::real::Real;
 
 /// Tile side in pixels.
 pub const TILE: usize = 8;
+/// Pixels per tile (the low bits of a recorded pair's key).
+const TILE_PIXELS: usize = TILE * TILE;
 /// α below which a pair does not contribute (3DGS).
 pub const ALPHA_MIN: f64 = 1.0 / 255.0;
 /// α is clamped to at most this (keeps `1 - α` away from 0).
@@ -61,6 +78,12 @@ pub const ALPHA_MAX: f64 = 0.99;
 pub const T_MIN: f64 = 1e-4;
 /// Gaussians closer to the camera than this (metres) are not drawn.
 pub const NEAR: f64 = 0.01;
+/// Bits of a recorded pair's key: pixel in the tile (6), clamped flag (1), list entry (25).
+const PIXEL_BITS: u32 = 6;
+const CLAMP_BIT: u32 = 1 << PIXEL_BITS;
+const ENTRY_SHIFT: u32 = PIXEL_BITS + 1;
+/// Most list entries one tile may hold (the entry's bits in a pair key).
+const MAX_TILE_ENTRIES: usize = 1 << (32 - ENTRY_SHIFT);
 
 /// How α is cut at `1/255` (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -71,62 +94,70 @@ pub enum Cutoff {
     Hard,
 }
 
-/// Projected Gaussians of `cameras` cameras, `n` per camera (row-major arrays).
+/// Projected Gaussians of `cameras` images, `n` per image (row-major arrays).
 #[derive(Clone, Debug)]
-pub struct Splats {
+pub struct Splats<T> {
     pub cameras: usize,
     pub n: usize,
     pub width: usize,
     pub height: usize,
     /// `[C, N, 2]` pixel centres.
-    pub uv: Vec<f64>,
+    pub uv: Vec<T>,
     /// `[C, N, 3]` `(a, b, c)` of the conic `[[a, b], [b, c]]` (px⁻²).
-    pub conic: Vec<f64>,
+    pub conic: Vec<T>,
     /// `[C, N]`.
-    pub opacity: Vec<f64>,
+    pub opacity: Vec<T>,
     /// `[C, N, 3]`.
-    pub color: Vec<f64>,
+    pub color: Vec<T>,
     /// `[C, N]` camera depth, metres.
-    pub depth: Vec<f64>,
+    pub depth: Vec<T>,
     pub cutoff: Cutoff,
 }
 
 /// Forward outputs; `state` is what the backward needs.
 #[derive(Clone, Debug)]
-pub struct Forward {
+pub struct Forward<T> {
     /// `[C, H, W, 3]` `Σ w c` (no background).
-    pub rgb: Vec<f64>,
+    pub rgb: Vec<T>,
     /// `[C, H, W]` `Σ w`.
-    pub alpha: Vec<f64>,
+    pub alpha: Vec<T>,
     /// `[C, H, W]` `Σ w z`.
-    pub dsum: Vec<f64>,
+    pub dsum: Vec<T>,
     /// `[C, N]` each Gaussian's largest blending weight.
-    pub contrib: Vec<f64>,
+    pub contrib: Vec<T>,
     /// Composited (pixel, Gaussian) pairs.
     pub npairs: u64,
-    pub state: State,
+    pub state: State<T>,
 }
 
-/// The tile lists and each pixel's compositing end, kept for the backward.
+/// One composited pair as the forward recorded it for the backward.
+#[derive(Clone, Copy, Debug)]
+struct Pair<T> {
+    /// `entry << 7 | clamped << 6 | pixel in the tile`.
+    key: u32,
+    alpha: T,
+    /// Transmittance in front of this pair.
+    t: T,
+}
+
+/// The tile lists and every tile's composited pairs, kept for the backward.
 #[derive(Clone, Debug)]
-pub struct State {
-    pub splats: Splats,
+pub struct State<T> {
+    pub splats: Splats<T>,
     bins: Bins,
-    packed: Vec<Packed>,
-    /// `[C, H, W]` transmittance after the last composited Gaussian.
-    t_final: Vec<f64>,
-    /// `[C, H, W]` list entries visited up to and including the last composited one.
-    last: Vec<u32>,
+    packed: Vec<Packed<T>>,
+    /// Per tile, its composited pairs in compositing order.
+    pairs: Vec<Vec<Pair<T>>>,
 }
 
 /// Gradients of a scalar loss w.r.t. every input of [`Splats`], same layouts.
 #[derive(Clone, Debug)]
-pub struct Grads {
-    pub uv: Vec<f64>,
-    pub conic: Vec<f64>,
-    pub opacity: Vec<f64>,
-    pub color: Vec<f64>,
-    pub depth: Vec<f64>,
+pub struct Grads<T> {
+    pub uv: Vec<T>,
+    pub conic: Vec<T>,
+    pub opacity: Vec<T>,
+    pub color: Vec<T>,
+    pub depth: Vec<T>,
 }
 
 /// Tile lists. An *entry* is one (Gaussian, tile) incidence; entries are numbered
@@ -141,9 +172,14 @@ struct Bins {
     /// Per entry: its Gaussian's flat index `camera * N + i`.
     entry_gauss: Vec<u32>,
     order: Vec<u32>,
+    /// Per tile-list position: the Gaussian's slot in the depth-sorted record array
+    /// (`sorted`), so that a tile reads its records in increasing address order.
+    order_slot: Vec<u32>,
+    /// The drawn Gaussians (flat ids) by camera, then depth.
+    sorted: Vec<u32>,
     tile_start: Vec<usize>,
-    /// Per Gaussian: the rows `[y0, y1]` of its pixel box.
-    rows: Vec<[u32; 2]>,
+    /// Per Gaussian: its pixel box `[x0, x1, y0, y1]` (empty when not drawn).
+    boxes: Vec<[u32; 4]>,
 }
 
 /// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
@@ -177,8 +213,9 @@ struct PixelBox {
     y1: usize,
 }
 
-impl Splats {
-    fn check(&self) -> Result<()> {
+impl<T: Real> Splats<T> {
+    /// Shapes, finiteness and positive-definite conics; errors name the entry.
+    pub fn check(&self) -> Result<()> {
         let (c, n) = (self.cameras, self.n);
         if c == 0 {
             return invalid_input("rasterize: no cameras");
@@ -204,11 +241,11 @@ impl Splats {
             }
             if let Some(k) = v.iter().position(|x| !x.is_finite()) {
                 let g = k / per;
-                return invalid_input(format!("rasterize: {name}[{}, {}] is {}", g / n, g % n, v[k]));
+                return invalid_input(format!("rasterize: {name}[{}, {}] is {:?}", g / n, g % n, v[k].f64()));
             }
         }
         for g in 0..c * n {
-            let [a, b, cc] = self.conic3(g);
+            let [a, b, cc] = self.conic3(g).map(|x| x.f64());
             if !(a > 0.0 && cc > 0.0 && a * cc - b * b > 0.0) {
                 return invalid_input(format!(
                     "rasterize: conics[{}, {}] = ({a}, {b}, {cc}) is not positive definite (a degenerate 2D covariance)",
@@ -228,24 +265,25 @@ impl Splats {
         self.height.div_ceil(TILE)
     }
 
-    fn conic3(&self, g: usize) -> [f64; 3] {
+    fn conic3(&self, g: usize) -> [T; 3] {
         [self.conic[3 * g], self.conic[3 * g + 1], self.conic[3 * g + 2]]
     }
 
     /// The pixel box of flat Gaussian `g`, or None when it draws nothing (behind the near
-    /// plane, opacity ≤ 1/255, or off the image).
+    /// plane, opacity ≤ 1/255, or off the image). In `f64` whatever `T` is, widened by
+    /// [`Real::HAIR`].
     fn pixel_box(&self, g: usize) -> Option<PixelBox> {
-        let o = self.opacity[g];
-        if self.depth[g] <= NEAR || o * 255.0 <= 1.0 {
+        let o = self.opacity[g].f64();
+        if self.depth[g].f64() <= NEAR || o * 255.0 <= 1.0 {
             return None;
         }
-        let [a, b, c] = self.conic3(g);
+        let [a, b, c] = self.conic3(g).map(|x| x.f64());
         let det = a * c - b * b;
-        let k = 2.0 * (o * 255.0).ln();
+        let k = 2.0 * (o * 255.0).ln() + 1e-6;
         // Σ = Q⁻¹: Σ_xx = c / det, Σ_yy = a / det; a hair wider than tight (never narrower).
-        let rx = (k * c / det).sqrt() * (1.0 + 1e-9) + 1e-9;
-        let ry = (k * a / det).sqrt() * (1.0 + 1e-9) + 1e-9;
-        let (u, v) = (self.uv[2 * g], self.uv[2 * g + 1]);
+        let rx = (k * c / det).sqrt() * (1.0 + T::HAIR) + T::HAIR;
+        let ry = (k * a / det).sqrt() * (1.0 + T::HAIR) + T::HAIR;
+        let (u, v) = (self.uv[2 * g].f64(), self.uv[2 * g + 1].f64());
         let (w, h) = (self.width as f64, self.height as f64);
         let x0 = ceil(u - rx).max(0.0);
         let x1 = floor(u + rx).min(w - 1.0);
@@ -258,10 +296,11 @@ impl Splats {
     }
 
     /// Every Gaussian's tile-loop record (`rows` from its pixel box; unused when not drawn).
-    fn pack(&self, bins: &Bins) -> Vec<Packed> {
-        (0..self.cameras * self.n)
-            .into_par_iter()
-            .map(|g| {
+    fn pack(&self, bins: &Bins) -> Vec<Packed<T>> {
+        bins.sorted
+            .par_iter()
+            .map(|&g| {
+                let g = g as usize;
                 let [a, b, c] = self.conic3(g);
                 let o = self.opacity[g];
                 Packed {
@@ -271,16 +310,17 @@ impl Splats {
                     b,
                     c,
                     o,
-                    qmax: 2.0 * (o * 255.0).max(1.0).ln() + 1e-6,
+                    qmax: T::c(2.0 * (o.f64() * 255.0).max(1.0).ln() + 1e-6),
                     col: [self.color[3 * g], self.color[3 * g + 1], self.color[3 * g + 2]],
                     z: self.depth[g],
-                    rows: bins.rows[g],
+                    rows: [bins.boxes[g][2], bins.boxes[g][3]],
+                    cols: [bins.boxes[g][0], bins.boxes[g][1]],
                 }
             })
             .collect()
     }
 
-    fn bin(&self) -> Bins {
+    fn bin(&self) -> Result<Bins> {
         let (tx, ty) = (self.tiles_x(), self.tiles_y());
         let per_cam = tx * ty;
         let total = self.cameras * self.n;
@@ -288,7 +328,8 @@ impl Splats {
         let boxes: Vec<Option<PixelBox>> = (0..total).into_par_iter().map(|g| self.pixel_box(g)).collect();
         let rects: Vec<Option<[usize; 4]>> =
             boxes.iter().map(|b| b.as_ref().map(|b| [b.x0 / TILE, b.x1 / TILE, b.y0 / TILE, b.y1 / TILE])).collect();
-        let rows: Vec<[u32; 2]> = boxes.iter().map(|b| b.as_ref().map_or([1, 0], |b| [b.y0 as u32, b.y1 as u32])).collect();
+        let pboxes: Vec<[u32; 4]> =
+            boxes.iter().map(|b| b.as_ref().map_or([1, 0, 1, 0], |b| [b.x0 as u32, b.x1 as u32, b.y0 as u32, b.y1 as u32])).collect();
         let mut gauss_start = Vec::with_capacity(total + 1);
         gauss_start.push(0usize);
         for r in &rects {
@@ -314,72 +355,98 @@ impl Splats {
         // Tile by tile, front to back. The drawn Gaussians are sorted once by (camera, z, g),
         // a total order (z > NEAR > 0, so its bits order like the numbers); a counting sort of
         // their entries by tile, taken in that order, keeps each tile's list front to back.
-        let mut by_depth: Vec<(usize, usize)> = (0..total).filter(|&g| rects[g].is_some()).map(|g| (g / self.n, g)).collect();
-        let depth = &self.depth;
-        by_depth.par_sort_unstable_by_key(|&(c, g)| (c, depth[g].to_bits(), g));
+        let n = self.n;
+        // z > NEAR > 0, so a depth's bits order like the depth. In f32 the key (z bits, g)
+        // packs into one u64, which sorts several times faster than a pair.
+        let by_depth: Vec<Vec<u32>> = (0..self.cameras)
+            .into_par_iter()
+            .map(|c| {
+                let drawn = (c * n..(c + 1) * n).filter(|&g| rects[g].is_some());
+                if T::DEPTH_BITS == 32 {
+                    let mut v: Vec<u64> = drawn.map(|g| self.depth[g].order_bits() << 32 | g as u64).collect();
+                    v.sort_unstable();
+                    v.into_iter().map(|k| k as u32).collect()
+                } else {
+                    let mut v: Vec<(u64, u32)> = drawn.map(|g| (self.depth[g].order_bits(), g as u32)).collect();
+                    v.sort_unstable();
+                    v.into_iter().map(|(_, g)| g).collect()
+                }
+            })
+            .collect();
         let ntiles = self.cameras * per_cam;
         let mut tile_start = vec![0usize; ntiles + 1];
         for &t in &entry_tile {
             tile_start[t as usize + 1] += 1;
         }
         for t in 0..ntiles {
+            if tile_start[t + 1] >= MAX_TILE_ENTRIES {
+                return invalid_input(format!(
+                    "rasterize: {} Gaussians reach one 8x8 tile (at most {} can)",
+                    tile_start[t + 1],
+                    MAX_TILE_ENTRIES - 1
+                ));
+            }
             tile_start[t + 1] += tile_start[t];
         }
         let mut cursor = tile_start.clone();
         let mut order = vec![0u32; m];
-        for &(_, g) in &by_depth {
+        for &g in by_depth.iter().flatten() {
+            let g = g as usize;
             let entries = gauss_start[g]..gauss_start[g + 1];
             for (e, &t) in entries.clone().zip(&entry_tile[entries]) {
                 order[cursor[t as usize]] = e as u32;
                 cursor[t as usize] += 1;
             }
         }
-        Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, tile_start, rows }
+        let sorted: Vec<u32> = by_depth.into_iter().flatten().collect();
+        let mut slot = vec![0u32; total];
+        for (k, &g) in sorted.iter().enumerate() {
+            slot[g as usize] = k as u32;
+        }
+        let order_slot = order.par_iter().map(|&e| slot[entry_gauss[e as usize] as usize]).collect();
+        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, order_slot, sorted, tile_start, boxes: pboxes })
     }
 }
 
 /// One Gaussian as the tile loops read it (one cache-friendly record).
 #[derive(Clone, Copy, Debug, Default)]
-struct Packed {
-    u: f64,
-    v: f64,
-    a: f64,
-    b: f64,
-    c: f64,
-    o: f64,
+struct Packed<T> {
+    u: T,
+    v: T,
+    a: T,
+    b: T,
+    c: T,
+    o: T,
     /// `q` beyond which `o e^{-q/2} < 1/255`: such pairs are skipped without an `exp`
     /// (`o e^{-q/2} >= 1/255  <=>  q <= 2 ln(255 o)`; the margin only lets a few more pairs
     /// reach the exact test).
-    qmax: f64,
-    col: [f64; 3],
-    z: f64,
+    qmax: T,
+    col: [T; 3],
+    z: T,
     /// Rows `[y0, y1]` of the pixel box: other rows are skipped without arithmetic.
     rows: [u32; 2],
+    /// Columns `[x0, x1]` of the pixel box: a row whose open pixels all lie outside them is
+    /// skipped before its span is solved.
+    cols: [u32; 2],
 }
 
-/// One tile's Gaussians in compositing order.
-struct TileSplats {
-    g: Vec<Packed>,
-}
-
-/// Pixel columns `lo..hi` (within `xs`) of row `py` where entry `j` may reach `o G >= 1/255`,
-/// from the exact ellipse `q(x) <= qmax` on that row (widened by a hair, never narrowed):
-/// `a dx² + 2 b dy dx + c dy² - qmax <= 0`, a quadratic in `dx`.
+/// Pixel columns `lo..hi` (within `xs`) of row `y` where `p` may reach `o G >= 1/255`, from
+/// the exact ellipse `q(x) <= qmax` on that row (widened by a hair, never narrowed):
+/// `a dx² + 2 b dy dx + c dy² - qmax <= 0`, a quadratic in `dx`. In `f64`.
 #[inline(always)]
-fn row_span(ts: &TileSplats, j: usize, y: u32, xs: &std::ops::Range<usize>) -> std::ops::Range<usize> {
-    let p = &ts.g[j];
+fn row_span<T: Real>(p: &Packed<T>, y: u32, xs: &std::ops::Range<usize>) -> std::ops::Range<usize> {
     let [y0, y1] = p.rows;
     if y < y0 || y > y1 {
         return 0..0;
     }
-    let dy = y as f64 - p.v;
-    let (a, b) = (p.a, p.b);
-    let disc = b * b * dy * dy - a * (p.c * dy * dy - p.qmax);
+    let dy = y as f64 - p.v.f64();
+    let (a, b) = (p.a.f64(), p.b.f64());
+    let disc = b * b * dy * dy - a * (p.c.f64() * dy * dy - p.qmax.f64());
     if disc < 0.0 {
         return 0..0;
     }
-    let half = disc.sqrt() / a * (1.0 + 1e-9) + 1e-9;
-    let mid = p.u - b * dy / a;
+    let half = disc.sqrt() / a * (1.0 + T::HAIR) + T::HAIR;
+    let mid = p.u.f64() - b * dy / a;
     let lo = ceil(mid - half).max(xs.start as f64);
     let hi = floor(mid + half).min(xs.end as f64 - 1.0);
     if lo > hi {
@@ -388,229 +455,229 @@ fn row_span(ts: &TileSplats, j: usize, y: u32, xs: &std::ops::Range<usize>) -> s
     lo as usize..hi as usize + 1
 }
 
-impl TileSplats {
-    fn load(st: &[Packed], bins: &Bins, entries: &[u32]) -> Self {
-        TileSplats { g: entries.iter().map(|&e| st[bins.entry_gauss[e as usize] as usize]).collect() }
-    }
-
-    /// `(α, o G, dx, dy)` of entry `j` at pixel `(px, py)`; α ≤ 0 means "not composited".
-    #[inline(always)]
-    fn alpha(&self, j: usize, px: f64, py: f64, cutoff: Cutoff) -> (f64, f64, f64, f64) {
-        let p = &self.g[j];
-        let dx = px - p.u;
-        let dy = py - p.v;
-        let q = p.a * dx * dx + 2.0 * p.b * dx * dy + p.c * dy * dy;
-        if q > p.qmax {
-            return (0.0, 0.0, dx, dy);
-        }
-        let raw = p.o * (-0.5 * q).exp();
-        let alpha = match cutoff {
-            Cutoff::Soft => (raw.min(ALPHA_MAX) - ALPHA_MIN).max(0.0),
-            Cutoff::Hard if raw >= ALPHA_MIN => raw.min(ALPHA_MAX),
-            Cutoff::Hard => 0.0,
-        };
-        (alpha, raw, dx, dy)
-    }
+/// One tile's Gaussians in compositing order.
+fn load_tile<T: Real>(st: &[Packed<T>], slots: &[u32]) -> Vec<Packed<T>> {
+    slots.iter().map(|&k| st[k as usize]).collect()
 }
 
-/// Pixel rectangle of global tile `t`: camera, x range, y range.
-fn tile_rect(s: &Splats, bins: &Bins, t: usize) -> (usize, std::ops::Range<usize>, std::ops::Range<usize>) {
+/// `(α, o G, clamped)` of `p` at pixel offset `(dx, dy)`; α ≤ 0 means "not composited".
+#[inline(always)]
+fn alpha<T: Real>(p: &Packed<T>, dx: T, dy: T, cutoff: Cutoff) -> (T, T, bool) {
+    let q = p.a * dx * dx + T::c(2.0) * p.b * dx * dy + p.c * dy * dy;
+    if q > p.qmax {
+        return (T::zero(), T::zero(), false);
+    }
+    let raw = p.o * (T::c(-0.5) * q).exp();
+    let max = T::c(ALPHA_MAX);
+    let clamped = raw > max;
+    let a = match cutoff {
+        Cutoff::Soft => (raw.min(max) - T::c(ALPHA_MIN)).max(T::zero()),
+        Cutoff::Hard if raw >= T::c(ALPHA_MIN) => raw.min(max),
+        Cutoff::Hard => T::zero(),
+    };
+    (a, raw, clamped)
+}
+
+/// Pixel rectangle of global tile `t`: image, x range, y range.
+fn tile_rect(width: usize, height: usize, bins: &Bins, t: usize) -> (usize, std::ops::Range<usize>, std::ops::Range<usize>) {
     let per_cam = bins.tiles_x * bins.tiles_y;
     let (cam, local) = (t / per_cam, t % per_cam);
     let (tx, ty) = (local % bins.tiles_x, local / bins.tiles_x);
-    let xs = tx * TILE..((tx + 1) * TILE).min(s.width);
-    let ys = ty * TILE..((ty + 1) * TILE).min(s.height);
+    let xs = tx * TILE..((tx + 1) * TILE).min(width);
+    let ys = ty * TILE..((ty + 1) * TILE).min(height);
     (cam, xs, ys)
 }
 
-/// One tile's forward: per pixel (row-major within the tile) rgb, alpha, dsum, T_final, last;
-/// per list entry the largest weight; composited pairs.
-struct TileForward {
-    pixels: Vec<[f64; 6]>,
-    last: Vec<u32>,
-    entry_max: Vec<f64>,
-    npairs: u64,
+/// One tile's forward: per pixel (row-major within the tile, `TILE` columns) rgb, alpha,
+/// dsum; per list entry the largest weight; the composited pairs in compositing order.
+struct TileForward<T> {
+    pixels: [[T; 5]; TILE_PIXELS],
+    entry_max: Vec<T>,
+    pairs: Vec<Pair<T>>,
 }
 
-fn forward_tile(s: &Splats, packed: &[Packed], bins: &Bins, t: usize) -> TileForward {
-    let entries = &bins.order[bins.tile_start[t]..bins.tile_start[t + 1]];
-    let ts = TileSplats::load(packed, bins, entries);
-    let (_, xs, ys) = tile_rect(s, bins, t);
-    let nx = xs.len();
-    let mut out = TileForward {
-        pixels: Vec::with_capacity(nx * ys.len()),
-        last: Vec::with_capacity(nx * ys.len()),
-        entry_max: vec![0.0; entries.len()],
-        npairs: 0,
-    };
-    // One row of the tile at a time, Gaussians front to back; a Gaussian touches only the
-    // columns its ellipse spans on this row, and the row ends when every pixel has stopped.
-    for y in ys {
-        let py = y as f64;
-        let mut px = [[0.0f64; 6]; TILE]; // r, g, b, alpha, dsum, T
-        let mut last = [0u32; TILE];
-        let mut done = [false; TILE];
-        let mut open = nx;
-        for p in px.iter_mut() {
-            p[5] = 1.0;
-        }
-        for j in 0..entries.len() {
-            if open == 0 {
-                break;
-            }
-            for x in row_span(&ts, j, y as u32, &xs) {
-                let i = x - xs.start;
-                if done[i] {
-                    continue;
-                }
-                let (alpha, _, _, _) = ts.alpha(j, x as f64, py, s.cutoff);
-                if alpha <= 0.0 {
-                    continue;
-                }
-                let p = &mut px[i];
-                let t_next = p[5] * (1.0 - alpha);
-                if t_next < T_MIN {
-                    done[i] = true;
-                    open -= 1;
-                    continue;
-                }
-                let w = alpha * p[5];
-                let [cr, cg, cb] = ts.g[j].col;
-                p[0] += w * cr;
-                p[1] += w * cg;
-                p[2] += w * cb;
-                p[3] += w;
-                p[4] += w * ts.g[j].z;
-                p[5] = t_next;
-                if w > out.entry_max[j] {
-                    out.entry_max[j] = w;
-                }
-                last[i] = j as u32 + 1;
-                out.npairs += 1;
-            }
-        }
-        out.pixels.extend_from_slice(&px[..nx]);
-        out.last.extend_from_slice(&last[..nx]);
+fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize) -> TileForward<T> {
+    let entries = &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]];
+    let (_, xs, ys) = tile_rect(s.width, s.height, bins, t);
+    let (zero, one, t_min) = (T::zero(), T::one(), T::c(T_MIN));
+    let mut px = [[zero; 5]; TILE_PIXELS]; // r, g, b, alpha, dsum
+    let mut tt = [one; TILE_PIXELS];
+    // Per row of the tile, a bit per column still compositing.
+    let full = ((1u32 << xs.len()) - 1) as u16;
+    let mut open_row = [0u16; TILE];
+    for r in open_row.iter_mut().take(ys.len()) {
+        *r = full;
     }
-    out
+    let mut open = ys.len();
+    let mut entry_max = vec![zero; entries.len()];
+    let mut pairs = Vec::with_capacity(4 * entries.len());
+    // Gaussians front to back; each visits only the rows of the tile its box spans that still
+    // have open pixels in its columns and, on each, the columns its ellipse spans; the tile
+    // ends when every pixel has stopped. Most Gaussians behind the front surface cost a few
+    // mask tests.
+    for (j, &k) in entries.iter().enumerate() {
+        if open == 0 {
+            break;
+        }
+        let p = &packed[k as usize];
+        let r0 = (p.rows[0] as usize).max(ys.start);
+        let r1 = (p.rows[1] as usize + 1).min(ys.end);
+        let c0 = (p.cols[0] as usize).max(xs.start) - xs.start;
+        let c1 = (p.cols[1] as usize + 1).min(xs.end) - xs.start;
+        if c0 >= c1 {
+            continue;
+        }
+        let box_mask = (((1u32 << c1) - 1) & !((1u32 << c0) - 1)) as u16;
+        for y in r0..r1 {
+            let row = y - ys.start;
+            if open_row[row] & box_mask == 0 {
+                continue;
+            }
+            let dy = T::c(y as f64) - p.v;
+            for x in row_span(p, y as u32, &xs) {
+                let col = x - xs.start;
+                if open_row[row] & (1 << col) == 0 {
+                    continue;
+                }
+                let i = row * TILE + col;
+                let (a, _, clamped) = alpha(p, T::c(x as f64) - p.u, dy, s.cutoff);
+                if a <= zero {
+                    continue;
+                }
+                let t_next = tt[i] * (one - a);
+                if t_next < t_min {
+                    open_row[row] &= !(1 << col);
+                    if open_row[row] == 0 {
+                        open -= 1;
+                    }
+                    continue;
+                }
+                let w = a * tt[i];
+                let q = &mut px[i];
+                q[0] = q[0] + w * p.col[0];
+                q[1] = q[1] + w * p.col[1];
+                q[2] = q[2] + w * p.col[2];
+                q[3] = q[3] + w;
+                q[4] = q[4] + w * p.z;
+                let key = (j as u32) << ENTRY_SHIFT | if clamped { CLAMP_BIT } else { 0 } | i as u32;
+                pairs.push(Pair { key, alpha: a, t: tt[i] });
+                tt[i] = t_next;
+                if w > entry_max[j] {
+                    entry_max[j] = w;
+                }
+            }
+        }
+    }
+    TileForward { pixels: px, entry_max, pairs }
 }
 
-/// Rasterizes `splats` (see the module docs). Errors name the offending input.
-pub fn forward(splats: Splats) -> Result<Forward> {
+/// Rasterizes `splats` after checking them (see the module docs). Errors name the input.
+pub fn forward<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
     splats.check()?;
+    forward_checked(splats)
+}
+
+/// [`forward`] for splats known to be well formed (`render.rs` makes them).
+pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
     let s = &splats;
-    let bins = s.bin();
+    let bins = s.bin()?;
     let packed = s.pack(&bins);
     let ntiles = bins.tile_start.len() - 1;
-    let tiles: Vec<TileForward> = (0..ntiles).into_par_iter().map(|t| forward_tile(s, &packed, &bins, t)).collect();
+    let tiles: Vec<TileForward<T>> = (0..ntiles).into_par_iter().map(|t| forward_tile(s, &packed, &bins, t)).collect();
     let (w, h) = (s.width, s.height);
     let npix = s.cameras * w * h;
-    let mut rgb = vec![0.0; 3 * npix];
-    let mut alpha = vec![0.0; npix];
-    let mut dsum = vec![0.0; npix];
-    let mut t_final = vec![1.0; npix];
-    let mut last = vec![0u32; npix];
-    let mut entry_max = vec![0.0; bins.entry_gauss.len()];
+    let mut rgb = vec![T::zero(); 3 * npix];
+    let mut alpha = vec![T::zero(); npix];
+    let mut dsum = vec![T::zero(); npix];
+    let mut entry_max = vec![T::zero(); bins.entry_gauss.len()];
     let mut npairs = 0;
-    for (t, tf) in tiles.iter().enumerate() {
-        let (cam, xs, ys) = tile_rect(s, &bins, t);
-        let mut k = 0;
-        for y in ys {
-            for x in xs.clone() {
+    let mut pairs = Vec::with_capacity(ntiles);
+    for (t, tf) in tiles.into_iter().enumerate() {
+        let (cam, xs, ys) = tile_rect(w, h, &bins, t);
+        for (row, y) in ys.enumerate() {
+            for (col, x) in xs.clone().enumerate() {
                 let p = (cam * h + y) * w + x;
-                let [r, g, b, acc, ds, tt] = tf.pixels[k];
+                let [r, g, b, acc, ds] = tf.pixels[row * TILE + col];
                 rgb[3 * p..3 * p + 3].copy_from_slice(&[r, g, b]);
                 alpha[p] = acc;
                 dsum[p] = ds;
-                t_final[p] = tt;
-                last[p] = tf.last[k];
-                k += 1;
             }
         }
         for (i, &e) in bins.order[bins.tile_start[t]..bins.tile_start[t + 1]].iter().enumerate() {
             entry_max[e as usize] = tf.entry_max[i];
         }
-        npairs += tf.npairs;
+        npairs += tf.pairs.len() as u64;
+        pairs.push(tf.pairs);
     }
-    let contrib: Vec<f64> = (0..s.cameras * s.n)
+    let contrib: Vec<T> = (0..s.cameras * s.n)
         .into_par_iter()
-        .map(|g| entry_max[bins.gauss_start[g]..bins.gauss_start[g + 1]].iter().fold(0.0, |m: f64, &x| m.max(x)))
+        .map(|g| entry_max[bins.gauss_start[g]..bins.gauss_start[g + 1]].iter().fold(T::zero(), |m, &x| m.max(x)))
         .collect();
-    Ok(Forward { rgb, alpha, dsum, contrib, npairs, state: State { splats, bins, packed, t_final, last } })
+    Ok(Forward { rgb, alpha, dsum, contrib, npairs, state: State { splats, bins, packed, pairs } })
 }
 
 /// `[u, v, a, b, c, o, r, g, b, z]` gradient of one list entry.
-type EntryGrad = [f64; 10];
+type EntryGrad<T> = [T; 10];
 
-fn backward_tile(st: &State, t: usize, g_rgb: &[f64], g_alpha: &[f64], g_dsum: &[f64]) -> Vec<EntryGrad> {
+fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]) -> Vec<EntryGrad<T>> {
     let (s, bins) = (&st.splats, &st.bins);
     let entries = &bins.order[bins.tile_start[t]..bins.tile_start[t + 1]];
-    let ts = TileSplats::load(&st.packed, bins, entries);
-    let mut grads = vec![[0.0; 10]; entries.len()];
-    let (cam, xs, ys) = tile_rect(s, bins, t);
+    let ts = load_tile(&st.packed, &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]]);
+    let zero = T::zero();
+    let mut grads = vec![[zero; 10]; entries.len()];
+    let (cam, xs, ys) = tile_rect(s.width, s.height, bins, t);
     let (w, h) = (s.width, s.height);
-    let nx = xs.len();
-    // Row by row, back to front from the row's last composited Gaussian.
-    for y in ys {
-        let py = y as f64;
-        let row0 = (cam * h + y) * w + xs.start;
-        let mut gr = [[0.0f64; 3]; TILE];
-        let mut ga = [0.0f64; TILE];
-        let mut gd = [0.0f64; TILE];
-        let mut tt = [0.0f64; TILE];
-        let mut suffix = [0.0f64; TILE]; // Σ_{j>i} w_j F_j per pixel
-        let mut last = [0usize; TILE];
-        for i in 0..nx {
-            let p = row0 + i;
+    // Upstream gradients of the tile's pixels (index row * TILE + column).
+    let mut gr = [[zero; 3]; TILE_PIXELS];
+    let mut ga = [zero; TILE_PIXELS];
+    let mut gd = [zero; TILE_PIXELS];
+    let mut suffix = [zero; TILE_PIXELS]; // Σ_{j>i} w_j F_j per pixel
+    for (row, y) in ys.clone().enumerate() {
+        for (col, x) in xs.clone().enumerate() {
+            let (p, i) = ((cam * h + y) * w + x, row * TILE + col);
             gr[i] = [g_rgb[3 * p], g_rgb[3 * p + 1], g_rgb[3 * p + 2]];
             ga[i] = g_alpha[p];
             gd[i] = g_dsum[p];
-            tt[i] = st.t_final[p];
-            last[i] = st.last[p] as usize;
         }
-        let end = last[..nx].iter().copied().max().unwrap_or(0);
-        for j in (0..end).rev() {
-            for x in row_span(&ts, j, y as u32, &xs) {
-                let i = x - xs.start;
-                if j >= last[i] {
-                    continue;
-                }
-                let (alpha, raw, dx, dy) = ts.alpha(j, x as f64, py, s.cutoff);
-                if alpha <= 0.0 {
-                    continue;
-                }
-                let t_before = tt[i] / (1.0 - alpha);
-                let wgt = alpha * t_before;
-                let [cr, cg, cb] = ts.g[j].col;
-                let f = gr[i][0] * cr + gr[i][1] * cg + gr[i][2] * cb + ga[i] + gd[i] * ts.g[j].z;
-                let d_alpha = t_before * f - suffix[i] / (1.0 - alpha);
-                suffix[i] += wgt * f;
-                tt[i] = t_before;
-                let e = &mut grads[j];
-                e[6] += wgt * gr[i][0];
-                e[7] += wgt * gr[i][1];
-                e[8] += wgt * gr[i][2];
-                e[9] += wgt * gd[i];
-                // α = min(0.99, raw) [- 1/255]: flat where clamped.
-                if raw > ALPHA_MAX {
-                    continue;
-                }
-                e[5] += d_alpha * raw / ts.g[j].o;
-                let d_q = -0.5 * raw * d_alpha;
-                e[2] += d_q * dx * dx;
-                e[3] += d_q * 2.0 * dx * dy;
-                e[4] += d_q * dy * dy;
-                // ∂q/∂u = -(2a dx + 2b dy), ∂q/∂v = -(2b dx + 2c dy)
-                e[0] -= d_q * 2.0 * (ts.g[j].a * dx + ts.g[j].b * dy);
-                e[1] -= d_q * 2.0 * (ts.g[j].b * dx + ts.g[j].c * dy);
-            }
+    }
+    let (one, two, half) = (T::one(), T::c(2.0), T::c(0.5));
+    let cut = if s.cutoff == Cutoff::Soft { T::c(ALPHA_MIN) } else { zero };
+    // The tile's pairs read backwards: every pixel back to front.
+    for pair in st.pairs[t].iter().rev() {
+        let i = (pair.key & (TILE_PIXELS as u32 - 1)) as usize;
+        let j = (pair.key >> ENTRY_SHIFT) as usize;
+        let p = &ts[j];
+        let (a, tb) = (pair.alpha, pair.t);
+        let wgt = a * tb;
+        let f = gr[i][0] * p.col[0] + gr[i][1] * p.col[1] + gr[i][2] * p.col[2] + ga[i] + gd[i] * p.z;
+        let d_alpha = tb * f - suffix[i] / (one - a);
+        suffix[i] = suffix[i] + wgt * f;
+        let e = &mut grads[j];
+        e[6] = e[6] + wgt * gr[i][0];
+        e[7] = e[7] + wgt * gr[i][1];
+        e[8] = e[8] + wgt * gr[i][2];
+        e[9] = e[9] + wgt * gd[i];
+        // α = min(0.99, o G) [- 1/255]: flat where clamped.
+        if pair.key & CLAMP_BIT != 0 {
+            continue;
         }
+        let raw = a + cut;
+        e[5] = e[5] + d_alpha * raw / p.o;
+        let d_q = -half * raw * d_alpha;
+        let dx = T::c((xs.start + i % TILE) as f64) - p.u;
+        let dy = T::c((ys.start + i / TILE) as f64) - p.v;
+        e[2] = e[2] + d_q * dx * dx;
+        e[3] = e[3] + d_q * two * dx * dy;
+        e[4] = e[4] + d_q * dy * dy;
+        // ∂q/∂u = -(2a dx + 2b dy), ∂q/∂v = -(2b dx + 2c dy)
+        e[0] = e[0] - d_q * two * (p.a * dx + p.b * dy);
+        e[1] = e[1] - d_q * two * (p.b * dx + p.c * dy);
     }
     grads
 }
 
 /// Gradients of `L = Σ g_rgb·rgb + g_alpha·alpha + g_dsum·dsum` (layouts of [`Forward`]).
-pub fn backward(st: &State, g_rgb: &[f64], g_alpha: &[f64], g_dsum: &[f64]) -> Result<Grads> {
+pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]) -> Result<Grads<T>> {
     let s = &st.splats;
     let npix = s.cameras * s.width * s.height;
     for (name, v, per) in [("grad_rgb", g_rgb, 3), ("grad_alpha", g_alpha, 1), ("grad_dsum", g_dsum, 1)] {
@@ -618,26 +685,27 @@ pub fn backward(st: &State, g_rgb: &[f64], g_alpha: &[f64], g_dsum: &[f64]) -> R
             return invalid_input(format!("rasterize backward: {name} holds {} values; expected {}", v.len(), npix * per));
         }
         if let Some(k) = v.iter().position(|x| !x.is_finite()) {
-            return invalid_input(format!("rasterize backward: {name} has a non-finite value ({}) at {k}", v[k]));
+            return invalid_input(format!("rasterize backward: {name} has a non-finite value ({:?}) at {k}", v[k].f64()));
         }
     }
     let bins = &st.bins;
     let ntiles = bins.tile_start.len() - 1;
-    let tiles: Vec<Vec<EntryGrad>> = (0..ntiles).into_par_iter().map(|t| backward_tile(st, t, g_rgb, g_alpha, g_dsum)).collect();
+    let tiles: Vec<Vec<EntryGrad<T>>> =
+        (0..ntiles).into_par_iter().map(|t| backward_tile(st, t, g_rgb, g_alpha, g_dsum)).collect();
     // Entry gradients back in Gaussian-major numbering, then one fixed-order sum per Gaussian.
-    let mut by_entry = vec![[0.0; 10]; bins.entry_gauss.len()];
+    let mut by_entry = vec![[T::zero(); 10]; bins.entry_gauss.len()];
     for (t, tg) in tiles.iter().enumerate() {
         for (i, &e) in bins.order[bins.tile_start[t]..bins.tile_start[t + 1]].iter().enumerate() {
             by_entry[e as usize] = tg[i];
         }
     }
-    let per_gauss: Vec<EntryGrad> = (0..s.cameras * s.n)
+    let per_gauss: Vec<EntryGrad<T>> = (0..s.cameras * s.n)
         .into_par_iter()
         .map(|g| {
-            let mut acc = [0.0; 10];
+            let mut acc = [T::zero(); 10];
             for e in &by_entry[bins.gauss_start[g]..bins.gauss_start[g + 1]] {
                 for k in 0..10 {
-                    acc[k] += e[k];
+                    acc[k] = acc[k] + e[k];
                 }
             }
             acc
@@ -665,7 +733,7 @@ mod tests {
     use super::*;
     use crate::threads::with_threads;
 
-    fn scene(n: usize, cams: usize, w: usize, h: usize, seed: u64) -> Splats {
+    fn scene(n: usize, cams: usize, w: usize, h: usize, seed: u64) -> Splats<f64> {
         // A small deterministic scene: Gaussians scattered over the image (LCG).
         let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         let mut rnd = || {
@@ -699,7 +767,7 @@ mod tests {
     }
 
     /// The same image by brute force: every Gaussian at every pixel, depth order.
-    fn brute(s: &Splats) -> (Vec<f64>, Vec<f64>) {
+    fn brute(s: &Splats<f64>) -> (Vec<f64>, Vec<f64>) {
         let mut rgb = vec![0.0; s.cameras * s.width * s.height * 3];
         let mut acc = vec![0.0; s.cameras * s.width * s.height];
         for cam in 0..s.cameras {
@@ -749,7 +817,7 @@ mod tests {
         let f = forward(s.clone()).unwrap();
         let npix = s.width * s.height;
         let wts: Vec<f64> = (0..5 * npix).map(|i| ((i * 7919) % 13) as f64 / 13.0 - 0.4).collect();
-        let loss = |s: Splats| {
+        let loss = |s: Splats<f64>| {
             let f = forward(s).unwrap();
             let mut l = 0.0;
             for p in 0..npix {
@@ -764,7 +832,7 @@ mod tests {
         let g = backward(&f.state, &g_rgb, &g_a, &g_d).unwrap();
         let h = 1e-6;
         for i in [0usize, 7, 19, 33] {
-            type Field = fn(&mut Splats) -> &mut Vec<f64>;
+            type Field = fn(&mut Splats<f64>) -> &mut Vec<f64>;
             let fields: [(Field, usize, &Vec<f64>); 5] = [
                 (|s| &mut s.uv, 2, &g.uv),
                 (|s| &mut s.conic, 3, &g.conic),
@@ -801,6 +869,37 @@ mod tests {
         assert!(a.0.iter().zip(&b.0).all(|(x, y)| x.to_bits() == y.to_bits()));
         assert!(a.2.iter().zip(&b.2).all(|(x, y)| x.to_bits() == y.to_bits()));
         assert!(a.4.iter().zip(&b.4).all(|(x, y)| x.to_bits() == y.to_bits()));
+    }
+
+    #[test]
+    fn float32_images_and_gradients_follow_float64() {
+        // The same scene in f32: images within 1e-5, gradients within 1e-3 relative of f64's.
+        let s = scene(300, 2, 37, 29, 4);
+        let to32 = |v: &Vec<f64>| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+        let s32 = Splats::<f32> {
+            cameras: s.cameras,
+            n: s.n,
+            width: s.width,
+            height: s.height,
+            uv: to32(&s.uv),
+            conic: to32(&s.conic),
+            opacity: to32(&s.opacity),
+            color: to32(&s.color),
+            depth: to32(&s.depth),
+            cutoff: s.cutoff,
+        };
+        let (f64_, f32_) = (forward(s.clone()).unwrap(), forward(s32).unwrap());
+        for (a, b) in f64_.rgb.iter().zip(&f32_.rgb).chain(f64_.alpha.iter().zip(&f32_.alpha)) {
+            assert!((a - *b as f64).abs() < 1e-5, "{a} vs {b}");
+        }
+        let npix = s.cameras * s.width * s.height;
+        let g64 = backward(&f64_.state, &vec![0.3; 3 * npix], &vec![-0.2; npix], &vec![0.1; npix]).unwrap();
+        let g32 = backward(&f32_.state, &vec![0.3f32; 3 * npix], &vec![-0.2f32; npix], &vec![0.1f32; npix]).unwrap();
+        for (a, b) in [(&g64.uv, &g32.uv), (&g64.conic, &g32.conic), (&g64.opacity, &g32.opacity)] {
+            let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            let err = a.iter().zip(b.iter()).fold(0.0f64, |m, (x, y)| m.max((x - *y as f64).abs()));
+            assert!(err <= 1e-3 * scale, "{err} vs scale {scale}");
+        }
     }
 
     #[test]

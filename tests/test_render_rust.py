@@ -1,4 +1,5 @@
-"""The Rust tile rasterizer (``backend="rust"``, ``rust/splat.rs``) against the torch reference:
+"""The native renderer (``backend="rust"``: ``rust/render.rs`` projection and SH colour,
+``rust/splat.rs`` tile rasterizer) against the torch reference:
 same images and pose gradients on the Panda, ``torch.autograd.gradcheck`` for every Gaussian
 parameter, bit-identical results across thread counts, and every bad input a Python exception."""
 
@@ -102,54 +103,104 @@ def test_gradcheck_every_gaussian_parameter(cutoff):
     assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-5, rtol=1e-4)
 
 
-def test_native_kernel_gradients_against_gradcheck():
-    """The kernel alone: gradcheck w.r.t. its five direct inputs (2D means, conics,
-    opacities, colours, depths)."""
-    from profrobot.render.rasterize import _Splat
+def _sh_scene(n=5, seed=3, dtype=torch.float64):
+    """``n`` Gaussians with degree-2 SH in random frames, two cameras (one rotated, off-centre
+    principal point, fx != fy): every input of the native renderer."""
+    g = torch.Generator().manual_seed(seed)
+    means, covs, op, _ = _small_scene(n, seed)
+    sh = 0.3 * torch.randn(n, 9, 3, generator=g, dtype=dtype)
+    frames = torch.linalg.qr(torch.randn(1, n, 3, 3, generator=g, dtype=dtype))[0]
+    vm = torch.eye(4, dtype=dtype).repeat(2, 1, 1)
+    c, s_ = np.cos(0.2), np.sin(0.2)
+    vm[1, :3, :3] = torch.tensor([[c, 0, s_], [0, 1, 0], [-s_, 0, c]], dtype=dtype)
+    vm[1, :3, 3] = torch.tensor([0.05, -0.03, 0.1], dtype=dtype)
+    K = torch.tensor([[[20.0, 0, 7.5], [0, 22.0, 5.5], [0, 0, 1]], [[18.0, 0, 8.2], [0, 19.0, 4.9], [0, 0, 1]]],
+                     dtype=dtype)
+    return means[None], covs[None], op, sh, frames, vm, K
 
-    g = torch.Generator().manual_seed(3)
-    C, N = 2, 5
-    uv = torch.rand(C, N, 2, generator=g, dtype=torch.float64) * torch.tensor([14.0, 10.0], dtype=torch.float64) + 1
-    sx = 1.5 + 2 * torch.rand(C, N, generator=g, dtype=torch.float64)
-    conic = torch.stack([1 / sx**2, 0.1 / sx**2, 1 / (1.2 * sx) ** 2], -1)
-    op = 0.3 + 0.5 * torch.rand(C, N, generator=g, dtype=torch.float64)
-    col = torch.rand(C, N, 3, generator=g, dtype=torch.float64)
-    z = 1 + torch.rand(C, N, generator=g, dtype=torch.float64)
 
-    def f(uv, conic, op, col, z):
-        rgb, acc, dsum, _, _ = _Splat.apply(uv, conic, op, col, z, 16, 12, "soft", None)
-        return rgb, acc, dsum
+@pytest.mark.parametrize("cutoff", ["soft", "hard"])
+def test_gradcheck_native_renderer_every_input(cutoff):
+    """Acceptance 1 (gradcheck in f64): the fused native forward and backward (projection, SH
+    colour in each Gaussian's frame, rasterization) w.r.t. means, covariances, opacities, SH
+    coefficients, frames, world-to-camera matrices and intrinsics, two cameras."""
+    from profrobot.render.rasterize import render_native
 
-    inputs = tuple(t.clone().requires_grad_(True) for t in (uv, conic, op, col, z))
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, rtol=1e-5)
+    ins = _sh_scene()
+    views = [(0, 0), (0, 1)]
+
+    def f(means, covs, op, sh, frames, vm, K):
+        out = render_native(views, 16, 12, means=means, covs=covs, opacities=op, sh=sh, frames=frames, viewmats=vm,
+                            Ks=K, cutoff=cutoff, background=torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64))
+        return out.rgb, out.alpha, out.depth * out.alpha
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in ins)
+    # eps 1e-7: a pixel of this scene sits 1e-6 from the soft cutoff's kink (alpha = 0)
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-7, atol=1e-5, rtol=1e-4)
+
+
+def test_gradcheck_native_rigid_skinning():
+    """The rigid mode (Gaussians on bodies: ``μ = R_b m + x_b``, ``Σ = R_b Q S² Qᵀ R_bᵀ``, SH in
+    the body frame) against gradcheck w.r.t. body rotations and positions of two poses, local
+    means, rotations and scales; four views (2 poses x 2 cameras)."""
+    from profrobot.render.rasterize import render_native
+
+    g = torch.Generator().manual_seed(7)
+    means, _, op, sh, _, vm, K = _sh_scene(6, 5)
+    n = means.shape[1]
+    body = torch.tensor([0, 1, 0, 1, 1, 0])
+    R = torch.linalg.qr(torch.randn(2, 2, 3, 3, generator=g, dtype=torch.float64))[0]
+    R = R * torch.linalg.det(R).sign()[..., None, None]                       # proper rotations
+    x = 0.02 * torch.randn(2, 2, 3, generator=g, dtype=torch.float64) + torch.tensor([0, 0, 0.1], dtype=torch.float64)
+    local = means[0] - torch.tensor([0, 0, 0.1], dtype=torch.float64)
+    local = torch.einsum("nji,nj->ni", R[0, body], local - x[0, body])       # pose 0 puts them where _sh_scene had them
+    Q = torch.linalg.qr(torch.randn(n, 3, 3, generator=g, dtype=torch.float64))[0]
+    scales = 0.03 + 0.03 * torch.rand(n, 3, generator=g, dtype=torch.float64)
+    views = [(0, 0), (0, 1), (1, 0), (1, 1)]
+
+    def f(R, x, local, Q, scales, sh):
+        out = render_native(views, 16, 12, body_rot=R, body_pos=x, body=body, local_means=local, local_rots=Q,
+                            scales=scales, opacities=op, sh=sh, viewmats=vm, Ks=K)
+        return out.rgb, out.alpha, out.depth * out.alpha
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in (R, x, local, Q, scales, sh))
+    assert f(*inputs)[1].sum() > 1.0                       # the Gaussians are on screen
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-7, atol=1e-5, rtol=1e-4)
 
 
 def test_same_bits_for_one_and_two_threads(panda_model, cams128):
-    """Acceptance 5: forward outputs and every gradient identical for 1 and 2 threads."""
-    from profrobot.render.rasterize import _Splat, project
-
-    th = torch.tensor(THETA, dtype=torch.float32)
-    with torch.no_grad():
-        mu, A = panda_model._world(th)
-        vm = torch.as_tensor(cams128.world_to_cam, dtype=torch.float32)
-        Ks = torch.as_tensor(cams128.K, dtype=torch.float32)
-        uv, conic, _, z = project(mu[0], panda_model.covariances(A)[0], vm, Ks, 128, 128)
-    op = torch.sigmoid(panda_model.opacity_logits).detach().expand(4, -1)
-    col = torch.rand(4, panda_model.n, 3, generator=torch.Generator().manual_seed(0))
-    w = torch.rand(4, 128, 128, 3, generator=torch.Generator().manual_seed(1))
+    """Acceptance 5: forward outputs and every gradient identical for 1 and 2 threads (float32,
+    two poses x four cameras in one call)."""
+    th = torch.tensor(THETA * 2, dtype=torch.float32)
+    th[1, 0] += 0.3
+    w = torch.rand(8, 128, 128, 3, generator=torch.Generator().manual_seed(1))
+    vm = torch.as_tensor(cams128.world_to_cam, dtype=torch.float32)
+    Ks = torch.as_tensor(cams128.K, dtype=torch.float32)
     res = []
     for threads in (1, 2):
-        ins = [t.double().clone().requires_grad_(True) for t in (uv, conic, op, col, z)]
-        rgb, acc, dsum, contrib, npairs = _Splat.apply(*ins, 128, 128, "soft", threads)
-        ((rgb * w).sum() + acc.sum() - 0.5 * dsum.sum()).backward()
-        res.append([rgb, acc, dsum, contrib] + [t.grad for t in ins])
+        panda_model.zero_grad()
+        out = panda_model.render(th, vm, Ks, 128, 128, backend="rust", threads=threads)
+        ((out.rgb * w).sum() + out.alpha.sum() - 0.5 * out.depth.sum()).backward()
+        res.append([out.rgb, out.alpha, out.depth, out.contrib] + [p.grad.clone() for p in panda_model.parameters()])
     for a, b in zip(*res):
         assert torch.equal(a, b)
 
 
+def test_batched_views_equal_one_call_per_pose(panda_model, cams128):
+    """B poses x C cameras in one native call give the images and gradients of B calls."""
+    th = torch.tensor(THETA * 3, dtype=torch.float32)
+    th[1, 1] -= 0.2
+    th[2, 3] += 0.3
+    one = [panda_model.render_views(th[b:b + 1], cams128, backend="rust") for b in range(3)]
+    all_ = panda_model.render_views(th, cams128, backend="rust")
+    for k in ("rgb", "alpha", "depth"):
+        assert torch.equal(getattr(all_, k), torch.cat([getattr(o, k) for o in one]))
+    assert all_.npairs == sum(o.npairs for o in one)
+
+
 def test_bad_input_raises_python_errors():
     """Acceptance 5: NaN/inf, wrong shapes or dtypes, empty sets, zero-size images and singular
-    conics give exceptions naming the problem, never a Rust panic."""
+    covariances give exceptions naming the problem, never a Rust panic."""
     means, covs, op, col = _small_scene(3)
     vm, K = _cam()
     r = lambda *a, **k: rasterize(*a, backend="rust", **k)
@@ -167,39 +218,47 @@ def test_bad_input_raises_python_errors():
         r(means.half(), covs, op, col, vm, K, 16, 12)
     with pytest.raises(TypeError, match="float32 or float64"):
         r(means, covs, op.long(), col, vm, K, 16, 12)
-    # a covariance that is not positive semi-definite projects to a conic that is not positive
-    # definite: the kernel names it
+    # a covariance that is not positive semi-definite projects to a 2D covariance that is not
+    # positive definite: the kernel names the covariance and the camera
     bad = covs.clone()
     bad[1] = -bad[1]
-    with pytest.raises(ProfrobotError, match=r"conics\[0, 1\].*not positive definite"):
+    with pytest.raises(ProfrobotError, match=r"covs\[0, 1\] projects .* not positive definite in camera 0"):
         r(means, bad, op, col, vm, K, 16, 12)
 
-    # the native entry points directly
-    C, N = 1, 2
-    uv = np.zeros((C, N, 2))
-    conic = np.tile([1.0, 0.0, 1.0], (C, N, 1))
-    op_, col_, z = np.full((C, N), 0.5), np.ones((C, N, 3)), np.ones((C, N))
-    with pytest.raises(ProfrobotError, match=r"conics\[0, 1\]"):
-        _core.splat_forward(uv, np.array([[[1.0, 0, 1], [1.0, 1.0, 1.0]]]), op_, col_, z, 8, 8)   # det = 0
-    with pytest.raises(ProfrobotError, match="colors must have shape"):
-        _core.splat_forward(uv, conic, op_, col_[..., :2], z, 8, 8)
+    # the native entry point directly
+    m, c, o, sh, fr, vmn, Kn = (t.numpy() for t in _sh_scene(2))
+    views = np.array([[0, 0], [0, 1]])
+    call = lambda **kw: _core.render_forward(*[kw.pop(k, d) for k, d in (("o", o), ("vm", vmn), ("K", Kn),
+                                                                          ("views", views))], 16, 12,
+                                             **{"means": m, "covs": c, "sh": sh, "frames": fr, **kw})
+    call()
+    with pytest.raises(ProfrobotError, match=r"means\[0, 1\] is inf"):
+        call(means=np.where(np.arange(6).reshape(1, 2, 3) == 3, np.inf, m))
+    with pytest.raises(ProfrobotError, match="sh must have shape"):
+        call(sh=sh[:1])
     with pytest.raises(TypeError, match="float64"):
-        _core.splat_forward(uv.astype(np.float32), conic, op_, col_, z, 8, 8)
-    with pytest.raises(ProfrobotError, match="empty"):
-        _core.splat_forward(uv[:, :0], conic[:, :0], op_[:, :0], col_[:, :0], z[:, :0], 8, 8)
-    with pytest.raises(ProfrobotError, match="image size"):
-        _core.splat_forward(uv, conic, op_, col_, z, 8, 0)
-    with pytest.raises(ProfrobotError, match=r"depths\[0, 0\] is inf"):
-        _core.splat_forward(uv, conic, op_, col_, np.array([[np.inf, 1.0]]), 8, 8)
+        call(covs=c.astype(np.float32))
+    with pytest.raises(ProfrobotError, match=r"views\[1\] = \(0, 5\) is out of range"):
+        call(views=np.array([[0, 0], [0, 5]]))
+    with pytest.raises(ProfrobotError, match="need the Gaussians' frames"):
+        call(frames=None)
+    with pytest.raises(ProfrobotError, match="exactly one of colors= and sh="):
+        call(colors=np.ones((2, 3)))
+    with pytest.raises(ProfrobotError, match="focal lengths must be positive"):
+        call(K=Kn * np.array([-1.0, 1, 1])[:, None])
     with pytest.raises(ProfrobotError, match="cutoff"):
-        _core.splat_forward(uv, conic, op_, col_, z, 8, 8, cutoff="fuzzy")
+        call(cutoff="fuzzy")
     with pytest.raises(ProfrobotError, match="threads"):
-        _core.splat_forward(uv, conic, op_, col_, z, 8, 8, threads=0)
-    *_, state = _core.splat_forward(uv, conic, op_, col_, z, 8, 8)
+        call(threads=0)
+    with pytest.raises(ProfrobotError, match=r"body\[1\] = 4 is out of range"):
+        _core.render_forward(o, vmn, Kn, views, 16, 12, body_rot=np.tile(np.eye(3), (1, 2, 1, 1)),
+                             body_pos=np.zeros((1, 2, 3)), body=np.array([0, 4]), local_means=m[0],
+                             local_rots=np.tile(np.eye(3), (2, 1, 1)), scales=np.full((2, 3), 0.02), sh=sh)
+    *_, state = call()
     with pytest.raises(ProfrobotError, match="grad_rgb must have shape"):
-        _core.splat_backward(state, np.ones((1, 8, 8)), np.ones((1, 8, 8)), np.ones((1, 8, 8)))
+        _core.render_backward(state, np.ones((2, 12, 16)), np.ones((2, 12, 16)), np.ones((2, 12, 16)))
     with pytest.raises(ProfrobotError, match="non-finite"):
-        _core.splat_backward(state, np.ones((1, 8, 8, 3)), np.full((1, 8, 8), np.nan), np.ones((1, 8, 8)))
+        _core.render_backward(state, np.ones((2, 12, 16, 3)), np.full((2, 12, 16), np.nan), np.ones((2, 12, 16)))
 
 
 def test_auto_backend_is_rust_on_cpu():
@@ -218,20 +277,17 @@ def test_fortran_ordered_inputs_regression():
     """The kernel reads its arrays in logical order: a Fortran-ordered or strided view gives the
     same image and gradients as the C-ordered copy (rust-numpy's as_slice accepts Fortran order
     and would hand back storage order)."""
-    g = torch.Generator().manual_seed(4)
-    C, N = 2, 6
-    uv = (torch.rand(C, N, 2, generator=g, dtype=torch.float64) * 10 + 2).numpy()
-    conic = np.tile([0.2, 0.03, 0.1], (C, N, 1))
-    conic[..., 0] += torch.rand(C, N, generator=g, dtype=torch.float64).numpy() * 0.2
-    op = (0.3 + 0.5 * torch.rand(C, N, generator=g, dtype=torch.float64)).numpy()
-    col = torch.rand(C, N, 3, generator=g, dtype=torch.float64).numpy()
-    z = (1 + torch.rand(C, N, generator=g, dtype=torch.float64)).numpy()
-    ref = _core.splat_forward(uv, conic, op, col, z, 14, 12)
-    fort = _core.splat_forward(np.asfortranarray(uv), np.asfortranarray(conic), np.asfortranarray(op),
-                               np.asfortranarray(col), np.asfortranarray(z[:, ::-1])[:, ::-1], 14, 12)
+    m, c, o, sh, fr, vm, K = (t.numpy() for t in _sh_scene(6, 4))
+    views = np.array([[0, 0], [0, 1]])
+    ref = _core.render_forward(o, vm, K, views, 14, 12, means=m, covs=c, sh=sh, frames=fr)
+    f = np.asfortranarray
+    fort = _core.render_forward(f(o[::-1])[::-1], f(vm), f(K), views, 14, 12, means=f(m), covs=f(c), sh=f(sh),
+                                frames=f(fr))
     for a, b in zip(ref[:4], fort[:4]):
         np.testing.assert_array_equal(a, b)
-    gr = np.random.default_rng(0).random((C, 12, 14, 3))
-    ga, gd = np.ones((C, 12, 14)), np.ones((C, 12, 14))
-    for a, b in zip(_core.splat_backward(ref[5], gr, ga, gd), _core.splat_backward(fort[5], np.asfortranarray(gr), ga, gd)):
-        np.testing.assert_array_equal(a, b)
+    gr = np.random.default_rng(0).random((2, 12, 14, 3))
+    ga, gd = np.ones((2, 12, 14)), np.ones((2, 12, 14))
+    ga_, gb_ = _core.render_backward(ref[5], gr, ga, gd), _core.render_backward(fort[5], f(gr), ga, gd)
+    assert ga_.keys() == gb_.keys() == {"means", "covs", "frames", "sh", "opacities", "viewmats", "Ks"}
+    for k in ga_:
+        np.testing.assert_array_equal(ga_[k], gb_[k])

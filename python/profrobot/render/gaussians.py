@@ -35,7 +35,7 @@ import torch
 from ..kinematics import Kinematics, quat_to_matrix
 from ..files import atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError
-from .rasterize import Backend, Cutoff, RenderOut, rasterize, rasterize_unchecked
+from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
 from ..errors import InputError
 from ..deprecation import deprecated_alias
 
@@ -319,8 +319,24 @@ class GaussianRobot(torch.nn.Module):
         (B, K), ``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3) tensors on the model's device, e.g. from
         :class:`profrobot.render.ImageTargets`): no per-call finiteness checks and no host syncs,
         unless ``check``."""
+        B, C = theta.shape[0], viewmats.shape[0]
+        op = torch.sigmoid(self.opacity_logits)
+        if native_backend(backend, self.means.device):
+            # one native call for the B x C views: skinning (rigid), projection and SH colour
+            # (in each Gaussian's body frame) fused with rasterization, forward and backward;
+            # the kernel checks its inputs (NaN/inf, shapes) whatever ``check`` says
+            views = [(b, c) for b in range(B) for c in range(C)]
+            common = dict(opacities=op, sh=self.sh, viewmats=viewmats, Ks=Ks, background=background, cutoff=cutoff,
+                          threads=threads)
+            if self.skin_mlp is None:
+                fk = self.kin(theta)
+                return render_native(views, width, height, body_rot=fk.rot, body_pos=fk.pos, body=self.body,
+                                     local_means=self.means, local_rots=quat_to_matrix(self.quats),
+                                     scales=torch.exp(self.log_scales), **common)
+            mu, A, Ab = self._world_frames(theta)
+            return render_native(views, width, height, means=mu, covs=self.covariances(A),
+                                 frames=Ab if self.sh.shape[1] > 1 else None, **common)
         mu, A, Ab = self._world_frames(theta)                                          # Ab: body motion (B, N, 3, 3)
-        B, C = mu.shape[0], viewmats.shape[0]
         cov = self.covariances(A)
         # view direction from each camera centre to each Gaussian, in the Gaussian's body frame
         # (normalised once, after the rotation into the body frame)
@@ -332,7 +348,6 @@ class GaussianRobot(torch.nn.Module):
         d_loc = torch.stack([Ab[..., 0, i] * dx + Ab[..., 1, i] * dy + Ab[..., 2, i] * dz for i in range(3)], -1)
         d_loc = d_loc / d_loc.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         col = eval_sh(self.sh[None, None], d_loc)                                      # (B, C, N, 3)
-        op = torch.sigmoid(self.opacity_logits)
         # one pose: every camera shares the means and covariances (broadcast, not copied)
         rep = (lambda t: t[0]) if B == 1 else (lambda t: t[:, None].expand(B, C, *t.shape[1:]).reshape(B * C, *t.shape[1:]))
         draw = rasterize if check else rasterize_unchecked

@@ -16,10 +16,13 @@ Cost: the contributing pairs are *found* without autograd (each Gaussian's tight
 where alpha >= 1/255, then the alpha and transmittance tests of 3DGS: alpha >= 1/255, and a pixel
 stops once T would fall below 1e-4), and only those pairs are differentiated.
 
-Backends: ``"rust"`` (the CPU default) runs steps 3–4 in the Rust core (``rust/splat.rs``): a
-tile rasterizer with per-tile depth-sorted lists, the same compositing rules, and its exact
-backward, wrapped in a ``torch.autograd.Function`` (:class:`_Splat`); projection (steps 1–2)
-stays in torch so autograd reaches poses, Gaussian parameters and cameras. ``"torch"`` is the
+Backends: ``"rust"`` (the CPU default) runs steps 1–4 and their backward in the Rust core
+(``rust/render.rs``: projection and SH colour, ``rust/splat.rs``: a tile rasterizer with
+per-tile depth-sorted lists, the same compositing rules, every composited pair recorded for its
+exact backward), in float32 for float32 tensors, float64 otherwise, as one
+``torch.autograd.Function`` (:class:`_Render`) whose gradients reach the 3D means and
+covariances, opacities, colours (or SH coefficients and frames) and cameras; torch carries
+them on to poses and Gaussian parameters. ``"torch"`` is the
 reference implementation below; ``"gsplat"`` is gsplat's CUDA kernel.
 
 Cutoff: 3DGS drops alpha < 1/255 (``cutoff="hard"``), a jump that finite differences see and
@@ -279,27 +282,40 @@ def _rasterize_torch(means, covs, opacities, colors, viewmats, Ks, width, height
     return RenderOut(rgb, depth, acc, int(g.numel()), contrib)
 
 
-class _Splat(torch.autograd.Function):
-    """The Rust tile rasterizer as an autograd node: projected Gaussians in, premultiplied
-    images out. Computes in float64 whatever the input dtype; outputs take the input dtype.
+class _Render(torch.autograd.Function):
+    """The native renderer (``rust/render.rs``) as one autograd node: EWA projection, colour
+    (SH or given), tile rasterization, and the fused backward of all three.
 
-    forward(means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 3],
-    depths [C, N], width, height, cutoff, threads) -> rgb [C, H, W, 3] (``Σ w c``, no
-    background), alpha [C, H, W] (``Σ w``), dsum [C, H, W] (``Σ w z``), contrib [C, N]
-    (no gradient), npairs (0-d int64, no gradient)."""
+    forward(spec, *tensors): ``spec = (names, views, width, height, cutoff, threads)`` names
+    the tensors (the keywords of ``_core.render_forward``: ``opacities`` [N] or [V, N],
+    ``viewmats`` [C, 4, 4], ``Ks`` [C, 3, 3]; the Gaussians either in the world, ``means``
+    [P, N, 3], ``covs`` [P, N, 3, 3] and optionally ``frames`` [P, N, 3, 3], or rigidly on
+    bodies, ``body_rot`` [P, nb, 3, 3], ``body_pos`` [P, nb, 3], ``body`` [N] int64,
+    ``local_means`` [N, 3], ``local_rots`` [N, 3, 3], ``scales`` [N, 3]; colours ``sh``
+    [N, nsh, 3] or ``colors`` [N, 3] or [V, N, 3]); ``views`` (V, 2) int64 numpy ``(pose,
+    camera)``. Returns rgb [V, H, W, 3] (``Σ w c``, no background), alpha [V, H, W]
+    (``Σ w``), dsum [V, H, W] (``Σ w z``), contrib [V, N] (no gradient), npairs (0-d int64,
+    no gradient).
+
+    Computes in float32 when every float input is float32, else in float64 (gradient checks);
+    outputs and gradients take each input's dtype and device."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depths, width, height, cutoff, threads):
+    def forward(ctx, spec, *tensors):
         from .. import _core
 
-        f64 = lambda t: t.detach().to(device="cpu", dtype=torch.float64).contiguous().numpy()
-        rgb, alpha, dsum, contrib, npairs, state = _core.splat_forward(
-            f64(means2d), f64(conics), f64(opacities), f64(colors), f64(depths), width, height,
-            cutoff=cutoff, threads=threads)
-        ctx.state, ctx.threads = state, threads
-        ctx.meta = [(t.dtype, t.device) for t in (means2d, conics, opacities, colors, depths)]
-        dt, dev = means2d.dtype, means2d.device
-        out = [torch.from_numpy(a).to(device=dev, dtype=dt) for a in (rgb, alpha, dsum, contrib)]
+        names, views, width, height, cutoff, threads = spec
+        floats = [t for k, t in zip(names, tensors) if k != "body"]
+        dt = torch.float32 if all(t.dtype == torch.float32 for t in floats) else torch.float64
+        arrays = {k: t.detach().to(device="cpu", dtype=torch.int64 if k == "body" else dt).contiguous().numpy()
+                  for k, t in zip(names, tensors)}
+        rgb, alpha, dsum, contrib, npairs, state = _core.render_forward(
+            arrays.pop("opacities"), arrays.pop("viewmats"), arrays.pop("Ks"), views, width, height, cutoff=cutoff,
+            threads=threads, **arrays)
+        ctx.state, ctx.threads, ctx.compute_dtype, ctx.names = state, threads, dt, names
+        ctx.meta = [(t.dtype, t.device) for t in tensors]
+        odt, dev = floats[0].dtype, floats[0].device
+        out = [torch.from_numpy(a).to(device=dev, dtype=odt) for a in (rgb, alpha, dsum, contrib)]
         npairs_t = torch.tensor(npairs, dtype=torch.int64)
         ctx.mark_non_differentiable(out[3], npairs_t)
         return (*out, npairs_t)
@@ -309,25 +325,47 @@ class _Splat(torch.autograd.Function):
     def backward(ctx, g_rgb, g_alpha, g_dsum, _g_contrib, _g_npairs):
         from .. import _core
 
-        C, H, W = g_alpha.shape
-        f64 = lambda t, shape: (torch.zeros(shape, dtype=torch.float64) if t is None
-                                else t.detach().to(device="cpu", dtype=torch.float64).contiguous()).numpy()
-        grads = _core.splat_backward(ctx.state, f64(g_rgb, (C, H, W, 3)), f64(g_alpha, (C, H, W)),
-                                     f64(g_dsum, (C, H, W)), threads=ctx.threads)
-        out = [torch.from_numpy(g).to(device=dev, dtype=dt) for g, (dt, dev) in zip(grads, ctx.meta)]
-        return (*out, None, None, None, None)
+        V, H, W = g_alpha.shape
+        dt = ctx.compute_dtype
+        arr = lambda t, shape: (torch.zeros(shape, dtype=dt) if t is None
+                                else t.detach().to(device="cpu", dtype=dt).contiguous()).numpy()
+        grads = _core.render_backward(ctx.state, arr(g_rgb, (V, H, W, 3)), arr(g_alpha, (V, H, W)),
+                                      arr(g_dsum, (V, H, W)), threads=ctx.threads)
+        out = [None if k not in grads else torch.from_numpy(grads[k]).to(device=dev, dtype=t)
+               for k, (t, dev) in zip(ctx.names, ctx.meta)]
+        return (None, *out)
+
+
+def render_native(views, width, height, *, background=None, cutoff: Cutoff = "soft", threads=None,
+                  **tensors) -> RenderOut:
+    """The native renderer (:class:`_Render`) with expected depth and the background added:
+    ``views`` (V, 2) ``(pose, camera)`` pairs; ``tensors`` by name (see :class:`_Render`;
+    None values are left out)."""
+    import numpy as np
+
+    views = np.ascontiguousarray(np.asarray(views, dtype=np.int64).reshape(-1, 2))
+    named = {k: v for k, v in tensors.items() if v is not None}
+    spec = (tuple(named), views, int(width), int(height), cutoff, threads)
+    rgb, acc, dsum, contrib, npairs = _Render.apply(spec, *named.values())
+    depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
+    if background is not None:
+        cam_bg = background.reshape(-1, 3)
+        if cam_bg.shape[0] not in (1, len(views)):          # one background per camera
+            cam_bg = cam_bg[torch.as_tensor(views[:, 1], device=cam_bg.device)]
+        rgb = rgb + (1 - acc)[..., None] * cam_bg.reshape(-1, 1, 1, 3)
+    return RenderOut(rgb, depth, acc, int(npairs), contrib)
 
 
 def _rasterize_rust(means, covs, opacities, colors, viewmats, Ks, width, height, background, cutoff, threads=None):
+    """rasterize() on the native renderer: Gaussians shared by every camera (one pose) or
+    given per camera (camera c draws pose c)."""
     C, N = viewmats.shape[0], means.shape[-2]
-    uv, conic, _, z = project(means, covs, viewmats, Ks, width, height)
-    opac = opacities.expand(C, N)
-    cols = colors.expand(C, N, 3)
-    rgb, acc, dsum, contrib, npairs = _Splat.apply(uv, conic, opac, cols, z, width, height, cutoff, threads)
-    depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
-    if background is not None:
-        rgb = rgb + (1 - acc)[..., None] * background.reshape(-1, 1, 1, 3)
-    return RenderOut(rgb, depth, acc, int(npairs), contrib)
+    per_cam = means.ndim == 3 or covs.ndim == 4
+    P = C if per_cam else 1
+    means, covs = means.expand(P, N, 3), covs.expand(P, N, 3, 3)
+    views = [(c if per_cam else 0, c) for c in range(C)]
+    return render_native(views, width, height, means=means, covs=covs, opacities=opacities, colors=colors,
+                         viewmats=viewmats, Ks=Ks, background=background, cutoff=cutoff, threads=threads)
 
 
 _warned = False
@@ -366,6 +404,12 @@ def _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, heigh
     if background is not None:
         rgb = rgb + (1 - acc)[..., None] * background.reshape(-1, 1, 1, 3)
     return RenderOut(rgb, depth, acc)
+
+
+def native_backend(backend: Backend, device) -> bool:
+    """Whether ``backend`` draws with the native renderer on ``device``: "rust", or "auto"
+    without gsplat on CUDA."""
+    return backend == "rust" or (backend == "auto" and not _gsplat_available(device))
 
 
 def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: int, *, background=None,
