@@ -128,6 +128,16 @@ def speed(model, cams, theta, threads, backend="rust", reps=5):
                 pairs=out.npairs)
 
 
+def save_native_scene(model, theta, cams, path):
+    """The posed Gaussians of ``theta`` (1, K) for ``benches/render_callgrind.py``."""
+    with torch.no_grad():
+        mu, A, Ab = model._world_frames(theta)
+        cov = model.covariances(A)
+    np.savez(path, mu=mu.numpy(), cov=cov.numpy(), op=torch.sigmoid(model.opacity_logits).detach().numpy(),
+             vm=np.asarray(cams.world_to_cam, np.float32), K=np.asarray(cams.K, np.float32),
+             sh=model.sh.detach().numpy(), fr=Ab.contiguous().numpy(), size=np.array([cams.height, cams.width]))
+
+
 def speed_table(model, theta, poses64):
     """Rust against torch in one run (4 cameras, 128^2, one pose, 1 and 2 threads), then the
     Rust kernel alone at 256^2, with 8 cameras, and for a 64-pose batch."""
@@ -146,8 +156,12 @@ def speed_table(model, theta, poses64):
     rows["rust_8cam_128_t2"] = speed(model, ring_cameras(8, size=128, distance=DIST, elevation=[-15.0], azimuth0=22.5,
                                                          lookat=LOOKAT), theta, 2)
     rows["rust_4cam_128_64poses_t2"] = speed(model, cams4, poses64, 2, reps=2)
+    rows["rust_4cam_128_1pose_per_view_ms"] = 1e3 * rows["rust_4cam_128_t2"]["median_s"] / 4
+    rows["rust_4cam_128_64poses_per_view_ms"] = 1e3 * rows["rust_4cam_128_64poses_t2"]["median_s"] / (64 * 4)
     for k in ("rust_4cam_256_t2", "rust_8cam_128_t2", "rust_4cam_128_64poses_t2"):
         print(f"  {k}: {1e3 * rows[k]['median_s']:.1f} ms", flush=True)
+    print(f"  per view: batch 1 {rows['rust_4cam_128_1pose_per_view_ms']:.2f} ms, batch 64 "
+          f"{rows['rust_4cam_128_64poses_per_view_ms']:.2f} ms", flush=True)
     rows["loadavg"] = os.getloadavg()
     return rows
 
@@ -259,6 +273,8 @@ def main(argv=None):
 
     theta = torch.tensor(te.poses[:1], dtype=torch.float32)
     poses64 = torch.tensor(free_poses(robot, 64, 5), dtype=torch.float32)
+    save_native_scene(model, theta, ring_cameras(4, size=128, distance=DIST, elevation=[-15.0], azimuth0=22.5,
+                                                 lookat=LOOKAT), os.path.join(a.out, "native_scene.npz"))
     if not a.skip_speed:
         print("speed (forward + backward):", flush=True)
         res["speed"] = speed_table(model, theta, poses64)

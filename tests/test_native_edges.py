@@ -126,7 +126,13 @@ def _bad_core_calls(robot):
     missing = {key: v for key, v in arrays.items() if key != "exclude"}
     wrong_dtype = dict(arrays, jnt_axis=arrays["jnt_axis"].astype(np.float32))
     bad_model = dict(arrays, geom_body=arrays["geom_body"] + 1000)
-    one = np.zeros((1, 1, 2))
+    cam = dict(opacities=np.full(1, 0.5), viewmats=np.eye(4)[None], Ks=np.array([[[8.0, 0, 2], [0, 8, 2], [0, 0, 1]]]),
+               views=np.zeros((1, 2), np.int64), means=np.array([[[0.0, 0, 1]]]), covs=np.eye(3)[None, None] * 1e-3,
+               colors=np.ones((1, 3)))
+
+    def render(**kw):
+        a = {**cam, **kw}
+        return _core.render_forward(a.pop("opacities"), a.pop("viewmats"), a.pop("Ks"), a.pop("views"), 4, 4, **a)
     return [
         ("label: wrong width", lambda: core.label(np.zeros((2, k + 1))), _core.InputError, ValueError),
         ("label: NaN", lambda: core.label(np.full((2, k), np.nan)), _core.InputError, ValueError),
@@ -155,19 +161,12 @@ def _bad_core_calls(robot):
         ("interpolate: NaN", lambda: _core.interpolate(q * np.nan, q, 3, np.zeros(k, bool)), _core.InputError,
          ValueError),
         ("interpolate: float flags", lambda: _core.interpolate(q, q, 3, np.zeros(k)), _core.InputTypeError, TypeError),
-        ("splat_forward: cutoff", lambda: _core.splat_forward(one, np.ones((1, 1, 3)), np.ones((1, 1)),
-                                                              np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4, cutoff="x"),
-         _core.InputError, ValueError),
-        ("splat_forward: NaN", lambda: _core.splat_forward(one * np.nan, np.ones((1, 1, 3)), np.ones((1, 1)),
-                                                           np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4),
-         _core.InputError, ValueError),
-        ("splat_forward: shapes", lambda: _core.splat_forward(one, np.ones((1, 2, 3)), np.ones((1, 1)),
-                                                              np.ones((1, 1, 3)), np.ones((1, 1)), 4, 4),
-         _core.InputError, ValueError),
-        ("splat_forward: int dtype", lambda: _core.splat_forward(one.astype(np.int64), np.ones((1, 1, 3)),
-                                                                 np.ones((1, 1)), np.ones((1, 1, 3)),
-                                                                 np.ones((1, 1)), 4, 4),
-         _core.InputTypeError, TypeError),
+        ("render_forward: cutoff", lambda: render(cutoff="x"), _core.InputError, ValueError),
+        ("render_forward: NaN", lambda: render(means=np.full((1, 1, 3), np.nan)), _core.InputError, ValueError),
+        ("render_forward: shapes", lambda: render(covs=np.ones((1, 2, 3, 3))), _core.InputError, ValueError),
+        ("render_forward: int dtype", lambda: render(means=np.ones((1, 1, 3), np.int64)), _core.InputTypeError,
+         TypeError),
+        ("render_forward: view out of range", lambda: render(views=np.array([[1, 0]])), _core.InputError, ValueError),
     ]
 
 

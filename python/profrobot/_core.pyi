@@ -21,7 +21,7 @@ from typing import Literal, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "SplatState", "splat_forward", "splat_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "RenderState", "render_forward", "render_backward",
            "__version__"]
 
 __version__: str
@@ -114,34 +114,46 @@ def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], s
     moves the negative way), straight otherwise."""
 
 
+Float = npt.NDArray[np.float32] | npt.NDArray[np.float64]
+
+
 @final
-class SplatState:
-    """What :func:`splat_backward` needs from one :func:`splat_forward` call: the tile lists,
-    each pixel's transmittance and last composited Gaussian, and the inputs. Opaque."""
+class RenderState:
+    """What :func:`render_backward` needs from one :func:`render_forward` call: the scene, the
+    tile lists and every composited pair (list entry, pixel, alpha, transmittance in front).
+    Opaque."""
 
-def splat_forward(means2d: npt.NDArray[np.float64], conics: npt.NDArray[np.float64], opacities: npt.NDArray[np.float64],
-                  colors: npt.NDArray[np.float64], depths: npt.NDArray[np.float64], width: int, height: int, *,
-                  cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
-                  ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
-                             npt.NDArray[np.float64], int, SplatState]:
-    """Tile rasterization of C cameras' projected Gaussians (``rust/splat.rs``).
+def render_forward(opacities: Float, viewmats: Float, Ks: Float, views: npt.NDArray[np.int64], width: int,
+                   height: int, *, means: Float | None = None, covs: Float | None = None, frames: Float | None = None,
+                   body_rot: Float | None = None, body_pos: Float | None = None,
+                   body: npt.NDArray[np.int64] | None = None, local_means: Float | None = None,
+                   local_rots: Float | None = None, scales: Float | None = None, colors: Float | None = None,
+                   sh: Float | None = None, cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
+                   ) -> tuple[Float, Float, Float, Float, int, RenderState]:
+    """The Gaussian renderer after forward kinematics (``rust/render.rs``, ``rust/splat.rs``):
+    EWA projection, colour, tile rasterization; float32 when the inputs are float32, float64
+    when they are float64 (every float input the same dtype).
 
-    means2d (C, N, 2) pixels (pixel centres at integers); conics (C, N, 3) ``(a, b, c)`` of the
-    inverse 2D covariance ``[[a, b], [b, c]]`` (px^-2, positive definite); opacities (C, N);
-    colors (C, N, 3); depths (C, N) camera z (m; those <= 0.01 are not drawn). Per pixel, front
-    to back, ``alpha = min(0.99, o exp(-q/2))`` (``"soft"``: minus 1/255, kept when > 0;
-    ``"hard"``: kept when >= 1/255), stopping before transmittance falls below 1e-4.
+    The Gaussians of P poses, either in the world (``means`` (P, N, 3) m, ``covs`` (P, N, 3, 3)
+    m^2, optional ``frames`` (P, N, 3, 3), each Gaussian's frame to world) or rigidly on
+    bodies (``body_rot`` (P, nb, 3, 3), ``body_pos`` (P, nb, 3) m, ``body`` (N,) int64,
+    ``local_means`` (N, 3) m, ``local_rots`` (N, 3, 3), ``scales`` (N, 3) m: ``mu = R_b m +
+    x_b``, ``Sigma = R_b Q diag(s^2) Q^T R_b^T``, frame ``R_b``); ``opacities`` (N,) or (V, N);
+    colours either ``sh`` (N, 1 | 4 | 9, 3) (3DGS's basis, in each Gaussian's frame, viewed from
+    the camera centre; degree >= 1 needs frames) or ``colors`` (N, 3) or (V, N, 3); cameras
+    ``viewmats`` (C, 4, 4) world-to-camera (OpenCV) and ``Ks`` (C, 3, 3) (fx, fy > 0, pixel
+    centres at integers); ``views`` (V, 2) the (pose, camera) of each image.
 
-    Returns rgb (C, H, W, 3) ``sum w c`` (no background), alpha (C, H, W) ``sum w``, dsum
-    (C, H, W) ``sum w z``, contrib (C, N) each Gaussian's largest weight, the number of
-    composited pairs, and the backward state. Bit-identical for any ``threads``. NaN/inf, wrong
-    shapes, N = 0, a zero-size image or a conic that is not positive definite raise
-    :class:`ProfrobotError` naming the entry; a wrong dtype TypeError."""
+    Returns rgb (V, H, W, 3) ``sum w c`` (no background), alpha (V, H, W) ``sum w``, dsum
+    (V, H, W) ``sum w z``, contrib (V, N) each Gaussian's largest weight, the number of
+    composited pairs, and the backward state. Bit-identical for any ``threads``. NaN/inf,
+    wrong shapes, N = 0, a zero-size image, views or bodies out of range, a covariance that
+    projects to a 2D covariance that is not positive definite raise :class:`InputError` naming
+    the entry; a wrong dtype :class:`InputTypeError`."""
 
-def splat_backward(state: SplatState, grad_rgb: npt.NDArray[np.float64], grad_alpha: npt.NDArray[np.float64],
-                   grad_dsum: npt.NDArray[np.float64], *, threads: int | None = None
-                   ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
-                              npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+def render_backward(state: RenderState, grad_rgb: Float, grad_alpha: Float, grad_dsum: Float, *,
+                    threads: int | None = None) -> dict[str, Float]:
     """Exact gradients of ``sum(grad_rgb * rgb) + sum(grad_alpha * alpha) + sum(grad_dsum * dsum)``
-    w.r.t. :func:`splat_forward`'s means2d, conics, opacities, colors and depths (same shapes).
-    Deterministic: each Gaussian sums its per-tile partial gradients in a fixed order."""
+    w.r.t. :func:`render_forward`'s inputs, by keyword (the rigid arrays' or ``means``,
+    ``covs``, ``frames``; ``sh`` or ``colors``; ``opacities``, ``viewmats``, ``Ks``), same
+    shapes, in the state's dtype. Deterministic: every sum runs in a fixed order."""

@@ -1,5 +1,5 @@
-"""Differentiable robot splat renderer (Dr. Robot-style): torch projection, the Rust tile kernel on a
-CPU, gsplat on CUDA, a pure-PyTorch reference.
+"""Differentiable robot splat renderer (Dr. Robot-style): on a CPU one native call each way for
+skinning, projection, SH colour and tile rasterization; gsplat on CUDA; a pure-PyTorch reference.
 
 - :mod:`.cameras`: one pinhole camera model (OpenCV K and world_to_cam; calibrated, look-at, MJCF and
   MuJoCo free cameras; JSON) that MuJoCo, both rasterizers, fits and pictures share (:class:`Cameras`);
@@ -8,7 +8,7 @@ CPU, gsplat on CUDA, a pure-PyTorch reference.
 - :mod:`.mjviews`: MuJoCo's offscreen renderer and the chunk functions that draw in workers;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
 - :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
-  ``rust`` (``rust/splat.rs``), ``torch``, ``gsplat``;
+  ``rust`` (``rust/render.rs``, ``rust/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
 - :mod:`.targets`: target images (photos with masks, depth optional, any resolution) validated once and
   the image loss (:class:`ImageTargets`);
