@@ -24,7 +24,6 @@ def load_core():
     here = os.path.dirname(os.path.abspath(__file__))
     paths = glob.glob(os.path.join(here, "..", "python", "profrobot", "_core*.so"))
     if not paths:                                    # an installed (non-editable) package
-        import importlib.machinery
         import sysconfig
         paths = glob.glob(os.path.join(sysconfig.get_paths()["platlib"], "profrobot", "_core*.so"))
     spec = importlib.util.spec_from_file_location("_core", paths[0])
