@@ -21,9 +21,9 @@ use crate::model::RobotModel;
 use crate::oracle::{nearest_free, OracleOptions};
 use crate::pairs::PairKind;
 use crate::plan::{plan_path, PlanOptions, PlanStatus};
-use crate::sample::sample_uniform;
 use crate::real::Real;
 use crate::render;
+use crate::sample::sample_uniform;
 use crate::splat::Cutoff;
 use crate::threads::with_threads;
 
@@ -451,14 +451,19 @@ struct PyRenderState {
 
 /// `obj` as a `T` array of shape `want` (`None`: any size, which is returned), copied in
 /// logical order; errors name the argument.
-fn real_array<T: numpy::Element + Copy>(obj: &Bound<'_, PyAny>, name: &str, want: &[Option<usize>], dtype: &str) -> PyResult<(Vec<T>, Vec<usize>)> {
+fn real_array<T: numpy::Element + Copy>(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    want: &[Option<usize>],
+    dtype: &str,
+) -> PyResult<(Vec<T>, Vec<usize>)> {
     let show = || {
         let parts: Vec<String> = want.iter().map(|d| d.map_or("*".to_string(), |k| k.to_string())).collect();
         format!("({})", parts.join(", "))
     };
-    let a: numpy::PyReadonlyArrayDyn<'_, T> = obj
-        .extract()
-        .map_err(|_| type_error(format!("render_forward: {name} must be a {dtype} numpy array of shape {} (every float input the same dtype)", show())))?;
+    let a: numpy::PyReadonlyArrayDyn<'_, T> = obj.extract().map_err(|_| {
+        type_error(format!("render_forward: {name} must be a {dtype} numpy array of shape {} (every float input the same dtype)", show()))
+    })?;
     let shape = a.shape().to_vec();
     if shape.len() != want.len() || shape.iter().zip(want).any(|(s, w)| w.is_some_and(|w| w != *s)) {
         return Err(input_error(format!("render_forward: {name} must have shape {}; got {shape:?}", show())));
@@ -577,7 +582,11 @@ fn read_scene<T: numpy::Element + Real>(a: &SceneArgs<'_, '_>, dtype: &str) -> P
 }
 
 /// Images and backward state: rgb `[V, H, W, 3]`, alpha, dsum `[V, H, W]`, contrib `[V, N]`.
-fn render_outputs<'py, T: numpy::Element + Real>(py: Python<'py>, f: render::Forward<T>, wrap: fn(render::State<T>) -> AnyRenderState) -> PyResult<Bound<'py, PyTuple>> {
+fn render_outputs<'py, T: numpy::Element + Real>(
+    py: Python<'py>,
+    f: render::Forward<T>,
+    wrap: fn(render::State<T>) -> AnyRenderState,
+) -> PyResult<Bound<'py, PyTuple>> {
     let (v, n, h, w) = (f.state.scene.views.len(), f.state.scene.n, f.state.scene.height, f.state.scene.width);
     let items: Vec<Bound<'py, PyAny>> = vec![
         PyArray1::from_vec(py, f.rgb).reshape([v, h, w, 3])?.into_any(),
@@ -647,7 +656,7 @@ fn render_forward<'py>(
         }
     };
     let args = SceneArgs { opacities, viewmats, ks: Ks, views, width, height, world, frames, rigid, colors, sh, cutoff };
-    let is_f32 = opacities.getattr("dtype").and_then(|d| d.str()).map(|s| s.to_string() == "float32").unwrap_or(false);
+    let is_f32 = opacities.getattr("dtype").and_then(|d| d.str()).map(|s| s == "float32").unwrap_or(false);
     if is_f32 {
         let sc = read_scene::<f32>(&args, "float32")?;
         let f = py.detach(|| with_threads(threads, || render::forward(sc))).map_err(to_py)?.map_err(to_py)?;
@@ -675,7 +684,11 @@ fn render_grads<'py, T: numpy::Element + Real>(
         let want: Vec<Option<usize>> = [v, h, w].iter().chain(tail).map(|&k| Some(k)).collect();
         real_array::<T>(obj, name, &want, dtype).map(|a| a.0).map_err(|e| {
             let msg = e.to_string().replace("render_forward", "render_backward");
-            if e.is_instance_of::<PyTypeError>(py) { type_error(msg) } else { input_error(msg) }
+            if e.is_instance_of::<PyTypeError>(py) {
+                type_error(msg)
+            } else {
+                input_error(msg)
+            }
         })
     };
     let (gr, ga, gd) = (img(grad_rgb, "grad_rgb", &[3])?, img(grad_alpha, "grad_alpha", &[])?, img(grad_dsum, "grad_dsum", &[])?);
@@ -685,8 +698,11 @@ fn render_grads<'py, T: numpy::Element + Real>(
         render::Colors::Rgb { per_view: true, .. } => PyArray1::from_vec(py, g.colors).reshape([v, n, 3])?.into_any(),
         render::Colors::Rgb { per_view: false, .. } => PyArray1::from_vec(py, g.colors).reshape([n, 3])?.into_any(),
     };
-    let opacity =
-        if s.opacity_per_view { PyArray1::from_vec(py, g.opacity).reshape([v, n])?.into_any() } else { PyArray1::from_vec(py, g.opacity).into_any() };
+    let opacity = if s.opacity_per_view {
+        PyArray1::from_vec(py, g.opacity).reshape([v, n])?.into_any()
+    } else {
+        PyArray1::from_vec(py, g.opacity).into_any()
+    };
     let out = PyDict::new(py);
     match g.rigid {
         None => {

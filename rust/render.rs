@@ -39,6 +39,9 @@
 //! Gaussians (the shared parameters, the cameras) run in a fixed order, cameras in fixed
 //! chunks of Gaussians. Bit-identical for any thread count.
 
+// The Jacobians below are written entry by entry, indices as in the formulas beside them.
+#![allow(clippy::needless_range_loop)]
+
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, Result};
@@ -51,7 +54,8 @@ pub const LOWPASS: f64 = 0.3;
 pub const JACOBIAN_MARGIN: f64 = 0.15;
 const SH_C0: f64 = 0.282_094_791_773_878_14;
 const SH_C1: f64 = 0.488_602_511_902_919_9;
-const SH_C2: [f64; 5] = [1.092_548_430_592_079_2, -1.092_548_430_592_079_2, 0.315_391_565_252_520_05, -1.092_548_430_592_079_2, 0.546_274_215_296_039_6];
+const SH_C2: [f64; 5] =
+    [1.092_548_430_592_079_2, -1.092_548_430_592_079_2, 0.315_391_565_252_520_05, -1.092_548_430_592_079_2, 0.546_274_215_296_039_6];
 /// Gaussians per chunk of the camera-gradient sums (fixed: the sums do not depend on threads).
 const CHUNK: usize = 1024;
 
@@ -349,21 +353,13 @@ fn dot3<T: Real>(a: [T; 3], b: [T; 3]) -> T {
 /// `Σ m` for a row-major 3 × 3 `Σ`.
 #[inline(always)]
 fn mat_vec<T: Real>(s: &[T], m: [T; 3]) -> [T; 3] {
-    [
-        s[0] * m[0] + s[1] * m[1] + s[2] * m[2],
-        s[3] * m[0] + s[4] * m[1] + s[5] * m[2],
-        s[6] * m[0] + s[7] * m[1] + s[8] * m[2],
-    ]
+    [s[0] * m[0] + s[1] * m[1] + s[2] * m[2], s[3] * m[0] + s[4] * m[1] + s[5] * m[2], s[6] * m[0] + s[7] * m[1] + s[8] * m[2]]
 }
 
 /// `Σᵀ m`.
 #[inline(always)]
 fn mat_t_vec<T: Real>(s: &[T], m: [T; 3]) -> [T; 3] {
-    [
-        s[0] * m[0] + s[3] * m[1] + s[6] * m[2],
-        s[1] * m[0] + s[4] * m[1] + s[7] * m[2],
-        s[2] * m[0] + s[5] * m[1] + s[8] * m[2],
-    ]
+    [s[0] * m[0] + s[3] * m[1] + s[6] * m[2], s[1] * m[0] + s[4] * m[1] + s[7] * m[2], s[2] * m[0] + s[5] * m[1] + s[8] * m[2]]
 }
 
 /// The Jacobian clamp's bounds on `x/z` (or `y/z`): the image's extent (pixel edges -1/2 and
@@ -589,10 +585,13 @@ impl<T: Real> Scene<T> {
         if self.width == 0 || self.height == 0 {
             return invalid_input(format!("render: image size must be positive; got {}x{}", self.width, self.height));
         }
-        let (ov, cv) = (if self.opacity_per_view { v } else { 1 }, match &self.colors {
-            Colors::Rgb { per_view: true, .. } => v,
-            _ => 1,
-        });
+        let (ov, cv) = (
+            if self.opacity_per_view { v } else { 1 },
+            match &self.colors {
+                Colors::Rgb { per_view: true, .. } => v,
+                _ => 1,
+            },
+        );
         let mut arrays: Vec<(&str, &Vec<T>, usize, usize)> = vec![("opacities", &self.opacity, ov, n)];
         match &self.rigid {
             None => {
@@ -644,7 +643,11 @@ impl<T: Real> Scene<T> {
                 return invalid_input(format!("render: camera {k} (viewmats or Ks) contains NaN or inf"));
             }
             if !(cam.fx > T::zero() && cam.fy > T::zero()) {
-                return invalid_input(format!("render: Ks[{k}] focal lengths must be positive; got fx {:?}, fy {:?}", cam.fx.f64(), cam.fy.f64()));
+                return invalid_input(format!(
+                    "render: Ks[{k}] focal lengths must be positive; got fx {:?}, fy {:?}",
+                    cam.fx.f64(),
+                    cam.fy.f64()
+                ));
             }
         }
         for (k, &[pp, cc]) in self.views.iter().enumerate() {
@@ -790,6 +793,17 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
     let [pose, ci] = s.views[view];
     let cam = &s.cameras[ci];
     let g = view * n + i;
+    // A Gaussian that composited no pixel of this view has zero gradients from the
+    // rasterizer, so every gradient below is exactly zero: skip it (most hidden Gaussians).
+    let untouched = g2.uv[2 * g] == zero
+        && g2.uv[2 * g + 1] == zero
+        && g2.conic[3 * g..3 * g + 3].iter().all(|&x| x == zero)
+        && g2.opacity[g] == zero
+        && g2.color[3 * g..3 * g + 3].iter().all(|&x| x == zero)
+        && g2.depth[g] == zero;
+    if untouched {
+        return out;
+    }
     let mu = s.mean(pose, i);
     let cov = s.cov(pose, i);
     let pj = project(mu, cov, cam, s.width, s.height);
@@ -802,14 +816,21 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
         Colors::Rgb { .. } => out.color[..3].copy_from_slice(&g_col),
         Colors::Sh { nsh, coeffs } => {
             let nsh = *nsh;
-            let raw = s.color(view, i, mu, centres[ci]);
-            let gc = [0, 1, 2].map(|ch| if raw[ch] >= zero { g_col[ch] } else { zero });
             let frame = s.frames.as_ref().filter(|_| nsh > 1).map(|f| &f[9 * (pose * n + i)..9 * (pose * n + i) + 9]);
             let (dv, dn, len, len_clamped) = match frame {
                 Some(f) => view_dir(mu, centres[ci], f),
                 None => ([zero; 3], [zero; 3], T::one(), true),
             };
             let y = sh_basis(nsh, dn);
+            // the colour before its clamp at 0 (as `Scene::color`), from the same basis
+            let c = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
+            let mut raw = [T::c(0.5); 3];
+            for k in 0..nsh {
+                for ch in 0..3 {
+                    raw[ch] = raw[ch] + y[k] * c[3 * k + ch];
+                }
+            }
+            let gc = [0, 1, 2].map(|ch| if raw[ch] >= zero { g_col[ch] } else { zero });
             for k in 0..nsh {
                 for ch in 0..3 {
                     out.color[3 * k + ch] = y[k] * gc[ch];

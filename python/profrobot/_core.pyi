@@ -114,7 +114,7 @@ def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], s
     moves the negative way), straight otherwise."""
 
 
-Float = npt.NDArray[np.float32] | npt.NDArray[np.float64]
+_Float = npt.NDArray[np.float32] | npt.NDArray[np.float64]
 
 
 @final
@@ -123,13 +123,13 @@ class RenderState:
     tile lists and every composited pair (list entry, pixel, alpha, transmittance in front).
     Opaque."""
 
-def render_forward(opacities: Float, viewmats: Float, Ks: Float, views: npt.NDArray[np.int64], width: int,
-                   height: int, *, means: Float | None = None, covs: Float | None = None, frames: Float | None = None,
-                   body_rot: Float | None = None, body_pos: Float | None = None,
-                   body: npt.NDArray[np.int64] | None = None, local_means: Float | None = None,
-                   local_rots: Float | None = None, scales: Float | None = None, colors: Float | None = None,
-                   sh: Float | None = None, cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
-                   ) -> tuple[Float, Float, Float, Float, int, RenderState]:
+def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.NDArray[np.int64], width: int,
+                   height: int, *, means: _Float | None = None, covs: _Float | None = None, frames: _Float | None = None,
+                   body_rot: _Float | None = None, body_pos: _Float | None = None,
+                   body: npt.NDArray[np.int64] | None = None, local_means: _Float | None = None,
+                   local_rots: _Float | None = None, scales: _Float | None = None, colors: _Float | None = None,
+                   sh: _Float | None = None, cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
+                   ) -> tuple[_Float, _Float, _Float, _Float, int, RenderState]:
     """The Gaussian renderer after forward kinematics (``rust/render.rs``, ``rust/splat.rs``):
     EWA projection, colour, tile rasterization; float32 when the inputs are float32, float64
     when they are float64 (every float input the same dtype).
@@ -151,8 +151,8 @@ def render_forward(opacities: Float, viewmats: Float, Ks: Float, views: npt.NDAr
     projects to a 2D covariance that is not positive definite raise :class:`InputError` naming
     the entry; a wrong dtype :class:`InputTypeError`."""
 
-def render_backward(state: RenderState, grad_rgb: Float, grad_alpha: Float, grad_dsum: Float, *,
-                    threads: int | None = None) -> dict[str, Float]:
+def render_backward(state: RenderState, grad_rgb: _Float, grad_alpha: _Float, grad_dsum: _Float, *,
+                    threads: int | None = None) -> dict[str, _Float]:
     """Exact gradients of ``sum(grad_rgb * rgb) + sum(grad_alpha * alpha) + sum(grad_dsum * dsum)``
     w.r.t. :func:`render_forward`'s inputs, by keyword (the rigid arrays' or ``means``,
     ``covs``, ``frames``; ``sh`` or ``colors``; ``opacities``, ``viewmats``, ``Ks``), same
