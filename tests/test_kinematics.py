@@ -57,3 +57,28 @@ def test_torch_fk_gradient_matches_finite_differences(panda):
     w = torch.randn(3, kin.nbody, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
     f = lambda q: (kin(q).pos * w).sum() + kin(q).rot[..., 0, :].sum()
     assert torch.autograd.gradcheck(f, (q,), eps=1e-6, atol=1e-6)
+
+
+
+@pytest.mark.parametrize("name", ["franka_emika_panda", "universal_robots_ur5e"])
+def test_closed_form_fk_equals_autograd_fk(name):
+    """Kinematics.fast (float64 recursion, backward written out: ∂R_b/∂θ_j = [ω]× R_b,
+    ∂x_b/∂θ_j = ω × (x_b - p)) gives the poses and the joint gradients of the autograd FK."""
+    import torch
+
+    from profrobot.kinematics import Kinematics
+
+    robot = profrobot.Robot.from_menagerie(name)
+    kin = Kinematics.from_robot(robot, dtype=torch.float64)
+    assert kin._closed_form
+    q = torch.as_tensor(np.random.default_rng(0).uniform(*robot.joint_limits.T, (5, robot.njoint)))
+    q1, q2 = q.clone().requires_grad_(True), q.clone().requires_grad_(True)
+    a, b = kin(q1), kin.fast(q2)
+    torch.testing.assert_close(b.rot, a.rot, atol=1e-12, rtol=0)
+    torch.testing.assert_close(b.pos, a.pos, atol=1e-12, rtol=0)
+    g = torch.Generator().manual_seed(1)
+    gR, gx = torch.randn(a.rot.shape, generator=g, dtype=torch.float64), torch.randn(a.pos.shape, generator=g, dtype=torch.float64)
+    ((a.rot * gR).sum() + (a.pos * gx).sum()).backward()
+    ((b.rot * gR).sum() + (b.pos * gx).sum()).backward()
+    torch.testing.assert_close(q2.grad, q1.grad, atol=1e-10, rtol=0)
+    assert torch.autograd.gradcheck(lambda q: tuple(kin.fast(q).__dict__.values()), (q[:2].clone().requires_grad_(True),))

@@ -276,7 +276,7 @@ class GaussianRobot(torch.nn.Module):
     def _world_frames(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """World means (B, N, 3), maps A (B, N, 3, 3), and the linear part of each Gaussian's
         body motion (B, N, 3, 3): the body rotation (rigid), the blended map (LBS)."""
-        fk = self.kin(theta)
+        fk = self.kin.fast(theta)                                     # the same FK as the native path
         Q = quat_to_matrix(self.quats)                                # (N, 3, 3)
         if self.skin_mlp is None:
             # index_select, not fancy indexing: its backward is an index_add, several times
@@ -329,7 +329,7 @@ class GaussianRobot(torch.nn.Module):
             common = dict(opacities=op, sh=self.sh, viewmats=viewmats, Ks=Ks, background=background, cutoff=cutoff,
                           threads=threads)
             if self.skin_mlp is None:
-                fk = self.kin(theta)
+                fk = self.kin.fast(theta)                  # FK with its backward in closed form
                 return render_native(views, width, height, body_rot=fk.rot, body_pos=fk.pos, body=self.body,
                                      local_means=self.means, local_rots=quat_to_matrix(self.quats),
                                      scales=torch.exp(self.log_scales), **common)
