@@ -31,12 +31,15 @@
 //! Each tile's list is sorted by `(z, Gaussian index)`, a total order, so the result is the
 //! same whatever sorts it.
 //!
-//! # Per-Gaussian constants, folded once
-//! Each listed Gaussian is packed once per tile into one record (`Packed`): centre, conic,
-//! opacity, colour, depth, its pixel rows, and `qmax = 2 ln(255 o)`, the `q` beyond which
-//! `o G < 1/255`: such a pair is skipped before the `exp`. On each row a Gaussian visits only
-//! the columns where its ellipse `q <= qmax` meets the row (`row_span`, one square root per
-//! row and Gaussian, not per pixel).
+//! # Per-Gaussian constants, folded once; rows at once
+//! Each drawn Gaussian is packed once into one record (`Packed`: centre, conic, opacity,
+//! colour, depth, pixel box), the records in (camera, depth) order so that a tile reads them at
+//! increasing addresses. A tile walks its list front to back; per row it keeps a bit per column
+//! still compositing. A Gaussian visits only the rows of its box with an open pixel in its
+//! columns, and on each computes `o G` for the row's 8 columns in one straight-line loop
+//! (`exp` is a branch-free polynomial in `f32`, [`Real::exp_kernel`]), which the compiler
+//! vectorises; then it composites the open columns where `α > 0`. Most Gaussians behind the
+//! front surface cost a few mask tests.
 //!
 //! # Backward, without searching again
 //! The forward records every composited pair of a tile, in the order it composited them,
@@ -310,7 +313,6 @@ impl<T: Real> Splats<T> {
                     b,
                     c,
                     o,
-                    qmax: T::c(2.0 * (o.f64() * 255.0).max(1.0).ln() + 1e-6),
                     col: [self.color[3 * g], self.color[3 * g + 1], self.color[3 * g + 2]],
                     z: self.depth[g],
                     rows: [bins.boxes[g][2], bins.boxes[g][3]],
@@ -448,10 +450,6 @@ struct Packed<T> {
     b: T,
     c: T,
     o: T,
-    /// `q` beyond which `o e^{-q/2} < 1/255`: such pairs are skipped without an `exp`
-    /// (`o e^{-q/2} >= 1/255  <=>  q <= 2 ln(255 o)`; the margin only lets a few more pairs
-    /// reach the exact test).
-    qmax: T,
     col: [T; 3],
     z: T,
     /// Rows `[y0, y1]` of the pixel box: other rows are skipped without arithmetic.
@@ -461,44 +459,9 @@ struct Packed<T> {
     cols: [u32; 2],
 }
 
-/// Pixel columns `lo..hi` (within `xs`) of row `y` where `p` may reach `o G >= 1/255`, from
-/// the exact ellipse `q(x) <= qmax` on that row (widened by a hair, never narrowed):
-/// `a dx² + 2 b dy dx + c dy² - qmax <= 0`, a quadratic in `dx`. In `f64`.
+/// `(α, clamped)` from `o G` under `cutoff`; α ≤ 0 means "not composited".
 #[inline(always)]
-fn row_span<T: Real>(p: &Packed<T>, y: u32, xs: &std::ops::Range<usize>) -> std::ops::Range<usize> {
-    let [y0, y1] = p.rows;
-    if y < y0 || y > y1 {
-        return 0..0;
-    }
-    let dy = y as f64 - p.v.f64();
-    let (a, b) = (p.a.f64(), p.b.f64());
-    let disc = b * b * dy * dy - a * (p.c.f64() * dy * dy - p.qmax.f64());
-    if disc < 0.0 {
-        return 0..0;
-    }
-    let half = disc.sqrt() / a * (1.0 + T::HAIR) + T::HAIR;
-    let mid = p.u.f64() - b * dy / a;
-    let lo = ceil(mid - half).max(xs.start as f64);
-    let hi = floor(mid + half).min(xs.end as f64 - 1.0);
-    if lo > hi {
-        return 0..0;
-    }
-    lo as usize..hi as usize + 1
-}
-
-/// One tile's Gaussians in compositing order.
-fn load_tile<T: Real>(st: &[Packed<T>], slots: &[u32]) -> Vec<Packed<T>> {
-    slots.iter().map(|&k| st[k as usize]).collect()
-}
-
-/// `(α, o G, clamped)` of `p` at pixel offset `(dx, dy)`; α ≤ 0 means "not composited".
-#[inline(always)]
-fn alpha<T: Real>(p: &Packed<T>, dx: T, dy: T, cutoff: Cutoff) -> (T, T, bool) {
-    let q = p.a * dx * dx + T::c(2.0) * p.b * dx * dy + p.c * dy * dy;
-    if q > p.qmax {
-        return (T::zero(), T::zero(), false);
-    }
-    let raw = p.o * (T::c(-0.5) * q).exp_kernel();
+fn cut_alpha<T: Real>(raw: T, cutoff: Cutoff) -> (T, bool) {
     let max = T::c(ALPHA_MAX);
     let clamped = raw > max;
     let a = match cutoff {
@@ -506,7 +469,7 @@ fn alpha<T: Real>(p: &Packed<T>, dx: T, dy: T, cutoff: Cutoff) -> (T, T, bool) {
         Cutoff::Hard if raw >= T::c(ALPHA_MIN) => raw.min(max),
         Cutoff::Hard => T::zero(),
     };
-    (a, raw, clamped)
+    (a, clamped)
 }
 
 /// Pixel rectangle of global tile `t`: image, x range, y range.
@@ -542,6 +505,7 @@ fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: us
     let mut open = ys.len();
     let mut entry_max = vec![zero; entries.len()];
     let mut pairs = Vec::with_capacity(4 * entries.len());
+    let cols: [T; TILE] = std::array::from_fn(|k| T::c((xs.start + k) as f64));
     // Gaussians front to back; each visits only the rows of the tile its box spans that still
     // have open pixels in its columns and, on each, the columns its ellipse spans; the tile
     // ends when every pixel has stopped. Most Gaussians behind the front surface cost a few
@@ -561,20 +525,30 @@ fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: us
         let box_mask = (((1u32 << c1) - 1) & !((1u32 << c0) - 1)) as u16;
         for y in r0..r1 {
             let row = y - ys.start;
-            if open_row[row] & box_mask == 0 {
+            let live = open_row[row] & box_mask;
+            if live == 0 {
                 continue;
             }
+            // o G at the row's TILE columns at once: straight-line arithmetic and the
+            // branch-free kernel exp, which the compiler vectorises (no square root, no
+            // division, no per-pixel call); columns outside the ellipse come out < 1/255 and
+            // are not composited, exactly as if they had been skipped.
             let dy = T::c(y as f64) - p.v;
-            for x in row_span(p, y as u32, &xs) {
-                let col = x - xs.start;
-                if open_row[row] & (1 << col) == 0 {
-                    continue;
-                }
-                let i = row * TILE + col;
-                let (a, _, clamped) = alpha(p, T::c(x as f64) - p.u, dy, s.cutoff);
+            let (cdy, bdy) = (p.c * dy * dy, T::c(2.0) * p.b * dy);
+            let mut raw = [zero; TILE];
+            for (k, r) in raw.iter_mut().enumerate() {
+                let dx = cols[k] - p.u;
+                *r = p.o * (T::c(-0.5) * (p.a * dx * dx + bdy * dx + cdy)).exp_kernel();
+            }
+            let mut bits = live;
+            while bits != 0 {
+                let col = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let (a, clamped) = cut_alpha(raw[col], s.cutoff);
                 if a <= zero {
                     continue;
                 }
+                let i = row * TILE + col;
                 let t_next = tt[i] * (one - a);
                 if t_next < t_min {
                     open_row[row] &= !(1 << col);
@@ -653,7 +627,7 @@ type EntryGrad<T> = [T; 10];
 fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]) -> Vec<EntryGrad<T>> {
     let (s, bins) = (&st.splats, &st.bins);
     let entries = &bins.order[bins.tile_start[t]..bins.tile_start[t + 1]];
-    let ts = load_tile(&st.packed, &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]]);
+    let slots = &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]];
     let zero = T::zero();
     let mut grads = vec![[zero; 10]; entries.len()];
     let (cam, xs, ys) = tile_rect(s.width, s.height, bins, t);
@@ -677,7 +651,7 @@ fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g
     for pair in st.pairs[t].iter().rev() {
         let i = (pair.key & (TILE_PIXELS as u32 - 1)) as usize;
         let j = (pair.key >> ENTRY_SHIFT) as usize;
-        let p = &ts[j];
+        let p = &st.packed[slots[j] as usize];
         let (a, tb) = (pair.alpha, pair.t);
         let wgt = a * tb;
         let f = gr[i][0] * p.col[0] + gr[i][1] * p.col[1] + gr[i][2] * p.col[2] + ga[i] + gd[i] * p.z;
