@@ -38,8 +38,12 @@ impl Real for f32 {
         // e^x = 2^n e^r, n = round(x / ln 2), r = x - n ln 2 ∈ [-ln 2 / 2, ln 2 / 2] (ln 2 split in
         // two so that n ln 2 is exact), e^r by Cephes' expf polynomial.
         let x = self.clamp(-87.0, 88.0);
-        const MAGIC: f32 = 12_582_912.0; // 1.5 · 2²³: adding and subtracting rounds to an integer
-        let n = (x * std::f32::consts::LOG2_E + MAGIC) - MAGIC;
+        // 1.5 · 2²³: adding it rounds to an integer, which then sits in the low mantissa bits
+        // (bits(MAGIC + n) = bits(MAGIC) + n for |n| < 2²²), so 2ⁿ comes from integer
+        // arithmetic alone, no float-to-int conversion (which would not vectorise).
+        const MAGIC: f32 = 12_582_912.0;
+        let shifted = x * std::f32::consts::LOG2_E + MAGIC;
+        let n = shifted - MAGIC;
         let r = x - n * 0.693_359_4 - n * -2.121_944_4e-4;
         let mut p = 1.987_569_1e-4f32;
         p = p * r + 1.398_199_9e-3;
@@ -48,7 +52,7 @@ impl Real for f32 {
         p = p * r + 1.666_666_5e-1;
         p = p * r + 0.5;
         let e_r = p * r * r + r + 1.0;
-        e_r * f32::from_bits(((n as i32 + 127) as u32) << 23)
+        e_r * f32::from_bits(shifted.to_bits().wrapping_sub(MAGIC.to_bits()).wrapping_add(127) << 23)
     }
 
     #[inline(always)]

@@ -180,9 +180,10 @@ struct Bins {
     order_slot: Vec<u32>,
     /// The drawn Gaussians (flat ids) by camera, then depth.
     sorted: Vec<u32>,
+    /// Per tile-list position: the Gaussian's pixel box within the tile, `[row0, row1, col0,
+    /// col1)` (tile-local, end exclusive).
+    order_box: Vec<[u8; 4]>,
     tile_start: Vec<usize>,
-    /// Per Gaussian: its pixel box `[x0, x1, y0, y1]` (empty when not drawn).
-    boxes: Vec<[u32; 4]>,
 }
 
 /// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
@@ -315,8 +316,6 @@ impl<T: Real> Splats<T> {
                     o,
                     col: [self.color[3 * g], self.color[3 * g + 1], self.color[3 * g + 2]],
                     z: self.depth[g],
-                    rows: [bins.boxes[g][2], bins.boxes[g][3]],
-                    cols: [bins.boxes[g][0], bins.boxes[g][1]],
                 }
             })
             .collect()
@@ -406,7 +405,19 @@ impl<T: Real> Splats<T> {
             slot[g as usize] = k as u32;
         }
         let order_slot = order.par_iter().map(|&e| slot[entry_gauss[e as usize] as usize]).collect();
-        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, order_slot, sorted, tile_start, boxes: pboxes })
+        let order_box = order
+            .par_iter()
+            .map(|&e| {
+                let t = entry_tile[e as usize] as usize % per_cam;
+                let (x0, y0) = ((t % tx) * TILE, (t / tx) * TILE);
+                let [bx0, bx1, by0, by1] = pboxes[entry_gauss[e as usize] as usize].map(|v| v as usize);
+                let local = |lo: usize, hi: usize, o: usize| [(lo.max(o) - o) as u8, ((hi + 1).min(o + TILE) - o) as u8];
+                let [r0, r1] = local(by0, by1, y0);
+                let [c0, c1] = local(bx0, bx1, x0);
+                [r0, r1, c0, c1]
+            })
+            .collect();
+        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, order_slot, sorted, order_box, tile_start })
     }
 }
 
@@ -452,11 +463,6 @@ struct Packed<T> {
     o: T,
     col: [T; 3],
     z: T,
-    /// Rows `[y0, y1]` of the pixel box: other rows are skipped without arithmetic.
-    rows: [u32; 2],
-    /// Columns `[x0, x1]` of the pixel box: a row whose open pixels all lie outside them is
-    /// skipped before its span is solved.
-    cols: [u32; 2],
 }
 
 /// `(α, clamped)` from `o G` under `cutoff`; α ≤ 0 means "not composited".
@@ -490,8 +496,10 @@ struct TileForward<T> {
     pairs: Vec<Pair<T>>,
 }
 
+#[inline(never)]
 fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize) -> TileForward<T> {
-    let entries = &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]];
+    let first = bins.tile_start[t];
+    let entries = &bins.order_slot[first..bins.tile_start[t + 1]];
     let (_, xs, ys) = tile_rect(s.width, s.height, bins, t);
     let (zero, one, t_min) = (T::zero(), T::one(), T::c(T_MIN));
     let mut px = [[zero; 5]; TILE_PIXELS]; // r, g, b, alpha, dsum
@@ -514,17 +522,17 @@ fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: us
         if open == 0 {
             break;
         }
-        let p = &packed[k as usize];
-        let r0 = (p.rows[0] as usize).max(ys.start);
-        let r1 = (p.rows[1] as usize + 1).min(ys.end);
-        let c0 = (p.cols[0] as usize).max(xs.start) - xs.start;
-        let c1 = (p.cols[1] as usize + 1).min(xs.end) - xs.start;
-        if c0 >= c1 {
+        // the box, tile-local, from the list itself (sequential bytes): the record is read
+        // only when a row of the box still has open pixels in its columns
+        let [r0, r1, c0, c1] = bins.order_box[first + j].map(usize::from);
+        let box_mask = (((1u32 << c1) - 1) & !((1u32 << c0) - 1)) as u16;
+        if (r0..r1).all(|row| open_row[row] & box_mask == 0) {
             continue;
         }
-        let box_mask = (((1u32 << c1) - 1) & !((1u32 << c0) - 1)) as u16;
-        for y in r0..r1 {
-            let row = y - ys.start;
+        let p = &packed[k as usize];
+        #[allow(clippy::needless_range_loop)] // `row` also places the pixel: `y`, `i` below
+        for row in r0..r1 {
+            let y = ys.start + row;
             let live = open_row[row] & box_mask;
             if live == 0 {
                 continue;
