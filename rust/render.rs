@@ -658,6 +658,16 @@ impl<T: Real> Scene<T> {
         if (v * n) as u64 > u32::MAX as u64 {
             return invalid_input("render: too many views x Gaussians for 32-bit indices");
         }
+        // the images and the tile lists are indexed with 32 bits; beyond, a clear error, not
+        // an allocation that aborts the process
+        let pixels = (v as u128) * (self.width as u128) * (self.height as u128);
+        let tiles = (v as u128) * (self.width.div_ceil(splat::TILE) as u128) * (self.height.div_ceil(splat::TILE) as u128);
+        if pixels > (1u128 << 31) || tiles > u32::MAX as u128 {
+            return invalid_input(format!(
+                "render: {v} views of {}x{} pixels are too many for one call (at most 2^31 pixels): render fewer views per call",
+                self.width, self.height
+            ));
+        }
         Ok(())
     }
 

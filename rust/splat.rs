@@ -338,6 +338,9 @@ impl<T: Real> Splats<T> {
             gauss_start.push(gauss_start.last().unwrap() + k);
         }
         let m = *gauss_start.last().unwrap();
+        if m as u64 > u32::MAX as u64 {
+            return invalid_input(format!("rasterize: {m} (Gaussian, tile) incidences are too many for 32-bit indices"));
+        }
         let mut entry_gauss = vec![0u32; m];
         let mut entry_tile = vec![0u32; m];
         for (g, r) in rects.iter().enumerate() {

@@ -254,6 +254,8 @@ def test_bad_input_raises_python_errors():
         _core.render_forward(o, vmn, Kn, views, 16, 12, body_rot=np.tile(np.eye(3), (1, 2, 1, 1)),
                              body_pos=np.zeros((1, 2, 3)), body=np.array([0, 4]), local_means=m[0],
                              local_rots=np.tile(np.eye(3), (2, 1, 1)), scales=np.full((2, 3), 0.02), sh=sh)
+    with pytest.raises(ProfrobotError, match="too many for one call"):
+        _core.render_forward(o, vmn, Kn, views, 50_000, 50_000, means=m, covs=c, sh=sh, frames=fr)
     *_, state = call()
     with pytest.raises(ProfrobotError, match="grad_rgb must have shape"):
         _core.render_backward(state, np.ones((2, 12, 16)), np.ones((2, 12, 16)), np.ones((2, 12, 16)))
@@ -291,3 +293,15 @@ def test_fortran_ordered_inputs_regression():
     assert ga_.keys() == gb_.keys() == {"means", "covs", "frames", "sh", "opacities", "viewmats", "Ks"}
     for k in ga_:
         np.testing.assert_array_equal(ga_[k], gb_[k])
+
+
+def test_regression_background_as_a_list_on_the_native_path(panda_model, cams128):
+    """A background given as a list (or float64 array) is converted to the images' dtype and
+    device, as the torch path does."""
+    th = torch.tensor(THETA, dtype=torch.float32)
+    with torch.no_grad():
+        a = panda_model.render_views(th, cams128, background=torch.tensor([0.2, 0.3, 0.4]), backend="rust")
+        b = panda_model.render_views(th, cams128, background=[0.2, 0.3, 0.4], backend="rust")
+        c = panda_model.render_views(th, cams128, background=np.array([0.2, 0.3, 0.4]), backend="rust")
+    assert b.rgb.dtype == c.rgb.dtype == torch.float32
+    assert torch.equal(a.rgb, b.rgb) and torch.equal(a.rgb, c.rgb)

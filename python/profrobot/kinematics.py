@@ -78,7 +78,8 @@ class _ClosedFormFK(torch.autograd.Function):
     def forward(ctx, q, kin):
         R, x, w, p = kin._frames_np(q.detach().to("cpu", torch.float64).numpy())
         ctx.frames, ctx.kin, ctx.meta = (R, x, w, p), kin, (q.dtype, q.device)
-        return torch.from_numpy(R).to(q.dtype), torch.from_numpy(x).to(q.dtype)
+        # copies: the outputs must not share memory with the frames the backward reads
+        return torch.tensor(R, dtype=q.dtype), torch.tensor(x, dtype=q.dtype)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
@@ -222,7 +223,8 @@ class Kinematics(torch.nn.Module):
         """:meth:`forward` with its backward in closed form (one autograd node instead of a few
         hundred small ones: several times cheaper on a CPU), for robots with at most one joint
         per body; other robots, and CUDA tensors, take :meth:`forward`. Computed in float64,
-        returned in ``q``'s dtype."""
+        returned in ``q``'s dtype. First order only: double backward and forward-mode AD need
+        :meth:`forward`."""
         if not self._closed_form or q.device.type != "cpu" or q.ndim != 2 or q.shape[1] != self.njoint:
             return self.forward(q)
         rot, pos = _ClosedFormFK.apply(q, self)

@@ -349,7 +349,7 @@ def render_native(views, width, height, *, background=None, cutoff: Cutoff = "so
     rgb, acc, dsum, contrib, npairs = _Render.apply(spec, *named.values())
     depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
     if background is not None:
-        cam_bg = background.reshape(-1, 3)
+        cam_bg = torch.as_tensor(background, dtype=rgb.dtype, device=rgb.device).reshape(-1, 3)
         if cam_bg.shape[0] not in (1, len(views)):          # one background per camera
             cam_bg = cam_bg[torch.as_tensor(views[:, 1], device=cam_bg.device)]
         rgb = rgb + (1 - acc)[..., None] * cam_bg.reshape(-1, 1, 1, 3)
