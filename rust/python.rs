@@ -183,7 +183,7 @@ fn pose_array<'py>(obj: &Bound<'py, PyAny>, k: usize, what: &str) -> PyResult<Py
 /// Exactness: rust-numpy's `as_slice` succeeds for *any* contiguous array, Fortran order
 /// included, and would hand back the memory in storage order; reading it as rows silently
 /// transposes the poses. Only `is_c_contiguous` guarantees storage order == row order.
-fn rows_of<'a, D: numpy::ndarray::Dimension>(a: &'a numpy::PyReadonlyArray<'_, f64, D>) -> Cow<'a, [f64]> {
+fn rows_of<'a, T: numpy::Element + Copy, D: numpy::ndarray::Dimension>(a: &'a numpy::PyReadonlyArray<'_, T, D>) -> Cow<'a, [T]> {
     if a.is_c_contiguous() {
         if let Ok(s) = a.as_slice() {
             return Cow::Borrowed(s);
@@ -468,11 +468,7 @@ fn real_array<T: numpy::Element + Copy>(
     if shape.len() != want.len() || shape.iter().zip(want).any(|(s, w)| w.is_some_and(|w| w != *s)) {
         return Err(input_error(format!("render_forward: {name} must have shape {}; got {shape:?}", show())));
     }
-    let v = match a.as_slice() {
-        Ok(s) if a.is_c_contiguous() => s.to_vec(),
-        _ => a.as_array().iter().copied().collect(),
-    };
-    Ok((v, shape))
+    Ok((rows_of(&a).into_owned(), shape))
 }
 
 /// The inputs of `render_forward`, read for one dtype.

@@ -289,17 +289,8 @@ pub struct Scene<T> {
     pub cutoff: Cutoff,
 }
 
-/// Forward outputs (images `[V, H, W, ...]`) and the backward's state.
-#[derive(Clone, Debug)]
-pub struct Forward<T> {
-    pub rgb: Vec<T>,
-    pub alpha: Vec<T>,
-    pub dsum: Vec<T>,
-    /// `[V, N]` each Gaussian's largest blending weight in the view.
-    pub contrib: Vec<T>,
-    pub npairs: u64,
-    pub state: State<T>,
-}
+/// Forward outputs (images `[V, H, W, ...]`, as the rasterizer's) and the backward's state.
+pub type Forward<T> = splat::Forward<T, State<T>>;
 
 /// What the backward needs: the scene and the rasterizer's state.
 #[derive(Clone, Debug)]
@@ -525,6 +516,19 @@ fn sh_basis<T: Real>(nsh: usize, d: [T; 3]) -> [T; 9] {
     y
 }
 
+/// `Σ_k Y_k f_k + 1/2` per channel (before the clamp at 0), for one Gaussian's coefficients
+/// `c` (`[nsh, 3]`) and basis `y`.
+#[inline(always)]
+fn sh_color<T: Real>(nsh: usize, c: &[T], y: &[T; 9]) -> [T; 3] {
+    let mut col = [T::c(0.5); 3];
+    for k in 0..nsh {
+        for ch in 0..3 {
+            col[ch] = col[ch] + y[k] * c[3 * k + ch];
+        }
+    }
+    col
+}
+
 /// `∂Y_k/∂d` (rows k, columns x, y, z) for `k < nsh`.
 #[inline(always)]
 fn sh_basis_grad<T: Real>(nsh: usize, d: [T; 3]) -> [[T; 3]; 9] {
@@ -688,6 +692,13 @@ impl<T: Real> Scene<T> {
         self.opacity[if self.opacity_per_view { v * self.n + i } else { i }]
     }
 
+    /// Gaussian `i`'s frame in pose `pose` (row-major 3 × 3), when the SH need one.
+    #[inline(always)]
+    fn frame(&self, pose: usize, i: usize, nsh: usize) -> Option<&[T]> {
+        let k = 9 * (pose * self.n + i);
+        self.frames.as_ref().filter(|_| nsh > 1).map(|f| &f[k..k + 9])
+    }
+
     /// The colour of Gaussian `i` in view `v` before the clamp at 0 (SH), or the given colour.
     #[inline(always)]
     fn color(&self, v: usize, i: usize, mu: [T; 3], o: [T; 3]) -> [T; 3] {
@@ -697,20 +708,8 @@ impl<T: Real> Scene<T> {
                 [rgb[k], rgb[k + 1], rgb[k + 2]]
             }
             Colors::Sh { nsh, coeffs } => {
-                let pose = self.views[v][0];
-                let d = match &self.frames {
-                    Some(f) if *nsh > 1 => view_dir(mu, o, &f[9 * (pose * self.n + i)..9 * (pose * self.n + i) + 9]).1,
-                    _ => [T::zero(); 3],
-                };
-                let y = sh_basis(*nsh, d);
-                let c = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
-                let mut col = [T::c(0.5); 3];
-                for k in 0..*nsh {
-                    for ch in 0..3 {
-                        col[ch] = col[ch] + y[k] * c[3 * k + ch];
-                    }
-                }
-                col
+                let d = self.frame(self.views[v][0], i, *nsh).map_or([T::zero(); 3], |f| view_dir(mu, o, f).1);
+                sh_color(*nsh, &coeffs[3 * nsh * i..3 * nsh * (i + 1)], &sh_basis(*nsh, d))
             }
         }
     }
@@ -778,8 +777,7 @@ pub fn forward<T: Real>(mut scene: Scene<T>) -> Result<Forward<T>> {
         splats.color.extend_from_slice(&r[6..9]);
         splats.depth.push(r[9]);
     }
-    let f = splat::forward_checked(splats)?;
-    Ok(Forward { rgb: f.rgb, alpha: f.alpha, dsum: f.dsum, contrib: f.contrib, npairs: f.npairs, state: State { scene, splat: f.state } })
+    Ok(splat::forward_checked(splats)?.with_state(|splat| State { scene, splat }))
 }
 
 /// One (view, Gaussian)'s gradient w.r.t. its inputs (the camera's is added to a running sum).
@@ -826,20 +824,14 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
         Colors::Rgb { .. } => out.color[..3].copy_from_slice(&g_col),
         Colors::Sh { nsh, coeffs } => {
             let nsh = *nsh;
-            let frame = s.frames.as_ref().filter(|_| nsh > 1).map(|f| &f[9 * (pose * n + i)..9 * (pose * n + i) + 9]);
+            let frame = s.frame(pose, i, nsh);
             let (dv, dn, len, len_clamped) = match frame {
                 Some(f) => view_dir(mu, centres[ci], f),
                 None => ([zero; 3], [zero; 3], T::one(), true),
             };
             let y = sh_basis(nsh, dn);
-            // the colour before its clamp at 0 (as `Scene::color`), from the same basis
-            let c = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
-            let mut raw = [T::c(0.5); 3];
-            for k in 0..nsh {
-                for ch in 0..3 {
-                    raw[ch] = raw[ch] + y[k] * c[3 * k + ch];
-                }
-            }
+            let coef = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
+            let raw = sh_color(nsh, coef, &y); // as `Scene::color`, from the same basis
             let gc = [0, 1, 2].map(|ch| if raw[ch] >= zero { g_col[ch] } else { zero });
             for k in 0..nsh {
                 for ch in 0..3 {
@@ -847,7 +839,6 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
                 }
             }
             if let Some(f) = frame {
-                let coef = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
                 let dy = sh_basis_grad(nsh, dn);
                 let mut g_n = [zero; 3];
                 for k in 1..nsh {

@@ -117,9 +117,10 @@ pub struct Splats<T> {
     pub cutoff: Cutoff,
 }
 
-/// Forward outputs; `state` is what the backward needs.
+/// Forward outputs; `state` is what the backward needs (the rasterizer's own, or a caller's
+/// that wraps it: [`Forward::with_state`]).
 #[derive(Clone, Debug)]
-pub struct Forward<T> {
+pub struct Forward<T, S = State<T>> {
     /// `[C, H, W, 3]` `Σ w c` (no background).
     pub rgb: Vec<T>,
     /// `[C, H, W]` `Σ w`.
@@ -130,7 +131,15 @@ pub struct Forward<T> {
     pub contrib: Vec<T>,
     /// Composited (pixel, Gaussian) pairs.
     pub npairs: u64,
-    pub state: State<T>,
+    pub state: S,
+}
+
+impl<T, S> Forward<T, S> {
+    /// The same images with the state `wrap` makes of this one.
+    pub fn with_state<S2>(self, wrap: impl FnOnce(S) -> S2) -> Forward<T, S2> {
+        let Forward { rgb, alpha, dsum, contrib, npairs, state } = self;
+        Forward { rgb, alpha, dsum, contrib, npairs, state: wrap(state) }
+    }
 }
 
 /// One composited pair as the forward recorded it for the backward.

@@ -46,17 +46,10 @@ def axis_angle_matrix(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     return eye + s * k + c * (k @ k)  # k @ k has no batch dims beyond axis's: cheap
 
 
-def _quat_to_matrix_np(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z) → (..., 3, 3), normalised first (as :func:`quat_to_matrix`)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                     2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                     2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(q.shape[:-1] + (3, 3))
-
-
 def _rodrigues_np(w: np.ndarray, ang: np.ndarray) -> np.ndarray:
-    """Rotations (B, 3, 3) by ``ang`` (B,) radians about unit world axes ``w`` (B, 3)."""
+    """Rotations (B, 3, 3) by ``ang`` (B,) radians about unit world axes ``w`` (B, 3): the
+    numpy twin of :func:`axis_angle_matrix`, for :meth:`Kinematics.fast`, whose point is to
+    avoid a torch op's fixed cost per body."""
     k = np.zeros(w.shape[:-1] + (3, 3))
     k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
     k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
@@ -136,7 +129,7 @@ class Kinematics(torch.nn.Module):
         # a (slots, nbody_at_level) table of joints (-1 = none) with type masks.
         self._level_keys: list[dict[str, str]] = []
         # the same tree as plain float64 arrays, for the closed-form path (:meth:`fast`)
-        self._np = dict(parent=parent, body_rot=_quat_to_matrix_np(np.asarray(arrays["body_quat"], dtype=np.float64)),
+        self._np = dict(parent=parent, body_rot=quat_to_matrix(torch.as_tensor(np.asarray(arrays["body_quat"], dtype=np.float64))).numpy(),
                         body_pos=np.asarray(arrays["body_pos"], dtype=np.float64), jnt_body=jnt_body,
                         jnt_type=np.asarray(arrays["jnt_type"]), jnt_axis=np.asarray(arrays["jnt_axis"], dtype=np.float64),
                         jnt_pos=np.asarray(arrays["jnt_pos"], dtype=np.float64),
