@@ -69,15 +69,17 @@ def bench_resolve(n: int, default_only: bool = False) -> dict:
     before = contacts(robot, poses)
     resolve(sdf, poses[:10], robot=robot)            # warm-up (first-call allocations)
     out = {"t5": {}, "t6": {}, "default": None, "n": len(poses), "field": sdf.metrics}
-    out["default"] = resolve_row(sdf, robot, poses, before, l_thres=-0.1, lr=0.01)
+    out["default"] = resolve_row(sdf, robot, poses, before)
     print("default (refine on)", out["default"], flush=True)
     if default_only:
         return out
     for l in PAPER_T5:
-        out["t5"][l] = resolve_row(sdf, robot, poses, before, l_thres=l, lr=0.01, refine=False)
+        out["t5"][l] = resolve_row(sdf, robot, poses, before, l_thres=l, lr=0.01, refine=False, method="adam",
+                                   shrink=False)
         print("l_thres", l, out["t5"][l], flush=True)
     for lr in PAPER_T6:
-        out["t6"][lr] = resolve_row(sdf, robot, poses, before, l_thres=-0.1, lr=lr, refine=False)
+        out["t6"][lr] = resolve_row(sdf, robot, poses, before, l_thres=-0.1, lr=lr, refine=False, method="adam",
+                                    shrink=False)
         print("lr", lr, out["t6"][lr], flush=True)
     return out
 

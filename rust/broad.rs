@@ -8,10 +8,11 @@
 //!   centre, out to the farthest hull vertex) are apart.
 //!
 //! Every test is inflated by a relative and absolute 1e-9, far above the rounding of the sphere
-//! centres (~1e-15 m), so a dropped pair is separated by more than that, and the narrow phase
-//! (exact for such pairs: GJK never reports an intersection, nor a distance below the margin,
-//! for shapes that far apart) would have reported it apart too. Labels do not depend on this
-//! file; it only decides how few pairs reach `collide::Scratch::in_contact`.
+//! centres (~1e-15 m), and by [`MAX_CLEARANCE`], so a dropped pair is separated by more than its
+//! margin plus the certification clearance, and the narrow phase (exact for such pairs: GJK
+//! never reports an intersection, nor a distance below the margin, for shapes that far apart)
+//! would have reported it apart, and clear, too. Labels do not depend on this file; it only
+//! decides how few pairs reach `collide::Scratch::in_contact` and `clear_of`.
 //!
 //! Pairs with a plane (a half-space) are tested against the plane by the geom's sphere.
 
@@ -20,10 +21,21 @@ use nalgebra::{Isometry3, Matrix3, Vector3};
 use crate::geom::Geom;
 use crate::pairs::CandidatePair;
 
-/// `(reach * (1 + 1e-9) + 1e-9)^2`: the squared centre distance beyond which two spheres whose
-/// radii and margin sum to `reach` cannot touch, with slack for rounding.
+/// Metres: the largest clearance a certification may ask for (`fastpath::certified_pose`). The
+/// broad phase keeps every pair that may come this close, so a pair it drops is clear of it.
+pub const MAX_CLEARANCE: f64 = 1e-6;
+
+/// `reach` inflated for rounding and by [`MAX_CLEARANCE`]: the distance between two sphere
+/// centres (or a sphere centre and a plane) beyond which spheres whose radii and margin sum to
+/// `reach` are more than `MAX_CLEARANCE` apart.
+fn inflated(reach: f64) -> f64 {
+    reach * (1.0 + 1e-9) + 1e-9 + MAX_CLEARANCE
+}
+
+/// `inflated(reach)^2`: the squared centre distance beyond which two spheres whose radii and
+/// margin sum to `reach` are more than `MAX_CLEARANCE` apart, with slack for rounding.
 fn reach2(reach: f64) -> f64 {
-    let r = reach * (1.0 + 1e-9) + 1e-9;
+    let r = inflated(reach);
     r * r
 }
 
@@ -118,7 +130,7 @@ impl Broad {
                 (true, true) => {}
                 (true, false) | (false, true) => {
                     let (plane, geom) = if is_plane(p.g1) { (p.g1, p.g2) } else { (p.g2, p.g1) };
-                    let reach = (geoms[geom].shape.radius + p.margin) * (1.0 + 1e-9) + 1e-9;
+                    let reach = inflated(geoms[geom].shape.radius + p.margin);
                     planes.push(PlanePair { pair: k as u32, plane: plane as u32, geom: geom as u32, reach });
                     sphere[geom] = true;
                 }

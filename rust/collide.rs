@@ -203,6 +203,51 @@ impl Scratch {
         }
     }
 
+    /// Whether candidate pair `k` is proven clear in the placed pose: not in contact (signed
+    /// distance at least its margin) and more than `clearance` apart, the per-pair condition of a
+    /// certified pose (`fastpath::certified_pose`). The same box tests as `in_contact`, inflated
+    /// by `max(margin, clearance)`, reject only pairs farther apart than that; the others get
+    /// the exact signed distance `label_pose` reports for `min_distance` (`pair_signed_distance`),
+    /// so the verdict is `label_pose`'s "not in contact and distance > clearance" for the pair.
+    /// `Err` when parry cannot compute it (module docs): never "clear".
+    pub(crate) fn clear_of(&mut self, model: &RobotModel, k: usize, clearance: f64) -> std::result::Result<bool, Undecided> {
+        let pair = &model.pairs[k];
+        let (g1, g2) = (pair.g1, pair.g2);
+        let reach = pair.margin.max(clearance);
+        let clear = |d: f64| d >= pair.margin && d > clearance;
+        let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
+        match (&a.shape.solid, &b.shape.solid) {
+            (Solid::HalfSpace, Solid::Convex { .. }) | (Solid::Convex { .. }, Solid::HalfSpace) => {
+                let (plane, g) = if a.shape.is_half_space() { (g1, g2) } else { (g2, g1) };
+                if self.plane_box_clear(model, plane, g, reach) {
+                    return Ok(true);
+                }
+            }
+            (Solid::HalfSpace, Solid::HalfSpace) => return Ok(true),
+            (Solid::Convex { .. }, Solid::Convex { .. }) => {
+                self.obb(model, g1);
+                self.obb(model, g2);
+                if !obbs_overlap(a, &self.obbs[g1], b, &self.obbs[g2], reach) {
+                    return Ok(true);
+                }
+            }
+        }
+        self.frame(model, g1);
+        self.frame(model, g2);
+        let d = pair_signed_distance(model, k, &self.geoms, f64::INFINITY)?;
+        Ok(d.is_none_or(clear))
+    }
+
+    /// Whether the convex geom `g`'s bounding box stays `margin + BOX_SLACK` above the plane
+    /// geom `plane` (whose frame `place` computed): then the geom is more than `margin` away.
+    fn plane_box_clear(&mut self, model: &RobotModel, plane: usize, g: usize, margin: f64) -> bool {
+        self.obb(model, g);
+        let (x, obb) = (&self.geoms[plane], &self.obbs[g]);
+        let n = x.rotation * Vector3::z();
+        let reach = obb.rot.tr_mul(&n).abs().dot(&model.geoms[g].shape.obb_half);
+        n.dot(&(obb.center - x.translation.vector)) - reach >= margin + BOX_SLACK
+    }
+
     /// Half-space test of the convex geom `g` against the plane geom `plane` (whose frame
     /// `place` computed): the geom's bounding box must reach below `margin + BOX_SLACK` before
     /// the exact support point of its `convex` shape is computed.
@@ -211,11 +256,7 @@ impl Scratch {
     /// the box (~1e-15 m, see `obb`); a box that stays `BOX_SLACK` (1e-9 m) above the margin
     /// proves the exact test false too.
     fn plane_pair_in_contact(&mut self, model: &RobotModel, plane: usize, g: usize, convex: &Convex, margin: f64) -> bool {
-        self.obb(model, g);
-        let (x, obb) = (&self.geoms[plane], &self.obbs[g]);
-        let n = x.rotation * Vector3::z();
-        let reach = obb.rot.tr_mul(&n).abs().dot(&model.geoms[g].shape.obb_half);
-        if n.dot(&(obb.center - x.translation.vector)) - reach >= margin + BOX_SLACK {
+        if self.plane_box_clear(model, plane, g, margin) {
             return false;
         }
         self.frame(model, g);

@@ -28,8 +28,9 @@
 
 use rayon::prelude::*;
 
+use crate::broad::MAX_CLEARANCE;
 use crate::collide::{first_error, label_pose, LabelOptions, Scratch, Undecided};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::model::RobotModel;
 use crate::sample::{fill_block, BLOCK};
 
@@ -102,6 +103,74 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
             |s, (c, chunk)| {
                 let one =
                     |(i, q): (usize, &[f64])| collides_pose(model, q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)));
+                chunk.chunks_exact(k).enumerate().map(one).collect()
+            },
+        )
+        .collect();
+    Ok(first_error(chunks)?.concat())
+}
+
+/// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
+/// candidate pair more than `clearance` (≤ `MAX_CLEARANCE`) metres apart, i.e.
+/// `!collides && min_distance > clearance` of `label_pose` with distances, decided pair by pair
+/// (`Scratch::clear_of`) and stopping at the first pair that is not clear, in `collides_pose`'s
+/// order. A pair the broad phase drops is more than `MAX_CLEARANCE` beyond its margin
+/// (`broad.rs`), so clear. `Err` for a pair the narrow phase cannot decide, met before any pair
+/// that is not clear.
+pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    s.place(model, q, false);
+    let pose = s.pose_stamp();
+    let last = s.last_hit;
+    let first = (last != NO_PAIR).then_some(last);
+    for k in first.into_iter().chain(likely_pairs(model).iter().copied()) {
+        let k = k as usize;
+        if s.tested[k] == pose {
+            continue;
+        }
+        s.tested[k] = pose;
+        if model.broad.may_touch(&s.broad, k) && !s.clear_of(model, k, clearance)? {
+            s.last_hit = k as u32;
+            return Ok(false);
+        }
+    }
+    let mut near = std::mem::take(&mut s.near);
+    near.clear();
+    model.broad.near_pairs(&mut s.broad, &mut near);
+    let mut verdict = Ok(true);
+    for &k in &near {
+        if s.tested[k as usize] != pose {
+            verdict = s.clear_of(model, k as usize, clearance);
+            if verdict != Ok(true) {
+                if verdict.is_ok() {
+                    s.last_hit = k;
+                }
+                break;
+            }
+        }
+    }
+    s.near = near;
+    verdict
+}
+
+/// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres
+/// (`certified_pose`), in pose order, in parallel on rayon's current pool; independent of the
+/// number of threads.
+pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
+    if !(0.0..=MAX_CLEARANCE).contains(&clearance) {
+        return Err(Error::InvalidInput(format!("clearance must be in [0, {MAX_CLEARANCE}] m; got {clearance}")));
+    }
+    model.check_poses(poses)?;
+    let k = model.njoint();
+    likely_pairs(model);
+    let chunks: Vec<Result<Vec<bool>>> = poses
+        .par_chunks(CHUNK * k)
+        .enumerate()
+        .map_init(
+            || Scratch::new(model),
+            |s, (c, chunk)| {
+                let one = |(i, q): (usize, &[f64])| {
+                    certified_pose(model, q, clearance, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))
+                };
                 chunk.chunks_exact(k).enumerate().map(one).collect()
             },
         )
@@ -187,6 +256,59 @@ mod tests {
             assert_eq!(pool.install(|| collides_batch(&model, &poses).unwrap()), want);
         }
         assert_eq!(likely_pairs(&model), &[0]);
+    }
+
+    /// Certification agrees with the labels' "not colliding and min_distance > clearance" on a
+    /// pendulum whose bob passes 0.05 m below the floor, at poses spread over the circle and
+    /// packed around the two poses where the bob just touches it (distances from -1e-3 to 1e-3
+    /// m, so several fall within the clearance), for clearances 0, 1e-7 and 1e-6.
+    #[test]
+    fn certification_agrees_with_the_labelled_distances() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_pos[1][2] = 0.45;
+        let model = RobotModel::new(desc).unwrap();
+        let mut poses = sample_uniform(&model.sampling_ranges().unwrap(), 4000, 3).unwrap();
+        let labels = label_batch(&model, &poses, LabelOptions { pairs: false, distance: true }).unwrap();
+        // the touching angles: bisect each sign change of the distance along the sample, then
+        // pack poses around each
+        let dist = |q: f64| label_batch(&model, &[q], LabelOptions { pairs: false, distance: true }).unwrap().labels[0].min_distance;
+        let touch: Vec<f64> = {
+            let mut by_angle: Vec<(f64, f64)> = poses.iter().zip(&labels.labels).map(|(&q, l)| (q, l.min_distance)).collect();
+            by_angle.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let brackets: Vec<(f64, f64)> =
+                by_angle.windows(2).filter(|w| (w[0].1 > 0.0) != (w[1].1 > 0.0)).map(|w| (w[0].0, w[1].0)).collect();
+            brackets
+                .into_iter()
+                .map(|(mut lo, mut hi)| {
+                    let free_lo = dist(lo) > 0.0;
+                    for _ in 0..60 {
+                        let mid = 0.5 * (lo + hi);
+                        if (dist(mid) > 0.0) == free_lo {
+                            lo = mid
+                        } else {
+                            hi = mid
+                        }
+                    }
+                    lo
+                })
+                .collect()
+        };
+        assert!(!touch.is_empty());
+        for &t in &touch {
+            poses.extend((-200..=200).map(|i| t + i as f64 * 1e-8));
+        }
+        let labels = label_batch(&model, &poses, LabelOptions { pairs: false, distance: true }).unwrap();
+        for clearance in [0.0, 1e-7, 1e-6] {
+            let want: Vec<bool> = labels.labels.iter().map(|l| !l.collides() && l.min_distance > clearance).collect();
+            let near = labels.labels.iter().filter(|l| l.min_distance.abs() <= 2e-6).count();
+            assert!(near >= 4, "{near} poses within 2e-6 m of contact");
+            for threads in [1, 2] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                assert_eq!(pool.install(|| certified_batch(&model, &poses, clearance).unwrap()), want, "clearance {clearance}");
+            }
+        }
+        assert!(certified_batch(&model, &poses, 1e-5).is_err());
+        assert!(certified_batch(&model, &poses, f64::NAN).is_err());
     }
 
     #[test]

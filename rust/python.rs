@@ -14,7 +14,7 @@ use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 use crate::collide::{label_batch, LabelOptions};
 use crate::desc::ModelDesc;
 use crate::error::Error;
-use crate::fastpath::collides_batch;
+use crate::fastpath::{certified_batch, collides_batch};
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
@@ -329,6 +329,24 @@ impl PyRobotModel {
         let q = rows_of(&poses);
         let q: &[f64] = &q;
         let out = py.detach(|| with_threads(threads, || collides_batch(model, q))).map_err(to_py)?.map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, out))
+    }
+
+    /// Whether each pose is certified free at `clearance` metres (see `_core.pyi` and
+    /// `fastpath.rs`).
+    #[pyo3(signature = (poses, clearance, threads=None))]
+    fn certified<'py>(
+        &self,
+        py: Python<'py>,
+        poses: &Bound<'py, PyAny>,
+        clearance: f64,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let model = &self.model;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
+        let out = py.detach(|| with_threads(threads, || certified_batch(model, q, clearance))).map_err(to_py)?.map_err(to_py)?;
         Ok(PyArray1::from_vec(py, out))
     }
 

@@ -23,6 +23,34 @@ def test_certify_poses_is_the_definition(panda):
     assert got.any() and (~got).any()
 
 
+@pytest.mark.parametrize("scene", profrobot.scenes.names())
+def test_certify_poses_is_the_definition_near_contact(scene):
+    """The fast path's verdict pair by pair (``RobotModel.certified``) against labelling with
+    distances, on poses packed around contact in every bundled scene: each of 24 segments from a
+    free to a colliding pose bisected to its contact point, then poses stepped from it so that
+    their closest pair is from -1e-5 to 1e-5 m away, many within CLEARANCE."""
+    robot = profrobot.scenes.load(scene)
+    a = profrobot.problems.free_poses(robot, 24, seed=7)
+    b = profrobot.problems.colliding_poses(robot, 24, seed=7)
+    lo, hi = np.zeros(24), np.ones(24)
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        hit = profrobot.collides(robot, a + mid[:, None] * (b - a))
+        hi = np.where(hit, mid, hi)
+        lo = np.where(hit, lo, mid)
+    d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    steps = np.concatenate([-np.geomspace(1e-4, 1e-9, 12), [0.0], np.geomspace(1e-9, 1e-4, 12)])
+    poses = ((a + hi[:, None] * (b - a))[:, None, :] + steps[None, :, None] * d[:, None, :]).reshape(-1, robot.njoint)
+    lim = robot.joint_limits
+    poses = np.clip(poses, lim[:, 0], lim[:, 1])
+    want = _by_definition(robot, poses)
+    lab = profrobot.label_poses(robot, poses, distance=True)
+    assert ((np.abs(lab.min_distance) <= CLEARANCE) & ~lab.collides).sum() >= 10   # free but within the clearance
+    assert want.any() and (~want).any()
+    np.testing.assert_array_equal(certify_poses(robot, poses), want)
+    np.testing.assert_array_equal(certify_poses(robot, poses, threads=1), want)
+
+
 def test_touching_is_not_certified(panda):
     """A pose the labels call free but whose closest pair is within CLEARANCE: bisect from a free
     to a colliding pose until the distance is below the clearance."""

@@ -91,7 +91,7 @@ def test_each_pose_stops_at_its_threshold_and_stays_there(panda):
     field = LinearField(panda, w, 0.0)
     q = np.tile(panda.joint_limits.mean(1), (4, 1))   # mid-range: inside every limit
     q[:, 0] = [-0.2, 0.0, 0.05, 0.2]                 # g0 = θ0
-    res = resolve(field, q, l_thres=-0.1, lr=0.01, refine=False)
+    res = resolve(field, q, l_thres=-0.1, lr=0.01, refine=False, method="adam", shrink=False)
     assert res.iterations[0] == 0 and res.poses[0, 0] == pytest.approx(-0.2)   # already below
     assert list(res.iterations[1:]) == sorted(res.iterations[1:])
     for i in range(1, 4):
@@ -108,7 +108,7 @@ def test_joint_limits_are_respected(panda):
     w = np.zeros(panda.njoint); w[3] = -1.0           # g falls as joint 3 rises: pushes it to its upper limit
     field = LinearField(panda, w, 100.0)
     q = profrobot.sample_poses(panda, 5, seed=0)
-    res = resolve(field, q, lr=0.5, iterations=50, refine=False)
+    res = resolve(field, q, lr=0.5, iterations=50, refine=False, method="adam", shrink=False)
     lim = panda.joint_limits
     assert (res.poses >= lim[:, 0]).all() and (res.poses <= lim[:, 1]).all()
     # a joint it moves stops LIMIT_INSET short of its limit (see the regression test below)
@@ -126,7 +126,7 @@ def test_regression_resolved_fingers_stop_short_of_touching(panda):
     assert not profrobot.certify_poses(panda, touching).any()      # clearance 0 at the limit
     w = np.zeros(panda.njoint); w[7:] = 1.0                         # g falls as the fingers close
     q = problems.free_poses(panda, 8, 4)
-    res = resolve(LinearField(panda, w, 100.0), q, lr=0.01, iterations=60, refine=False)
+    res = resolve(LinearField(panda, w, 100.0), q, lr=0.01, iterations=60, refine=False, method="adam", shrink=False)
     np.testing.assert_allclose(res.poses[:, 7:], LIMIT_INSET, atol=1e-6)
     assert res.certified.all()
     np.testing.assert_array_equal(res.poses[:, :7], q[:, :7])       # the rest did not move
@@ -135,11 +135,19 @@ def test_regression_resolved_fingers_stop_short_of_touching(panda):
 def test_certification_catches_poses_the_field_wrongly_calls_free(panda):
     colliding, _ = colliding_and_free(panda)
     sdf = shifted_field(panda, -100.0)               # calls everything free: nothing to optimise
-    res = resolve(sdf, colliding[:20], refine_rounds=2, iterations=5)
+    res = resolve(sdf, colliding[:20], refine_rounds=2, iterations=5, method="adam")
     assert (res.iterations == 0).all()               # the field was satisfied at once ...
     assert not res.certified.any()                    # ... but the exact labeller was not
     assert len(res.failures) == 20 and res.rounds == 2
     assert "20 failures" in res.summary()
+    res = resolve(sdf, colliding[:20], refine=False)  # the projection: the same, without the exact search
+    assert (res.iterations == 0).all() and not res.certified.any() and len(res.failures) == 20
+    # with it (the default), the labeller's own nearest-free search answers what the field cannot
+    res = resolve(sdf, colliding[:20])
+    assert (res.iterations == 0).all() and res.certified.all()
+    assert profrobot.certify_poses(panda, res.poses).all()
+    near = profrobot.nearest_free(panda, colliding[:20], directions=32, refine=64)
+    assert np.median(res.delta / near.distance) <= 1.5
 
 
 def test_refinement_lowers_the_threshold_until_certified(panda):
@@ -148,12 +156,87 @@ def test_refinement_lowers_the_threshold_until_certified(panda):
     colliding, _ = colliding_and_free(panda)
     w = np.zeros(panda.njoint); w[0] = 1.0
     field = LinearField(panda, w, -colliding[0, 0])   # g(start) = 0
-    res = resolve(field, colliding[:1], lr=0.05, refine_rounds=3, refine_step=0.2)
+    res = resolve(field, colliding[:1], lr=0.05, refine_rounds=3, refine_step=0.2, method="adam")
     assert res.iterations[0] > 0
     if not res.certified[0]:
         assert res.rounds == 3 and res.threshold[0] == pytest.approx(-0.1 - 3 * 0.2)
     else:
         assert profrobot.label_poses(panda, res.poses).collides.sum() == 0
+
+
+def test_projection_is_the_exact_box_halfspace_projection():
+    """project_box_halfspace against SLSQP on min ½‖x − θ₀‖² s.t. a·x ≤ b, lo ≤ x ≤ hi: random
+    problems where the half-space cuts the box, misses θ₀, or already holds it."""
+    from scipy.optimize import minimize
+
+    from profrobot.optim.resolve import project_box_halfspace
+
+    rng = np.random.default_rng(0)
+    n, K = 40, 7
+    theta0 = rng.uniform(-1, 1, (n, K))
+    a = rng.normal(size=(n, K))
+    b = (a * theta0).sum(1) - rng.uniform(-0.5, 2.0, n)     # some rows already satisfied (b above a·θ₀)
+    lo, hi = np.full((n, K), -1.2), np.full((n, K), 1.2)
+    lo[:, 3], hi[:, 3] = -np.inf, np.inf                    # an unbounded (continuous) joint
+    t = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    x = project_box_halfspace(t(theta0), t(a), t(b), t(lo), t(hi)).numpy()
+    for i in range(n):
+        t0, ai, bi = theta0[i], a[i], b[i]
+        ref = minimize(lambda y, t0=t0: 0.5 * ((y - t0) ** 2).sum(), np.clip(t0, -1.2, 1.2),
+                       jac=lambda y, t0=t0: y - t0, method="SLSQP",
+                       bounds=[(None if np.isinf(l) else l, None if np.isinf(u) else u) for l, u in zip(lo[i], hi[i])],
+                       constraints=[dict(type="ineq", fun=lambda y, ai=ai, bi=bi: bi - ai @ y, jac=lambda y, ai=ai: -ai)],
+                       options=dict(ftol=1e-14, maxiter=500))
+        np.testing.assert_allclose(x[i], ref.x, atol=2e-6)
+        assert a[i] @ x[i] <= b[i] + 1e-9 and (x[i] >= lo[i]).all() and (x[i] <= hi[i]).all()
+
+
+def test_project_on_a_linear_field_is_one_exact_step(panda):
+    """g = w·θ + b: the nearest pose with g ≤ l_thres is θ₀ − (g₀ − l_thres) w/‖w‖², reached by the
+    first projection step and confirmed (a fixed point) by the second."""
+    colliding, _ = colliding_and_free(panda)
+    q = colliding[:6]
+    w = np.zeros(panda.njoint); w[1], w[2] = 0.6, -0.8       # ‖w‖ = 1, joints 1 and 2 only
+    b = 0.3 - q[:, 1:3] @ w[1:3]                              # g₀ = 0.3 for row 0 ...
+    field = LinearField(panda, w, float(b[0]))
+    res = resolve(field, q, l_thres=-0.1, refine=False, shrink=False)
+    g0 = q @ w + b[0]
+    want = q - (g0 + 0.1)[:, None] * w[None, :]
+    moved = g0 > -0.1
+    np.testing.assert_allclose(res.poses[moved], want[moved], atol=2e-6)
+    assert (res.iterations[moved] == 1).all()                 # one step, then the fixed point stops it
+    np.testing.assert_allclose(res.delta[moved], (g0 + 0.1)[moved], atol=2e-6)
+
+
+def test_shrink_returns_the_first_certified_pose_on_the_segment(panda):
+    """A field that overshoots (threshold −1 on a linear field): every shrunk move is certified, no
+    longer than the unshrunk one, and the pose a bisection step before it is not certified; rays
+    whose end the labeller does not certify are extended until it does."""
+    colliding, _ = colliding_and_free(panda, n=40)
+    w = np.zeros(panda.njoint); w[1] = 1.0
+    field = LinearField(panda, w, -float(colliding[:, 1].min()) + 0.05)   # every pose starts at g ≥ 0.05
+    far = resolve(field, colliding, l_thres=-1.0, refine=False, shrink=False)
+    near = resolve(field, colliding, l_thres=-1.0, refine=False)
+    ok = far.certified
+    assert ok.any()
+    assert (near.certified >= far.certified).all()      # where the field's answer falls short, the ray goes on
+    assert profrobot.certify_poses(panda, near.poses[near.certified]).all()
+    assert (near.delta[ok] <= far.delta[ok] + 1e-12).all() and (near.delta[ok] < 0.9 * far.delta[ok]).any()
+    # just short of each shrunk pose (2^-8 / 8 of its segment) the labeller does not certify
+    d = far.poses[ok] - colliding[ok]
+    step = 1.0 / (8 * 2 ** 8)
+    t = np.linalg.norm(near.poses[ok] - colliding[ok], axis=1) / np.linalg.norm(d, axis=1)
+    before = colliding[ok] + np.clip(t - step, 0, 1)[:, None] * d
+    assert not profrobot.certify_poses(panda, before[t < 1]).any()
+
+
+def test_project_returns_certified_inputs_unchanged(panda):
+    colliding, free = colliding_and_free(panda, n=10)
+    q = np.concatenate([free[:5], colliding[:5]])
+    ok = profrobot.certify_poses(panda, q)
+    res = resolve(shifted_field(panda, 5.0), q, refine=False)      # the field calls everything colliding
+    np.testing.assert_array_equal(res.poses[ok], q[ok])
+    assert (res.iterations[ok] == 0).all() and (res.delta[ok] == 0).all()
 
 
 def test_resolve_bad_input(panda, ur5e):
@@ -170,7 +253,11 @@ def test_resolve_bad_input(panda, ur5e):
     with pytest.raises(RobotMismatchError, match="made for robot"):
         resolve(sdf, q, robot=ur5e)
     with pytest.raises(ValueError, match="lr"):
-        resolve(sdf, q, lr=0)
+        resolve(sdf, q, lr=0, method="adam")
+    with pytest.raises(ValueError, match="method='adam'"):
+        resolve(sdf, q, lr=0.01)                       # the projection has no step size
+    with pytest.raises(ValueError, match="method"):
+        resolve(sdf, q, method="newton")
     with pytest.raises(ValueError, match="iterations"):
         resolve(sdf, q, iterations=-1)
     with pytest.raises(TypeError, match="floating"):
@@ -300,13 +387,19 @@ def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     from profrobot.cli import main
 
     ckpt = shifted_field(panda, -100.0).save(tmp_path / "field")
-    # a field that calls everything free: the labeller's failures must show in the exit status
-    assert main(["resolve", "--field", str(ckpt), "-n", "5", "--iterations", "3",
+    # a field that calls everything free, without the exact search: the labeller's failures must
+    # show in the exit status
+    assert main(["resolve", "--field", str(ckpt), "-n", "5", "--iterations", "3", "--no-refine",
                  "--out", str(tmp_path / "r.npz")]) == 1
     out = capsys.readouterr().out
     assert "5 failures" in out and "still colliding" in out
     saved = np.load(tmp_path / "r.npz")
     assert saved["poses"].shape == (5, panda.njoint) and not saved["certified"].any()
+    # with it (the default), every pose is certified: exit status 0; Adam through the CLI too
+    assert main(["resolve", "--field", str(ckpt), "-n", "5"]) == 0
+    assert main(["resolve", "--field", str(ckpt), "-n", "3", "--method", "adam", "--lr", "0.05", "--iterations", "4",
+                 "--no-refine"]) == 1
+    capsys.readouterr()
     # init straight: the field alone, which calls everything free, so the dense check must report it
     code = main(["plan", "--field", str(ckpt), "--steps", "5", "--iterations", "5", "--init", "straight",
                  "--gif", str(tmp_path / "p.gif"),

@@ -83,6 +83,12 @@ class RobotModel:
     def collides(self, poses: npt.NDArray[np.float64], *, threads: int | None = None) -> npt.NDArray[np.bool_]:
         """(B,) bool for (B, K) float64 poses: ``label(poses)["collides"]``, bit for bit, by the
         booleans-only fast path (stops at the first pair in contact, likeliest pairs first)."""
+    def certified(self, poses: npt.NDArray[np.float64], clearance: float,
+                  threads: int | None = None) -> npt.NDArray[np.bool_]:
+        """(B,) bool for (B, K) float64 poses: no candidate pair in contact and every candidate pair
+        more than ``clearance`` metres apart (``0 <= clearance <= 1e-6``), i.e.
+        ``~label(poses, distance=True)["collides"] & (min_distance > clearance)``, by the fast
+        path (pair by pair, stopping at the first pair that is not clear)."""
     def nearest_free(self, poses: npt.NDArray[np.float64], *, directions: int = 256, step: float = 0.02,
                      tolerance: float = 1e-4, refine: int = 1024, max_distance: float | None = None, seed: int = 0,
                      threads: int | None = None) -> dict[str, npt.NDArray]:

@@ -12,10 +12,13 @@ links that just meet, a joint clamped at the limit where fingers close), so a po
 The plain labels (:func:`profrobot.label_poses`, :func:`profrobot.collides`) stay MuJoCo's own
 verdict (contact at distance ≤ margin); certification is that verdict plus the clearance.
 
-How it is computed, cheaply and exactly: the boolean fast path (:func:`profrobot.collides`)
-first; only poses it finds free pay for the signed distances (about 15× dearer), since the
-clearance can only add collisions. The verdict is identical to labelling every pose with
-distances. This module is torch-free (the base layer).
+How it is computed, cheaply and exactly: the Rust fast path (``RobotModel.certified``,
+``rust/fastpath.rs``) decides each candidate pair "not in contact and more than CLEARANCE
+apart", likeliest pairs first, and stops at the first pair that is not; box and sphere tests
+inflated by the clearance clear most pairs without a distance, and the rest get the exact signed
+distance the labels report. The verdict is that of labelling every pose with distances
+(``~collides & (min_distance > CLEARANCE)``, tested), at about the cost of
+:func:`profrobot.collides`. This module is torch-free (the base layer).
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import numpy as np
 
 from .deprecation import deprecated_alias
 from .errors import InputError
-from .labels import as_poses, check_threads, collides, interpolate, label_poses, so2_steps
+from .labels import as_poses, check_threads, interpolate, so2_steps
 from .robot import Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "check_path", "path_free_at", "PathCheck", "certified_summary", "failures_of"]
@@ -52,13 +55,9 @@ def certify_poses(robot: Robot, poses, *, threads: int | None = None, clearance:
     free (module docs: no contact, every candidate pair more than :data:`CLEARANCE` apart)."""
     _one_clearance(clearance, "certify_poses")
     q = as_poses(robot, poses)
-    threads = check_threads(threads)
-    free = ~collides(robot, q, threads=threads)
-    rest = np.flatnonzero(free)
-    if len(rest):
-        lab = label_poses(robot, q[rest], distance=True, threads=threads)
-        free[rest] = ~lab.collides & (lab.min_distance > CLEARANCE)
-    return free
+    if len(q) == 0:
+        return np.zeros(0, dtype=bool)
+    return robot.core.certified(np.ascontiguousarray(q), CLEARANCE, threads=check_threads(threads))
 
 
 @dataclass

@@ -229,9 +229,14 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
     sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
     sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1)
-    sp.add_argument("--lr", type=float, default=0.01)
-    sp.add_argument("--iterations", "--max-iters", dest="iterations", type=int, default=1000,
-                    help="Adam steps per pose at most (--max-iters: the name of earlier releases)")
+    sp.add_argument("--method", choices=("project", "adam"), default="project",
+                    help="the field step: project (the nearest pose to first order) or adam (the paper's)")
+    sp.add_argument("--lr", type=float, default=None, help="Adam's step size (--method adam; default 0.01)")
+    sp.add_argument("--iterations", "--max-iters", dest="iterations", type=int, default=None,
+                    help="field steps per pose at most (default 1 for project, 1000 for adam; --max-iters: the "
+                         "name of earlier releases)")
+    sp.add_argument("--no-shrink", dest="no_shrink", action="store_true",
+                    help="keep the field's answer (its margin) instead of the first certified pose on its ray")
     sp.add_argument("--no-refine", dest="no_refine", action="store_true",
                     help="do not retry poses the exact labeller still finds colliding")
     sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")

@@ -85,7 +85,8 @@ class Limits:
         return len(self.cont_np)
 
     # ---- tensors (differentiable unless marked in place) ---------------------------------------
-    def _bounds(self, inset: float) -> tuple[torch.Tensor, torch.Tensor]:
+    def bounds(self, inset: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """(lower, upper) (K,) tensors, ``inset`` inside each limit (at most half the range)."""
         if not inset:
             return self.lower, self.upper
         e = torch.clamp(self.span / 2, max=float(inset))
@@ -94,7 +95,7 @@ class Limits:
     def clamp_or_wrap(self, theta: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
         """θ (..., K) with limited joints clamped (``inset`` inside their limits, e.g.
         :data:`LIMIT_INSET`) and continuous hinges wrapped to [-pi, pi)."""
-        lo, hi = self._bounds(inset)
+        lo, hi = self.bounds(inset)
         return torch.where(self.continuous, _wrap(theta), torch.clamp(theta, lo, hi))
 
     @torch.no_grad()
@@ -107,7 +108,7 @@ class Limits:
     def clamp_(self, theta: torch.Tensor, inset: float = 0.0) -> torch.Tensor:
         """In place on θ (..., K): limited joints clamped (``inset`` inside), continuous hinges left
         unwrapped (for paths, whose continuous joints are unwrapped along the path)."""
-        lo, hi = self._bounds(inset)
+        lo, hi = self.bounds(inset)
         theta.copy_(torch.where(self.continuous, theta, torch.clamp(theta, lo, hi)))
         return theta
 

@@ -16,16 +16,25 @@ def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarr
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
-def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
+def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048, *, classifier: bool = False) -> np.ndarray:
     """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term; for
-    a family field over the robot joints θ, as its training's Eikonal term)."""
+    a family field over the robot joints θ, as its training's Eikonal term).
+
+    ``classifier``: the classifier's ‖∂σ(s·g)/∂θ‖₂ = s·σ(s·g)·(1 − σ(s·g))·‖∂g/∂θ‖₂ instead, which
+    vanishes wherever the classifier is confident, whatever the size of ∇g."""
     out = []
     for i in range(0, len(poses), chunk):
         q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32).requires_grad_(True)
-        (grad,) = torch.autograd.grad(sdf(q).sum(), q)
+        g = sdf(q)
+        (grad,) = torch.autograd.grad(g.sum(), q)
         if getattr(sdf, "scene_joints", None):
             grad = grad[:, sdf.robot_index]
-        out.append(grad.norm(dim=1).numpy())
+        norm = grad.norm(dim=1)
+        if classifier:
+            with torch.no_grad():
+                f = torch.sigmoid(sdf.scale * g)
+                norm = sdf.scale * f * (1 - f) * norm
+        out.append(norm.detach().numpy())
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
@@ -44,7 +53,8 @@ def evaluate(sdf: PoseSDF, poses: np.ndarray, collides: np.ndarray, *, gradient_
 
     accuracy, precision and recall of "colliding" (g > 0); ``false_free_rate``: the share of poses
     predicted free that actually collide (the error that breaks robots); AUROC of g; and on the
-    first ``gradient_poses`` poses the Eikonal loss mean (‖∇g‖ − 1)² and the mean ‖∇g‖.
+    first ``gradient_poses`` poses the Eikonal loss mean (‖∇g‖ − 1)², the mean ‖∇g‖, and the mean
+    gradient norm of the classifier σ(s·g) (``classifier_grad_norm``).
     """
     collides = np.asarray(collides, dtype=bool)
     was_training = sdf.training
@@ -56,11 +66,13 @@ def evaluate(sdf: PoseSDF, poses: np.ndarray, collides: np.ndarray, *, gradient_
     fn = int((~pred & collides).sum())
     tn = int((~pred & ~collides).sum())
     norms = gradient_norms(sdf, poses[:gradient_poses])
+    f_norms = gradient_norms(sdf, poses[:gradient_poses], classifier=True)
     sdf.train(was_training)
     return dict(
         n=len(g), accuracy=(tp + tn) / max(len(g), 1), precision=tp / max(tp + fp, 1), recall=tp / max(tp + fn, 1),
         false_free_rate=fn / max(fn + tn, 1), auroc=auroc(g, collides),
         eikonal_loss=float(np.mean((norms - 1) ** 2)), grad_norm=float(np.mean(norms)),
+        classifier_grad_norm=float(np.mean(f_norms)),
     )
 
 

@@ -242,11 +242,15 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     return sdf
 
 
-def _test_accuracy(sdf: PoseSDF, test: Dataset, n: int = 20_000) -> dict:
-    from .metrics import field_values
+def _test_accuracy(sdf: PoseSDF, test: Dataset, n: int = 20_000, n_grad: int = 2000) -> dict:
+    """The periodic training record: accuracy on ``n`` held-out poses, and on ``n_grad`` of them the
+    mean ‖∇g‖ and the classifier's mean ‖∇σ(s·g)‖ (how either evolves: the paper's Table 2)."""
+    from .metrics import field_values, gradient_norms
 
     g = field_values(sdf, test.poses[:n])
-    return dict(test_accuracy=float(np.mean((g > 0) == test.collides[:n])))
+    return dict(test_accuracy=float(np.mean((g > 0) == test.collides[:n])),
+                grad_norm=float(gradient_norms(sdf, test.poses[:n_grad]).mean()),
+                classifier_grad_norm=float(gradient_norms(sdf, test.poses[:n_grad], classifier=True).mean()))
 
 
 @torch.no_grad()

@@ -39,7 +39,7 @@ def cmd_resolve(args) -> int:
     else:  # colliding poses drawn uniformly
         poses = colliding_poses(robot, args.n, args.seed)
     res = resolve(sdf, poses, l_thres=args.l_thres, lr=args.lr, iterations=args.iterations, robot=robot,
-                  refine=not args.no_refine)
+                  refine=not args.no_refine, method=args.method, shrink=not args.no_shrink)
     print(res.summary())
     if len(res.failures):
         print(f"still colliding (exact labeller): poses {res.failures[:20].tolist()}{' ...' if len(res.failures) > 20 else ''}")
