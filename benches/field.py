@@ -4,7 +4,7 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
     python benches/field.py tables   [--iterations 400 | --minutes 2]   # ablations, same budget per row
     python benches/field.py default  [--minutes 15]     # acceptance 1: our default field
     python benches/field.py paper    [--minutes 60]     # the paper's model + recipe (15 and 60 min)
-    python benches/field.py shadow   [--minutes 15]     # Shadow Hand, self-collision only
+    python benches/field.py shadow   [--minutes 15 | --iterations 4000]  # Shadow Hand, self-collision only
     python benches/field.py scenes   [--minutes 13] [--layouts 20] [--upper 2] [--upper-minutes 6]
                                      # one field for a family of scenes (panda_blocks_moving)
 
@@ -164,7 +164,8 @@ def main(argv=None) -> int:
     ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
     ap.add_argument("--iterations", type=int, default=None,
-                    help="tables: iterations per row (default 400; fairer than minutes on a shared CPU)")
+                    help="tables: iterations per row (default 400; fairer than minutes on a shared CPU); "
+                         "default/shadow: an iteration count instead of --minutes")
     ap.add_argument("--poses", type=int, default=2_000_000, help="balanced poses (train + test)")
     ap.add_argument("--rows", default=None, help="comma-separated subset of table rows")
     ap.add_argument("--seed", type=int, default=0)
@@ -205,10 +206,13 @@ def main(argv=None) -> int:
                   f"Paper rows at CPU scale: {_PAPER_MODEL}; ours: the `cpu` preset.")
     elif args.command in ("default", "shadow"):
         minutes = args.minutes or 15.0
+        # --iterations: a fixed iteration count (the schedule over it), immune to a shared CPU's pauses
+        budget = dict(iterations=args.iterations) if args.iterations else dict(time_budget=60 * minutes)
         t = time.perf_counter()
-        sdf = train_sdf(data, robot=robot, seed=args.seed, time_budget=60 * minutes)
+        sdf = train_sdf(data, robot=robot, seed=args.seed, eval_every=max(1, (args.iterations or 3000) // 10), **budget)
         rows.append(row_report("ours (kinematic, default)", sdf, robot, colliding, time.perf_counter() - t))
-        header = f"# {scene}: our default field, {minutes:g} min budget (dataset generation excluded)"
+        what = f"{args.iterations} iterations" if args.iterations else f"{minutes:g} min budget"
+        header = f"# {scene}: our default field, {what} (dataset generation excluded)"
         if args.command == "default":
             OUT.mkdir(exist_ok=True)
             sdf.save(OUT / "panda_blocks_default")
