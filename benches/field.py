@@ -55,6 +55,10 @@ ROWS = {
     "StEik": dict(_PAPER_MODEL, steik_weight=0.01),
     "Lipschitz MLP": dict(_PAPER_MODEL, lipschitz=True),
     "ours (kinematic, default)": dict(),
+    # the same directions with our encoder (T2–T4: each changes one thing from the row above)
+    "ours: no Eikonal": dict(eikonal_weight=0.0),
+    "ours: s = 1": dict(learn_scale=False, init_scale=1.0),
+    "ours: NDF": dict(objective="ndf", eikonal_weight=0.0),
 }
 
 
@@ -72,7 +76,7 @@ def row_report(name, sdf, robot, colliding: np.ndarray, seconds: float, test=Non
         d = field_values(sdf, test.poses) + float(sdf.ndf_threshold)
         out["acc_cut0"] = 100 * float(np.mean((d > 0) == test.collides))
         out["cut"] = float(sdf.ndf_threshold)
-    if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, default)"):
+    if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, default)", "ours: no Eikonal"):
         # paper §4.2's protocol: Adam (lr 0.01) on g, each pose frozen once g <= -0.1, at most
         # 1000 steps, no refinement rounds, no exact shrink; the result re-labelled by MuJoCo
         res = profrobot.resolve(sdf, colliding, l_thres=-0.1, lr=0.01, iterations=1000, robot=robot, refine=False,
@@ -169,6 +173,8 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=2_000_000, help="balanced poses (train + test)")
     ap.add_argument("--rows", default=None, help="comma-separated subset of table rows")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out-name", default=None, help="tables: write benches/out/<name>.md/.json/_gradients.png "
+                    "(default field_tables; for rows run in parallel)")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--layouts", type=int, default=20, help="scenes: held-out layouts")
     ap.add_argument("--upper", type=int, default=2, help="scenes: layouts with a field of their own (upper bound)")
@@ -188,6 +194,7 @@ def main(argv=None) -> int:
     data = profrobot.make_dataset(robot, args.poses, seed=args.seed)
     colliding = colliding_poses(robot, 1000, seed=args.seed + 1)
     rows = []
+    out_name = args.out_name or f"field_{args.command}"
     if args.command == "tables":
         budget = (dict(time_budget=60 * args.minutes, iterations=10**9) if args.minutes and not args.iterations
                   else dict(iterations=args.iterations or 400))
@@ -199,8 +206,8 @@ def main(argv=None) -> int:
             test = data.split(sdf_test_fraction(), seed=args.seed)[1]
             rows.append(row_report(name, sdf, robot, colliding, time.perf_counter() - t, test=test))
             print({k: v for k, v in rows[-1].items() if k != "history"}, flush=True)
-            save_json(rows, OUT / "field_tables.json")
-        plot_history(rows, OUT / "field_tables_gradients.png")
+            save_json(rows, OUT / f"{out_name}.json")
+        plot_history(rows, OUT / f"{out_name}_gradients.png")
         what = f"{args.minutes:g} min" if "time_budget" in budget else f"{budget['iterations']} iterations"
         header = (f"# Panda-blocks field ablations: {what} of training per row\n\n"
                   f"Paper rows at CPU scale: {_PAPER_MODEL}; ours: the `cpu` preset.")
@@ -234,7 +241,7 @@ def main(argv=None) -> int:
         rows.append(row_report("hierarchical (paper)", sdf, robot, colliding, time.perf_counter() - t))
         rows[-1]["name"] = f"paper recipe after {minutes:g} min"
         header = "# Panda-blocks: the paper's exact model and recipe (hierarchical, batch 100 000, milestones)"
-    text = write_table(rows, OUT / f"field_{args.command}.md", header)
+    text = write_table(rows, OUT / f"{out_name}.md", header)
     print(text)
     print(f"wall time {time.perf_counter() - wall:.0f} s, torch threads {torch.get_num_threads()}, "
           f"CPU cores {os.cpu_count()}, poses {args.poses}")

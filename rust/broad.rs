@@ -130,7 +130,9 @@ impl Broad {
                 (true, true) => {}
                 (true, false) | (false, true) => {
                     let (plane, geom) = if is_plane(p.g1) { (p.g1, p.g2) } else { (p.g2, p.g1) };
-                    let reach = inflated(geoms[geom].shape.radius + p.margin);
+                    // (a negative margin counts as 0: the pair must still be measured when it
+                    // comes within MAX_CLEARANCE, for certification)
+                    let reach = inflated(geoms[geom].shape.radius + p.margin.max(0.0));
                     planes.push(PlanePair { pair: k as u32, plane: plane as u32, geom: geom as u32, reach });
                     sphere[geom] = true;
                 }
@@ -175,7 +177,7 @@ impl Broad {
                 let start = members.len() as u32;
                 for &k in chunk {
                     let p = &pairs[k as usize];
-                    let r = geoms[p.g1].shape.radius + geoms[p.g2].shape.radius + p.margin;
+                    let r = geoms[p.g1].shape.radius + geoms[p.g2].shape.radius + p.margin.max(0.0);
                     members.push(Member { pair: k, g1: p.g1 as u32, g2: p.g2 as u32, reach2: reach2(r) });
                 }
                 groups.push(Group { b1, b2, reach2: reach, start, end: members.len() as u32 });

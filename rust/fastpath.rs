@@ -111,7 +111,7 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
 }
 
 /// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
-/// candidate pair more than `clearance` (≤ `MAX_CLEARANCE`) metres apart, i.e.
+/// candidate pair more than `clearance` (in (0, `MAX_CLEARANCE`]) metres apart, i.e.
 /// `!collides && min_distance > clearance` of `label_pose` with distances, decided pair by pair
 /// (`Scratch::clear_of`) and stopping at the first pair that is not clear, in `collides_pose`'s
 /// order. A pair the broad phase drops is more than `MAX_CLEARANCE` beyond its margin
@@ -156,8 +156,10 @@ pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scr
 /// (`certified_pose`), in pose order, in parallel on rayon's current pool; independent of the
 /// number of threads.
 pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
-    if !(0.0..=MAX_CLEARANCE).contains(&clearance) {
-        return Err(Error::InvalidInput(format!("clearance must be in [0, {MAX_CLEARANCE}] m; got {clearance}")));
+    // (0 is refused: "apart" at clearance 0 would be decided by distances, not by the
+    // intersection tests the labels use for touching shapes)
+    if !(clearance > 0.0 && clearance <= MAX_CLEARANCE) {
+        return Err(Error::InvalidInput(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {clearance}")));
     }
     model.check_poses(poses)?;
     let k = model.njoint();
@@ -260,55 +262,63 @@ mod tests {
 
     /// Certification agrees with the labels' "not colliding and min_distance > clearance" on a
     /// pendulum whose bob passes 0.05 m below the floor, at poses spread over the circle and
-    /// packed around the two poses where the bob just touches it (distances from -1e-3 to 1e-3
-    /// m, so several fall within the clearance), for clearances 0, 1e-7 and 1e-6.
+    /// packed around the two poses where the bob just touches it (distances from -2e-6 to 2e-6
+    /// m, so several fall within the clearance), for clearances 1e-9, 1e-7 and 1e-6, and with
+    /// no margin, a positive one, and a negative one (regression: the broad phase used to drop
+    /// a pair with a negative margin that was within the clearance, which the labels measure).
     #[test]
     fn certification_agrees_with_the_labelled_distances() {
-        let mut desc = ModelDesc::example_pendulum();
-        desc.body_pos[1][2] = 0.45;
-        let model = RobotModel::new(desc).unwrap();
-        let mut poses = sample_uniform(&model.sampling_ranges().unwrap(), 4000, 3).unwrap();
-        let labels = label_batch(&model, &poses, LabelOptions { pairs: false, distance: true }).unwrap();
-        // the touching angles: bisect each sign change of the distance along the sample, then
-        // pack poses around each
-        let dist = |q: f64| label_batch(&model, &[q], LabelOptions { pairs: false, distance: true }).unwrap().labels[0].min_distance;
-        let touch: Vec<f64> = {
-            let mut by_angle: Vec<(f64, f64)> = poses.iter().zip(&labels.labels).map(|(&q, l)| (q, l.min_distance)).collect();
-            by_angle.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let brackets: Vec<(f64, f64)> =
-                by_angle.windows(2).filter(|w| (w[0].1 > 0.0) != (w[1].1 > 0.0)).map(|w| (w[0].0, w[1].0)).collect();
-            brackets
-                .into_iter()
-                .map(|(mut lo, mut hi)| {
-                    let free_lo = dist(lo) > 0.0;
-                    for _ in 0..60 {
-                        let mid = 0.5 * (lo + hi);
-                        if (dist(mid) > 0.0) == free_lo {
-                            lo = mid
-                        } else {
-                            hi = mid
+        for margins in [[0.0, 0.0], [0.01, 0.005], [-0.01, 0.0]] {
+            let mut desc = ModelDesc::example_pendulum();
+            desc.body_pos[1][2] = 0.45;
+            desc.geom_margin = margins.to_vec();
+            let model = RobotModel::new(desc).unwrap();
+            let mut poses = sample_uniform(&model.sampling_ranges().unwrap(), 4000, 3).unwrap();
+            let opts = LabelOptions { pairs: false, distance: true };
+            let labels = label_batch(&model, &poses, opts).unwrap();
+            let dist = |q: f64| label_batch(&model, &[q], opts).unwrap().labels[0].min_distance;
+            // the touching angles: bisect each sign change of the distance along the sample,
+            // then pack poses around each
+            let touch: Vec<f64> = {
+                let mut by_angle: Vec<(f64, f64)> = poses.iter().zip(&labels.labels).map(|(&q, l)| (q, l.min_distance)).collect();
+                by_angle.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let brackets: Vec<(f64, f64)> =
+                    by_angle.windows(2).filter(|w| (w[0].1 > 0.0) != (w[1].1 > 0.0)).map(|w| (w[0].0, w[1].0)).collect();
+                brackets
+                    .into_iter()
+                    .map(|(mut lo, mut hi)| {
+                        let free_lo = dist(lo) > 0.0;
+                        for _ in 0..60 {
+                            let mid = 0.5 * (lo + hi);
+                            if (dist(mid) > 0.0) == free_lo {
+                                lo = mid
+                            } else {
+                                hi = mid
+                            }
                         }
-                    }
-                    lo
-                })
-                .collect()
-        };
-        assert!(!touch.is_empty());
-        for &t in &touch {
-            poses.extend((-200..=200).map(|i| t + i as f64 * 1e-8));
-        }
-        let labels = label_batch(&model, &poses, LabelOptions { pairs: false, distance: true }).unwrap();
-        for clearance in [0.0, 1e-7, 1e-6] {
-            let want: Vec<bool> = labels.labels.iter().map(|l| !l.collides() && l.min_distance > clearance).collect();
-            let near = labels.labels.iter().filter(|l| l.min_distance.abs() <= 2e-6).count();
-            assert!(near >= 4, "{near} poses within 2e-6 m of contact");
-            for threads in [1, 2] {
-                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-                assert_eq!(pool.install(|| certified_batch(&model, &poses, clearance).unwrap()), want, "clearance {clearance}");
+                        lo
+                    })
+                    .collect()
+            };
+            assert!(!touch.is_empty());
+            for &t in &touch {
+                poses.extend((-200..=200).map(|i| t + i as f64 * 1e-8));
             }
+            let labels = label_batch(&model, &poses, opts).unwrap();
+            for clearance in [1e-9, 1e-7, 1e-6] {
+                let want: Vec<bool> = labels.labels.iter().map(|l| !l.collides() && l.min_distance > clearance).collect();
+                let near = labels.labels.iter().filter(|l| l.min_distance.abs() <= 2e-6).count();
+                assert!(near >= 4, "{near} poses within 2e-6 m of contact");
+                for threads in [1, 2] {
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                    let got = pool.install(|| certified_batch(&model, &poses, clearance).unwrap());
+                    assert_eq!(got, want, "margins {margins:?}, clearance {clearance}");
+                }
+            }
+            assert!(certified_batch(&model, &poses, 1e-5).is_err());
+            assert!(certified_batch(&model, &poses, 0.0).is_err());
+            assert!(certified_batch(&model, &poses, f64::NAN).is_err());
         }
-        assert!(certified_batch(&model, &poses, 1e-5).is_err());
-        assert!(certified_batch(&model, &poses, f64::NAN).is_err());
     }
 
     #[test]

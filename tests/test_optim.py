@@ -230,6 +230,18 @@ def test_shrink_returns_the_first_certified_pose_on_the_segment(panda):
     assert not profrobot.certify_poses(panda, before[t < 1]).any()
 
 
+def test_regression_a_flat_field_does_not_crash_the_projection(panda):
+    """A field with no gradient (g = 1 everywhere) used to send the projection's multiplier to
+    inf and the poses to NaN, so resolve raised instead of reporting failures."""
+    colliding, _ = colliding_and_free(panda, n=6)
+    flat = LinearField(panda, np.zeros(panda.njoint), 1.0)
+    res = resolve(flat, colliding, refine=False)
+    np.testing.assert_array_equal(res.poses, colliding)         # no direction: nothing moves
+    assert not res.certified.any() and len(res.failures) == 6
+    res = resolve(flat, colliding)                                # the exact search needs no field
+    assert res.certified.all() and profrobot.certify_poses(panda, res.poses).all()
+
+
 def test_project_returns_certified_inputs_unchanged(panda):
     colliding, free = colliding_and_free(panda, n=10)
     q = np.concatenate([free[:5], colliding[:5]])

@@ -86,7 +86,7 @@ class RobotModel:
     def certified(self, poses: npt.NDArray[np.float64], clearance: float,
                   threads: int | None = None) -> npt.NDArray[np.bool_]:
         """(B,) bool for (B, K) float64 poses: no candidate pair in contact and every candidate pair
-        more than ``clearance`` metres apart (``0 <= clearance <= 1e-6``), i.e.
+        more than ``clearance`` metres apart (``0 < clearance <= 1e-6``), i.e.
         ``~label(poses, distance=True)["collides"] & (min_distance > clearance)``, by the fast
         path (pair by pair, stopping at the first pair that is not clear)."""
     def nearest_free(self, poses: npt.NDArray[np.float64], *, directions: int = 256, step: float = 0.02,

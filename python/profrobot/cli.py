@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the field step: project (the nearest pose to first order) or adam (the paper's)")
     sp.add_argument("--lr", type=float, default=None, help="Adam's step size (--method adam; default 0.01)")
     sp.add_argument("--iterations", "--max-iters", dest="iterations", type=int, default=None,
-                    help="field steps per pose at most (default 1 for project, 1000 for adam; --max-iters: the "
+                    help="field steps per pose at most (default 5 for project, 1000 for adam; --max-iters: the "
                          "name of earlier releases)")
     sp.add_argument("--no-shrink", dest="no_shrink", action="store_true",
                     help="keep the field's answer (its margin) instead of the first certified pose on its ray")

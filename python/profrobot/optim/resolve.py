@@ -56,7 +56,8 @@ class ResolveResult:
         certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`).
         g: (B,) float32, the field at the field step's answer (before the exact labeller cuts the
             move: ``shrink``); at the input for poses returned as given.
-        reached: (B,) bool, the field step's answer met its (final) field threshold.
+        reached: (B,) bool, the field step's answer met its (final) field threshold (True for
+            poses ``method="project"`` returned as given, certified).
         threshold: (B,) float64, the last threshold each pose was driven to (l_thres, or lower
             after refinement rounds).
         seconds: wall time of the whole call (optimisation + certification).
@@ -143,17 +144,20 @@ def project_box_halfspace(theta0: torch.Tensor, a: torch.Tensor, b: torch.Tensor
 
     zero = torch.zeros_like(b)
     over = h(zero) - b
-    need = over > 0
+    aa = (a * a).sum(1)
+    # a row with no gradient has no direction to move in: it stays at clip(θ₀)
+    need = (over > 0) & (aa > 1e-20)
     if not need.any():
         return x_of(zero)
-    aa = (a * a).sum(1).clamp_min(1e-30)
-    low = torch.where(need, over / aa, zero)
+    aa = aa.clamp_min(1e-20)
+    top = torch.finfo(b.dtype).max / 4                 # λ stays finite (no inf·0 = NaN in x(λ))
+    low = torch.where(need, torch.clamp(over / aa, max=top), zero)
     high = low.clone()
     for _ in range(_DUAL_STEPS):  # expand until h(high) ≤ b
-        short = need & (h(high) > b)
+        short = need & (h(high) > b) & (high < top)
         if not short.any():
             break
-        high = torch.where(short, 2 * high + 1e-6, high)
+        high = torch.where(short, torch.clamp(2 * high + 1e-6, max=top), high)
     for _ in range(_DUAL_STEPS):
         mid = 0.5 * (low + high)
         above = h(mid) > b
@@ -187,13 +191,15 @@ def _project(sdf, theta: torch.Tensor, rows: torch.Tensor, thresholds: torch.Ten
         iterations[active] += 1
 
 
-def shrink_moves(robot: Robot, q0: np.ndarray, q1: np.ndarray, limits: Limits, *,
+def shrink_moves(robot: Robot, q0: np.ndarray, q1: np.ndarray, limits: Limits, *, move: np.ndarray | None = None,
                  grid: int = 8, extend: float = 4.0, bisections: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Each move q0 → q1 ((B, K) radians / metres) cut to the first free pose on its ray
-    q0 + t·(q1 − q0) (continuous joints the short way round, limited joints clipped to their
-    limits), then certified: shortened (t < 1) where q1 is free, extended (1 < t ≤ ``extend``)
-    where it is not. Returns (poses (B, K), certified (B,)); a row where nothing is certified
-    keeps q1 (certified or not, as it is).
+    q0 + t·d, then certified: shortened (t < 1) where q1 is free, extended (1 < t ≤ ``extend``)
+    where it is not. ``move`` (B, K): d, the move as it was made (continuous joints unwrapped;
+    default q1 − q0 with continuous joints the short way round); poses on the ray are wrapped and
+    clipped to the joint limits, so a joint may end on a limit where the labeller certifies it.
+    Returns (poses (B, K), certified (B,)); a row where nothing is certified keeps q1 (certified or
+    not, as it is).
 
     Exactness: every pose returned as certified is one the labeller certified. The search scans
     t in steps of 1/``grid`` (first [0, 1], then beyond 1 for the rows where nothing was free)
@@ -203,7 +209,7 @@ def shrink_moves(robot: Robot, q0: np.ndarray, q1: np.ndarray, limits: Limits, *
     interval; the scan finds its first piece at the grid's resolution)."""
     out = q1.copy()
     ok = np.zeros(len(q1), dtype=bool)
-    d = limits.diff(q1, q0)
+    d = limits.diff(q1, q0) if move is None else np.asarray(move, dtype=np.float64)
     moved = np.abs(d).max(axis=1) > 0
     if (~moved).any():
         ok[~moved] = certify_poses(robot, q1[~moved])
@@ -295,7 +301,8 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     field calls it free, ``iterations`` (default 5) steps at most. ``method="adam"``: the paper's protocol, Adam (``lr``,
     default 0.01) on g, each pose frozen as soon as g ≤ ``l_thres``, at most ``iterations``
     (default 1000) steps; continuous hinges wrapped, limited joints clamped after each step.
-    Either way a joint that moves stays :data:`~profrobot.joints.LIMIT_INSET` inside its limits.
+    Either way the field's steps keep a joint they move :data:`~profrobot.joints.LIMIT_INSET`
+    inside its limits (the labeller's search may end on a limit, where it certifies the pose).
 
     Every answer is certified by the exact labeller (``certified``). ``shrink`` (default): each
     move is cut to the first certified pose on its ray (module docs), so a pose certified as
@@ -303,7 +310,8 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     :data:`~profrobot.certification.CLEARANCE` to contact (``shrink=False`` keeps the field's
     margin: the field's answer as it is). ``refine`` (default): poses still not certified get,
     with ``method="project"``, the exact labeller's nearest-free search from the input
-    (:func:`profrobot.nearest_free`, 32 rays, 64 refinements); then, either method, rounds that
+    (:func:`profrobot.nearest_free`, 32 rays, 64 refinements, seeded by each pose's place among
+    those searched: deterministic for the same batch); then, either method, rounds that
     lower their field threshold by ``refine_step`` each, up to ``refine_rounds`` rounds of
     ``refine_iterations`` steps (default ``iterations``). Poses left colliding are reported in
     ``result.failures``, never hidden. ``robot``: the labeller's robot (default: the bundled
@@ -375,7 +383,11 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     def answer(rows: np.ndarray) -> np.ndarray:
         """The field's answers for ``rows``, certified, shortened by the labeller (``shrink``)."""
         q1 = result(rows)
-        q1, ok = shrink_moves(robot, q0[rows], q1, limits) if shrink else (q1, certify_poses(robot, q1))
+        if not shrink:
+            ok = certify_poses(robot, q1)
+        else:  # the move as the field made it: continuous joints unwrapped
+            moved = (theta[rows] - theta_in[rows]).cpu().numpy().astype(np.float64)
+            q1, ok = shrink_moves(robot, q0[rows], q1, limits, move=moved)
         out[rows] = q1
         return ok
 
@@ -402,7 +414,8 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
         near = nearest_free(robot, limits.numpy(q0[bad]), directions=_ORACLE_DIRECTIONS, refine=_ORACLE_REFINE)
         hit = np.isfinite(near.distance)
         if hit.any():
-            q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits)
+            # nearest_free leaves continuous joints unwrapped: its poses minus the inputs are its rays
+            q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
             out[bad[hit][ok]] = q1[ok]
             certified[bad[hit][ok]] = True
         history.append(dict(round="exact search", threshold=l_thres, certified=int(certified.sum())))
@@ -411,7 +424,10 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
 
     g_np = g.cpu().numpy()
     thr = thresholds.cpu().numpy().astype(np.float64)
+    reached = g_np <= thr
+    if method == "project":
+        reached[free_in] = True        # certified as given: no field step was needed
     return ResolveResult(poses=out, iterations=steps_taken.cpu().numpy(),
                          delta=np.linalg.norm(limits.diff(out, q0), axis=1), certified=certified,
-                         g=g_np, reached=g_np <= thr, threshold=thr,
+                         g=g_np, reached=reached, threshold=thr,
                          seconds=time.perf_counter() - start, rounds=rounds, history=history)
