@@ -199,11 +199,11 @@ def main(argv=None) -> int:
         budget = (dict(time_budget=60 * args.minutes, iterations=10**9) if args.minutes and not args.iterations
                   else dict(iterations=args.iterations or 400))
         names = args.rows.split(",") if args.rows else list(ROWS)
+        test = data.split(sdf_test_fraction(), seed=args.seed)[1]   # train_sdf's own held-out split
         for name in names:
             t = time.perf_counter()
             sdf = train_sdf(data, robot=robot, seed=args.seed, eval_every=max(1, budget["iterations"] // 20)
                             if "time_budget" not in budget else 0, **budget, **ROWS[name])
-            test = data.split(sdf_test_fraction(), seed=args.seed)[1]
             rows.append(row_report(name, sdf, robot, colliding, time.perf_counter() - t, test=test))
             print({k: v for k, v in rows[-1].items() if k != "history"}, flush=True)
             save_json(rows, OUT / f"{out_name}.json")

@@ -51,9 +51,13 @@ const MIN_SHARE: f64 = 0.005;
 /// No pair (`Scratch::last_hit` before any hit).
 const NO_PAIR: u32 = u32::MAX;
 
-/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
-/// for a pair the narrow phase cannot decide, met before any pair in contact.
-pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+/// Whether some candidate pair of pose `q` (length K) `fails` (a pure function of the placed
+/// pose and the pair), trying pairs in the fast path's order (module docs) and stopping at the
+/// first that fails; `Err` for a pair `fails` cannot decide, met before any that fails.
+fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails: F) -> std::result::Result<bool, Undecided>
+where
+    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+{
     s.place(model, q, false);
     let pose = s.pose_stamp();
     let last = s.last_hit;
@@ -64,7 +68,7 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::res
             continue;
         }
         s.tested[k] = pose;
-        if model.broad.may_touch(&s.broad, k) && s.in_contact(model, k)? {
+        if model.broad.may_touch(&s.broad, k) && fails(s, k)? {
             s.last_hit = k as u32;
             return Ok(true);
         }
@@ -75,7 +79,7 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::res
     let mut hit = Ok(false);
     for &k in &near {
         if s.tested[k as usize] != pose {
-            hit = s.in_contact(model, k as usize);
+            hit = fails(s, k as usize);
             if hit != Ok(false) {
                 if hit.is_ok() {
                     s.last_hit = k;
@@ -88,10 +92,13 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::res
     hit
 }
 
-/// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
-/// rayon's current pool. Every pose is decided alone, so the result does not depend on the
-/// number of threads.
-pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
+/// `per_pose` on each pose of a `(B, K)` row-major batch, in pose order, in parallel on rayon's
+/// current pool, one `Scratch` per work item. Every pose is decided alone, so the result does
+/// not depend on the number of threads; the first undecided pose is the error, named.
+fn batch<F>(model: &RobotModel, poses: &[f64], per_pose: F) -> Result<Vec<bool>>
+where
+    F: Fn(&[f64], &mut Scratch) -> std::result::Result<bool, Undecided> + Sync,
+{
     model.check_poses(poses)?;
     let k = model.njoint();
     likely_pairs(model);
@@ -101,13 +108,25 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
         .map_init(
             || Scratch::new(model),
             |s, (c, chunk)| {
-                let one =
-                    |(i, q): (usize, &[f64])| collides_pose(model, q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)));
+                let one = |(i, q): (usize, &[f64])| per_pose(q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)));
                 chunk.chunks_exact(k).enumerate().map(one).collect()
             },
         )
         .collect();
     Ok(first_error(chunks)?.concat())
+}
+
+/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
+/// for a pair the narrow phase cannot decide, met before any pair in contact.
+pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    some_pair_fails(model, q, s, |s, k| s.in_contact(model, k))
+}
+
+/// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
+/// rayon's current pool. Every pose is decided alone, so the result does not depend on the
+/// number of threads.
+pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
+    batch(model, poses, |q, s| collides_pose(model, q, s))
 }
 
 /// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
@@ -118,38 +137,7 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
 /// (`broad.rs`), so clear. `Err` for a pair the narrow phase cannot decide, met before any pair
 /// that is not clear.
 pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
-    s.place(model, q, false);
-    let pose = s.pose_stamp();
-    let last = s.last_hit;
-    let first = (last != NO_PAIR).then_some(last);
-    for k in first.into_iter().chain(likely_pairs(model).iter().copied()) {
-        let k = k as usize;
-        if s.tested[k] == pose {
-            continue;
-        }
-        s.tested[k] = pose;
-        if model.broad.may_touch(&s.broad, k) && !s.clear_of(model, k, clearance)? {
-            s.last_hit = k as u32;
-            return Ok(false);
-        }
-    }
-    let mut near = std::mem::take(&mut s.near);
-    near.clear();
-    model.broad.near_pairs(&mut s.broad, &mut near);
-    let mut verdict = Ok(true);
-    for &k in &near {
-        if s.tested[k as usize] != pose {
-            verdict = s.clear_of(model, k as usize, clearance);
-            if verdict != Ok(true) {
-                if verdict.is_ok() {
-                    s.last_hit = k;
-                }
-                break;
-            }
-        }
-    }
-    s.near = near;
-    verdict
+    some_pair_fails(model, q, s, |s, k| s.clear_of(model, k, clearance).map(|clear| !clear)).map(|fails| !fails)
 }
 
 /// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres
@@ -161,23 +149,7 @@ pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Res
     if !(clearance > 0.0 && clearance <= MAX_CLEARANCE) {
         return Err(Error::InvalidInput(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {clearance}")));
     }
-    model.check_poses(poses)?;
-    let k = model.njoint();
-    likely_pairs(model);
-    let chunks: Vec<Result<Vec<bool>>> = poses
-        .par_chunks(CHUNK * k)
-        .enumerate()
-        .map_init(
-            || Scratch::new(model),
-            |s, (c, chunk)| {
-                let one = |(i, q): (usize, &[f64])| {
-                    certified_pose(model, q, clearance, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))
-                };
-                chunk.chunks_exact(k).enumerate().map(one).collect()
-            },
-        )
-        .collect();
-    Ok(first_error(chunks)?.concat())
+    batch(model, poses, |q, s| certified_pose(model, q, clearance, s))
 }
 
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:

@@ -16,26 +16,42 @@ def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarr
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
-def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048, *, classifier: bool = False) -> np.ndarray:
-    """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term; for
-    a family field over the robot joints θ, as its training's Eikonal term).
-
-    ``classifier``: the classifier's ‖∂σ(s·g)/∂θ‖₂ = s·σ(s·g)·(1 − σ(s·g))·‖∂g/∂θ‖₂ instead, which
-    vanishes wherever the classifier is confident, whatever the size of ∇g."""
-    out = []
+def _values_and_gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> tuple[np.ndarray, np.ndarray]:
+    """g (N,) and ‖∂g/∂θ‖₂ (N,) for poses (N, K), one backward pass (see :func:`gradient_norms`)."""
+    gs, out = [], []
     for i in range(0, len(poses), chunk):
         q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32).requires_grad_(True)
         g = sdf(q)
         (grad,) = torch.autograd.grad(g.sum(), q)
         if getattr(sdf, "scene_joints", None):
             grad = grad[:, sdf.robot_index]
-        norm = grad.norm(dim=1)
-        if classifier:
-            with torch.no_grad():
-                f = torch.sigmoid(sdf.scale * g)
-                norm = sdf.scale * f * (1 - f) * norm
-        out.append(norm.detach().numpy())
-    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+        gs.append(g.detach().numpy())
+        out.append(grad.norm(dim=1).numpy())
+    empty = np.zeros(0, dtype=np.float32)
+    return (np.concatenate(gs), np.concatenate(out)) if out else (empty, empty)
+
+
+def _classifier_norms(sdf: PoseSDF, g: np.ndarray, norms: np.ndarray) -> np.ndarray:
+    """The classifier's ‖∂σ(s·g)/∂θ‖₂ = s·σ(s·g)·(1 − σ(s·g))·‖∂g/∂θ‖₂ (N,) from g and ‖∂g/∂θ‖₂: it
+    vanishes wherever the classifier is confident, whatever the size of ∇g."""
+    s = float(sdf.scale)
+    f = 1.0 / (1.0 + np.exp(-s * g.astype(np.float64)))
+    return (s * f * (1 - f) * norms).astype(np.float32)
+
+
+def gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """‖∂g/∂θ‖₂ (N,) for poses (N, K) (over the whole pose vector, as the paper's Eikonal term; for
+    a family field over the robot joints θ, as its training's Eikonal term)."""
+    return _values_and_gradient_norms(sdf, poses, chunk)[1]
+
+
+def gradient_summary(sdf: PoseSDF, poses: np.ndarray) -> dict:
+    """On poses (N, K), from one backward pass: the mean ‖∇g‖ (``grad_norm``), the Eikonal loss
+    mean (‖∇g‖ − 1)² (``eikonal_loss``) and the classifier's mean ‖∇σ(s·g)‖
+    (``classifier_grad_norm``)."""
+    g, norms = _values_and_gradient_norms(sdf, poses)
+    return dict(eikonal_loss=float(np.mean((norms - 1) ** 2)), grad_norm=float(np.mean(norms)),
+                classifier_grad_norm=float(np.mean(_classifier_norms(sdf, g, norms))))
 
 
 def auroc(score: np.ndarray, label: np.ndarray) -> float:
@@ -65,14 +81,12 @@ def evaluate(sdf: PoseSDF, poses: np.ndarray, collides: np.ndarray, *, gradient_
     fp = int((pred & ~collides).sum())
     fn = int((~pred & collides).sum())
     tn = int((~pred & ~collides).sum())
-    norms = gradient_norms(sdf, poses[:gradient_poses])
-    f_norms = gradient_norms(sdf, poses[:gradient_poses], classifier=True)
+    grads = gradient_summary(sdf, poses[:gradient_poses])
     sdf.train(was_training)
     return dict(
         n=len(g), accuracy=(tp + tn) / max(len(g), 1), precision=tp / max(tp + fp, 1), recall=tp / max(tp + fn, 1),
         false_free_rate=fn / max(fn + tn, 1), auroc=auroc(g, collides),
-        eikonal_loss=float(np.mean((norms - 1) ** 2)), grad_norm=float(np.mean(norms)),
-        classifier_grad_norm=float(np.mean(f_norms)),
+        **grads,
     )
 
 

@@ -245,12 +245,12 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
 def _test_accuracy(sdf: PoseSDF, test: Dataset, n: int = 20_000, n_grad: int = 2000) -> dict:
     """The periodic training record: accuracy on ``n`` held-out poses, and on ``n_grad`` of them the
     mean ‖∇g‖ and the classifier's mean ‖∇σ(s·g)‖ (how either evolves: the paper's Table 2)."""
-    from .metrics import field_values, gradient_norms
+    from .metrics import field_values, gradient_summary
 
     g = field_values(sdf, test.poses[:n])
-    return dict(test_accuracy=float(np.mean((g > 0) == test.collides[:n])),
-                grad_norm=float(gradient_norms(sdf, test.poses[:n_grad]).mean()),
-                classifier_grad_norm=float(gradient_norms(sdf, test.poses[:n_grad], classifier=True).mean()))
+    grads = gradient_summary(sdf, test.poses[:n_grad])
+    return dict(test_accuracy=float(np.mean((g > 0) == test.collides[:n])), grad_norm=grads["grad_norm"],
+                classifier_grad_norm=grads["classifier_grad_norm"])
 
 
 @torch.no_grad()
