@@ -262,6 +262,28 @@ impl Broad {
         }
     }
 
+    /// A lower bound on candidate pair `k`'s distance in the placed pose, from its geoms'
+    /// bounding spheres (a plane pair: the sphere's height above the plane), less a relative and
+    /// absolute 1e-9 for rounding; and the spheres' radii summed (the distance itself is
+    /// unlikely to exceed the bound by more). `+inf` for a plane-plane pair (never a candidate).
+    #[inline]
+    pub(crate) fn sphere_gap(&self, s: &BroadScratch, k: usize, geoms: &[Geom]) -> (f64, f64) {
+        let i = self.of_pair[k];
+        let (gap, reach) = if i == NONE {
+            return (f64::INFINITY, 0.0);
+        } else if i & PLANE != 0 {
+            let p = &self.planes[(i & !PLANE) as usize];
+            let (normal, offset) = s.plane[p.plane as usize];
+            let r = geoms[p.geom as usize].shape.radius;
+            (normal.dot(&s.geom_world[p.geom as usize]) - offset - r, r)
+        } else {
+            let m = &self.members[i as usize];
+            let r = geoms[m.g1 as usize].shape.radius + geoms[m.g2 as usize].shape.radius;
+            ((s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize]).norm() - r, r)
+        };
+        (gap - 1e-9 * (1.0 + reach + gap.abs()), reach)
+    }
+
     /// Appends to `near` the candidate pairs that may touch in the placed pose (see `place`),
     /// in no particular order.
     pub(crate) fn near_pairs(&self, s: &mut BroadScratch, near: &mut Vec<u32>) {

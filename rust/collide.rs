@@ -238,6 +238,58 @@ impl Scratch {
         Ok(d.is_none_or(clear))
     }
 
+    /// A lower bound on candidate pair `k`'s distance in the placed pose, at least `want` when a
+    /// cheap proof gives that much, else as tight as GJK gets it; at most 0 when the shapes
+    /// touch or overlap. `Err` when parry cannot decide the pair (module docs).
+    ///
+    /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
+    /// convex geoms every answer is a separation along a unit axis `n` (in the first geom's
+    /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
+    /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
+    /// GJK converges to. The pair's remembered axis (from the previous state) is tried first;
+    /// GJK (`gjk::closest_points`) runs only when it does not give `want`, and its axis is
+    /// remembered. The caller takes off its rounding slack (support points and dot products
+    /// round at ~1e-16 relative).
+    pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64) -> std::result::Result<f64, Undecided> {
+        use parry3d_f64::query::gjk::{self, CSOPoint, GJKResult, VoronoiSimplex};
+        let pair = &model.pairs[k];
+        let (g1, g2) = (pair.g1, pair.g2);
+        self.frame(model, g1);
+        self.frame(model, g2);
+        let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
+        let (ca, cb) = match (&a.shape.solid, &b.shape.solid) {
+            (Solid::HalfSpace, Solid::Convex { convex, .. }) => return Ok(plane_distance(&self.geoms[g1], convex, &self.geoms[g2])),
+            (Solid::Convex { convex, .. }, Solid::HalfSpace) => return Ok(plane_distance(&self.geoms[g2], convex, &self.geoms[g1])),
+            (Solid::HalfSpace, Solid::HalfSpace) => return Ok(f64::INFINITY),
+            (Solid::Convex { convex: ca, .. }, Solid::Convex { convex: cb, .. }) => (ca, cb),
+        };
+        let pos12 = self.geoms[g1].inv_mul(&self.geoms[g2]);
+        let separation = |n: &Vector3<f64>| n.dot(&(cb.support_point(&pos12, &-n).coords - ca.local_support_point(n).coords));
+        let axis = self.axes[k];
+        let mut best = f64::NEG_INFINITY;
+        if let Some(n) = axis.try_normalize(1e-12) {
+            best = separation(&n);
+            if best >= want {
+                return Ok(best);
+            }
+        }
+        let mut simplex = VoronoiSimplex::new();
+        let start = nalgebra::Unit::try_new(if axis == Vector3::zeros() { -pos12.translation.vector } else { axis }, 1e-12).unwrap_or(Vector3::x_axis());
+        simplex.reset(CSOPoint::from_shapes(&pos12, ca, cb, &start));
+        match gjk::closest_points(&pos12, ca, cb, f64::MAX, true, &mut simplex) {
+            GJKResult::ClosestPoints(p1, p2, _) => {
+                let Some(n) = (p2 - p1).try_normalize(1e-12) else {
+                    return Ok(best.min(0.0));
+                };
+                self.axes[k] = n;
+                Ok(best.max(separation(&n)))
+            }
+            // (GJK found them touching, or did not converge: no proof of separation beyond the
+            // remembered axis's)
+            _ => Ok(best.min(0.0)),
+        }
+    }
+
     /// Whether the convex geom `g`'s bounding box stays `margin + BOX_SLACK` above the plane
     /// geom `plane` (whose frame `place` computed): then the geom is more than `margin` away.
     fn plane_box_clear(&mut self, model: &RobotModel, plane: usize, g: usize, margin: f64) -> bool {

@@ -29,6 +29,7 @@
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
 //! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
+//! | [`motion`] | straight joint-space motions certified continuously (conservative advancement) |
 //! | [`oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
@@ -50,6 +51,7 @@ pub mod hull;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;
+pub mod motion;
 pub mod oracle;
 pub mod pairs;
 pub mod plan;

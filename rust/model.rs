@@ -39,6 +39,8 @@ pub struct RobotModel {
     /// The pairs the booleans-only fast path tries first, likeliest first: derived from a
     /// seeded sample on first use by `fastpath.rs` (a heuristic: no answer depends on it).
     pub(crate) likely_pairs: std::sync::OnceLock<Vec<u32>>,
+    /// Per candidate pair and joint, the pair's lever (`motion::Levers`), on first use.
+    pub(crate) lever_rows: std::sync::OnceLock<Vec<f64>>,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -232,6 +234,7 @@ impl RobotModel {
             pairs,
             broad,
             likely_pairs: std::sync::OnceLock::new(),
+            lever_rows: std::sync::OnceLock::new(),
         })
     }
 

@@ -28,10 +28,12 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::angles::wrap;
+use crate::broad::MAX_CLEARANCE;
 use crate::collide::Scratch;
 use crate::error::{invalid_input, Result};
-use crate::fastpath::collides_pose;
+use crate::fastpath::{certified_pose, collides_pose};
 use crate::model::RobotModel;
+use crate::motion::{certify_motion, Levers, Motion, MotionScratch, Space};
 
 /// What a planning call may spend and how finely it checks edges.
 #[derive(Clone, Debug)]
@@ -49,13 +51,28 @@ pub struct PlanOptions {
     /// Shortcut attempts on the found path.
     pub shortcut_rounds: usize,
     /// The answer is verified `verify` times finer than `resolution` (segments that fail are
-    /// re-planned at that resolution); 1 turns verification off.
+    /// re-planned at that resolution); 1 turns verification off. Sampled edges only.
     pub verify: usize,
+    /// Edges are certified continuously (`motion.rs`: every pair above `max(margin,
+    /// clearance)` at every state of the edge, proven); false: sampled at `resolution`.
+    pub continuous: bool,
+    /// Metres, in (0, `MAX_CLEARANCE`]: the distance every pair keeps on a continuous edge.
+    pub clearance: f64,
 }
 
 impl Default for PlanOptions {
     fn default() -> Self {
-        Self { resolution: 0.01, max_time: 10.0, seed: 0, range: 0.0, max_iterations: 200_000, shortcut_rounds: 200, verify: 10 }
+        Self {
+            resolution: 0.01,
+            max_time: 10.0,
+            seed: 0,
+            range: 0.0,
+            max_iterations: 200_000,
+            shortcut_rounds: 200,
+            verify: 10,
+            continuous: true,
+            clearance: MAX_CLEARANCE,
+        }
     }
 }
 
@@ -92,44 +109,10 @@ impl PlanResult {
     }
 }
 
-/// The joint space: bounds per joint and which joints wrap.
-struct Space {
-    lo: Vec<f64>,
-    hi: Vec<f64>,
-    wraps: Vec<bool>,
-}
-
-impl Space {
-    /// `b − a`, the short arc on wrapping joints.
-    fn delta(&self, a: &[f64], b: &[f64], out: &mut [f64]) {
-        for k in 0..a.len() {
-            let d = b[k] - a[k];
-            out[k] = if self.wraps[k] { wrap(d) } else { d };
-        }
-    }
-
-    fn distance(&self, a: &[f64], b: &[f64]) -> f64 {
-        let mut s = 0.0;
-        for k in 0..a.len() {
-            let d = b[k] - a[k];
-            let d = if self.wraps[k] { wrap(d) } else { d };
-            s += d * d;
-        }
-        s.sqrt()
-    }
-
-    /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π).
-    fn along(&self, a: &[f64], d: &[f64], t: f64, out: &mut [f64]) {
-        for k in 0..a.len() {
-            let v = a[k] + t * d[k];
-            out[k] = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
-        }
-    }
-
-    fn sample(&self, rng: &mut ChaCha8Rng, out: &mut [f64]) {
-        for ((v, lo), hi) in out.iter_mut().zip(&self.lo).zip(&self.hi) {
-            *v = lo + (hi - lo) * rng.random::<f64>();
-        }
+/// A uniform state of the space's box.
+fn sample(space: &Space, rng: &mut ChaCha8Rng, out: &mut [f64]) {
+    for ((v, lo), hi) in out.iter_mut().zip(&space.lo).zip(&space.hi) {
+        *v = lo + (hi - lo) * rng.random::<f64>();
     }
 }
 
@@ -163,6 +146,8 @@ struct Checker<'m> {
     resolution: f64,
     scratch: Scratch,
     checks: u64,
+    /// Continuous edges: the certificate's levers, buffers and clearance.
+    motion: Option<(Levers<'m>, MotionScratch, f64)>,
 }
 
 impl<'m> Checker<'m> {
@@ -175,11 +160,20 @@ impl<'m> Checker<'m> {
         }
     }
 
-    /// Whether the SO(2) segment `a → b` is free at `resolution` (`a` is taken as free).
+    /// Whether the SO(2) segment `a → b` is free: certified continuously, or at `resolution`
+    /// (`a` is taken as free).
     fn edge_free(&mut self, a: &[f64], b: &[f64]) -> Result<bool> {
         let k = a.len();
         let mut d = vec![0.0; k];
         self.space.delta(a, b, &mut d);
+        if let Some((levers, ms, clearance)) = &mut self.motion {
+            let verdict = certify_motion(self.model, *levers, &self.space, a, &d, *clearance, ms);
+            self.checks += ms.states as u64;
+            return match verdict {
+                Ok(m) => Ok(m == Motion::Certified),
+                Err(e) => Err(e.error(self.model, format!("planning motion {a:?} -> {b:?}"))),
+            };
+        }
         let span = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let n = ((span / self.resolution).ceil() as usize).max(1);
         let order = check_order(n);
@@ -332,11 +326,14 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     if !(opts.range >= 0.0 && opts.range.is_finite()) {
         return invalid_input(format!("range must be >= 0; got {}", opts.range));
     }
-    let ranges = model.sampling_ranges()?;
-    let space = Space { lo: ranges.iter().map(|r| r[0]).collect(), hi: ranges.iter().map(|r| r[1]).collect(), wraps: model.continuous() };
+    if opts.continuous && !(opts.clearance > 0.0 && opts.clearance <= MAX_CLEARANCE) {
+        return invalid_input(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {}", opts.clearance));
+    }
+    let space = Space::of(model)?;
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
     let range = if opts.range > 0.0 { opts.range } else { 0.2 * diagonal };
-    let mut checker = Checker { model, space, resolution: opts.resolution, scratch: Scratch::new(model), checks: 0 };
+    let motion = opts.continuous.then(|| (Levers::of(model), MotionScratch::new(model), opts.clearance));
+    let mut checker = Checker { model, space, resolution: opts.resolution, scratch: Scratch::new(model), checks: 0, motion };
     for (q, what) in [(start, "start"), (goal, "goal")] {
         let sp = &checker.space;
         for (j, &v) in q.iter().enumerate() {
@@ -346,6 +343,16 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         }
         if !checker.free(q, what)? {
             return invalid_input(format!("{what} collides"));
+        }
+        if opts.continuous {
+            let clear =
+                certified_pose(model, q, opts.clearance, &mut checker.scratch).map_err(|e| e.error(model, format!("{what} {q:?}")))?;
+            if !clear {
+                return invalid_input(format!(
+                    "{what} is free but within {} m of contact: no motion from it can be certified; plan with sampled edges",
+                    opts.clearance
+                ));
+            }
         }
     }
     let start: Vec<f64> = start.iter().zip(&checker.space.wraps).map(|(&v, &w)| if w { wrap(v) } else { v }).collect();
@@ -372,7 +379,8 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock))?;
         (path, search.status, search.iterations, search.sizes, raw)
     };
-    if opts.verify <= 1 {
+    if std::env::var("PR_DBG").is_ok() { use std::sync::atomic::Ordering::Relaxed; let d = &crate::motion::DBG; eprintln!("states {} measured {} exact {} edges {}", checker.checks, d[0].swap(0, Relaxed), d[1].swap(0, Relaxed), d[2].swap(0, Relaxed)); }
+    if opts.verify <= 1 || opts.continuous {
         return Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw));
     }
     // Verification: every segment of the answer again, `verify` times finer. Search and
@@ -432,7 +440,7 @@ fn rrt_connect(
         }
         iterations += 1;
         let (a, b) = if iterations % 2 == 1 { (0, 1) } else { (1, 0) };
-        checker.space.sample(rng, &mut target);
+        sample(&checker.space, rng, &mut target);
         let new = match extend(&mut trees[a], checker, &target, range)? {
             Extend::Trapped => continue,
             Extend::Advanced(i) | Extend::Reached(i) => i,
@@ -464,6 +472,10 @@ fn rrt_connect(
 }
 
 /// Random shortcutting: join two waypoints directly when the segment between them is free.
+///
+/// A pair of waypoints found blocked is not tried again until the path changes (the same
+/// segment, the same verdict), and shortcutting ends early once every pair has been tried: a
+/// three-waypoint path whose one shortcut is blocked costs one check, not `rounds`.
 fn shortcut(
     mut path: Vec<Vec<f64>>,
     checker: &mut Checker,
@@ -471,14 +483,22 @@ fn shortcut(
     rounds: usize,
     out_of_time: impl Fn() -> bool,
 ) -> Result<Vec<Vec<f64>>> {
+    let mut blocked = std::collections::HashSet::new();
     for _ in 0..rounds {
-        if path.len() < 3 || out_of_time() {
+        let m = path.len();
+        if m < 3 || blocked.len() >= (m - 1) * (m - 2) / 2 || out_of_time() {
             break;
         }
-        let i = rng.random_range(0..path.len() - 2);
-        let j = rng.random_range(i + 2..path.len());
+        let i = rng.random_range(0..m - 2);
+        let j = rng.random_range(i + 2..m);
+        if blocked.contains(&(i, j)) {
+            continue;
+        }
         if checker.edge_free(&path[i], &path[j])? {
             path.drain(i + 1..j);
+            blocked.clear();
+        } else {
+            blocked.insert((i, j));
         }
     }
     Ok(path)

@@ -18,6 +18,7 @@ use crate::fastpath::{certified_batch, collides_batch};
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
+use crate::motion::{certify_motions, Motion};
 use crate::oracle::{nearest_free, OracleOptions};
 use crate::pairs::PairKind;
 use crate::plan::{plan_path, PlanOptions, PlanStatus};
@@ -350,6 +351,46 @@ impl PyRobotModel {
         Ok(PyArray1::from_vec(py, out))
     }
 
+    /// The continuous certificate of each straight motion `starts[i] -> goals[i]` (see
+    /// `_core.pyi` and `motion.rs`).
+    #[pyo3(signature = (starts, goals, clearance, threads=None))]
+    fn certify_motions<'py>(
+        &self,
+        py: Python<'py>,
+        starts: &Bound<'py, PyAny>,
+        goals: &Bound<'py, PyAny>,
+        clearance: f64,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let model = &self.model;
+        let k = model.njoint();
+        let (a, b) = (pose_array(starts, k, "starts")?, pose_array(goals, k, "goals")?);
+        let (a, b) = (rows_of(&a), rows_of(&b));
+        let (a, b): (&[f64], &[f64]) = (&a, &b);
+        let r = py.detach(|| with_threads(threads, || certify_motions(model, a, b, clearance))).map_err(to_py)?.map_err(to_py)?;
+        let verdict: Vec<u8> = r
+            .iter()
+            .map(|(m, _)| match m {
+                Motion::Certified => 0,
+                Motion::Blocked(_) => 1,
+                Motion::Unproven => 2,
+            })
+            .collect();
+        let at: Vec<f64> = r
+            .iter()
+            .map(|(m, _)| match m {
+                Motion::Blocked(t) => *t,
+                _ => f64::NAN,
+            })
+            .collect();
+        let states: Vec<i64> = r.iter().map(|&(_, n)| n as i64).collect();
+        let out = PyDict::new(py);
+        out.set_item("verdict", PyArray1::from_vec(py, verdict))?;
+        out.set_item("blocked_at", PyArray1::from_vec(py, at))?;
+        out.set_item("states", PyArray1::from_vec(py, states))?;
+        Ok(out)
+    }
+
     /// The nearest free pose found for each pose (see `_core.pyi` and `oracle.rs`).
     #[pyo3(signature = (poses, *, directions=256, step=0.02, tolerance=1e-4, refine=1024, max_distance=None, seed=0, threads=None))]
     #[allow(clippy::too_many_arguments)]
@@ -382,7 +423,7 @@ impl PyRobotModel {
     }
 
     /// A free path from `start` to `goal` (see `_core.pyi` and `plan.rs`).
-    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, verify=10, threads=None))]
+    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, verify=10, continuous=true, clearance=1e-6, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn plan_path<'py>(
         &self,
@@ -396,6 +437,8 @@ impl PyRobotModel {
         max_iterations: usize,
         shortcut_rounds: usize,
         verify: usize,
+        continuous: bool,
+        clearance: f64,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
@@ -404,7 +447,7 @@ impl PyRobotModel {
             Ok(a.as_array().to_vec())
         };
         let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
-        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify };
+        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify, continuous, clearance };
         let model = &self.model;
         let r = py.detach(|| with_threads(threads, || plan_path(model, &s, &g, &opts))).map_err(to_py)?.map_err(to_py)?;
         let k = model.njoint();

@@ -35,7 +35,7 @@ gl.import_mujoco()
 from . import scenes  # noqa: E402
 from ._core import __version__  # noqa: E402
 from .errors import RendererUnavailableError  # noqa: E402
-from .certification import CLEARANCE, PathCheck, certify_poses, check_path  # noqa: E402
+from .certification import CLEARANCE, MotionCertificate, PathCheck, certify_motions, certify_poses, check_path  # noqa: E402
 from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .dataset import Dataset, make_dataset  # noqa: E402
 from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
@@ -71,7 +71,7 @@ __all__ = [
     "plan_path", "PathResult", "nearest_free", "NearestFree", "problems", "joints", "equalities", "executors",
     "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "scorers", "actions_from_video",
-    "certification", "certify_poses", "check_path", "PathCheck", "CLEARANCE",
+    "certification", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",
     "ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError", "CorruptFileError",
     "BackendUnavailableError", "ClusterError",
 ]

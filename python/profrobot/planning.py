@@ -1,11 +1,18 @@
 """Global paths over the exact labeller: RRT-Connect in joint space, shortcut, in Rust.
 
 :func:`plan_path` answers "a free path between these two free poses, or a clear *none found*":
-it tries the straight SO(2) path, then grows two trees (RRT-Connect) whose every edge is checked
-densely (no joint moves more than ``resolution`` between two labelled poses), then shortcuts the
-path, then verifies the answer ``verify`` (10) times finer, re-planning any segment that fails. Every segment of the result is an SO(2) interpolation that was checked at that
-resolution, so :func:`profrobot.interpolate` between consecutive waypoints replays exactly the
-motion that was checked (``PathResult.certified`` adds the certification's clearance). Same seed, same path, whatever the thread count.
+it tries the straight SO(2) path, then grows two trees (RRT-Connect), then shortcuts the path
+(a pair of waypoints found blocked is not tried again until the path changes).
+
+Every edge is **certified continuously** (``check="continuous"``, the default;
+:mod:`profrobot.certification`): every pose of the edge, not only samples, is proven to keep
+every candidate pair more than ``max(margin, CLEARANCE)`` apart, by conservative advancement on
+the exact labeller's shapes. With ``check="sampled"`` edges are checked densely instead (no joint
+moves more than ``resolution`` between two labelled poses) and the answer is verified ``verify``
+(10) times finer, re-planning any segment that fails: a thin part can still pass a thin obstacle
+between two samples. Either way every segment of the result is an SO(2) interpolation, so
+:func:`profrobot.interpolate` between consecutive waypoints replays exactly the motion that was
+checked. Same seed, same path, whatever the thread count.
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ import numpy as np
 
 from .labels import as_poses, check_threads, label_poses, so2_steps
 from .robot import Robot
-from .certification import path_free_at
+from .certification import CLEARANCE, check_path, path_free_at
 from . import validate
 from .deprecation import renamed_arguments
 from .errors import InputError
@@ -33,10 +40,10 @@ class PathResult:
         path: (M, K) waypoints, start first and goal last (radians / metres; continuous hinges
             in [-pi, pi)); (0, K) when none was found.
         found: whether ``path`` joins start and goal (the planner's own verdict: every edge
-            labelled at ``resolution``).
-        certified: the path is certified free (:mod:`profrobot.certification`: every pose on it,
-            re-interpolated at ``resolution``, clear by the certification's clearance); False
-            when nothing was found.
+            certified continuously, or labelled at ``resolution`` with ``check="sampled"``).
+        certified: the path is certified free (:mod:`profrobot.certification`, checked again
+            after planning: continuously, or every pose re-interpolated at ``resolution`` with
+            ``check="sampled"``); False when nothing was found.
         status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
             ``"time_out"`` or ``"iteration_limit"`` (none found within the budget).
         checks: poses labelled by the exact labeller.
@@ -74,11 +81,12 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
 @renamed_arguments(max_iterations="iterations")
 def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
               range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
-              threads: int | None = None) -> PathResult:
+              check: Literal["continuous", "sampled"] = "continuous", threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
     Args:
-        resolution: largest joint move between two labelled poses along any edge (rad / m).
+        resolution: with ``check="sampled"``, the largest joint move between two labelled poses
+            along any edge (rad / m); the continuous certificate needs none.
         max_time: wall-clock budget in seconds (> 0); the call returns by then (give or take
             one edge check) with ``found=False`` if no path was found.
         seed: the sampler's seed; the same seed gives the same path for any thread count.
@@ -86,12 +94,17 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             diagonal, OMPL's default.
         iterations: a deterministic budget of tree extensions.
         shortcut_rounds: shortcut attempts on the found path.
-        verify: the answer is re-checked ``verify`` times finer than ``resolution`` (a thin
-            feature or a grazing contact can slip between two samples of the search); a segment
-            that fails is re-planned at the fine resolution. 1 turns this off.
+        verify: with ``check="sampled"``, the answer is re-checked ``verify`` times finer than
+            ``resolution`` (a thin feature or a grazing contact can slip between two samples of
+            the search); a segment that fails is re-planned at the fine resolution. 1 turns this
+            off.
+        check: ``"continuous"`` (every edge proven free at every pose, module docs) or
+            ``"sampled"`` (every edge labelled at ``resolution``).
 
-    Raises ValueError naming the problem for a colliding or out-of-limits start or goal,
-    mismatched lengths, NaN, a non-positive ``max_time`` or ``resolution``.
+    Raises ValueError naming the problem for a colliding or out-of-limits start or goal (and,
+    with the continuous certificate, a start or goal within ``CLEARANCE`` of contact, which no
+    proven motion can leave), mismatched lengths, NaN, a non-positive ``max_time`` or
+    ``resolution``, an unknown ``check``.
     """
     if getattr(robot, "is_family", False):
         raise InputError(f"{robot.name} is a family of scenes: plan_path would move its obstacles; plan at a layout, "
@@ -104,6 +117,8 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     resolution, max_time = validate.positive("resolution", resolution), validate.positive("max_time", max_time)
     seed = validate.seed(seed)
     verify = validate.count("verify", verify, why="1: no verification")
+    if check not in ("continuous", "sampled"):
+        raise InputError(f"check must be 'continuous' or 'sampled'; got {check!r}")
     for name, q in (("start", s), ("goal", g)):
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
@@ -112,7 +127,7 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
                                range=float(range), max_iterations=int(iterations),
                                shortcut_rounds=int(shortcut_rounds), verify=int(verify),
-                               threads=check_threads(threads))
+                               continuous=check == "continuous", clearance=CLEARANCE, threads=check_threads(threads))
     status = out["status"]
     found = status in ("direct", "connected")
     reason = "" if found else {
@@ -124,7 +139,8 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     return PathResult(path=path, found=found, status=status,
                       checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
                       tree_sizes=tuple(int(t) for t in out["tree_sizes"]), raw_waypoints=int(out["raw_waypoints"]),
-                      reason=reason, certified=found and path_free_at(robot, path, float(resolution)))
+                      reason=reason, certified=found and (check_path(robot, path).certified if check == "continuous"
+                                                          else path_free_at(robot, path, float(resolution))))
 
 
 def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
