@@ -284,6 +284,12 @@ impl Broad {
         (gap - 1e-9 * (1.0 + reach + gap.abs()), reach)
     }
 
+    /// Geom `g`'s placed bounding-sphere centre (a non-plane geom of some pair).
+    #[inline]
+    pub(crate) fn sphere_centre(&self, s: &BroadScratch, g: usize) -> Vector3<f64> {
+        s.geom_world[g]
+    }
+
     /// Appends to `near` the candidate pairs that may touch in the placed pose (see `place`),
     /// in no particular order.
     pub(crate) fn near_pairs(&self, s: &mut BroadScratch, near: &mut Vec<u32>) {

@@ -149,6 +149,18 @@ impl Scratch {
         self.pose
     }
 
+    /// Forgets every pair's remembered separating axis, so that what follows does not depend
+    /// on what this scratch measured before (`motion.rs`: a verdict per motion).
+    pub(crate) fn forget_axes(&mut self) {
+        self.axes.fill(Vector3::zeros());
+    }
+
+    /// Body `b`'s world frame in the placed pose.
+    #[inline]
+    pub(crate) fn body(&self, b: usize) -> &Isometry3<f64> {
+        &self.bodies[b]
+    }
+
     /// Forward kinematics of `q`, the plane geoms' frames (every geom's with `all_geoms`) and
     /// the broad phase's spheres: what every pair test of the pose needs first.
     pub(crate) fn place(&mut self, model: &RobotModel, q: &[f64], all_geoms: bool) {
@@ -274,7 +286,8 @@ impl Scratch {
             }
         }
         let mut simplex = VoronoiSimplex::new();
-        let start = nalgebra::Unit::try_new(if axis == Vector3::zeros() { -pos12.translation.vector } else { axis }, 1e-12).unwrap_or(Vector3::x_axis());
+        let start = nalgebra::Unit::try_new(if axis == Vector3::zeros() { -pos12.translation.vector } else { axis }, 1e-12)
+            .unwrap_or(Vector3::x_axis());
         simplex.reset(CSOPoint::from_shapes(&pos12, ca, cb, &start));
         match gjk::closest_points(&pos12, ca, cb, f64::MAX, true, &mut simplex) {
             GJKResult::ClosestPoints(p1, p2, _) => {

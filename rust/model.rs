@@ -39,8 +39,9 @@ pub struct RobotModel {
     /// The pairs the booleans-only fast path tries first, likeliest first: derived from a
     /// seeded sample on first use by `fastpath.rs` (a heuristic: no answer depends on it).
     pub(crate) likely_pairs: std::sync::OnceLock<Vec<u32>>,
-    /// Per candidate pair and joint, the pair's lever (`motion::Levers`), on first use.
-    pub(crate) lever_rows: std::sync::OnceLock<Vec<f64>>,
+    /// Per candidate pair and joint, the pair's lever, and the pairs' joint chains
+    /// (`motion::Levers`), on first use.
+    pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>)>,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {

@@ -14,20 +14,31 @@
 //!    `R_j = 1`. Along the motion `|q̇_j| = |Δ_j|`, so the pair's distance changes at most at rate
 //!    `M = Σ_j (R_j(g₁) + R_j(g₂))·|Δ_j|` per unit of `t` (distance between two sets is
 //!    1-Lipschitz in the motion of each).
+//!    Tighter near a placed state (`Rate`): a hinge's speed is the distance from its axis
+//!    *line*, read off the placed frames, and that distance can only grow at the speed the
+//!    joints below it give, so the distance falls by at most `min(M·τ, a·τ + b·τ²/2)` within
+//!    `τ` of the state.
 //! 2. **What a state proves.** If the pair's distance at `t₀` is `d > need`, it stays above
-//!    `need` for `|t − t₀| < (d − need)/M`, the state's *radius* for the pair.
+//!    `need` for `|t − t₀| < τ` while the fall bound stays under `d − need`: the state's
+//!    *radius* for the pair.
 //! 3. **What an interval proves.** `[t₀, t₁]` is proven for the pair when `r(t₀) + r(t₁) ≥ t₁ −
 //!    t₀`. Intervals that are not are halved at their midpoint, which is placed and measured for
 //!    the pairs still open there only, level by level (so a collision anywhere on the motion is
 //!    met early, as by the sampled check's coarse-to-fine order).
 //!
-//! Distances are lower bounds: first the pair's bounding spheres (`broad.rs`), enough wherever
-//! the pair is far; else the exact distance (`collide::Scratch::pair_distance`: the support point
-//! for a plane, parry's GJK for two convex shapes, accurate to ~1e-14 relative), reduced by
-//! [`DISTANCE_SLACK`] for rounding. A state with some pair not above `need` ends the motion:
-//! [`Motion::Blocked`]. The halving stops when an open interval moves no joint more than
+//! Distances are lower bounds, the cheapest that closes the interval: the pair's bounding
+//! spheres (`broad.rs`), enough wherever the pair is far; else a separation along an axis from
+//! the two shapes' exact support points (`collide::Scratch::pair_lower_bound`: the pair's axis
+//! from the previous state, or GJK's; the support point for a plane), reduced by
+//! [`DISTANCE_SLACK`] for rounding. A state where some pair is not shown above `need` ends the
+//! motion: [`Motion::Blocked`] (in contact, within the clearance, or, rarely, a pair GJK found no
+//! separating axis for). The halving stops when an open interval moves no joint more than
 //! [`MIN_STEP`]: a motion that grazes a pair within ~`M·MIN_STEP` of `need` may be
 //! [`Motion::Unproven`] though free; nothing unproven is ever called free.
+//!
+//! Every verdict, and the states placed, are a function of the motion alone (the separating
+//! axes a pair remembers from state to state are forgotten at the start of each motion), so
+//! they are the same on any thread.
 
 use crate::angles::wrap;
 use crate::broad::MAX_CLEARANCE;
@@ -47,8 +58,7 @@ const DISTANCE_SLACK: f64 = 1e-9;
 pub enum Motion {
     /// Every pair stays above its `need` at every state of the motion.
     Certified,
-    /// The placed state at `t` has a pair at or below its `need`: in contact, or closer than
-    /// the clearance.
+    /// The placed state at `t` has a pair not shown above its `need` (module docs).
     Blocked(f64),
     /// Neither proven nor refuted within [`MIN_STEP`] / [`MAX_STATES`].
     Unproven,
@@ -104,11 +114,41 @@ pub(crate) struct Levers<'m> {
     k: usize,
     /// Pair-major `(npairs, K)`.
     rows: &'m [f64],
+    /// `npairs + 1` offsets, then every pair's chain (`chain`).
+    chains: &'m [u32],
 }
 
 impl<'m> Levers<'m> {
     pub(crate) fn of(model: &'m RobotModel) -> Levers<'m> {
-        Levers { k: model.njoint(), rows: model.lever_rows.get_or_init(|| lever_rows(model)) }
+        let (rows, chains) = model.lever_rows.get_or_init(|| lever_rows(model));
+        Levers { k: model.njoint(), rows, chains }
+    }
+
+    /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
+    /// |Δ_i|·R_i` over each branch's hinges, `i` the joints below `j` on its branch.
+    fn quad(&self, model: &RobotModel, p: usize, abs_delta: &[f64]) -> f64 {
+        let mut b = 0.0;
+        let mut suffix = [0.0f64; 2];
+        for &e in self.chain(p).iter().rev() {
+            let (j, side) = ((e >> 1) as usize, (e & 1) as usize);
+            let d = abs_delta[j];
+            if d == 0.0 {
+                continue;
+            }
+            if tight(model, j) {
+                b += d * suffix[side];
+            }
+            suffix[side] += d * self.rows[p * self.k + j];
+        }
+        b
+    }
+
+    /// Pair `p`'s chain: its moving joints, each `joint << 1 | side` (side 0: the first geom's
+    /// branch), each branch from the common ancestor down to its geom.
+    #[inline]
+    fn chain(&self, p: usize) -> &'m [u32] {
+        let n = self.rows.len() / self.k.max(1) + 1;
+        &self.chains[n + self.chains[p] as usize..n + self.chains[p + 1] as usize]
     }
 
     /// The pair's rate `M` (metres per unit of `t`) for joint moves `|Δ|`; an infinite lever
@@ -120,11 +160,13 @@ impl<'m> Levers<'m> {
     }
 }
 
-/// The `(npairs, K)` lever table of `Levers`.
-fn lever_rows(model: &RobotModel) -> Vec<f64> {
+/// The `(npairs, K)` lever table of `Levers`, and the pairs' chains.
+fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
     {
         let k = model.njoint();
         let mut rows = vec![0.0; model.pairs.len() * k];
+        let mut offsets = vec![0u32];
+        let mut entries = Vec::new();
         let ancestors = |mut b: usize| {
             let mut out = vec![b];
             while b != 0 {
@@ -137,17 +179,110 @@ fn lever_rows(model: &RobotModel) -> Vec<f64> {
             let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
             let (up1, up2) = (ancestors(b1), ancestors(b2));
             let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
-            for (g, up) in [(pair.g1, &up1), (pair.g2, &up2)] {
-                for &b in up.iter().take_while(|&&b| b != common) {
+            for (side, (g, up)) in [(pair.g1, &up1), (pair.g2, &up2)].into_iter().enumerate() {
+                let below: Vec<usize> = up.iter().copied().take_while(|&b| b != common).collect();
+                for &b in below.iter().rev() {
                     let (j0, j1) = model.body_joints[b];
                     for j in j0..j1 {
                         rows[p * k + j] += joint_reach(model, j, g, up);
+                        entries.push((j as u32) << 1 | side as u32);
                     }
                 }
             }
+            offsets.push(entries.len() as u32);
         }
-        rows
+        offsets.extend(entries);
+        (rows, offsets)
     }
+}
+
+/// Whether joint `j`'s world axis and anchor can be read off its body's placed frame: a hinge
+/// that is the last joint of its body (a later joint on the same body would move them).
+#[inline]
+fn tight(model: &RobotModel, j: usize) -> bool {
+    let jnt = &model.joints[j];
+    jnt.hinge && j + 1 == model.body_joints[jnt.body].1
+}
+
+/// How fast a pair's distance can shrink, per unit of `t`, `τ` away from a placed state: at most
+/// `chain` (the configuration-free levers), and at most `a + b·τ`, where `a = Σ_j |Δ_j|·ℓ_j`
+/// takes for each hinge that allows it (`tight`) the placed distance from its axis line to the
+/// geom's bounding sphere (`ℓ_j = |(c − p_j) × ω_j| + r`, the lever now), and `b` bounds how
+/// fast those distances grow: each is a distance in joint `j`'s own frame, changed only by the
+/// joints below it at their chain levers (`Levers::quad`). So the distance falls by at most
+/// `drop(τ) = min(chain·τ, a·τ + b·τ²/2)` within `τ` of the state.
+#[derive(Clone, Copy, Debug)]
+struct Rate {
+    chain: f64,
+    a: f64,
+    b: f64,
+}
+
+impl Rate {
+    fn of_chain(chain: f64) -> Rate {
+        Rate { chain, a: chain, b: 0.0 }
+    }
+
+    #[inline]
+    fn drop(&self, tau: f64) -> f64 {
+        let tau = tau.max(0.0);
+        (self.chain * tau).min(self.a * tau + 0.5 * self.b * tau * tau)
+    }
+
+    /// The largest `τ` with `drop(τ) <= slack` (slack > 0), in either form.
+    #[inline]
+    fn reach(&self, slack: f64) -> f64 {
+        if self.chain <= 0.0 {
+            return f64::INFINITY;
+        }
+        let linear = slack / self.chain;
+        let quadratic = 2.0 * slack / (self.a + (self.a * self.a + 2.0 * self.b * slack).sqrt());
+        if quadratic.is_nan() {
+            linear
+        } else {
+            linear.max(quadratic)
+        }
+    }
+}
+
+/// World anchors and axes of the `tight` joints in the placed state `at`.
+struct Axes {
+    anchor: Vec<nalgebra::Vector3<f64>>,
+    axis: Vec<nalgebra::Vector3<f64>>,
+    at: u32,
+}
+
+/// The state-local `a` of pair `p` (`Rate`) in the placed state `state` of `s`.
+fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, state: u32, p: usize) -> f64 {
+    if axes.at != state {
+        for (j, jnt) in model.joints.iter().enumerate() {
+            if tight(model, j) {
+                let x = s.body(jnt.body);
+                axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
+                axes.axis[j] = x.rotation * jnt.axis.into_inner();
+            }
+        }
+        axes.at = state;
+    }
+    let pair = &model.pairs[p];
+    let mut a = 0.0;
+    for &e in levers.chain(p) {
+        let j = (e >> 1) as usize;
+        let d = abs_delta[j];
+        if d == 0.0 {
+            continue;
+        }
+        let g = if e & 1 == 0 { pair.g1 } else { pair.g2 };
+        let lever = levers.rows[p * levers.k + j];
+        a += d * if tight(model, j) {
+            let c = model.broad.sphere_centre(&s.broad, g);
+            // (1e-9 relative: rounding of the placed frames and of the cross product)
+            (((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9)).min(lever)
+        } else {
+            lever
+        };
+    }
+    a
 }
 
 /// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
@@ -206,6 +341,7 @@ fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize]) -> f64 {
 struct Open {
     pair: u32,
     rate: f64,
+    quad: f64,
     r0: f64,
     r1: f64,
 }
@@ -215,6 +351,8 @@ pub struct MotionScratch {
     pub(crate) scratch: Scratch,
     abs_delta: Vec<f64>,
     rates: Vec<f64>,
+    quads: Vec<f64>,
+    axes: Axes,
     q: Vec<f64>,
     radius1: Vec<f64>,
     open: Vec<Open>,
@@ -222,9 +360,6 @@ pub struct MotionScratch {
     mid: Vec<(Open, f64)>,
     /// States placed by the last call.
     pub states: usize,
-    /// Diagnostics: pair measurements, and those that needed more than the spheres (all calls).
-    pub measured: usize,
-    pub exact: usize,
 }
 
 impl MotionScratch {
@@ -233,14 +368,14 @@ impl MotionScratch {
             scratch: Scratch::new(model),
             abs_delta: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
+            quads: vec![0.0; model.pairs.len()],
+            axes: Axes { anchor: vec![Default::default(); model.njoint()], axis: vec![Default::default(); model.njoint()], at: 0 },
             q: vec![0.0; model.njoint()],
             radius1: vec![0.0; model.pairs.len()],
             open: Vec::new(),
             next: Vec::new(),
             mid: Vec::new(),
             states: 0,
-            measured: 0,
-            exact: 0,
         }
     }
 }
@@ -251,31 +386,55 @@ enum Stop {
     Undecided(Undecided),
 }
 
-pub static DBG: [std::sync::atomic::AtomicUsize; 3] = [std::sync::atomic::AtomicUsize::new(0), std::sync::atomic::AtomicUsize::new(0), std::sync::atomic::AtomicUsize::new(0)];
-/// The radius (in `t`) of pair `k`, rate `rate`, in the placed state, for an interval end
-/// whose neighbours need `cover_min` and `cover_max` (in `t`) of it: the bounding spheres'
-/// radius when it gives `cover_max`, or when a closer measurement could not plausibly give even
-/// `cover_min` (then the caller halves the interval, cheaper than measuring); else the
-/// separation-axis or GJK bound (`Scratch::pair_lower_bound`). `Err(Blocked)` when the pair is
-/// not shown above its need. (Which bound is taken is a matter of cost only: each is a lower
-/// bound.)
+/// What `radius` needs besides the pair: the model, the motion, the placed state.
+struct At<'a, 'm> {
+    model: &'m RobotModel,
+    levers: Levers<'m>,
+    abs_delta: &'a [f64],
+    axes: &'a mut Axes,
+    state: u32,
+}
+
+/// The radius (in `t`) of pair `k` (chain rate `chain`, growth `quad`) in the placed state, for
+/// an interval end whose neighbours need `cover_min` and `cover_max` (in `t`) of it: the
+/// bounding spheres' radius when it gives `cover_max`, at the chain rate or the state-local one
+/// (`Rate`), or when a closer measurement could not plausibly give even `cover_min` (then the
+/// caller halves the interval, cheaper than measuring); else the separation-axis or GJK bound
+/// (`Scratch::pair_lower_bound`). `Err(Blocked)` when the pair is not shown above its need.
+/// (Which bound is taken is a matter of cost only: each is a lower bound.)
 #[inline]
-fn radius(model: &RobotModel, s: &mut Scratch, k: usize, rate: f64, need: f64, cover_min: f64, cover_max: f64) -> std::result::Result<f64, Stop> {
-    DBG[0].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+#[allow(clippy::too_many_arguments)]
+fn radius(
+    at: &mut At,
+    s: &mut Scratch,
+    k: usize,
+    chain: f64,
+    quad: f64,
+    need: f64,
+    cover_min: f64,
+    cover_max: f64,
+) -> std::result::Result<f64, Stop> {
+    let model = at.model;
     let (gap, reach) = model.broad.sphere_gap(&s.broad, k, &model.geoms);
     let gap = gap - need;
-    let per = |slack: f64| if rate > 0.0 { slack / rate } else { f64::INFINITY };
-    if gap > 0.0 && (gap >= cover_max.max(0.0) * rate || gap + reach < cover_min * rate) {
-        return Ok(per(gap));
+    let mut rate = Rate::of_chain(chain);
+    if gap > 0.0 && gap >= rate.drop(cover_max) {
+        return Ok(rate.reach(gap));
     }
-    let want = need + cover_max.max(0.0) * rate;
-    DBG[1].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    if chain > 0.0 {
+        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, at.state, k).min(chain);
+        rate.b = quad;
+    }
+    if gap > 0.0 && (gap >= rate.drop(cover_max) || gap + reach < rate.drop(cover_min)) {
+        return Ok(rate.reach(gap));
+    }
+    let want = need + rate.drop(cover_max);
     let d = s.pair_lower_bound(model, k, want * (1.0 + DISTANCE_SLACK) + DISTANCE_SLACK).map_err(Stop::Undecided)?;
     let slack = d - DISTANCE_SLACK * (1.0 + d.abs()) - need;
     if slack <= 0.0 {
         return Err(Stop::Blocked);
     }
-    Ok(per(slack.max(gap)))
+    Ok(rate.reach(slack.max(gap)))
 }
 
 /// Whether the motion `a → a + Δ` is certified (module docs) with every pair above
@@ -292,7 +451,6 @@ pub(crate) fn certify_motion(
 ) -> std::result::Result<Motion, Undecided> {
     let k = a.len();
     ms.states = 0;
-    DBG[2].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let mut span = 0.0f64;
     for (ad, d) in ms.abs_delta.iter_mut().zip(delta) {
         *ad = d.abs();
@@ -301,7 +459,12 @@ pub(crate) fn certify_motion(
     let npairs = model.pairs.len();
     for p in 0..npairs {
         ms.rates[p] = levers.rate(p, &ms.abs_delta);
+        ms.quads[p] = levers.quad(model, p, &ms.abs_delta);
     }
+    // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
+    ms.axes.at = 0;
+    ms.scratch.forget_axes();
+    let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes, state: 0 };
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     let stop = |e: Stop, t: f64| match e {
         Stop::Blocked => Ok(Motion::Blocked(t)),
@@ -314,9 +477,10 @@ pub(crate) fn certify_motion(
     q.resize(k, 0.0);
     space.along(a, delta, 1.0, &mut q);
     ms.scratch.place(model, &q, false);
+    at.state = ms.scratch.pose_stamp();
     ms.states += 1;
     for p in 0..npairs {
-        match radius(model, &mut ms.scratch, p, ms.rates[p], need(p), 0.0, 0.0) {
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 0.0, 0.0) {
             Ok(r) => ms.radius1[p] = r,
             Err(e) => {
                 ms.q = q;
@@ -326,6 +490,7 @@ pub(crate) fn certify_motion(
     }
     space.along(a, delta, 0.0, &mut q);
     ms.scratch.place(model, &q, false);
+    at.state = ms.scratch.pose_stamp();
     ms.states += 1;
     ms.open.clear();
     ms.next.clear();
@@ -334,9 +499,9 @@ pub(crate) fn certify_motion(
         if r1 >= 1.0 {
             continue;
         }
-        match radius(model, &mut ms.scratch, p, ms.rates[p], need(p), 1.0 - r1, 1.0 - r1) {
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
             Ok(r0) if r0 + r1 >= 1.0 => {}
-            Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], r0, r1 }),
+            Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], quad: ms.quads[p], r0, r1 }),
             Err(e) => {
                 ms.q = q;
                 return stop(e, 0.0);
@@ -346,10 +511,11 @@ pub(crate) fn certify_motion(
     if !ms.next.is_empty() {
         space.along(a, delta, 1.0, &mut q);
         ms.scratch.place(model, &q, false);
+        at.state = ms.scratch.pose_stamp();
         ms.states += 1;
         for o in &ms.next {
             let p = o.pair as usize;
-            match radius(model, &mut ms.scratch, p, o.rate, need(p), 1.0 - o.r0, 1.0 - o.r0) {
+            match radius(&mut at, &mut ms.scratch, p, o.rate, o.quad, need(p), 1.0 - o.r0, 1.0 - o.r0) {
                 Ok(r1) if o.r0 + r1 >= 1.0 => {}
                 Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
                 Err(e) => {
@@ -379,13 +545,14 @@ pub(crate) fn certify_motion(
             let tm = t0 + half;
             space.along(a, delta, tm, &mut q);
             ms.scratch.place(model, &q, false);
+            at.state = ms.scratch.pose_stamp();
             ms.states += 1;
             ms.mid.clear();
             for o in &ms.open[start..end] {
                 let p = o.pair as usize;
                 // What the midpoint must give to close one half, and both.
                 let (c0, c1) = (half - o.r0, half - o.r1);
-                match radius(model, &mut ms.scratch, p, o.rate, need(p), c0.min(c1), c0.max(c1)) {
+                match radius(&mut at, &mut ms.scratch, p, o.rate, o.quad, need(p), c0.min(c1), c0.max(c1)) {
                     Ok(rm) => ms.mid.push((*o, rm)),
                     Err(e) => {
                         verdict = stop(e, tm);
@@ -455,4 +622,148 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
         )
         .collect();
     Ok(first_error(parts)?.concat())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::desc::{ModelDesc, JOINT_HINGE, JOINT_SLIDE};
+    use rand::{Rng, SeedableRng};
+
+    /// A three-link arm over a floor beside a box: hinges about skew axes with off-origin
+    /// anchors, and a body with a hinge then a slide (so its hinge is not `tight`).
+    fn arm() -> RobotModel {
+        let mut d = ModelDesc::example_pendulum();
+        d.body_parent = vec![0, 0, 1, 2];
+        d.body_weld = vec![0, 1, 2, 3];
+        d.body_pos = vec![[0.0; 3], [0.0, 0.0, 0.3], [0.2, 0.0, 0.1], [0.3, 0.05, 0.0]];
+        d.body_quat = vec![[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.9, 0.1, 0.3, 0.0], [1.0, 0.0, 0.0, 0.0]];
+        d.jnt_type = vec![JOINT_HINGE, JOINT_HINGE, JOINT_SLIDE, JOINT_HINGE];
+        d.jnt_body = vec![1, 2, 2, 3];
+        d.jnt_pos = vec![[0.0; 3], [0.05, 0.0, 0.0], [0.0; 3], [0.0, 0.02, 0.01]];
+        d.jnt_axis = vec![[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]];
+        d.jnt_qpos0 = vec![0.0; 4];
+        d.jnt_range = vec![[-3.0, 3.0], [-2.0, 2.0], [-0.1, 0.1], [-2.5, 2.5]];
+        d.jnt_limited = vec![true; 4];
+        d.geom_id = vec![0, 1, 2, 3, 4];
+        d.geom_type = vec![0, 6, 3, 6, 6];
+        d.geom_body = vec![0, 0, 1, 2, 3];
+        d.geom_pos = vec![[0.0; 3], [0.45, 0.0, 0.25], [0.0, 0.0, 0.05], [0.1, 0.0, 0.0], [0.1, 0.0, 0.02]];
+        d.geom_quat = vec![[1.0, 0.0, 0.0, 0.0]; 5];
+        d.geom_size = vec![[1.0, 1.0, 0.1], [0.05, 0.08, 0.05], [0.04, 0.1, 0.0], [0.12, 0.03, 0.02], [0.1, 0.02, 0.03]];
+        d.geom_contype = vec![1; 5];
+        d.geom_conaffinity = vec![1; 5];
+        d.geom_margin = vec![0.0, 0.0, 0.0, 0.01, 0.0];
+        d.geom_mesh = vec![-1; 5];
+        RobotModel::new(d).unwrap()
+    }
+
+    /// The pair's distance, clipped at 0 (GJK's separation; ~1e-8 relative).
+    fn distance(model: &RobotModel, s: &mut Scratch, q: &[f64], k: usize) -> f64 {
+        s.place(model, q, false);
+        s.forget_axes();
+        s.pair_lower_bound(model, k, f64::INFINITY).unwrap().max(0.0)
+    }
+
+    /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
+    /// changes by more than `Rate::drop(τ)`, at the chain rate or the state-local one.
+    #[test]
+    fn no_pair_closes_faster_than_its_rate() {
+        let model = arm();
+        assert!(model.pairs.len() >= 6, "{}", model.pairs.len());
+        let levers = Levers::of(&model);
+        let space = Space::of(&model).unwrap();
+        let mut s = Scratch::new(&model);
+        let mut axes = Axes { anchor: vec![Default::default(); 4], axis: vec![Default::default(); 4], at: 0 };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (mut tight_wins, mut checks) = (0, 0);
+        for _ in 0..400 {
+            let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let b: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let mut delta = vec![0.0; 4];
+            space.delta(&a, &b, &mut delta);
+            let abs: Vec<f64> = delta.iter().map(|d| d.abs()).collect();
+            let t0 = rng.random_range(0.0..1.0);
+            let mut q0 = vec![0.0; 4];
+            space.along(&a, &delta, t0, &mut q0);
+            for k in 0..model.pairs.len() {
+                let d0 = distance(&model, &mut s, &q0, k);
+                let state = s.pose_stamp();
+                let chain = levers.rate(k, &abs);
+                let local = local_rate(&model, levers, &abs, &s, &mut axes, state, k);
+                let rate = Rate { chain, a: local.min(chain), b: levers.quad(&model, k, &abs) };
+                tight_wins += (local < 0.9 * chain) as usize;
+                for tau in [1e-3, 1e-2, 0.05, 0.2] {
+                    for sign in [-1.0, 1.0] {
+                        let t = t0 + sign * tau;
+                        if !(0.0..=1.0).contains(&t) {
+                            continue;
+                        }
+                        let mut q = vec![0.0; 4];
+                        space.along(&a, &delta, t, &mut q);
+                        let d = distance(&model, &mut s, &q, k);
+                        checks += 1;
+                        let allowed = rate.drop(tau) * (1.0 + 1e-6) + 1e-9;
+                        assert!((d - d0).abs() <= allowed, "pair {k}: |{d} - {d0}| > {allowed} over {tau} ({rate:?})");
+                        assert!(rate.reach((d0 - 1e-9).max(1e-12)) <= f64::INFINITY);
+                    }
+                }
+            }
+        }
+        assert!(checks > 5000 && tight_wins > 100, "{checks} {tight_wins}");
+    }
+
+    /// Certified motions are clear at every state of a fine sampling; a motion through the box
+    /// is blocked at a state that is not; the verdict is the same from a used scratch.
+    #[test]
+    fn certified_motions_are_clear_between_samples_and_verdicts_do_not_depend_on_history() {
+        let model = arm();
+        let space = Space::of(&model).unwrap();
+        let levers = Levers::of(&model);
+        let mut ms = MotionScratch::new(&model);
+        let mut fresh = MotionScratch::new(&model);
+        let mut s = Scratch::new(&model);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let (mut certified, mut blocked) = (0, 0);
+        for _ in 0..300 {
+            let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let mut delta: Vec<f64> = (0..4).map(|_| rng.random_range(-0.6..0.6)).collect();
+            delta[2] *= 0.1;
+            let mut b = vec![0.0; 4];
+            space.along(&a, &delta, 1.0, &mut b);
+            space.delta(&a, &b, &mut delta);
+            let v = certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut ms).unwrap();
+            assert_eq!(v, certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut fresh).unwrap());
+            let mut q = vec![0.0; 4];
+            match v {
+                Motion::Certified => {
+                    certified += 1;
+                    for i in 0..=400 {
+                        space.along(&a, &delta, i as f64 / 400.0, &mut q);
+                        assert!(crate::fastpath::certified_pose(&model, &q, 1e-6, &mut s).unwrap(), "state {i}");
+                    }
+                }
+                Motion::Blocked(t) => {
+                    blocked += 1;
+                    space.along(&a, &delta, t, &mut q);
+                    assert!(
+                        !crate::fastpath::certified_pose(&model, &q, 1e-6 * (1.0 + 1e-6), &mut s).unwrap() || {
+                            // within GJK's tolerance of the clearance or margin
+                            let l = crate::collide::label_pose(
+                                &model,
+                                &q,
+                                &mut s,
+                                crate::collide::LabelOptions { pairs: false, distance: true },
+                                &mut Vec::new(),
+                            )
+                            .unwrap();
+                            l.min_distance <= 0.01 + 1e-7
+                        }
+                    );
+                }
+                Motion::Unproven => {}
+            }
+        }
+        assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+    }
 }
