@@ -286,13 +286,18 @@ def _hard_pair(robot, seed=5):
 
 def test_check_path_finds_collisions_between_free_waypoints(panda):
     a, b = _hard_pair(panda)
-    chk = check_path(panda, np.stack([a, b]), density=50)
+    chk = check_path(panda, np.stack([a, b]), density=50, method="sampled")
     assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.certified
     assert len(chk.dense) == 51
-    full = check_path(panda, profrobot.interpolate(panda, a, b, 30), density=4)
+    cont = check_path(panda, np.stack([a, b]))  # the continuous certificate refuses it too
+    assert cont.method == "continuous" and cont.segment_collides.all() and not cont.certified
+    path = profrobot.interpolate(panda, a, b, 30)
+    full = check_path(panda, path, density=4, method="sampled")
     assert not full.certified and full.colliding_segments.size > 0
     hit = np.flatnonzero(full.dense_collides)
     assert set(np.minimum(hit // 4, 28)) <= set(full.colliding_segments)
+    # every segment a sample finds colliding is refused continuously (the proof covers the samples)
+    assert set(full.colliding_segments) <= set(check_path(panda, path).colliding_segments)
 
 
 def test_plan_reports_collisions_the_field_misses(panda):
