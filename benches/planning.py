@@ -288,6 +288,7 @@ def markdown(results: list[dict], args) -> str:
 
 
 def main() -> None:
+    global RECHECK
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--problems", type=int, default=100)
     ap.add_argument("--scenes", default=",".join(profrobot.scenes.names()))
@@ -306,7 +307,6 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None, help="Ray workers (default: the cluster's CPUs)")
     ap.add_argument("--out", default=str(OUT / "planning.md"), help="the Markdown table")
     args = ap.parse_args()
-    global RECHECK
     RECHECK = args.recheck
     executor = None
     if args.executor == "ray":

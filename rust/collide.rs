@@ -252,7 +252,7 @@ impl Scratch {
 
     /// A lower bound on candidate pair `k`'s distance in the placed pose, at least `want` when a
     /// cheap proof gives that much, else as tight as GJK gets it; at most 0 when the shapes
-    /// touch or overlap. `Err` when parry cannot decide the pair (module docs).
+    /// touch or overlap (`-inf` when GJK gives no axis and none is remembered). `Err` when parry cannot decide the pair (module docs).
     ///
     /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
     /// convex geoms every answer is a separation along a unit axis `n` (in the first geom's
@@ -292,14 +292,14 @@ impl Scratch {
         match gjk::closest_points(&pos12, ca, cb, f64::MAX, true, &mut simplex) {
             GJKResult::ClosestPoints(p1, p2, _) => {
                 let Some(n) = (p2 - p1).try_normalize(1e-12) else {
-                    return Ok(best.min(0.0));
+                    return Ok(best);
                 };
                 self.axes[k] = n;
                 Ok(best.max(separation(&n)))
             }
             // (GJK found them touching, or did not converge: no proof of separation beyond the
-            // remembered axis's)
-            _ => Ok(best.min(0.0)),
+            // remembered axis's, `-inf` without one)
+            _ => Ok(best),
         }
     }
 

@@ -36,6 +36,10 @@
 //! [`MIN_STEP`]: a motion that grazes a pair within ~`M·MIN_STEP` of `need` may be
 //! [`Motion::Unproven`] though free; nothing unproven is ever called free.
 //!
+//! The levers take every slide within its limits: a motion with a limited slide outside them
+//! is unproven, as is one whose pair depends on an unlimited slide that moves (an infinite
+//! lever), and one with a joint beyond [`MAX_JOINT`].
+//!
 //! Every verdict, and the states placed, are a function of the motion alone (the separating
 //! axes a pair remembers from state to state are forgotten at the start of each motion), so
 //! they are the same on any thread.
@@ -50,6 +54,9 @@ use crate::model::RobotModel;
 pub const MIN_STEP: f64 = 1e-7;
 /// Most states one motion may place before it is called unproven.
 pub const MAX_STATES: usize = 1 << 16;
+/// Radians / metres: a motion with a joint beyond this, at either end, is unproven (too far to
+/// place meaningfully in floating point).
+pub const MAX_JOINT: f64 = 1e6;
 /// Relative and absolute (metres) rounding slack taken off every measured distance.
 const DISTANCE_SLACK: f64 = 1e-9;
 
@@ -431,7 +438,7 @@ fn radius(
     let want = need + rate.drop(cover_max);
     let d = s.pair_lower_bound(model, k, want * (1.0 + DISTANCE_SLACK) + DISTANCE_SLACK).map_err(Stop::Undecided)?;
     let slack = d - DISTANCE_SLACK * (1.0 + d.abs()) - need;
-    if slack <= 0.0 {
+    if slack.is_nan() || slack <= 0.0 {
         return Err(Stop::Blocked);
     }
     Ok(rate.reach(slack.max(gap)))
@@ -455,6 +462,16 @@ pub(crate) fn certify_motion(
     for (ad, d) in ms.abs_delta.iter_mut().zip(delta) {
         *ad = d.abs();
         span = span.max(*ad);
+    }
+    // The levers bound each slide's displacement by its limits (`slide_reach`): a limited slide
+    // outside them, or a motion too large to place (a joint beyond ±`MAX_JOINT`), proves nothing.
+    let outside = |j: usize, v: f64| {
+        v.is_nan()
+            || v.abs() > MAX_JOINT
+            || (!model.joints[j].hinge && model.limited[j] && !(model.limits[j][0]..=model.limits[j][1]).contains(&v))
+    };
+    if (0..k).any(|j| outside(j, a[j]) || outside(j, a[j] + delta[j])) {
+        return Ok(Motion::Unproven);
     }
     let npairs = model.pairs.len();
     for p in 0..npairs {
@@ -561,12 +578,13 @@ pub(crate) fn certify_motion(
                 }
             }
             let s = ms.next.len();
-            ms.next.extend(ms.mid.iter().filter(|(o, rm)| o.r0 + rm < half).map(|&(o, rm)| Open { r1: rm, ..o }));
+            // (a NaN radius leaves the half open)
+            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (o.r0 + rm).is_nan() || o.r0 + rm < half).map(|&(o, rm)| Open { r1: rm, ..o }));
             if ms.next.len() > s {
                 next_level.push((t0, s, ms.next.len()));
             }
             let s = ms.next.len();
-            ms.next.extend(ms.mid.iter().filter(|(o, rm)| rm + o.r1 < half).map(|&(o, rm)| Open { r0: rm, ..o }));
+            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (rm + o.r1).is_nan() || rm + o.r1 < half).map(|&(o, rm)| Open { r0: rm, ..o }));
             if ms.next.len() > s {
                 next_level.push((tm, s, ms.next.len()));
             }

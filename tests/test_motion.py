@@ -152,3 +152,17 @@ def test_bad_input():
         plan_path(robot, q[0], q[1], check="dense")
     with pytest.raises(ValueError, match="clearance"):
         robot.core.certify_motions(q, q, 0.0)
+
+
+def test_a_slide_outside_its_limits_is_unproven_not_certified():
+    """Issue 23 review: the levers bound slides by their limits, so a motion with a limited slide
+    outside them proves nothing (it was certified through the plate)."""
+    robot = blade()
+    a, b = np.array([-0.5, 0.0]), np.array([0.5, 0.0])
+    lifted = certify_motions(robot, a + [0, 0.1], b + [0, 0.1])
+    assert lifted.certified[0]
+    out = certify_motions(robot, a + [0, 0.5], b + [0, 0.5])  # above the slide's 0.3 m limit
+    assert out.unproven[0] and not out.certified[0]
+    huge = certify_motions(robot, np.array([-0.5, 0.1]), np.array([2e6, 0.1]))
+    assert huge.unproven[0]
+    assert not check_path(robot, np.stack([a + [0, 0.5], b + [0, 0.5]])).certified

@@ -101,13 +101,11 @@ def certify_motions(robot: Robot, starts, goals, *, threads: int | None = None) 
     """The continuous certificate (module docs) of each straight motion ``starts[i] → goals[i]``
     ((B, K) or (K,) each, radians / metres): continuous hinges along the short arc, the motion
     :func:`profrobot.interpolate` replays; other joints straight. Same answer for any thread
-    count."""
+    count. A limited slide joint outside its limits makes a motion unproven (the levers bound
+    slides by their limits)."""
     a, b = as_poses(robot, starts, name="starts"), as_poses(robot, goals, name="goals")
     if a.shape != b.shape:
         raise InputError(f"starts and goals must have the same shape; got {a.shape} and {b.shape}")
-    if len(a) == 0:
-        z = np.zeros(0, dtype=bool)
-        return MotionCertificate(z, z, z, np.zeros(0), np.zeros(0, dtype=np.int64))
     out = robot.core.certify_motions(np.ascontiguousarray(a), np.ascontiguousarray(b), CLEARANCE,
                                      threads=check_threads(threads))
     v = out["verdict"]
@@ -151,7 +149,7 @@ def check_path(robot: Robot, path, density: int = 10, *, clearance: float | None
     """Certifies ``path`` (S, K) waypoints and the SO(2) segments between them: continuously
     (every pose of every segment proven, module docs), or with ``method="sampled"`` at the
     ``density − 1`` interpolated poses between each consecutive pair (``density`` times finer
-    than the waypoints)."""
+    than the waypoints; the continuous certificate needs no density and ignores it)."""
     _one_clearance(clearance, "check_path")
     path = np.asarray(path, dtype=np.float64)
     if path.ndim != 2 or len(path) < 2:

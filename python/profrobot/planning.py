@@ -46,7 +46,8 @@ class PathResult:
             ``check="sampled"``); False when nothing was found.
         status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
             ``"time_out"`` or ``"iteration_limit"`` (none found within the budget).
-        checks: poses labelled by the exact labeller.
+        checks: poses placed by the continuous certificate and its refutation pre-check, or
+            labelled (``check="sampled"``).
         seconds: wall time.
         iterations: tree extensions made.
         tree_sizes: nodes in the start and goal trees.
