@@ -29,7 +29,8 @@
 //! Distances are lower bounds, the cheapest that closes the interval: the pair's bounding
 //! spheres (`broad.rs`), enough wherever the pair is far; else a separation along an axis from
 //! the two shapes' exact support points (`collide::Scratch::pair_lower_bound`: the pair's axis
-//! from the previous state, or GJK's; the support point for a plane), reduced by
+//! from the previous state or the line between the geoms, and GJK's where that cannot decide
+//! or nearly closes the interval; the support point for a plane), reduced by
 //! [`DISTANCE_SLACK`] for rounding. A state where some pair is not shown above `need` ends the
 //! motion: [`Motion::Blocked`] (in contact, within the clearance, or, rarely, a pair GJK found no
 //! separating axis for). The halving stops when an open interval moves no joint more than
@@ -436,7 +437,14 @@ fn radius(
         return Ok(rate.reach(gap));
     }
     let want = need + rate.drop(cover_max);
-    let d = s.pair_lower_bound(model, k, want * (1.0 + DISTANCE_SLACK) + DISTANCE_SLACK).map_err(Stop::Undecided)?;
+    let d = s
+        .pair_lower_bound(
+            model,
+            k,
+            want * (1.0 + DISTANCE_SLACK) + DISTANCE_SLACK,
+            need * (1.0 + 2.0 * DISTANCE_SLACK) + 2.0 * DISTANCE_SLACK,
+        )
+        .map_err(Stop::Undecided)?;
     let slack = d - DISTANCE_SLACK * (1.0 + d.abs()) - need;
     if slack.is_nan() || slack <= 0.0 {
         return Err(Stop::Blocked);
@@ -680,7 +688,7 @@ mod tests {
     fn distance(model: &RobotModel, s: &mut Scratch, q: &[f64], k: usize) -> f64 {
         s.place(model, q, false);
         s.forget_axes();
-        s.pair_lower_bound(model, k, f64::INFINITY).unwrap().max(0.0)
+        s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY).unwrap().max(0.0)
     }
 
     /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
