@@ -25,6 +25,17 @@ use crate::pairs::CandidatePair;
 /// broad phase keeps every pair that may come this close, so a pair it drops is clear of it.
 pub const MAX_CLEARANCE: f64 = 1e-6;
 
+/// `Ok` for a clearance a certification may ask for, in (0, [`MAX_CLEARANCE`]] metres. (0 is
+/// refused: "apart" at clearance 0 would be decided by distances, not by the intersection
+/// tests the labels use for touching shapes.)
+pub(crate) fn check_clearance(clearance: f64) -> crate::error::Result<()> {
+    if clearance > 0.0 && clearance <= MAX_CLEARANCE {
+        Ok(())
+    } else {
+        crate::error::invalid_input(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {clearance}"))
+    }
+}
+
 /// `reach` inflated for rounding and by [`MAX_CLEARANCE`]: the distance between two sphere
 /// centres (or a sphere centre and a plane) beyond which spheres whose radii and margin sum to
 /// `reach` are more than `MAX_CLEARANCE` apart.

@@ -252,17 +252,16 @@ impl Scratch {
 
     /// A lower bound on candidate pair `k`'s distance in the placed pose: the cheap one (the
     /// pair's remembered axis, else the line between the geoms' origins) when it reaches `want`,
-    /// or stays above `floor` but below `GJK_FROM · want`; else as tight as GJK gets it. At most
-    /// 0 when the shapes touch or overlap (`-inf` when GJK gives no axis and none is known). `Err` when parry cannot decide the pair (module docs).
+    /// or stays above `floor` but below `GJK_FROM · want`; else as tight as GJK gets it, whose
+    /// axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
+    /// axis and none is known); `Err` when parry cannot decide the pair (module docs).
     ///
     /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
     /// convex geoms every answer is a separation along a unit axis `n` (in the first geom's
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
-    /// GJK converges to. The pair's remembered axis (from the previous state) is tried first;
-    /// GJK (`gjk::closest_points`) runs only when it does not give `want`, and its axis is
-    /// remembered. The caller takes off its rounding slack (support points and dot products
-    /// round at ~1e-16 relative).
+    /// GJK converges to. The caller takes off its rounding slack (support points and dot
+    /// products round at ~1e-16 relative).
     pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64, floor: f64) -> std::result::Result<f64, Undecided> {
         use parry3d_f64::query::gjk::{self, CSOPoint, GJKResult, VoronoiSimplex};
         let pair = &model.pairs[k];

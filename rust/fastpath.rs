@@ -28,9 +28,9 @@
 
 use rayon::prelude::*;
 
-use crate::broad::MAX_CLEARANCE;
+use crate::broad::check_clearance;
 use crate::collide::{first_error, label_pose, LabelOptions, Scratch, Undecided};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::model::RobotModel;
 use crate::sample::{fill_block, BLOCK};
 
@@ -144,11 +144,7 @@ pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scr
 /// (`certified_pose`), in pose order, in parallel on rayon's current pool; independent of the
 /// number of threads.
 pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
-    // (0 is refused: "apart" at clearance 0 would be decided by distances, not by the
-    // intersection tests the labels use for touching shapes)
-    if !(clearance > 0.0 && clearance <= MAX_CLEARANCE) {
-        return Err(Error::InvalidInput(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {clearance}")));
-    }
+    check_clearance(clearance)?;
     batch(model, poses, |q, s| certified_pose(model, q, clearance, s))
 }
 

@@ -46,7 +46,7 @@
 //! they are the same on any thread.
 
 use crate::angles::wrap;
-use crate::broad::MAX_CLEARANCE;
+use crate::broad::check_clearance;
 use crate::collide::{first_error, Scratch, Undecided};
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
@@ -260,8 +260,9 @@ struct Axes {
     at: u32,
 }
 
-/// The state-local `a` of pair `p` (`Rate`) in the placed state `state` of `s`.
-fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, state: u32, p: usize) -> f64 {
+/// The state-local `a` of pair `p` (`Rate`) in the state placed in `s`.
+fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
+    let state = s.pose_stamp();
     if axes.at != state {
         for (j, jnt) in model.joints.iter().enumerate() {
             if tight(model, j) {
@@ -394,13 +395,12 @@ enum Stop {
     Undecided(Undecided),
 }
 
-/// What `radius` needs besides the pair: the model, the motion, the placed state.
+/// What `radius` needs besides the pair and the placed state: the model and the motion.
 struct At<'a, 'm> {
     model: &'m RobotModel,
     levers: Levers<'m>,
     abs_delta: &'a [f64],
     axes: &'a mut Axes,
-    state: u32,
 }
 
 /// The radius (in `t`) of pair `k` (chain rate `chain`, growth `quad`) in the placed state, for
@@ -430,7 +430,7 @@ fn radius(
         return Ok(rate.reach(gap));
     }
     if chain > 0.0 {
-        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, at.state, k).min(chain);
+        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
         rate.b = quad;
     }
     if gap > 0.0 && (gap >= rate.drop(cover_max) || gap + reach < rate.drop(cover_min)) {
@@ -489,7 +489,7 @@ pub(crate) fn certify_motion(
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
     ms.axes.at = 0;
     ms.scratch.forget_axes();
-    let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes, state: 0 };
+    let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     let stop = |e: Stop, t: f64| match e {
         Stop::Blocked => Ok(Motion::Blocked(t)),
@@ -498,24 +498,18 @@ pub(crate) fn certify_motion(
     // The end first (a planner's new state often collides), by spheres wherever they are
     // apart; then the start, exact where the spheres do not close the motion; then the end
     // again, exact, for the pairs still open that it measured by spheres only.
-    let mut q = std::mem::take(&mut ms.q);
-    q.resize(k, 0.0);
-    space.along(a, delta, 1.0, &mut q);
-    ms.scratch.place(model, &q, false);
-    at.state = ms.scratch.pose_stamp();
+    let q = &mut ms.q;
+    space.along(a, delta, 1.0, q);
+    ms.scratch.place(model, q, false);
     ms.states += 1;
     for p in 0..npairs {
         match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 0.0, 0.0) {
             Ok(r) => ms.radius1[p] = r,
-            Err(e) => {
-                ms.q = q;
-                return stop(e, 1.0);
-            }
+            Err(e) => return stop(e, 1.0),
         }
     }
-    space.along(a, delta, 0.0, &mut q);
-    ms.scratch.place(model, &q, false);
-    at.state = ms.scratch.pose_stamp();
+    space.along(a, delta, 0.0, q);
+    ms.scratch.place(model, q, false);
     ms.states += 1;
     ms.open.clear();
     ms.next.clear();
@@ -527,26 +521,19 @@ pub(crate) fn certify_motion(
         match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
             Ok(r0) if r0 + r1 >= 1.0 => {}
             Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], quad: ms.quads[p], r0, r1 }),
-            Err(e) => {
-                ms.q = q;
-                return stop(e, 0.0);
-            }
+            Err(e) => return stop(e, 0.0),
         }
     }
     if !ms.next.is_empty() {
-        space.along(a, delta, 1.0, &mut q);
-        ms.scratch.place(model, &q, false);
-        at.state = ms.scratch.pose_stamp();
+        space.along(a, delta, 1.0, q);
+        ms.scratch.place(model, q, false);
         ms.states += 1;
         for o in &ms.next {
             let p = o.pair as usize;
             match radius(&mut at, &mut ms.scratch, p, o.rate, o.quad, need(p), 1.0 - o.r0, 1.0 - o.r0) {
                 Ok(r1) if o.r0 + r1 >= 1.0 => {}
                 Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
-                Err(e) => {
-                    ms.q = q;
-                    return stop(e, 1.0);
-                }
+                Err(e) => return stop(e, 1.0),
             }
         }
     }
@@ -568,9 +555,8 @@ pub(crate) fn certify_motion(
                 break 'levels;
             }
             let tm = t0 + half;
-            space.along(a, delta, tm, &mut q);
-            ms.scratch.place(model, &q, false);
-            at.state = ms.scratch.pose_stamp();
+            space.along(a, delta, tm, q);
+            ms.scratch.place(model, q, false);
             ms.states += 1;
             ms.mid.clear();
             for o in &ms.open[start..end] {
@@ -601,7 +587,6 @@ pub(crate) fn certify_motion(
         level = next_level;
         width = half;
     }
-    ms.q = q;
     verdict
 }
 
@@ -616,9 +601,7 @@ const CHUNK: usize = 16;
 pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
     use rayon::prelude::*;
 
-    if !(clearance > 0.0 && clearance <= MAX_CLEARANCE) {
-        return Err(Error::InvalidInput(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {clearance}")));
-    }
+    check_clearance(clearance)?;
     let b = model.check_poses(starts)?;
     if goals.len() != starts.len() {
         return Err(Error::InvalidInput(format!("starts and goals differ in shape: {} and {} values", starts.len(), goals.len())));
@@ -714,9 +697,8 @@ mod tests {
             space.along(&a, &delta, t0, &mut q0);
             for k in 0..model.pairs.len() {
                 let d0 = distance(&model, &mut s, &q0, k);
-                let state = s.pose_stamp();
                 let chain = levers.rate(k, &abs);
-                let local = local_rate(&model, levers, &abs, &s, &mut axes, state, k);
+                let local = local_rate(&model, levers, &abs, &s, &mut axes, k);
                 let rate = Rate { chain, a: local.min(chain), b: levers.quad(&model, k, &abs) };
                 tight_wins += (local < 0.9 * chain) as usize;
                 for tau in [1e-3, 1e-2, 0.05, 0.2] {

@@ -28,7 +28,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::angles::wrap;
-use crate::broad::MAX_CLEARANCE;
+use crate::broad::{check_clearance, MAX_CLEARANCE};
 use crate::collide::Scratch;
 use crate::error::{invalid_input, Result};
 use crate::fastpath::{certified_pose, collides_pose};
@@ -346,8 +346,8 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     if !(opts.range >= 0.0 && opts.range.is_finite()) {
         return invalid_input(format!("range must be >= 0; got {}", opts.range));
     }
-    if opts.continuous && !(opts.clearance > 0.0 && opts.clearance <= MAX_CLEARANCE) {
-        return invalid_input(format!("clearance must be in (0, {MAX_CLEARANCE}] m; got {}", opts.clearance));
+    if opts.continuous {
+        check_clearance(opts.clearance)?;
     }
     let space = Space::of(model)?;
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();

@@ -162,7 +162,8 @@ def check_path(robot: Robot, path, density: int = 10, *, clearance: float | None
         path = as_poses(robot, path, name="path")
         hit = ~certify_poses(robot, path)
         seg_hit = ~certify_motions(robot, path[:-1], path[1:]).certified | hit[:-1] | hit[1:]
-        return PathCheck(certified=not seg_hit.any() and not hit.any(), waypoint_collides=hit,
+        # (every waypoint ends a segment, so a failing waypoint fails a segment too)
+        return PathCheck(certified=not seg_hit.any(), waypoint_collides=hit,
                          segment_collides=seg_hit, dense=path, dense_collides=hit, method="continuous")
     S, K = path.shape
     # (S−1, density+1, K): each segment with both its end points, so every segment is whole
