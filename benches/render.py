@@ -88,12 +88,10 @@ def mujoco_render_time(robot, cams, n=20):
 
     from profrobot import gl
 
-    # the in-process renderer needs a GL backend: the one profrobot's probe picks (EGL or OSMesa)
-    os.environ.setdefault("MUJOCO_GL", gl.backend())
     m = robot_visual_model(robot)
     m.vis.global_.fovy = cams.fovy
     d = mujoco.MjData(m)
-    renderer = mujoco.Renderer(m, cams.height, cams.width)
+    renderer = gl.renderer(m, cams.height, cams.width)   # on the backend profrobot's probe picks
     mujoco.mj_kinematics(m, d)
     ts = []
     for i in range(n):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import profrobot
+from profrobot import gl
 from profrobot.errors import CorruptFileError, InputError
 from profrobot.render import Cameras, make_views, ring_cameras, robot_visual_model
 from profrobot.render.mjviews import MjViews
@@ -54,7 +55,7 @@ def own_render(robot, qpos, name, width, height):
     d.qpos[robot.qpos_adr] = qpos
     mujoco.mj_kinematics(m, d)
     mujoco.mj_camlight(m, d)
-    with mujoco.Renderer(m, height, width) as r:
+    with gl.renderer(m, height, width) as r:
         r.update_scene(d, camera=name)
         rgb = r.render()
         r.enable_segmentation_rendering()

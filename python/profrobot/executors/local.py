@@ -143,6 +143,7 @@ class _Process:
         env = dict(os.environ)
         if gl:
             env["MUJOCO_GL"] = gl
+            env[backends.PROBED_ENV] = gl     # probed here: the worker need not probe again
         root = str(Path(__file__).resolve().parents[2])  # where this profrobot is
         path = [p for p in sys.path if isinstance(p, str)] + [root]  # the caller's, as multiprocessing's spawn
         main = f"import sys; sys.path[:0] = {path!r}; from profrobot.executors.local import serve; serve()"

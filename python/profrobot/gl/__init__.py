@@ -20,7 +20,12 @@ what each module here does about it:
    bind to Mesa's exported LLVM symbols and crash. :func:`install_triton_guard` loads triton's
    extension modules with ``RTLD_DEEPBIND`` when a libLLVM is already mapped.
 
-Drawing itself never happens in the caller's process: a chunk function marked with
+4. **A GL context made outside that choice** (:mod:`.context`). A ``mujoco.Renderer`` made while
+   ``MUJOCO_GL`` is unset loads GLFW, which without a display raises ``FatalError`` and aborts the
+   process on the next call. :func:`renderer` is the one place a context is made: on the probed
+   backend, with a ``FatalError`` turned into :class:`~profrobot.errors.RendererUnavailableError`.
+
+profrobot's own drawing never happens in the caller's process: a chunk function marked with
 :func:`uses_gl` runs in worker processes started with the chosen ``MUJOCO_GL``
 (:class:`profrobot.executors.LocalExecutor`), or on Ray actors that choose their own
 (:func:`select_backend`).
@@ -29,10 +34,11 @@ Drawing itself never happens in the caller's process: a chunk function marked wi
 from __future__ import annotations
 
 from ..errors import RendererUnavailableError
+from .context import loaded_backend, renderer
 from .backends import backend, forget, needs_gl, probe, select_backend, status, uses_gl
 from .hints import INSTALL_HINT
 from .imports import import_mujoco
 from .triton_guard import install_triton_guard, llvm_mapped
 
-__all__ = ["RendererUnavailableError", "INSTALL_HINT", "backend", "status", "probe", "forget", "select_backend",
+__all__ = ["RendererUnavailableError", "INSTALL_HINT", "renderer", "loaded_backend", "backend", "status", "probe", "forget", "select_backend",
            "uses_gl", "needs_gl", "import_mujoco", "install_triton_guard", "llvm_mapped"]

@@ -15,7 +15,7 @@ from typing import TypeVar
 from ..errors import RendererUnavailableError
 from .hints import GL_OFF, INSTALL_HINT, plain_reason
 
-__all__ = ["PROBE_SCRIPT", "candidates", "probe", "status", "backend", "forget", "select_backend", "explain_exit",
+__all__ = ["PROBE_SCRIPT", "PROBED_ENV", "candidates", "probe", "status", "backend", "forget", "select_backend", "explain_exit",
            "uses_gl", "needs_gl"]
 
 # what a probe runs in a fresh interpreter: one 8x8 frame
@@ -31,6 +31,10 @@ r.close()
 assert img.shape == (8, 8, 3), img.shape
 print("profrobot-gl-ok", flush=True)
 """
+
+# set by profrobot in a worker's environment: the ``MUJOCO_GL`` it was started with was probed by
+# its parent, so the worker need not probe again (a probe is a fresh interpreter: about a second)
+PROBED_ENV = "PROFROBOT_GL_PROBED"
 
 _CHOICE: dict[tuple, tuple[str | None, str]] = {}
 _CHOICE_LOCK = threading.Lock()
@@ -88,8 +92,11 @@ def status() -> tuple[str | None, str]:
     """``(MUJOCO_GL value that renders, '')`` or ``(None, the reason and what to install)``;
     probed once per environment (``MUJOCO_GL``, ``DISPLAY``) and remembered."""
     cands, where = candidates()
-    key = (os.environ.get("MUJOCO_GL"), os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
+    key = _key()
     with _CHOICE_LOCK:
+        probed = os.environ.get(PROBED_ENV, "").strip().lower()
+        if key not in _CHOICE and probed and cands == [probed]:
+            _CHOICE[key] = (probed, "")
         if key not in _CHOICE:
             tried = []
             for gl in cands:
@@ -102,6 +109,10 @@ def status() -> tuple[str | None, str]:
                 _CHOICE[key] = (None, f"MuJoCo cannot render here ({where}; tried {'; '.join(tried)}). "
                                       f"To render, {INSTALL_HINT}.")
         return _CHOICE[key]
+
+
+def _key() -> tuple:
+    return (os.environ.get("MUJOCO_GL"), os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY"))
 
 
 def forget() -> None:
@@ -126,6 +137,8 @@ def select_backend() -> str:
     if _SELECTED is None:
         gl = backend()
         os.environ["MUJOCO_GL"] = gl
+        with _CHOICE_LOCK:        # the environment now names it: no second probe for the new key
+            _CHOICE.setdefault(_key(), (gl, ""))
         _SELECTED = gl
     return _SELECTED
 

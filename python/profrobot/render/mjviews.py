@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from ..executors.base import on_release
-from ..gl import uses_gl
+from ..gl import renderer as gl_renderer, uses_gl
 from ..errors import InputError
 from .cameras import Cameras, free_camera
 
@@ -56,7 +56,7 @@ class MjViews:
     def r(self) -> mujoco.Renderer:
         """The renderer, made (with its GL context) on first use."""
         if self._r is None:
-            self._r = mujoco.Renderer(self.m, self.cams.height, self.cams.width)
+            self._r = gl_renderer(self.m, self.cams.height, self.cams.width)
         return self._r
 
     def render(self, qpos: np.ndarray):
@@ -152,7 +152,7 @@ class MjFrames:
             self.m.vis.global_.fovy = self.cams.fovy
         self.opt = mujoco.MjvOption()
         self.opt.flags[mujoco.mjtVisFlag.mjVIS_CONTACTPOINT] = 1  # show where it touches
-        self.r = mujoco.Renderer(model, height, width)
+        self.r = gl_renderer(model, height, width)
 
     def render(self, poses: np.ndarray) -> np.ndarray:
         out = []
