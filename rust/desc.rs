@@ -6,6 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::couplings::Coupling;
 use crate::error::{invalid_input, Result};
 
 /// MuJoCo's `mjtJoint` codes for the joints we accept.
@@ -76,11 +77,18 @@ pub struct ModelDesc {
     /// robot–obstacle contacts count as scene contacts. Stored after the fields above (format 2).
     #[serde(skip)]
     pub jnt_scene: Vec<bool>,
+
+    /// Joint equalities (`couplings.rs`), MuJoCo's active `<equality><joint>`s; empty means
+    /// none. Stored after `jnt_scene` (format 3).
+    #[serde(skip)]
+    pub couplings: Vec<Coupling>,
 }
 
 /// Leads every [`ModelDesc::to_bytes`] buffer: names the format and its version.
-const MAGIC: &[u8; 8] = b"PRDESC02";
-/// Format 1: the same without `jnt_scene` (read as "no scene joints").
+const MAGIC: &[u8; 8] = b"PRDESC03";
+/// Format 2: the same without `couplings` (read as "none").
+const MAGIC_V2: &[u8; 8] = b"PRDESC02";
+/// Format 1: the same without `jnt_scene` either (read as "no scene joints").
 const MAGIC_V1: &[u8; 8] = b"PRDESC01";
 
 /// FNV-1a, 64 bits: catches corrupted bytes in a stored description (not an adversary).
@@ -95,6 +103,7 @@ impl ModelDesc {
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut body = postcard::to_allocvec(self).expect("serialising plain vectors into memory cannot fail");
         body.extend(postcard::to_allocvec(&self.jnt_scene).expect("serialising plain vectors into memory cannot fail"));
+        body.extend(postcard::to_allocvec(&self.couplings).expect("serialising plain vectors into memory cannot fail"));
         let mut out = Vec::with_capacity(16 + body.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&fnv1a(&body).to_le_bytes());
@@ -118,7 +127,7 @@ impl ModelDesc {
         let Some((magic, rest)) = bytes.split_first_chunk::<8>() else {
             return invalid_input(format!("{WHAT}: {} bytes is too short", bytes.len()));
         };
-        if magic != MAGIC && magic != MAGIC_V1 {
+        if magic != MAGIC && magic != MAGIC_V2 && magic != MAGIC_V1 {
             return invalid_input(format!("{WHAT} (expected it to start with {:?})", String::from_utf8_lossy(MAGIC)));
         }
         let Some((sum, body)) = rest.split_first_chunk::<8>() else {
@@ -131,10 +140,21 @@ impl ModelDesc {
             Ok(ok) => ok,
             Err(e) => return invalid_input(format!("corrupt model description: {e}")),
         };
-        let rest = if magic == MAGIC {
+        let rest = if magic != MAGIC_V1 {
             match postcard::take_from_bytes::<Vec<bool>>(rest) {
                 Ok((scene, rest)) => {
                     desc.jnt_scene = scene;
+                    rest
+                }
+                Err(e) => return invalid_input(format!("corrupt model description: {e}")),
+            }
+        } else {
+            rest
+        };
+        let rest = if magic == MAGIC {
+            match postcard::take_from_bytes::<Vec<Coupling>>(rest) {
+                Ok((couplings, rest)) => {
+                    desc.couplings = couplings;
                     rest
                 }
                 Err(e) => return invalid_input(format!("corrupt model description: {e}")),
@@ -183,6 +203,7 @@ impl ModelDesc {
             filter_parent: true,
             contact_enabled: true,
             jnt_scene: vec![],
+            couplings: vec![],
         }
     }
 }
@@ -220,10 +241,25 @@ mod tests {
     }
 
     #[test]
+    fn couplings_round_trip_and_format_2_reads_as_none() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.couplings = vec![Coupling { dep: 0, indep: -1, coef: [0.5, 0.0, 0.0, 0.0, 0.0], y0: 0.1, x0: 0.0 }];
+        assert_eq!(ModelDesc::from_bytes(&desc.to_bytes()).unwrap(), desc);
+        let plain = ModelDesc::example_pendulum();
+        let mut body = postcard::to_allocvec(&plain).unwrap();
+        body.extend(postcard::to_allocvec(&plain.jnt_scene).unwrap());
+        let mut v2 = MAGIC_V2.to_vec();
+        v2.extend_from_slice(&fnv1a(&body).to_le_bytes());
+        v2.extend_from_slice(&body);
+        assert_eq!(ModelDesc::from_bytes(&v2).unwrap(), plain);
+    }
+
+    #[test]
     fn regression_corrupt_bytes_are_errors_not_panics() {
         let bytes = ModelDesc::example_pendulum().to_bytes();
         assert!(ModelDesc::from_bytes(&[]).is_err());
         assert!(ModelDesc::from_bytes(b"PRDESC01").is_err());
+        assert!(ModelDesc::from_bytes(b"PRDESC02").is_err());
         assert!(ModelDesc::from_bytes(b"{\"body_parent\": []}").is_err());
         for cut in [9, 16, 17, bytes.len() / 2, bytes.len() - 1] {
             assert!(ModelDesc::from_bytes(&bytes[..cut]).is_err(), "cut at {cut}");

@@ -143,9 +143,11 @@ pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scr
 /// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres
 /// (`certified_pose`), in pose order, in parallel on rayon's current pool; independent of the
 /// number of threads.
+/// A pose the robot cannot take (outside a limit, off a coupling: `RobotModel::feasible`) is
+/// never certified.
 pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
     check_clearance(clearance)?;
-    batch(model, poses, |q, s| certified_pose(model, q, clearance, s))
+    batch(model, poses, |q, s| if model.feasible(q) { certified_pose(model, q, clearance, s) } else { Ok(false) })
 }
 
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:

@@ -30,7 +30,7 @@ pub fn interpolate_so2(start: &[f64], goal: &[f64], steps: usize, continuous: &[
         return invalid_input(format!("start/goal value {i} is not finite"));
     }
     let b = start.len() / k;
-    let mut out = Vec::with_capacity(b * steps * k);
+    let mut out = Vec::with_capacity(crate::budget::check("steps", &[b, steps, k], 8)?);
     for p in 0..b {
         let (s, g) = (&start[p * k..(p + 1) * k], &goal[p * k..(p + 1) * k]);
         let delta: Vec<f64> = (0..k).map(|j| if continuous[j] { wrap(g[j] - s[j]) } else { g[j] - s[j] }).collect();

@@ -70,6 +70,7 @@ const CHUNK: usize = 256;
 pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>, Vec<f64>)> {
     let b = model.check_poses(poses)?;
     let (k, nb) = (model.njoint(), model.nbody());
+    crate::budget::check("poses (forward kinematics' frames)", &[b, nb, 7], 8)?;
     let mut xpos = vec![0.0; b * nb * 3];
     let mut xquat = vec![0.0; b * nb * 4];
     poses.par_chunks(CHUNK * k).zip(xpos.par_chunks_mut(CHUNK * nb * 3)).zip(xquat.par_chunks_mut(CHUNK * nb * 4)).for_each_init(

@@ -17,7 +17,9 @@
 //! | module | concern |
 //! |---|---|
 //! | [`error`] | the one error type |
+//! | [`budget`] | sizes checked against the memory available before they are allocated |
 //! | [`angles`] | the one angle wrap (SO(2), shortest arcs) |
+//! | [`couplings`] | joint equalities: dependent joints, feasible poses, coupled motions |
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
 //! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
@@ -42,7 +44,9 @@
 
 pub mod angles;
 mod broad;
+pub mod budget;
 pub mod collide;
+pub mod couplings;
 pub mod desc;
 pub mod error;
 pub mod fastpath;

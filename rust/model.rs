@@ -4,6 +4,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
 use crate::broad::Broad;
+use crate::couplings::{feasible, Couplings};
 /// (Also reachable here, where it lived before `desc.rs`.)
 pub use crate::desc::ModelDesc;
 use crate::desc::{JOINT_HINGE, JOINT_SLIDE};
@@ -32,6 +33,8 @@ pub struct RobotModel {
     pub(crate) joints: Vec<Joint>,
     pub(crate) limits: Vec<[f64; 2]>,
     pub(crate) limited: Vec<bool>,
+    /// The joint equalities, in dependency order.
+    pub(crate) couplings: Couplings,
     pub(crate) geoms: Vec<Geom>,
     pub(crate) pairs: Vec<CandidatePair>,
     /// Bounding spheres by body pair and by pair, for the per-pose broad phase.
@@ -222,6 +225,7 @@ impl RobotModel {
         if desc.pair_margin.len() != desc.pair_geom.len() {
             return invalid_model("pair_margin and pair_geom differ in length");
         }
+        let couplings = Couplings::new(&desc.couplings, njnt)?;
         let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
         let broad = Broad::new(nbody, &geoms, &pairs);
         Ok(Self {
@@ -231,6 +235,7 @@ impl RobotModel {
             joints,
             limits: desc.jnt_range.clone(),
             limited: desc.jnt_limited.clone(),
+            couplings,
             geoms,
             pairs,
             broad,
@@ -274,6 +279,17 @@ impl RobotModel {
                 }
             })
             .collect()
+    }
+
+    /// The joint equalities (`couplings.rs`).
+    pub fn couplings(&self) -> &Couplings {
+        &self.couplings
+    }
+
+    /// Whether pose `q` (K,) is one the mechanism can take: within the limits and on the
+    /// couplings, to `couplings::FEASIBLE_TOL`.
+    pub fn feasible(&self, q: &[f64]) -> bool {
+        feasible(q, &self.limits, &self.limited, &self.couplings)
     }
 
     /// Whether each joint is a continuous (unlimited) hinge, which wraps around.

@@ -45,9 +45,12 @@
 //! axes a pair remembers from state to state are forgotten at the start of each motion), so
 //! they are the same on any thread.
 
+use std::f64::consts::PI;
+
 use crate::angles::wrap;
 use crate::broad::check_clearance;
 use crate::collide::{first_error, Scratch, Undecided};
+use crate::couplings::{Couplings, FEASIBLE_TOL};
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
 
@@ -78,13 +81,20 @@ pub(crate) struct Space {
     pub lo: Vec<f64>,
     pub hi: Vec<f64>,
     pub wraps: Vec<bool>,
+    /// The joint equalities: every placed state is projected onto them (`along`).
+    pub couplings: Couplings,
 }
 
 impl Space {
     /// The model's sampling ranges (`RobotModel::sampling_ranges`) and continuous hinges.
     pub fn of(model: &RobotModel) -> Result<Space> {
         let ranges = model.sampling_ranges()?;
-        Ok(Space { lo: ranges.iter().map(|r| r[0]).collect(), hi: ranges.iter().map(|r| r[1]).collect(), wraps: model.continuous() })
+        Ok(Space {
+            lo: ranges.iter().map(|r| r[0]).collect(),
+            hi: ranges.iter().map(|r| r[1]).collect(),
+            wraps: model.continuous(),
+            couplings: model.couplings.clone(),
+        })
     }
 
     /// `b − a`, the short arc on wrapping joints.
@@ -105,12 +115,14 @@ impl Space {
         s.sqrt()
     }
 
-    /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π).
+    /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π), then the dependent joints
+    /// recomputed from the couplings (the state the robot is in: `couplings.rs`, "Motions").
     pub fn along(&self, a: &[f64], d: &[f64], t: f64, out: &mut [f64]) {
         for k in 0..a.len() {
             let v = a[k] + t * d[k];
             out[k] = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
         }
+        self.couplings.apply(out);
     }
 }
 
@@ -359,6 +371,9 @@ struct Open {
 pub struct MotionScratch {
     pub(crate) scratch: Scratch,
     abs_delta: Vec<f64>,
+    /// Per joint, the interval it sweeps along the motion.
+    lo: Vec<f64>,
+    hi: Vec<f64>,
     rates: Vec<f64>,
     quads: Vec<f64>,
     axes: Axes,
@@ -376,6 +391,8 @@ impl MotionScratch {
         MotionScratch {
             scratch: Scratch::new(model),
             abs_delta: vec![0.0; model.njoint()],
+            lo: vec![0.0; model.njoint()],
+            hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
             quads: vec![0.0; model.pairs.len()],
             axes: Axes { anchor: vec![Default::default(); model.njoint()], axis: vec![Default::default(); model.njoint()], at: 0 },
@@ -466,19 +483,31 @@ pub(crate) fn certify_motion(
 ) -> std::result::Result<Motion, Undecided> {
     let k = a.len();
     ms.states = 0;
-    let mut span = 0.0f64;
-    for (ad, d) in ms.abs_delta.iter_mut().zip(delta) {
-        *ad = d.abs();
-        span = span.max(*ad);
+    // A motion too large to place (a joint beyond ±`MAX_JOINT`) proves nothing.
+    if (0..k).any(|j| !(a[j].abs() <= MAX_JOINT && (a[j] + delta[j]).abs() <= MAX_JOINT)) {
+        return Ok(Motion::Unproven);
     }
-    // The levers bound each slide's displacement by its limits (`slide_reach`): a limited slide
-    // outside them, or a motion too large to place (a joint beyond ±`MAX_JOINT`), proves nothing.
-    let outside = |j: usize, v: f64| {
-        v.is_nan()
-            || v.abs() > MAX_JOINT
-            || (!model.joints[j].hinge && model.limited[j] && !(model.limits[j][0]..=model.limits[j][1]).contains(&v))
-    };
-    if (0..k).any(|j| outside(j, a[j]) || outside(j, a[j] + delta[j])) {
+    // Each joint's speed (`|Δ|`, per unit of `t`) and the interval it sweeps; the couplings'
+    // dependent joints follow their independent ones (`Couplings::speeds`).
+    for j in 0..k {
+        ms.abs_delta[j] = delta[j].abs();
+        let (x0, x1) = (a[j], a[j] + delta[j]);
+        let whole_turn = space.wraps[j] && !((-PI..PI).contains(&x0) && (-PI..PI).contains(&x1));
+        (ms.lo[j], ms.hi[j]) = if whole_turn { (-PI, PI) } else { (x0.min(x1), x0.max(x1)) };
+    }
+    space.couplings.speeds(&mut ms.lo, &mut ms.hi, &mut ms.abs_delta);
+    let span = ms.abs_delta.iter().fold(0.0f64, |m, &d| m.max(d));
+    // Only a motion the robot can make is certified: both ends on their couplings, and every
+    // limited joint within its limits all along (a joint's swept interval inside them; the
+    // levers also bound each slide's displacement by its limits, `slide_reach`).
+    let q = &mut ms.q;
+    for j in 0..k {
+        q[j] = if space.wraps[j] { wrap(a[j] + delta[j]) } else { a[j] + delta[j] };
+    }
+    let coupled = space.couplings.residual(a) <= FEASIBLE_TOL && space.couplings.residual(q) <= FEASIBLE_TOL;
+    let inside = (0..k)
+        .all(|j| !model.limited[j] || (model.limits[j][0] - FEASIBLE_TOL <= ms.lo[j] && ms.hi[j] <= model.limits[j][1] + FEASIBLE_TOL));
+    if !(coupled && inside) {
         return Ok(Motion::Unproven);
     }
     let npairs = model.pairs.len();
@@ -498,7 +527,6 @@ pub(crate) fn certify_motion(
     // The end first (a planner's new state often collides), by spheres wherever they are
     // apart; then the start, exact where the spheres do not close the motion; then the end
     // again, exact, for the pairs still open that it measured by spheres only.
-    let q = &mut ms.q;
     space.along(a, delta, 1.0, q);
     ms.scratch.place(model, q, false);
     ms.states += 1;
@@ -609,7 +637,7 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
     model.check_poses(goals)?;
     let k = model.njoint();
     let wraps = model.continuous();
-    let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps };
+    let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
     let levers = Levers::of(model);
     let idx: Vec<usize> = (0..b).collect();
     let parts: Vec<Result<Vec<(Motion, usize)>>> = idx

@@ -27,8 +27,11 @@
 //! A state whose pair the narrow phase cannot decide (`collide.rs`: never "free") ends the
 //! search of its pose, and the call fails naming that input pose, the state and the pair.
 
+use std::borrow::Cow;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
 use rayon::prelude::*;
 
 use crate::collide::{first_error, Scratch, Undecided};
@@ -109,8 +112,16 @@ pub fn nearest_free(model: &RobotModel, poses: &[f64], opts: &OracleOptions) -> 
     };
     likely_pairs(model); // once, before the workers need it
     let search = Search { model, limits: &limits, opts, max_distance };
+    // Each pose first put on its couplings: the search runs among poses the robot can take.
+    let coupled: Cow<[f64]> = if model.couplings().is_empty() {
+        Cow::Borrowed(poses)
+    } else {
+        let mut owned = poses.to_vec();
+        owned.chunks_exact_mut(k).for_each(|q| model.couplings().apply(q));
+        Cow::Owned(owned)
+    };
     let found: Vec<Result<(f64, Vec<f64>, u64)>> =
-        poses.par_chunks(k).enumerate().map_init(|| Scratch::new(model), |s, (i, q0)| search.pose(q0, i as u64, s)).collect();
+        coupled.par_chunks(k).enumerate().map_init(|| Scratch::new(model), |s, (i, q0)| search.pose(q0, i as u64, s)).collect();
     let found = first_error(found)?;
     let mut out = NearestFree { distance: Vec::with_capacity(b), poses: Vec::with_capacity(b * k), checks: Vec::with_capacity(b) };
     for (d, q, c) in found {
@@ -140,18 +151,18 @@ struct Rays<'a, 's> {
 }
 
 impl Rays<'_, '_> {
-    /// Places `q0 + t u` in `self.q`, limited joints clamped into their ranges, and returns its
-    /// distance from `q0` (at most `t`, nondecreasing in `t`).
+    /// Places `q0 + t u` in `self.q`, limited joints clamped into their ranges and dependent
+    /// joints put on their couplings, and returns its distance from `q0` (nondecreasing in `t`
+    /// for a linear coupling or none).
     fn at(&mut self, u: &[f64], t: f64) -> f64 {
-        let mut d2 = 0.0;
         for (((q, &q0), &u), lim) in self.q.iter_mut().zip(self.q0).zip(u).zip(self.search.limits) {
             *q = q0 + t * u;
             if let Some([lo, hi]) = *lim {
                 *q = q.clamp(lo, hi);
             }
-            d2 += (*q - q0) * (*q - q0);
         }
-        d2.sqrt()
+        self.search.model.couplings().apply(&mut self.q);
+        self.q.iter().zip(self.q0).map(|(q, q0)| (q - q0) * (q - q0)).sum::<f64>().sqrt()
     }
 
     /// Whether the pose `at(u, t)` placed is free.

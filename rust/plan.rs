@@ -30,6 +30,7 @@ use rayon::prelude::*;
 use crate::angles::wrap;
 use crate::broad::{check_clearance, MAX_CLEARANCE};
 use crate::collide::Scratch;
+use crate::couplings::FEASIBLE_TOL;
 use crate::error::{invalid_input, Result};
 use crate::fastpath::{certified_pose, collides_pose};
 use crate::model::RobotModel;
@@ -109,11 +110,12 @@ impl PlanResult {
     }
 }
 
-/// A uniform state of the space's box.
+/// A uniform state of the space's box, its dependent joints then put on their couplings.
 fn sample(space: &Space, rng: &mut ChaCha8Rng, out: &mut [f64]) {
     for ((v, lo), hi) in out.iter_mut().zip(&space.lo).zip(&space.hi) {
         *v = lo + (hi - lo) * rng.random::<f64>();
     }
+    space.couplings.apply(out);
 }
 
 /// States of an edge in the order they are checked: `n` (the end) first, then midpoints of
@@ -196,6 +198,7 @@ impl<'m> Checker<'m> {
             };
         }
         let n = ((span / self.resolution).ceil() as usize).max(1);
+        crate::budget::check("the states of one edge (its length / resolution)", &[n, 2], 8)?;
         let order = check_order(n);
         let mut start = 0;
         let mut b_idx = 0;
@@ -360,6 +363,12 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
             if !sp.wraps[j] && (v < sp.lo[j] - 1e-9 || v > sp.hi[j] + 1e-9) {
                 return invalid_input(format!("{what}[{j}] = {v} is outside the joint's limits"));
             }
+        }
+        let off = model.couplings().residual(q);
+        if off > FEASIBLE_TOL {
+            return invalid_input(format!(
+                "{what} is {off:e} off its joint couplings (equalities): the robot cannot take it; put it on them first (Robot.project)"
+            ));
         }
         if !checker.free(q, what)? {
             return invalid_input(format!("{what} collides"));
@@ -563,7 +572,7 @@ mod tests {
         desc.jnt_limited = vec![false];
         let model = RobotModel::new(desc).unwrap();
         let below = f64::from_bits((-PI).to_bits() + 1);
-        let space = Space { lo: vec![-PI], hi: vec![PI], wraps: vec![true] };
+        let space = Space { lo: vec![-PI], hi: vec![PI], wraps: vec![true], couplings: Default::default() };
         let opts = PlanOptions { resolution: 0.1, ..PlanOptions::default() };
         for (s, g) in [(PI, 0.0), (-PI, 0.0), (0.0, PI), (0.0, -PI), (PI, -PI), (below, 0.0), (0.0, below), (3.0 * PI, 1.0)] {
             let r = plan_path(&model, &[s], &[g], &opts).unwrap();

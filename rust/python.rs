@@ -12,6 +12,7 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
+use crate::couplings::Coupling;
 use crate::desc::ModelDesc;
 use crate::error::Error;
 use crate::fastpath::{certified_batch, collides_batch};
@@ -156,7 +157,21 @@ fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
         filter_parent: typed(d, "filter_parent", "a bool")?,
         contact_enabled: typed(d, "contact_enabled", "a bool")?,
         jnt_scene: if d.contains("jnt_scene")? { vec1(d, "jnt_scene")? } else { vec![] },
+        couplings: if d.contains("eq_dep")? { couplings_from_dict(d)? } else { vec![] },
     })
+}
+
+/// The joint equalities: `eq_dep` (E,) uint32, `eq_indep` (E,) int32 (-1: none), `eq_coef`
+/// (E, 5) and `eq_origin` (E, 2: the dependent's and the independent's qpos0) float64.
+fn couplings_from_dict(d: &Bound<'_, PyDict>) -> PyResult<Vec<Coupling>> {
+    let dep: Vec<u32> = vec1(d, "eq_dep")?;
+    let indep: Vec<i32> = vec1(d, "eq_indep")?;
+    let coef: Vec<[f64; 5]> = rows(d, "eq_coef")?;
+    let origin: Vec<[f64; 2]> = rows(d, "eq_origin")?;
+    if indep.len() != dep.len() || coef.len() != dep.len() || origin.len() != dep.len() {
+        return Err(model_error("eq_dep, eq_indep, eq_coef and eq_origin differ in length"));
+    }
+    Ok((0..dep.len()).map(|e| Coupling { dep: dep[e], indep: indep[e], coef: coef[e], y0: origin[e][0], x0: origin[e][1] }).collect())
 }
 
 /// `obj` as a 2-D float64 array with `k` columns (any memory layout), or a TypeError/ValueError

@@ -672,6 +672,8 @@ impl<T: Real> Scene<T> {
                 self.width, self.height
             ));
         }
+        // the images (colour, depth, alpha) in T
+        crate::budget::check("render: views x height x width", &[pixels as usize, 5], std::mem::size_of::<T>())?;
         Ok(())
     }
 

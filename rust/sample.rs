@@ -34,7 +34,7 @@ pub fn sample_uniform(ranges: &[[f64; 2]], n: usize, seed: u64) -> Result<Vec<f6
             return invalid_input(format!("joint {j} has an unusable range [{lo}, {hi}]"));
         }
     }
-    let mut out = vec![0.0; n * k];
+    let mut out = vec![0.0; crate::budget::check("n (poses to sample)", &[n, k], 8)?];
     out.par_chunks_mut(BLOCK * k).enumerate().for_each(|(c, block)| fill_block(ranges, seed, c, block));
     Ok(out)
 }

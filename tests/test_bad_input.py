@@ -11,8 +11,8 @@ from profrobot import Robot
     (np.zeros((4, 5)), ValueError, r"shape \(B, 9\)"),
     (np.zeros((2, 3, 9)), ValueError, r"shape \(B, 9\)"),
     (np.zeros((0, 9)), ValueError, "empty"),
-    (np.zeros((3, 9), dtype=np.int64), TypeError, "floating-point"),
     (np.array([["a"] * 9]), TypeError, "floating-point"),
+    (np.zeros((3, 9), dtype=complex), TypeError, "floating-point"),
     (np.full((2, 9), np.nan), ValueError, r"poses\[0, 0\].*finite"),
     (np.r_[np.zeros((1, 9)), [[0, 0, np.inf, 0, 0, 0, 0, 0, 0]]], ValueError, r"poses\[1, 2\] \(joint3\)"),
 ])
@@ -21,14 +21,26 @@ def test_bad_poses(panda, poses, exc, match):
         profrobot.label_poses(panda, poses)
 
 
-def test_out_of_limits_where_forbidden(panda):
-    pose = np.zeros((1, 9))
+def test_regression_out_of_limits_poses_are_refused_by_labels_too(panda):
+    """Issue 33: a pose in degrees got labels (and, before, a certificate) silently."""
+    pose = panda.joint_limits.mean(1)[None].copy()
     pose[0, 3] = 1.0  # joint4's range is about [-3.07, -0.07]
-    profrobot.label_poses(panda, pose)  # labelling beyond the limits is allowed by default
-    with pytest.raises(ValueError, match=r"outside the limits of joint 'joint4'"):
-        profrobot.label_poses(panda, pose, check_limits=True)
+    for fn in (profrobot.label_poses, profrobot.collides):
+        with pytest.raises(profrobot.InputError, match=r"poses\[0, 3\] = 1 is outside the limits of joint 'joint4'"):
+            fn(panda, pose)
+    assert profrobot.label_poses(panda, pose, check_limits=False).collides.shape == (1,)  # asked for: allowed
+    assert not profrobot.certify_poses(panda, pose)[0]
     with pytest.raises(ValueError, match="outside the limits"):
-        profrobot.interpolate(panda, pose[0], np.zeros(9), 10)
+        profrobot.interpolate(panda, pose[0], panda.joint_limits.mean(1), 10)
+
+
+def test_whole_numbers_are_poses_too(panda):
+    """Issue 33: an int array (or a list of ints) was a plain TypeError."""
+    lim = panda.joint_limits
+    ints = np.clip(np.round(lim.mean(1)), np.ceil(lim[:, 0]), np.floor(lim[:, 1])).astype(np.int64)
+    ints[7:] = 0   # the fingers
+    assert profrobot.label_poses(panda, ints[None]).collides.shape == (1,)
+    assert profrobot.collides(panda, [ints.tolist()]).shape == (1,)
 
 
 def test_bad_counts_seeds_and_threads(panda):
@@ -38,7 +50,7 @@ def test_bad_counts_seeds_and_threads(panda):
     with pytest.raises(ValueError, match="seed"):
         profrobot.sample_poses(panda, 10, seed=-1)
     with pytest.raises(ValueError, match="threads"):
-        profrobot.label_poses(panda, np.zeros((1, 9)), threads=0)
+        profrobot.label_poses(panda, panda.joint_limits.mean(1)[None], threads=0)
     mid = panda.joint_limits.mean(1)
     with pytest.raises(ValueError, match="steps"):
         profrobot.interpolate(panda, mid, mid, 1)

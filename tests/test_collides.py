@@ -50,7 +50,7 @@ def test_nearby_poses_along_a_path(panda):
 @pytest.mark.parametrize("poses, exc, match", [
     (np.zeros((4, 5)), ValueError, r"shape \(B, 9\)"),
     (np.zeros((0, 9)), ValueError, "empty"),
-    (np.zeros((3, 9), dtype=np.int64), TypeError, "floating-point"),
+    (np.zeros((3, 9), dtype=np.complex128), TypeError, "floating-point"),
     (np.full((2, 9), np.nan), ValueError, r"poses\[0, 0\].*finite"),
 ])
 def test_bad_poses(panda, poses, exc, match):
@@ -59,13 +59,14 @@ def test_bad_poses(panda, poses, exc, match):
 
 
 def test_bad_threads_limits_and_robot(panda):
+    mid = panda.joint_limits.mean(1)[None]
     with pytest.raises(ValueError, match="threads"):
-        profrobot.collides(panda, np.zeros((1, 9)), threads=0)
-    pose = np.zeros((1, 9))
+        profrobot.collides(panda, mid, threads=0)
+    pose = mid.copy()
     pose[0, 3] = 1.0  # outside joint4's range
-    profrobot.collides(panda, pose)
+    profrobot.collides(panda, pose, check_limits=False)   # asked for
     with pytest.raises(ValueError, match="outside the limits of joint 'joint4'"):
-        profrobot.collides(panda, pose, check_limits=True)
+        profrobot.collides(panda, pose)
     with pytest.raises(TypeError, match="profrobot.Robot"):
         profrobot.collides("panda", np.zeros((1, 9)))
 

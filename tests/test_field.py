@@ -93,8 +93,14 @@ def test_corrupt_checkpoints_fail_clearly(panda, tmp_path):
     (path / "config.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt checkpoint config"):
         profrobot.PoseSDF.load(path, panda)
-    with pytest.raises(ValueError, match="not a PoseSDF checkpoint"):
+    # a missing directory is missing, as a missing dataset file is (issue 33): both in the family
+    with pytest.raises(profrobot.errors.MissingFileError, match="no PoseSDF checkpoint directory"):
         profrobot.PoseSDF.load(tmp_path / "missing", panda)
+    with pytest.raises(FileNotFoundError):
+        profrobot.Dataset.load(tmp_path / "missing.npz")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="not a PoseSDF checkpoint"):
+        profrobot.PoseSDF.load(tmp_path / "empty", panda)
     # weights that do not fit the config's architecture
     PoseSDF(panda, hidden=(8,)).save(path)
     cfg = json.loads((path / "config.json").read_text())

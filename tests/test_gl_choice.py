@@ -115,7 +115,7 @@ def test_fatal_error_from_a_context_is_an_error_not_an_abort():
             else:
                 raise AssertionError("made a GLFW context without a display")
         robot = profrobot.scenes.load("panda_blocks")
-        print("labels", profrobot.label_poses(robot, np.zeros((1, robot.njoint))).collides.shape)
+        print("labels", profrobot.label_poses(robot, robot.joint_limits.mean(1)[None]).collides.shape)
         """, MUJOCO_GL=None, DISPLAY=None, WAYLAND_DISPLAY=None)
     assert done.returncode == 0 and "labels (1,)" in done.stdout, (done.returncode, done.stderr[-3000:])
 

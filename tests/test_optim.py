@@ -273,7 +273,7 @@ def test_resolve_bad_input(panda, ur5e):
     with pytest.raises(ValueError, match="iterations"):
         resolve(sdf, q, iterations=-1)
     with pytest.raises(TypeError, match="floating"):
-        resolve(sdf, q.astype(np.int64))
+        resolve(sdf, q.astype(np.complex128))
 
 
 # ---- trajectories ----------------------------------------------------------------------------

@@ -87,14 +87,14 @@ def test_bad_arguments(panda, kwargs, match):
 
 
 def test_bad_poses(panda):
-    pose = np.zeros((1, 9))
+    pose = panda.joint_limits.mean(1)[None].copy()
     pose[0, 3] = 1.0  # outside joint4's range: the oracle moves poses within the limits only
     with pytest.raises(ValueError, match="outside the limits of joint 'joint4'"):
         profrobot.nearest_free(panda, pose)
     with pytest.raises(ValueError, match="finite"):
         profrobot.nearest_free(panda, np.full((1, 9), np.nan))
     with pytest.raises(TypeError, match="floating-point"):
-        profrobot.nearest_free(panda, np.zeros((1, 9), dtype=int))
+        profrobot.nearest_free(panda, np.zeros((1, 9), dtype=complex))
     # The native layer names the problem too, rather than panicking.
     with pytest.raises(ValueError, match="outside its limits"):
         panda.core.nearest_free(pose)

@@ -46,6 +46,7 @@ import numpy as np
 from .deprecation import deprecated_alias
 from .errors import InputError
 from .labels import as_poses, check_threads, interpolate, so2_steps
+from .validate import with_scene
 from .robot import Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "path_free_at",
@@ -66,11 +67,14 @@ def _one_clearance(clearance, who: str) -> None:
                          f"{clearance!r} (for other distances use label_poses(..., distance=True))")
 
 
-def certify_poses(robot: Robot, poses, *, threads: int | None = None, clearance: float | None = None) -> np.ndarray:
-    """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres) is certified
-    free (module docs: no contact, every candidate pair more than :data:`CLEARANCE` apart)."""
+def certify_poses(robot: Robot, poses, *, scene=None, threads: int | None = None,
+                  clearance: float | None = None) -> np.ndarray:
+    """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres; a family's θ
+    with ``scene=δ``) is certified free (module docs: no contact, every candidate pair more than
+    :data:`CLEARANCE` apart). A pose the robot cannot take (a limited joint outside its limits,
+    a joint equality not met, to 1e-9: :meth:`Robot.feasible`) is never certified."""
     _one_clearance(clearance, "certify_poses")
-    q = as_poses(robot, poses)
+    q = as_poses(robot, with_scene(robot, poses, scene))
     if len(q) == 0:
         return np.zeros(0, dtype=bool)
     return robot.core.certified(np.ascontiguousarray(q), CLEARANCE, threads=check_threads(threads))
@@ -97,13 +101,16 @@ class MotionCertificate:
     states: np.ndarray
 
 
-def certify_motions(robot: Robot, starts, goals, *, threads: int | None = None) -> MotionCertificate:
+def certify_motions(robot: Robot, starts, goals, *, scene=None, threads: int | None = None) -> MotionCertificate:
     """The continuous certificate (module docs) of each straight motion ``starts[i] → goals[i]``
-    ((B, K) or (K,) each, radians / metres): continuous hinges along the short arc, the motion
-    :func:`profrobot.interpolate` replays; other joints straight. Same answer for any thread
-    count. A limited slide joint outside its limits makes a motion unproven (the levers bound
-    slides by their limits)."""
-    a, b = as_poses(robot, starts, name="starts"), as_poses(robot, goals, name="goals")
+    ((B, K) or (K,) each, radians / metres; a family's θ with ``scene=δ``): continuous hinges
+    along the short arc, the motion :func:`profrobot.interpolate` replays; other joints
+    straight; the dependent joints of joint equalities following their independent ones (for a
+    nonlinear coupling that is a curve, and the curve is what is proven). Same answer for any
+    thread count. A motion the robot cannot make (an end off its couplings, a limited joint
+    outside its limits anywhere along it) is unproven, never certified."""
+    a = as_poses(robot, with_scene(robot, starts, scene, "starts"), name="starts")
+    b = as_poses(robot, with_scene(robot, goals, scene, "goals"), name="goals")
     if a.shape != b.shape:
         raise InputError(f"starts and goals must have the same shape; got {a.shape} and {b.shape}")
     out = robot.core.certify_motions(np.ascontiguousarray(a), np.ascontiguousarray(b), CLEARANCE,
@@ -144,14 +151,16 @@ class PathCheck:
         return np.flatnonzero(self.segment_collides)
 
 
-def check_path(robot: Robot, path, density: int = 10, *, clearance: float | None = None,
+def check_path(robot: Robot, path, density: int = 10, *, scene=None, clearance: float | None = None,
                method: Literal["continuous", "sampled"] = "continuous") -> PathCheck:
-    """Certifies ``path`` (S, K) waypoints and the SO(2) segments between them: continuously
-    (every pose of every segment proven, module docs), or with ``method="sampled"`` at the
-    ``density − 1`` interpolated poses between each consecutive pair (``density`` times finer
-    than the waypoints; the continuous certificate needs no density and ignores it)."""
+    """Certifies ``path`` (S, K) waypoints (a family's θ with ``scene=δ``) and the SO(2) segments
+    between them: continuously (every pose of every segment proven, module docs), or with
+    ``method="sampled"`` at the ``density − 1`` interpolated poses between each consecutive pair
+    (``density`` times finer than the waypoints; the continuous certificate needs no density
+    and ignores it). A waypoint the robot cannot take (:meth:`Robot.feasible`) is not certified,
+    nor are its segments."""
     _one_clearance(clearance, "check_path")
-    path = np.asarray(path, dtype=np.float64)
+    path = as_poses(robot, with_scene(robot, path, scene, "path"), name="path")
     if path.ndim != 2 or len(path) < 2:
         raise InputError(f"path must have shape (S >= 2, K); got {path.shape}")
     if isinstance(density, bool) or not isinstance(density, (int, np.integer)) or density < 1:
@@ -166,6 +175,11 @@ def check_path(robot: Robot, path, density: int = 10, *, clearance: float | None
         return PathCheck(certified=not seg_hit.any(), waypoint_collides=hit,
                          segment_collides=seg_hit, dense=path, dense_collides=hit, method="continuous")
     S, K = path.shape
+    ok = robot.feasible(path)
+    if not ok.all():  # off its couplings or outside its limits: nothing to sample, nothing certified
+        bad = ~ok
+        return PathCheck(certified=False, waypoint_collides=bad, segment_collides=bad[:-1] | bad[1:], dense=path,
+                         dense_collides=bad, method="sampled")
     # (S−1, density+1, K): each segment with both its end points, so every segment is whole
     seg = interpolate(robot, path[:-1], path[1:], int(density) + 1)
     dense = np.concatenate([seg[:, :-1].reshape(-1, K), path[-1:]], axis=0)
@@ -184,9 +198,11 @@ def path_free_at(robot: Robot, path, resolution: float) -> bool:
     """Whether ``path`` (S, K) is certified free when re-interpolated (SO(2)) so that no joint
     moves more than ``resolution`` (rad / m) between two checked poses: the planner's own
     guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
-    path = np.asarray(path, dtype=np.float64)
+    path = as_poses(robot, path, name="path")
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number; got {resolution!r}")
+    if not robot.feasible(path).all():
+        return False
     d = so2_steps(robot, path)
     counts = np.maximum(np.ceil(np.abs(d).max(axis=1) / resolution).astype(int), 1)
     poses = np.concatenate([interpolate(robot, a, b, int(n) + 1)[1:] for a, b, n in zip(path[:-1], path[1:], counts)])

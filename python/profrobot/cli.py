@@ -11,16 +11,18 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import scenes
+from ._core import __version__
 from .crosscheck import crosscheck
 from .dataset import Dataset, make_dataset
 from .errors import ProfrobotError
 from .labels import Labels, label_poses, sample_poses
+from .loading import DefaultsFormatter, add_robot_arguments, robot_of
 
 _CHUNK = 50_000
 
 
 def _robot(args):
-    return scenes.load(args.scene)
+    return robot_of(args)
 
 
 def _optim(name: str):
@@ -46,7 +48,7 @@ def _inverse(name: str):
 
 def _label_with_progress(robot, poses, threads) -> Labels:
     parts = []
-    for start in tqdm(range(0, len(poses), _CHUNK), desc=f"label {robot.name}", unit="chunk"):
+    for start in tqdm(range(0, len(poses), _CHUNK), desc=f"label {robot.name}", unit="chunk", disable=None):
         parts.append(label_poses(robot, poses[start:start + _CHUNK], threads=threads))
     return Labels(*(np.concatenate([getattr(p, k) for p in parts])
                     for k in ("collides", "self_collides", "scene_collides", "n_pairs")))
@@ -133,7 +135,7 @@ def cmd_train(args) -> int:
 
 def cmd_demo(args) -> int:
     """The main job on a bundled default: build a scene, label poses, cross-check with MuJoCo."""
-    robot = scenes.load(args.scene)
+    robot = _robot(args)
     print(robot)
     poses = sample_poses(robot, args.n, args.seed)
     t = time.perf_counter()
@@ -176,15 +178,27 @@ def cmd_render(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="profrobot", description=__doc__)
-    sub = p.add_subparsers(dest="cmd", required=True)
+class _Parser(argparse.ArgumentParser):
+    """Every subcommand's help shows the defaults."""
 
-    def common(sp, n):
-        sp.add_argument("--scene", default="panda_blocks", help=f"one of: {', '.join(scenes.names())}")
-        sp.add_argument("-n", type=int, default=n, help="number of poses")
-        sp.add_argument("--seed", type=int, default=0)
-        sp.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    def __init__(self, *a, **kw):
+        kw.setdefault("formatter_class", DefaultsFormatter)
+        super().__init__(*a, **kw)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="profrobot", description=__doc__, formatter_class=DefaultsFormatter)
+    p.add_argument("--version", action="version", version=f"profrobot {__version__}")
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+
+    def common(sp, n: int | None = None, *, threads: bool = True, scene_default: str | None = "panda_blocks"):
+        """The robot (--scene / --robot), -n where the command draws poses, --seed, --threads."""
+        add_robot_arguments(sp, scene_default=scene_default)
+        if n is not None:
+            sp.add_argument("-n", type=int, default=n, help="number of poses")
+        sp.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+        if threads:
+            sp.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
 
     def cluster(sp):
         sp.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: local (start one here), auto, "
@@ -206,12 +220,12 @@ def main(argv: list[str] | None = None) -> int:
     sp.set_defaults(fn=cmd_crosscheck)
     sp = sub.add_parser("dataset", help="make a balanced dataset (.npz)")
     common(sp, 100_000)
-    sp.add_argument("--collided-fraction", type=float, default=0.5)
+    sp.add_argument("--collided-fraction", type=float, default=0.5, help="share of colliding poses")
     sp.add_argument("--out", required=True)
     cluster(sp)
     sp.set_defaults(fn=cmd_dataset)
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
-    common(sp, 0)
+    common(sp)
     sp.add_argument("--preset", default="cpu", help="cpu (ours, minutes) or paper (the paper's recipe)")
     sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
     sp.add_argument("--iterations", type=int, default=None)
@@ -225,10 +239,10 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--export", help="also export a torch.export .pt2 file here")
     sp.set_defaults(fn=cmd_train)
     sp = sub.add_parser("resolve", help="push colliding poses out of collision with a trained field")
-    common(sp, 100)
+    common(sp, 100, threads=False, scene_default=None)
     sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
     sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
-    sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1)
+    sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1, help="the field's threshold l_thres")
     sp.add_argument("--method", choices=("project", "adam"), default="project",
                     help="the field step: project (the nearest pose to first order) or adam (the paper's)")
     sp.add_argument("--lr", type=float, default=None, help="Adam's step size (--method adam; default 0.01)")
@@ -242,11 +256,11 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")
     sp.set_defaults(fn=_optim("cmd_resolve"))
     sp = sub.add_parser("plan", help="a collision-aware trajectory between two poses")
-    common(sp, 0)
+    common(sp, threads=False, scene_default=None)
     sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory")
     sp.add_argument("--start", help="comma-separated start pose (default: a random hard problem)")
     sp.add_argument("--goal", help="comma-separated goal pose")
-    sp.add_argument("--steps", type=int, default=100)
+    sp.add_argument("--steps", type=int, default=100, help="waypoints of the trajectory")
     sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty")
     sp.add_argument("--init", choices=("auto", "straight", "planner"), default="auto",
                     help="auto: the straight path if free, else the exact planner then field smoothing")
@@ -284,10 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--model", required=True, help="Gaussian robot file for the same robot (profrobot render --out)")
     sp.add_argument("--masks", help="robot masks, the images' names, nonzero = robot (default: IMAGES/masks)")
     sp.add_argument("--depth", help="metric depth maps, the images' stems + .npy (default: IMAGES/depth if it exists)")
-    sp.add_argument("--scene", default=None, help="the field's scene (default: the bundled scene its checkpoint names)")
-    sp.add_argument("--robot", default=None, help="the field's robot as a file: MJCF .xml or URDF .urdf (instead of --scene)")
-    sp.add_argument("--package-dir", dest="package_dir", action="append", default=None,
-                    help="where a URDF's package:// meshes live (a package's folder or a folder of packages; repeatable)")
+    add_robot_arguments(sp, scene_default=None)
     sp.add_argument("--init", help="comma-separated start pose, radians / metres (default: the middle of the joint "
                                    "limits)")
     sp.add_argument("--iterations", type=int, default=100, help="image-phase Adam steps")
@@ -298,10 +309,10 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--lr", type=float, default=0.02, help="image-phase learning rate")
     sp.add_argument("--refine-cameras", dest="refine_cameras", action="store_true",
                     help="also refine the cameras' poses (written to poses.json)")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--seed", type=int, default=0, help="seed of the restarts")
     sp.add_argument("--out", default="pose_out", help="output folder: poses.json, fit.png (default: ./pose_out)")
     sp.set_defaults(fn=_inverse("cmd_pose"))
-    sp = sub.add_parser("scenes", help="list the bundled scenes")
+    sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 
     args = p.parse_args(argv)

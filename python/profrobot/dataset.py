@@ -15,7 +15,7 @@ from tqdm.auto import tqdm
 
 from . import _core, validate
 from .equalities import EqualityMode
-from .errors import CorruptFileError, InputError
+from .errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from .files import atomic_path, check_format, check_robot, format_tag
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
@@ -75,10 +75,16 @@ class Dataset:
     def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Dataset":
         """Reads a file written by :meth:`save`; with ``robot``, refuses data for another robot
         (:class:`~profrobot.errors.RobotMismatchError`). A file that cannot be read as a dataset
-        raises :class:`~profrobot.errors.CorruptFileError`; a missing one ``FileNotFoundError``."""
+        raises :class:`~profrobot.errors.CorruptFileError`; a missing one
+        :class:`~profrobot.errors.MissingFileError` (a ``FileNotFoundError``)."""
         path = os.fspath(path)
         if not os.path.isfile(path):
-            raise FileNotFoundError(f"no dataset file at {path!r}")
+            raise MissingFileError(f"no dataset file at {path!r}")
+        with open(path, "rb") as f:
+            head = f.read(4)
+        if head != b"PK\x03\x04":   # .npz is a zip archive; anything else is not a dataset
+            raise CorruptFileError(f"{path!r} is not a profrobot dataset: not an .npz archive "
+                                   f"(it starts with {head!r}; Dataset.save writes one)")
         missing: list[str] = []
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -140,7 +146,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     from .executors import check_executor
 
     if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     n = validate.count("n", n)
     collided_fraction = validate.finite("collided_fraction", collided_fraction)
     if not 0.0 <= collided_fraction <= 1.0:
@@ -169,7 +175,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     stream = executor.ordered(sample_round, lambda r: (int(seed), r, int(batch), round_threads, equalities),
                               max_rounds, rounds_needed, robot=robot)
     rounds: Iterator[tuple[np.ndarray, ...]] = (value for _, value in stream)
-    bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=not progress)
+    bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=None if progress else True)
     try:
         while have[True] < want[True] or have[False] < want[False]:
             if drawn >= max_samples:

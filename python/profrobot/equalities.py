@@ -199,6 +199,20 @@ class JointCouplings:
                 poses[:, j1] = y0 + a[0] + d * (a[1] + d * (a[2] + d * (a[3] + d * a[4])))
         return poses
 
+    @property
+    def linear(self) -> bool:
+        """Whether every coupling is affine (a straight motion between coupled poses stays on it)."""
+        return all(not np.any(a[2:]) for _, _, a, _, _, _ in self.rows)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The couplings for the Rust core (``rust/couplings.rs``): ``eq_dep`` (E,) uint32,
+        ``eq_indep`` (E,) int32 (-1: locked), ``eq_coef`` (E, 5), ``eq_origin`` (E, 2) float64."""
+        rows = self.rows
+        return dict(eq_dep=np.array([r[0] for r in rows], dtype=np.uint32),
+                    eq_indep=np.array([r[1] for r in rows], dtype=np.int32),
+                    eq_coef=np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 5),
+                    eq_origin=np.array([(r[3], r[4]) for r in rows], dtype=np.float64).reshape(-1, 2))
+
     def residual(self, poses: np.ndarray) -> np.ndarray:
         """(B,) max |violation| over the joint equalities, in radians / metres."""
         out = np.zeros(len(poses))

@@ -7,7 +7,8 @@
     │   ├── ModelError                  a model the Rust core cannot label exactly (also a geom pair
     │   │                               its narrow phase cannot decide: never read as "free")
     │   ├── RobotMismatchError          a file or object made for another robot
-    │   └── CorruptFileError            a file that cannot be read back as what it claims to be
+    │   ├── CorruptFileError            a file that cannot be read back as what it claims to be
+    │   └── MissingFileError            a file or directory that does not exist (also FileNotFoundError)
     ├── InputTypeError (TypeError)      an argument of the wrong type or dtype (from the Rust core)
     ├── ClusterError (RuntimeError)     a Ray cluster that cannot be reached or lost work
     ├── RendererUnavailableError        no OpenGL backend can draw (RuntimeError)
@@ -24,7 +25,7 @@ from __future__ import annotations
 from ._core import InputError, InputTypeError, ModelError, ProfrobotError
 
 __all__ = ["ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError",
-           "CorruptFileError", "ClusterError", "RendererUnavailableError", "BackendUnavailableError"]
+           "CorruptFileError", "MissingFileError", "ClusterError", "RendererUnavailableError", "BackendUnavailableError"]
 
 
 class RobotMismatchError(InputError):
@@ -34,6 +35,11 @@ class RobotMismatchError(InputError):
 class CorruptFileError(InputError):
     """A file is missing parts, truncated, or not in the format it should be (or written by a
     newer profrobot: the message names both versions)."""
+
+
+class MissingFileError(InputError, FileNotFoundError):
+    """A file or directory profrobot was asked to read does not exist (a dataset, a field's
+    checkpoint directory, a model, a robot file). Also a ``FileNotFoundError``."""
 
 
 class ClusterError(ProfrobotError, RuntimeError):

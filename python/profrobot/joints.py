@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from .angles import wrap
-from .errors import InputError
+from .errors import InputError, InputTypeError
 
 __all__ = ["Limits"]
 
@@ -61,6 +61,9 @@ class Limits:
         self.upper = torch.as_tensor(self.lim_np[:, 1], dtype=dtype, device=device)
         self.continuous = torch.as_tensor(self.cont_np, device=device)
         self.span = (self.upper - self.lower).clamp_min(1e-9)
+        #: the robot's joint equalities (:class:`profrobot.equalities.JointCouplings`) when known:
+        #: :meth:`numpy` puts returned poses on them
+        self.couplings = None
 
     @classmethod
     def of(cls, obj, like: torch.Tensor | None = None) -> "Limits":
@@ -75,11 +78,15 @@ class Limits:
         if lim is None:
             lim = getattr(src, "limits", None)
         if cont is None or lim is None:
-            raise TypeError(f"cannot tell the joint limits of a {type(obj).__name__}: it needs joint_limits and "
+            raise InputTypeError(f"cannot tell the joint limits of a {type(obj).__name__}: it needs joint_limits and "
                             "continuous (or a robot that has them)")
         lim = lim.detach().cpu().numpy() if isinstance(lim, torch.Tensor) else np.asarray(lim)
         cont = cont.detach().cpu().numpy() if isinstance(cont, torch.Tensor) else np.asarray(cont)
-        return cls(lim[:, 0], lim[:, 1], cont, like)
+        out = cls(lim[:, 0], lim[:, 1], cont, like)
+        couplings = getattr(src, "couplings", None)
+        if couplings is not None and hasattr(couplings, "apply") and couplings:
+            out.couplings = couplings
+        return out
 
     def __len__(self) -> int:
         return len(self.cont_np)
@@ -133,10 +140,16 @@ class Limits:
 
     # ---- numpy (float64) -----------------------------------------------------------------------
     def numpy(self, theta: np.ndarray) -> np.ndarray:
-        """float64 copy of θ (..., K) inside the limits. A float32 optimiser can round a clamped
-        joint just past a float64 limit; this makes returned poses exactly in range."""
+        """float64 copy of θ (..., K) inside the limits, and on the robot's joint equalities where
+        they are known (every answer is a pose the robot can take: the optimisers move each joint
+        freely, the mechanism does not). A float32 optimiser can round a clamped joint just past a
+        float64 limit; this makes returned poses exactly in range. (A dependent joint that its
+        coupling puts outside its own limits stays there: certification then refuses the pose.)"""
         q = np.asarray(theta, dtype=np.float64)
-        return np.where(self.cont_np, wrap(q), np.clip(q, self.lim_np[:, 0], self.lim_np[:, 1]))
+        q = np.where(self.cont_np, wrap(q), np.clip(q, self.lim_np[:, 0], self.lim_np[:, 1]))
+        if self.couplings is not None and q.size:
+            self.couplings.apply(q.reshape(-1, q.shape[-1]))
+        return q
 
     def diff(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """a − b with continuous joints taken the short way round, (..., K)."""

@@ -13,8 +13,8 @@ import numpy as np
 from .angles import wrap
 from .equalities import EQUALITY_MODES, EqualityMode, settle
 from .robot import Robot
-from .errors import InputError
-from .validate import as_poses, count, seed as check_seed, threads as check_threads
+from .errors import InputError, InputTypeError
+from .validate import as_poses, count, memory, seed as check_seed, threads as check_threads, with_scene
 
 
 @dataclass
@@ -49,27 +49,31 @@ class Labels:
                 f"{self.n_pairs[self.collides].mean() if self.collides.any() else 0:.2f} pairs per colliding pose")
 
 
-def label_poses(robot: Robot, poses, *, pairs: bool = False, distance: bool = False,
-                check_limits: bool = False, threads: int | None = None) -> Labels:
+def label_poses(robot: Robot, poses, *, pairs: bool = False, distance: bool = False, scene=None,
+                check_limits: bool = True, threads: int | None = None) -> Labels:
     """Exact collision labels of ``poses`` (B, K) (radians / metres, MuJoCo joint order).
 
     Runs the Rust labeller in parallel (all cores unless ``threads``) with the GIL released;
     labels agree with MuJoCo's ``mj_collision`` (meshes as convex hulls, MuJoCo's pair filters).
     ``pairs`` adds the colliding pairs, ``distance`` the minimum signed distance per pose.
+    A family's robot poses θ take their layout as ``scene=δ``. A limited joint outside its
+    limits (a pose in degrees, say) is an :class:`InputError` naming the entry, unless
+    ``check_limits=False``.
     """
-    q = as_poses(robot, poses, check_limits=check_limits)
+    q = as_poses(robot, with_scene(robot, poses, scene), check_limits=check_limits)
     out = robot.core.label(q, pairs=pairs, distance=distance, threads=check_threads(threads))
     return Labels(**out)
 
 
-def collides(robot: Robot, poses, *, check_limits: bool = False, threads: int | None = None) -> np.ndarray:
+def collides(robot: Robot, poses, *, scene=None, check_limits: bool = True, threads: int | None = None) -> np.ndarray:
     """Whether each of ``poses`` (B, K) (radians / metres, MuJoCo joint order) collides: (B,) bool.
 
     Exactly ``label_poses(robot, poses).collides``, faster: the Rust fast path stops at the first
     pair in contact, trying the pairs likeliest to be in contact first. Same validation,
-    threads and GIL release as :func:`label_poses`; the same answer for any thread count.
+    ``scene=``, threads and GIL release as :func:`label_poses`; the same answer for any thread
+    count.
     """
-    q = as_poses(robot, poses, check_limits=check_limits)
+    q = as_poses(robot, with_scene(robot, poses, scene), check_limits=check_limits)
     return robot.core.collides(q, threads=check_threads(threads))
 
 
@@ -78,7 +82,9 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
     """``n`` poses (n, K) drawn uniformly within the joint limits (continuous hinges: [-pi, pi]).
 
     ``equalities`` (see :mod:`profrobot.equalities`): ``"auto"`` computes every joint that a
-    MuJoCo joint equality makes dependent from its independent joint (exact); ``"settle"``
+    MuJoCo joint equality makes dependent from its independent joint (exact; a pose whose
+    dependent joint lands outside its limits is redrawn: every pose is one the robot can take,
+    :meth:`Robot.feasible`); ``"settle"``
     also projects each pose onto every active equality (connect/weld loops, tendons) with
     MuJoCo's constraint rows, replacing poses that do not settle within limits by further
     seeded draws; ``"ignore"`` samples every joint independently.
@@ -86,8 +92,9 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
     The same ``seed`` gives the same poses whatever the thread count.
     """
     if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     n = count("n", n)
+    memory("n", n, robot.njoint)
     seed = check_seed(seed)
     if equalities not in EQUALITY_MODES:
         raise InputError(f"equalities must be one of {EQUALITY_MODES}; got {equalities!r}")
@@ -96,9 +103,34 @@ def sample_poses(robot: Robot, n: int, seed: int = 0, *, threads: int | None = N
     if equalities == "ignore":
         return poses
     robot.couplings.apply(poses)
+    poses = _coupled_within_limits(robot, poses, int(seed), threads)
     if equalities == "auto" or all(e.enforced_by_default for e in robot.equalities if e.active):
         return poses
     return _settled(robot, poses, int(n), int(seed), threads)
+
+
+def _coupled_within_limits(robot: Robot, poses: np.ndarray, seed: int, threads: int | None) -> np.ndarray:
+    """``poses`` (on their couplings) with every row whose coupling puts a dependent joint outside
+    its limits replaced, in order, by further draws from seeds derived from ``seed``: uniform
+    over the poses the mechanism can take. Deterministic for any thread count."""
+    if not robot.couplings:
+        return poses
+    bad = np.flatnonzero(~robot.feasible(poses))
+    r = 0
+    while len(bad):
+        r += 1
+        if r > 64:
+            raise InputError(f"{robot.name}: its joint couplings put a dependent joint outside its limits in nearly "
+                             f"every pose ({len(bad)} of {len(poses)} still after {r - 1} redraws); check the "
+                             f"equalities' polycoef against the joints' ranges")
+        extra = robot.core.sample(max(4 * len(bad), 64),
+                                  int(np.random.SeedSequence([seed, 0xC0, r]).generate_state(1, np.uint64)[0]),
+                                  threads=threads)
+        robot.couplings.apply(extra)
+        extra = extra[robot.feasible(extra)][: len(bad)]
+        poses[bad[: len(extra)]] = extra
+        bad = bad[len(extra):]
+    return poses
 
 
 def _settled(robot: Robot, poses: np.ndarray, n: int, seed: int, threads: int | None) -> np.ndarray:
@@ -126,16 +158,21 @@ def _settled(robot: Robot, poses: np.ndarray, n: int, seed: int, threads: int | 
 def interpolate(robot: Robot, start, goal, steps: int) -> np.ndarray:
     """Poses along SO(2)^K from ``start`` to ``goal``: (steps, K) for single poses, or
     (B, steps, K) for (B, K) batches. Continuous joints take the shortest arc; limited joints go
-    straight (ends must be within limits). Both end points are included."""
+    straight (ends must be within limits); the dependent joints of joint equalities follow their
+    independent ones (the motion the robot makes, and the one :func:`certify_motions` proves).
+    Both end points are included."""
     single = np.ndim(start) == 1
     s = as_poses(robot, start, name="start", check_limits=True)
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != g.shape:
         raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
     steps = count("steps", steps, 2, why="both end points included")
+    memory("steps", len(s), steps, robot.njoint)
     from . import _core
 
     path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))
+    if robot.couplings:   # the robot moves its independent joints; the dependent ones follow
+        robot.couplings.apply(path.reshape(-1, robot.njoint))
     return path[0] if single else path
 
 

@@ -58,9 +58,15 @@ def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk
         cand = q + d
         cand[:, cont] = wrap(cand[:, cont])
         cand[:, ~cont] = np.clip(cand[:, ~cont], lim[~cont, 0], lim[~cont, 1])
-        seg = interpolate(robot, q, cand, d_count)                               # (m, D, K)
-        ok = ~label_poses(robot, seg.reshape(-1, k)).collides.reshape(m, -1).any(axis=1)
-        q[ok] = cand[ok]
+        robot.couplings.apply(cand)       # the dependent joints follow (the mechanism's own move)
+        idx = np.flatnonzero(robot.feasible(cand))   # a dependent joint pushed past its limits: no move
+        if len(idx) == 0:
+            continue
+        seg = interpolate(robot, q[idx], cand[idx], d_count).reshape(-1, k)      # (m' D, K)
+        ok = robot.feasible(seg)
+        ok[ok] = ~label_poses(robot, seg[ok]).collides
+        take = idx[ok.reshape(len(idx), -1).all(axis=1)]
+        q[take] = cand[take]
     return q
 
 

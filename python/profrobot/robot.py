@@ -26,7 +26,7 @@ import numpy as np
 from . import _core, urdf
 from .family import MarkedSceneJoints, Moves, PinnedLayout, add_moving_geom, model_scene_joints
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
-from .errors import CorruptFileError, InputError, RobotMismatchError
+from .errors import CorruptFileError, InputError, InputTypeError, MissingFileError, RobotMismatchError
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                                   mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE))
@@ -55,20 +55,33 @@ class Obstacle(abc.ABC):
     def _geom_args(self, spec: mujoco.MjSpec) -> dict:
         """The geom's MuJoCo type and size (and any asset it needs, added to ``spec``)."""
 
+    @property
+    def label(self) -> str:
+        """How messages name it: ``Box 'shelf'``, or ``Box at (0.4, 0, 0.2)`` when unnamed."""
+        if self.name:
+            return f"{type(self).__name__} {self.name!r}"
+        try:
+            where = ", ".join(f"{float(v):.3g}" for v in self.pos)
+        except (TypeError, ValueError):
+            where = repr(self.pos)
+        return f"{type(self).__name__} at ({where})"
+
     def add_to(self, spec: mujoco.MjSpec) -> None:
-        pos = np.asarray(self.pos, dtype=float)
-        quat = np.asarray(self.quat, dtype=float)
+        try:
+            pos = np.asarray(self.pos, dtype=float)
+            quat = np.asarray(self.quat, dtype=float)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"{self.label}: pos must be 3 finite numbers and quat 4 ({e})") from e
         if pos.shape != (3,) or quat.shape != (4,) or not (np.isfinite(pos).all() and np.isfinite(quat).all()):
-            raise InputError(f"{type(self).__name__} {self.name!r}: pos must be 3 finite numbers and quat 4")
+            raise InputError(f"{self.label}: pos must be 3 finite numbers and quat 4")
         if not np.linalg.norm(quat) > 0:
-            raise InputError(f"{type(self).__name__} {self.name!r}: quat is zero")
+            raise InputError(f"{self.label}: quat is zero")
         if self.moves is not None:
             if not isinstance(self.moves, Moves):
-                raise TypeError(f"{type(self).__name__} {self.name!r}: moves must be a profrobot.Moves; "
-                                f"got {type(self.moves).__name__}")
+                raise InputTypeError(f"{self.label}: moves must be a profrobot.Moves; got {type(self.moves).__name__}")
             if isinstance(self, Plane):
-                raise InputError(f"Plane {self.name!r}: an infinite plane cannot move; use a thin Box")
-            add_moving_geom(spec, f"{type(self).__name__} {self.name!r}", self.name, self.moves, pos,
+                raise InputError(f"{self.label}: an infinite plane cannot move; use a thin Box")
+            add_moving_geom(spec, self.label, self.name, self.moves, pos,
                             dict(quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
                                  **self._geom_args(spec)))
             return
@@ -82,7 +95,10 @@ class Obstacle(abc.ABC):
 def _positive(owner: str, **values: float) -> list[float]:
     out = []
     for key, v in values.items():
-        v = float(v)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"{owner}: {key} must be a positive length in metres; got {v!r}") from None
         if not (np.isfinite(v) and v > 0):
             raise InputError(f"{owner}: {key} must be a positive length in metres; got {v}")
         out.append(v)
@@ -96,7 +112,10 @@ class Box(Obstacle):
     half_size: Sequence[float] = (0.1, 0.1, 0.1)
 
     def _geom_args(self, spec):
-        hx, hy, hz = _positive(f"Box {self.name!r}", x=self.half_size[0], y=self.half_size[1], z=self.half_size[2])
+        h = np.asarray(self.half_size, dtype=object).reshape(-1)
+        if len(h) != 3:
+            raise InputError(f"{self.label}: half_size must be 3 lengths (x, y, z) in metres; got {self.half_size!r}")
+        hx, hy, hz = _positive(f"{self.label}", **{"half_size x": h[0], "half_size y": h[1], "half_size z": h[2]})
         return dict(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz])
 
 
@@ -105,7 +124,7 @@ class Sphere(Obstacle):
     radius: float = 0.1
 
     def _geom_args(self, spec):
-        (r,) = _positive(f"Sphere {self.name!r}", radius=self.radius)
+        (r,) = _positive(self.label, radius=self.radius)
         return dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0])
 
 
@@ -117,7 +136,7 @@ class Capsule(Obstacle):
     half_length: float = 0.1
 
     def _geom_args(self, spec):
-        r, h = _positive(f"Capsule {self.name!r}", radius=self.radius, half_length=self.half_length)
+        r, h = _positive(self.label, radius=self.radius, half_length=self.half_length)
         return dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[r, h, 0])
 
 
@@ -129,7 +148,7 @@ class Cylinder(Obstacle):
     half_length: float = 0.1
 
     def _geom_args(self, spec):
-        r, h = _positive(f"Cylinder {self.name!r}", radius=self.radius, half_length=self.half_length)
+        r, h = _positive(self.label, radius=self.radius, half_length=self.half_length)
         return dict(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[r, h, 0])
 
 
@@ -150,7 +169,7 @@ class Mesh(Obstacle):
     def _geom_args(self, spec):
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4 or not np.isfinite(v).all():
-            raise InputError(f"Mesh {self.name!r}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
+            raise InputError(f"{self.label}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
         mesh_name = f"{self.name or 'obstacle'}_mesh_{len(spec.meshes)}"
         spec.add_mesh(name=mesh_name, uservert=v.ravel())
         return dict(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name)
@@ -442,7 +461,7 @@ def _fingerprint(joint_names: list[str], arrays: dict[str, np.ndarray], scene_jo
     if scene_joints:
         h.update(("scene:" + "\0".join(scene_joints)).encode())
     for key in sorted(arrays):
-        if key == "jnt_scene":  # the scene joints are hashed by name above
+        if key == "jnt_scene" or key.startswith("eq_"):  # scene joints: by name above; couplings decide no label
             continue
         v = np.asarray(arrays[key])
         h.update(key.encode())
@@ -491,7 +510,7 @@ class Robot:
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
-            raise TypeError(f"Robot needs a mujoco.MjModel; got {type(model).__name__}")
+            raise InputTypeError(f"Robot needs a mujoco.MjModel; got {type(model).__name__}")
         self._mj_model: mujoco.MjModel | None = model
         self.name = name
         self._spec = spec
@@ -524,6 +543,7 @@ class Robot:
                           "sample_poses(..., equalities='settle') projects poses onto them "
                           "(robot.equalities lists every equality).", EqualityWarning, stacklevel=3)
         self._arrays = _core_arrays(m)
+        self._arrays.update(self.couplings.arrays())  # the core keeps planned and searched poses on them
         self.scene_joints = self._read_scene_joints(m)
         if self.scene_joints:  # the labeller counts robot–obstacle contacts as scene contacts
             self._arrays["jnt_scene"] = np.array([n in self.scene_joints for n in self.joint_names])
@@ -613,7 +633,7 @@ class Robot:
         ``<robot>`` root) goes to :meth:`from_urdf` with its defaults."""
         path = os.fspath(path)
         if not os.path.isfile(path):
-            raise FileNotFoundError(f"no MJCF file at {path!r}")
+            raise MissingFileError(f"no MJCF file at {path!r}")
         if path.lower().endswith(".urdf") or _root_tag(path) == "robot":
             return cls.from_urdf(path)
         try:
@@ -781,12 +801,32 @@ class Robot:
         """A new Robot: this scene plus ``obstacles`` (Box, Sphere, Capsule, Cylinder, Plane, Mesh),
         fixed to the world, or movable within ranges (``moves=Moves(...)``: the result is a family
         of scenes, see :mod:`profrobot.family`). The original is left unchanged."""
-        spec = self._editable("obstacles")
-        obstacles = tuple(obstacles)
-        for ob in obstacles:
+        if isinstance(obstacles, Obstacle):
+            raise InputTypeError(f"obstacles must be a list of obstacles; got one {type(obstacles).__name__}: "
+                                 f"pass [{type(obstacles).__name__}(...)]")
+        try:
+            obstacles = tuple(obstacles)
+        except TypeError:
+            raise InputTypeError(f"obstacles must be a list of profrobot obstacles (Box, Sphere, ...); got "
+                                 f"{type(obstacles).__name__}") from None
+        for i, ob in enumerate(obstacles):
             if not isinstance(ob, Obstacle):
-                raise TypeError(f"obstacles must be profrobot Obstacle objects; got {type(ob).__name__}")
-            ob.add_to(spec)
+                raise InputTypeError(f"obstacles[{i}] must be a profrobot Obstacle (Box, Sphere, Capsule, Cylinder, "
+                                     f"Plane, Mesh); got {type(ob).__name__}")
+        spec = self._editable("obstacles")
+        taken = {g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name}
+        for i, ob in enumerate(obstacles):
+            if ob.name and ob.name in taken:
+                raise InputError(f"obstacles[{i}]: the name {ob.name!r} is taken (by another obstacle or by a geom or "
+                                 f"body of {self.name}); names must be unique")
+            if ob.name:
+                taken.add(ob.name)
+            try:
+                ob.add_to(spec)
+            except ValueError as e:
+                if isinstance(e, InputError):
+                    raise
+                raise InputError(f"obstacles[{i}] ({ob.label}): MuJoCo refused it: {e}") from e
         return self._derived(spec, obstacles, name or self.name)
 
     def _derived(self, spec: mujoco.MjSpec, edits: tuple, name: str) -> "Robot":
@@ -815,7 +855,7 @@ class Robot:
         scene joints δ, the ones that move obstacles; the rest stay the robot's θ. Scene bodies get
         ``<exclude>``s against the world and each other (see :mod:`profrobot.family`)."""
         if isinstance(names, str) or not all(isinstance(n, str) for n in names):
-            raise TypeError("names must be a list of joint names")
+            raise InputTypeError("names must be a list of joint names")
         edit = MarkedSceneJoints(tuple(names))
         spec = self._editable("with_scene_joints")
         edit.add_to(spec)
@@ -946,6 +986,29 @@ class Robot:
     def joint_limits(self) -> np.ndarray:
         """(K, 2) joint ranges in radians / metres; continuous hinges report [-pi, pi]."""
         return self.core.sampling_ranges()
+
+    def project(self, poses) -> np.ndarray:
+        """A copy of ``poses`` ((B, K) or (K,), radians / metres) with every dependent joint of a
+        joint equality (the Panda's second finger, a URDF mimic joint, a polynomial coupling)
+        recomputed from its independent joint: the pose the mechanism is in."""
+        q = np.array(poses, dtype=np.float64, copy=True)
+        one = q.ndim == 1
+        q2 = np.atleast_2d(q)
+        if q2.ndim != 2 or q2.shape[1] != self.njoint:
+            raise InputError(f"poses must have shape (B, {self.njoint}) for {self.name}; got {np.shape(poses)}")
+        self.couplings.apply(q2)
+        return q2[0] if one else q2
+
+    def feasible(self, poses, atol: float = 1e-9) -> np.ndarray:
+        """(B,) bool: whether each pose ((B, K) or (K,)) is one the robot can take: every limited
+        joint within its limits and every joint equality met, both to ``atol`` (rad / m). The
+        core's certification refuses any other pose."""
+        q = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+        if q.ndim != 2 or q.shape[1] != self.njoint:
+            raise InputError(f"poses must have shape (B, {self.njoint}) for {self.name}; got {np.shape(poses)}")
+        lim, limited = self.joint_limits, ~self.continuous
+        inside = ~(((q < lim[:, 0] - atol) | (q > lim[:, 1] + atol)) & limited).any(axis=1)
+        return inside & (self.couplings.residual(q) <= atol)
 
     @property
     def mj_model(self) -> mujoco.MjModel:

@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, MissingFileError
 
 ALWAYS = 0.99          # a pair colliding in at least this share of sampled poses collides "always"
 SAMPLE = 2000          # poses sampled to find such pairs
@@ -168,7 +168,7 @@ def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
     :class:`InputError` naming the file and what to pass for what it cannot take."""
     path = os.path.abspath(os.fspath(path))
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"no URDF file at {path!r}")
+        raise MissingFileError(f"no URDF file at {path!r}")
     if package_dirs is not None and not isinstance(package_dirs, (dict, str, os.PathLike, list, tuple)):
         raise InputError(f"package_dirs must be a dict {{package: folder}} or a list of folders; got {type(package_dirs).__name__}")
     try:
@@ -274,7 +274,7 @@ def read_srdf(path) -> list[DisabledPair]:
     ``disable_default_collisions`` and ``enable_collisions``, are not read: warned)."""
     path = os.path.abspath(os.fspath(path))
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"no SRDF file at {path!r}")
+        raise MissingFileError(f"no SRDF file at {path!r}")
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as e:

@@ -1,7 +1,7 @@
 """Argument checks shared by every public entry point, written once (base layer, no torch).
 
 Each returns the value in its canonical Python type or raises an :class:`~profrobot.errors.InputError`
-(a ValueError) or ``TypeError`` that names the argument and what it got, e.g.
+(a ValueError) or :class:`~profrobot.errors.InputTypeError` (a TypeError) that names the argument and what it got, e.g.
 ``poses[1, 2] (joint3) is inf; poses must be finite``.
 """
 
@@ -12,10 +12,11 @@ from numbers import Integral, Real
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, InputTypeError
 from .robot import Robot
 
-__all__ = ["as_poses", "poses_within_limits", "positive", "finite", "count", "seed", "threads"]
+__all__ = ["as_poses", "poses_within_limits", "positive", "finite", "count", "seed", "threads", "memory",
+           "available_bytes", "with_scene"]
 
 
 def _is_number(value) -> bool:
@@ -48,6 +49,37 @@ def count(name: str, value, low: int = 1, why: str = "") -> int:
     return int(value)
 
 
+def available_bytes() -> int:
+    """Bytes of memory available to allocate (``MemAvailable`` of /proc/meminfo; elsewhere, the
+    physical memory, or no limit where neither can be read)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 2**63
+
+
+def memory(name: str, *dims: int, itemsize: int = 8) -> None:
+    """Refuse, with an :class:`InputError` naming ``name``, an array of shape ``dims`` and
+    ``itemsize``-byte items that would not fit in the memory available (an allocation that
+    fails in Rust aborts the process; in numpy it is a bare MemoryError)."""
+    need = itemsize
+    for d in dims:
+        need *= int(d)
+    have = available_bytes()
+    if need > have:
+        raise InputError(f"{name} is too large: an array of shape {tuple(int(d) for d in dims)} needs "
+                         f"{need / 1e9:.3g} GB, and {have / 1e9:.3g} GB of memory is available")
+
+
 def seed(value, name: str = "seed") -> int:
     """A seed for the Rust samplers: an integer in [0, 2**64)."""
     if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value < 2**64:
@@ -73,12 +105,17 @@ def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool =
     their limits by more than ``atol``.
     """
     if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor
         poses = poses.detach().cpu().numpy()
-    arr = np.asarray(poses)
+    try:
+        arr = np.asarray(poses)
+    except (ValueError, TypeError) as e:  # ragged nested lists
+        raise InputError(f"{name} must be a (B, {robot.njoint}) array of numbers; got {type(poses).__name__} ({e})") from e
+    if arr.dtype.kind in "iu":   # whole numbers (a list of ints, an int array) are radians / metres too
+        arr = arr.astype(np.float64)
     if arr.dtype.kind not in "f":
-        raise TypeError(f"{name} must be a floating-point array (radians / metres); got dtype {arr.dtype}")
+        raise InputTypeError(f"{name} must be a floating-point array of numbers (radians / metres); got dtype {arr.dtype}")
     k = robot.njoint
     if arr.ndim == 1:
         arr = arr[None, :]
@@ -100,6 +137,32 @@ def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool =
             raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
                              f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
     return arr
+
+
+def with_scene(robot: "Robot", poses, scene, name: str = "poses"):
+    """The labeller's full pose vectors: ``poses`` as given, or, with ``scene=δ`` (a family's
+    layout, (D,), a dict, or one per pose (B, D)), robot poses θ (B, K − D) composed with it
+    (:meth:`Robot.compose`). A family's θ without ``scene`` is refused naming both ways."""
+    if not isinstance(robot, Robot):
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    if scene is not None:
+        if not robot.is_family:
+            raise InputError(f"scene= is a layout of a family of scenes; {robot.name} has no scene joints")
+        if hasattr(poses, "detach") and hasattr(poses, "cpu"):
+            poses = poses.detach().cpu().numpy()
+        theta = np.asarray(poses)
+        if theta.dtype.kind in "iu":
+            theta = theta.astype(np.float64)
+        if theta.dtype.kind != "f":
+            raise InputTypeError(f"{name} must be a floating-point array of numbers (radians / metres); got dtype {theta.dtype}")
+        return robot.compose(theta, scene)
+    if robot.is_family:
+        d, k = len(robot.scene_index), robot.njoint
+        if np.shape(poses)[-1:] == (k - d,):
+            raise InputError(f"{name} has {k - d} columns, the robot joints of the family {robot.name}: pass its "
+                             f"layout too, scene=δ ({d} scene joints: {', '.join(robot.scene_joints)}), or full "
+                             f"poses robot.compose(θ, δ) of shape (B, {k})")
+    return poses
 
 
 def poses_within_limits(robot: "Robot", poses, name: str = "poses") -> np.ndarray:

@@ -16,7 +16,7 @@ executor ran it and however many workers it had.
 
 from __future__ import annotations
 
-from ..errors import ClusterError
+from ..errors import ClusterError, InputTypeError
 from .base import ChunkFn, Executor, chunk_bounds, chunk_sizes, on_release, release_caches
 from .local import LocalExecutor, close_workers
 from .ray_cluster import RayExecutor, RunStats
@@ -32,5 +32,5 @@ def check_executor(executor, *, processes: int = 1) -> Executor:
         return LocalExecutor(processes)
     if isinstance(executor, (LocalExecutor, RayExecutor)) or isinstance(executor, Executor):
         return executor
-    raise TypeError("executor must be None (local), a profrobot.executors.LocalExecutor or RayExecutor, or follow "
+    raise InputTypeError("executor must be None (local), a profrobot.executors.LocalExecutor or RayExecutor, or follow "
                     f"the profrobot.executors.Executor protocol; got {type(executor).__name__}")

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 
+from ..errors import InputTypeError
 from ..robot import Robot
 from ..validate import count
 
@@ -95,7 +96,7 @@ def progress_bar(total: int, desc: str, unit: str, progress: bool):
     """The tqdm bar every executor shows for a map."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, disable=not progress)
+    return tqdm(total=total, desc=desc, unit=unit, disable=None if progress else True)
 
 
 _PAYLOADS: "weakref.WeakKeyDictionary[Any, tuple[str, bytes]]" = weakref.WeakKeyDictionary()
@@ -105,7 +106,7 @@ def robot_payload(robot) -> tuple[str, bytes]:
     """``(key, bytes)``: ``robot`` pickled once (remembered per robot object, for every executor)
     and the sha256 of those bytes, which names the workers that hold it."""
     if not isinstance(robot, Robot):
-        raise TypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     hit = _PAYLOADS.get(robot)
     if hit is None:
         data = pickle.dumps(robot, protocol=pickle.HIGHEST_PROTOCOL)

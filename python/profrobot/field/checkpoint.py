@@ -14,7 +14,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
-from ..errors import CorruptFileError, InputError
+from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from ..robot import Robot
 
 if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
@@ -44,10 +44,13 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
 
     Raises :class:`~profrobot.errors.RobotMismatchError` if the checkpoint is for another robot
     (its fingerprint differs), :class:`~profrobot.errors.CorruptFileError` if its files are
-    missing or corrupt (both are ``ValueError``).
+    missing or corrupt (both are ``ValueError``), :class:`~profrobot.errors.MissingFileError` if
+    the directory does not exist.
     """
     path = Path(path)
     cfg_path, w_path = path / "config.json", path / "model.safetensors"
+    if not path.exists():   # missing, as a missing dataset or model file is
+        raise MissingFileError(f"no PoseSDF checkpoint directory at {str(path)!r}")
     if not cfg_path.is_file() or not w_path.is_file():
         raise CorruptFileError(f"{path} is not a PoseSDF checkpoint (needs config.json and model.safetensors)")
     try:
@@ -60,7 +63,7 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
     if not isinstance(config.get("model"), dict):
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
     if not isinstance(robot, Robot):
-        raise TypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
+        raise InputTypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
     check_robot(config, robot, f"checkpoint {path}")
     family = config.get("family")
     if (family or {}).get("scene_joints", []) != list(getattr(robot, "scene_joints", ())):

@@ -11,7 +11,7 @@ from functools import lru_cache
 
 import torch
 
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..files import check_robot
 from ..robot import Robot
 
@@ -40,7 +40,7 @@ class _Shared:
 def check_field(sdf) -> None:
     """``sdf`` must be a torch module with the PoseSDF interface (njoint, joint_limits, fingerprint)."""
     if not isinstance(sdf, torch.nn.Module) or not all(hasattr(sdf, a) for a in ("njoint", "joint_limits", "fingerprint")):
-        raise TypeError(f"expected a profrobot.PoseSDF (or a module with its interface); got {type(sdf).__name__}")
+        raise InputTypeError(f"expected a profrobot.PoseSDF (or a module with its interface); got {type(sdf).__name__}")
 
 
 @lru_cache(maxsize=8)
@@ -66,6 +66,6 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
                              "results can be certified by the exact labeller")
         robot = _bundled(name)
     if not isinstance(robot, Robot):
-        raise TypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
+        raise InputTypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
     check_robot(sdf.fingerprint, robot, "the field", made_for=getattr(sdf, "robot_name", None))
     return robot

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import InputError, RobotMismatchError
+from ..errors import InputError, InputTypeError, RobotMismatchError
 from ..robot import Robot
 from .identity import _Shared
 
@@ -56,7 +56,7 @@ class LayoutField(nn.Module):
     def forward(self, theta: torch.Tensor) -> torch.Tensor:
         """g (B,) at robot poses θ (B, K − D) and this layout."""
         if not isinstance(theta, torch.Tensor):
-            raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+            raise InputTypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
             raise InputError(f"theta must have shape (B, {self.njoint}) (the robot joints of {self.robot_name!r} at "
                              f"this layout); got {tuple(theta.shape)}")

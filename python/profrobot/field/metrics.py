@@ -34,7 +34,7 @@ def _values_and_gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 204
 def _classifier_norms(sdf: PoseSDF, g: np.ndarray, norms: np.ndarray) -> np.ndarray:
     """The classifier's ‖∂σ(s·g)/∂θ‖₂ = s·σ(s·g)·(1 − σ(s·g))·‖∂g/∂θ‖₂ (N,) from g and ‖∂g/∂θ‖₂: it
     vanishes wherever the classifier is confident, whatever the size of ∇g."""
-    s = float(sdf.scale)
+    s = float(sdf.scale.detach())
     f = 1.0 / (1.0 + np.exp(-s * g.astype(np.float64)))
     return (s * f * (1 - f) * norms).astype(np.float32)
 

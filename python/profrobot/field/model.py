@@ -14,7 +14,7 @@ from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
 from .identity import _Shared
 from .layout import LayoutField
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 
 Encoder = Literal["kinematic", "hierarchical", "flat"]
 Objective = Literal["sdf", "ndf"]
@@ -115,12 +115,18 @@ class PoseSDF(nn.Module):
 
     def check_poses(self, theta: torch.Tensor) -> None:
         if not isinstance(theta, torch.Tensor):
-            raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+            hint = " (torch.as_tensor(poses, dtype=torch.float32))" if hasattr(theta, "__array__") else ""
+            raise InputTypeError(f"theta must be a torch.Tensor{hint}; got {type(theta).__name__}")
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
             raise InputError(f"theta must have shape (B, {self.njoint}) for robot {self.robot_name!r}; "
                              f"got {tuple(theta.shape)}")
         if not theta.is_floating_point():
-            raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
+            raise InputTypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
+        bad = ~torch.isfinite(theta.detach())
+        if bad.any():   # NaN in, NaN out would pass silently through every optimiser
+            i, j = (int(v) for v in bad.nonzero()[0])
+            raise InputError(f"theta[{i}, {j}] ({self.joint_names[j] if j < len(self.joint_names) else j}) is "
+                             f"{float(theta[i, j])}; poses must be finite")
 
     def head_g(self, features: torch.Tensor) -> torch.Tensor:
         """g (B,) from encoder features (B, F)."""

@@ -31,7 +31,7 @@ from ..dataset import Dataset, make_dataset
 from ..robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 
 Schedule = Literal["cosine", "paper", "constant"]
 Preset = Literal["cpu", "paper"]
@@ -68,6 +68,9 @@ PRESETS: dict[str, dict] = {
 }
 
 
+#: the fewest held-out poses train_sdf reports metrics from
+MIN_HELD_OUT = 20
+
 def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r}; choose from {sorted(PRESETS)}")
@@ -75,7 +78,7 @@ def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     unknown = set(merged) - fields - set(MODEL_OPTIONS)
     if unknown:
-        raise TypeError(f"unknown train_sdf option(s): {', '.join(sorted(unknown))}")
+        raise InputTypeError(f"unknown train_sdf option(s): {', '.join(sorted(unknown))}")
     model_opts = {k: v for k, v in merged.items() if k in MODEL_OPTIONS}
     cfg = TrainConfig(**{k: v for k, v in merged.items() if k in fields})
     if cfg.schedule not in get_args(Schedule):
@@ -149,8 +152,13 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             robot = scenes.load(name)
         check_robot(data.metadata, robot, "the dataset", missing_ok=True)
     else:
-        raise TypeError(f"train_sdf needs a profrobot.Robot or Dataset; got {type(data).__name__}")
+        raise InputTypeError(f"train_sdf needs a profrobot.Robot or Dataset; got {type(data).__name__}")
     train, test = dataset.split(cfg.test_fraction, seed=cfg.seed)
+    # metrics from a handful of held-out poses would be noise reported as accuracy
+    if len(test) < MIN_HELD_OUT or test.collides.all() or not test.collides.any():
+        raise InputError(f"train_sdf: {len(dataset)} poses (n_poses) leave {len(test)} held out "
+                         f"(test_fraction {cfg.test_fraction}, {int(test.collides.sum())} colliding): at least "
+                         f"{MIN_HELD_OUT}, colliding and free both, are needed to report metrics; raise n_poses (or test_fraction)")
 
     torch.manual_seed(cfg.seed)
     sdf = PoseSDF(robot, **model_opts)
@@ -166,7 +174,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
         with torch.no_grad():
             chunks = range(0, len(theta_all), 2048)
             features = torch.cat([sdf.encoder(theta_all[i:i + 2048])
-                                  for i in tqdm(chunks, desc="features", disable=not progress, leave=False)])
+                                  for i in tqdm(chunks, desc="features", disable=None if progress else True, leave=False)])
 
     params = [p for p in sdf.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -180,7 +188,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     # a time budget with "unlimited" iterations: no iteration total (its ETA would read in years)
     total = None if cfg.time_budget and cfg.iterations >= 10**7 else cfg.iterations
     bar = tqdm(total=total, desc=f"train {robot.name}" + (f" ({cfg.time_budget / 60:g} min)" if cfg.time_budget else ""),
-               unit="it", disable=not progress)
+               unit="it", disable=None if progress else True)
     it = 0
     try:
         for it in range(cfg.iterations):

@@ -13,7 +13,9 @@ GL_OFF = ("disable", "disabled", "off", "false", "0")
 
 
 def plain_reason(gl: str, why: str) -> str:
-    """PyOpenGL's way of saying libOSMesa is missing, in words."""
+    """PyOpenGL's way of saying libOSMesa or libEGL is missing, in words."""
     if gl == "osmesa" and "glGetError" in why:
         return f"libOSMesa not found ({why})"
+    if gl == "egl" and "'NoneType' object has no attribute 'egl" in why:   # PyOpenGL without libEGL
+        return f"libEGL not found ({why})"
     return why

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import scenes
-from ..errors import CorruptFileError, InputError, RobotMismatchError
+from ..errors import InputError, RobotMismatchError
 from ..files import atomic_path, format_tag
+from ..loading import robot_of
 
 __all__ = ["cmd_pose", "read_folder", "read_image", "read_mask", "write_fit_picture", "IMAGE_SUFFIXES", "POSE_FORMAT"]
 
@@ -176,37 +176,6 @@ def read_folder(images: str | Path, n_cameras: int, *, masks: str | Path | None 
     return targets, [n for n, _ in groups], [[p.name for p in fs] for _, fs in groups]
 
 
-def _robot_file(path: str, package_dirs: list[str] | None):
-    """``--robot``: an MJCF (.xml) or URDF (.urdf, meshes by ``package://`` through
-    ``--package-dir``) file, e.g. the robot in its cell that the field was trained for."""
-    from ..robot import Robot
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"--robot {path}: no such file (an MJCF .xml or a URDF .urdf)")
-    if p.suffix.lower() == ".urdf":
-        return Robot.from_urdf(p, package_dirs=package_dirs)
-    if package_dirs:
-        raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
-    return Robot.from_mjcf(p)
-
-
-def _robot_of_field(field: Path, scene: str | None):
-    """The scene the field was trained for: ``--scene`` or the bundled scene its config names."""
-    if scene is None:
-        cfg = field / "config.json"
-        if not cfg.is_file():
-            raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")
-        try:
-            scene = json.loads(cfg.read_text()).get("robot")
-        except (ValueError, AttributeError, OSError) as e:
-            raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
-        if scene not in scenes.names() + scenes.family_names():
-            raise InputError(f"--field {field}: its robot {scene!r} is not a bundled scene; pass --robot FILE (the "
-                             f"MJCF or URDF it was trained for) or --scene NAME (one of {', '.join(scenes.names())})")
-    return scenes.load(scene)
-
-
 def _init(text: str | None, robot) -> np.ndarray:
     """``--init`` (K comma-separated radians / metres), else the middle of the joint limits."""
     lim = np.asarray(robot.joint_limits, dtype=np.float64)
@@ -276,9 +245,7 @@ def cmd_pose(args) -> int:
         raise InputError(f"--images {args.images}: the images are {W}x{H} pixels but {args.cameras} was calibrated at "
                          f"{cameras.width}x{cameras.height}, another aspect ratio (a rotated or cropped photo?): "
                          "images may be scaled, not cropped")
-    if args.robot is not None and args.scene is not None:
-        raise InputError("pass --robot FILE or --scene NAME, not both")
-    robot = _robot_file(args.robot, args.package_dir) if args.robot else _robot_of_field(field, args.scene)
+    robot = robot_of(args, field=field)   # --robot FILE, --scene NAME, or the bundled scene the field names
     try:
         sdf = PoseSDF.load(field, robot)
     except RobotMismatchError as e:

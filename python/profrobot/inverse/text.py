@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ..deprecation import renamed_arguments
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..joints import Limits
 from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
@@ -83,7 +83,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     """
     t0 = time.perf_counter()
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):
-        raise TypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
+        raise InputTypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
     sdf, robot = field_at_layout(sdf, robot, scene)
     robot = labeller_robot(sdf, model, robot, "pose_from_text")
     if len(camera) != 1:

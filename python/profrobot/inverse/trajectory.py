@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from ..deprecation import renamed_arguments
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..joints import Limits
 from ..validate import finite, positive, poses_within_limits
 from ..certification import certify_poses, check_path
@@ -53,12 +53,12 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     t0 = time.perf_counter()
     if isinstance(cameras, dict):   # the order of earlier releases: (model, start, targets, cameras)
         if len(old_order) != 1 or start is not None:
-            raise TypeError("trajectory_from_images(model, targets, cameras, *, start=...)")
+            raise InputTypeError("trajectory_from_images(model, targets, cameras, *, start=...)")
         warnings.warn("trajectory_from_images(model, start, targets, cameras) is deprecated; use "
                       "trajectory_from_images(model, targets, cameras, start=...)", DeprecationWarning, stacklevel=3)
         start, targets, cameras = targets, cameras, old_order[0]
     elif old_order:
-        raise TypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")
+        raise InputTypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")
     if start is None:
         raise InputError("trajectory_from_images needs start= (K,), the first frame's pose")
     sdf, robot = field_at_layout(sdf, robot, scene)

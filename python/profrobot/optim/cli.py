@@ -10,10 +10,10 @@ from ..errors import InputError
 
 
 def _field(args):
-    from .. import scenes
     from ..field import PoseSDF
+    from ..loading import robot_of
 
-    robot = scenes.load(args.scene)
+    robot = robot_of(args, field=args.field)   # --robot FILE, --scene, or the one the field names
     return robot, PoseSDF.load(args.field, robot)
 
 
@@ -24,8 +24,8 @@ def _pose(text: str, name: str) -> np.ndarray:
         raise InputError(f"--{name} must be comma-separated numbers (radians / metres); got {text!r}") from e
 
 
-def _save_npz(path: str, **arrays) -> None:
-    with atomic_path(path, suffix=".npz") as tmp:
+def _save_npz(out: str, /, **arrays) -> None:
+    with atomic_path(out, suffix=".npz") as tmp:
         np.savez(tmp, **arrays)
 
 

@@ -7,7 +7,7 @@ import torch
 from ..field.identity import check_field
 from ..field.layout import field_at_layout
 from ..validate import finite
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 
 
 def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=None) -> torch.Tensor:
@@ -23,9 +23,9 @@ def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=
     sdf, _ = field_at_layout(sdf, None, scene)  # a family field at its layout: the penalty moves θ, never δ
     l_thres = finite("l_thres", l_thres)
     if not isinstance(theta, torch.Tensor):
-        raise TypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
+        raise InputTypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")
     if not theta.is_floating_point():
-        raise TypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
+        raise InputTypeError(f"theta must be a floating-point tensor; got {theta.dtype}")
     if theta.ndim == 0 or theta.shape[-1] != sdf.njoint:
         raise InputError(f"theta must have shape (..., {sdf.njoint}) for robot {getattr(sdf, 'robot_name', '?')!r}; "
                          f"got {tuple(theta.shape)}")

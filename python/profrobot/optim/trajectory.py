@@ -32,7 +32,7 @@ import torch
 
 from ..certification import PathCheck, check_path
 from ..deprecation import deprecated_alias
-from ..errors import InputError
+from ..errors import InputError, InputTypeError
 from ..field.identity import field_robot
 from ..field.layout import field_at_layout
 from ..joints import Limits
@@ -187,7 +187,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     if sdf is None and init == "straight":
         raise InputError("init='straight' optimises with the field; with sdf=None use init='auto' or 'planner'")
     if planner is not None and not isinstance(planner, dict):
-        raise TypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
+        raise InputTypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
     l_thres = finite("l_thres", l_thres)
     density = positive("density", density, integer=True)
     penalty, tangent, smooth_iterations = _options(legacy, penalty, tangent, smooth_iterations, l_thres, density)
@@ -260,11 +260,11 @@ def _options(legacy: dict, penalty: PenaltyOptions | None, tangent: TangentOptio
     ``density``, with any flat keyword of earlier releases mapped in (DeprecationWarning)."""
     unknown = sorted(set(legacy) - set(_LEGACY))
     if unknown:
-        raise TypeError(f"plan_trajectory() got unexpected keyword argument(s) {unknown}")
+        raise InputTypeError(f"plan_trajectory() got unexpected keyword argument(s) {unknown}")
     if penalty is not None and not isinstance(penalty, PenaltyOptions):
-        raise TypeError(f"penalty must be a profrobot.optim.PenaltyOptions; got {type(penalty).__name__}")
+        raise InputTypeError(f"penalty must be a profrobot.optim.PenaltyOptions; got {type(penalty).__name__}")
     if tangent is not None and not isinstance(tangent, TangentOptions):
-        raise TypeError(f"tangent must be a profrobot.optim.TangentOptions; got {type(tangent).__name__}")
+        raise InputTypeError(f"tangent must be a profrobot.optim.TangentOptions; got {type(tangent).__name__}")
     fields: dict[str, dict] = {"penalty": {}, "tangent": {}}
     for name, value in legacy.items():
         where, field_name = _LEGACY[name]

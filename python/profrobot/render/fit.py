@@ -197,7 +197,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
     zeros = lambda: torch.zeros(model.n, device=dev)
     grad_acc, seen, contrib = zeros(), zeros(), zeros()
     t0 = time.perf_counter()
-    bar = tqdm(range(iterations), desc="fit Gaussians", disable=not progress)
+    bar = tqdm(range(iterations), desc="fit Gaussians", disable=None if progress else True)
     for it in bar:
         p = int(rng.integers(len(views)))
         cs = rng.choice(len(cams), size=min(cams_per_step, len(cams)), replace=False)

@@ -34,7 +34,7 @@ import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
 from ..files import atomic_path, check_format, check_robot, format_tag
-from ..errors import CorruptFileError
+from ..errors import CorruptFileError, MissingFileError
 from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
 from ..errors import InputError
 from ..deprecation import deprecated_alias
@@ -184,6 +184,9 @@ class GaussianRobot(torch.nn.Module):
         self.fingerprint = robot.fingerprint
         self.robot_name = robot.name
         self.njoint = robot.njoint
+        # the robot's joint equalities: answers fitted through this model are put on them
+        # (joints.Limits.of; a plain object, pickles with the module)
+        self.couplings = getattr(robot, "couplings", None)
         self.kin = Kinematics.from_robot(robot)
         f = lambda a: torch.nn.Parameter(torch.as_tensor(np.asarray(a), dtype=torch.float32).clone())
         self.register_buffer("body", torch.as_tensor(np.asarray(body), dtype=torch.long).clone())
@@ -401,7 +404,7 @@ class GaussianRobot(torch.nn.Module):
 
         path = os.fspath(path)
         if not os.path.isfile(path):
-            raise FileNotFoundError(f"no Gaussian robot file at {path!r}")
+            raise MissingFileError(f"no Gaussian robot file at {path!r}")
         try:
             with safe_open(path, framework="pt") as f:
                 meta = json.loads((f.metadata() or {})["profrobot"])

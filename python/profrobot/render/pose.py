@@ -154,7 +154,7 @@ def _refine(model, tg: ImageTargets, theta0: torch.Tensor, opts: dict, extra_los
     opt = torch.optim.Adam([dict(params=[u], lr=rates[0]), dict(params=[w], lr=rates[1]),
                             dict(params=[tau], lr=rates[2])], eps=1e-8)
     n = opts["iterations"]
-    for it in tqdm(range(n), desc="fit pose + cameras", unit="step", disable=not progress, leave=False):
+    for it in tqdm(range(n), desc="fit pose + cameras", unit="step", disable=None if progress else True, leave=False):
         for group, lr in zip(opt.param_groups, rates):
             group["lr"] = _cosine(lr, it, n)
         theta = limits.denormalise(u)
@@ -293,7 +293,7 @@ def _fit(model: GaussianRobot, targets: dict, cameras: Cameras, init: torch.Tens
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
     tr = tg.take(torch.arange(B, device=dev).repeat_interleave(R))  # (B·R) targets: one per start
     hist = []
-    bar = tqdm(range(iterations), desc=f"fit pose {cameras.width}x{cameras.height}", unit="step", disable=not progress,
+    bar = tqdm(range(iterations), desc=f"fit pose {cameras.width}x{cameras.height}", unit="step", disable=None if progress else True,
                leave=False)
     for it in bar:
         opt.param_groups[0]["lr"] = _cosine(lr, it, iterations)       # to lr/10

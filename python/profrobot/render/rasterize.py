@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import torch
-from ..errors import BackendUnavailableError, InputError
+from ..errors import BackendUnavailableError, InputError, InputTypeError
 
 Cutoff = Literal["soft", "hard"]
 Backend = Literal["auto", "torch", "rust", "gsplat"]
@@ -68,7 +68,7 @@ class RenderOut:
 
 def _check(name, t, shape_desc, ok):
     if not isinstance(t, torch.Tensor):
-        raise TypeError(f"rasterize: {name} must be a torch.Tensor; got {type(t).__name__}")
+        raise InputTypeError(f"rasterize: {name} must be a torch.Tensor; got {type(t).__name__}")
     if not ok:
         raise InputError(f"rasterize: {name} must have shape {shape_desc}; got {tuple(t.shape)}")
 
@@ -87,7 +87,7 @@ def _validate(means, covs, opacities, colors, viewmats, Ks):
     for name, t in (("means", means), ("covs", covs), ("opacities", opacities), ("colors", colors),
                     ("viewmats", viewmats), ("Ks", Ks)):
         if t.dtype not in (torch.float32, torch.float64):
-            raise TypeError(f"rasterize: {name} must be float32 or float64; got {t.dtype}")
+            raise InputTypeError(f"rasterize: {name} must be float32 or float64; got {t.dtype}")
         if not torch.isfinite(t).all():
             raise InputError(f"rasterize: {name} contains NaN or inf")
     return C, N

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CorruptFileError, InputError
+from ..errors import CorruptFileError, InputError, InputTypeError
 from ..executors import chunk_bounds, chunk_sizes, check_executor
 from ..deprecation import deprecated_alias
 from ..files import atomic_path, check_format, check_robot, format_tag
@@ -117,7 +117,7 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     if not np.isfinite(poses).all():
         raise InputError("poses contain NaN or inf")
     if not isinstance(cameras, Cameras):
-        raise TypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
+        raise InputTypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
     if size is not None:
         cameras = cameras.resized(size)
     qpos = np.tile(robot.mj_model.qpos0, (len(poses), 1))

@@ -1,0 +1,100 @@
+"""A robot named on the command line: a bundled scene or family (``--scene NAME``), or a file
+(``--robot FILE``: MJCF ``.xml`` or URDF ``.urdf``, meshes through ``--package-dir``). Every
+command takes both (base layer: no torch)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from . import scenes
+from .errors import InputError
+from .robot import Robot
+
+__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_scene", "DefaultsFormatter"]
+
+DEFAULT_SCENE = "panda_blocks"
+
+
+def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
+    """An MJCF (.xml) or URDF (.urdf, or a ``<robot>`` root; meshes by ``package://`` through
+    ``package_dirs``) file, e.g. the robot in its cell that a field was trained for."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"--robot {path}: no such file (an MJCF .xml or a URDF .urdf)")
+    if p.suffix.lower() == ".urdf":
+        return Robot.from_urdf(p, package_dirs=package_dirs)
+    if package_dirs:
+        raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
+    return Robot.from_mjcf(p)
+
+
+def add_robot_arguments(sp: argparse.ArgumentParser, *, scene_default: str | None = DEFAULT_SCENE) -> None:
+    """``--scene NAME`` (bundled scenes and families), ``--robot FILE`` and ``--package-dir``."""
+    every = scenes.names() + scenes.family_names()
+    sp.add_argument("--scene", default=None,
+                    help=f"a bundled scene or family of scenes: {', '.join(every)} "
+                         f"(default: {scene_default or 'the one the field was trained for'}, unless --robot)")
+    sp.add_argument("--robot", default=None, metavar="FILE",
+                    help="the robot (and its cell) as a file instead: MJCF .xml or URDF .urdf")
+    sp.add_argument("--package-dir", dest="package_dir", action="append", default=None, metavar="DIR",
+                    help="where a URDF's package:// meshes live (a package's folder or a folder of packages; "
+                         "repeatable)")
+    sp.set_defaults(scene_default=scene_default)
+
+
+def robot_of(args: argparse.Namespace, field: str | None = None) -> Robot:
+    """The robot ``args`` name (:func:`add_robot_arguments`): ``--robot FILE``, else ``--scene``,
+    else, for a command given a field checkpoint directory ``field``, the bundled scene the
+    field was trained for, else the command's default scene."""
+    robot = getattr(args, "robot", None)
+    scene = getattr(args, "scene", None)
+    if robot is not None and scene is not None:
+        raise InputError("give --scene or --robot, not both")
+    if robot is not None:
+        return robot_file(robot, getattr(args, "package_dir", None))
+    if getattr(args, "package_dir", None):
+        raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
+    if scene is None and field is not None:
+        scene = field_scene(field)
+    name = scene or getattr(args, "scene_default", None) or DEFAULT_SCENE
+    if name not in scenes.names() + scenes.family_names():
+        raise InputError(f"--scene: unknown scene {name!r}; one of {', '.join(scenes.names() + scenes.family_names())} "
+                         f"(or --robot FILE for your own)")
+    return scenes.load(name)
+
+
+def field_scene(field: str | Path) -> str:
+    """The bundled scene a field checkpoint directory was trained for (its config.json), or a
+    clear error saying to name the robot."""
+    import json
+
+    from .errors import CorruptFileError, MissingFileError
+
+    field = Path(field)
+    if not field.is_dir():
+        raise MissingFileError(f"--field {field}: no such checkpoint directory (profrobot train --out)")
+    cfg = field / "config.json"
+    if not cfg.is_file():
+        raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")
+    try:
+        name = json.loads(cfg.read_text()).get("robot")
+    except (ValueError, AttributeError, OSError) as e:
+        raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
+    if name not in scenes.names() + scenes.family_names():
+        raise InputError(f"--field {field}: its robot {name!r} is not a bundled scene; pass --robot FILE (the "
+                         f"MJCF or URDF it was trained for) or --scene NAME")
+    return name
+
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """``--help`` with each option's default, where it has one worth showing (not None, not a
+    flag's False) and its help does not already name it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if ("default" in text or default is None or default is argparse.SUPPRESS or action.nargs == 0
+                or action.option_strings == []):   # (nargs 0: a flag, --help, --version)
+            return text
+        return f"{text} (default: {default})" if text else f"(default: {default})"
