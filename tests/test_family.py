@@ -192,6 +192,33 @@ def test_a_layout_inside_the_robots_base_is_refused():
         fam.at([-0.4])  # the ball at the origin, inside link0
 
 
+def test_regression_a_layout_within_the_clearance_of_the_base_is_refused():
+    """Issue 33: a ball 0.5 µm from the base was accepted by ``at``. On the family that pair is
+    checked (nothing certifies), pinned it is filtered (everything may): they disagreed."""
+    import mujoco
+
+    arm = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+    fam = arm.with_obstacles([Sphere(pos=(0.4, 0, 0.05), radius=0.05, name="ball", moves=Moves(x=(-0.4, 0.2)))])
+    m, d = fam.mj_model, mujoco.MjData(fam.mj_model)
+    ball = m.body("ball").geomadr[0]
+    base = [g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body("link0").id and m.geom_contype[g]]
+
+    def gap(x: float) -> float:
+        d.qpos[fam.qpos_adr[fam.scene_index]] = x
+        mujoco.mj_kinematics(m, d)
+        return min(mujoco.mj_geomDistance(m, d, ball, g, 1.0, None) for g in base)
+
+    lo, hi = -0.4, 0.0                       # inside the base .. clear of it
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if gap(mid) < 5e-7 else (lo, mid)
+    assert 0 < gap(hi) <= 1e-6
+    theta = profrobot.problems.free_poses(fam.at([0.0]), 20, seed=0)
+    assert not profrobot.certify_poses(fam, theta, scene=[hi]).any()   # the family certifies nothing here
+    with pytest.raises(InputError, match="is .* m from 'link0'.*clearance"):
+        fam.at([hi])
+
+
 # ---- the field g(θ, δ) ---------------------------------------------------------------------------
 
 def test_family_field_inputs_and_layout_field(family, tiny_field):

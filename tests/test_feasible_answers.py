@@ -75,10 +75,10 @@ OBSTACLES = [profrobot.Box(pos=(0.35, 0.2, 0.3), half_size=(0.06, 0.06, 0.3), na
              profrobot.Sphere(pos=(-0.1, -0.35, 0.45), radius=0.1, name="ball")]
 
 
-@pytest.fixture(scope="module", params=["panda_blocks", "mimic_urdf", "polycoef_mjcf"])
+@pytest.fixture(scope="module", params=["panda_blocks", "vx300s_clutter", "ur5e_wall_box", "mimic_urdf", "polycoef_mjcf"])
 def robot(request, tmp_path_factory):
-    if request.param == "panda_blocks":
-        return scene("panda_blocks")
+    if request.param in ("panda_blocks", "vx300s_clutter", "ur5e_wall_box"):
+        return scene(request.param)    # mirrored fingers (a joint equality); the UR5e: limits only
     folder = tmp_path_factory.mktemp(request.param)
     if request.param == "mimic_urdf":
         (folder / "arm.urdf").write_text(MIMIC_URDF)
@@ -86,9 +86,7 @@ def robot(request, tmp_path_factory):
     else:
         (folder / "arm.xml").write_text(POLY_MJCF)
         base = profrobot.Robot.from_mjcf(folder / "arm.xml")
-    r = base.with_obstacles(OBSTACLES)
-    assert r.couplings, "the test robot must have a joint coupling"
-    return r
+    return base.with_obstacles(OBSTACLES)
 
 
 def check_answers(robot, poses, certified=None, what: str = ""):
@@ -189,9 +187,11 @@ def test_certification_refuses_what_the_robot_cannot_take(robot):
     q = problems.free_poses(robot, 30, seed=8)
     q = q[profrobot.certify_poses(robot, q)][:2]
     assert len(q) == 2
-    j = robot.couplings.dependent[0]
     off = q.copy()
-    off[:, j] += 1e-6
+    if not robot.couplings:      # the UR5e: limits only
+        off[:, 0] = robot.joint_limits[0, 1] + 1e-6
+    else:
+        off[:, robot.couplings.dependent[0]] += 1e-6
     lim = robot.joint_limits
     limited = np.flatnonzero(~robot.continuous)
     out = q.copy()
@@ -208,10 +208,10 @@ def test_certification_refuses_what_the_robot_cannot_take(robot):
             assert not check.certified and check.waypoint_collides[1], (why, method)
     # and the core itself, called directly, refuses them too
     assert not robot.core.certified(np.ascontiguousarray(off), profrobot.CLEARANCE).any()
-    # nearest_free puts an off-coupling input on the coupling; plan_path refuses one
-    assert robot.feasible(profrobot.nearest_free(robot, off).poses).all()
-    with pytest.raises(profrobot.InputError, match="couplings"):
-        profrobot.plan_path(robot, off[0], q[1])
+    if robot.couplings:   # nearest_free puts an off-coupling input on the coupling; plan_path refuses one
+        assert robot.feasible(profrobot.nearest_free(robot, off).poses).all()
+        with pytest.raises(profrobot.InputError, match="couplings"):
+            profrobot.plan_path(robot, off[0], q[1])
 
 
 def test_a_nonlinear_coupling_is_certified_along_the_curve_the_robot_moves(tmp_path):

@@ -47,13 +47,14 @@ from .deprecation import deprecated_alias
 from .errors import InputError
 from .labels import as_poses, check_threads, interpolate, so2_steps
 from .validate import with_scene
-from .robot import Robot
+from .robot import CLEARANCE as _ROBOT_CLEARANCE, Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "path_free_at",
            "PathCheck", "certified_summary", "failures_of"]
 
-#: metres: the least distance every candidate pair keeps in a certified pose (module docs).
-CLEARANCE = 1e-6
+#: metres: the least distance every candidate pair keeps in a certified pose (module docs; the
+#: value lives with the Robot, whose layouts are refused within it: ``Robot.at``)
+CLEARANCE = _ROBOT_CLEARANCE
 
 
 def _one_clearance(clearance, who: str) -> None:

@@ -200,6 +200,11 @@ def main(argv: list[str] | None = None) -> int:
         if threads:
             sp.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
 
+    def layout(sp):
+        sp.add_argument("--layout", default=None, metavar="D1,D2,...",
+                        help="for a family of scenes: the layout δ to work at, one value per scene joint (metres, "
+                             "radians; default: every scene joint at 0, the obstacles where the model puts them)")
+
     def cluster(sp):
         sp.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster: local (start one here), auto, "
                                                          "host:6379 or ray://host:10001 (pip install 'profrobot[ray]')")
@@ -221,18 +226,20 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("dataset", help="make a balanced dataset (.npz)")
     common(sp, 100_000)
     sp.add_argument("--collided-fraction", type=float, default=0.5, help="share of colliding poses")
-    sp.add_argument("--out", required=True)
+    sp.add_argument("--out", required=True, help="the dataset file to write (.npz, atomic)")
     cluster(sp)
     sp.set_defaults(fn=cmd_dataset)
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
     common(sp)
     sp.add_argument("--preset", default="cpu", help="cpu (ours, minutes) or paper (the paper's recipe)")
     sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
-    sp.add_argument("--iterations", type=int, default=None)
-    sp.add_argument("--batch-size", dest="batch_size", type=int, default=None)
-    sp.add_argument("--lr", type=float, default=None)
-    sp.add_argument("--encoder", choices=("kinematic", "hierarchical", "flat"), default=None)
-    sp.add_argument("--eikonal-weight", dest="eikonal_weight", type=float, default=None)
+    sp.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
+    sp.add_argument("--batch-size", dest="batch_size", type=int, default=None, help="poses per step (default: the preset's)")
+    sp.add_argument("--lr", type=float, default=None, help="Adam's learning rate (default: the preset's)")
+    sp.add_argument("--encoder", choices=("kinematic", "hierarchical", "flat"), default=None,
+                    help="pose features (default: the preset's)")
+    sp.add_argument("--eikonal-weight", dest="eikonal_weight", type=float, default=None,
+                    help="weight of the Eikonal term (default: the preset's)")
     sp.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
     sp.add_argument("--out", required=True, help="checkpoint directory (safetensors + JSON)")
     sp.add_argument("--plot", help="also save an SDF slice PNG here")
@@ -241,6 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("resolve", help="push colliding poses out of collision with a trained field")
     common(sp, 100, threads=False, scene_default=None)
     sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory (profrobot train --out)")
+    layout(sp)
     sp.add_argument("--poses", help=".npy file of (B, K) poses (default: -n colliding poses drawn at random)")
     sp.add_argument("--l-thres", dest="l_thres", type=float, default=-0.1, help="the field's threshold l_thres")
     sp.add_argument("--method", choices=("project", "adam"), default="project",
@@ -258,10 +266,12 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("plan", help="a collision-aware trajectory between two poses")
     common(sp, threads=False, scene_default=None)
     sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory")
+    layout(sp)
     sp.add_argument("--start", help="comma-separated start pose (default: a random hard problem)")
     sp.add_argument("--goal", help="comma-separated goal pose")
     sp.add_argument("--steps", type=int, default=100, help="waypoints of the trajectory")
-    sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty")
+    sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty",
+                    help="penalty: Adam on the path's field penalty; tangent: the paper's Algorithm 1")
     sp.add_argument("--init", choices=("auto", "straight", "planner"), default="auto",
                     help="auto: the straight path if free, else the exact planner then field smoothing")
     sp.add_argument("--iterations", type=int, default=500, help="Adam steps (tangent: 6x as many walk steps)")
@@ -274,13 +284,13 @@ def main(argv: list[str] | None = None) -> int:
     common(sp, 40)
     sp.add_argument("--cameras", type=int, default=8, help="training cameras per pose")
     sp.add_argument("--size", type=int, default=128, help="image size (pixels)")
-    sp.add_argument("--gaussians", type=int, default=10_000)
+    sp.add_argument("--gaussians", type=int, default=10_000, help="Gaussians on the robot's surface")
     sp.add_argument("--iterations", "--iters", dest="iters", type=int, default=600,
                     help="appearance-fit steps (--iters: the name of earlier releases)")
     sp.add_argument("--distance", type=float, default=1.5, help="camera distance (metres)")
     sp.add_argument("--lookat", default="0,0,0.45", help="x,y,z the cameras look at (metres)")
     sp.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")
-    sp.add_argument("--torch-threads", dest="torch_threads", type=int, default=1)
+    sp.add_argument("--torch-threads", dest="torch_threads", type=int, default=1, help="torch's intra-op threads")
     sp.add_argument("--backend", choices=["auto", "rust", "torch", "gsplat"], default="auto",
                     help="rasterizer: auto = the Rust kernel on a CPU, gsplat on CUDA (default: auto)")
     sp.add_argument("--out", required=True, help="model file (.safetensors)")

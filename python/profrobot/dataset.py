@@ -148,6 +148,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     n = validate.count("n", n)
+    validate.memory("n", n, robot.njoint + 4)   # the poses and their labels
     collided_fraction = validate.finite("collided_fraction", collided_fraction)
     if not 0.0 <= collided_fraction <= 1.0:
         raise InputError(f"collided_fraction must be in [0, 1]; got {collided_fraction}")

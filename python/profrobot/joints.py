@@ -74,7 +74,9 @@ class Limits:
         if not hasattr(src, "continuous") and getattr(obj, "robot", None) is not None:
             src = obj.robot
         cont = getattr(src, "continuous", None)
-        lim = getattr(src, "joint_limits", None)
+        lim = getattr(src, "limits_f64", None)          # a GaussianRobot's float64 copy
+        if lim is None:
+            lim = getattr(src, "joint_limits", None)
         if lim is None:
             lim = getattr(src, "limits", None)
         if cont is None or lim is None:

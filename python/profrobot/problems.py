@@ -73,11 +73,13 @@ def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk
 def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density: int = 10,
                max_pairs: int | None = None, reachable: bool = True, walk: int = 150, walk_step: float = 0.3,
                threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both free, and the
-    straight SO(2) interpolation between them colliding under the dense check that
-    :func:`profrobot.optim.plan_trajectory` certifies with (``steps`` waypoints, ``density``
-    times finer samples between them). Seeded; raises ValueError if fewer than ``n`` turn up
-    among ``max_pairs`` candidate pairs (default ``200 * n``).
+    """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both certified free, on
+    their joint couplings, and a sample of the straight SO(2) interpolation between them (``steps``
+    waypoints, ``density`` times finer samples between them) not certified: a straight path
+    refuted outright, so the continuous certificate that :func:`profrobot.plan_path` and
+    :func:`profrobot.optim.plan_trajectory` certify with refuses it too. Seeded; raises
+    ValueError if fewer than ``n`` turn up among ``max_pairs`` candidate pairs (default
+    ``200 * n``).
 
     ``reachable=True`` (default): each goal is the end of a free random walk from its start
     (``walk`` moves of ``walk_step`` radians, every segment checked), so a path exists. Uniform

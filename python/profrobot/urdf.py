@@ -46,9 +46,54 @@ _UNSUPPORTED = {"floating": "a floating base (6 free DoF)", "planar": "a planar 
 _XACRO = ("{http://www.ros.org/wiki/xacro}", "{http://ros.org/wiki/xacro}")
 
 
-class UrdfWarning(UserWarning):
+class CollisionWarning(UserWarning):
+    """A robot loaded (MJCF or URDF), but link pairs collide in (nearly) every pose: labels are
+    MuJoCo's, and nearly every pose will read as colliding until such pairs are disabled
+    (``srdf=`` or ``collision_matrix="auto"``)."""
+
+
+class UrdfWarning(CollisionWarning):
     """A URDF robot loaded, but something about it deserves a look (pairs that collide in nearly
     every pose, a revolute joint without limits, SRDF links that are not in the URDF)."""
+
+
+def auto_pairs(m, rates: dict, n: int, body_names) -> list["DisabledPair"]:
+    """``collision_matrix="auto"``'s pairs: those colliding in >= :data:`ALWAYS` of ``n`` poses
+    ("Always") and adjacent ones (one moving joint apart) colliding in any ("Adjacent"); never a
+    pair with the world body (excluding the world would hide obstacles too)."""
+    out = []
+    for (a, b), r in sorted(rates.items()):
+        if a == 0:
+            continue
+        if r > 0 and adjacent(m, a, b):
+            reason = f"Adjacent: one joint apart, collide in {pct(r)} of {n} uniform poses"
+        elif r >= ALWAYS:
+            reason = f"Always: collide in {pct(r)} of {n} uniform poses"
+        else:
+            continue
+        out.append(DisabledPair(body_names[a], body_names[b], reason))
+    return out
+
+
+def srdf_pairs(path, body_names, name: str, source: str) -> list["DisabledPair"]:
+    """The SRDF's ``<disable_collisions>`` pairs between bodies of the robot, each once; links it
+    names that are not bodies are warned about and skipped."""
+    srdf_path = os.path.abspath(os.fspath(path))
+    pairs = read_srdf(srdf_path)
+    known = set(body_names[1:])
+    unknown = sorted({link for p in pairs for link in p[:2] if link not in known})
+    if unknown:
+        warnings.warn(f"{name}: {srdf_path} names links that are not bodies of {source} (or the world, which would "
+                      f"also hide obstacles): {', '.join(unknown)}; their pairs are skipped", UrdfWarning, stacklevel=3)
+    seen: set = set()
+    out = []
+    for p in pairs:
+        key = frozenset(p[:2])
+        if p.body1 in unknown or p.body2 in unknown or key in seen or len(key) < 2:
+            continue
+        seen.add(key)
+        out.append(p)
+    return out
 
 
 class DisabledPair(NamedTuple):

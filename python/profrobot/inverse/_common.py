@@ -42,8 +42,10 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Rob
 
 def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,
                    t0: float) -> TrajectoryResult:
-    """``path`` (S, K) wrapped into the limits, certified at every waypoint and ``density``× finer
-    along every segment, with the field along it (NaN without one)."""
+    """``path`` (S, K) wrapped into the limits and put on the robot's joint couplings, certified
+    continuously (:func:`~profrobot.certification.check_path`: every waypoint, and every segment
+    proven free at every pose; ``density`` is the sampled check's, unused by it), with the field
+    along it (NaN without one)."""
     path = Limits.of(robot).numpy(path)
     g = (np.full(len(path), np.nan) if sdf is None else
          sdf(torch.as_tensor(path, dtype=torch.float32, device=sdf.joint_limits.device)).detach().cpu().numpy())

@@ -1,8 +1,8 @@
 """A trajectory from images (paper §5, Table 8): from a start pose, optimise one pose against the
 end pose's multi-view images; every iterate is a frame. With the field, the penalty joins the
 loss, the frames are post-processed on the field (mean ReLU(g − l_thres) + TV, end points
-attached), and the result is certified by the exact labeller at every frame and on a 10×
-denser sampling of every segment; a path that still collides is replaced by a certified one
+attached), and the result is certified by the exact labeller at every frame and, continuously,
+on every segment (every pose of it proven free); a path that still collides is replaced by a certified one
 between the same end points (exact planner, then the field's smoothing), never returned as safe.
 """
 

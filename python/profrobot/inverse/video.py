@@ -5,7 +5,7 @@
    ``first_frame_iterations`` steps: it has no history to start from);
 2. all frames jointly: image loss + ``w_tv`` TV (mean ‖θ_{t+1} − θ_t‖₁), ``joint_iterations`` steps;
 3. with a field: the same joint refinement with ``beta`` ReLU(g − l_thres) on every frame; then
-   the exact labeller on every frame and a ``density``× denser sampling of every segment. Frames
+   the exact labeller on every frame and, continuously, every segment (every pose proven). Frames
    it finds colliding are resolved (:func:`profrobot.resolve`), and segments still colliding are
    optimised on the field with the free frames as fixed ends (``plan_trajectory``'s penalty
    loop). What still collides is reported in the result, never returned as free.
@@ -43,7 +43,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
-    :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` per the dense check,
+    :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` by the continuous check,
     ``method`` "video" or "video+field"). ``scene``: for a field of a family of scenes
     (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout."""
     t0 = time.perf_counter()

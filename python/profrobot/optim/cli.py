@@ -10,11 +10,28 @@ from ..errors import InputError
 
 
 def _field(args):
+    """(robot, field): the robot as named (``--robot FILE``, ``--scene``, or the one the field
+    names) and its field; for a family of scenes, the robot pinned at ``--layout`` (its scene
+    joints at 0, the obstacles where the model puts them, by default), where answers are
+    certified."""
     from ..field import PoseSDF
     from ..loading import robot_of
 
-    robot = robot_of(args, field=args.field)   # --robot FILE, --scene, or the one the field names
-    return robot, PoseSDF.load(args.field, robot)
+    robot = robot_of(args, field=args.field)
+    sdf = PoseSDF.load(args.field, robot)
+    layout = getattr(args, "layout", None)
+    if not robot.is_family:
+        if layout is not None:
+            raise InputError(f"--layout is for a family of scenes; {robot.name} has no scene joints")
+        return robot, sdf
+    if layout is None:
+        delta = np.zeros(len(robot.scene_index))
+    else:
+        delta = _pose(layout, "layout")
+        if len(delta) != len(robot.scene_index):
+            raise InputError(f"--layout needs {len(robot.scene_index)} values, one per scene joint "
+                             f"({', '.join(robot.scene_joints)}); got {len(delta)}")
+    return robot.at(delta), sdf
 
 
 def _pose(text: str, name: str) -> np.ndarray:

@@ -47,7 +47,8 @@ class PenaltyOptions:
         lr: Adam's learning rate (radians).
         iterations: at most this many Adam steps.
         check_every: the exact labeller checks every this many steps.
-        density: the dense check samples each segment this many times finer.
+        density: the sampled check's samples per segment (``check_path(..., method="sampled")``);
+            the paths here are certified continuously, which needs none.
         refine_step: a problem whose waypoints all meet the threshold while the labeller still
             finds a collision has its threshold lowered by this much (0: off).
         midpoints: the penalty at segment midpoints too (beyond the paper).
@@ -120,7 +121,7 @@ def unwrap_path(path: np.ndarray, continuous: np.ndarray) -> np.ndarray:
 
 def penalty_descent(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptions | None = None) -> np.ndarray:
     """Optimises ``paths`` (B, S, K) unwrapped, in place, on their interior waypoints; a problem
-    stops once the exact labeller certifies its whole path at the dense check. A problem whose
+    stops once the exact labeller certifies its whole path (continuously). A problem whose
     waypoints all meet the threshold while the labeller still finds a collision has its threshold
     lowered by ``options.refine_step``. Returns (B,) int, the Adam steps each problem took."""
     o = options if options is not None else PenaltyOptions()
@@ -182,7 +183,7 @@ def smooth_certified(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptio
 
     Adam on the interior waypoints of γ1·mean ReLU(g − l_thres) + γ2·TV (+ γ3·energy, which keeps
     waypoints evenly spaced); every ``check_every`` steps each problem's current path is checked
-    by the exact labeller (dense check) and kept when it is free and shorter than the best so far.
+    by the exact labeller (continuous certificate) and kept when it is free and shorter than the best so far.
     The input paths are the first "best", so certification is never lost and length never grows.
     Uses ``options``' l_thres, gamma1–3, lr, iterations, check_every and density.
     Returns (best paths (B, S, K) float64, (B,) the step at which each best was taken).

@@ -55,8 +55,9 @@ class TrajectoryResult:
 
     Attributes:
         path: (S, K) float64 waypoints, radians / metres, ``path[0]`` = start, ``path[-1]`` = goal.
-        certified: the whole path is certified free (:func:`profrobot.certification.check_path`:
-            every waypoint and ``density``× finer samples).
+        certified: the whole path is certified free (:func:`profrobot.certification.check_path`,
+            continuous: every waypoint certified and every segment proven free at every pose, the
+            dependent joints of joint equalities following their independent ones).
         waypoint_collides: (S,) bool; segment_collides: (S−1,) bool (segment i: waypoints i, i+1).
         g: (S,) float32, the field along the path (NaN without a field).
         method: what produced the path ("penalty", "tangent", "planner", "planner+smooth",
@@ -167,8 +168,9 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     density=density)``), each problem stopping once its path is certified; ``method="tangent"``:
     Algorithm 1, :func:`~profrobot.optim.paths.tangent_walk` with ``tangent`` (a
     :class:`~profrobot.optim.TangentOptions`). ``l_thres``: the field threshold of the default
-    options. ``density``: the certificate samples each segment this many times finer than the
-    waypoints. ``robot``: the labeller's robot (default: the field's own).
+    options. ``density``: only for the older sampled certificate (``check_path(...,
+    method="sampled")``); the certificate of every result is continuous and needs none (kept for
+    the options of earlier releases). ``robot``: the labeller's robot (default: the field's own).
 
     The flat options of earlier releases (``gamma1``, ``lr``, ``iterations``, ``delta``,
     ``tangent_iters``, ``smooth_iters``, ...) still work, with a DeprecationWarning.

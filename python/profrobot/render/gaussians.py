@@ -187,6 +187,9 @@ class GaussianRobot(torch.nn.Module):
         # the robot's joint equalities: answers fitted through this model are put on them
         # (joints.Limits.of; a plain object, pickles with the module)
         self.couplings = getattr(robot, "couplings", None)
+        # the limits in float64, as the labeller has them (the float32 buffer below rounds a limit
+        # of 3.14158 up by 1e-7: a pose clipped to it would lie outside the robot's own limits)
+        self.limits_f64 = np.array(robot.joint_limits, dtype=np.float64)
         self.kin = Kinematics.from_robot(robot)
         f = lambda a: torch.nn.Parameter(torch.as_tensor(np.asarray(a), dtype=torch.float32).clone())
         self.register_buffer("body", torch.as_tensor(np.asarray(body), dtype=torch.long).clone())
