@@ -48,6 +48,17 @@ impl Coupling {
         self.y0 + c[0] + d * (c[1] + d * (c[2] + d * (c[3] + d * c[4])))
     }
 
+    /// `d q[dep] / d q[indep]` at `q[indep]` = `x` (0 for a locked joint).
+    #[inline]
+    pub fn slope(&self, x: f64) -> f64 {
+        if self.indep < 0 {
+            return 0.0;
+        }
+        let c = &self.coef;
+        let d = x - self.x0;
+        c[1] + d * (2.0 * c[2] + d * (3.0 * c[3] + d * 4.0 * c[4]))
+    }
+
     fn linear(&self) -> bool {
         self.coef[2] == 0.0 && self.coef[3] == 0.0 && self.coef[4] == 0.0
     }
@@ -146,6 +157,11 @@ impl Couplings {
             }
         }
         Ok(Couplings { rows: order })
+    }
+
+    /// The couplings in dependency order.
+    pub fn rows(&self) -> &[Coupling] {
+        &self.rows
     }
 
     pub fn is_empty(&self) -> bool {

@@ -32,6 +32,7 @@
 //! | [`collide`] | labelling: narrow phase and batches |
 //! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
 //! | [`motion`] | straight joint-space motions certified continuously (conservative advancement) |
+//! | [`ik`] | inverse kinematics: Levenberg–Marquardt on the SE(3) error, seeds, certified answers |
 //! | [`oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) |
 //! | [`sample`], [`interpolate`] | poses |
 //! | [`plan`] | global paths: RRT-Connect on the exact labeller, shortcutting |
@@ -52,6 +53,7 @@ pub mod error;
 pub mod fastpath;
 pub mod geom;
 pub mod hull;
+pub mod ik;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;

@@ -13,6 +13,8 @@ use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
 use crate::couplings::Coupling;
+use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use crate::desc::ModelDesc;
 use crate::error::Error;
 use crate::fastpath::{certified_batch, collides_batch};
@@ -481,6 +483,78 @@ impl PyRobotModel {
         out.set_item("tree_sizes", (r.tree_sizes[0], r.tree_sizes[1]))?;
         out.set_item("raw_waypoints", r.raw_waypoints)?;
         out.set_item("seconds", r.seconds)?;
+        Ok(out)
+    }
+
+    /// Inverse kinematics of a frame (see `_core.pyi` and `ik.rs`): `targets_pos` `(N, 3)`,
+    /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
+    /// is body `body` offset by `local_pos`, `local_quat`.
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=32, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn ik<'py>(
+        &self,
+        py: Python<'py>,
+        targets_pos: &Bound<'py, PyAny>,
+        targets_quat: Option<&Bound<'py, PyAny>>,
+        starts: &Bound<'py, PyAny>,
+        body: usize,
+        local_pos: [f64; 3],
+        local_quat: [f64; 4],
+        seeds: usize,
+        iterations: usize,
+        tol_pos: f64,
+        tol_rot: f64,
+        clearance: f64,
+        seed: u64,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let model = &self.model;
+        let k = model.njoint();
+        let pos = pose_array(targets_pos, 3, "targets_pos")?;
+        let n = pos.shape()[0];
+        let pos = rows_of(&pos);
+        let quat = match targets_quat {
+            None => None,
+            Some(q) => {
+                let q = pose_array(q, 4, "targets_quat")?;
+                if q.shape()[0] != n {
+                    return Err(input_error(format!("targets_quat has {} rows, targets_pos {n}", q.shape()[0])));
+                }
+                Some(rows_of(&q).into_owned())
+            }
+        };
+        let starts = pose_array(starts, k, "starts")?;
+        if starts.shape()[0] != n {
+            return Err(input_error(format!("starts has {} rows for {n} targets", starts.shape()[0])));
+        }
+        let starts = rows_of(&starts);
+        let starts: &[f64] = &starts;
+        let unit = |q: &[f64]| UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]));
+        let targets: Vec<IkTarget> = (0..n)
+            .map(|i| IkTarget { pos: [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], rot: quat.as_ref().map(|q| unit(&q[4 * i..4 * i + 4])) })
+            .collect();
+        let local = Isometry3::from_parts(Translation3::from(local_pos), unit(&local_quat));
+        let opts = IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, clearance, seed };
+        let scene = &self.desc.jnt_scene;
+        let r = py.detach(|| with_threads(threads, || ik(model, &targets, starts, scene, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let out = PyDict::new(py);
+        out.set_item("poses", PyArray1::from_iter(py, r.iter().flat_map(|a| a.pose.iter().copied())).reshape([n, k])?)?;
+        out.set_item(
+            "outcome",
+            PyArray1::from_iter(
+                py,
+                r.iter().map(|a| match a.outcome {
+                    IkOutcome::Certified => 0u8,
+                    IkOutcome::Unreachable => 1,
+                    IkOutcome::Colliding => 2,
+                }),
+            ),
+        )?;
+        out.set_item("reached", PyArray1::from_iter(py, r.iter().map(|a| a.reached)))?;
+        out.set_item("position_error", PyArray1::from_iter(py, r.iter().map(|a| a.pos_err)))?;
+        out.set_item("rotation_error", PyArray1::from_iter(py, r.iter().map(|a| a.rot_err)))?;
+        out.set_item("iterations", PyArray1::from_iter(py, r.iter().map(|a| a.iterations as i64)))?;
+        out.set_item("seeds", PyArray1::from_iter(py, r.iter().map(|a| a.seeds as i64)))?;
         Ok(out)
     }
 

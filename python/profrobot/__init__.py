@@ -41,6 +41,7 @@ from .dataset import Dataset, make_dataset  # noqa: E402
 from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
 from .oracle import NearestFree, nearest_free  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
+from .ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from . import family  # noqa: E402
 from .family import Moves  # noqa: E402
@@ -68,7 +69,7 @@ __all__ = [
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "nearest_free", "NearestFree", "problems", "joints", "equalities", "executors",
+    "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion", "problems", "joints", "equalities", "executors",
     "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "scorers", "actions_from_video",
     "certification", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",

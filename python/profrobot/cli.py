@@ -1,5 +1,5 @@
 """The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``resolve``, ``plan``,
-``render``, ``pose``, ``scenes``."""
+``render``, ``pose``, ``ik``, ``scenes``."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from . import scenes
 from ._core import __version__
 from .crosscheck import crosscheck
 from .dataset import Dataset, make_dataset
-from .errors import ProfrobotError
+from .errors import InputError, ProfrobotError
 from .labels import Labels, label_poses, sample_poses
 from .loading import DefaultsFormatter, add_robot_arguments, robot_of
 
@@ -131,6 +131,38 @@ def cmd_train(args) -> int:
     if args.export:
         print(f"exported {args.export} ({export_sdf(sdf, args.export) / 1e6:.1f} MB)")
     return 0
+
+
+def cmd_ik(args) -> int:
+    """Certified IK of a frame for the targets in a .npy file: (N, 4, 4) transforms or (N, 3)
+    positions; writes the poses and their report (atomic .npz). Exit 0: every target certified."""
+    from .files import atomic_path
+    from .ik import ik
+
+    robot = _robot(args)
+    try:
+        targets = np.load(args.targets, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise InputError(f"--targets {args.targets}: not a readable .npy array ({e})") from None
+    start = None
+    if args.start:
+        try:
+            start = np.array([float(v) for v in args.start.split(",")])
+        except ValueError:
+            raise InputError(f"--start must be comma-separated numbers (radians / metres); got {args.start!r}") from None
+    res = ik(robot, targets, frame=args.frame, start=start, seeds=args.seeds, seed=args.seed, threads=args.threads)
+    print(res.summary())
+    for i in res.failures[:10]:
+        print(f"  target {i}: {res.reasons[i]} (position error {res.position_error[i]:.3g} m, rotation error "
+              f"{res.rotation_error[i]:.3g} rad)")
+    if args.out:
+        with atomic_path(args.out, suffix=".npz") as tmp:
+            np.savez(tmp, poses=res.poses, certified=res.certified, reached=res.reached, outcome=res.outcome,
+                     position_error=res.position_error, rotation_error=res.rotation_error,
+                     joint_names=np.array(robot.joint_names if not robot.is_family
+                                          else [robot.joint_names[j] for j in robot.robot_index]))
+        print(f"saved {args.out}")
+    return 0 if res.certified.all() else 1
 
 
 def cmd_demo(args) -> int:
@@ -322,6 +354,16 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--seed", type=int, default=0, help="seed of the restarts")
     sp.add_argument("--out", default="pose_out", help="output folder: poses.json, fit.png (default: ./pose_out)")
     sp.set_defaults(fn=_inverse("cmd_pose"))
+    sp = sub.add_parser("ik", help="certified collision-free joint poses that put a frame at target poses")
+    common(sp)
+    sp.add_argument("--frame", required=True, help="the site, body or geom to place (e.g. the gripper's site)")
+    sp.add_argument("--targets", required=True, help=".npy file: (N, 4, 4) world transforms or (N, 3) positions, "
+                                                     "metres")
+    sp.add_argument("--start", help="comma-separated joint pose the answers stay near (default: the middle of "
+                                    "the limits)")
+    sp.add_argument("--seeds", type=int, default=32, help="seeds per target at most")
+    sp.add_argument("--out", help="save poses, certified, reached, outcome and errors to this .npz (atomic)")
+    sp.set_defaults(fn=cmd_ik)
     sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 

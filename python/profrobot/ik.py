@@ -1,0 +1,270 @@
+"""Goals in task space: certified collision-free inverse kinematics, and motion to a pose.
+
+:func:`ik` puts a frame of the robot (a MuJoCo site, body or geom) at target poses: the Rust
+core's Levenberg–Marquardt on the SE(3) error with the closed-form Jacobian, several seeds per
+target (the start first), joint limits, couplings and continuous joints kept, every returned pose
+certified by the exact labeller (``rust/ik.rs`` has the method). :func:`plan_to_pose` plans a
+certified path from a joint pose to a frame pose. Base layer: no torch.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from .certification import CLEARANCE
+from .errors import InputError, InputTypeError
+from .planning import PathResult, plan_path
+from .robot import Robot
+from .validate import as_poses, positive, seed as check_seed, threads as check_threads
+
+__all__ = ["IKResult", "ik", "frame_of", "plan_to_pose", "PoseMotion", "as_targets"]
+
+_REASONS = {0: "certified", 1: "unreachable: no seed came within the tolerances (the best error is reported)",
+            2: "reached only in collision: every pose that reaches it collides or comes within the clearance"}
+
+
+@dataclass
+class IKResult:
+    """The answers for N targets.
+
+    Attributes:
+        poses: (N, K) radians / metres (a family's θ with ``scene=``): certified where
+            ``certified``, else the best pose found (never certified as reaching the target).
+        reached: (N,) bool, the frame is within the tolerances of the target.
+        certified: (N,) bool, reached and certified free by the exact labeller.
+        position_error: (N,) metres; rotation_error: (N,) radians (0 for position-only targets).
+        iterations: (N,) Levenberg–Marquardt steps over every seed tried; seeds: (N,) seeds tried.
+        outcome: (N,) 0 certified, 1 unreachable, 2 reached only in collision (:attr:`reasons`).
+        seconds: wall time of the call.
+    """
+
+    poses: np.ndarray
+    reached: np.ndarray
+    certified: np.ndarray
+    position_error: np.ndarray
+    rotation_error: np.ndarray
+    iterations: np.ndarray
+    seeds: np.ndarray
+    outcome: np.ndarray
+    seconds: float
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def reasons(self) -> list[str]:
+        """Why each answer is what it is, in words."""
+        return [_REASONS[int(o)] for o in self.outcome]
+
+    @property
+    def failures(self) -> np.ndarray:
+        """Indices of targets not certified."""
+        return np.flatnonzero(~self.certified)
+
+    def summary(self) -> str:
+        n = len(self)
+        ok = self.certified
+        worst = (f"worst certified error {self.position_error[ok].max() * 1e3:.2g} mm, "
+                 f"{self.rotation_error[ok].max() * 1e3:.2g} mrad; " if ok.any() else "")
+        return (f"{n} targets: {ok.sum()} certified ({ok.mean():.1%}), {(self.outcome == 1).sum()} unreachable, "
+                f"{(self.outcome == 2).sum()} reached only in collision; {worst}{1e3 * self.seconds / max(n, 1):.2f} ms "
+                f"per target, {self.seeds.mean():.1f} seeds")
+
+
+def frame_of(robot: Robot, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(body id, position (3,), quaternion (w, x, y, z) (4,))`` of the frame named ``frame``
+    in its body: a MuJoCo site, body or geom (looked up in that order)."""
+    if not isinstance(frame, str):
+        raise InputTypeError(f"frame must be the name of a site, body or geom; got {type(frame).__name__}")
+    m = robot.mj_model
+    for kind, obj, count in (("site", mujoco.mjtObj.mjOBJ_SITE, m.nsite), ("body", mujoco.mjtObj.mjOBJ_BODY, m.nbody),
+                             ("geom", mujoco.mjtObj.mjOBJ_GEOM, m.ngeom)):
+        i = mujoco.mj_name2id(m, obj, frame)
+        if i < 0:
+            continue
+        if kind == "site":
+            return int(m.site_bodyid[i]), np.array(m.site_pos[i]), np.array(m.site_quat[i])
+        if kind == "body":
+            if i == 0:
+                raise InputError("frame 'world' does not move: name a site, body or geom of the robot")
+            return i, np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
+        return int(m.geom_bodyid[i]), np.array(m.geom_pos[i]), np.array(m.geom_quat[i])
+
+    def names(obj, n):
+        return [mujoco.mj_id2name(m, obj, i) for i in range(n) if mujoco.mj_id2name(m, obj, i)]
+
+    sites, bodies = names(mujoco.mjtObj.mjOBJ_SITE, m.nsite), names(mujoco.mjtObj.mjOBJ_BODY, m.nbody)
+    raise InputError(f"frame {frame!r} is not a site, body or geom of {robot.name}; sites: {', '.join(sites) or 'none'}; "
+                     f"bodies: {', '.join(bodies[1:])}")
+
+
+def as_targets(targets, name: str = "targets") -> tuple[np.ndarray, np.ndarray | None]:
+    """``(positions (N, 3), quaternions (N, 4) or None)`` from world transforms (N, 4, 4) / (4, 4)
+    or positions (N, 3) / (3,), metres; a rotation that is not orthonormal (to 1e-6) with
+    determinant +1, a last row other than (0, 0, 0, 1), or a non-finite entry is refused by name."""
+    if hasattr(targets, "detach"):
+        targets = targets.detach().cpu().numpy()
+    try:
+        t = np.asarray(targets, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise InputTypeError(f"{name} must be (N, 4, 4) transforms or (N, 3) positions (metres); got "
+                             f"{type(targets).__name__} ({e})") from e
+    if t.ndim in (1, 2) and t.shape[-1] == 3:
+        t = t.reshape(-1, 3)
+        quat = None
+    elif t.ndim in (2, 3) and t.shape[-2:] == (4, 4):
+        t = t.reshape(-1, 4, 4)
+        quat = "rot"
+    else:
+        raise InputError(f"{name} must be (N, 4, 4) world transforms of the frame or (N, 3) positions; got shape "
+                         f"{np.shape(targets)}")
+    if len(t) == 0:
+        raise InputError(f"{name} is empty")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        idx = tuple(int(v) for v in np.argwhere(bad)[0])
+        raise InputError(f"{name}[{', '.join(map(str, idx))}] is {t[idx]}; targets must be finite")
+    if quat is None:
+        return np.ascontiguousarray(t), None
+    R = t[:, :3, :3]
+    off = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    wrong = np.flatnonzero((off > 1e-6) | (det <= 0))
+    if len(wrong):
+        i = int(wrong[0])
+        raise InputError(f"{name}[{i}]'s rotation is not a rotation (RᵀR differs from I by {off[i]:.2g}, det "
+                         f"{det[i]:.3g}): orthonormalise it")
+    last = np.abs(t[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
+    if (last > 1e-12).any():
+        i = int(np.flatnonzero(last > 1e-12)[0])
+        raise InputError(f"{name}[{i}]'s last row must be (0, 0, 0, 1); got {t[i, 3]}")
+    q = np.empty((len(t), 4))
+    for i in range(len(t)):
+        mujoco.mju_mat2Quat(q[i], np.ascontiguousarray(R[i]).ravel())
+    return np.ascontiguousarray(t[:, :3, 3]), q
+
+
+def _starts(robot: Robot, start, n: int, scene) -> np.ndarray:
+    """(n, K) full starts: ``start`` (K,) or (n, K) (a family's θ with ``scene``), or the middle of
+    the joint limits (on the couplings)."""
+    if start is None:
+        base = robot.project(robot.joint_limits.mean(1))
+        if robot.is_family:
+            if scene is None:
+                raise InputError(f"{robot.name} is a family of scenes: pass scene=δ, the layout to solve at")
+            base[robot.scene_index] = robot.check_scene(scene)
+        return np.repeat(base[None], n, axis=0)
+    from .validate import with_scene
+
+    q = as_poses(robot, with_scene(robot, start, scene, "start"), name="start")
+    if len(q) == 1:
+        q = np.repeat(q, n, axis=0)
+    if len(q) != n:
+        raise InputError(f"start must be one pose (K,) or one per target ({n}, K); got {len(q)} poses")
+    return np.ascontiguousarray(q)
+
+
+def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_tolerance: float = 1e-4,
+       rotation_tolerance: float = 1e-3, seeds: int = 32, iterations: int = 60, seed: int = 0,
+       threads: int | None = None) -> IKResult:
+    """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
+
+    ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
+    metres. ``start``: (K,) or (N, K) joint poses the answers should stay near (default: the
+    middle of the joint limits); joints that do not move the frame keep their start values.
+    ``scene``: a family's layout δ (``start`` then θ, and so are the answers). A target is
+    *reached* within ``position_tolerance`` metres and ``rotation_tolerance`` radians (the
+    solver iterates to a hundredth of them); a reached pose is certified by the exact labeller
+    (no contact, every pair more than :data:`~profrobot.certification.CLEARANCE` apart, within
+    limits and on its couplings). Up to ``seeds`` seeds per target (the start, three
+    perturbations of it, then uniform draws from ``seed``); among certified solutions the one
+    nearest the start is returned. Unreachable targets come back not reached, with their best
+    error and ``reasons``; nothing is certified that does not reach its target. Same ``seed``,
+    same answers, for any thread count."""
+    if not isinstance(robot, Robot):
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    t0 = time.perf_counter()
+    pos, quat = as_targets(targets)
+    body, lpos, lquat = frame_of(robot, frame)
+    position_tolerance = positive("position_tolerance", position_tolerance)
+    rotation_tolerance = positive("rotation_tolerance", rotation_tolerance)
+    from .validate import count
+
+    seeds = count("seeds", seeds)
+    iterations = count("iterations", iterations)
+    starts = _starts(robot, start, len(pos), scene)
+    out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
+                        tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100, clearance=CLEARANCE,
+                        seed=check_seed(seed), threads=check_threads(threads))
+    poses = out["poses"]
+    if robot.is_family:
+        poses = poses[:, robot.robot_index]
+    pe, re = out["position_error"], out["rotation_error"]
+    reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
+    certified = out["outcome"] == 0
+    return IKResult(poses=poses, reached=reached, certified=certified, position_error=pe, rotation_error=re,
+                    iterations=out["iterations"], seeds=out["seeds"], outcome=out["outcome"],
+                    seconds=time.perf_counter() - t0)
+
+
+@dataclass
+class PoseMotion:
+    """A path to a frame pose: ``path`` (the planner's :class:`~profrobot.PathResult`, certified
+    continuously), ``goal`` (K,) the joint pose it ends in (certified, reaching the target),
+    ``ik`` the :class:`IKResult` of the candidates tried, and ``candidates`` tried."""
+
+    path: PathResult
+    goal: np.ndarray
+    ik: IKResult
+    candidates: int
+
+    @property
+    def certified(self) -> bool:
+        return bool(self.path.certified)
+
+
+def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 4, seed: int = 0,
+                 threads: int | None = None, **plan_options) -> PoseMotion:
+    """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
+    (4, 4) world transform or (3,) position, metres). IK candidates near ``start`` (``candidates``
+    calls of :func:`ik` with distinct seeds, each certified) are tried nearest first with
+    :func:`profrobot.plan_path` (``plan_options``: its options); the first path found is returned
+    with the goal pose it chose. Raises :class:`InputError` when no candidate reaches the target
+    certified free."""
+    if not isinstance(robot, Robot):
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    q0 = as_poses(robot, start, name="start", check_limits=True)
+    if len(q0) != 1:
+        raise InputError(f"start must be one pose (K,); got {len(q0)}")
+    pos, quat = as_targets(target, "target")
+    if len(pos) != 1:
+        raise InputError(f"target must be one pose ((4, 4) or (3,)); got {len(pos)}")
+    from .validate import count
+
+    candidates = count("candidates", candidates)
+    tgt = target if quat is None else np.asarray(target, dtype=np.float64).reshape(4, 4)
+    tried: list[np.ndarray] = []
+    last = None
+    result = None
+    for c in range(candidates):
+        sol = ik(robot, tgt, frame=frame, start=q0[0], seed=int(seed) + c, threads=threads)
+        last = sol
+        if not sol.certified[0]:
+            continue
+        g = sol.poses[0]
+        if any(np.abs(g - t).max() < 1e-6 for t in tried):
+            continue
+        tried.append(g)
+        res = plan_path(robot, q0[0], g, seed=int(seed) + c, threads=threads, **plan_options)
+        if res.found and res.certified:
+            return PoseMotion(path=res, goal=g, ik=sol, candidates=len(tried))
+        result = (res, g, sol)
+    if not tried:
+        reason = last.reasons[0] if last is not None else "no candidate"
+        raise InputError(f"no certified joint pose reaches the target with frame {frame!r}: {reason}")
+    res, g, sol = result
+    return PoseMotion(path=res, goal=g, ik=sol, candidates=len(tried))
