@@ -65,7 +65,7 @@ pub struct IkOptions {
 
 impl IkOptions {
     pub fn new(body: usize, local: Isometry3<f64>) -> Self {
-        IkOptions { body, local, seeds: 32, iterations: 60, tol_pos: 1e-6, tol_rot: 1e-6, clearance: 1e-6, seed: 0 }
+        IkOptions { body, local, seeds: 128, iterations: 60, tol_pos: 1e-6, tol_rot: 1e-6, clearance: 1e-6, seed: 0 }
     }
 }
 
@@ -120,9 +120,10 @@ struct Work {
     trial: Vec<f64>,
 }
 
-/// FK that also records each joint's world axis and anchor (the hinge's fixed point), as
-/// `kinematics::body_poses` places the bodies.
-fn place(model: &RobotModel, q: &[f64], w: &mut Work) {
+/// FK of `w.q` that also records each joint's world axis and anchor (the hinge's fixed point),
+/// as `kinematics::body_poses` places the bodies.
+fn place(model: &RobotModel, w: &mut Work) {
+    let q = &w.q;
     w.frames[0] = Isometry3::identity();
     for b in 1..model.body_parent.len() {
         let mut x = w.frames[model.body_parent[b]] * model.body_local[b];
@@ -237,7 +238,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
     let rows = if target.rot.is_some() { 6 } else { 3 };
     let nv = chain.vars.len();
     let mut e = [0.0; 6];
-    place(model, &w.q, w);
+    place(model, w);
     let (mut pe, mut re) = error(opts, target, w, &mut e);
     let mut c = cost(&e, rows);
     let mut lambda = 1e-3;
@@ -295,7 +296,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
             };
             step(model, chain, &w.q, &dv, &mut w.trial);
             std::mem::swap(&mut w.q, &mut w.trial);
-            place(model, &w.q, w);
+            place(model, w);
             let mut e2 = [0.0; 6];
             let (pe2, re2) = error(opts, target, w, &mut e2);
             let c2 = cost(&e2, rows);
@@ -309,7 +310,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
             lambda *= 4.0;
         }
         if !improved {
-            place(model, &w.q, w);
+            place(model, w);
             break; // a local minimum (or a limit) this seed cannot leave
         }
     }
@@ -510,7 +511,8 @@ mod tests {
         };
         let mut targets = Vec::new();
         for (i, q) in [[0.3, -0.4, 0.9], [1.2, 0.5, -1.0], [-2.0, 1.0, 0.4]].iter().enumerate() {
-            place(&model, q, &mut w);
+            w.q.copy_from_slice(q);
+            place(&model, &mut w);
             let f = w.frames[3];
             targets.push(IkTarget { pos: f.translation.vector.into(), rot: (i != 1).then_some(f.rotation) });
         }

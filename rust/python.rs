@@ -489,7 +489,7 @@ impl PyRobotModel {
     /// Inverse kinematics of a frame (see `_core.pyi` and `ik.rs`): `targets_pos` `(N, 3)`,
     /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
     /// is body `body` offset by `local_pos`, `local_quat`.
-    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=32, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, threads=None))]
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn ik<'py>(
         &self,

@@ -100,7 +100,7 @@ class RobotModel:
         (B,) int64 (poses placed). Same answer for any thread count."""
     def ik(self, targets_pos: npt.NDArray[np.float64], targets_quat: npt.NDArray[np.float64] | None,
            starts: npt.NDArray[np.float64], body: int, local_pos: Sequence[float], local_quat: Sequence[float], *,
-           seeds: int = 32, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,
+           seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,
            clearance: float = 1e-6, seed: int = 0, threads: int | None = None) -> dict[str, npt.NDArray]:
         """Inverse kinematics of the frame at ``local_pos``, ``local_quat`` (w, x, y, z) in body
         ``body``: for each of N targets (``targets_pos`` (N, 3) metres, ``targets_quat`` (N, 4) or

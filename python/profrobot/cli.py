@@ -361,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                                                      "metres")
     sp.add_argument("--start", help="comma-separated joint pose the answers stay near (default: the middle of "
                                     "the limits)")
-    sp.add_argument("--seeds", type=int, default=32, help="seeds per target at most")
+    sp.add_argument("--seeds", type=int, default=128, help="seeds per target at most")
     sp.add_argument("--out", help="save poses, certified, reached, outcome and errors to this .npz (atomic)")
     sp.set_defaults(fn=cmd_ik)
     sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")

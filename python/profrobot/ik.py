@@ -169,7 +169,7 @@ def _starts(robot: Robot, start, n: int, scene) -> np.ndarray:
 
 
 def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_tolerance: float = 1e-4,
-       rotation_tolerance: float = 1e-3, seeds: int = 32, iterations: int = 60, seed: int = 0,
+       rotation_tolerance: float = 1e-3, seeds: int = 128, iterations: int = 60, seed: int = 0,
        threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
@@ -227,14 +227,17 @@ class PoseMotion:
         return bool(self.path.certified)
 
 
-def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 4, seed: int = 0,
-                 threads: int | None = None, **plan_options) -> PoseMotion:
+def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 4, max_time: float = 10.0,
+                 seed: int = 0, threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
-    (4, 4) world transform or (3,) position, metres). IK candidates near ``start`` (``candidates``
-    calls of :func:`ik` with distinct seeds, each certified) are tried nearest first with
-    :func:`profrobot.plan_path` (``plan_options``: its options); the first path found is returned
-    with the goal pose it chose. Raises :class:`InputError` when no candidate reaches the target
-    certified free."""
+    (4, 4) world transform or (3,) position, metres).
+
+    IK candidates, each certified: the solution nearest ``start`` first, then solutions from
+    seeded uniform starts (other branches: an elbow flipped, a wrist turned), up to
+    ``candidates``, each computed only when the ones before could not be reached. Each is tried
+    with :func:`profrobot.plan_path` (``plan_options``: its options), ``max_time`` seconds
+    shared among them; the first path found is returned with the goal pose it chose. Raises
+    :class:`InputError` when no candidate reaches the target certified free."""
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     q0 = as_poses(robot, start, name="start", check_limits=True)
@@ -243,28 +246,48 @@ def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 4
     pos, quat = as_targets(target, "target")
     if len(pos) != 1:
         raise InputError(f"target must be one pose ((4, 4) or (3,)); got {len(pos)}")
+    from .labels import sample_poses
     from .validate import count
 
     candidates = count("candidates", candidates)
-    tgt = target if quat is None else np.asarray(target, dtype=np.float64).reshape(4, 4)
-    tried: list[np.ndarray] = []
+    max_time = positive("max_time", max_time)
+    tgt = pos if quat is None else np.asarray(target, dtype=np.float64).reshape(1, 4, 4)
+    others = sample_poses(robot, max(candidates - 1, 1), seed=check_seed(seed))
+    goals: list[tuple[np.ndarray, IKResult]] = []
+    made = 0
+    last_ik = None
+
+    def candidate(c: int):
+        """Candidate ``c`` (computed on first need), or None when fewer distinct ones exist."""
+        nonlocal made, last_ik
+        while len(goals) <= c and made < candidates:
+            near = q0[0] if made == 0 else others[made - 1]
+            sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, threads=threads)
+            made += 1
+            last_ik = sol
+            if sol.certified[0] and not any(np.abs(sol.poses[0] - g).max() < 1e-6 for g, _ in goals):
+                goals.append((sol.poses[0], sol))
+        return goals[c] if c < len(goals) else None
+
+    # rounds of growing time budgets over the candidates, nearest first: a goal on a branch the
+    # start cannot reach costs a short time-out, not the whole budget
+    t0 = time.perf_counter()
     last = None
-    result = None
-    for c in range(candidates):
-        sol = ik(robot, tgt, frame=frame, start=q0[0], seed=int(seed) + c, threads=threads)
-        last = sol
-        if not sol.certified[0]:
-            continue
-        g = sol.poses[0]
-        if any(np.abs(g - t).max() < 1e-6 for t in tried):
-            continue
-        tried.append(g)
-        res = plan_path(robot, q0[0], g, seed=int(seed) + c, threads=threads, **plan_options)
-        if res.found and res.certified:
-            return PoseMotion(path=res, goal=g, ik=sol, candidates=len(tried))
-        result = (res, g, sol)
-    if not tried:
-        reason = last.reasons[0] if last is not None else "no candidate"
+    for share in (0.005, 0.05, 1.0):
+        for c in range(candidates):
+            got = candidate(c)
+            if got is None:
+                break
+            goal, sol = got
+            left = max_time - (time.perf_counter() - t0)
+            if left <= 0:
+                return last
+            budget = left / max(len(goals) - c, 1) if share == 1.0 else min(share * max_time, left)
+            res = plan_path(robot, q0[0], goal, seed=int(seed) + c, max_time=budget, threads=threads, **plan_options)
+            last = PoseMotion(path=res, goal=goal, ik=sol, candidates=c + 1)
+            if res.found and res.certified:
+                return last
+    if last is None:
+        reason = last_ik.reasons[0] if last_ik is not None else "no candidate"
         raise InputError(f"no certified joint pose reaches the target with frame {frame!r}: {reason}")
-    res, g, sol = result
-    return PoseMotion(path=res, goal=g, ik=sol, candidates=len(tried))
+    return last
