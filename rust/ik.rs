@@ -190,8 +190,7 @@ impl Chain {
                 moves[c.indep as usize] = true;
             }
         }
-        let vars: Vec<usize> =
-            (0..k).filter(|&j| moves[j] && !dependent.contains(&j) && !scene.get(j).copied().unwrap_or(false)).collect();
+        let vars: Vec<usize> = (0..k).filter(|&j| moves[j] && !dependent.contains(&j) && !scene.get(j).copied().unwrap_or(false)).collect();
         Chain { dq: vec![0.0; k * vars.len()], vars }
     }
 
@@ -372,7 +371,9 @@ pub fn ik(model: &RobotModel, targets: &[IkTarget], starts: &[f64], scene: &[boo
                 };
                 (w, Chain { vars: chain.vars.clone(), dq: chain.dq.clone() })
             },
-            |(w, chain), items| items.iter().map(|&i| one(model, chain, opts, &ranges, &targets[i], &starts[i * k..(i + 1) * k], i, w)).collect(),
+            |(w, chain), items| {
+                items.iter().map(|&i| one(model, chain, opts, &ranges, &targets[i], &starts[i * k..(i + 1) * k], i, w)).collect()
+            },
         )
         .collect();
     Ok(first_error(parts)?.concat())

@@ -13,11 +13,10 @@ use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
 use crate::couplings::Coupling;
-use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use crate::desc::ModelDesc;
 use crate::error::Error;
 use crate::fastpath::{certified_batch, collides_batch};
+use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
@@ -30,6 +29,7 @@ use crate::render;
 use crate::sample::sample_uniform;
 use crate::splat::Cutoff;
 use crate::threads::with_threads;
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 create_exception!(
     profrobot._core,

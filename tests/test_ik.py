@@ -208,3 +208,84 @@ def test_thousand_targets_urdf_arm(urdf_arm):
     res = profrobot.ik(urdf_arm, targets, frame="tool0")
     assert res.certified.mean() >= 0.995, res.summary()
     check_mujoco(urdf_arm, "tool0", res, targets)
+
+
+# ---- end-effector terms where poses are optimised ------------------------------------------------
+
+def test_plan_trajectory_through_frame_targets():
+    """A waypoint in the middle pinned to a hand pose: the path passes through it (0.1 mm) and is
+    certified; targets at the end points or an unknown frame are refused."""
+    import torch
+
+    robot = scene("panda_blocks")
+    torch.manual_seed(0)
+    sdf = profrobot.PoseSDF(robot, hidden=(16,))
+    (a,), (b,) = problems.hard_pairs(robot, 1, seed=8)
+    via = problems.free_poses(robot, 20, seed=9)
+    via = via[profrobot.certify_poses(robot, via)][0]
+    target = frame_poses(robot, "hand", via[None])[0]
+    res = profrobot.plan_trajectory(sdf, a, b, steps=21, robot=robot, frame="hand", frame_targets={10: target},
+                                    penalty=profrobot.optim.PenaltyOptions(iterations=30))
+    assert res.certified and res.path.shape == (21, robot.njoint)
+    np.testing.assert_allclose(res.path[0], a)
+    np.testing.assert_allclose(res.path[-1], b)
+    got = frame_poses(robot, "hand", res.path[10:11])[0]
+    assert np.linalg.norm(got[:3, 3] - target[:3, 3]) <= 1e-4 and "frames" in res.method
+    with pytest.raises(profrobot.InputError, match="interior"):
+        profrobot.plan_trajectory(sdf, a, b, steps=21, robot=robot, frame="hand", frame_targets={0: target})
+    with pytest.raises(profrobot.InputError, match="frame 'nope'"):
+        profrobot.plan_trajectory(sdf, a, b, steps=21, robot=robot, frame="nope", frame_targets={5: target})
+
+
+def test_actions_from_video_with_end_effector_targets_on_operation_frames():
+    """The paper's real-robot demo: a video of the arm reaching, with the hand's pose given on the
+    operation frames (as a grasp would be): those frames put the hand within 5 mm of its target,
+    the movement frames follow the images, and every frame and segment is certified."""
+    import torch
+
+    from profrobot.inverse import actions_from_video
+    from profrobot.render import GaussianRobot, ring_cameras
+
+    robot = scene("panda_blocks")
+    torch.manual_seed(0)
+    model = GaussianRobot.from_robot(robot, 1500, seed=0)
+    cams = ring_cameras(2, size=32, distance=1.6, lookat=(0.0, 0.0, 0.45))
+    a, b = problems.free_poses(robot, 2, seed=21)
+    truth = profrobot.interpolate(robot, a, b, 8)
+    with torch.no_grad():
+        out = model.render_views(torch.as_tensor(truth, dtype=torch.float32), cams)
+    video = dict(rgb=out.rgb.reshape(8, 2, 32, 32, 3).numpy(), depth=out.depth.reshape(8, 2, 32, 32).numpy(),
+                 mask=(out.alpha > 0.5).reshape(8, 2, 32, 32).numpy())
+    ops = [5, 6, 7]                                               # the hand holds its grasp pose
+    grasp = frame_poses(robot, "hand", truth[ops])
+    sdf = profrobot.PoseSDF(robot, hidden=(16,))
+    r = actions_from_video(model, video, cams, init=truth[0] + 0.01, iterations_per_frame=4, joint_iterations=5,
+                           sdf=sdf, robot=robot, frame="hand", frame_targets=dict(zip(ops, grasp)))
+    assert r.method.endswith("+frames")
+    got = frame_poses(robot, "hand", r.path[ops])
+    assert np.linalg.norm(got[:, :3, 3] - grasp[:, :3, 3], axis=1).max() <= 5e-3
+    assert r.certified and not r.waypoint_collides.any() and not r.segment_collides.any()
+    assert not profrobot.mujoco_labels(robot, r.path).collides.any()
+
+
+def test_trajectory_from_images_through_a_frame_target():
+    import torch
+
+    from profrobot.inverse import trajectory_from_images
+    from profrobot.render import GaussianRobot, ring_cameras
+
+    robot = scene("panda_blocks")
+    torch.manual_seed(0)
+    model = GaussianRobot.from_robot(robot, 1200, seed=0)
+    cams = ring_cameras(2, size=32, distance=1.6, lookat=(0.0, 0.0, 0.45))
+    a, b = problems.free_poses(robot, 2, seed=11)
+    with torch.no_grad():
+        out = model.render_views(torch.as_tensor(b[None], dtype=torch.float32), cams)
+    t = dict(rgb=out.rgb.numpy(), depth=out.depth.numpy(), mask=(out.alpha > 0.5).numpy())
+    target = frame_poses(robot, "hand", b[None])[0]               # the last frame: the hand where the image has it
+    r = trajectory_from_images(model, t, cams, start=a, goal=b, steps=10, robot=robot, frame="hand",
+                               frame_targets={9: target})
+    assert r.method.endswith("+frames")
+    got = frame_poses(robot, "hand", r.path[9:10])[0]
+    assert np.linalg.norm(got[:3, 3] - target[:3, 3]) <= 1e-4
+    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())

@@ -81,8 +81,8 @@ def frame_of(robot: Robot, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
     if not isinstance(frame, str):
         raise InputTypeError(f"frame must be the name of a site, body or geom; got {type(frame).__name__}")
     m = robot.mj_model
-    for kind, obj, count in (("site", mujoco.mjtObj.mjOBJ_SITE, m.nsite), ("body", mujoco.mjtObj.mjOBJ_BODY, m.nbody),
-                             ("geom", mujoco.mjtObj.mjOBJ_GEOM, m.ngeom)):
+    for kind, obj in (("site", mujoco.mjtObj.mjOBJ_SITE), ("body", mujoco.mjtObj.mjOBJ_BODY),
+                      ("geom", mujoco.mjtObj.mjOBJ_GEOM)):
         i = mujoco.mj_name2id(m, obj, frame)
         if i < 0:
             continue

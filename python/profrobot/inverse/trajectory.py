@@ -34,7 +34,8 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
                            w_depth: float = 1.0, w_mask: float = 0.5, background=None,
-                           robot: Robot | None = None, scene=None) -> TrajectoryResult:
+                           robot: Robot | None = None, scene=None, frame: str | None = None,
+                           frame_targets: dict | None = None) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
     pose: ``rgb`` (C, H, W, 3), ``depth`` (C, H, W) m, ``mask`` (C, H, W), from ``cameras``).
 
@@ -49,6 +50,12 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     required without a field). Returns a :class:`~profrobot.TrajectoryResult` whose ``method``
     says which of these produced the path. ``scene``: for a field of a family of scenes
     (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+
+    End-effector terms: ``frame_targets`` ``{frame index: (4, 4) world transform or (3,)
+    position}`` of ``frame`` (a site, body or geom): each such frame becomes the certified IK
+    pose nearest it that puts the frame on its target (0.1 mm, 1 mrad), and a stretch between
+    two fixed frames that is then not certified is re-planned (:func:`profrobot.plan_trajectory`,
+    the planner between them); ``method`` gains "+frames".
     """
     t0 = time.perf_counter()
     if isinstance(cameras, dict):   # the order of earlier releases: (model, start, targets, cameras)
@@ -117,4 +124,34 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
                                    density=density)
             if plan.certified:
                 path, method = unwrap_path(plan.path, lim.cont_np), "images+planner"
+    if frame_targets is not None or frame is not None:
+        path = _through_frames(sdf, robot, path, frame, frame_targets, lim, density)
+        method += "+frames"
     return certified_path(robot, sdf, path, density, method, iterations, t0)
+
+
+def _through_frames(sdf, robot: Robot, path: np.ndarray, frame, frame_targets, lim, density: int) -> np.ndarray:
+    """``path`` (S, K, continuous joints unwrapped) with its target frames on their IK poses and
+    the stretches around them re-planned where they are not certified."""
+    from ..optim.frames import FrameTargets
+
+    if frame is None or frame_targets is None:
+        raise InputError("end-effector targets need both frame= (a site, body or geom) and frame_targets= "
+                         "({frame index: target})")
+    S = len(path)
+    ft = FrameTargets(robot, frame, frame_targets, S, "frame_targets")
+    snapped, ok = ft.snap(lim.numpy(path))
+    rows = ft.index[ok]
+    ref = np.where(rows > 0, rows - 1, rows)
+    path = path.copy()
+    path[rows] = path[ref] + lim.diff(snapped[rows], path[ref])
+    anchors = sorted({0, S - 1, *rows.tolist()})
+    for a, b in zip(anchors[:-1], anchors[1:]):
+        seg = lim.numpy(path[a:b + 1])
+        if b - a < 2 or check_path(robot, seg, density).certified or not certify_poses(robot, seg[[0, -1]]).all():
+            continue
+        sub = plan_trajectory(sdf, seg[0], seg[-1], b - a + 1, robot=robot, init="planner", density=density)
+        if sub.certified:
+            new = unwrap_path(sub.path, lim.cont_np)
+            path[a:b + 1] = new + (path[a] - new[0])         # continuous joints: on from path[a]'s turn
+    return path

@@ -39,16 +39,29 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                        first_frame_iterations: int = 50,
                        joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
-                       background=None, robot: Robot | None = None, batch: int = 20, scene=None) -> TrajectoryResult:
+                       background=None, robot: Robot | None = None, batch: int = 20, scene=None,
+                       frame: str | None = None, frame_targets: dict | None = None,
+                       w_frame: float = 100.0) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
     :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` by the continuous check,
     ``method`` "video" or "video+field"). ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout."""
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+
+    End-effector terms (the paper's real-robot recipe): ``frame_targets`` ``{frame index: (4, 4)
+    world transform or (3,) position}`` of ``frame`` (a site, body or geom) mark *operation*
+    frames, supervised by the end-effector pose (``w_frame`` ‖·‖², torch FK, in the joint
+    stages); the others are *movement* frames, steered by the field. Each operation frame is
+    then the certified IK pose nearest its answer that puts the frame on its target (0.1 mm,
+    1 mrad: :func:`profrobot.ik`), fixed while the segments around it are freed, and every frame
+    and segment certified (``method`` gains "+frames")."""
     t0 = time.perf_counter()
     sdf, robot = field_at_layout(sdf, robot, scene)
     robot = labeller_robot(sdf, model, robot, "actions_from_video")
+    if (frame is None) != (frame_targets is None):
+        raise InputError("end-effector targets need both frame= (a site, body or geom) and frame_targets= "
+                         "({frame index: target})")
     iterations_per_frame = positive("iterations_per_frame", iterations_per_frame, integer=True, allow_zero=True)
     first_frame_iterations = positive("first_frame_iterations", first_frame_iterations, integer=True, allow_zero=True)
     joint_iterations = positive("joint_iterations", joint_iterations, integer=True, allow_zero=True)
@@ -62,6 +75,12 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     dev = model.means.device
     tg = ImageTargets.from_images(frames, cameras, T, device=dev, background=background, w_depth=w_depth,
                                   w_mask=w_mask, who="actions_from_video")
+    ft = None
+    if frame_targets is not None:
+        from ..optim.frames import FrameTargets
+
+        ft = FrameTargets(robot, frame, frame_targets, T, "frame_targets")
+        w_frame = finite("w_frame", w_frame)
     q0 = np.asarray(init, dtype=np.float64).reshape(-1)
     if q0.shape != (model.njoint,) or not np.isfinite(q0).all():
         raise InputError(f"init must be {model.njoint} finite joint values; got shape {np.asarray(init).shape}")
@@ -98,6 +117,8 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                 if with_field:
                     g = sdf(th[s:s + batch].to(sdf.joint_limits.device)).to(dev)
                     loss = loss + beta * torch.relu(g - l_thres).sum()
+                if ft is not None:                                # operation frames: the end effector's pose
+                    loss = loss + w_frame * ft.loss(th[s:s + batch], np.asarray(idx))
                 loss.backward()
             tv = w_tv * (th[1:] - th[:-1]).abs().sum(1).mean() * T
             tv.backward()
@@ -113,10 +134,18 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
         joint(joint_iterations, True)
         method, iterations = "video+field", iterations + joint_iterations
     path = unwrap_path(lim.numpy(traj.cpu().numpy().astype(np.float64)), lim.cont_np)
+    anchor = np.zeros(T, dtype=bool)
+    if ft is not None:                  # operation frames: on their targets exactly, certified, then fixed
+        snapped, ok = ft.snap(lim.numpy(path))
+        rows = ft.index[ok]
+        ref = np.where(rows > 0, rows - 1, rows)
+        path[rows] = path[ref] + lim.diff(snapped[rows], path[ref])
+        anchor[rows] = True
+        method += "+frames"
     if sdf is not None:
         from ..optim import resolve
 
-        bad = np.flatnonzero(~certify_poses(robot, lim.numpy(path)))
+        bad = np.flatnonzero(~certify_poses(robot, lim.numpy(path)) & ~anchor)
         if len(bad):                                              # colliding frames: resolve them
             r = resolve(sdf, lim.numpy(path[bad]), l_thres=l_thres, robot=robot)
             for i, b in enumerate(bad):
@@ -125,7 +154,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                     path[b] = ref + lim.diff(r.poses[i:i + 1], ref[None])[0]
         chk = check_path(robot, lim.numpy(path), density)
         if not chk.certified:                                          # colliding segments between free frames
-            free = ~chk.waypoint_collides
+            free = ~chk.waypoint_collides | anchor
             for seg in np.flatnonzero(chk.segment_collides):
                 a = seg
                 while a > 0 and not free[a]:

@@ -148,7 +148,8 @@ _LEGACY = {
 def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
                     init: Init = "auto", planner: dict | None = None, penalty: PenaltyOptions | None = None,
                     tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
-                    density: int = 10, scene=None, **legacy):
+                    density: int = 10, scene=None, frame: str | None = None, frame_targets: dict | None = None,
+                    **legacy):
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
     list of B results, optimised together.
@@ -172,10 +173,21 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     method="sampled")``); the certificate of every result is continuous and needs none (kept for
     the options of earlier releases). ``robot``: the labeller's robot (default: the field's own).
 
+    End-effector terms: ``frame_targets`` ``{waypoint index: (4, 4) world transform or (3,)
+    position}`` of ``frame`` (a site, body or geom) at interior waypoints (one problem, not a
+    batch). Each such waypoint is the certified IK pose (:func:`profrobot.ik`) nearest the
+    straight path's waypoint there that puts the frame on its target (0.1 mm, 1 mrad); the path
+    between consecutive fixed waypoints is planned as above, and the whole path certified.
+
     The flat options of earlier releases (``gamma1``, ``lr``, ``iterations``, ``delta``,
     ``tangent_iters``, ``smooth_iters``, ...) still work, with a DeprecationWarning.
     """
     t0 = time.perf_counter()
+    if frame_targets is not None or frame is not None:
+        return _through_frame_targets(sdf, start, goal, steps, method, robot=robot, init=init, planner=planner,
+                                      penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations,
+                                      l_thres=l_thres, density=density, scene=scene, frame=frame,
+                                      frame_targets=frame_targets, legacy=legacy, t0=t0)
     sdf, robot = field_at_layout(sdf, robot, scene)
     if sdf is None:
         if not isinstance(robot, Robot):
@@ -254,6 +266,58 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
             initial_certified=bool(initial_certified[b]), init="planner" if use_planner[b] else "straight",
             planner=plans.get(b), smoothed=bool(smoothed[b]), length_before=before.get(b, float("nan"))))
     return results[0] if single else results
+
+
+def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, planner, penalty, tangent,
+                           smooth_iterations, l_thres, density, scene, frame, frame_targets, legacy, t0):
+    """:func:`plan_trajectory` with end-effector targets at interior waypoints (its docs)."""
+    from .frames import FrameTargets
+
+    if frame is None or frame_targets is None:
+        raise InputError("end-effector targets need both frame= (a site, body or geom) and frame_targets= "
+                         "({waypoint index: target})")
+    if np.ndim(start) != 1 or np.ndim(goal) != 1:
+        raise InputError("frame_targets= plans one problem: start and goal must be single poses (K,)")
+    sdf_l, robot_l = field_at_layout(sdf, robot, scene)
+    robot_l = robot_l if sdf_l is None else field_robot(sdf_l, robot_l)
+    steps = positive("steps", steps, integer=True)
+    s = poses_within_limits(robot_l, start, "start")[0]
+    g = poses_within_limits(robot_l, goal, "goal")[0]
+    ft = FrameTargets(robot_l, frame, frame_targets, steps, "frame_targets")
+    if ft.index.min() == 0 or ft.index.max() == steps - 1:
+        raise InputError("frame_targets: the first and last waypoints are start and goal; target interior "
+                         f"waypoints (1..{steps - 2})")
+    straight = interpolate(robot_l, s, g, steps)
+    fixed, ok = ft.snap(straight)
+    if not ok.all():
+        bad = int(ft.index[np.flatnonzero(~ok)[0]])
+        raise InputError(f"frame_targets[{bad}]: no certified pose puts {frame!r} on its target")
+    anchors = [0, *ft.index.tolist(), steps - 1]
+    pieces, results = [fixed[:1]], []
+    for a, b in zip(anchors[:-1], anchors[1:]):
+        if b - a == 1:
+            pieces.append(fixed[b:b + 1])
+            continue
+        sub = plan_trajectory(sdf_l, fixed[a], fixed[b], b - a + 1, method, robot=robot_l, init=init, planner=planner,
+                              penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations, l_thres=l_thres,
+                              density=density, **legacy)
+        results.append(sub)
+        pieces.append(sub.path[1:])
+    path = np.concatenate(pieces)
+    path[ft.index] = fixed[ft.index]                    # exactly the certified IK poses
+    gs = np.full(steps, np.nan, dtype=np.float32)
+    if sdf_l is not None:
+        with torch.no_grad():
+            like = sdf_l.joint_limits
+            gs = sdf_l(torch.as_tensor(path, dtype=like.dtype, device=like.device)).cpu().numpy()
+    limits = Limits.of(robot_l)
+    return trajectory_result(robot_l, path, check_path(robot_l, path, density), g=gs,
+                             iterations=int(sum(r.iterations for r in results)), seconds=time.perf_counter() - t0,
+                             method="+".join(sorted({r.method for r in results})) + "+frames" if results else "frames",
+                             straight_length=float(np.linalg.norm(limits.diff(g, s))),
+                             initial_certified=bool(check_path(robot_l, straight, density).certified),
+                             init=init, planner=None, smoothed=any(r.smoothed for r in results),
+                             length_before=float("nan"))
 
 
 def _options(legacy: dict, penalty: PenaltyOptions | None, tangent: TangentOptions | None, smooth_iterations: int,
