@@ -128,9 +128,8 @@ fn place(model: &RobotModel, w: &mut Work) {
     for b in 1..model.body_parent.len() {
         let mut x = w.frames[model.body_parent[b]] * model.body_local[b];
         let (j0, j1) = model.body_joints[b];
-        for j in j0..j1 {
-            let jnt = &model.joints[j];
-            let angle = q[j] - jnt.qpos0;
+        for (j, (jnt, &qj)) in model.joints[j0..j1].iter().zip(&q[j0..j1]).enumerate().map(|(i, p)| (j0 + i, p)) {
+            let angle = qj - jnt.qpos0;
             let axis = x.rotation * jnt.axis.into_inner();
             if jnt.hinge {
                 let anchor = (x * Point3::from(jnt.anchor)).coords;
@@ -391,13 +390,12 @@ fn one(
     index: usize,
     w: &mut Work,
 ) -> Result<IkAnswer> {
-    let k = start.len();
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     rng.set_stream(index as u64);
     let mut home = start.to_vec();
-    for j in 0..k {
-        if model.limited[j] {
-            home[j] = home[j].clamp(model.limits[j][0], model.limits[j][1]);
+    for ((h, &[lo, hi]), &limited) in home.iter_mut().zip(&model.limits).zip(&model.limited) {
+        if limited {
+            *h = h.clamp(lo, hi);
         }
     }
     model.couplings.apply(&mut home);
