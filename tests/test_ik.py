@@ -289,3 +289,24 @@ def test_trajectory_from_images_through_a_frame_target():
     got = frame_poses(robot, "hand", r.path[9:10])[0]
     assert np.linalg.norm(got[:3, 3] - target[:3, 3]) <= 1e-4
     assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
+
+
+def test_ik_command(urdf_arm, tmp_path, capsys):
+    """``profrobot ik --robot FILE --frame NAME --targets targets.npy`` writes poses and a report."""
+    from profrobot.cli import main
+
+    path = tmp_path / "arm.urdf"
+    path.write_text(URDF_ARM)
+    _, targets = fk_targets(urdf_arm, "tool0", 20, seed=13)
+    np.save(tmp_path / "t.npy", targets)
+    out = tmp_path / "poses.npz"
+    code = main(["ik", "--robot", str(path), "--frame", "tool0", "--targets", str(tmp_path / "t.npy"),
+                 "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code in (0, 1), printed.err
+    with np.load(out) as z:
+        assert z["poses"].shape == (20, urdf_arm.njoint) and z["certified"].mean() >= 0.9
+        assert list(z["joint_names"]) == urdf_arm.joint_names
+    assert "certified" in printed.out
+    assert main(["ik", "--robot", str(path), "--frame", "nope", "--targets", str(tmp_path / "t.npy")]) == 2
+    assert "frame 'nope'" in capsys.readouterr().err
