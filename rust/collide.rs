@@ -16,7 +16,7 @@
 //! (`label_batch`, `collides_batch`, `nearest_free`, `plan_path`) fail with
 //! [`Error::Undecided`] naming the pose and the pair (a `ModelError` in Python).
 
-use nalgebra::{Isometry3, Matrix3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use parry3d_f64::query;
 use parry3d_f64::shape::{Shape, SupportMap};
 use rayon::prelude::*;
@@ -476,6 +476,39 @@ fn pair_signed_distance(model: &RobotModel, k: usize, poses: &[Isometry3<f64>], 
             }
         }
     }
+}
+
+/// A pair's signed distance, its nearest point on each geom and the unit normal from the first
+/// to the second (world frame).
+pub(crate) type Witness = (f64, Point3<f64>, Point3<f64>, Vector3<f64>);
+
+/// Candidate pair `k`'s nearest points when it is closer than `prediction` (metres) in the pose
+/// placed in `s` (with every geom's frame: `Scratch::place(.., true)`): `(signed distance,
+/// point on the first geom, point on the second, unit normal from the first to the second)`,
+/// world frame; the distance grows at `n·(ṗ₂ − ṗ₁)`. For IK's distance rows (`ik.rs`): a
+/// search direction, never a certificate.
+pub(crate) fn pair_witness(model: &RobotModel, s: &Scratch, k: usize, prediction: f64) -> std::result::Result<Option<Witness>, Undecided> {
+    let pair: &CandidatePair = &model.pairs[k];
+    let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
+    let (pa, pb) = (&s.geoms[pair.g1], &s.geoms[pair.g2]);
+    let plane = |plane: &Isometry3<f64>, convex: &Convex, pose: &Isometry3<f64>| {
+        let n = plane.rotation * Vector3::z();
+        let deepest = convex.support_point(pose, &(-n));
+        let d = n.dot(&(deepest.coords - plane.translation.vector));
+        (d, Point3::from(deepest.coords - n * d), deepest, n)
+    };
+    let found = match (&a.shape.solid, &b.shape.solid) {
+        (Solid::HalfSpace, Solid::Convex { convex, .. }) => Some(plane(pa, convex, pb)),
+        (Solid::Convex { convex, .. }, Solid::HalfSpace) => {
+            let (d, on_plane, deepest, n) = plane(pb, convex, pa);
+            Some((d, deepest, on_plane, -n))
+        }
+        (Solid::HalfSpace, Solid::HalfSpace) => None,
+        (Solid::Convex { shape: sa, .. }, Solid::Convex { shape: sb, .. }) => query::contact(pa, sa.as_ref(), pb, sb.as_ref(), prediction)
+            .map_err(|_| Undecided { pair: k as u32 })?
+            .map(|c| (c.dist, c.point1, c.point2, c.normal1.into_inner())),
+    };
+    Ok(found.filter(|f| f.0 < prediction))
 }
 
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked;

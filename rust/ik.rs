@@ -22,7 +22,12 @@
 //! the pose it reached is then certified free (`fastpath::certified_pose`: no contact, every pair
 //! more than the clearance apart, and `RobotModel::feasible`). The answer is the certified pose
 //! nearest the start among the near seeds (0–3) when one of them certifies, else the first
-//! certified one of the uniform seeds. Nothing is certified as reaching a target it does not reach
+//! certified one of the uniform seeds. A seed that reaches the target in contact (or within the
+//! clearance) first tries to move out: LM on the target's error stacked with a row per pair
+//! nearer than 5 mm beyond its margin, `nᵀ(J₂ − J₁) Δv = 5 mm + margin − d` (the pair's
+//! distance linearised at its nearest points, parry's contact query: how mink and dm_robotics
+//! constrain collisions), so that the redundancy the target leaves takes the robot out of
+//! contact; the pose it ends in is certified like any other, never on the rows' word. Nothing is certified as reaching a target it does not reach
 //! (within tolerance) or in a pose that collides: such targets come back with their best pose,
 //! error and reason.
 
@@ -33,7 +38,7 @@ use rayon::prelude::*;
 
 use crate::angles::wrap;
 use crate::broad::check_clearance;
-use crate::collide::{first_error, Scratch};
+use crate::collide::{first_error, pair_witness, Scratch};
 use crate::error::{invalid_input, Error, Result};
 use crate::fastpath::certified_pose;
 use crate::model::RobotModel;
@@ -61,11 +66,13 @@ pub struct IkOptions {
     /// The certificate's clearance (metres).
     pub clearance: f64,
     pub seed: u64,
+    /// Whether a seed that reaches the target in contact tries the distance rows (`escape`).
+    pub escape: bool,
 }
 
 impl IkOptions {
     pub fn new(body: usize, local: Isometry3<f64>) -> Self {
-        IkOptions { body, local, seeds: 128, iterations: 60, tol_pos: 1e-6, tol_rot: 1e-6, clearance: 1e-6, seed: 0 }
+        IkOptions { body, local, seeds: 128, iterations: 60, tol_pos: 1e-6, tol_rot: 1e-6, clearance: 1e-6, seed: 0, escape: true }
     }
 }
 
@@ -250,24 +257,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
         iters += 1;
         // the geometric Jacobian of the frame point over every joint that moves it, then dq/dv
         let p = (w.frames[opts.body] * opts.local).translation.vector;
-        jac.fill(0.0);
-        let mut b = opts.body;
-        while b != 0 {
-            let (j0, j1) = model.body_joints[b];
-            for j in j0..j1 {
-                let a = w.axes[j];
-                let lin = if model.joints[j].hinge { a.cross(&(p - w.anchors[j])) } else { a };
-                for r in 0..3 {
-                    jac[(r, j)] = lin[r];
-                }
-                if rows == 6 && model.joints[j].hinge {
-                    for r in 0..3 {
-                        jac[(3 + r, j)] = a[r];
-                    }
-                }
-            }
-            b = model.body_parent[b];
-        }
+        frame_jacobian(model, w, opts.body, &p, rows, &mut jac);
         chain.update(model, &w.q);
         let dq = DMatrix::from_row_slice(model.njoint(), nv, &chain.dq);
         let jv = &jac * dq; // (rows, nv)
@@ -313,6 +303,124 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
         }
     }
     (pe <= opts.tol_pos && re <= opts.tol_rot, pe, re, iters)
+}
+
+/// Distance (metres, beyond each pair's margin) the escape rows push pairs apart to.
+const SAFE: f64 = 0.005;
+/// Pairs closer than this (metres) are measured for the rows.
+const ACTIVE: f64 = 0.02;
+/// Escape iterations at most.
+const ESCAPE_ITERATIONS: usize = 30;
+
+/// The linear velocity (3 × K, per joint) of the world point `p` carried by body `b`.
+fn point_jacobian(model: &RobotModel, w: &Work, b: usize, p: &Vector3<f64>, out: &mut DMatrix<f64>) {
+    out.fill(0.0);
+    let mut b = b;
+    while b != 0 {
+        let (j0, j1) = model.body_joints[b];
+        for j in j0..j1 {
+            let a = w.axes[j];
+            let v = if model.joints[j].hinge { a.cross(&(p - w.anchors[j])) } else { a };
+            for r in 0..3 {
+                out[(r, j)] = v[r];
+            }
+        }
+        b = model.body_parent[b];
+    }
+}
+
+/// From a pose in `w.q` that reaches the target but is not certified: Levenberg–Marquardt on the
+/// target's error stacked with one row per pair nearer than `SAFE` beyond its margin, `nᵀ(J₂ −
+/// J₁) Δv = SAFE + margin − d` (the pair's distance, linearised at its nearest points, as mink and
+/// dm_robotics constrain it), so that the redundancy the target leaves moves the robot out of
+/// contact; then the target alone again. Returns the LM iterations; the caller certifies.
+fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTarget, w: &mut Work) -> Result<usize> {
+    let rows_t = if target.rot.is_some() { 6 } else { 3 };
+    let nv = chain.vars.len();
+    let k = model.njoint();
+    let mut jac = DMatrix::<f64>::zeros(rows_t, k);
+    let (mut j1, mut j2) = (DMatrix::<f64>::zeros(3, k), DMatrix::<f64>::zeros(3, k));
+    let mut iters = 0;
+    for _ in 0..ESCAPE_ITERATIONS {
+        place(model, w);
+        w.scratch.place(model, &w.q, true);
+        let mut rows: Vec<(DVector<f64>, f64)> = Vec::new(); // (row over the K joints, wanted Δd)
+        for (p, pair) in model.pairs.iter().enumerate() {
+            let (gap, _) = model.broad.sphere_gap(&w.scratch.broad, p, &model.geoms);
+            let need = SAFE + pair.margin.max(opts.clearance);
+            if gap > ACTIVE.max(need) {
+                continue;
+            }
+            let Some((d, p1, p2, n)) = pair_witness(model, &w.scratch, p, ACTIVE.max(need)).map_err(|e| e.error(model, "an IK pose"))?
+            else {
+                continue;
+            };
+            if d >= need {
+                continue;
+            }
+            point_jacobian(model, w, model.geoms[pair.g1].body, &p1.coords, &mut j1);
+            point_jacobian(model, w, model.geoms[pair.g2].body, &p2.coords, &mut j2);
+            let row = (&j2 - &j1).transpose() * n; // (K,)
+            rows.push((row, need - d));
+        }
+        if rows.is_empty() {
+            break;
+        }
+        iters += 1;
+        let mut e = [0.0; 6];
+        error(opts, target, w, &mut e);
+        let p = (w.frames[opts.body] * opts.local).translation.vector;
+        frame_jacobian(model, w, opts.body, &p, rows_t, &mut jac);
+        chain.update(model, &w.q);
+        let dq = DMatrix::from_row_slice(k, nv, &chain.dq);
+        let jv = &jac * &dq;
+        let mut a = DMatrix::<f64>::zeros(nv, nv);
+        let mut g = DVector::<f64>::zeros(nv);
+        for (r, &er) in e.iter().enumerate().take(rows_t) {
+            let wr = if r < 3 { 1.0 } else { LENGTH * LENGTH };
+            let jr = jv.row(r).transpose();
+            a += wr * &jr * jr.transpose();
+            g += wr * er * &jr;
+        }
+        for (row, want) in &rows {
+            let jr = dq.transpose() * row;
+            a += &jr * jr.transpose();
+            g += *want * &jr;
+        }
+        for i in 0..nv {
+            a[(i, i)] += 1e-3 * (a[(i, i)] + 1e-9);
+        }
+        let Some(dv) = a.cholesky().map(|ch| ch.solve(&g)) else {
+            break;
+        };
+        step(model, chain, &w.q, &dv, &mut w.trial);
+        std::mem::swap(&mut w.q, &mut w.trial);
+    }
+    let (_, _, _, it) = solve(model, chain, opts, target, w);
+    Ok(iters + it)
+}
+
+/// The geometric Jacobian (`rows` × K: linear, then angular) of the world point `p` of the
+/// frame on body `body`.
+fn frame_jacobian(model: &RobotModel, w: &Work, body: usize, p: &Vector3<f64>, rows: usize, jac: &mut DMatrix<f64>) {
+    jac.fill(0.0);
+    let mut b = body;
+    while b != 0 {
+        let (j0, j1) = model.body_joints[b];
+        for j in j0..j1 {
+            let a = w.axes[j];
+            let lin = if model.joints[j].hinge { a.cross(&(p - w.anchors[j])) } else { a };
+            for r in 0..3 {
+                jac[(r, j)] = lin[r];
+            }
+            if rows == 6 && model.joints[j].hinge {
+                for r in 0..3 {
+                    jac[(3 + r, j)] = a[r];
+                }
+            }
+        }
+        b = model.body_parent[b];
+    }
 }
 
 /// Joint-space distance from `a` to `b`, continuous hinges the short way.
@@ -429,8 +537,26 @@ fn one(
         iterations += it;
         let c = pe * pe + LENGTH * LENGTH * re * re;
         if reached {
-            let free = model.feasible(&w.q)
-                && certified_pose(model, &w.q, opts.clearance, &mut w.scratch).map_err(|e| e.error(model, format!("target {index}")))?;
+            let certify = |w: &mut Work| -> Result<bool> {
+                Ok(model.feasible(&w.q)
+                    && certified_pose(model, &w.q, opts.clearance, &mut w.scratch)
+                        .map_err(|e| e.error(model, format!("target {index}")))?)
+            };
+            let mut free = certify(w)?;
+            let (mut pe, mut re) = (pe, re);
+            if !free && opts.escape {
+                // in contact, or within the clearance: the distance rows move it out, if they can
+                let keep = w.q.clone();
+                iterations += escape(model, chain, opts, target, w)?;
+                place(model, w);
+                let mut e = [0.0; 6];
+                let (pe2, re2) = error(opts, target, w, &mut e);
+                if pe2 <= opts.tol_pos && re2 <= opts.tol_rot && certify(w)? {
+                    (free, pe, re) = (true, pe2, re2);
+                } else {
+                    w.q.copy_from_slice(&keep);
+                }
+            }
             if free {
                 let d = distance(model, &home, &w.q);
                 if best_certified.as_ref().is_none_or(|(bd, ..)| d < *bd) {

@@ -489,7 +489,7 @@ impl PyRobotModel {
     /// Inverse kinematics of a frame (see `_core.pyi` and `ik.rs`): `targets_pos` `(N, 3)`,
     /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
     /// is body `body` offset by `local_pos`, `local_quat`.
-    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, threads=None))]
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, escape=true, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn ik<'py>(
         &self,
@@ -506,6 +506,7 @@ impl PyRobotModel {
         tol_rot: f64,
         clearance: f64,
         seed: u64,
+        escape: bool,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let model = &self.model;
@@ -534,7 +535,7 @@ impl PyRobotModel {
             .map(|i| IkTarget { pos: [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], rot: quat.as_ref().map(|q| unit(&q[4 * i..4 * i + 4])) })
             .collect();
         let local = Isometry3::from_parts(Translation3::from(local_pos), unit(&local_quat));
-        let opts = IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, clearance, seed };
+        let opts = IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, clearance, seed, escape };
         let scene = &self.desc.jnt_scene;
         let r = py.detach(|| with_threads(threads, || ik(model, &targets, starts, scene, &opts))).map_err(to_py)?.map_err(to_py)?;
         let out = PyDict::new(py);

@@ -310,3 +310,17 @@ def test_ik_command(urdf_arm, tmp_path, capsys):
     assert "certified" in printed.out
     assert main(["ik", "--robot", str(path), "--frame", "nope", "--targets", str(tmp_path / "t.npy")]) == 2
     assert "frame 'nope'" in capsys.readouterr().err
+
+
+def test_distance_rows_take_a_reached_pose_out_of_contact():
+    """One seed per target (the start): where the pose it reaches collides, the linearised
+    distance rows move it out along the redundancy the target leaves; every pose so certified is
+    free in MuJoCo and still on its target."""
+    robot = scene("ur5e_wall_box")
+    _, targets = fk_targets(robot, "attachment_site", 150, seed=14)
+    plain = profrobot.ik(robot, targets[:, :3, 3], frame="attachment_site", seeds=1, escape=False)
+    rows = profrobot.ik(robot, targets[:, :3, 3], frame="attachment_site", seeds=1)
+    assert (plain.outcome == 2).sum() >= 3, plain.summary()            # reached, but only in contact
+    assert rows.certified.sum() > plain.certified.sum(), (plain.summary(), rows.summary())
+    assert (rows.certified | ~plain.certified).all()                   # nothing certified is lost
+    check_mujoco(robot, "attachment_site", rows, targets, position_only=True)

@@ -101,13 +101,15 @@ class RobotModel:
     def ik(self, targets_pos: npt.NDArray[np.float64], targets_quat: npt.NDArray[np.float64] | None,
            starts: npt.NDArray[np.float64], body: int, local_pos: Sequence[float], local_quat: Sequence[float], *,
            seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,
-           clearance: float = 1e-6, seed: int = 0, threads: int | None = None) -> dict[str, npt.NDArray]:
+           clearance: float = 1e-6, seed: int = 0, escape: bool = True,
+           threads: int | None = None) -> dict[str, npt.NDArray]:
         """Inverse kinematics of the frame at ``local_pos``, ``local_quat`` (w, x, y, z) in body
         ``body``: for each of N targets (``targets_pos`` (N, 3) metres, ``targets_quat`` (N, 4) or
         None for position only), Levenberg–Marquardt on the SE(3) error from ``seeds`` seeds (the
         start of ``starts`` (N, K), three perturbations, then uniform), limits, couplings and
         continuous joints kept; a pose within ``tol_pos`` / ``tol_rot`` is certified at
-        ``clearance``. Keys: poses (N, K), outcome (N,) uint8 (0 certified, 1 unreachable, 2
+        ``clearance`` (``escape``: a seed that reaches it in contact first tries the linearised
+        distance rows). Keys: poses (N, K), outcome (N,) uint8 (0 certified, 1 unreachable, 2
         reached only in collision), reached (N,) bool, position_error, rotation_error (N,)
         float64, iterations, seeds (N,) int64. Same seed, same answer, for any thread count."""
     def nearest_free(self, poses: npt.NDArray[np.float64], *, directions: int = 256, step: float = 0.02,

@@ -170,7 +170,7 @@ def _starts(robot: Robot, start, n: int, scene) -> np.ndarray:
 
 def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_tolerance: float = 1e-4,
        rotation_tolerance: float = 1e-3, seeds: int = 128, iterations: int = 60, seed: int = 0,
-       threads: int | None = None) -> IKResult:
+       escape: bool = True, threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
@@ -183,8 +183,10 @@ def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_to
     limits and on its couplings). Up to ``seeds`` seeds per target (the start, three
     perturbations of it, then uniform draws from ``seed``); among certified solutions the one
     nearest the start is returned. Unreachable targets come back not reached, with their best
-    error and ``reasons``; nothing is certified that does not reach its target. Same ``seed``,
-    same answers, for any thread count."""
+    error and ``reasons``; nothing is certified that does not reach its target. A seed that
+    reaches the target in contact first tries to move out (``escape``): the pairs nearer than
+    5 mm enter as linearised distance rows beside the target's (``rust/ik.rs``), and the pose it
+    ends in is certified like any other. Same ``seed``, same answers, for any thread count."""
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
     t0 = time.perf_counter()
@@ -199,7 +201,7 @@ def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_to
     starts = _starts(robot, start, len(pos), scene)
     out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
                         tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100, clearance=CLEARANCE,
-                        seed=check_seed(seed), threads=check_threads(threads))
+                        seed=check_seed(seed), escape=bool(escape), threads=check_threads(threads))
     poses = out["poses"]
     if robot.is_family:
         poses = poses[:, robot.robot_index]
