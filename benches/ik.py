@@ -8,7 +8,11 @@ the error is within tolerance or ``--mink-iterations`` steps. A target counts as
 frame is within 0.1 mm and 1 mrad (MuJoCo's FK) and the pose is certified free by the exact
 labeller (no MuJoCo contact). cuRobo's published rate is printed as an anchor (GPU, not run here).
 
-    python benches/ik.py [--targets 1000] [--mink-targets 200] [--scenes panda_blocks,ur5e_wall_box]
+    python benches/ik.py [--targets 1000] [--mink-targets 200] [--scenes panda_blocks,ur5e_wall_box] [--motion 100]
+
+Motion to a pose (``profrobot.plan_to_pose``): ``--motion`` start/target pairs on panda_blocks and
+the UR5e scene, the targets the frame poses of the goals of ``problems.hard_pairs`` (the straight
+path between them collides), timed end to end (IK candidates and the continuous-certified planner).
 
 (pip install mink: the bench extra). Results: benches/ik_results.md (by hand, with the load).
 """
@@ -92,6 +96,7 @@ def main(argv=None) -> int:
     p.add_argument("--mink-iterations", type=int, default=300, help="mink's integration steps per target at most")
     p.add_argument("--scenes", default=",".join(ARMS), help="comma-separated bundled arm scenes")
     p.add_argument("--no-mink", action="store_true", help="ours only")
+    p.add_argument("--motion", type=int, default=100, help="start/target problems for plan_to_pose per scene (0: none)")
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     print(f"load average {os.getloadavg()[0]:.2f} at the start; {CUROBO_ANCHOR}")
@@ -118,6 +123,25 @@ def main(argv=None) -> int:
         print(row + f"{1 / per:,.0f} | {mink_ok.mean():.1%} | "
               f"{solved(robot, frame, sub.poses, targets[:n], sub.certified).mean():.1%} in {sub.seconds * 1e3:.0f} ms | "
               f"{ours_rate * per:,.0f}x |", flush=True)
+    if args.motion:
+        print("\n| scene | motion to a pose: certified | median ms | p90 ms | IK candidates tried (mean) |")
+        print("|---|---|---|---|---|")
+        for name in ("panda_blocks", "ur5e_wall_box"):
+            robot, frame = profrobot.scenes.load(name), ARMS[name]
+            starts, goals = problems.hard_pairs(robot, args.motion, seed=21)
+            targets = frame_poses(robot, frame, goals)
+            times, ok, cands = [], 0, []
+            for a, t in zip(starts, targets):
+                t0 = time.perf_counter()
+                try:
+                    m = profrobot.plan_to_pose(robot, a, t, frame=frame)
+                    ok += bool(m.certified)
+                    cands.append(m.candidates)
+                except profrobot.InputError:
+                    pass
+                times.append(time.perf_counter() - t0)
+            print(f"| {name} | {ok}/{len(starts)} | {1e3 * np.median(times):.2f} | {1e3 * np.percentile(times, 90):.2f} "
+                  f"| {np.mean(cands):.2f} |", flush=True)
     print(f"load average {os.getloadavg()[0]:.2f} at the end")
     return 0
 
