@@ -257,7 +257,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
         iters += 1;
         // the geometric Jacobian of the frame point over every joint that moves it, then dq/dv
         let p = (w.frames[opts.body] * opts.local).translation.vector;
-        frame_jacobian(model, w, opts.body, &p, rows, &mut jac);
+        point_jacobian(model, w, opts.body, &p, rows, &mut jac);
         chain.update(model, &w.q);
         let dq = DMatrix::from_row_slice(model.njoint(), nv, &chain.dq);
         let jv = &jac * dq; // (rows, nv)
@@ -312,23 +312,6 @@ const ACTIVE: f64 = 0.02;
 /// Escape iterations at most.
 const ESCAPE_ITERATIONS: usize = 30;
 
-/// The linear velocity (3 × K, per joint) of the world point `p` carried by body `b`.
-fn point_jacobian(model: &RobotModel, w: &Work, b: usize, p: &Vector3<f64>, out: &mut DMatrix<f64>) {
-    out.fill(0.0);
-    let mut b = b;
-    while b != 0 {
-        let (j0, j1) = model.body_joints[b];
-        for j in j0..j1 {
-            let a = w.axes[j];
-            let v = if model.joints[j].hinge { a.cross(&(p - w.anchors[j])) } else { a };
-            for r in 0..3 {
-                out[(r, j)] = v[r];
-            }
-        }
-        b = model.body_parent[b];
-    }
-}
-
 /// From a pose in `w.q` that reaches the target but is not certified: Levenberg–Marquardt on the
 /// target's error stacked with one row per pair nearer than `SAFE` beyond its margin, `nᵀ(J₂ −
 /// J₁) Δv = SAFE + margin − d` (the pair's distance, linearised at its nearest points, as mink and
@@ -358,8 +341,8 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
             if d >= need {
                 continue;
             }
-            point_jacobian(model, w, model.geoms[pair.g1].body, &p1.coords, &mut j1);
-            point_jacobian(model, w, model.geoms[pair.g2].body, &p2.coords, &mut j2);
+            point_jacobian(model, w, model.geoms[pair.g1].body, &p1.coords, 3, &mut j1);
+            point_jacobian(model, w, model.geoms[pair.g2].body, &p2.coords, 3, &mut j2);
             let row = (&j2 - &j1).transpose() * n; // (K,)
             rows.push((row, need - d));
         }
@@ -370,7 +353,7 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
         let mut e = [0.0; 6];
         error(opts, target, w, &mut e);
         let p = (w.frames[opts.body] * opts.local).translation.vector;
-        frame_jacobian(model, w, opts.body, &p, rows_t, &mut jac);
+        point_jacobian(model, w, opts.body, &p, rows_t, &mut jac);
         chain.update(model, &w.q);
         let dq = DMatrix::from_row_slice(k, nv, &chain.dq);
         let jv = &jac * &dq;
@@ -400,21 +383,21 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
     Ok(iters + it)
 }
 
-/// The geometric Jacobian (`rows` × K: linear, then angular) of the world point `p` of the
-/// frame on body `body`.
-fn frame_jacobian(model: &RobotModel, w: &Work, body: usize, p: &Vector3<f64>, rows: usize, jac: &mut DMatrix<f64>) {
+/// The geometric Jacobian (`rows` × K: linear velocity, then, with 6 rows, angular) of the
+/// world point `p` carried by body `body`: `ω_j × (p − a_j)` and `ω_j` per hinge, `ω_j` and 0 per
+/// slide, for the joints on the body's chain; 0 elsewhere.
+fn point_jacobian(model: &RobotModel, w: &Work, body: usize, p: &Vector3<f64>, rows: usize, jac: &mut DMatrix<f64>) {
     jac.fill(0.0);
     let mut b = body;
     while b != 0 {
         let (j0, j1) = model.body_joints[b];
         for j in j0..j1 {
             let a = w.axes[j];
-            let lin = if model.joints[j].hinge { a.cross(&(p - w.anchors[j])) } else { a };
+            let hinge = model.joints[j].hinge;
+            let lin = if hinge { a.cross(&(p - w.anchors[j])) } else { a };
             for r in 0..3 {
                 jac[(r, j)] = lin[r];
-            }
-            if rows == 6 && model.joints[j].hinge {
-                for r in 0..3 {
+                if rows == 6 && hinge {
                     jac[(3 + r, j)] = a[r];
                 }
             }

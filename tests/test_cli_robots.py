@@ -10,6 +10,8 @@ import pytest
 
 from profrobot.cli import main
 
+from test_feasible_answers import MIMIC_URDF
+
 ARM_XML = """<mujoco model="cli_arm">
   <compiler angle="radian"/>
   <worldbody>
@@ -32,26 +34,12 @@ ARM_XML = """<mujoco model="cli_arm">
 </mujoco>
 """
 
-ARM_URDF = """<?xml version="1.0"?>
-<robot name="cli_urdf">
-  <link name="base"><collision><origin xyz="0 0 0.05"/><geometry><box size="0.3 0.3 0.1"/></geometry></collision></link>
-  <link name="l1"><collision><origin xyz="0 0 0.16"/><geometry><cylinder radius="0.05" length="0.3"/></geometry></collision></link>
-  <link name="l2"><collision><origin xyz="0 0 0.17"/><geometry><box size="0.06 0.06 0.34"/></geometry></collision></link>
-  <link name="fa"><collision><origin xyz="0 0 0.05"/><geometry><box size="0.02 0.02 0.1"/></geometry></collision></link>
-  <link name="fb"><collision><origin xyz="0 0 0.05"/><geometry><box size="0.02 0.02 0.1"/></geometry></collision></link>
-  <link name="post"><collision><origin xyz="0 0 0.3"/><geometry><box size="0.1 0.1 0.6"/></geometry></collision></link>
-  <joint name="post_fixed" type="fixed"><parent link="base"/><child link="post"/><origin xyz="0.35 0.1 0"/></joint>
-  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
-    <axis xyz="0 0 1"/><limit lower="-2.8" upper="2.8" effort="10" velocity="1"/></joint>
-  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.32"/>
-    <axis xyz="0 1 0"/><limit lower="-2.0" upper="2.0" effort="10" velocity="1"/></joint>
-  <joint name="ja" type="revolute"><parent link="l2"/><child link="fa"/><origin xyz="0.05 0 0.34"/>
-    <axis xyz="0 1 0"/><limit lower="-0.6" upper="0.6" effort="1" velocity="1"/></joint>
-  <joint name="jb" type="revolute"><parent link="l2"/><child link="fb"/><origin xyz="-0.05 0 0.34"/>
-    <axis xyz="0 1 0"/><limit lower="-0.9" upper="0.9" effort="1" velocity="1"/>
-    <mimic joint="ja" multiplier="-1.0" offset="0.1"/></joint>
-</robot>
-"""
+# the mimic arm of test_feasible_answers, with a post fixed to its base: an obstacle a URDF carries
+ARM_URDF = MIMIC_URDF.replace(
+    '  <joint name="j1"',
+    '  <link name="post"><collision><origin xyz="0 0 0.3"/><geometry><box size="0.1 0.1 0.6"/></geometry></collision></link>\n'
+    '  <joint name="post_fixed" type="fixed"><parent link="base"/><child link="post"/><origin xyz="0.35 0.1 0"/></joint>\n'
+    '  <joint name="j1"', 1)
 
 
 @pytest.fixture(scope="module", params=["mjcf", "urdf", "family"])

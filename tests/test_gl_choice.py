@@ -7,9 +7,6 @@ the probed backend, and ``FatalError`` raised as ``RendererUnavailableError``, n
 Subprocess tests run a fresh interpreter: an abort cannot be survived inside the test process."""
 
 import ast
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -17,6 +14,8 @@ import pytest
 
 from profrobot import gl
 from profrobot.errors import RendererUnavailableError
+
+from test_gl import run
 
 ROOT = Path(__file__).resolve().parents[1]
 GL_PACKAGE = ROOT / "python" / "profrobot" / "gl"
@@ -82,17 +81,6 @@ def test_the_scan_finds_what_it_must(tmp_path):
     found = context_makers(bad)
     assert len(found) == 5, found
     assert not context_makers(ROOT / "tests" / "test_gl.py")   # its own renderers are in subprocess scripts
-
-
-def run(code: str, timeout: float = 300, **env) -> subprocess.CompletedProcess:
-    e = dict(os.environ, OMP_NUM_THREADS="1")
-    for k, v in env.items():
-        if v is None:
-            e.pop(k, None)
-        else:
-            e[k] = v
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=e, capture_output=True, text=True,
-                          timeout=timeout, cwd=str(ROOT), stdin=subprocess.DEVNULL)
 
 
 BALL = "<mujoco><worldbody><light pos='0 0 1'/><geom size='.1'/></worldbody></mujoco>"
