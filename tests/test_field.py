@@ -167,7 +167,6 @@ def test_same_seed_same_field(panda):
 
 def test_regression_torch_optim_after_an_osmesa_render_does_not_segfault():
     """torch.optim's first use imports triton's LLVM; after MuJoCo loaded OSMesa's that crashed."""
-    import os
     import subprocess
     import sys
 
@@ -176,7 +175,9 @@ def test_regression_torch_optim_after_an_osmesa_render_does_not_segfault():
             "d = mujoco.MjData(m); mujoco.mj_forward(m, d)\n"
             "r = mujoco.Renderer(m, 16, 16); r.update_scene(d); r.render()\n"
             "torch.optim.Adam([torch.zeros(2, requires_grad=True)])\n")
-    env = dict(os.environ, MUJOCO_GL="osmesa")
+    from profrobot.gl import backends
+
+    env = backends.child_env("osmesa")     # (PYOPENGL_PLATFORM to match: not an EGL parent's)
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     if done.returncode > 0 and "Segmentation fault" not in done.stderr and "osmesa" in done.stderr.lower():
         pytest.skip("no OSMesa on this machine (install Debian's libosmesa6)")

@@ -258,7 +258,7 @@ def test_import_order_full_flow(gl, tmp_path):
     why = backends.probe(gl)
     if why:
         pytest.skip(f"MUJOCO_GL={gl} cannot render here: {why}")
-    env = dict(os.environ, MUJOCO_GL=gl, OMP_NUM_THREADS="1")
+    env = dict(backends.child_env(gl), OMP_NUM_THREADS="1")
     done = subprocess.run([sys.executable, "-c", FLOW, str(tmp_path / "t.gif")], env=env, capture_output=True,
                           text=True, timeout=900, cwd=ROOT)
     assert done.returncode == 0 and "flow-ok" in done.stdout, (done.returncode, done.stderr[-3000:])

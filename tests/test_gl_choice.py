@@ -7,6 +7,7 @@ the probed backend, and ``FatalError`` raised as ``RendererUnavailableError``, n
 Subprocess tests run a fresh interpreter: an abort cannot be survived inside the test process."""
 
 import ast
+import glob
 import textwrap
 from pathlib import Path
 
@@ -157,3 +158,23 @@ def test_no_backend_raises_the_clear_error_in_process(monkeypatch):
             gl.renderer(mujoco.MjModel.from_xml_string(BALL), 8, 8)
     finally:
         backends.forget()
+
+
+def test_regression_an_in_process_render_leaves_no_pyopengl_platform_to_children(renderer):
+    """MuJoCo's EGL module set PYOPENGL_PLATFORM=egl in os.environ; every child then inherited it,
+    and one asked to render with OSMesa failed ("Cannot use OSMesa rendering platform"): with
+    OSMesa installed, the OSMesa tests were skipped as if it were missing."""
+    done = run(f"""
+        import os, profrobot, mujoco
+        from profrobot.gl import backends
+        m = mujoco.MjModel.from_xml_string("{BALL}")
+        with profrobot.gl.renderer(m, 8, 8):
+            pass
+        assert "PYOPENGL_PLATFORM" not in os.environ, os.environ["PYOPENGL_PLATFORM"]
+        other = "osmesa" if os.environ["MUJOCO_GL"] == "egl" else "egl"
+        assert backends.child_env(other)["PYOPENGL_PLATFORM"] == other
+        print("ok", os.environ["MUJOCO_GL"], repr(backends.probe(other)))
+        """, MUJOCO_GL=None, DISPLAY=None, WAYLAND_DISPLAY=None, PYOPENGL_PLATFORM=None)
+    assert done.returncode == 0 and "ok" in done.stdout, (done.returncode, done.stderr[-3000:])
+    if glob.glob("/usr/lib/*/libOSMesa.so*") and " egl " in done.stdout:
+        assert done.stdout.rstrip().endswith("''"), done.stdout     # OSMesa installed: its probe renders

@@ -140,9 +140,8 @@ class _Process:
 
     def __init__(self, gl: str | None):
         self.gl = gl
-        env = dict(os.environ)
+        env = backends.child_env(gl) if gl else dict(os.environ)
         if gl:
-            env["MUJOCO_GL"] = gl
             env[backends.PROBED_ENV] = gl     # probed here: the worker need not probe again
         root = str(Path(__file__).resolve().parents[2])  # where this profrobot is
         path = [p for p in sys.path if isinstance(p, str)] + [root]  # the caller's, as multiprocessing's spawn

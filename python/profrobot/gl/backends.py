@@ -15,7 +15,7 @@ from typing import TypeVar
 from ..errors import RendererUnavailableError
 from .hints import GL_OFF, INSTALL_HINT, plain_reason
 
-__all__ = ["PROBE_SCRIPT", "PROBED_ENV", "candidates", "probe", "status", "backend", "forget", "select_backend", "explain_exit",
+__all__ = ["PROBE_SCRIPT", "PROBED_ENV", "child_env", "candidates", "probe", "status", "backend", "forget", "select_backend", "explain_exit",
            "uses_gl", "needs_gl"]
 
 # what a probe runs in a fresh interpreter: one 8x8 frame
@@ -73,11 +73,25 @@ def explain_exit(done: subprocess.CompletedProcess | None, timeout: float) -> st
     return tail[:300] or f"exit status {done.returncode}"
 
 
+def child_env(gl: str | None) -> dict:
+    """The environment of a child process that renders with ``MUJOCO_GL=gl``: this one's, with
+    ``PYOPENGL_PLATFORM`` matching ``gl`` (MuJoCo's EGL/OSMesa modules refuse another value, and
+    a parent that rendered with the other backend has its own in ``os.environ``)."""
+    env = dict(os.environ)
+    if gl:
+        env["MUJOCO_GL"] = gl
+    if gl in ("egl", "osmesa"):
+        env["PYOPENGL_PLATFORM"] = gl
+    elif gl:
+        env.pop("PYOPENGL_PLATFORM", None)
+    return env
+
+
 def probe(gl: str, timeout: float = 120.0, script: str = PROBE_SCRIPT) -> str:
     """'' when ``MUJOCO_GL=gl`` renders a frame in a fresh interpreter, else why not."""
     if gl in GL_OFF:
         return "MuJoCo rendering is turned off"
-    env = dict(os.environ, MUJOCO_GL=gl) if gl else dict(os.environ)
+    env = child_env(gl)
     try:
         done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                               timeout=timeout, stdin=subprocess.DEVNULL)

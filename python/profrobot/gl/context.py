@@ -105,13 +105,22 @@ def renderer(model, height: int, width: int):
             raise RendererUnavailableError(_BROKEN[gl])
         if os.environ.get("MUJOCO_GL") != gl:   # someone changed it since: ours is the one probed
             os.environ["MUJOCO_GL"] = gl
-        _load_for(gl)
-        mujoco = import_mujoco()
+        # MuJoCo's EGL and OSMesa modules set PYOPENGL_PLATFORM in os.environ as they load; left
+        # there, every child process (a probe, a render worker, the user's subprocess) inherits
+        # it, and one that needs the other backend fails to load it ("Cannot use OSMesa
+        # rendering platform"). PyOpenGL has read it by then: it is taken back out.
+        had_platform = "PYOPENGL_PLATFORM" in os.environ
         try:
-            r = mujoco.Renderer(model, int(height), int(width))
-        except mujoco.FatalError as e:
-            _BROKEN[gl] = (f"MuJoCo could not make a {gl!r} OpenGL context in this process ({e}), though a probe "
-                           f"rendered with it; {INSTALL_HINT}")
-            raise RendererUnavailableError(_BROKEN[gl]) from e
+            _load_for(gl)
+            mujoco = import_mujoco()
+            try:
+                r = mujoco.Renderer(model, int(height), int(width))
+            except mujoco.FatalError as e:
+                _BROKEN[gl] = (f"MuJoCo could not make a {gl!r} OpenGL context in this process ({e}), though a probe "
+                               f"rendered with it; {INSTALL_HINT}")
+                raise RendererUnavailableError(_BROKEN[gl]) from e
+        finally:
+            if not had_platform:
+                os.environ.pop("PYOPENGL_PLATFORM", None)
         _MADE.add(gl)
         return r
