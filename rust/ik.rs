@@ -324,6 +324,7 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
     let mut jac = DMatrix::<f64>::zeros(rows_t, k);
     let (mut j1, mut j2) = (DMatrix::<f64>::zeros(3, k), DMatrix::<f64>::zeros(3, k));
     let mut iters = 0;
+    let (mut last, mut stalled) = (f64::INFINITY, 0);
     for _ in 0..ESCAPE_ITERATIONS {
         place(model, w);
         w.scratch.place(model, &w.q, true);
@@ -349,6 +350,14 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
         if rows.is_empty() {
             break;
         }
+        // no redundancy left to use (a full pose on a 6-joint arm): stop after two steps that
+        // take less than a tenth off the total depth of the pairs still too near
+        let depth: f64 = rows.iter().map(|(_, want)| want).sum();
+        stalled = if depth > 0.9 * last { stalled + 1 } else { 0 };
+        if stalled >= 2 {
+            break;
+        }
+        last = depth;
         iters += 1;
         let mut e = [0.0; 6];
         error(opts, target, w, &mut e);

@@ -229,7 +229,7 @@ class PoseMotion:
         return bool(self.path.certified)
 
 
-def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 4, max_time: float = 10.0,
+def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 8, max_time: float = 10.0,
                  seed: int = 0, threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
