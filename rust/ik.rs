@@ -585,57 +585,38 @@ fn one(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::desc::{ModelDesc, JOINT_HINGE};
+    use crate::motion::tests::arm;
 
-    /// A planar 3-link arm (hinges about z) on a floor: targets made by FK are reached and
-    /// certified, an out-of-reach one is reported, and answers do not depend on threads.
-    fn arm() -> RobotModel {
-        let mut d = ModelDesc::example_pendulum();
-        d.body_parent = vec![0, 0, 1, 2];
-        d.body_weld = vec![0, 1, 2, 3];
-        d.body_pos = vec![[0.0; 3], [0.0, 0.0, 0.3], [0.3, 0.0, 0.0], [0.3, 0.0, 0.0]];
-        d.body_quat = vec![[1.0, 0.0, 0.0, 0.0]; 4];
-        d.jnt_type = vec![JOINT_HINGE; 3];
-        d.jnt_body = vec![1, 2, 3];
-        d.jnt_pos = vec![[0.0; 3]; 3];
-        d.jnt_axis = vec![[0.0, 0.0, 1.0]; 3];
-        d.jnt_qpos0 = vec![0.0; 3];
-        d.jnt_range = vec![[-2.5, 2.5]; 3];
-        d.jnt_limited = vec![true; 3];
-        d.geom_id = vec![0, 1];
-        d.geom_type = vec![0, 2];
-        d.geom_body = vec![0, 3];
-        d.geom_pos = vec![[0.0; 3], [0.1, 0.0, 0.0]];
-        d.geom_quat = vec![[1.0, 0.0, 0.0, 0.0]; 2];
-        d.geom_size = vec![[1.0, 1.0, 0.1], [0.05, 0.0, 0.0]];
-        d.geom_contype = vec![1, 1];
-        d.geom_conaffinity = vec![1, 1];
-        d.geom_margin = vec![0.0; 2];
-        d.geom_mesh = vec![-1, -1];
-        RobotModel::new(d).unwrap()
-    }
-
+    /// `motion.rs`'s arm (skew hinges with off-origin anchors, a body with a hinge then a slide,
+    /// a floor and a box): targets made by FK of certified free poses are reached and certified,
+    /// an out-of-reach one is reported, and answers do not depend on threads.
     #[test]
     fn fk_targets_are_reached_certified_and_thread_independent() {
         let model = arm();
+        let k = model.njoint();
         let mut w = Work {
-            frames: vec![Isometry3::identity(); 4],
-            axes: vec![Vector3::zeros(); 3],
-            anchors: vec![Vector3::zeros(); 3],
+            frames: vec![Isometry3::identity(); model.nbody()],
+            axes: vec![Vector3::zeros(); k],
+            anchors: vec![Vector3::zeros(); k],
             scratch: Scratch::new(&model),
-            q: vec![0.0; 3],
-            trial: vec![0.0; 3],
+            q: vec![0.0; k],
+            trial: vec![0.0; k],
         };
+        let poses = crate::sample::sample_uniform(&model.sampling_ranges().unwrap(), 200, 3).unwrap();
         let mut targets = Vec::new();
-        for (i, q) in [[0.3, -0.4, 0.9], [1.2, 0.5, -1.0], [-2.0, 1.0, 0.4]].iter().enumerate() {
+        for q in poses.chunks_exact(k) {
+            if targets.len() == 4 || !certified_pose(&model, q, 1e-6, &mut w.scratch).unwrap() {
+                continue;
+            }
             w.q.copy_from_slice(q);
             place(&model, &mut w);
             let f = w.frames[3];
-            targets.push(IkTarget { pos: f.translation.vector.into(), rot: (i != 1).then_some(f.rotation) });
+            targets.push(IkTarget { pos: f.translation.vector.into(), rot: (targets.len() != 1).then_some(f.rotation) });
         }
-        targets.push(IkTarget { pos: [2.0, 0.0, 0.3], rot: None }); // beyond the arm's 0.6 m reach
+        assert_eq!(targets.len(), 4);
+        targets.push(IkTarget { pos: [2.0, 0.0, 0.3], rot: None }); // beyond the arm's reach
         let opts = IkOptions::new(3, Isometry3::identity());
-        let starts = vec![0.0; 3 * targets.len()];
+        let starts = vec![0.0; k * targets.len()];
         let run = |t| {
             rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| ik(&model, &targets, &starts, &[], &opts).unwrap())
         };
@@ -643,11 +624,11 @@ mod tests {
         for (a, b) in one.iter().zip(&two) {
             assert_eq!(a.pose, b.pose);
         }
-        for a in &one[..3] {
+        for a in &one[..4] {
             assert_eq!(a.outcome, IkOutcome::Certified, "{a:?}");
             assert!(a.pos_err <= 1e-6 && a.rot_err <= 1e-6);
         }
-        assert_eq!(one[3].outcome, IkOutcome::Unreachable);
-        assert!(!one[3].reached && one[3].pos_err > 1.0);
+        assert_eq!(one[4].outcome, IkOutcome::Unreachable);
+        assert!(!one[4].reached && one[4].pos_err > 1.0);
     }
 }

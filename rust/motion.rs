@@ -662,14 +662,15 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::desc::{ModelDesc, JOINT_HINGE, JOINT_SLIDE};
     use rand::{Rng, SeedableRng};
 
     /// A three-link arm over a floor beside a box: hinges about skew axes with off-origin
-    /// anchors, and a body with a hinge then a slide (so its hinge is not `tight`).
-    fn arm() -> RobotModel {
+    /// anchors, and a body with a hinge then a slide (so its hinge is not `tight`). (Also
+    /// `ik.rs`'s test arm.)
+    pub(crate) fn arm() -> RobotModel {
         let mut d = ModelDesc::example_pendulum();
         d.body_parent = vec![0, 0, 1, 2];
         d.body_weld = vec![0, 1, 2, 3];

@@ -16,7 +16,7 @@ from .crosscheck import crosscheck
 from .dataset import Dataset, make_dataset
 from .errors import InputError, ProfrobotError
 from .labels import Labels, label_poses, sample_poses
-from .loading import DefaultsFormatter, add_robot_arguments, robot_of
+from .loading import DefaultsFormatter, add_robot_arguments, numbers, robot_of
 
 _CHUNK = 50_000
 
@@ -144,12 +144,7 @@ def cmd_ik(args) -> int:
         targets = np.load(args.targets, allow_pickle=False)
     except (OSError, ValueError) as e:
         raise InputError(f"--targets {args.targets}: not a readable .npy array ({e})") from None
-    start = None
-    if args.start:
-        try:
-            start = np.array([float(v) for v in args.start.split(",")])
-        except ValueError:
-            raise InputError(f"--start must be comma-separated numbers (radians / metres); got {args.start!r}") from None
+    start = numbers(args.start, "start") if args.start else None
     res = ik(robot, targets, frame=args.frame, start=start, seeds=args.seeds, seed=args.seed, threads=args.threads)
     print(res.summary())
     for i in res.failures[:10]:

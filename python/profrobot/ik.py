@@ -19,7 +19,8 @@ from .certification import CLEARANCE
 from .errors import InputError, InputTypeError
 from .planning import PathResult, plan_path
 from .robot import Robot
-from .validate import as_poses, positive, seed as check_seed, threads as check_threads
+from .labels import sample_poses
+from .validate import as_poses, count, positive, seed as check_seed, threads as check_threads, with_scene
 
 __all__ = ["IKResult", "ik", "frame_of", "plan_to_pose", "PoseMotion", "as_targets"]
 
@@ -158,8 +159,6 @@ def _starts(robot: Robot, start, n: int, scene) -> np.ndarray:
                 raise InputError(f"{robot.name} is a family of scenes: pass scene=δ, the layout to solve at")
             base[robot.scene_index] = robot.check_scene(scene)
         return np.repeat(base[None], n, axis=0)
-    from .validate import with_scene
-
     q = as_poses(robot, with_scene(robot, start, scene, "start"), name="start")
     if len(q) == 1:
         q = np.repeat(q, n, axis=0)
@@ -194,8 +193,6 @@ def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_to
     body, lpos, lquat = frame_of(robot, frame)
     position_tolerance = positive("position_tolerance", position_tolerance)
     rotation_tolerance = positive("rotation_tolerance", rotation_tolerance)
-    from .validate import count
-
     seeds = count("seeds", seeds)
     iterations = count("iterations", iterations)
     starts = _starts(robot, start, len(pos), scene)
@@ -248,9 +245,6 @@ def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 8
     pos, quat = as_targets(target, "target")
     if len(pos) != 1:
         raise InputError(f"target must be one pose ((4, 4) or (3,)); got {len(pos)}")
-    from .labels import sample_poses
-    from .validate import count
-
     candidates = count("candidates", candidates)
     max_time = positive("max_time", max_time)
     tgt = pos if quat is None else np.asarray(target, dtype=np.float64).reshape(1, 4, 4)

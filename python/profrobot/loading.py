@@ -11,7 +11,7 @@ from . import scenes
 from .errors import InputError
 from .robot import Robot
 
-__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_scene", "DefaultsFormatter"]
+__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_scene", "numbers", "DefaultsFormatter"]
 
 DEFAULT_SCENE = "panda_blocks"
 
@@ -85,6 +85,16 @@ def field_scene(field: str | Path) -> str:
         raise InputError(f"--field {field}: its robot {name!r} is not a bundled scene; pass --robot FILE (the "
                          f"MJCF or URDF it was trained for) or --scene NAME")
     return name
+
+
+def numbers(text: str, option: str):
+    """``--option``'s comma-separated numbers (radians / metres) as a float64 array (K,)."""
+    import numpy as np
+
+    try:
+        return np.array([float(v) for v in text.replace(" ", "").split(",") if v != ""])
+    except ValueError:
+        raise InputError(f"--{option} must be comma-separated numbers (radians / metres); got {text!r}") from None
 
 
 class DefaultsFormatter(argparse.HelpFormatter):

@@ -705,12 +705,7 @@ class Robot:
                 lines.append(f"  checked, colliding in >= {urdf.pct(urdf.ALWAYS)} of {n} uniform poses "
                              "(collision_matrix='auto' would disable them):")
                 lines += [f"    {bn[a]} – {bn[b]}: {urdf.pct(r)}" for (a, b), r in sorted(left.items())]
-            poses = robot.core.sample(n, urdf.SEED, threads=None)
-            robot.couplings.apply(poses)
-            rate = float(np.mean(robot.core.collides(poses, threads=None)))
-            was = "" if before is None else \
-                f" ({urdf.pct(float(np.mean(before.core.collides(poses, threads=None))))} before the matrix)"
-            lines.append(f"  collides in {urdf.pct(rate)} of those {n} uniform poses{was}")
+            lines.append(robot._collision_rate_line(n, before))
             robot._collision_notes = "\n".join(lines)
         return robot
 
@@ -821,12 +816,17 @@ class Robot:
             lines += [f"    {bn[a]} – {bn[b]}: {urdf.pct(r)}" for (a, b), r in sorted(always.items())]
         never = sum(1 for r in rates.values() if r == 0)
         lines.append(f"  {never} checked link pairs never touched in the {n} poses (kept: a sample does not prove never)")
+        lines.append(self._collision_rate_line(n, before))
+        return "\n".join(lines)
+
+    def _collision_rate_line(self, n: int, before: "Robot | None") -> str:
+        """The collision reports' last line: how often ``n`` seeded uniform poses collide, and
+        how often they did ``before`` the collision matrix."""
         poses = self.core.sample(n, urdf.SEED, threads=None)
         self.couplings.apply(poses)
         rate = float(np.mean(self.core.collides(poses, threads=None)))
         was = "" if before is None else f" ({urdf.pct(float(np.mean(before.core.collides(poses, threads=None))))} before the matrix)"
-        lines.append(f"  collides in {urdf.pct(rate)} of those {n} uniform poses{was}")
-        return "\n".join(lines)
+        return f"  collides in {urdf.pct(rate)} of those {n} uniform poses{was}"
 
     def collision_report(self) -> str:
         """What profrobot disabled among this robot's collision pairs, and why (``from_urdf``);

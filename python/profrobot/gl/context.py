@@ -38,8 +38,8 @@ _LOCK = threading.Lock()
 _BROKEN: dict[str, str] = {}      # backend → why making a context failed in this process
 _MADE: set[str] = set()           # backends this process has made a context with
 
-# the module of each backend's GLContext class, as MuJoCo's gl_context module imports it
-_MODULES = {"egl": "egl", "osmesa": "osmesa", "glfw": "glfw", "cgl": "cgl", "wgl": "wgl"}
+# the backends' module names (``mujoco.egl``, ...), where each GLContext class lives
+_MODULES = ("egl", "osmesa", "glfw", "cgl", "wgl")
 
 
 def _gl_context_module():
@@ -61,11 +61,7 @@ def loaded_backend() -> str | None:
     if ctx is None:
         return None
     mod = getattr(ctx, "__module__", "") or ""
-    last = mod.rsplit(".", 2)
-    for part in reversed(last):
-        if part in _MODULES:
-            return part
-    return mod or None
+    return next((part for part in reversed(mod.split(".")) if part in _MODULES), mod or None)
 
 
 def _load_for(gl: str) -> None:

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import InputError, RobotMismatchError
 from ..files import atomic_path, format_tag
-from ..loading import robot_of
+from ..loading import numbers, robot_of
 
 __all__ = ["cmd_pose", "read_folder", "read_image", "read_mask", "write_fit_picture", "IMAGE_SUFFIXES", "POSE_FORMAT"]
 
@@ -181,10 +181,7 @@ def _init(text: str | None, robot) -> np.ndarray:
     lim = np.asarray(robot.joint_limits, dtype=np.float64)
     if text is None:
         return lim.mean(1)
-    try:
-        q = np.array([float(v) for v in text.replace(" ", "").split(",") if v != ""])
-    except ValueError:
-        raise InputError(f"--init must be comma-separated numbers (radians / metres); got {text!r}") from None
+    q = numbers(text, "init")
     if q.shape != (robot.njoint,) or not np.isfinite(q).all():
         raise InputError(f"--init needs {robot.njoint} finite values for {robot.name!r} "
                          f"({', '.join(robot.joint_names)}); got {len(q)}")

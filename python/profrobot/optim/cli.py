@@ -7,6 +7,7 @@ import numpy as np
 
 from ..files import atomic_path
 from ..errors import InputError
+from ..loading import numbers
 
 
 def _field(args):
@@ -27,18 +28,11 @@ def _field(args):
     if layout is None:
         delta = np.zeros(len(robot.scene_index))
     else:
-        delta = _pose(layout, "layout")
+        delta = numbers(layout, "layout")
         if len(delta) != len(robot.scene_index):
             raise InputError(f"--layout needs {len(robot.scene_index)} values, one per scene joint "
                              f"({', '.join(robot.scene_joints)}); got {len(delta)}")
     return robot.at(delta), sdf
-
-
-def _pose(text: str, name: str) -> np.ndarray:
-    try:
-        return np.array([float(v) for v in text.split(",")])
-    except ValueError as e:
-        raise InputError(f"--{name} must be comma-separated numbers (radians / metres); got {text!r}") from e
 
 
 def _save_npz(out: str, /, **arrays) -> None:
@@ -76,7 +70,7 @@ def cmd_plan(args) -> int:
     if (args.start is None) != (args.goal is None):
         raise InputError("give both --start and --goal, or neither (a random hard problem)")
     if args.start is not None:
-        start, goal = _pose(args.start, "start"), _pose(args.goal, "goal")
+        start, goal = numbers(args.start, "start"), numbers(args.goal, "goal")
     else:  # two free poses whose straight interpolation collides
         (start,), (goal,) = hard_pairs(robot, 1, args.seed, steps=args.steps)
     res = plan_trajectory(sdf, start, goal, steps=args.steps, method=args.method, robot=robot, init=args.init,

@@ -49,10 +49,10 @@ class FrameTargets:
         order = np.argsort(idx)
         self.index = np.asarray(idx)[order]
         values = [v for _, v in sorted(zip(idx, targets.values()), key=lambda p: p[0])]
-        self.pos, quat = as_targets(np.stack([np.asarray(v, dtype=np.float64) for v in values]), who)
-        self.rot = None
-        if quat is not None:
-            self.rot = np.stack([quat_to_matrix(torch.as_tensor(q, dtype=torch.float64)).numpy() for q in quat])
+        #: (M, 4, 4) transforms or (M, 3) positions, in index order (checked by ``as_targets``)
+        self.targets = np.stack([np.asarray(v, dtype=np.float64) for v in values])
+        self.pos, quat = as_targets(self.targets, who)
+        self.rot = None if quat is None else self.targets[:, :3, :3]
         self.frame = frame
         self.body, lpos, lquat = frame_of(robot, frame)
         self.local_pos = lpos
@@ -62,14 +62,6 @@ class FrameTargets:
 
     def __len__(self) -> int:
         return len(self.index)
-
-    def transforms(self) -> np.ndarray:
-        """The targets as (M, 4, 4) (positions only: identity rotations) or (M, 3)."""
-        if self.rot is None:
-            return self.pos.copy()
-        t = np.tile(np.eye(4), (len(self), 1, 1))
-        t[:, :3, :3], t[:, :3, 3] = self.rot, self.pos
-        return t
 
     def _frame_torch(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The frame's world position (B, 3) and rotation (B, 3, 3) at poses θ (B, K)."""
@@ -103,19 +95,7 @@ class FrameTargets:
         reaches its target; returns (path, snapped (M,) bool). A row whose target cannot be
         reached certified free is left as it is (and reported)."""
         path = np.array(path, dtype=np.float64, copy=True)
-        res = ik(self._robot, self.transforms(), frame=self.frame, start=path[self.index], scene=scene)
+        res = ik(self._robot, self.targets, frame=self.frame, start=path[self.index], scene=scene)
         ok = res.certified
         path[self.index[ok]] = res.poses[ok]
         return path, ok
-
-    def errors(self, path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(position errors (M,) metres, rotation errors (M,) radians) of ``path``'s chosen rows,
-        in float64."""
-        with torch.no_grad():
-            p, R = self._frame_torch(torch.as_tensor(np.asarray(path)[self.index], dtype=torch.float64))
-        pe = np.linalg.norm(p.numpy() - self.pos, axis=1)
-        if self.rot is None:
-            return pe, np.zeros(len(self))
-        rel = np.einsum("nji,njk->nik", self.rot, R.numpy())
-        re = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))
-        return pe, re
