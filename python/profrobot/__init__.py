@@ -58,9 +58,10 @@ _LAZY = {
     "BackendUnavailableError": ".errors", "ClusterError": ".errors",
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
     "pose_from_text": ".inverse", "TextResult": ".inverse", "actions_from_video": ".inverse",
+    "estimate_layout": ".layouts", "LayoutEstimate": ".layouts",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
-                "inverse", "scorers", "certification", "validate", "angles")
+                "inverse", "scorers", "certification", "validate", "angles", "layouts", "margin")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
@@ -71,7 +72,7 @@ __all__ = [
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
     "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion", "problems", "joints", "equalities", "executors",
     "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
-    "scorers", "actions_from_video",
+    "scorers", "actions_from_video", "layouts", "estimate_layout", "LayoutEstimate", "margin",
     "certification", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",
     "ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError", "CorruptFileError",
     "BackendUnavailableError", "ClusterError",

@@ -46,7 +46,7 @@ import numpy as np
 from .deprecation import deprecated_alias
 from .errors import InputError
 from .labels import as_poses, check_threads, interpolate, so2_steps
-from .validate import with_scene
+from .validate import with_margin, with_scene
 from .robot import CLEARANCE as _ROBOT_CLEARANCE, Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "path_free_at",
@@ -68,13 +68,18 @@ def _one_clearance(clearance, who: str) -> None:
                          f"{clearance!r} (for other distances use label_poses(..., distance=True))")
 
 
-def certify_poses(robot: Robot, poses, *, scene=None, threads: int | None = None,
+def certify_poses(robot: Robot, poses, *, scene=None, margin: float = CLEARANCE, threads: int | None = None,
                   clearance: float | None = None) -> np.ndarray:
     """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres; a family's θ
     with ``scene=δ``) is certified free (module docs: no contact, every candidate pair more than
     :data:`CLEARANCE` apart). A pose the robot cannot take (a limited joint outside its limits,
-    a joint equality not met, to 1e-9: :meth:`Robot.feasible`) is never certified."""
+    a joint equality not met, to 1e-9: :meth:`Robot.feasible`) is never certified.
+
+    ``margin``: metres every robot–obstacle pair must keep (:mod:`profrobot.margin`: pass an
+    estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`, and a pose certified
+    at the estimate is free at the true layout while the estimate's error stays below it)."""
     _one_clearance(clearance, "certify_poses")
+    robot = with_margin(robot, margin)
     q = as_poses(robot, with_scene(robot, poses, scene))
     if len(q) == 0:
         return np.zeros(0, dtype=bool)
@@ -102,14 +107,17 @@ class MotionCertificate:
     states: np.ndarray
 
 
-def certify_motions(robot: Robot, starts, goals, *, scene=None, threads: int | None = None) -> MotionCertificate:
+def certify_motions(robot: Robot, starts, goals, *, scene=None, margin: float = CLEARANCE,
+                    threads: int | None = None) -> MotionCertificate:
     """The continuous certificate (module docs) of each straight motion ``starts[i] → goals[i]``
     ((B, K) or (K,) each, radians / metres; a family's θ with ``scene=δ``): continuous hinges
     along the short arc, the motion :func:`profrobot.interpolate` replays; other joints
     straight; the dependent joints of joint equalities following their independent ones (for a
     nonlinear coupling that is a curve, and the curve is what is proven). Same answer for any
     thread count. A motion the robot cannot make (an end off its couplings, a limited joint
-    outside its limits anywhere along it) is unproven, never certified."""
+    outside its limits anywhere along it) is unproven, never certified. ``margin``: as for
+    :func:`certify_poses`, at every pose of every motion."""
+    robot = with_margin(robot, margin)
     a = as_poses(robot, with_scene(robot, starts, scene, "starts"), name="starts")
     b = as_poses(robot, with_scene(robot, goals, scene, "goals"), name="goals")
     if a.shape != b.shape:
@@ -152,15 +160,17 @@ class PathCheck:
         return np.flatnonzero(self.segment_collides)
 
 
-def check_path(robot: Robot, path, density: int = 10, *, scene=None, clearance: float | None = None,
+def check_path(robot: Robot, path, density: int = 10, *, scene=None, margin: float = CLEARANCE,
+               clearance: float | None = None,
                method: Literal["continuous", "sampled"] = "continuous") -> PathCheck:
     """Certifies ``path`` (S, K) waypoints (a family's θ with ``scene=δ``) and the SO(2) segments
     between them: continuously (every pose of every segment proven, module docs), or with
     ``method="sampled"`` at the ``density − 1`` interpolated poses between each consecutive pair
     (``density`` times finer than the waypoints; the continuous certificate needs no density
     and ignores it). A waypoint the robot cannot take (:meth:`Robot.feasible`) is not certified,
-    nor are its segments."""
+    nor are its segments. ``margin``: as for :func:`certify_poses`."""
     _one_clearance(clearance, "check_path")
+    robot = with_margin(robot, margin)
     path = as_poses(robot, with_scene(robot, path, scene, "path"), name="path")
     if path.ndim != 2 or len(path) < 2:
         raise InputError(f"path must have shape (S >= 2, K); got {path.shape}")
@@ -195,10 +205,12 @@ def check_path(robot: Robot, path, density: int = 10, *, scene=None, clearance: 
                      dense=dense, dense_collides=hit, method="sampled")
 
 
-def path_free_at(robot: Robot, path, resolution: float) -> bool:
+def path_free_at(robot: Robot, path, resolution: float, *, margin: float = CLEARANCE) -> bool:
     """Whether ``path`` (S, K) is certified free when re-interpolated (SO(2)) so that no joint
     moves more than ``resolution`` (rad / m) between two checked poses: the planner's own
-    guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are."""
+    guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are.
+    ``margin``: as for :func:`certify_poses`."""
+    robot = with_margin(robot, margin)
     path = as_poses(robot, path, name="path")
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number; got {resolution!r}")

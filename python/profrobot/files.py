@@ -120,14 +120,16 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def check_robot(meta: Mapping[str, Any] | str | None, robot: Any, what: str, *,
-                made_for: str | None = None, missing_ok: bool = False) -> None:
+                made_for: str | None = None, missing_ok: bool = False, geometry: bool = False) -> None:
     """Raise :class:`~profrobot.errors.RobotMismatchError` unless ``meta`` was made for ``robot``.
 
     ``meta`` is a fingerprint or a mapping holding ``robot_fingerprint`` (and ``robot`` or
     ``robot_name``, the name shown); ``robot`` anything with ``fingerprint`` and ``name`` (or
     ``robot_name``): a :class:`~profrobot.Robot`, a PoseSDF, a GaussianRobot. ``what`` names the
     thing refused, e.g. ``"checkpoint runs/panda_sdf"``. With ``missing_ok``, data that carries
-    no fingerprint is accepted.
+    no fingerprint is accepted. With ``geometry`` (fields, views, Gaussians: made for the robot's
+    geometry, not its labels), a robot with a safety margin (:meth:`~profrobot.Robot.with_margin`)
+    is accepted by its ``geometry_fingerprint`` too.
     """
     if isinstance(meta, Mapping):
         fingerprint = meta.get("robot_fingerprint")
@@ -138,6 +140,8 @@ def check_robot(meta: Mapping[str, Any] | str | None, robot: Any, what: str, *,
         return
     given_fp = getattr(robot, "fingerprint", None) or getattr(robot, "robot_fingerprint", None)
     if fingerprint == given_fp and fingerprint is not None:
+        return
+    if geometry and fingerprint is not None and fingerprint == getattr(robot, "geometry_fingerprint", None):
         return
     given = getattr(robot, "name", None) or getattr(robot, "robot_name", None)
     raise RobotMismatchError(f"{what} was made for robot {made_for!r} (fingerprint {fingerprint}), "

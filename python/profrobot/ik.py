@@ -169,7 +169,7 @@ def _starts(robot: Robot, start, n: int, scene) -> np.ndarray:
 
 def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_tolerance: float = 1e-4,
        rotation_tolerance: float = 1e-3, seeds: int = 128, iterations: int = 60, seed: int = 0,
-       escape: bool = True, threads: int | None = None) -> IKResult:
+       escape: bool = True, margin: float = CLEARANCE, threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
@@ -185,9 +185,11 @@ def ik(robot: Robot, targets, *, frame: str, start=None, scene=None, position_to
     error and ``reasons``; nothing is certified that does not reach its target. A seed that
     reaches the target in contact first tries to move out (``escape``): the pairs nearer than
     5 mm enter as linearised distance rows beside the target's (``rust/ik.rs``), and the pose it
-    ends in is certified like any other. Same ``seed``, same answers, for any thread count."""
+    ends in is certified like any other. Same ``seed``, same answers, for any thread count.
+    ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.margin`)."""
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    robot = robot.with_margin(margin)
     t0 = time.perf_counter()
     pos, quat = as_targets(targets)
     body, lpos, lquat = frame_of(robot, frame)
@@ -227,7 +229,7 @@ class PoseMotion:
 
 
 def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 8, max_time: float = 10.0,
-                 seed: int = 0, threads: int | None = None, **plan_options) -> PoseMotion:
+                 seed: int = 0, margin: float = CLEARANCE, threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
 
@@ -236,9 +238,11 @@ def plan_to_pose(robot: Robot, start, target, *, frame: str, candidates: int = 8
     ``candidates``, each computed only when the ones before could not be reached. Each is tried
     with :func:`profrobot.plan_path` (``plan_options``: its options), ``max_time`` seconds
     shared among them; the first path found is returned with the goal pose it chose. Raises
-    :class:`InputError` when no candidate reaches the target certified free."""
+    :class:`InputError` when no candidate reaches the target certified free. ``margin``: metres
+    the path keeps from the obstacles (:mod:`profrobot.margin`)."""
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    robot = robot.with_margin(margin)
     q0 = as_poses(robot, start, name="start", check_limits=True)
     if len(q0) != 1:
         raise InputError(f"start must be one pose (K,); got {len(q0)}")

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .certification import certify_poses
+from .certification import CLEARANCE, certify_poses
 from .errors import InputError
 from . import validate
 from .validate import as_poses
@@ -46,7 +46,7 @@ class NearestFree:
 
 def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 1024, step: float = 0.02,
                  tolerance: float = 1e-4, max_distance: float | None = None, seed: int = 0,
-                 threads: int | None = None) -> NearestFree:
+                 margin: float = CLEARANCE, threads: int | None = None) -> NearestFree:
     """The nearest free pose the exact labeller finds for each of ``poses`` (B, K).
 
     From each colliding pose ``q``: ``directions`` seeded random unit directions ``u`` in joint
@@ -57,7 +57,10 @@ def nearest_free(robot: Robot, poses, *, directions: int = 256, refine: int = 10
 
     Deterministic: the same ``seed`` gives the same answer for any thread count. Cost: about
     ``directions * distance / step + refine`` labelled poses per colliding pose.
+
+    ``margin``: the answer keeps this many metres from every obstacle (:mod:`profrobot.margin`).
     """
+    robot = validate.with_margin(robot, margin)
     if getattr(robot, "is_family", False):
         raise InputError(f"{robot.name} is a family of scenes: nearest_free would move its obstacles; search at a "
                          "layout, robot.at(scene)")

@@ -82,7 +82,8 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
 @renamed_arguments(max_iterations="iterations")
 def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
               range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
-              check: Literal["continuous", "sampled"] = "continuous", threads: int | None = None) -> PathResult:
+              check: Literal["continuous", "sampled"] = "continuous", margin: float = CLEARANCE,
+              threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
     Args:
@@ -101,6 +102,9 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
             off.
         check: ``"continuous"`` (every edge proven free at every pose, module docs) or
             ``"sampled"`` (every edge labelled at ``resolution``).
+        margin: metres the path keeps from every obstacle (:mod:`profrobot.margin`; an estimated
+            layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`): the start and goal must
+            keep it too.
 
     Raises ValueError naming the problem for a colliding or out-of-limits start or goal (and,
     with the continuous certificate, a start or goal within ``CLEARANCE`` of contact, which no
@@ -110,6 +114,7 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
     if getattr(robot, "is_family", False):
         raise InputError(f"{robot.name} is a family of scenes: plan_path would move its obstacles; plan at a layout, "
                          "robot.at(scene)")
+    robot = validate.with_margin(robot, margin)
     s = as_poses(robot, start, name="start", check_limits=True)
     g = as_poses(robot, goal, name="goal", check_limits=True)
     if s.shape != (1, robot.njoint) or g.shape != (1, robot.njoint):
@@ -124,7 +129,8 @@ def plan_path(robot: Robot, start, goal, *, resolution: float = 0.01, max_time: 
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
             (k,) = lab.colliding_pairs[:1, 1]
-            raise InputError(f"{name} collides ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+            within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
+            raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
                                range=float(range), max_iterations=int(iterations),
                                shortcut_rounds=int(shortcut_rounds), verify=int(verify),

@@ -10,336 +10,33 @@ A Robot pickles (multiprocessing, DataLoader workers, Ray, ``torch.save``) and d
 
 from __future__ import annotations
 
-import abc
 import copy
 import hashlib
 import os
 import warnings
 import xml.etree.ElementTree as ET
-import zlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
 from . import _core, urdf
-from .family import MarkedSceneJoints, Moves, PinnedLayout, add_moving_geom, model_scene_joints
+from .family import MarkedSceneJoints, PinnedLayout, model_scene_joints
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 from .errors import CorruptFileError, InputError, InputTypeError, MissingFileError, RobotMismatchError
+from .margin import ObstacleMargin, check_margin
+from .obstacles import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Sphere  # noqa: F401  (their home before the split)
+from .sources import _Mjcf, _SpecSource, _Urdf, _read_mjcf, _spec_mjcf, _zip, _unzip  # noqa: F401  (likewise; old pickles name them here)
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
                                                   mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE))
 _GEOM_NAMES = {int(getattr(mujoco.mjtGeom, n)): n.removeprefix("mjGEOM_").lower() for n in dir(mujoco.mjtGeom) if n.startswith("mjGEOM_") and int(getattr(mujoco.mjtGeom, n)) < 9}
 
 
-# --------------------------------------------------------------------------------------------
-# Obstacles for a robot's static scene (added to its MjSpec, then recompiled)
-# --------------------------------------------------------------------------------------------
-
 #: metres: the least distance every candidate pair keeps in a certified pose (what it means:
 #: :mod:`profrobot.certification`, which re-exports it).
 CLEARANCE = 1e-6
-
-
-@dataclass(frozen=True)
-class Obstacle(abc.ABC):
-    """A geom of the scene. Positions in metres, quaternions (w, x, y, z).
-
-    Fixed to the world, unless ``moves`` (:class:`~profrobot.family.Moves`) says how it moves
-    within a family of scenes: then it sits on scene joints named after it (``name`` required),
-    see :mod:`profrobot.family`."""
-
-    pos: Sequence[float]
-    quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)
-    name: str | None = None
-    rgba: Sequence[float] = (0.6, 0.6, 0.65, 1.0)
-    moves: Moves | None = field(default=None, kw_only=True)
-
-    @abc.abstractmethod
-    def _geom_args(self, spec: mujoco.MjSpec) -> dict:
-        """The geom's MuJoCo type and size (and any asset it needs, added to ``spec``)."""
-
-    @property
-    def label(self) -> str:
-        """How messages name it: ``Box 'shelf'``, or ``Box at (0.4, 0, 0.2)`` when unnamed."""
-        if self.name:
-            return f"{type(self).__name__} {self.name!r}"
-        try:
-            where = ", ".join(f"{float(v):.3g}" for v in self.pos)
-        except (TypeError, ValueError):
-            where = repr(self.pos)
-        return f"{type(self).__name__} at ({where})"
-
-    def add_to(self, spec: mujoco.MjSpec) -> None:
-        try:
-            pos = np.asarray(self.pos, dtype=float)
-            quat = np.asarray(self.quat, dtype=float)
-        except (TypeError, ValueError) as e:
-            raise InputError(f"{self.label}: pos must be 3 finite numbers and quat 4 ({e})") from e
-        if pos.shape != (3,) or quat.shape != (4,) or not (np.isfinite(pos).all() and np.isfinite(quat).all()):
-            raise InputError(f"{self.label}: pos must be 3 finite numbers and quat 4")
-        if not np.linalg.norm(quat) > 0:
-            raise InputError(f"{self.label}: quat is zero")
-        if self.moves is not None:
-            if not isinstance(self.moves, Moves):
-                raise InputTypeError(f"{self.label}: moves must be a profrobot.Moves; got {type(self.moves).__name__}")
-            if isinstance(self, Plane):
-                raise InputError(f"{self.label}: an infinite plane cannot move; use a thin Box")
-            add_moving_geom(spec, self.label, self.name, self.moves, pos,
-                            dict(quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
-                                 **self._geom_args(spec)))
-            return
-        kwargs = dict(pos=pos, quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
-                      **self._geom_args(spec))
-        if self.name:
-            kwargs["name"] = self.name
-        spec.worldbody.add_geom(**kwargs)
-
-
-def _positive(owner: str, **values: float) -> list[float]:
-    out = []
-    for key, v in values.items():
-        try:
-            v = float(v)
-        except (TypeError, ValueError):
-            raise InputError(f"{owner}: {key} must be a positive length in metres; got {v!r}") from None
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{owner}: {key} must be a positive length in metres; got {v}")
-        out.append(v)
-    return out
-
-
-@dataclass(frozen=True)
-class Box(Obstacle):
-    """A box of half extents ``half_size`` (metres)."""
-
-    half_size: Sequence[float] = (0.1, 0.1, 0.1)
-
-    def _geom_args(self, spec):
-        h = np.asarray(self.half_size, dtype=object).reshape(-1)
-        if len(h) != 3:
-            raise InputError(f"{self.label}: half_size must be 3 lengths (x, y, z) in metres; got {self.half_size!r}")
-        hx, hy, hz = _positive(f"{self.label}", **{"half_size x": h[0], "half_size y": h[1], "half_size z": h[2]})
-        return dict(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, hz])
-
-
-@dataclass(frozen=True)
-class Sphere(Obstacle):
-    radius: float = 0.1
-
-    def _geom_args(self, spec):
-        (r,) = _positive(self.label, radius=self.radius)
-        return dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0])
-
-
-@dataclass(frozen=True)
-class Capsule(Obstacle):
-    """A capsule along its local z axis: ``radius`` and ``half_length`` of the segment."""
-
-    radius: float = 0.05
-    half_length: float = 0.1
-
-    def _geom_args(self, spec):
-        r, h = _positive(self.label, radius=self.radius, half_length=self.half_length)
-        return dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[r, h, 0])
-
-
-@dataclass(frozen=True)
-class Cylinder(Obstacle):
-    """A cylinder along its local z axis."""
-
-    radius: float = 0.05
-    half_length: float = 0.1
-
-    def _geom_args(self, spec):
-        r, h = _positive(self.label, radius=self.radius, half_length=self.half_length)
-        return dict(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[r, h, 0])
-
-
-@dataclass(frozen=True)
-class Plane(Obstacle):
-    """An infinite plane (the half-space below local z = 0 is solid), e.g. a floor."""
-
-    def _geom_args(self, spec):
-        return dict(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
-
-
-@dataclass(frozen=True)
-class Mesh(Obstacle):
-    """A mesh obstacle from ``vertices`` (N, 3) in metres; it collides as its convex hull."""
-
-    vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-
-    def _geom_args(self, spec):
-        v = np.asarray(self.vertices, dtype=float)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4 or not np.isfinite(v).all():
-            raise InputError(f"{self.label}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
-        mesh_name = f"{self.name or 'obstacle'}_mesh_{len(spec.meshes)}"
-        spec.add_mesh(name=mesh_name, uservert=v.ravel())
-        return dict(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name)
-
-
-# --------------------------------------------------------------------------------------------
-# The editable MjSpec in a form that pickles (MjSpec itself does not)
-# --------------------------------------------------------------------------------------------
-
-def _zip(files: dict[str, bytes]) -> dict[str, bytes]:
-    return {k: zlib.compress(v, 1) for k, v in files.items()}
-
-
-def _unzip(files: dict[str, bytes]) -> dict[str, bytes]:
-    return {k: zlib.decompress(v) for k, v in files.items()}
-
-
-@dataclass(frozen=True, eq=False)
-class _Mjcf:
-    """An MJCF model as bytes: the main file's text, the files it includes and every asset file
-    its meshes, textures, height fields and skins read (zlib-compressed), keyed by the name
-    MuJoCo looks them up by (the compiler folder joined with the ``file`` attribute), and the
-    folder it was read from (``modelfiledir``: names in MuJoCo's compiled ``paths`` stay the
-    same; the carried assets take precedence over any file there).
-
-    ``exact``: the very files the model was parsed from (``from_mjcf``, ``from_menagerie``), so
-    they compile to the same ``MjModel``, bit for bit. False for a spec given to ``from_spec``:
-    written out with ``MjSpec.to_xml`` (6 significant digits), it may compile to another robot,
-    which :meth:`Robot._restore` detects.
-    """
-
-    xml: str
-    include: dict
-    assets: dict
-    modelfiledir: str
-    exact: bool
-
-    def spec(self) -> mujoco.MjSpec:
-        spec = mujoco.MjSpec.from_string(self.xml, include=_unzip(self.include) or None,
-                                         assets=_unzip(self.assets) or None)
-        spec.modelfiledir = self.modelfiledir
-        return spec
-
-
-def _asset_files(spec: mujoco.MjSpec) -> list[tuple[str, str]]:
-    """(name MuJoCo looks up, path on disk) of every file the spec's assets read: meshes, height
-    fields and skins in ``meshdir``, textures (and cube faces) in ``texturedir``."""
-    out = []
-
-    def add(name: str, folder: str) -> None:
-        if name:
-            key = name if os.path.isabs(name) or not folder else os.path.join(folder, name)
-            out.append((key, key if os.path.isabs(key) else os.path.join(spec.modelfiledir or "", key)))
-
-    for m in spec.meshes:
-        add(m.file, spec.meshdir)
-    for h in spec.hfields:
-        add(h.file, spec.meshdir)
-    for sk in spec.skins:
-        add(sk.file, spec.meshdir)
-    for t in spec.textures:
-        for name in (t.file, *t.cubefiles):
-            add(name, spec.texturedir)
-    return out
-
-
-def _read(path: str) -> bytes:
-    with open(path, "rb") as f:
-        return f.read()
-
-
-def _read_mjcf(path: str) -> _Mjcf:
-    """The MJCF file ``path`` and everything it reads, as :class:`_Mjcf` (exact unless it uses
-    what this does not carry: attached ``<model>`` files, files no asset lists, two assets with
-    the same base name, which MuJoCo's asset dictionary cannot tell apart)."""
-    path = os.path.abspath(path)
-    folder = os.path.dirname(path)
-    xml = _read(path).decode("utf-8")
-    include: dict[str, bytes] = {}
-    exact, attrs, pending, seen = True, [], [path], set()
-    while pending:
-        p = pending.pop()
-        if p in seen:
-            continue
-        seen.add(p)
-        for el in ET.parse(p).getroot().iter():
-            if el.tag == "include" and el.get("file"):
-                name = el.get("file")
-                full = next((c for c in (os.path.join(folder, name), os.path.join(os.path.dirname(p), name))
-                             if os.path.isfile(c)), os.path.join(folder, name))
-                include[name] = _read(full)
-                pending.append(full)
-            elif el.tag == "model":
-                exact = False
-            else:
-                attrs += [v for k, v in el.attrib.items() if k.startswith("file") and v]
-    spec = mujoco.MjSpec.from_file(path)  # parsed, not compiled: the asset files with MuJoCo's folders
-    assets = {key: _read(full) for key, full in _asset_files(spec)}
-    bases = [os.path.basename(k).casefold() for k in assets]
-    if len(set(bases)) < len(bases) or any(os.path.basename(v).casefold() not in bases for v in attrs):
-        exact = False
-    return _Mjcf(xml, _zip(include), _zip(assets), spec.modelfiledir, exact)
-
-
-def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
-    """A spec given to ``from_spec`` as :class:`_Mjcf`: ``to_xml`` (not exact) and its assets,
-    those in ``spec.assets`` and those on disk."""
-    assets = dict(spec.assets)
-    for key, full in _asset_files(spec):
-        if key not in assets and os.path.basename(key) not in assets and os.path.isfile(full):
-            assets[key] = _read(full)
-    return _Mjcf(spec.to_xml(), {}, _zip(assets), spec.modelfiledir or "", exact=False)
-
-
-@dataclass(frozen=True, eq=False)
-class _Urdf(_Mjcf):
-    """A URDF as bytes (:func:`profrobot.urdf.read_urdf`: mesh filenames replaced by asset names,
-    the meshes carried) and what :meth:`Robot.from_urdf` adds to its spec: a joint equality for
-    each ``<mimic>`` that MuJoCo's URDF reader did not make one of (MuJoCo 4 makes them all), and
-    the ``<exclude>``s of disabled link pairs. Exact: the same bytes and edits give the same model."""
-
-    mimics: tuple = ()      # (joint, mimicked joint, multiplier, offset)
-    excludes: tuple = ()    # (body1, body2)
-
-    def spec(self) -> mujoco.MjSpec:
-        spec = super().spec()
-        coupled = {e.name1 for e in spec.equalities if e.type == mujoco.mjtEq.mjEQ_JOINT}
-        for joint, other, mult, offset in self.mimics:
-            if joint not in coupled:
-                eq = spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
-                                       name1=joint, name2=other)
-                eq.data[:5] = [offset, mult, 0.0, 0.0, 0.0]
-        for b1, b2 in self.excludes:
-            spec.add_exclude(bodyname1=b1, bodyname2=b2)
-        return spec
-
-
-@dataclass(frozen=True, eq=False)
-class _SpecSource:
-    """How a robot's MjSpec was made: ``root`` plus the ``obstacles`` added since, in order.
-
-    ``root`` is where the model came from until the first pickle reads it: an MJCF file's path
-    (``from_mjcf``, ``from_menagerie``) or the ``MjSpec`` given to ``from_spec``; from then on the
-    bytes (:class:`_Mjcf`), shared by the robots ``with_obstacles`` derives.
-    """
-
-    root: "str | mujoco.MjSpec | _Mjcf"
-    obstacles: tuple = ()
-
-    def loaded(self) -> "_SpecSource":
-        if isinstance(self.root, _Mjcf):
-            return self
-        root = _read_mjcf(self.root) if isinstance(self.root, str) else _spec_mjcf(self.root)
-        return _SpecSource(root, self.obstacles)
-
-    def spec(self) -> mujoco.MjSpec:
-        root = self.loaded().root
-        spec = root.spec()
-        for ob in self.obstacles:
-            ob.add_to(spec)
-        return spec
-
-    def then(self, obstacles: tuple) -> "_SpecSource":
-        return _SpecSource(self.root, self.obstacles + tuple(obstacles))
-
 
 _STATE_FORMAT = "profrobot.Robot/1"
 
@@ -524,6 +221,9 @@ class Robot:
     #: for a layout made by :meth:`at`: the family's scene-joint values (D,) and fingerprint
     layout: np.ndarray | None = None
     family_fingerprint: str | None = None
+    #: metres: the safety margin every obstacle geom has at least (:meth:`with_margin`); 0 for the
+    #: model's own margins
+    margin: float = 0.0
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
@@ -567,6 +267,9 @@ class Robot:
         self.core = _core.RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
         self.fingerprint = _fingerprint(self.joint_names, self._arrays, self.scene_joints)
+        #: the fingerprint of the robot before any safety margin (:meth:`with_margin`): the geometry
+        #: a field, views or Gaussians were made for. Labels follow :attr:`fingerprint`.
+        self.geometry_fingerprint = self.fingerprint
         self.layout = None
         self.family_fingerprint = None
 
@@ -885,7 +588,12 @@ class Robot:
     def _derived(self, spec: mujoco.MjSpec, edits: tuple, name: str) -> "Robot":
         """The robot of ``spec``, this robot's spec after ``edits`` (their ``add_to``), carrying
         the edits in its source (pickles rebuild it) and this robot's collision notes."""
+        if self.margin > 0 and not any(isinstance(e, ObstacleMargin) for e in edits):
+            keep = ObstacleMargin(self.margin)  # obstacles added to a robot with a margin get it too
+            keep.add_to(spec)
+            edits = tuple(edits) + (keep,)
         robot = Robot.from_spec(spec, name=name)
+        robot.margin = self.margin
         if self._source is not None:
             robot._source = self._source.then(edits)
         if self.disabled_pairs or self._collision_notes:
@@ -1007,10 +715,38 @@ class Robot:
         spec = self._editable("at(scene)")
         edit.add_to(spec)
         robot = self._derived(spec, (edit,), name or self.name)
-        robot.layout, robot.family_fingerprint = delta, self.fingerprint
+        robot.layout, robot.family_fingerprint = delta, self.geometry_fingerprint
         if len(cache) >= 4:
             cache.pop(next(iter(cache)))
         cache[key] = robot
+        return robot
+
+    def with_margin(self, margin: float) -> "Robot":
+        """This scene with a safety margin of ``margin`` metres around every obstacle
+        (:mod:`profrobot.margin`: what it guarantees and assumes): a robot–obstacle pair is in
+        contact, for the labeller and MuJoCo alike, when it is less than ``margin`` apart, so a
+        pose or motion certified on the result keeps ``margin`` from every obstacle. Self pairs
+        are unchanged. ``margin`` at most :data:`CLEARANCE` (the certification's own clearance)
+        returns this robot; the result is cached (one per margin).
+
+        The result keeps ``layout``, ``family_fingerprint`` and :attr:`geometry_fingerprint`
+        (so a field trained on this robot still guides it); its :attr:`fingerprint` differs
+        (its labels do)."""
+        m = check_margin(margin)
+        if m <= max(CLEARANCE, self.margin):
+            return self
+        cache = self.__dict__.setdefault("_margins", {})
+        if m in cache:
+            return cache[m]
+        edit = ObstacleMargin(m)
+        spec = self._editable("with_margin")
+        edit.add_to(spec)
+        robot = self._derived(spec, (edit,), self.name)
+        robot.margin, robot.geometry_fingerprint = m, self.geometry_fingerprint
+        robot.layout, robot.family_fingerprint = self.layout, self.family_fingerprint
+        if len(cache) >= 4:
+            cache.pop(next(iter(cache)))
+        cache[m] = robot
         return robot
 
     def _check_base_clear(self, delta: np.ndarray) -> None:
@@ -1162,7 +898,7 @@ class Robot:
         does not reproduce, or a spec edited after the robot was built). A Panda scene pickles to
         about 6 MB (the meshes' files, compressed).
         """
-        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source", "_layouts")}
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source", "_layouts", "_margins")}
         source = self._source
         if source is not None and not isinstance(source.root, _Mjcf):
             try:
@@ -1202,7 +938,7 @@ class Robot:
         new = object.__new__(type(self))
         memo[id(self)] = new
         for key, value in self.__dict__.items():
-            if key == "_layouts":  # a cache
+            if key in ("_layouts", "_margins"):  # caches
                 value = {}
             elif key == "_spec":
                 value = None if value is None else value.copy()

@@ -168,3 +168,12 @@ def with_scene(robot: "Robot", poses, scene, name: str = "poses"):
 def poses_within_limits(robot: "Robot", poses, name: str = "poses") -> np.ndarray:
     """:func:`as_poses` with the joint limits checked to 1e-6 (float32 round trips from torch)."""
     return as_poses(robot, poses, name=name, check_limits=True, atol=1e-6)
+
+
+def with_margin(robot: "Robot", margin) -> "Robot":
+    """``robot`` with a safety margin of ``margin`` metres around its obstacles
+    (:meth:`Robot.with_margin`, :mod:`profrobot.margin`): what every entry point taking
+    ``margin=`` labels and certifies on. ``margin`` at most ``CLEARANCE`` is ``robot`` itself."""
+    if not isinstance(robot, Robot):
+        raise InputTypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
+    return robot.with_margin(margin)

@@ -64,7 +64,7 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
     if not isinstance(robot, Robot):
         raise InputTypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
-    check_robot(config, robot, f"checkpoint {path}")
+    check_robot(config, robot, f"checkpoint {path}", geometry=True)
     family = config.get("family")
     if (family or {}).get("scene_joints", []) != list(getattr(robot, "scene_joints", ())):
         raise CorruptFileError(f"{cfg_path}: its family's scene joints {(family or {}).get('scene_joints', [])} are not "

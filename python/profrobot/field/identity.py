@@ -67,5 +67,5 @@ def field_robot(sdf, robot: Robot | None) -> Robot:
         robot = _bundled(name)
     if not isinstance(robot, Robot):
         raise InputTypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
-    check_robot(sdf.fingerprint, robot, "the field", made_for=getattr(sdf, "robot_name", None))
+    check_robot(sdf.fingerprint, robot, "the field", made_for=getattr(sdf, "robot_name", None), geometry=True)
     return robot

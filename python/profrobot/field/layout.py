@@ -103,9 +103,10 @@ def field_at_layout(sdf, robot: Robot | None, scene):
             raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
         scene = layout
     at = sdf.at(scene)
-    if robot is not None and robot.fingerprint == sdf.fingerprint:  # robot=family, scene=δ
-        robot = None
-    if robot is not None and robot.fingerprint != at.fingerprint:
+    if robot is not None and getattr(robot, "geometry_fingerprint", robot.fingerprint) == sdf.fingerprint:
+        # robot=family, scene=δ (a family with a safety margin keeps it at the layout)
+        return at, robot.at(at.scene) if getattr(robot, "margin", 0.0) > 0 else at.robot
+    if robot is not None and getattr(robot, "geometry_fingerprint", robot.fingerprint) != at.fingerprint:
         raise RobotMismatchError(f"robot {robot.name!r} is not the field's family at this layout; pass the family's "
                                  "robot.at(scene), or leave robot= out")
-    return at, at.robot
+    return at, at.robot if robot is None else robot

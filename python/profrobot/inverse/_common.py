@@ -10,7 +10,8 @@ import torch
 from ..errors import InputError, RobotMismatchError
 from ..joints import Limits
 from ..field.identity import check_field, field_robot
-from ..certification import check_path
+from ..certification import CLEARANCE, check_path
+from ..validate import with_margin
 from ..optim.trajectory import TrajectoryResult, trajectory_result
 from ..robot import Robot
 
@@ -29,15 +30,16 @@ def check_field_matches_model(sdf, model) -> None:
                                  f"{model.robot_name!r} have different joint limits: not the same arm")
 
 
-def labeller_robot(sdf, model, robot, who: str, *, required: bool = True) -> Robot | None:
+def labeller_robot(sdf, model, robot, who: str, *, required: bool = True, margin: float = CLEARANCE) -> Robot | None:
     """The scene the exact labeller certifies against: the field's (checked against ``model``'s
-    joints and ``robot`` if given), else ``robot``, which ``who`` needs when ``required``."""
+    joints and ``robot`` if given), else ``robot``, which ``who`` needs when ``required``; with
+    a safety margin of ``margin`` metres around its obstacles (:mod:`profrobot.margin`)."""
     if sdf is not None:
         check_field_matches_model(sdf, model)
-        return field_robot(sdf, robot)
+        return with_margin(field_robot(sdf, robot), margin)
     if required and not isinstance(robot, Robot):
         raise InputError(f"{who} without a field needs robot= (the scene to certify against)")
-    return robot
+    return robot if robot is None else with_margin(robot, margin)
 
 
 def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,

@@ -38,6 +38,7 @@ from ..certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
 from ..render.cameras import Cameras
 from ..render.targets import ImageTargets, as_pinhole_targets
+from ..certification import CLEARANCE
 from ._common import check_field_matches_model, labeller_robot
 from ..field.layout import field_at_layout
 
@@ -106,7 +107,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
                      image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
                      background=None, coarse: dict | None = None, robot=None, seed: int = 0,
-                     refine_cameras: bool | dict = False, progress: bool = False, scene=None) -> InverseResult:
+                     refine_cameras: bool | dict = False, progress: bool = False, scene=None, margin: float = CLEARANCE) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
 
     ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
@@ -131,7 +132,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
     sdf, robot = field_at_layout(sdf, robot, scene)
-    robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False)
+    robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False, margin=margin)
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:
         init = init[None]

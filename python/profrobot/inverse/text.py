@@ -20,6 +20,7 @@ from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
 from ..robot import Robot
 from ..field.layout import field_at_layout
+from ..certification import CLEARANCE
 from ._common import labeller_robot
 
 __all__ = ["TextResult", "pose_from_text"]
@@ -69,7 +70,7 @@ class TextResult:
 @renamed_arguments(steps="iterations")
 def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, iterations: int = 200,
                    lr: float = 0.01, beta: float = 10.0, l_thres: float = -0.1, background=(1.0, 1.0, 1.0),
-                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, scene=None) -> TextResult:
+                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, scene=None, margin: float = CLEARANCE) -> TextResult:
     """Joint angles whose render from ``camera`` (a one-camera :class:`~profrobot.render.Cameras`)
     best matches ``prompt`` under ``scorer`` (:mod:`profrobot.scorers`).
 
@@ -85,7 +86,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):
         raise InputTypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
     sdf, robot = field_at_layout(sdf, robot, scene)
-    robot = labeller_robot(sdf, model, robot, "pose_from_text")
+    robot = labeller_robot(sdf, model, robot, "pose_from_text", margin=margin)
     if len(camera) != 1:
         raise InputError(f"pose_from_text renders from one camera; got {len(camera)}")
     runs = positive("runs", runs, integer=True)

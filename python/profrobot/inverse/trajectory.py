@@ -24,6 +24,7 @@ from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
 from ..robot import Robot
 from ..field.layout import field_at_layout
+from ..certification import CLEARANCE
 from ._common import certified_path, labeller_robot
 
 __all__ = ["trajectory_from_images"]
@@ -35,7 +36,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
                            w_depth: float = 1.0, w_mask: float = 0.5, background=None,
                            robot: Robot | None = None, scene=None, frame: str | None = None,
-                           frame_targets: dict | None = None) -> TrajectoryResult:
+                           frame_targets: dict | None = None, margin: float = CLEARANCE) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
     pose: ``rgb`` (C, H, W, 3), ``depth`` (C, H, W) m, ``mask`` (C, H, W), from ``cameras``).
 
@@ -69,7 +70,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     if start is None:
         raise InputError("trajectory_from_images needs start= (K,), the first frame's pose")
     sdf, robot = field_at_layout(sdf, robot, scene)
-    robot = labeller_robot(sdf, model, robot, "trajectory_from_images")
+    robot = labeller_robot(sdf, model, robot, "trajectory_from_images", margin=margin)
     steps = positive("steps", steps, integer=True)
     if steps < 3:
         raise InputError(f"steps must be >= 3; got {steps}")

@@ -28,6 +28,7 @@ from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
 from ..robot import Robot
 from ..field.layout import field_at_layout
+from ..certification import CLEARANCE
 from ._common import certified_path, labeller_robot
 
 __all__ = ["actions_from_video"]
@@ -41,7 +42,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
                        background=None, robot: Robot | None = None, batch: int = 20, scene=None,
                        frame: str | None = None, frame_targets: dict | None = None,
-                       w_frame: float = 100.0) -> TrajectoryResult:
+                       w_frame: float = 100.0, margin: float = CLEARANCE) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
@@ -58,7 +59,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     and segment certified (``method`` gains "+frames")."""
     t0 = time.perf_counter()
     sdf, robot = field_at_layout(sdf, robot, scene)
-    robot = labeller_robot(sdf, model, robot, "actions_from_video")
+    robot = labeller_robot(sdf, model, robot, "actions_from_video", margin=margin)
     if (frame is None) != (frame_targets is None):
         raise InputError("end-effector targets need both frame= (a site, body or geom) and frame_targets= "
                          "({frame index: target})")

@@ -37,8 +37,8 @@ from ..joints import LIMIT_INSET, Limits
 from ..field.identity import field_robot
 from ..field.layout import field_at_layout
 from ..errors import InputError
-from ..validate import finite, positive, poses_within_limits
-from ..certification import certified_summary, certify_poses, failures_of
+from ..validate import finite, positive, poses_within_limits, with_margin
+from ..certification import CLEARANCE, certified_summary, certify_poses, failures_of
 from ..labels import collides
 from ..oracle import nearest_free
 from ..deprecation import renamed_arguments
@@ -289,10 +289,36 @@ def certify_and_continue(robot: Robot, certified: np.ndarray, again: Callable[[n
 
 
 @renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
+def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
+    """:func:`resolve` with ``sdf=None``: the exact labeller's nearest-free search (its docs)."""
+    if robot is None:
+        raise InputError("resolve(sdf=None) searches with the exact labeller alone and needs robot= (the scene)")
+    _, robot = field_at_layout(None, robot, scene)
+    robot = with_margin(robot, margin)
+    q0 = poses_within_limits(robot, poses)
+    limits = Limits.of(robot)
+    B = len(q0)
+    out = q0.copy()
+    certified = certify_poses(robot, q0) if B else np.zeros(0, dtype=bool)
+    bad = np.flatnonzero(~certified)
+    if len(bad):
+        near = nearest_free(robot, limits.numpy(q0[bad]))
+        hit = np.isfinite(near.distance)
+        if hit.any():
+            q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
+            out[bad[hit][ok]] = q1[ok]
+            certified[bad[hit][ok]] = True
+    nan = np.full(B, np.nan, dtype=np.float32)
+    return ResolveResult(poses=out, iterations=np.zeros(B, dtype=np.int64),
+                         delta=np.linalg.norm(limits.diff(out, q0), axis=1), certified=certified, g=nan,
+                         reached=certified.copy(), threshold=np.full(B, np.nan), seconds=time.perf_counter() - start,
+                         history=[dict(round="exact search", threshold=float("nan"), certified=int(certified.sum()))])
+
+
 def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iterations: int | None = None, *,
             method: Method = "project", shrink: bool = True, robot: Robot | None = None, refine: bool = True,
             refine_rounds: int = 4, refine_step: float = 0.1, refine_iterations: int | None = None,
-            scene=None) -> ResolveResult:
+            scene=None, margin: float = CLEARANCE) -> ResolveResult:
     """Resolve collisions of ``poses`` (B, K) (radians / metres, within joint limits) with the
     learned field ``sdf``, all poses in one batch (module docs).
 
@@ -317,15 +343,24 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     ``result.failures``, never hidden. ``robot``: the labeller's robot (default: the bundled
     scene the field was trained on). ``scene``: for a field of a family of scenes
     (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that
-    layout.
+    layout. ``margin``: metres every certified answer keeps from the obstacles
+    (:mod:`profrobot.margin`; an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`
+    makes answers certified at the estimate free at the true layout).
+
+    ``sdf=None`` (``robot=`` required): no field, the exact labeller alone. Each pose not certified
+    as given gets the nearest-free search (:func:`profrobot.nearest_free`, 256 rays, 1024
+    refinements), its move cut to the first certified pose on its ray; slower than the field's
+    step, but it needs no training (a scene seen once, a layout just estimated).
 
     Cost (``"project"``): one to a few field gradients per colliding pose, ~25 labelled poses on
     its ray, and the nearest-free search for the few the field's direction misses (1 % on
     Panda-blocks, 5 % on the UR5e).
     """
     start = time.perf_counter()
+    if sdf is None:
+        return _resolve_exact(poses, robot, scene, margin, start)
     sdf, robot = field_at_layout(sdf, robot, scene)
-    robot = field_robot(sdf, robot)
+    robot = with_margin(field_robot(sdf, robot), margin)
     q0 = poses_within_limits(robot, poses)
     l_thres = finite("l_thres", l_thres)
     if method not in ("project", "adam"):

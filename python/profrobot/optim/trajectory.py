@@ -30,7 +30,7 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
-from ..certification import PathCheck, check_path
+from ..certification import CLEARANCE, PathCheck, check_path
 from ..deprecation import deprecated_alias
 from ..errors import InputError, InputTypeError
 from ..field.identity import field_robot
@@ -38,7 +38,7 @@ from ..field.layout import field_at_layout
 from ..joints import Limits
 from ..labels import interpolate
 from ..robot import Robot
-from ..validate import finite, positive, poses_within_limits
+from ..validate import finite, positive, poses_within_limits, with_margin
 from .paths import PenaltyOptions, TangentOptions, penalty_descent, smooth_certified, tangent_walk, unwrap_path
 
 __all__ = ["plan_trajectory", "TrajectoryResult", "trajectory_result", "PenaltyOptions", "TangentOptions"]
@@ -149,7 +149,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
                     init: Init = "auto", planner: dict | None = None, penalty: PenaltyOptions | None = None,
                     tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
                     density: int = 10, scene=None, frame: str | None = None, frame_targets: dict | None = None,
-                    **legacy):
+                    margin: float = CLEARANCE, **legacy):
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
     list of B results, optimised together.
@@ -179,6 +179,9 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     straight path's waypoint there that puts the frame on its target (0.1 mm, 1 mrad); the path
     between consecutive fixed waypoints is planned as above, and the whole path certified.
 
+    ``margin``: metres every certified path keeps from the obstacles (:mod:`profrobot.margin`;
+    an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`).
+
     The flat options of earlier releases (``gamma1``, ``lr``, ``iterations``, ``delta``,
     ``tangent_iters``, ``smooth_iters``, ...) still work, with a DeprecationWarning.
     """
@@ -187,13 +190,14 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
         return _through_frame_targets(sdf, start, goal, steps, method, robot=robot, init=init, planner=planner,
                                       penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations,
                                       l_thres=l_thres, density=density, scene=scene, frame=frame,
-                                      frame_targets=frame_targets, legacy=legacy, t0=t0)
+                                      frame_targets=frame_targets, margin=margin, legacy=legacy, t0=t0)
     sdf, robot = field_at_layout(sdf, robot, scene)
     if sdf is None:
         if not isinstance(robot, Robot):
             raise InputError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")
     else:
         robot = field_robot(sdf, robot)
+    robot = with_margin(robot, margin)
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}; got {method!r}")
     if init not in INITS:
@@ -269,7 +273,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
 
 
 def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, planner, penalty, tangent,
-                           smooth_iterations, l_thres, density, scene, frame, frame_targets, legacy, t0):
+                           smooth_iterations, l_thres, density, scene, frame, frame_targets, margin, legacy, t0):
     """:func:`plan_trajectory` with end-effector targets at interior waypoints (its docs)."""
     from .frames import FrameTargets
 
@@ -280,6 +284,7 @@ def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, plan
         raise InputError("frame_targets= plans one problem: start and goal must be single poses (K,)")
     sdf_l, robot_l = field_at_layout(sdf, robot, scene)
     robot_l = robot_l if sdf_l is None else field_robot(sdf_l, robot_l)
+    robot_l = with_margin(robot_l, margin)
     steps = positive("steps", steps, integer=True)
     s = poses_within_limits(robot_l, start, "start")[0]
     g = poses_within_limits(robot_l, goal, "goal")[0]

@@ -180,7 +180,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
     :func:`profrobot.render.rasterize`; "auto" is the Rust kernel on a CPU, gsplat on CUDA)."""
     from tqdm.auto import tqdm
 
-    check_robot(views.fingerprint or None, model, "the views", made_for=views.robot_name, missing_ok=True)
+    check_robot(views.fingerprint or None, model, "the views", made_for=views.robot_name, missing_ok=True, geometry=True)
     rng = np.random.default_rng(seed)
     trng = torch.Generator().manual_seed(seed)
     cams = views.cameras

@@ -416,7 +416,7 @@ class GaussianRobot(torch.nn.Module):
             raise CorruptFileError(f"{path}: not a readable Gaussian robot file ({type(e).__name__}: {e})") from e
         check_format(meta.get("format") if isinstance(meta, dict) else meta, "gaussian_robot", _FORMAT_VERSION,
                      str(path))
-        check_robot(meta, robot, f"Gaussian robot {path}")
+        check_robot(meta, robot, f"Gaussian robot {path}", geometry=True)
         t = lambda k: tensors[k].numpy()
         try:
             model = cls(robot, t("body"), t("means"), t("quats"), t("log_scales"), t("opacity_logits"), t("sh"),

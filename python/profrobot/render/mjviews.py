@@ -20,8 +20,8 @@ from ..gl import renderer as gl_renderer, uses_gl
 from ..errors import InputError
 from .cameras import Cameras, free_camera
 
-__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_frames_chunk", "update_scene", "set_gl_camera",
-           "release_renderers"]
+__all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_depth_chunk", "render_frames_chunk",
+           "update_scene", "set_gl_camera", "release_renderers"]
 
 
 def robot_visual_model(robot) -> mujoco.MjModel:
@@ -38,7 +38,7 @@ class MjViews:
     """One MuJoCo renderer (one GL context, made on first use of :attr:`r`) for one model and
     camera set; :meth:`gl_camera` needs no GL."""
 
-    def __init__(self, model: mujoco.MjModel, cameras: Cameras):
+    def __init__(self, model: mujoco.MjModel, cameras: Cameras, *, whole_scene: bool = False):
         if cameras.distortion is not None:
             raise InputError("MuJoCo renders pinhole images: these cameras have lens distortion; render from "
                              "cameras.undistorted() (targets are undistorted to it: profrobot.render.distortion)")
@@ -50,6 +50,8 @@ class MjViews:
         self.cams = cameras
         self._r = None
         robot_geom = np.asarray(model.geom_bodyid) != 0
+        if whole_scene:  # every geom counts, and depth is kept wherever one is seen
+            robot_geom[:] = True
         self.robot_geom = np.concatenate([robot_geom, [False]])  # index -1 (background) → False
 
     @property
@@ -172,6 +174,7 @@ class MjFrames:
 # --------------------------------------------------------------------------------------------
 
 _VIEWS: tuple[object, Cameras, MjViews] | None = None      # (robot, cameras, renderer)
+_DEPTH: tuple[object, Cameras, MjViews] | None = None      # (robot, cameras, renderer) of the whole scene
 _FRAMES: tuple[object, tuple, MjFrames] | None = None      # (robot, (size, camera), renderer)
 
 
@@ -188,6 +191,21 @@ def render_views_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, st
     views = _VIEWS[2]
     out = [views.render(q) for q in qpos[start:stop]]
     return tuple(np.stack(x) for x in zip(*out))
+
+
+@uses_gl
+def render_depth_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Rows ``start:stop`` of ``qpos`` (P, nq) drawn with the whole scene (robot and obstacles)
+    from ``cameras`` → depth (S, C, H, W) float32, metres along each camera's z axis, 0 where no
+    geom is seen: what a depth camera in the scene would measure, noise-free."""
+    global _DEPTH
+    if _DEPTH is None or _DEPTH[0] is not robot or _DEPTH[1] != cameras:
+        if _DEPTH is not None:
+            _DEPTH[2].close()
+            _DEPTH = None
+        _DEPTH = (robot, cameras, MjViews(copy.deepcopy(robot.mj_model), cameras, whole_scene=True))
+    views = _DEPTH[2]
+    return np.stack([views.render(q)[1] for q in qpos[start:stop]])
 
 
 @uses_gl
@@ -209,8 +227,8 @@ def render_frames_chunk(robot, poses: np.ndarray, size: tuple[int, int], camera)
 @on_release
 def release_renderers() -> None:
     """Close this process's renderers (their GL contexts)."""
-    global _VIEWS, _FRAMES
-    for cached in (_VIEWS, _FRAMES):
+    global _VIEWS, _FRAMES, _DEPTH
+    for cached in (_VIEWS, _FRAMES, _DEPTH):
         if cached is not None:
             cached[2].close()
-    _VIEWS = _FRAMES = None
+    _VIEWS = _FRAMES = _DEPTH = None

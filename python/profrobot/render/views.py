@@ -20,9 +20,9 @@ from ..executors import chunk_bounds, chunk_sizes, check_executor
 from ..deprecation import deprecated_alias
 from ..files import atomic_path, check_format, check_robot, format_tag
 from .cameras import Cameras, ring_cameras, sphere_cameras  # noqa: F401  (their home before the split)
-from .mjviews import render_views_chunk, robot_visual_model
+from .mjviews import render_depth_chunk, render_views_chunk, robot_visual_model
 
-__all__ = ["Views", "make_views", "robot_visual_model"]
+__all__ = ["Views", "make_views", "render_depth", "robot_visual_model"]
 
 
 FORMAT_VERSION = 1  # compressed .npz: a JSON header (format, robot, cameras, meta), poses, rgb, depth, packed mask
@@ -89,7 +89,7 @@ class Views:
         except (OSError, KeyError, ValueError, EOFError) as e:
             raise CorruptFileError(f"{path}: not a readable profrobot views file ({e})") from e
         if robot is not None:
-            check_robot(dict(robot_fingerprint=v.fingerprint, robot_name=v.robot_name), robot, f"views {path}")
+            check_robot(dict(robot_fingerprint=v.fingerprint, robot_name=v.robot_name), robot, f"views {path}", geometry=True)
         return v
 
 
@@ -127,6 +127,29 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
     parts = executor.map(render_views_chunk, [(cameras, ref, a, b) for a, b in bounds], robot=robot,
                          sizes=chunk_sizes(bounds), desc="MuJoCo views", unit="pose", progress=progress)
     return _views_of(robot, poses, cameras, parts)
+
+
+def render_depth(robot, poses, cameras: Cameras, *, processes: int = 1, progress: bool = False, chunk: int = 8,
+                 executor=None) -> np.ndarray:
+    """Depth images (P, C, H, W) float32 of the whole scene (robot and obstacles; a family's at
+    each pose's scene joints) at ``poses`` (P, K) from ``cameras``: metres along each camera's z
+    axis, 0 where no geom is seen. Rendered by MuJoCo like :func:`make_views` (same executors,
+    same GL choice), pinhole only (lens distortion: render ``cameras.undistorted()``)."""
+    executor = check_executor(executor, processes=processes)
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != robot.njoint:
+        raise InputError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
+    if not np.isfinite(poses).all():
+        raise InputError("poses contain NaN or inf")
+    if not isinstance(cameras, Cameras):
+        raise InputTypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
+    qpos = np.tile(robot.mj_model.qpos0, (len(poses), 1))
+    qpos[:, robot.qpos_adr] = poses
+    bounds = chunk_bounds(len(qpos), chunk)
+    ref = executor.put(qpos)
+    parts = executor.map(render_depth_chunk, [(cameras, ref, a, b) for a, b in bounds], robot=robot,
+                         sizes=chunk_sizes(bounds), desc="MuJoCo depth", unit="pose", progress=progress)
+    return np.concatenate(parts)
 
 
 def _views_of(robot, poses: np.ndarray, cameras: Cameras, parts: list) -> Views:

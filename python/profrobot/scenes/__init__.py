@@ -15,6 +15,7 @@ Families of scenes (:mod:`profrobot.family`: obstacles on scene joints δ), ``fa
 | name                | robot        | movable obstacles                                                  |
 |---------------------|--------------|--------------------------------------------------------------------|
 | panda_blocks_moving | Panda + hand | panda_blocks' three blocks, each ±15 cm in x and y, ±45° of yaw (δ: 9) |
+| vx300s_clutter_moving | ViperX 300 S | a ball (x, y, z), a floating bar (capsule: x, y, z, yaw), a can (cylinder: x, y), a crate (box: x, y, yaw); ±10–15 cm, ±45° (δ: 12) |
 """
 
 from __future__ import annotations
@@ -111,7 +112,23 @@ def panda_blocks_moving() -> Robot:
     ], "panda_blocks_moving")
 
 
-_FAMILIES: dict[str, Callable[[], Robot]] = {f.__name__: f for f in (panda_blocks_moving,)}
+def vx300s_clutter_moving() -> Robot:
+    """vx300s_clutter as a family of four mixed obstacles (12 scene joints): the ball moves in x,
+    y, z; the bar (a horizontal capsule) in x, y, z and yaw; the can (a vertical cylinder: its yaw
+    would change nothing) in x and y; a crate (a box) in x, y and yaw."""
+    xy = (-0.12, 0.12)
+    return _scene("trossen_vx300s", "vx300s", [
+        FLOOR,
+        Sphere(pos=(0.40, 0.10, 0.20), radius=0.08, name="ball", moves=Moves(x=xy, y=xy, z=(-0.10, 0.10))),
+        Capsule(pos=(0.25, -0.30, 0.25), quat=(0.7071068, 0.7071068, 0, 0), radius=0.04, half_length=0.15, name="bar",
+                moves=Moves(x=xy, y=xy, z=(-0.10, 0.10), yaw=(-math.pi / 4, math.pi / 4))),
+        Cylinder(pos=(-0.10, 0.35, 0.15), radius=0.06, half_length=0.15, name="can", moves=Moves(x=xy, y=xy)),
+        Box(pos=(0.30, 0.45, 0.08), half_size=(0.09, 0.06, 0.08), name="crate",
+            moves=Moves(x=xy, y=xy, yaw=(-math.pi / 4, math.pi / 4))),
+    ], "vx300s_clutter_moving")
+
+
+_FAMILIES: dict[str, Callable[[], Robot]] = {f.__name__: f for f in (panda_blocks_moving, vx300s_clutter_moving)}
 
 _BUILDERS: dict[str, Callable[[], Robot]] = {
     f.__name__: f for f in (panda_blocks, ur5e_wall_box, shadow_hand, xarm7_table, vx300s_clutter, panda_shelf)
