@@ -36,6 +36,16 @@ def _optim(name: str):
     return run
 
 
+def _layouts(name: str):
+    """``profrobot.layouts.cli.<name>``, imported when the command runs."""
+    def run(args) -> int:
+        from .layouts import cli
+
+        return getattr(cli, name)(args)
+
+    return run
+
+
 def _inverse(name: str):
     """``profrobot.inverse.cli.<name>``, imported when the command runs (torch, like ``_optim``)."""
     def run(args) -> int:
@@ -359,6 +369,21 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--seeds", type=int, default=128, help="seeds per target at most")
     sp.add_argument("--out", help="save poses, certified, reached, outcome and errors to this .npz (atomic)")
     sp.set_defaults(fn=cmd_ik)
+    sp = sub.add_parser("layout", help="a family's layout (where its obstacles are) from depth images")
+    add_robot_arguments(sp, scene_default=None)
+    sp.add_argument("--depth", required=True, help=".npy: (C, H, W) depth in metres along each camera's z axis, "
+                                                   "0 or NaN where missing")
+    sp.add_argument("--cameras", required=True, help="the cameras' calibration (JSON written by Cameras.save)")
+    sp.add_argument("--pose", required=True, help="the robot's joint pose, comma-separated (radians / metres; "
+                                                                     "--pose=-0.1,... when it starts with a minus)")
+    sp.add_argument("--mask", help=".npy: (C, H, W) bool, True on the robot's pixels (default: cast at --pose)")
+    sp.add_argument("--noise-a", dest="noise_a", type=float, default=0.002, help="depth noise σ = a + b·z: a, metres")
+    sp.add_argument("--noise-b", dest="noise_b", type=float, default=0.005, help="depth noise σ = a + b·z: b")
+    sp.add_argument("--calibration", type=float, default=0.0,
+                    help="metres added to the suggested margin for the cameras' calibration error")
+    sp.add_argument("--out", default="layout.json", help="the estimate as JSON (atomic)")
+    sp.add_argument("--picture", default=None, help="a PNG of the points and the fitted obstacles")
+    sp.set_defaults(fn=_layouts("cmd_layout"))
     sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 

@@ -21,7 +21,10 @@ def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
     ``package_dirs``) file, e.g. the robot in its cell that a field was trained for."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"--robot {path}: no such file (an MJCF .xml or a URDF .urdf)")
+        if path in scenes.names() + scenes.family_names() and not package_dirs:  # a bundled name works too
+            return scenes.load(path)
+        raise InputError(f"--robot {path}: no such file (an MJCF .xml or a URDF .urdf, or a bundled scene: "
+                         f"{', '.join(scenes.names() + scenes.family_names())})")
     if p.suffix.lower() == ".urdf":
         return Robot.from_urdf(p, package_dirs=package_dirs)
     if package_dirs:

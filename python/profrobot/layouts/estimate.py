@@ -56,12 +56,11 @@ from ..render.cameras import Cameras
 from ..render.distortion import undistort_images
 from ..robot import Robot
 from .depth import DEFAULT_GEOMGROUP, check_depth, expected_depth, pixel_rays, undistorted
+from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, covariance, displacement_sigma, distances, fit_obstacle, movable_obstacles, reach_box, refine
 
 __all__ = ["estimate_layout", "LayoutEstimate", "ROBOT", "STATIC", "OBSTACLE", "UNEXPLAINED"]
 
-#: point kinds of :attr:`LayoutEstimate.kind`
-ROBOT, STATIC, OBSTACLE, UNEXPLAINED = 0, 1, 2, 3
 _FORMAT = "profrobot.layout_estimate/1"
 
 

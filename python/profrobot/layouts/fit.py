@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from .shapes import Solid, solid_of
+from .shapes import solid_of
 
 __all__ = ["Obstacle", "Placer", "movable_obstacles", "fit_obstacle", "refine", "gm_loss"]
 

@@ -17,9 +17,14 @@ import numpy as np
 
 from ..files import atomic_path
 from ..robot import Robot
-from .estimate import OBSTACLE, ROBOT, STATIC, UNEXPLAINED, LayoutEstimate
+from typing import TYPE_CHECKING
+
+from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, movable_obstacles
 from .depth import DEFAULT_GEOMGROUP
+
+if TYPE_CHECKING:
+    from .estimate import LayoutEstimate
 
 __all__ = ["layout_picture"]
 
@@ -27,7 +32,7 @@ _COLOURS = np.array([[0.12, 0.47, 0.71], [1.0, 0.5, 0.05], [0.17, 0.63, 0.17], [
                      [0.55, 0.34, 0.29], [0.89, 0.47, 0.76], [0.74, 0.74, 0.13], [0.09, 0.75, 0.81]])
 
 
-def _fitted_surfaces(est: LayoutEstimate, family: Robot) -> list[tuple[str, np.ndarray]]:
+def _fitted_surfaces(est: "LayoutEstimate", family: Robot) -> list[tuple[str, np.ndarray]]:
     """(name, world surface points (P, 3)) of every estimated obstacle."""
     m = family.mj_model
     qpos = m.qpos0.copy()
@@ -43,7 +48,7 @@ def _fitted_surfaces(est: LayoutEstimate, family: Robot) -> list[tuple[str, np.n
     return out
 
 
-def layout_picture(est: LayoutEstimate, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
+def layout_picture(est: "LayoutEstimate", family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
     """The figure (module docs); saved as a PNG when ``path`` is given. Returns the Figure."""
     import matplotlib
 
@@ -85,7 +90,7 @@ def layout_picture(est: LayoutEstimate, family: Robot, path: str | os.PathLike |
                              (ROBOT, (0.85, 0.15, 0.15), "robot (removed)")):
         on = K == k
         ax1.scatter(P[on, 0], P[on, 1], s=0.3, color=colour, label=label)
-    for j, name in enumerate(names):
+    for j in range(len(names)):
         on = (K == OBSTACLE) & (O == j)
         ax1.scatter(P[on, 0], P[on, 1], s=0.5, color=_COLOURS[j % len(_COLOURS)])
     on = (K == OBSTACLE) & (O < 0)
@@ -95,6 +100,13 @@ def layout_picture(est: LayoutEstimate, family: Robot, path: str | os.PathLike |
         ax1.scatter(pts[:, 0], pts[:, 1], s=0.4, color=_COLOURS[j % len(_COLOURS)] * 0.6)
         c = pts.mean(axis=0)
         ax1.annotate(name, c[:2], fontsize=8)
+    # the region that matters: the robot and the obstacles (the floor reaches the horizon)
+    keep = [P[(K == ROBOT) | (K == OBSTACLE)]] + [pts for _, pts in surfaces]
+    region = np.concatenate([k for k in keep if len(k)]) if any(len(k) for k in keep) else P
+    if len(region):
+        lo, hi = region[:, :2].min(axis=0) - 0.15, region[:, :2].max(axis=0) + 0.15
+        ax1.set_xlim(lo[0], hi[0])
+        ax1.set_ylim(lo[1], hi[1])
     ax1.set_aspect("equal")
     ax1.set_xlabel("x (m)")
     ax1.set_ylabel("y (m)")

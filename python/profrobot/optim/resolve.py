@@ -288,7 +288,6 @@ def certify_and_continue(robot: Robot, certified: np.ndarray, again: Callable[[n
     return r
 
 
-@renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
 def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
     """:func:`resolve` with ``sdf=None``: the exact labeller's nearest-free search (its docs)."""
     if robot is None:
@@ -315,6 +314,7 @@ def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
                          history=[dict(round="exact search", threshold=float("nan"), certified=int(certified.sum()))])
 
 
+@renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
 def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iterations: int | None = None, *,
             method: Method = "project", shrink: bool = True, robot: Robot | None = None, refine: bool = True,
             refine_rounds: int = 4, refine_step: float = 0.1, refine_iterations: int | None = None,
