@@ -122,7 +122,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     ``summary()`` says "not checked". ``refine_cameras``: refine the cameras' poses with the image
     phase (:func:`~profrobot.render.fit_pose`); the field phase then uses the refined cameras,
     returned as ``result.cameras``. ``progress``: progress bars for the image phase. ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)

@@ -80,7 +80,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     Then every pose is labelled by the exact labeller (``robot``: default the field's; without a
     field required to label); with a field, colliding poses are resolved and re-certified.
     ``scene``: for a field of a family of scenes (:mod:`profrobot.family`), the layout δ to work
-    at; answers are certified at exactly that layout.
+    at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
     """
     t0 = time.perf_counter()
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):

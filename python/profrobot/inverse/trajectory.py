@@ -50,7 +50,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     the planner between the same ends. ``robot``: the labeller's scene (default: the field's;
     required without a field). Returns a :class:`~profrobot.TrajectoryResult` whose ``method``
     says which of these produced the path. ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
 
     End-effector terms: ``frame_targets`` ``{frame index: (4, 4) world transform or (3,)
     position}`` of ``frame`` (a site, body or geom): each such frame becomes the certified IK

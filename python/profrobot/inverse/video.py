@@ -48,7 +48,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
     :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` by the continuous check,
     ``method`` "video" or "video+field"). ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
 
     End-effector terms (the paper's real-robot recipe): ``frame_targets`` ``{frame index: (4, 4)
     world transform or (3,) position}`` of ``frame`` (a site, body or geom) mark *operation*

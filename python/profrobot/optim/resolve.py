@@ -304,9 +304,36 @@ def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
         near = nearest_free(robot, limits.numpy(q0[bad]))
         hit = np.isfinite(near.distance)
         if hit.any():
+            # the search's own certified answer, cut to the first certified pose on its ray where
+            # that one is certified too (the ray may graze contact before its end)
+            found = near.certified[hit]
+            out[bad[hit][found]] = limits.numpy(near.poses[hit][found])
+            certified[bad[hit][found]] = True
             q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
             out[bad[hit][ok]] = q1[ok]
             certified[bad[hit][ok]] = True
+            # a free answer the labeller does not certify sits on the boundary (bisected to its
+            # tolerance): a little further along its ray is inside free space
+            rows = np.flatnonzero(hit)
+            for scale in (1.02, 1.05, 1.1, 1.2, 1.4):
+                left = rows[~certified[bad[rows]]]
+                if not len(left):
+                    break
+                move = near.poses[left] - q0[bad[left]]
+                q2 = limits.numpy(q0[bad[left]] + scale * move)
+                good = certify_poses(robot, q2)
+                out[bad[left][good]] = q2[good]
+                certified[bad[left][good]] = True
+        # a search that ended on a pose free but not certified (e.g. a gripper's fingers closed on
+        # their limit, touching: distance 0, not more than CLEARANCE) is searched again along
+        # other directions (other seeds), each certified answer taken as it is
+        for seed in range(1, 9):
+            left = bad[~certified[bad]]
+            if not len(left):
+                break
+            again = nearest_free(robot, limits.numpy(q0[left]), seed=seed, directions=256 * (1 + seed // 4))
+            out[left[again.certified]] = limits.numpy(again.poses[again.certified])
+            certified[left[again.certified]] = True
     nan = np.full(B, np.nan, dtype=np.float32)
     return ResolveResult(poses=out, iterations=np.zeros(B, dtype=np.int64),
                          delta=np.linalg.norm(limits.diff(out, q0), axis=1), certified=certified, g=nan,
@@ -349,8 +376,10 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
 
     ``sdf=None`` (``robot=`` required): no field, the exact labeller alone. Each pose not certified
     as given gets the nearest-free search (:func:`profrobot.nearest_free`, 256 rays, 1024
-    refinements), its move cut to the first certified pose on its ray; slower than the field's
-    step, but it needs no training (a scene seen once, a layout just estimated).
+    refinements), its move cut to the first certified pose on its ray (or taken a little further
+    where the search ended on the boundary), searched again with other seeds where it ended on a
+    pose free but not certified; slower than the field's step, but it needs no training (a scene
+    seen once, a layout just estimated).
 
     Cost (``"project"``): one to a few field gradients per colliding pose, ~25 labelled poses on
     its ray, and the nearest-free search for the few the field's direction misses (1 % on
