@@ -101,7 +101,7 @@ def layout_picture(est: "LayoutEstimate", family: Robot, path: str | os.PathLike
         c = pts.mean(axis=0)
         ax1.annotate(name, c[:2], fontsize=8)
     # the region that matters: the robot and the obstacles (the floor reaches the horizon)
-    keep = [P[(K == ROBOT) | (K == OBSTACLE)]] + [pts for _, pts in surfaces]
+    keep = [P[(K == ROBOT) | ((K == OBSTACLE) & (O >= 0))]] + [pts for _, pts in surfaces]
     region = np.concatenate([k for k in keep if len(k)]) if any(len(k) for k in keep) else P
     if len(region):
         lo, hi = region[:, :2].min(axis=0) - 0.15, region[:, :2].max(axis=0) + 0.15
