@@ -110,7 +110,15 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
 
     ``size``: if given, the cameras are re-rendered at ``size`` x ``size``.
     """
-    executor = check_executor(executor, processes=processes)
+    poses = _check_poses(robot, poses, cameras)
+    if size is not None:
+        cameras = cameras.resized(size)
+    parts = _render_chunks(render_views_chunk, robot, poses, cameras, executor, processes, chunk, "MuJoCo views",
+                           progress)
+    return _views_of(robot, poses, cameras, parts)
+
+
+def _check_poses(robot, poses, cameras) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != robot.njoint:
         raise InputError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
@@ -118,15 +126,20 @@ def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, proce
         raise InputError("poses contain NaN or inf")
     if not isinstance(cameras, Cameras):
         raise InputTypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
-    if size is not None:
-        cameras = cameras.resized(size)
+    return poses
+
+
+def _render_chunks(fn, robot, poses: np.ndarray, cameras: Cameras, executor, processes: int, chunk: int, desc: str,
+                   progress: bool) -> list:
+    """``fn`` (a chunk function of :mod:`.mjviews`) over the poses' full qpos in chunks of
+    ``chunk``, where ``executor`` puts them; the chunks' results in order."""
+    executor = check_executor(executor, processes=processes)
     qpos = np.tile(robot.mj_model.qpos0, (len(poses), 1))
     qpos[:, robot.qpos_adr] = poses
     bounds = chunk_bounds(len(qpos), chunk)
     ref = executor.put(qpos)  # once (Ray: through the object store); each chunk names its rows
-    parts = executor.map(render_views_chunk, [(cameras, ref, a, b) for a, b in bounds], robot=robot,
-                         sizes=chunk_sizes(bounds), desc="MuJoCo views", unit="pose", progress=progress)
-    return _views_of(robot, poses, cameras, parts)
+    return executor.map(fn, [(cameras, ref, a, b) for a, b in bounds], robot=robot, sizes=chunk_sizes(bounds),
+                        desc=desc, unit="pose", progress=progress)
 
 
 def render_depth(robot, poses, cameras: Cameras, *, processes: int = 1, progress: bool = False, chunk: int = 8,
@@ -135,21 +148,9 @@ def render_depth(robot, poses, cameras: Cameras, *, processes: int = 1, progress
     each pose's scene joints) at ``poses`` (P, K) from ``cameras``: metres along each camera's z
     axis, 0 where no geom is seen. Rendered by MuJoCo like :func:`make_views` (same executors,
     same GL choice), pinhole only (lens distortion: render ``cameras.undistorted()``)."""
-    executor = check_executor(executor, processes=processes)
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.ndim != 2 or poses.shape[1] != robot.njoint:
-        raise InputError(f"poses must have shape (P, {robot.njoint}); got {poses.shape}")
-    if not np.isfinite(poses).all():
-        raise InputError("poses contain NaN or inf")
-    if not isinstance(cameras, Cameras):
-        raise InputTypeError(f"cameras must be a profrobot.render.Cameras; got {type(cameras).__name__}")
-    qpos = np.tile(robot.mj_model.qpos0, (len(poses), 1))
-    qpos[:, robot.qpos_adr] = poses
-    bounds = chunk_bounds(len(qpos), chunk)
-    ref = executor.put(qpos)
-    parts = executor.map(render_depth_chunk, [(cameras, ref, a, b) for a, b in bounds], robot=robot,
-                         sizes=chunk_sizes(bounds), desc="MuJoCo depth", unit="pose", progress=progress)
-    return np.concatenate(parts)
+    poses = _check_poses(robot, poses, cameras)
+    return np.concatenate(_render_chunks(render_depth_chunk, robot, poses, cameras, executor, processes, chunk,
+                                         "MuJoCo depth", progress))
 
 
 def _views_of(robot, poses: np.ndarray, cameras: Cameras, parts: list) -> Views:
