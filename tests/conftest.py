@@ -34,12 +34,23 @@ def pytest_report_header(config):
     return f"MuJoCo GL: {GL_BACKEND}" if GL_BACKEND else f"MuJoCo GL: none ({GL_WHY})"
 
 
+def pytest_addoption(parser):
+    parser.addoption("--slow", action="store_true", default=False,
+                     help="also run the slow end-to-end tier (tests marked slow: the README's tour, the real-rig "
+                          "fits, large cross-checks); .ci/run runs it")
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests that draw with MuJoCo (they take the ``renderer`` fixture, or live in test_gl.py /
-    test_gl_choice.py) carry the ``gl`` mark: ``.ci/run`` runs them again under each GL setup."""
+    test_gl_choice.py) carry the ``gl`` mark: ``.ci/run`` runs them again under each GL setup.
+    Tests marked ``slow`` run with ``--slow`` only (the default run stays within minutes)."""
+    run_slow = config.getoption("--slow")
+    skip_slow = pytest.mark.skip(reason="the slow end-to-end tier: run it with --slow")
     for item in items:
         if "renderer" in getattr(item, "fixturenames", ()) or item.path.name in ("test_gl.py", "test_gl_choice.py"):
             item.add_marker(pytest.mark.gl)
+        if not run_slow and "slow" in item.keywords:
+            item.add_marker(skip_slow)
 
 
 @pytest.hookimpl(hookwrapper=True)
