@@ -33,6 +33,7 @@ import numpy as np
 import profrobot
 from profrobot import problems, scenes
 from profrobot.crosscheck import mujoco_labels
+from profrobot.labels import so2_steps
 from profrobot.layouts.fit import Placer, movable_obstacles
 from profrobot.layouts.depth import DEFAULT_GEOMGROUP
 from profrobot.render import Cameras, render_depth
@@ -125,9 +126,9 @@ def errors(family, true: np.ndarray, est: np.ndarray, theta: np.ndarray):
 
 
 def dense(robot, path: np.ndarray, step: float = 0.0005) -> np.ndarray:
+    """``path`` re-interpolated (SO(2), the motion certified) so that no joint moves more than ``step``."""
     out = [path[:1]]
-    for a, b in zip(path[:-1], path[1:]):
-        d = profrobot.angles.so2_steps(robot, np.stack([a, b])) if hasattr(profrobot.angles, "so2_steps") else b - a
+    for a, b, d in zip(path[:-1], path[1:], so2_steps(robot, path)):
         n = int(np.ceil(np.abs(d).max() / step)) + 1
         out.append(profrobot.interpolate(robot, a, b, max(n, 2))[1:])
     return np.concatenate(out)

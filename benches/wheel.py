@@ -5,7 +5,7 @@ Gaussians, 4 views of 128², forward and backward, the Rust kernel).
 Each interpreter runs the same measurement in a subprocess, alternating A B A B ... (``--rounds``
 each), so that drift on the machine hits both alike; the medians and their ratio are printed.
 
-    python benches/wheel.py --editable /work/venv/bin/python --wheel /tmp/wv/bin/python [--rounds 5]
+    python benches/wheel.py --editable EDITABLE_VENV/bin/python --wheel WHEEL_VENV/bin/python [--rounds 5]
 
 (Nothing else running; the load average is printed.)
 """

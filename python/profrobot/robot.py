@@ -707,19 +707,28 @@ class Robot:
         delta = self.check_scene(scene)
         delta.setflags(write=False)
         key = (delta.tobytes(), name)
-        cache = self.__dict__.setdefault("_layouts", {})
-        if key in cache:
-            return cache[key]
-        self._check_base_clear(delta)
-        edit = PinnedLayout(tuple(zip(self.scene_joints, (float(v) for v in delta))))
-        spec = self._editable("at(scene)")
-        edit.add_to(spec)
-        robot = self._derived(spec, (edit,), name or self.name)
-        robot.layout, robot.family_fingerprint = delta, self.geometry_fingerprint
-        if len(cache) >= 4:
-            cache.pop(next(iter(cache)))
-        cache[key] = robot
-        return robot
+
+        def build() -> "Robot":
+            self._check_base_clear(delta)
+            edit = PinnedLayout(tuple(zip(self.scene_joints, (float(v) for v in delta))))
+            spec = self._editable("at(scene)")
+            edit.add_to(spec)
+            robot = self._derived(spec, (edit,), name or self.name)
+            robot.layout, robot.family_fingerprint = delta, self.geometry_fingerprint
+            return robot
+
+        return self._cached("_layouts", key, build)
+
+    def _cached(self, cache: str, key, build) -> "Robot":
+        """``build()``'s robot, kept in ``self.<cache>`` under ``key`` (the 4 latest): derived
+        scenes cost a MuJoCo compile; pickles and deep copies leave the caches out."""
+        memo = self.__dict__.setdefault(cache, {})
+        if key not in memo:
+            robot = build()
+            if len(memo) >= 4:
+                memo.pop(next(iter(memo)))
+            memo[key] = robot
+        return memo[key]
 
     def with_margin(self, margin: float) -> "Robot":
         """This scene with a safety margin of ``margin`` metres around every obstacle
@@ -735,19 +744,17 @@ class Robot:
         m = check_margin(margin)
         if m <= max(CLEARANCE, self.margin):
             return self
-        cache = self.__dict__.setdefault("_margins", {})
-        if m in cache:
-            return cache[m]
-        edit = ObstacleMargin(m)
-        spec = self._editable("with_margin")
-        edit.add_to(spec)
-        robot = self._derived(spec, (edit,), self.name)
-        robot.margin, robot.geometry_fingerprint = m, self.geometry_fingerprint
-        robot.layout, robot.family_fingerprint = self.layout, self.family_fingerprint
-        if len(cache) >= 4:
-            cache.pop(next(iter(cache)))
-        cache[m] = robot
-        return robot
+
+        def build() -> "Robot":
+            edit = ObstacleMargin(m)
+            spec = self._editable("with_margin")
+            edit.add_to(spec)
+            robot = self._derived(spec, (edit,), self.name)
+            robot.margin, robot.geometry_fingerprint = m, self.geometry_fingerprint
+            robot.layout, robot.family_fingerprint = self.layout, self.family_fingerprint
+            return robot
+
+        return self._cached("_margins", m, build)
 
     def _check_base_clear(self, delta: np.ndarray) -> None:
         """Refuse a layout whose scene bodies touch, or come within :data:`CLEARANCE` of, a body

@@ -18,7 +18,7 @@ The steps, each in its module:
    over the family's ranges; then each point goes to the obstacle that explains it and each
    obstacle is refined on its own points.
 4. **Support and uncertainty:** an obstacle's ``support`` is the number of voxels within
-   ``1.5 s`` of its surface (``s = max(2 σ(z̃), 3 mm)``, z̃ the candidates' median depth). Below
+   ``1.5 s`` of its surface (``s = max(2 σ(z̃), 3 mm)``, z̃ the median depth of the valid pixels). Below
    ``min_support`` it is **unsupported**: its scene joints are NaN and it is named in
    ``unsupported`` with the reason, never guessed. Its joints' covariance is Gauss–Newton's
    ``σ̂² (Jᵀ W J)⁻¹``; mapped through the Jacobian of its extreme points, it gives the largest
@@ -55,6 +55,7 @@ from ..margin import MAX_MARGIN, obstacle_bodies
 from ..render.cameras import Cameras
 from ..render.distortion import undistort_images
 from ..robot import Robot
+from ..validate import positive
 from .depth import DEFAULT_GEOMGROUP, check_depth, expected_depth, pixel_rays, undistorted
 from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, covariance, displacement_sigma, distances, fit_obstacle, movable_obstacles, reach_box, refine
@@ -190,21 +191,16 @@ def _noise(depth_noise) -> tuple[float, float]:
     return a, b
 
 
-def _positive(name: str, v, *, integer: bool = False):
-    try:
-        x = int(v) if integer else float(v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a positive number; got {v!r}") from None
-    if isinstance(v, bool) or not (math.isfinite(x) and x > 0) or (integer and x != v):
-        raise InputError(f"{name} must be a positive {'integer' if integer else 'number'}; got {v!r}")
-    return x
-
-
 def _min3(img: np.ndarray) -> np.ndarray:
     """3 × 3 minimum filter of (H, W), edges padded with inf."""
     p = np.pad(img, 1, constant_values=np.inf)
     H, W = img.shape
     return np.min([p[i:i + H, j:j + W] for i in range(3) for j in range(3)], axis=0)
+
+
+def _others(near: dict, j: int) -> np.ndarray:
+    """(M,) bool: the voxels an obstacle other than ``j`` explains (``near``: obstacle → (M,) bool)."""
+    return np.logical_or.reduce([v for k, v in near.items() if k != j] + [np.zeros_like(near[j])])
 
 
 def _voxels(P: np.ndarray, voxel: float) -> np.ndarray:
@@ -249,15 +245,10 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
     d = check_depth(depth, cameras)
     theta = _theta(family, pose)
     a, b = _noise(depth_noise)
-    voxel = _positive("voxel", voxel)
-    min_support = _positive("min_support", min_support, integer=True)
-    confidence = _positive("confidence", confidence)
-    try:
-        calibration = float(calibration)
-    except (TypeError, ValueError):
-        raise InputError(f"calibration must be metres ≥ 0; got {calibration!r}") from None
-    if not (math.isfinite(calibration) and calibration >= 0):
-        raise InputError(f"calibration must be metres ≥ 0; got {calibration!r}")
+    voxel = positive("voxel", voxel)
+    min_support = positive("min_support", min_support, integer=True)
+    confidence = positive("confidence", confidence)
+    calibration = positive("calibration", calibration, allow_zero=True)
     gg = np.asarray(geomgroup, dtype=np.uint8).reshape(-1)
     if gg.shape != (6,):
         raise InputError(f"geomgroup must be 6 flags (MuJoCo's geom groups 0..5); got {geomgroup!r}")
@@ -285,9 +276,7 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
     seen = copy.deepcopy(m0)
     robot_body = ~obstacle_bodies(m0, family.scene_joints)
     for ob in obstacles:
-        for g in range(seen.ngeom):
-            if int(seen.geom_bodyid[g]) == ob.body or _is_below(m0, int(seen.geom_bodyid[g]), ob.body):
-                seen.geom_rgba[g, 3] = 0.0
+        seen.geom_rgba[np.isin(seen.geom_bodyid, ob.bodies), 3] = 0.0
     if user_mask is not None:  # the user's mask is the robot: the rays see past it
         seen.geom_rgba[robot_body[seen.geom_bodyid], 3] = 0.0
     data = mujoco.MjData(seen)
@@ -333,9 +322,10 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
 
     # --- the fit ---------------------------------------------------------------------------------
     cand_pts = P_all[kind_all == OBSTACLE]
-    z_cand = np.concatenate([d[c].ravel()[np.isfinite(d[c].ravel())] for c in range(C)]) if pts else np.zeros(0)
-    z_med = float(np.median(z_cand)) if len(z_cand) else 1.0
+    z_valid = d[np.isfinite(d)]
+    z_med = float(np.median(z_valid)) if len(z_valid) else 1.0
     s_final = max(2.0 * (a + b * z_med), 0.003)
+    bias = 0.5 * (a + b * z_med)  # what the covariance cannot see: noise at edges is not symmetric about the surface
     scales = tuple(s for s in (0.04, 0.015) if s > s_final) + (s_final,)
     P = _voxels(cand_pts, voxel)
     placer = Placer(m0, qpos)
@@ -358,22 +348,12 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
     for _round in range(2):
         keys = sorted(fitted)
         near = {j: np.abs(distances(placer, obstacles[j], fitted[j], P)) < 1.5 * s_final for j in keys}
-        overlap = {}
-        for j in keys:
-            others = np.zeros(len(P), bool)
-            for k in keys:
-                if k != j:
-                    others |= near[k]
-            overlap[j] = float((near[j] & others).sum()) / max(int(near[j].sum()), 1)
+        overlap = {j: float((near[j] & _others(near, j)).sum()) / max(int(near[j].sum()), 1) for j in keys}
         redo = [j for j in sorted(keys, key=lambda j: -overlap[j]) if overlap[j] > 0.1]
         if not redo:
             break
         for j in redo:
-            others = np.zeros(len(P), bool)
-            for k in keys:
-                if k != j:
-                    others |= near[k]
-            Pj = P[boxes[j] & ~others]
+            Pj = P[boxes[j] & ~_others(near, j)]
             if len(Pj) >= min_support:
                 fitted[j], _ = fit_obstacle(placer, obstacles[j], Pj, scales)
                 near[j] = np.abs(distances(placer, obstacles[j], fitted[j], P)) < 1.5 * s_final
@@ -405,7 +385,7 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
                 continue
             cov, _ = covariance(placer, ob, fitted[j], P[owner == j], s_final)
             sig = displacement_sigma(placer, ob, fitted[j], cov)
-            if not math.isfinite(sig) or confidence * sig + 0.5 * (a + b * z_med) + calibration > MAX_MARGIN:
+            if not math.isfinite(sig) or confidence * sig + bias + calibration > MAX_MARGIN:
                 unsupported[ob.name] = (f"its position is too uncertain (1-σ displacement {sig:.3g} m): "
                                         "too little of it is seen")
                 continue
@@ -414,7 +394,6 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
             displacement[ob.name] = sig
             worst = max(worst, sig)
             scene[ob.joints] = fitted[j]
-    bias = 0.5 * (a + b * z_med)  # what the covariance cannot see: noise at edges is not symmetric about the surface
     margin = max(confidence * worst + bias + calibration, 1e-3)
 
     # per-pixel owners for the picture: every candidate pixel to the obstacle that explains it
@@ -431,11 +410,3 @@ def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, 
                           unsupported=unsupported, empty_views=tuple(empty), seconds=time.perf_counter() - t0,
                           points=P_all.astype(np.float32), kind=kind_all, owner=owner_all, camera=cam_all, pixel=pix_all,
                           cameras=cams, pose=theta, family=family.name, family_fingerprint=family.geometry_fingerprint)
-
-
-def _is_below(m: mujoco.MjModel, c: int, b: int) -> bool:
-    while c != 0:
-        c = int(m.body_parentid[c])
-        if c == b:
-            return True
-    return False

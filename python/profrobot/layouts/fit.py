@@ -49,6 +49,7 @@ class Obstacle:
     ranges: np.ndarray
     angular: np.ndarray          # (D_j,) bool: hinge (radians) or slide (metres)
     solids: tuple
+    bodies: tuple = ()           # the scene body and every body below it
 
     def extreme_points(self) -> list[np.ndarray]:
         return [s.extreme_points() for s in self.solids]
@@ -85,7 +86,8 @@ def movable_obstacles(family, geomgroup) -> list[Obstacle]:
         angular = np.array([int(m.jnt_type[jid[k]]) == int(mujoco.mjtJoint.mjJNT_HINGE) for k in ks])
         adr = np.array([int(m.jnt_qposadr[jid[k]]) for k in ks])
         name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}"
-        out.append(Obstacle(name, b, np.array(ks), adr, ranges, angular, tuple(solid_of(m, g) for g in geoms)))
+        out.append(Obstacle(name, b, np.array(ks), adr, ranges, angular, tuple(solid_of(m, g) for g in geoms),
+                            tuple(sub)))
     return out
 
 

@@ -288,6 +288,47 @@ def certify_and_continue(robot: Robot, certified: np.ndarray, again: Callable[[n
     return r
 
 
+def exact_search(robot: Robot, q0: np.ndarray, bad: np.ndarray, limits: Limits, out: np.ndarray,
+                 certified: np.ndarray, *, directions: int = 256, refine: int = 1024) -> None:
+    """The exact labeller's own search for rows ``bad`` of ``q0`` (B, K), no field: the nearest
+    free pose :func:`profrobot.nearest_free` finds (``directions`` rays, ``refine`` refinements),
+    cut to the first certified pose on its ray (the search's own certified answer where that cut
+    is not certified: the ray may graze contact before its end); a free answer the labeller does
+    not certify sits on the boundary (bisected to its tolerance), so a little further along its
+    ray is tried; one that ended free but uncertified for another reason (a gripper's fingers
+    closed on their limit, touching: distance 0, not more than CLEARANCE) is searched again with
+    other seeds. Writes the answers into ``out`` and ``certified`` (B,) in place."""
+    if not len(bad):
+        return
+    near = nearest_free(robot, limits.numpy(q0[bad]), directions=directions, refine=refine)
+    hit = np.isfinite(near.distance)
+    if hit.any():
+        found = near.certified[hit]
+        out[bad[hit][found]] = limits.numpy(near.poses[hit][found])
+        certified[bad[hit][found]] = True
+        # nearest_free leaves continuous joints unwrapped: its poses minus the inputs are its rays
+        q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
+        out[bad[hit][ok]] = q1[ok]
+        certified[bad[hit][ok]] = True
+        rows = np.flatnonzero(hit)
+        for scale in (1.02, 1.05, 1.1, 1.2, 1.4):
+            left = rows[~certified[bad[rows]]]
+            if not len(left):
+                break
+            q2 = limits.numpy(q0[bad[left]] + scale * (near.poses[left] - q0[bad[left]]))
+            good = certify_poses(robot, q2)
+            out[bad[left][good]] = q2[good]
+            certified[bad[left][good]] = True
+    for seed in range(1, 9):
+        left = bad[~certified[bad]]
+        if not len(left):
+            break
+        again = nearest_free(robot, limits.numpy(q0[left]), seed=seed, directions=directions * (1 + seed // 4),
+                             refine=refine)
+        out[left[again.certified]] = limits.numpy(again.poses[again.certified])
+        certified[left[again.certified]] = True
+
+
 def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
     """:func:`resolve` with ``sdf=None``: the exact labeller's nearest-free search (its docs)."""
     if robot is None:
@@ -299,41 +340,7 @@ def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
     B = len(q0)
     out = q0.copy()
     certified = certify_poses(robot, q0) if B else np.zeros(0, dtype=bool)
-    bad = np.flatnonzero(~certified)
-    if len(bad):
-        near = nearest_free(robot, limits.numpy(q0[bad]))
-        hit = np.isfinite(near.distance)
-        if hit.any():
-            # the search's own certified answer, cut to the first certified pose on its ray where
-            # that one is certified too (the ray may graze contact before its end)
-            found = near.certified[hit]
-            out[bad[hit][found]] = limits.numpy(near.poses[hit][found])
-            certified[bad[hit][found]] = True
-            q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
-            out[bad[hit][ok]] = q1[ok]
-            certified[bad[hit][ok]] = True
-            # a free answer the labeller does not certify sits on the boundary (bisected to its
-            # tolerance): a little further along its ray is inside free space
-            rows = np.flatnonzero(hit)
-            for scale in (1.02, 1.05, 1.1, 1.2, 1.4):
-                left = rows[~certified[bad[rows]]]
-                if not len(left):
-                    break
-                move = near.poses[left] - q0[bad[left]]
-                q2 = limits.numpy(q0[bad[left]] + scale * move)
-                good = certify_poses(robot, q2)
-                out[bad[left][good]] = q2[good]
-                certified[bad[left][good]] = True
-        # a search that ended on a pose free but not certified (e.g. a gripper's fingers closed on
-        # their limit, touching: distance 0, not more than CLEARANCE) is searched again along
-        # other directions (other seeds), each certified answer taken as it is
-        for seed in range(1, 9):
-            left = bad[~certified[bad]]
-            if not len(left):
-                break
-            again = nearest_free(robot, limits.numpy(q0[left]), seed=seed, directions=256 * (1 + seed // 4))
-            out[left[again.certified]] = limits.numpy(again.poses[again.certified])
-            certified[left[again.certified]] = True
+    exact_search(robot, q0, np.flatnonzero(~certified), limits, out, certified)
     nan = np.full(B, np.nan, dtype=np.float32)
     return ResolveResult(poses=out, iterations=np.zeros(B, dtype=np.int64),
                          delta=np.linalg.norm(limits.diff(out, q0), axis=1), certified=certified, g=nan,
@@ -474,14 +481,8 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     if method == "project" and refine and not certified.all():
         # the exact labeller's own search (no field) for what the field's step missed: the
         # nearest free pose it finds from the input, then cut to a certified pose on that ray
-        bad = np.flatnonzero(~certified)
-        near = nearest_free(robot, limits.numpy(q0[bad]), directions=_ORACLE_DIRECTIONS, refine=_ORACLE_REFINE)
-        hit = np.isfinite(near.distance)
-        if hit.any():
-            # nearest_free leaves continuous joints unwrapped: its poses minus the inputs are its rays
-            q1, ok = shrink_moves(robot, q0[bad[hit]], near.poses[hit], limits, move=near.poses[hit] - q0[bad[hit]])
-            out[bad[hit][ok]] = q1[ok]
-            certified[bad[hit][ok]] = True
+        exact_search(robot, q0, np.flatnonzero(~certified), limits, out, certified, directions=_ORACLE_DIRECTIONS,
+                     refine=_ORACLE_REFINE)
         history.append(dict(round="exact search", threshold=l_thres, certified=int(certified.sum())))
     rounds = certify_and_continue(robot, certified, again, l_thres=l_thres, step=refine_step,
                                   rounds=refine_rounds if refine else 0, history=history)
