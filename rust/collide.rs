@@ -22,6 +22,7 @@ use parry3d_f64::shape::{Shape, SupportMap};
 use rayon::prelude::*;
 
 use crate::broad::BroadScratch;
+use crate::cloud::{Nearest, Probe};
 use crate::error::{Error, Result};
 use crate::geom::Geom;
 use crate::kinematics::body_poses;
@@ -155,6 +156,12 @@ impl Scratch {
         self.axes.fill(Vector3::zeros());
     }
 
+    /// Geom `g`'s world frame in the pose placed with every geom (`place(.., true)`).
+    #[inline]
+    pub(crate) fn geom_frame(&self, g: usize) -> &Isometry3<f64> {
+        &self.geoms[g]
+    }
+
     /// Body `b`'s world frame in the placed pose.
     #[inline]
     pub(crate) fn body(&self, b: usize) -> &Isometry3<f64> {
@@ -189,6 +196,13 @@ impl Scratch {
         let (g1, g2) = (pair.g1, pair.g2);
         let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
         match (&a.shape.solid, &b.shape.solid) {
+            (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => {
+                if !self.cloud_boxes_within(model, g1, g2, pair.margin) {
+                    return Ok(false);
+                }
+                let d = cloud_nearest(model, &self.geoms, k, pair.margin, pair.margin).value;
+                Ok(if pair.margin == 0.0 { d <= 0.0 } else { d < pair.margin })
+            }
             (Solid::HalfSpace, Solid::Convex { convex, .. }) => Ok(self.plane_pair_in_contact(model, g1, g2, convex, pair.margin)),
             (Solid::Convex { convex, .. }, Solid::HalfSpace) => Ok(self.plane_pair_in_contact(model, g2, g1, convex, pair.margin)),
             // Never a candidate (`pairs.rs` drops them): MuJoCo has no plane-plane collider.
@@ -229,6 +243,13 @@ impl Scratch {
         let clear = |d: f64| d >= pair.margin && d > clearance;
         let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
         match (&a.shape.solid, &b.shape.solid) {
+            (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => {
+                if !self.cloud_boxes_within(model, g1, g2, reach) {
+                    return Ok(true);
+                }
+                // (a ball below `reach` already fails the pair: the search stops there)
+                return Ok(clear(cloud_nearest(model, &self.geoms, k, reach, reach).value));
+            }
             (Solid::HalfSpace, Solid::Convex { .. }) | (Solid::Convex { .. }, Solid::HalfSpace) => {
                 let (plane, g) = if a.shape.is_half_space() { (g1, g2) } else { (g2, g1) };
                 if self.plane_box_clear(model, plane, g, reach) {
@@ -270,6 +291,12 @@ impl Scratch {
         self.frame(model, g2);
         let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
         let (ca, cb) = match (&a.shape.solid, &b.shape.solid) {
+            (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => {
+                // Exact below `want` or a bound above it; a search stopped at a ball below
+                // `floor` proves nothing above it (that ball is not the minimum): -inf.
+                let d = cloud_nearest(model, &self.geoms, k, want, floor).value;
+                return Ok(if d < floor { f64::NEG_INFINITY } else { d });
+            }
             (Solid::HalfSpace, Solid::Convex { convex, .. }) => return Ok(plane_distance(&self.geoms[g1], convex, &self.geoms[g2])),
             (Solid::Convex { convex, .. }, Solid::HalfSpace) => return Ok(plane_distance(&self.geoms[g2], convex, &self.geoms[g1])),
             (Solid::HalfSpace, Solid::HalfSpace) => return Ok(f64::INFINITY),
@@ -334,6 +361,22 @@ impl Scratch {
         }
         self.frame(model, g);
         plane_distance(&self.geoms[plane], convex, &self.geoms[g]) < margin
+    }
+
+    /// For a pair with the cloud: whether the two geoms' boxes come within `reach` (always when
+    /// the other is a plane), and the pair's frames computed when they do.
+    fn cloud_boxes_within(&mut self, model: &RobotModel, g1: usize, g2: usize, reach: f64) -> bool {
+        let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
+        if !a.shape.is_half_space() && !b.shape.is_half_space() {
+            self.obb(model, g1);
+            self.obb(model, g2);
+            if !obbs_overlap(a, &self.obbs[g1], b, &self.obbs[g2], reach) {
+                return false;
+            }
+        }
+        self.frame(model, g1);
+        self.frame(model, g2);
+        true
     }
 
     /// Computes geom `g`'s world frame for this pose, once.
@@ -459,6 +502,10 @@ fn pair_signed_distance(model: &RobotModel, k: usize, poses: &[Isometry3<f64>], 
     let (a, b) = (&model.geoms[pair.g1], &model.geoms[pair.g2]);
     let (pa, pb) = (&poses[pair.g1], &poses[pair.g2]);
     match (&a.shape.solid, &b.shape.solid) {
+        (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => {
+            let d = cloud_nearest(model, poses, k, bound, f64::NEG_INFINITY).value;
+            Ok((d < bound).then_some(d))
+        }
         (Solid::HalfSpace, Solid::Convex { convex, .. }) => Ok(Some(plane_distance(pa, convex, pb))),
         (Solid::Convex { convex, .. }, Solid::HalfSpace) => Ok(Some(plane_distance(pb, convex, pa))),
         // Never a candidate (see `Scratch::in_contact`).
@@ -498,6 +545,7 @@ pub(crate) fn pair_witness(model: &RobotModel, s: &Scratch, k: usize, prediction
         (d, Point3::from(deepest.coords - n * d), deepest, n)
     };
     let found = match (&a.shape.solid, &b.shape.solid) {
+        (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => cloud_witness(model, &s.geoms, k, prediction),
         (Solid::HalfSpace, Solid::Convex { convex, .. }) => Some(plane(pa, convex, pb)),
         (Solid::Convex { convex, .. }, Solid::HalfSpace) => {
             let (d, on_plane, deepest, n) = plane(pb, convex, pa);
@@ -509,6 +557,58 @@ pub(crate) fn pair_witness(model: &RobotModel, s: &Scratch, k: usize, prediction
             .map(|c| (c.dist, c.point1, c.point2, c.normal1.into_inner())),
     };
     Ok(found.filter(|f| f.0 < prediction))
+}
+
+/// For candidate pair `k`, a pair with the point cloud: the cloud's geom and the other one.
+fn cloud_sides(model: &RobotModel, k: usize) -> (usize, usize) {
+    let pair = &model.pairs[k];
+    if matches!(model.geoms[pair.g1].shape.solid, Solid::Cloud(_)) {
+        (pair.g1, pair.g2)
+    } else {
+        (pair.g2, pair.g1)
+    }
+}
+
+/// `Cloud::nearest` for candidate pair `k` (a pair with the cloud; `frames`: both geoms' world
+/// frames): the least signed distance from the other geom to the balls, exact when at most
+/// `bound`, stopping at the first ball below `stop` (`cloud.rs`). A plane is decided by a scan.
+fn cloud_nearest(model: &RobotModel, frames: &[Isometry3<f64>], k: usize, bound: f64, stop: f64) -> Nearest {
+    let (c, g) = cloud_sides(model, k);
+    let Solid::Cloud(cloud) = &model.geoms[c].shape.solid else { unreachable!("cloud_sides names the cloud first") };
+    let rel = frames[c].inv_mul(&frames[g]);
+    let shape = &model.geoms[g].shape;
+    match &shape.solid {
+        Solid::Convex { convex, .. } => cloud.nearest(&Probe::new(convex, rel, shape.obb_center, shape.obb_half, shape.radius), bound, stop),
+        Solid::HalfSpace => {
+            let n = rel.rotation * Vector3::z();
+            cloud.plane_distance(&n, n.dot(&rel.translation.vector))
+        }
+        // (one cloud per model: never a pair)
+        Solid::Cloud(_) => Nearest { value: f64::INFINITY, ball: None },
+    }
+}
+
+/// `pair_witness` for a pair with the cloud: the nearest ball and the other geom's point
+/// nearest its centre (parry's projection), when closer than `prediction`.
+fn cloud_witness(model: &RobotModel, frames: &[Isometry3<f64>], k: usize, prediction: f64) -> Option<Witness> {
+    let (c, g) = cloud_sides(model, k);
+    let Solid::Cloud(cloud) = &model.geoms[c].shape.solid else { unreachable!("cloud_sides names the cloud first") };
+    let near = cloud_nearest(model, frames, k, prediction, f64::NEG_INFINITY);
+    let (centre, r, _) = cloud.ball(near.ball.filter(|_| near.value < prediction)?);
+    let centre = frames[c] * Point3::from(centre);
+    let (xg, d) = (&frames[g], near.value);
+    let on_geom = match &model.geoms[g].shape.solid {
+        Solid::Convex { shape, .. } => xg * shape.project_local_point(&xg.inverse_transform_point(&centre), false).point,
+        Solid::HalfSpace => {
+            let n = xg.rotation * Vector3::z();
+            centre - n * (n.dot(&(centre.coords - xg.translation.vector)))
+        }
+        Solid::Cloud(_) => return None,
+    };
+    // The unit normal from the geom to the ball (reversed when the centre is inside the geom).
+    let n = (centre - on_geom).try_normalize(1e-12).map(|n| if d + r < 0.0 { -n } else { n })?;
+    let on_ball = centre - n * r;
+    Some(if c == model.pairs[k].g1 { (d, on_ball, on_geom, -n) } else { (d, on_geom, on_ball, n) })
 }
 
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked;
@@ -762,7 +862,7 @@ mod tests {
         desc.geom_margin = vec![0.05, 0.05];
         let mut model = RobotModel::new(desc).unwrap();
         for g in &mut model.geoms {
-            if let Solid::Convex { shape, .. } = &mut g.shape.solid {
+            if let Solid::Convex { shape, .. } = &mut std::sync::Arc::get_mut(&mut g.shape).expect("not shared").solid {
                 *shape = Box::new(parry3d_f64::shape::HalfSpace::new(Vector3::z_axis()));
             }
         }

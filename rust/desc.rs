@@ -82,10 +82,32 @@ pub struct ModelDesc {
     /// none. Stored after `jnt_scene` (format 3).
     #[serde(skip)]
     pub couplings: Vec<Coupling>,
+
+    /// A point cloud fixed to the world (`cloud.rs`), or none. Stored after `couplings`
+    /// (format 4).
+    #[serde(skip)]
+    pub cloud: Option<CloudDesc>,
+}
+
+/// A point cloud as plain data: balls fixed in the world frame, one static obstacle geom with
+/// MuJoCo's contact filter and margin (the cross-check places the same balls as sphere geoms
+/// with these values).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CloudDesc {
+    /// Ball centres, metres, world frame.
+    pub points: Vec<[f64; 3]>,
+    /// Ball radii, metres (one per point).
+    pub radius: Vec<f64>,
+    /// The geom margin of every ball (metres): a pair is in contact below its geom margins' sum.
+    pub margin: f64,
+    pub contype: u32,
+    pub conaffinity: u32,
 }
 
 /// Leads every [`ModelDesc::to_bytes`] buffer: names the format and its version.
-const MAGIC: &[u8; 8] = b"PRDESC03";
+const MAGIC: &[u8; 8] = b"PRDESC04";
+/// Format 3: the same without `cloud` (read as "none").
+const MAGIC_V3: &[u8; 8] = b"PRDESC03";
 /// Format 2: the same without `couplings` (read as "none").
 const MAGIC_V2: &[u8; 8] = b"PRDESC02";
 /// Format 1: the same without `jnt_scene` either (read as "no scene joints").
@@ -104,6 +126,7 @@ impl ModelDesc {
         let mut body = postcard::to_allocvec(self).expect("serialising plain vectors into memory cannot fail");
         body.extend(postcard::to_allocvec(&self.jnt_scene).expect("serialising plain vectors into memory cannot fail"));
         body.extend(postcard::to_allocvec(&self.couplings).expect("serialising plain vectors into memory cannot fail"));
+        body.extend(postcard::to_allocvec(&self.cloud).expect("serialising plain vectors into memory cannot fail"));
         let mut out = Vec::with_capacity(16 + body.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&fnv1a(&body).to_le_bytes());
@@ -127,7 +150,7 @@ impl ModelDesc {
         let Some((magic, rest)) = bytes.split_first_chunk::<8>() else {
             return invalid_input(format!("{WHAT}: {} bytes is too short", bytes.len()));
         };
-        if magic != MAGIC && magic != MAGIC_V2 && magic != MAGIC_V1 {
+        if magic != MAGIC && magic != MAGIC_V3 && magic != MAGIC_V2 && magic != MAGIC_V1 {
             return invalid_input(format!("{WHAT} (expected it to start with {:?})", String::from_utf8_lossy(MAGIC)));
         }
         let Some((sum, body)) = rest.split_first_chunk::<8>() else {
@@ -151,10 +174,21 @@ impl ModelDesc {
         } else {
             rest
         };
-        let rest = if magic == MAGIC {
+        let rest = if magic == MAGIC || magic == MAGIC_V3 {
             match postcard::take_from_bytes::<Vec<Coupling>>(rest) {
                 Ok((couplings, rest)) => {
                     desc.couplings = couplings;
+                    rest
+                }
+                Err(e) => return invalid_input(format!("corrupt model description: {e}")),
+            }
+        } else {
+            rest
+        };
+        let rest = if magic == MAGIC {
+            match postcard::take_from_bytes::<Option<CloudDesc>>(rest) {
+                Ok((cloud, rest)) => {
+                    desc.cloud = cloud;
                     rest
                 }
                 Err(e) => return invalid_input(format!("corrupt model description: {e}")),
@@ -204,6 +238,7 @@ impl ModelDesc {
             contact_enabled: true,
             jnt_scene: vec![],
             couplings: vec![],
+            cloud: None,
         }
     }
 }
@@ -252,6 +287,21 @@ mod tests {
         v2.extend_from_slice(&fnv1a(&body).to_le_bytes());
         v2.extend_from_slice(&body);
         assert_eq!(ModelDesc::from_bytes(&v2).unwrap(), plain);
+    }
+
+    #[test]
+    fn clouds_round_trip_and_format_3_reads_as_none() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.cloud = Some(CloudDesc { points: vec![[0.1, 0.2, 0.3]], radius: vec![0.01], margin: 0.002, contype: 1, conaffinity: 1 });
+        assert_eq!(ModelDesc::from_bytes(&desc.to_bytes()).unwrap(), desc);
+        let plain = ModelDesc::example_pendulum();
+        let mut body = postcard::to_allocvec(&plain).unwrap();
+        body.extend(postcard::to_allocvec(&plain.jnt_scene).unwrap());
+        body.extend(postcard::to_allocvec(&plain.couplings).unwrap());
+        let mut v3 = MAGIC_V3.to_vec();
+        v3.extend_from_slice(&fnv1a(&body).to_le_bytes());
+        v3.extend_from_slice(&body);
+        assert_eq!(ModelDesc::from_bytes(&v3).unwrap(), plain);
     }
 
     #[test]

@@ -28,6 +28,9 @@ pub struct Hull {
     scan: bool,
     /// parry's own hull (boxed: it is large, and only the cold paths use it).
     poly: Box<ConvexPolyhedron>,
+    /// Each face's plane `n·x = d` (unit outward `n`): a point's largest `n·p − d` is its
+    /// signed distance inside the hull and a lower bound on its distance outside.
+    planes: Vec<(Vector3<f64>, f64)>,
 }
 
 impl Hull {
@@ -57,12 +60,33 @@ impl Hull {
             adj_start.push(adj.len() as u32);
         }
         let start: Vec<u16> = (0..6 * CUBE * CUBE).map(|cell| cell_start(&vertices, cell)).collect();
-        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly) })
+        let adjacent = poly.vertices_adj_to_face();
+        let planes = poly
+            .faces()
+            .iter()
+            .map(|f| {
+                let n = f.normal.into_inner();
+                // The face's largest offset over its vertices (they agree up to rounding): the
+                // plane never cuts into the hull, so the bounds it gives stay lower bounds.
+                let first = f.first_vertex_or_edge as usize;
+                let d = adjacent[first..first + f.num_vertices_or_edges as usize]
+                    .iter()
+                    .map(|&v| n.dot(&vertices[v as usize].coords))
+                    .fold(f64::NEG_INFINITY, f64::max);
+                (n, d + 1e-12 * (1.0 + d.abs()))
+            })
+            .collect();
+        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly), planes })
     }
 
     /// The hull's vertices (those of `poly()`, in the same order).
     pub fn points(&self) -> &[Point3<f64>] {
         &self.points
+    }
+
+    /// The face planes `(n, d)`: `n·x ≤ d` holds for every point of the hull.
+    pub fn planes(&self) -> &[(Vector3<f64>, f64)] {
+        &self.planes
     }
 
     /// parry's own hull, for the cold paths (exact distances, contacts, bounds).

@@ -21,8 +21,9 @@
 //! | [`angles`] | the one angle wrap (SO(2), shortest arcs) |
 //! | [`couplings`] | joint equalities: dependent joints, feasible poses, coupled motions |
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
-//! | [`hull`] | convex hulls: support points by hill climbing, the cube map |
-//! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space or convex), `Convex` |
+//! | [`hull`] | convex hulls: support points by hill climbing, the cube map, face planes |
+//! | [`cloud`] | point clouds: balls in a tree, exact queries against one convex shape, voxel downsampling |
+//! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space, convex or cloud), `Convex` |
 //! | `sat` | remembered separating axes, tried before GJK |
 //! | [`geom`] | `Geom`: a shape on a body |
 //! | [`pairs`] | candidate pairs with MuJoCo's filters |
@@ -30,6 +31,7 @@
 //! | [`model`] | `RobotModel`: the validated, derived robot |
 //! | [`kinematics`] | forward kinematics, one pose or a batch |
 //! | [`collide`] | labelling: narrow phase and batches |
+//! | [`filter`] | a sensor's points within a margin of the model at a pose (the self-filter) |
 //! | [`fastpath`] | the booleans-only fast path: first pair in contact, likeliest first |
 //! | [`motion`] | straight joint-space motions certified continuously (conservative advancement) |
 //! | [`ik`] | inverse kinematics: Levenberg–Marquardt on the SE(3) error, seeds, certified answers |
@@ -46,11 +48,13 @@
 pub mod angles;
 mod broad;
 pub mod budget;
+pub mod cloud;
 pub mod collide;
 pub mod couplings;
 pub mod desc;
 pub mod error;
 pub mod fastpath;
+pub mod filter;
 pub mod geom;
 pub mod hull;
 pub mod ik;

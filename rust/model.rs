@@ -3,7 +3,10 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
+use std::sync::Arc;
+
 use crate::broad::Broad;
+use crate::cloud::Cloud;
 use crate::couplings::{feasible, Couplings};
 /// (Also reachable here, where it lived before `desc.rs`.)
 pub use crate::desc::ModelDesc;
@@ -76,7 +79,21 @@ fn iso(pos: [f64; 3], q: [f64; 4]) -> Result<Isometry3<f64>> {
 
 impl RobotModel {
     /// Validates `desc` and derives everything the labeller needs (shapes, candidate pairs).
+    ///
+    /// A point cloud (`desc.cloud`) becomes one more geom, after the MuJoCo geoms: on the world
+    /// body, MuJoCo id -1, its balls in the world frame (`cloud.rs`); an empty cloud adds nothing.
     pub fn new(desc: ModelDesc) -> Result<Self> {
+        Self::build(desc, None)
+    }
+
+    /// This model with `desc`'s point cloud instead of its own: `desc` must be the description
+    /// this model was built from, its cloud aside. The MuJoCo geoms' shapes (their hulls) are
+    /// shared, not built again, so a new cloud costs its tree and the candidate pairs.
+    pub fn with_cloud(&self, desc: ModelDesc) -> Result<Self> {
+        Self::build(desc, Some(self))
+    }
+
+    fn build(mut desc: ModelDesc, reuse: Option<&RobotModel>) -> Result<Self> {
         let nbody = desc.body_parent.len();
         if nbody == 0 {
             return invalid_model("no bodies (body 0 must be the world)");
@@ -192,11 +209,21 @@ impl RobotModel {
         finite("geom_size", desc.geom_size.as_flattened())?;
         finite("geom_margin", &desc.geom_margin)?;
         finite("mesh_vert", desc.mesh_vert.as_flattened())?;
-        let mut geoms = Vec::with_capacity(ngeom);
+        let mut geoms = Vec::with_capacity(ngeom + 1);
+        // (the caller's promise, checked where cheap: the same MuJoCo geoms)
+        let reuse = reuse.filter(|m| {
+            m.geoms.iter().filter(|g| g.mujoco_id >= 0).count() == ngeom
+                && m.geoms.iter().zip(&desc.geom_id).all(|(g, &id)| g.mujoco_id == id)
+        });
         for g in 0..ngeom {
             let b = desc.geom_body[g];
             if b < 0 || b as usize >= nbody {
                 return invalid_model(format!("geom {} sits on body {b}", desc.geom_id[g]));
+            }
+            if let Some(old) = reuse {
+                let o = &old.geoms[g];
+                geoms.push(Geom { mujoco_id: o.mujoco_id, body: o.body, local: o.local, shape: Arc::clone(&o.shape), on_robot: on_robot(b as usize) });
+                continue;
             }
             let gtype = GeomType::from_mujoco(desc.geom_type[g], desc.geom_id[g])?;
             let hull_points: Vec<Point3<f64>> = if gtype == GeomType::Mesh {
@@ -218,9 +245,24 @@ impl RobotModel {
                 mujoco_id: desc.geom_id[g],
                 body: b as usize,
                 local: iso(desc.geom_pos[g], desc.geom_quat[g])? * axis_fix,
-                shape,
+                shape: Arc::new(shape),
                 on_robot: on_robot(b as usize),
             });
+        }
+        if let Some(cloud) = desc.cloud.take() {
+            if !cloud.margin.is_finite() {
+                return invalid_model(format!("the point cloud's margin is {}", cloud.margin));
+            }
+            let built = Arc::new(Cloud::new(&cloud.points, &cloud.radius)?);
+            if let Some(shape) = GeomShape::cloud(built) {
+                // One more geom for `candidate_pairs`' filters: on the world, MuJoCo id -1.
+                desc.geom_id.push(-1);
+                desc.geom_body.push(0);
+                desc.geom_contype.push(cloud.contype);
+                desc.geom_conaffinity.push(cloud.conaffinity);
+                desc.geom_margin.push(cloud.margin);
+                geoms.push(Geom { mujoco_id: -1, body: 0, local: Isometry3::identity(), shape: Arc::new(shape), on_robot: false });
+            }
         }
         if desc.pair_margin.len() != desc.pair_geom.len() {
             return invalid_model("pair_margin and pair_geom differ in length");

@@ -12,10 +12,12 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
 use crate::collide::{label_batch, LabelOptions};
+use crate::cloud::voxel_downsample as downsample;
 use crate::couplings::Coupling;
-use crate::desc::ModelDesc;
+use crate::desc::{CloudDesc, ModelDesc};
 use crate::error::Error;
 use crate::fastpath::{certified_batch, collides_batch};
+use crate::filter::points_near_model;
 use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
@@ -160,7 +162,33 @@ fn desc_from_dict(d: &Bound<'_, PyDict>) -> PyResult<ModelDesc> {
         contact_enabled: typed(d, "contact_enabled", "a bool")?,
         jnt_scene: if d.contains("jnt_scene")? { vec1(d, "jnt_scene")? } else { vec![] },
         couplings: if d.contains("eq_dep")? { couplings_from_dict(d)? } else { vec![] },
+        cloud: if d.contains("cloud_points")? {
+            Some(CloudDesc {
+                points: rows(d, "cloud_points")?,
+                radius: vec1(d, "cloud_radius")?,
+                margin: typed(d, "cloud_margin", "a float")?,
+                contype: typed(d, "cloud_contype", "an int")?,
+                conaffinity: typed(d, "cloud_conaffinity", "an int")?,
+            })
+        } else {
+            None
+        },
     })
+}
+
+/// `points` as a `(N, 3)` float64 buffer (any layout), or an error naming `what`.
+fn point_rows(points: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+    let a = pose_array(points, 3, what)?;
+    Ok(rows_of(&a).chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect())
+}
+
+/// `radius` as a `(N,)` float64 vector, or an error naming it.
+fn radius_vec(radius: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<f64>> {
+    let r: PyReadonlyArray1<f64> = radius.extract().map_err(|_| type_error(format!("radius must be a 1-D float64 numpy array of shape ({n},)")))?;
+    if r.len() != n {
+        return Err(input_error(format!("radius must have shape ({n},); got ({},)", r.len())));
+    }
+    Ok(r.as_array().to_vec())
 }
 
 /// The joint equalities: `eq_dep` (E,) uint32, `eq_indep` (E,) int32 (-1: none), `eq_coef`
@@ -253,6 +281,53 @@ impl PyRobotModel {
             type_error(format!("RobotModel state must be bytes; got {got}"))
         })?;
         Self::from_desc(ModelDesc::from_bytes(bytes.as_bytes()).map_err(to_py)?)
+    }
+
+    /// This model with the point cloud `points` (N, 3) of radii `radius` (N,) instead of its own
+    /// (`None`: no cloud), its balls with geom margin `margin` and MuJoCo's contype /
+    /// conaffinity. The MuJoCo geoms' shapes are shared, not built again.
+    #[pyo3(signature = (points, radius, margin=0.0, contype=1, conaffinity=1))]
+    fn with_cloud(
+        &self,
+        py: Python<'_>,
+        points: Option<&Bound<'_, PyAny>>,
+        radius: Option<&Bound<'_, PyAny>>,
+        margin: f64,
+        contype: u32,
+        conaffinity: u32,
+    ) -> PyResult<Self> {
+        let mut desc = self.desc.clone();
+        desc.cloud = match (points, radius) {
+            (Some(p), Some(r)) => {
+                let points = point_rows(p, "points")?;
+                let radius = radius_vec(r, points.len())?;
+                Some(CloudDesc { points, radius, margin, contype, conaffinity })
+            }
+            (None, None) => None,
+            _ => return Err(input_error("points and radius are given together, or neither")),
+        };
+        let model = py.detach(|| self.model.with_cloud(desc.clone())).map_err(to_py)?;
+        Ok(Self { model, desc })
+    }
+
+    /// `(N,)` bool: whether each of `points` (N, 3, world metres) lies within `margin` metres of
+    /// a geom at `pose` (K,): the robot's geoms only (`robot_only`), else every geom but the
+    /// point cloud (`filter.rs`).
+    #[pyo3(signature = (pose, points, margin, robot_only=true))]
+    fn points_near<'py>(
+        &self,
+        py: Python<'py>,
+        pose: &Bound<'py, PyAny>,
+        points: &Bound<'py, PyAny>,
+        margin: f64,
+        robot_only: bool,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let model = &self.model;
+        let q = pose_array(pose, model.njoint(), "pose")?;
+        let q = rows_of(&q).into_owned();
+        let points = point_rows(points, "points")?;
+        let near = py.detach(|| points_near_model(model, &q, &points, margin, robot_only)).map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, near))
     }
 
     #[getter]
@@ -588,6 +663,21 @@ fn interpolate<'py>(
     PyArray1::from_vec(py, v).reshape([b, steps, k])
 }
 
+/// Conservative voxel downsampling (`cloud::voxel_downsample`): `(points (M, 3), radius (M,))`.
+#[pyfunction]
+fn voxel_downsample<'py>(
+    py: Python<'py>,
+    points: &Bound<'py, PyAny>,
+    radius: &Bound<'py, PyAny>,
+    voxel: f64,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+    let p = point_rows(points, "points")?;
+    let r = radius_vec(radius, p.len())?;
+    let (m, mr) = py.detach(|| downsample(&p, &r, voxel)).map_err(to_py)?;
+    let n = m.len();
+    Ok((PyArray1::from_vec(py, m.into_flattened()).reshape([n, 3])?, PyArray1::from_vec(py, mr)))
+}
+
 /// The backward state of one `render_forward` call (the scene, the tile lists and every
 /// composited pair), in the dtype it was computed in; opaque to Python.
 enum AnyRenderState {
@@ -921,6 +1011,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add_class::<PyRenderState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
+    m.add_function(wrap_pyfunction!(voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render_backward, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -3,11 +3,17 @@
 //! MuJoCo collides primitives exactly and meshes as their convex hulls; planes are half-spaces
 //! (`z <= 0` in the plane's frame). Each geom becomes a [`Solid`], one of these two cases, plus
 //! a fixed rotation where parry's axis convention differs from MuJoCo's (cylinders: parry's
-//! axis is y, MuJoCo's z).
+//! axis is y, MuJoCo's z). A point cloud (`cloud.rs`: a union of balls, not a MuJoCo geom) is
+//! the third case.
 
 use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion, Vector3};
+use parry3d_f64::query::details::local_point_projection_on_support_map;
+use parry3d_f64::query::gjk::VoronoiSimplex;
 use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, Shape, SupportMap};
 
+use std::sync::Arc;
+
+use crate::cloud::{box_sd, Cloud, PointDistance};
 use crate::error::{invalid_model, Result};
 use crate::hull::Hull;
 
@@ -20,6 +26,8 @@ pub enum GeomType {
     Cylinder,
     Box,
     Mesh,
+    /// A point cloud (`cloud.rs`), which MuJoCo knows as one sphere geom per point.
+    Cloud,
 }
 
 impl GeomType {
@@ -39,7 +47,7 @@ impl GeomType {
     }
 }
 
-/// What a geom is to the narrow phase: MuJoCo's two cases.
+/// What a geom is to the narrow phase: MuJoCo's two cases, and point clouds.
 pub enum Solid {
     /// A plane: the half-space `z <= 0` of its geom frame. Unbounded, so it has no support
     /// map; pairs with it are decided by the other geom's support point along the normal.
@@ -52,6 +60,9 @@ pub enum Solid {
         /// The same shape boxed for parry's generic queries (exact distance, contact).
         shape: Box<dyn Shape>,
     },
+    /// A union of balls in a tree (`cloud.rs`), static, in its geom frame. Pairs with it are
+    /// decided by the tree's queries against the other geom's exact shape.
+    Cloud(Arc<Cloud>),
 }
 
 /// A collision shape in its geom frame, with the data the broad phase needs.
@@ -93,6 +104,7 @@ impl GeomShape {
         let mut axis_fix = Isometry3::identity();
         let convex = match kind {
             GeomType::Plane => return Ok((GeomShape::half_space(), axis_fix)),
+            GeomType::Cloud => return invalid_model(format!("geom {geom_id}: a point cloud is built by `GeomShape::cloud`")),
             GeomType::Sphere => Convex::Ball(Ball::new(positive(geom_id, "radius", size[0])?)),
             GeomType::Capsule => {
                 let r = positive(geom_id, "radius", size[0])?;
@@ -154,6 +166,24 @@ impl GeomShape {
             rbound: f64::INFINITY,
             radius: f64::INFINITY,
         }
+    }
+
+    /// A point cloud's geom (the frame of its balls' coordinates). `None` for an empty cloud,
+    /// which has nothing to collide with.
+    pub fn cloud(cloud: Arc<Cloud>) -> Option<Self> {
+        if cloud.is_empty() {
+            return None;
+        }
+        let (obb_center, obb_half) = cloud.bounds();
+        let radius = cloud.radius_about(&obb_center);
+        Some(GeomShape {
+            kind: GeomType::Cloud,
+            rbound: (obb_center.norm() + radius) * (1.0 + 1e-12),
+            solid: Solid::Cloud(cloud),
+            obb_center,
+            obb_half,
+            radius,
+        })
     }
 
     /// Whether the geom is a plane (a half-space).
@@ -239,6 +269,52 @@ impl SupportMap for Convex {
             Convex::Ball(s) => s.support_point_toward(m, dir),
             _ => m * self.local_support_point_toward(&Unit::new_unchecked(m.inverse_transform_vector(dir))),
         }
+    }
+}
+
+impl PointDistance for Convex {
+    /// Closed forms for the primitives; for a hull, the face planes, then GJK (`cloud.rs`).
+    fn point_sd(&self, p: &Vector3<f64>, bound: f64) -> std::result::Result<f64, f64> {
+        Ok(match self {
+            Convex::Ball(b) => p.norm() - b.radius,
+            Convex::Cuboid(c) => box_sd(p, &c.half_extents),
+            Convex::Capsule(c) => {
+                let (a, b) = (c.segment.a.coords, c.segment.b.coords);
+                let ab = b - a;
+                let len2 = ab.norm_squared();
+                let t = if len2 > 0.0 { ((p - a).dot(&ab) / len2).clamp(0.0, 1.0) } else { 0.0 };
+                (p - (a + ab * t)).norm() - c.radius
+            }
+            // parry's cylinder: axis y, half height `half_height`.
+            Convex::Cylinder(c) => {
+                let radial = (p.x * p.x + p.z * p.z).sqrt() - c.radius;
+                let axial = p.y.abs() - c.half_height;
+                let out = (radial.max(0.0).powi(2) + axial.max(0.0).powi(2)).sqrt();
+                out + radial.max(axial).min(0.0)
+            }
+            Convex::Hull(h) => {
+                // The largest face-plane distance: exact inside (the nearest boundary point of a
+                // convex polytope lies on a face's plane), a lower bound outside.
+                let planes = h.planes();
+                let mut m = f64::NEG_INFINITY;
+                for (n, d) in planes {
+                    m = m.max(n.dot(p) - d);
+                }
+                if m <= 0.0 {
+                    m
+                } else if m - 1e-9 * (1.0 + m) > bound {
+                    return Err(m);
+                } else {
+                    let proj = local_point_projection_on_support_map(self, &mut VoronoiSimplex::new(), &Point3::from(*p), true);
+                    // (GJK stops within its tolerance; the plane bound is exact arithmetic's.)
+                    if proj.is_inside {
+                        m
+                    } else {
+                        (p - proj.point.coords).norm().max(m)
+                    }
+                }
+            }
+        })
     }
 }
 

@@ -1,6 +1,8 @@
 """The MuJoCo reference labeller, and the side-by-side check of ours against it.
 
-MuJoCo decides: a pose collides when ``mj_kinematics`` + ``mj_collision`` leave ``ncon > 0``.
+MuJoCo decides: a pose collides when ``mj_kinematics`` + ``mj_collision`` leave ``ncon > 0``. A
+robot with a point cloud is checked against its :func:`~profrobot.pointcloud.reference_model`: the
+same balls as MuJoCo sphere geoms, every one of them reported as the cloud's id (-1) in pairs.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import mujoco
 import numpy as np
 
 from .labels import Labels, as_poses, label_poses
+from .pointcloud import CLOUD_GEOM_ID, cloud_geom_ids, reference_model, robot_geom_ids
 from .robot import Robot
 
 
@@ -28,7 +31,9 @@ def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
     """MuJoCo's contact count and colliding geom pairs for each of ``poses[start:stop]``: the
     chunk function of :func:`mujoco_labels` (pure: every pose is labelled on its own)."""
     q = poses[start:stop]
-    m = robot.mj_model
+    m = reference_model(robot)
+    ids = robot_geom_ids(robot)
+    as_id = lambda g: int(ids[g])
     d = mujoco.MjData(m)
     ncon = np.zeros(len(q), dtype=np.int64)
     pairs = []
@@ -39,7 +44,7 @@ def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
         mujoco.mj_collision(m, d)
         ncon[i] = d.ncon
         g = d.contact.geom[: d.ncon]
-        pairs.append({(int(min(a, b)), int(max(a, b))) for a, b in g})
+        pairs.append({(min(as_id(a), as_id(b)), max(as_id(a), as_id(b))) for a, b in g})
     return ncon, pairs
 
 
@@ -66,11 +71,17 @@ def mujoco_labels(robot: Robot, poses, *, progress: bool = True, executor=None, 
 
 
 def mujoco_pair_distance(robot: Robot, pose: np.ndarray, g1: int, g2: int, distmax: float = 0.05) -> float:
-    """MuJoCo's own signed distance between two geoms at ``pose`` (``mj_geomDistance``)."""
-    m = robot.mj_model
+    """MuJoCo's own signed distance between two geoms at ``pose`` (``mj_geomDistance``); the point
+    cloud (id -1): the least over its balls."""
+    m = reference_model(robot)
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_adr] = pose
     mujoco.mj_kinematics(m, d)
+    g1, g2 = (int(np.flatnonzero(robot_geom_ids(robot) == g)[0]) if g != CLOUD_GEOM_ID else g for g in (g1, g2))
+    if CLOUD_GEOM_ID in (g1, g2):
+        other = g2 if g1 == CLOUD_GEOM_ID else g1
+        return min((float(mujoco.mj_geomDistance(m, d, int(b), other, distmax, None)) for b in cloud_geom_ids(robot)),
+                   default=distmax)
     return float(mujoco.mj_geomDistance(m, d, g1, g2, distmax, None))
 
 

@@ -27,6 +27,7 @@ from .equalities import EqualityWarning, JointCouplings, read_equalities, read_t
 from .errors import CorruptFileError, InputError, InputTypeError, MissingFileError, RobotMismatchError
 from .margin import ObstacleMargin, check_margin
 from .obstacles import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Sphere  # noqa: F401  (their home before the split)
+from .pointcloud import CLOUD_GEOM_ID, PointCloud
 from .sources import _Mjcf, _SpecSource, _Urdf, _read_mjcf, _spec_mjcf, _zip, _unzip  # noqa: F401  (likewise; old pickles name them here)
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(t) for t in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL,
@@ -224,6 +225,8 @@ class Robot:
     #: metres: the safety margin every obstacle geom has at least (:meth:`with_margin`); 0 for the
     #: model's own margins
     margin: float = 0.0
+    #: the point-cloud obstacle (:meth:`with_points`, :mod:`profrobot.pointcloud`), or None
+    cloud: PointCloud | None = None
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
         if not isinstance(model, mujoco.MjModel):
@@ -566,9 +569,15 @@ class Robot:
             raise InputTypeError(f"obstacles must be a list of profrobot obstacles (Box, Sphere, ...); got "
                                  f"{type(obstacles).__name__}") from None
         for i, ob in enumerate(obstacles):
-            if not isinstance(ob, Obstacle):
+            if not isinstance(ob, (Obstacle, PointCloud)):
                 raise InputTypeError(f"obstacles[{i}] must be a profrobot Obstacle (Box, Sphere, Capsule, Cylinder, "
-                                     f"Plane, Mesh); got {type(ob).__name__}")
+                                     f"Plane, Mesh) or a PointCloud; got {type(ob).__name__}")
+        clouds = [ob for ob in obstacles if isinstance(ob, PointCloud)]
+        obstacles = tuple(ob for ob in obstacles if not isinstance(ob, PointCloud))
+        if clouds:  # balls join this robot's cloud (one cloud per robot: their union)
+            union = sum(clouds[1:], self.cloud + clouds[0] if self.cloud is not None else clouds[0])
+            base = self.with_obstacles(obstacles, name=name) if obstacles else self
+            return base.with_points(union)
         spec = self._editable("obstacles")
         taken = {g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name}
         for i, ob in enumerate(obstacles):
@@ -598,7 +607,44 @@ class Robot:
             robot._source = self._source.then(edits)
         if self.disabled_pairs or self._collision_notes:
             robot.disabled_pairs, robot._collision_notes = self.disabled_pairs, self._collision_notes
+        if self.cloud is not None:  # the point cloud stays (with this robot's margin)
+            robot = robot.with_points(self.cloud)
         return robot
+
+    # ---- point clouds (profrobot.pointcloud) ---------------------------------------------------
+    def with_points(self, points, radius=None) -> "Robot":
+        """This scene with the point-cloud obstacle ``points``: a :class:`~profrobot.PointCloud`, or
+        an (N, 3) array of world points in metres with ``radius`` (metres: one number, the sensor's
+        resolution, or one per point; default 0.005). It **replaces** this robot's cloud, if any
+        (``with_obstacles([cloud])`` adds to it); ``None`` or an empty cloud removes it.
+
+        Cheap enough to call per camera frame: the MuJoCo model and the geoms' hulls are shared,
+        only the cloud's tree and the candidate pairs are built (``rust/cloud.rs``). The balls get
+        this robot's :attr:`margin`. The result keeps :attr:`geometry_fingerprint` (a field trained
+        on the modelled scene still guides it; every answer is certified against the cloud too) and
+        ``layout``; its :attr:`fingerprint` covers the cloud."""
+        if points is None:
+            cloud = None
+        elif isinstance(points, PointCloud):
+            if radius is not None:
+                raise InputError("radius is given by the PointCloud itself; pass radius only with an array of points")
+            cloud = points
+        else:
+            cloud = PointCloud(points, 0.005 if radius is None else radius)
+        new = object.__new__(type(self))
+        new.__dict__.update({k: v for k, v in self.__dict__.items()
+                             if k not in ("_layouts", "_margins", "_reference_model", "_reference_balls", "_reference_ids")})
+        arrays = {k: v for k, v in self._arrays.items() if not k.startswith("cloud_")}
+        if cloud is not None and len(cloud):
+            arrays.update(cloud.core_arrays(self.margin))
+            new.core = self.core.with_cloud(arrays["cloud_points"], arrays["cloud_radius"], self.margin)
+        else:
+            new.core = self.core.with_cloud(None, None)
+        new._arrays = arrays
+        new.cloud = cloud
+        new.pair_geoms, new.pair_is_self, new.pair_margin = new.core.pairs()
+        new.fingerprint = _fingerprint(self.joint_names, arrays, self.scene_joints)
+        return new
 
     def _editable(self, what: str) -> mujoco.MjSpec:
         base = self.spec
@@ -750,7 +796,10 @@ class Robot:
             spec = self._editable("with_margin")
             edit.add_to(spec)
             robot = self._derived(spec, (edit,), self.name)
-            robot.margin, robot.geometry_fingerprint = m, self.geometry_fingerprint
+            robot.margin = m
+            if self.cloud is not None:  # its balls get the margin too
+                robot = robot.with_points(self.cloud)
+            robot.geometry_fingerprint = self.geometry_fingerprint
             robot.layout, robot.family_fingerprint = self.layout, self.family_fingerprint
             return robot
 
@@ -768,11 +817,12 @@ class Robot:
         d.qpos[self.qpos_adr[self.scene_index]] = delta
         mujoco.mj_kinematics(m, d)
         weld, gbody = self._arrays["body_weld"], dict(zip(self._arrays["geom_id"], self._arrays["geom_body"]))
+        gbody[CLOUD_GEOM_ID] = 0  # the point cloud: on the world
         scene_welds = {int(self._arrays["jnt_body"][j]) for j in self.scene_index}
         for k, (g1, g2) in enumerate(self.pair_geoms):
             b1, b2 = int(gbody[int(g1)]), int(gbody[int(g2)])
             for a, b in ((b1, b2), (b2, b1)):
-                if int(weld[a]) in scene_welds and int(weld[b]) == 0:
+                if int(weld[a]) in scene_welds and int(weld[b]) == 0 and CLOUD_GEOM_ID not in (g1, g2):
                     need = max(float(self.pair_margin[k]), CLEARANCE)
                     dist = mujoco.mj_geomDistance(m, d, int(g1), int(g2), 10 * need + 1e-3, None)
                     if dist <= need:
@@ -861,12 +911,15 @@ class Robot:
             out.append(dict(id=int(g), name=_name(m, mujoco.mjtObj.mjOBJ_GEOM, g, "geom"),
                             type=_GEOM_NAMES.get(int(m.geom_type[g]), str(m.geom_type[g])),
                             body=self.body_names[b]))
+        if self.cloud is not None and len(self.cloud):
+            out.append(dict(id=CLOUD_GEOM_ID, name="point cloud", type="cloud", body=self.body_names[0]))
         return out
 
     def pair_names(self, k: int) -> tuple[str, str]:
         m = self.mj_model
+        name = lambda g: "point cloud" if g == CLOUD_GEOM_ID else _name(m, mujoco.mjtObj.mjOBJ_GEOM, g, "geom")
         g1, g2 = self.pair_geoms[k]
-        return (_name(m, mujoco.mjtObj.mjOBJ_GEOM, g1, "geom"), _name(m, mujoco.mjtObj.mjOBJ_GEOM, g2, "geom"))
+        return name(int(g1)), name(int(g2))
 
     def __repr__(self) -> str:
         return (f"Robot({self.name!r}, joints={self.njoint}, collision geoms={self.core.ngeom}, "
@@ -905,7 +958,8 @@ class Robot:
         does not reproduce, or a spec edited after the robot was built). A Panda scene pickles to
         about 6 MB (the meshes' files, compressed).
         """
-        state = {k: v for k, v in self.__dict__.items() if k not in ("_mj_model", "_spec", "_source", "_layouts", "_margins")}
+        state = {k: v for k, v in self.__dict__.items()
+                 if k not in ("_mj_model", "_spec", "_source", "_layouts", "_margins", "_reference_model", "_reference_balls", "_reference_ids")}
         source = self._source
         if source is not None and not isinstance(source.root, _Mjcf):
             try:
@@ -947,6 +1001,8 @@ class Robot:
         for key, value in self.__dict__.items():
             if key in ("_layouts", "_margins"):  # caches
                 value = {}
+            elif key in ("_reference_model", "_reference_balls", "_reference_ids"):  # compiled again on first use
+                continue
             elif key == "_spec":
                 value = None if value is None else value.copy()
             elif key != "_source":  # immutable; its root may be an MjSpec, which deepcopy cannot copy
@@ -964,7 +1020,10 @@ class Robot:
             raise CorruptFileError(f"{self.name}: could not rebuild the MuJoCo model from the MJCF this robot "
                                    f"carries: {type(e).__name__}: {e}") from e
         names = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt)]
-        if _fingerprint(names, _core_arrays(model), tuple(n for n in names if n in model_scene_joints(model))) != self.fingerprint:
+        arrays = _core_arrays(model)
+        if self.cloud is not None and len(self.cloud):
+            arrays.update(self.cloud.core_arrays(self.margin))
+        if _fingerprint(names, arrays, tuple(n for n in names if n in model_scene_joints(model))) != self.fingerprint:
             how = ("its MjSpec, written out with MjSpec.to_xml (6 significant digits), compiles to another robot"
                    if not self._source.loaded().root.exact else
                    "the MJCF files it was built from now compile to another robot (edited since, another MuJoCo "

@@ -26,6 +26,7 @@ import torch
 
 from ..kinematics import Kinematics, quat_to_matrix
 from ..errors import InputError
+from ..pointcloud import CLOUD_GEOM_ID
 
 # MuJoCo geom types
 PLANE, SPHERE, CAPSULE, CYLINDER, BOX, MESH = 0, 2, 3, 5, 6, 7
@@ -145,6 +146,8 @@ class PairClearance(torch.nn.Module):
         # candidate geom pairs → distinct (body, body) and (body, static geom) pairs
         bb, bs = set(), set()
         for g1, g2 in np.asarray(robot.pair_geoms):
+            if CLOUD_GEOM_ID in (int(g1), int(g2)):  # a point cloud has no proxy: the labeller certifies it
+                continue
             a, b = index_of[int(g1)], index_of[int(g2)]
             if not moving[a]:
                 a, b = b, a
