@@ -40,8 +40,9 @@ use crate::error::{invalid_input, Result};
 /// A convex shape's signed distance from a point, what the queries need of a geom.
 pub trait PointDistance {
     /// Signed distance from `p` (the shape's frame) to the shape, negative inside: `Ok(exact)`,
-    /// or `Err(lower bound)` when a cheap bound already exceeds `bound`.
-    fn point_sd(&self, p: &Vector3<f64>, bound: f64) -> std::result::Result<f64, f64>;
+    /// or `Err(lower bound)` when a cheap bound already exceeds `bound`. Without `exact`, `Ok`
+    /// may hold a lower bound instead (whatever is cheap and at most the distance).
+    fn point_sd(&self, p: &Vector3<f64>, bound: f64, exact: bool) -> std::result::Result<f64, f64>;
 }
 
 /// Most balls a leaf holds.
@@ -166,7 +167,31 @@ impl Cloud {
     /// was below `stop`); otherwise `value` is a lower bound above `bound`. `+inf` for an empty
     /// cloud.
     pub fn nearest<S: PointDistance>(&self, probe: &Probe<S>, bound: f64, stop: f64) -> Nearest {
+        self.search(probe, bound, stop, true, None)
+    }
+
+    /// A lower bound on what [`Cloud::nearest`] gives, cheaper: each ball's distance may be a
+    /// lower bound of it (a hull's face planes rather than GJK), so `value` is at most the least
+    /// distance, and above `bound` only when the least distance is too. The motion certificate
+    /// needs no more (`motion.rs`).
+    pub fn lower_bound<S: PointDistance>(&self, probe: &Probe<S>, bound: f64, stop: f64) -> Nearest {
+        self.search(probe, bound, stop, false, None)
+    }
+
+    /// [`Cloud::nearest`] (`exact`) or [`Cloud::lower_bound`], the ball at tree position `hint`
+    /// measured first (the nearest one last time, say: the search then starts with a tight
+    /// bound). An exact answer does not depend on the hint; a lower bound may.
+    pub fn search<S: PointDistance>(&self, probe: &Probe<S>, bound: f64, stop: f64, exact: bool, hint: Option<u32>) -> Nearest {
         let mut best = Nearest { value: f64::INFINITY, ball: None };
+        if let Some(t) = hint.map(|t| t as usize).filter(|&t| t < self.len()) {
+            let c = Vector3::new(self.x[t], self.y[t], self.z[t]);
+            if let Ok(d) = probe.ball_distance(&c, self.r[t], bound, exact) {
+                best = Nearest { value: d, ball: Some(t as u32) };
+                if d < stop {
+                    return best;
+                }
+            }
+        }
         let mut skipped = f64::INFINITY;
         let mut i = 0usize;
         while i < self.nodes.len() {
@@ -185,7 +210,7 @@ impl Cloud {
             for t in node.start as usize..node.end as usize {
                 let limit = best.value.min(bound);
                 let (c, r) = (Vector3::new(self.x[t], self.y[t], self.z[t]), self.r[t]);
-                match probe.ball_distance(&c, r, limit) {
+                match probe.ball_distance(&c, r, limit, exact) {
                     Err(lb) => skipped = skipped.min(lb),
                     Ok(d) if d < best.value => {
                         best = Nearest { value: d, ball: Some(t as u32) };
@@ -224,7 +249,7 @@ impl Cloud {
                     continue;
                 }
                 let c = Vector3::new(self.x[t], self.y[t], self.z[t]);
-                if let Ok(d) = probe.ball_distance(&c, self.r[t], bound) {
+                if let Ok(d) = probe.ball_distance(&c, self.r[t], bound, true) {
                     near[j] = d <= bound;
                 }
             }
@@ -332,7 +357,7 @@ impl<'a, S: PointDistance> Probe<'a, S> {
     /// `sd(c, G) − r` for the ball `(c, r)` (cloud frame) when it may be at most `bound`:
     /// `Ok(exact)`, or `Err(lower bound)` above `bound` (module docs).
     #[inline]
-    fn ball_distance(&self, c: &Vector3<f64>, r: f64, bound: f64) -> std::result::Result<f64, f64> {
+    fn ball_distance(&self, c: &Vector3<f64>, r: f64, bound: f64, exact: bool) -> std::result::Result<f64, f64> {
         let sphere = slacked((c - self.centre).norm() - self.radius - r);
         if sphere > bound {
             return Err(sphere);
@@ -342,7 +367,7 @@ impl<'a, S: PointDistance> Probe<'a, S> {
         if in_box > bound {
             return Err(in_box);
         }
-        match self.convex.point_sd(&p, bound + r) {
+        match self.convex.point_sd(&p, bound + r, exact) {
             Ok(d) => Ok(d - r),
             Err(lb) => Err(slacked(lb - r)),
         }
@@ -483,6 +508,8 @@ mod tests {
                         assert!(b.value <= want + 1e-7 && b.value > bound - 1e-7, "{} {want} {bound}", b.value);
                     }
                 }
+                let lb = cloud.lower_bound(&probe(&shape, pose), 0.03, f64::NEG_INFINITY).value;
+                assert!(lb <= want + 1e-7 && (want > 0.03 || lb <= 0.03 + 1e-7), "{lb} vs {want}");
                 if want < 0.0 {
                     inside += 1;
                 } else {

@@ -112,6 +112,11 @@ pub struct Scratch {
     /// Per candidate pair: the separating axis GJK last found for it on this thread, in its
     /// first geom's frame (zero: none), tried before GJK on the next pose (`sat.rs`).
     axes: Vec<Vector3<f64>>,
+    /// Per candidate pair with the point cloud: the ball (tree position) nearest it when last
+    /// measured on this thread (`u32::MAX`: none), measured first on the next pose so that the
+    /// tree search starts with a tight bound. Exact answers do not depend on it; lower bounds
+    /// (`pair_lower_bound`) may, so it is forgotten with the axes.
+    hints: Vec<u32>,
     /// The last pair the fast path found in contact (`u32::MAX`: none yet), tried first on
     /// the next pose: nearby poses (a bisection, a path) tend to hit the same pair.
     pub(crate) last_hit: u32,
@@ -131,6 +136,7 @@ impl Scratch {
             near: Vec::new(),
             tested: vec![0; model.pairs.len()],
             axes: vec![Vector3::zeros(); model.pairs.len()],
+            hints: vec![u32::MAX; model.pairs.len()],
             last_hit: u32::MAX,
         }
     }
@@ -154,6 +160,7 @@ impl Scratch {
     /// on what this scratch measured before (`motion.rs`: a verdict per motion).
     pub(crate) fn forget_axes(&mut self) {
         self.axes.fill(Vector3::zeros());
+        self.hints.fill(u32::MAX);
     }
 
     /// Geom `g`'s world frame in the pose placed with every geom (`place(.., true)`).
@@ -200,7 +207,7 @@ impl Scratch {
                 if !self.cloud_boxes_within(model, g1, g2, pair.margin) {
                     return Ok(false);
                 }
-                let d = cloud_nearest(model, &self.geoms, k, pair.margin, pair.margin).value;
+                let d = self.cloud_search(model, k, pair.margin, pair.margin, true).value;
                 Ok(if pair.margin == 0.0 { d <= 0.0 } else { d < pair.margin })
             }
             (Solid::HalfSpace, Solid::Convex { convex, .. }) => Ok(self.plane_pair_in_contact(model, g1, g2, convex, pair.margin)),
@@ -248,7 +255,7 @@ impl Scratch {
                     return Ok(true);
                 }
                 // (a ball below `reach` already fails the pair: the search stops there)
-                return Ok(clear(cloud_nearest(model, &self.geoms, k, reach, reach).value));
+                return Ok(clear(self.cloud_search(model, k, reach, reach, true).value));
             }
             (Solid::HalfSpace, Solid::Convex { .. }) | (Solid::Convex { .. }, Solid::HalfSpace) => {
                 let (plane, g) = if a.shape.is_half_space() { (g1, g2) } else { (g2, g1) };
@@ -294,8 +301,14 @@ impl Scratch {
             (Solid::Cloud(_), _) | (_, Solid::Cloud(_)) => {
                 // Exact below `want` or a bound above it; a search stopped at a ball below
                 // `floor` proves nothing above it (that ball is not the minimum): -inf.
-                let d = cloud_nearest(model, &self.geoms, k, want, floor).value;
-                return Ok(if d < floor { f64::NEG_INFINITY } else { d });
+                // The cheap bound (hull face planes) first, exact distances where it cannot
+                // decide or nearly closes the interval, as GJK below for two convex geoms.
+                let cheap = self.cloud_search(model, k, want, floor, false).value;
+                if cheap >= want || (cheap > floor && cheap < GJK_FROM * want) {
+                    return Ok(cheap);
+                }
+                let d = self.cloud_search(model, k, want, floor, true).value;
+                return Ok(if d < floor { f64::NEG_INFINITY } else { d.max(cheap) });
             }
             (Solid::HalfSpace, Solid::Convex { convex, .. }) => return Ok(plane_distance(&self.geoms[g1], convex, &self.geoms[g2])),
             (Solid::Convex { convex, .. }, Solid::HalfSpace) => return Ok(plane_distance(&self.geoms[g2], convex, &self.geoms[g1])),
@@ -361,6 +374,17 @@ impl Scratch {
         }
         self.frame(model, g);
         plane_distance(&self.geoms[plane], convex, &self.geoms[g]) < margin
+    }
+
+    /// `cloud_search` for candidate pair `k` (a pair with the cloud, frames placed), starting
+    /// from the pair's remembered ball, and remembering the one it finds.
+    fn cloud_search(&mut self, model: &RobotModel, k: usize, bound: f64, stop: f64, exact: bool) -> Nearest {
+        let hint = Some(self.hints[k]).filter(|&h| h != u32::MAX);
+        let found = cloud_search(model, &self.geoms, k, bound, stop, exact, hint);
+        if let Some(b) = found.ball {
+            self.hints[k] = b;
+        }
+        found
     }
 
     /// For a pair with the cloud: whether the two geoms' boxes come within `reach` (always when
@@ -573,12 +597,21 @@ fn cloud_sides(model: &RobotModel, k: usize) -> (usize, usize) {
 /// frames): the least signed distance from the other geom to the balls, exact when at most
 /// `bound`, stopping at the first ball below `stop` (`cloud.rs`). A plane is decided by a scan.
 fn cloud_nearest(model: &RobotModel, frames: &[Isometry3<f64>], k: usize, bound: f64, stop: f64) -> Nearest {
+    cloud_search(model, frames, k, bound, stop, true, None)
+}
+
+/// `cloud_nearest`, or with `exact` false `Cloud::lower_bound` (a lower bound on it, cheaper);
+/// the ball at tree position `hint` measured first.
+fn cloud_search(model: &RobotModel, frames: &[Isometry3<f64>], k: usize, bound: f64, stop: f64, exact: bool, hint: Option<u32>) -> Nearest {
     let (c, g) = cloud_sides(model, k);
     let Solid::Cloud(cloud) = &model.geoms[c].shape.solid else { unreachable!("cloud_sides names the cloud first") };
     let rel = frames[c].inv_mul(&frames[g]);
     let shape = &model.geoms[g].shape;
     match &shape.solid {
-        Solid::Convex { convex, .. } => cloud.nearest(&Probe::new(convex, rel, shape.obb_center, shape.obb_half, shape.radius), bound, stop),
+        Solid::Convex { convex, .. } => {
+            let probe = Probe::new(convex, rel, shape.obb_center, shape.obb_half, shape.radius);
+            cloud.search(&probe, bound, stop, exact, hint)
+        }
         Solid::HalfSpace => {
             let n = rel.rotation * Vector3::z();
             cloud.plane_distance(&n, n.dot(&rel.translation.vector))

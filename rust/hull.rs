@@ -31,6 +31,8 @@ pub struct Hull {
     /// Each face's plane `n·x = d` (unit outward `n`): a point's largest `n·p − d` is its
     /// signed distance inside the hull and a lower bound on its distance outside.
     planes: Vec<(Vector3<f64>, f64)>,
+    /// The mean of the vertices (inside the hull).
+    centre: Vector3<f64>,
 }
 
 impl Hull {
@@ -76,12 +78,18 @@ impl Hull {
                 (n, d + 1e-12 * (1.0 + d.abs()))
             })
             .collect();
-        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly), planes })
+        let centre = vertices.iter().map(|v| v.coords).sum::<Vector3<f64>>() / n as f64;
+        Some(Hull { points: vertices, adj_start, adj, start, scan, poly: Box::new(poly), planes, centre })
     }
 
     /// The hull's vertices (those of `poly()`, in the same order).
     pub fn points(&self) -> &[Point3<f64>] {
         &self.points
+    }
+
+    /// The mean of the vertices: a point inside the hull.
+    pub fn centre(&self) -> Vector3<f64> {
+        self.centre
     }
 
     /// The face planes `(n, d)`: `n·x ≤ d` holds for every point of the hull.

@@ -310,24 +310,24 @@ impl PyRobotModel {
         Ok(Self { model, desc })
     }
 
-    /// `(N,)` bool: whether each of `points` (N, 3, world metres) lies within `margin` metres of
-    /// a geom at `pose` (K,): the robot's geoms only (`robot_only`), else every geom but the
-    /// point cloud (`filter.rs`).
-    #[pyo3(signature = (pose, points, margin, robot_only=true))]
+    /// `(N,)` uint8 per point of `points` (N, 3, world metres) at `pose` (K,): 1 within `margin`
+    /// metres of a robot geom, else 2 within `static_margin` of another geom (the point cloud
+    /// excepted; `None`: not tested), else 0 (`filter.rs`).
+    #[pyo3(signature = (pose, points, margin, static_margin=None))]
     fn points_near<'py>(
         &self,
         py: Python<'py>,
         pose: &Bound<'py, PyAny>,
         points: &Bound<'py, PyAny>,
         margin: f64,
-        robot_only: bool,
-    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        static_margin: Option<f64>,
+    ) -> PyResult<Bound<'py, PyArray1<u8>>> {
         let model = &self.model;
         let q = pose_array(pose, model.njoint(), "pose")?;
         let q = rows_of(&q).into_owned();
         let points = point_rows(points, "points")?;
-        let near = py.detach(|| points_near_model(model, &q, &points, margin, robot_only)).map_err(to_py)?;
-        Ok(PyArray1::from_vec(py, near))
+        let kind = py.detach(|| points_near_model(model, &q, &points, margin, static_margin)).map_err(to_py)?;
+        Ok(PyArray1::from_vec(py, kind))
     }
 
     #[getter]

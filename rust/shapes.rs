@@ -273,8 +273,9 @@ impl SupportMap for Convex {
 }
 
 impl PointDistance for Convex {
-    /// Closed forms for the primitives; for a hull, the face planes, then GJK (`cloud.rs`).
-    fn point_sd(&self, p: &Vector3<f64>, bound: f64) -> std::result::Result<f64, f64> {
+    /// Closed forms for the primitives; for a hull, the face planes (exact inside, a lower bound
+    /// outside, which `exact: false` takes), then GJK (`cloud.rs`).
+    fn point_sd(&self, p: &Vector3<f64>, bound: f64, exact: bool) -> std::result::Result<f64, f64> {
         Ok(match self {
             Convex::Ball(b) => p.norm() - b.radius,
             Convex::Cuboid(c) => box_sd(p, &c.half_extents),
@@ -293,17 +294,33 @@ impl PointDistance for Convex {
                 out + radial.max(axial).min(0.0)
             }
             Convex::Hull(h) => {
-                // The largest face-plane distance: exact inside (the nearest boundary point of a
-                // convex polytope lies on a face's plane), a lower bound outside.
-                let planes = h.planes();
-                let mut m = f64::NEG_INFINITY;
-                for (n, d) in planes {
-                    m = m.max(n.dot(p) - d);
+                let over = bound + 1e-9 * (1.0 + bound.abs());
+                // A separating axis first: along the unit `n` from the hull's centre to the point,
+                // `n·p − max_{x∈H} n·x` (the support point, by hill climbing) is at most the
+                // distance whenever it is positive, for any `n`.
+                let c = h.centre();
+                if let Some(n) = (p - c).try_normalize(1e-12) {
+                    let sep = n.dot(p) - n.dot(&h.support_point(&n).coords);
+                    if sep > over {
+                        return Err(sep);
+                    }
+                    if sep > 0.0 && !exact {
+                        return Ok(sep);
+                    }
                 }
-                if m <= 0.0 {
+                // The largest face-plane distance: exact inside (the nearest boundary point of a
+                // convex polytope lies on a face's plane), a lower bound outside; one plane above
+                // `bound` already decides.
+                let mut m = f64::NEG_INFINITY;
+                for (n, d) in h.planes() {
+                    let v = n.dot(p) - d;
+                    if v > over {
+                        return Err(v);
+                    }
+                    m = m.max(v);
+                }
+                if m <= 0.0 || !exact {
                     m
-                } else if m - 1e-9 * (1.0 + m) > bound {
-                    return Err(m);
                 } else {
                     let proj = local_point_projection_on_support_map(self, &mut VoronoiSimplex::new(), &Point3::from(*p), true);
                     // (GJK stops within its tolerance; the plane bound is exact arithmetic's.)

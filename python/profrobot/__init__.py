@@ -43,6 +43,7 @@ from .oracle import NearestFree, nearest_free  # noqa: E402
 from .planning import PathResult, plan_path  # noqa: E402
 from .ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
+from .pointcloud import PointCloud  # noqa: E402
 from . import family  # noqa: E402
 from .family import Moves  # noqa: E402
 
@@ -59,13 +60,16 @@ _LAZY = {
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
     "pose_from_text": ".inverse", "TextResult": ".inverse", "actions_from_video": ".inverse",
     "estimate_layout": ".layouts", "LayoutEstimate": ".layouts",
+    "cloud_from_depth": ".clouds", "CloudBuild": ".clouds",
 }
 _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
-                "inverse", "scorers", "certification", "validate", "angles", "layouts", "margin")
+                "inverse", "scorers", "certification", "validate", "angles", "layouts", "margin", "clouds",
+                "pointcloud")
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
     "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "family", "Moves",
+    "PointCloud", "pointcloud", "clouds", "cloud_from_depth", "CloudBuild",
     "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",

@@ -10,6 +10,10 @@ with ``mujoco.MjSpec``. ``load(name)`` returns a :class:`profrobot.Robot`.
 | vx300s_clutter  | ViperX 300 S       | floor, sphere, capsule, cylinder               | primitives         |
 | panda_shelf     | Panda + hand       | floor, two-shelf rack, a mesh wedge            | mesh obstacle      |
 
+The point-cloud bench's true scene (not in ``names()``: its objects are what a depth camera
+sees, :mod:`profrobot.pointcloud`), ``panda_clutter()``: the Panda on the floor among seven objects,
+four of them meshes (a crate, a rock, a wedge, an overhead beam), a ball, a can and a post.
+
 Families of scenes (:mod:`profrobot.family`: obstacles on scene joints δ), ``family_names()``:
 
 | name                | robot        | movable obstacles                                                  |
@@ -95,6 +99,32 @@ def panda_shelf() -> Robot:
         Box(pos=(0.60, 0.36, 0.40), half_size=(0.15, 0.015, 0.40), name="shelf_side"),
         Mesh(pos=(0.0, -0.5, 0.0), vertices=wedge, name="wedge"),
     ], "panda_shelf")
+
+
+def _rock(radius: float, seed: int) -> np.ndarray:
+    """An irregular convex "rock": 40 points on an ellipsoid, jittered (seeded)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(40, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d * radius * np.array([1.0, 0.8, 0.6]) * rng.uniform(0.85, 1.0, size=(40, 1))
+
+
+def panda_clutter() -> Robot:
+    """The Panda on the floor among seven objects nobody modelled for it (the point-cloud
+    bench's ground truth): meshes (a yawed crate, a rock, a wedge, an overhead beam) and
+    primitives (a ball, a can, a post)."""
+    wedge = np.array([[-0.08, -0.1, 0], [0.08, -0.1, 0], [0.08, 0.1, 0], [-0.08, 0.1, 0], [-0.08, -0.1, 0.14], [-0.08, 0.1, 0.14]])
+    return _scene("franka_emika_panda", "panda", [
+        FLOOR,
+        Mesh(pos=(0.50, 0.30, 0.08), quat=(math.cos(0.35 / 2), 0, 0, math.sin(0.35 / 2)), vertices=box_mesh((0.12, 0.09, 0.08)),
+             name="crate"),
+        Mesh(pos=(0.38, 0.02, 0.05), vertices=_rock(0.07, 7), name="rock"),
+        Mesh(pos=(0.62, -0.28, 0.0), vertices=wedge, name="wedge"),
+        Mesh(pos=(0.55, 0.0, 0.62), vertices=box_mesh((0.05, 0.45, 0.03)), name="beam"),
+        Sphere(pos=(0.68, 0.05, 0.07), radius=0.07, name="ball"),
+        Cylinder(pos=(0.40, -0.25, 0.10), radius=0.045, half_length=0.10, name="can"),
+        Capsule(pos=(0.22, 0.42, 0.30), radius=0.03, half_length=0.27, name="post"),
+    ], "panda_clutter")
 
 
 #: how panda_blocks_moving's blocks move: ±15 cm along x and y, ±45° about z
