@@ -139,12 +139,30 @@ class RobotModel:
         :func:`interpolate` replays between its ends. Same seed, same path, for any thread count."""
     def sample(self, n: int, seed: int, threads: int | None = None) -> npt.NDArray[np.float64]:
         """(n, K) uniform poses within the sampling ranges; identical for any thread count."""
+    def with_cloud(self, points: npt.NDArray[np.float64] | None, radius: npt.NDArray[np.float64] | None,
+                   margin: float = 0.0, contype: int = 1, conaffinity: int = 1) -> RobotModel:
+        """This model with the point cloud ``points`` (N, 3) world metres of radii ``radius`` (N,)
+        metres instead of its own (both None: no cloud; ``rust/cloud.rs``): one more geom, MuJoCo
+        id -1 in :meth:`pairs`, its balls with geom ``margin`` and MuJoCo's contact filter. The
+        MuJoCo geoms' shapes are shared, not built again. InputError for NaN points or negative
+        radii, naming the entry."""
+    def points_near(self, pose: npt.NDArray[np.float64], points: npt.NDArray[np.float64], margin: float,
+                    static_margin: float | None = None) -> npt.NDArray[np.uint8]:
+        """(N,) per point of ``points`` (N, 3, world metres) at ``pose`` (1, K): 1 within
+        ``margin`` metres of a robot geom, else 2 within ``static_margin`` of another geom (the
+        point cloud excepted; None: not tested), else 0 (``rust/filter.rs``: exact)."""
 
 def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], steps: int,
                 continuous: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
     """(B, steps, K) poses from (B, K) start to goal, both ends included: shortest arc where
     ``continuous`` (K,) (``start + t * wrap(goal - start)``, not wrapped itself; a half turn
     moves the negative way), straight otherwise."""
+
+def voxel_downsample(points: npt.NDArray[np.float64], radius: npt.NDArray[np.float64],
+                     voxel: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Conservative voxel downsampling of the balls ``points`` (N, 3) / ``radius`` (N,) metres by
+    ``voxel``-metre cubes: ``(centres (M, 3), radii (M,))``, each kept ball about its group's mean
+    reaching every ball of the group; groups in order of their first ball."""
 
 
 _Float = npt.NDArray[np.float32] | npt.NDArray[np.float64]

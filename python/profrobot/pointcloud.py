@@ -50,7 +50,7 @@ def _radius_value(radius, n: int) -> np.ndarray:
     bad = np.flatnonzero(~np.isfinite(r) | (r < 0))
     if len(bad):
         i = int(bad[0])
-        raise InputError(f"radius[{i}] is {r[i]!r}; radii must be finite and >= 0 metres")
+        raise InputError(f"radius[{i}] is {float(r[i])}; radii must be finite and >= 0 metres")
     return r
 
 
@@ -77,7 +77,7 @@ class PointCloud:
         bad = np.argwhere(~np.isfinite(p))
         if len(bad):
             i, j = (int(v) for v in bad[0])
-            raise InputError(f"points[{i}, {j}] is {p[i, j]!r}; cloud points must be finite")
+            raise InputError(f"points[{i}, {j}] is {float(p[i, j])}; cloud points must be finite")
         r = _radius_value(radius, len(p))
         p.setflags(write=False)
         r.setflags(write=False)
