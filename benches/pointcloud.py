@@ -41,7 +41,7 @@ from profrobot import scenes
 from profrobot.clouds import cloud_from_depth, cloud_picture, self_filter
 from profrobot.crosscheck import mujoco_labels
 from profrobot.labels import so2_steps
-from profrobot.layouts.depth import DEFAULT_GEOMGROUP, backproject, expected_depth, pixel_rays
+from profrobot.layouts.depth import DEFAULT_GEOMGROUP, backproject, expected_depth
 from profrobot.problems import hard_pairs
 from profrobot.render import Cameras, render_depth
 
@@ -101,7 +101,7 @@ def main() -> None:
     ap.add_argument("--max-time", type=float, default=10.0)
     args = ap.parse_args()
     OUT.mkdir(exist_ok=True)
-    lines = [f"# Point-cloud obstacles (`python benches/pointcloud.py`)", "",
+    lines = ["# Point-cloud obstacles (`python benches/pointcloud.py`)", "",
              f"load average {os.getloadavg()[0]:.2f} at the start; {os.cpu_count()} cores", ""]
 
     def say(s: str = "") -> None:

@@ -439,13 +439,13 @@ pub fn voxel_downsample(centres: &[[f64; 3]], radius: &[f64], voxel: f64) -> Res
 mod tests {
     use super::*;
     use crate::shapes::{Convex, GeomShape, GeomType, Solid};
-    use parry3d_f64::query::PointQuery;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
     fn random_cloud(n: usize, seed: u64, r: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let c: Vec<[f64; 3]> = (0..n).map(|_| [rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.3..0.3)]).collect();
+        let c: Vec<[f64; 3]> =
+            (0..n).map(|_| [rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), rng.random_range(-0.3..0.3)]).collect();
         let rad = (0..n).map(|_| rng.random::<f64>() * r).collect();
         (c, rad)
     }

@@ -222,7 +222,13 @@ impl RobotModel {
             }
             if let Some(old) = reuse {
                 let o = &old.geoms[g];
-                geoms.push(Geom { mujoco_id: o.mujoco_id, body: o.body, local: o.local, shape: Arc::clone(&o.shape), on_robot: on_robot(b as usize) });
+                geoms.push(Geom {
+                    mujoco_id: o.mujoco_id,
+                    body: o.body,
+                    local: o.local,
+                    shape: Arc::clone(&o.shape),
+                    on_robot: on_robot(b as usize),
+                });
                 continue;
             }
             let gtype = GeomType::from_mujoco(desc.geom_type[g], desc.geom_id[g])?;

@@ -106,7 +106,13 @@ mod tests {
                 let kind = GeomType::from_mujoco(desc.geom_type[g], desc.geom_id[g]).unwrap();
                 let (shape, _) = GeomShape::new(kind, desc.geom_size[g], &[], desc.geom_id[g]).unwrap();
                 let body = desc.geom_body[g] as usize;
-                Geom { mujoco_id: desc.geom_id[g], body, local: Isometry3::identity(), shape: std::sync::Arc::new(shape), on_robot: body != 0 }
+                Geom {
+                    mujoco_id: desc.geom_id[g],
+                    body,
+                    local: Isometry3::identity(),
+                    shape: std::sync::Arc::new(shape),
+                    on_robot: body != 0,
+                }
             })
             .collect()
     }

@@ -11,8 +11,8 @@ use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyBytes, PyDict, PyTuple, PyType};
 
-use crate::collide::{label_batch, LabelOptions};
 use crate::cloud::voxel_downsample as downsample;
+use crate::collide::{label_batch, LabelOptions};
 use crate::couplings::Coupling;
 use crate::desc::{CloudDesc, ModelDesc};
 use crate::error::Error;
@@ -184,7 +184,8 @@ fn point_rows(points: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<[f64; 3]>> 
 
 /// `radius` as a `(N,)` float64 vector, or an error naming it.
 fn radius_vec(radius: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<f64>> {
-    let r: PyReadonlyArray1<f64> = radius.extract().map_err(|_| type_error(format!("radius must be a 1-D float64 numpy array of shape ({n},)")))?;
+    let r: PyReadonlyArray1<f64> =
+        radius.extract().map_err(|_| type_error(format!("radius must be a 1-D float64 numpy array of shape ({n},)")))?;
     if r.len() != n {
         return Err(input_error(format!("radius must have shape ({n},); got ({},)", r.len())));
     }

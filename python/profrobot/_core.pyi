@@ -21,7 +21,7 @@ from typing import Literal, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "RenderState", "render_forward", "render_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "voxel_downsample", "RenderState", "render_forward", "render_backward",
            "__version__"]
 
 __version__: str
