@@ -87,6 +87,19 @@ pub struct Cloud {
     nodes: Vec<Node>,
 }
 
+/// What `Cloud::walk` hands its visitor: a node's lower bound, or a leaf's balls (tree positions).
+enum Visit {
+    Node(f64),
+    Leaf(std::ops::Range<usize>),
+}
+
+/// The visitor's answer: skip the node's subtree, enter it (go on past a leaf), or stop.
+enum Flow {
+    Skip,
+    Enter,
+    Stop,
+}
+
 /// What [`Cloud::nearest`] found: `value` is the least `sd(c, G) − r` when it is below the
 /// search's bound, else a lower bound above the bound; `ball` the ball that gave it, by its
 /// position in the tree ([`Cloud::ball`]; `None` when the value is a bound).
@@ -193,67 +206,73 @@ impl Cloud {
             }
         }
         let mut skipped = f64::INFINITY;
-        let mut i = 0usize;
-        while i < self.nodes.len() {
-            let node = &self.nodes[i];
-            let limit = best.value.min(bound);
-            let lb = slacked(probe.node_bound(node));
-            if lb > limit {
+        self.walk(probe, |visit| match visit {
+            Visit::Node(lb) if lb > best.value.min(bound) => {
                 skipped = skipped.min(lb);
-                i = node.skip as usize;
-                continue;
+                Flow::Skip
             }
-            if !node.is_leaf() {
-                i += 1;
-                continue;
-            }
-            for t in node.start as usize..node.end as usize {
-                let limit = best.value.min(bound);
-                let (c, r) = (Vector3::new(self.x[t], self.y[t], self.z[t]), self.r[t]);
-                match probe.ball_distance(&c, r, limit, exact) {
-                    Err(lb) => skipped = skipped.min(lb),
-                    Ok(d) if d < best.value => {
-                        best = Nearest { value: d, ball: Some(t as u32) };
-                        if d < stop {
-                            return best;
+            Visit::Node(_) => Flow::Enter,
+            Visit::Leaf(balls) => {
+                for t in balls {
+                    let limit = best.value.min(bound);
+                    let c = Vector3::new(self.x[t], self.y[t], self.z[t]);
+                    match probe.ball_distance(&c, self.r[t], limit, exact) {
+                        Err(lb) => skipped = skipped.min(lb),
+                        Ok(d) if d < best.value => {
+                            best = Nearest { value: d, ball: Some(t as u32) };
+                            if d < stop {
+                                return Flow::Stop;
+                            }
                         }
+                        Ok(_) => {}
                     }
-                    Ok(_) => {}
                 }
+                Flow::Enter
             }
-            i = node.skip as usize;
-        }
-        if skipped < best.value {
-            Nearest { value: skipped, ball: None }
-        } else {
+        });
+        if best.value < stop || skipped >= best.value {
             best
+        } else {
+            Nearest { value: skipped, ball: None }
         }
     }
 
     /// Sets `near[i]` for every ball `i` (input order) with `sd(c, G) − r ≤ bound`.
     pub fn mark_within<S: PointDistance>(&self, probe: &Probe<S>, bound: f64, near: &mut [bool]) {
+        self.walk(probe, |visit| match visit {
+            Visit::Node(lb) if lb > bound => Flow::Skip,
+            Visit::Node(_) => Flow::Enter,
+            Visit::Leaf(balls) => {
+                for t in balls {
+                    let j = self.index[t] as usize;
+                    if !near[j] {
+                        let c = Vector3::new(self.x[t], self.y[t], self.z[t]);
+                        near[j] = probe.ball_distance(&c, self.r[t], bound, true).is_ok_and(|d| d <= bound);
+                    }
+                }
+                Flow::Enter
+            }
+        });
+    }
+
+    /// Depth first over the tree: each node's lower bound (`Probe::node_bound`, slacked) goes to
+    /// `f` as `Visit::Node`, whose `Flow::Skip` skips its subtree; each leaf entered goes to `f` as
+    /// its balls' tree positions; `Flow::Stop` ends the walk.
+    fn walk<S: PointDistance>(&self, probe: &Probe<S>, mut f: impl FnMut(Visit) -> Flow) {
         let mut i = 0usize;
         while i < self.nodes.len() {
             let node = &self.nodes[i];
-            if slacked(probe.node_bound(node)) > bound {
-                i = node.skip as usize;
-                continue;
-            }
-            if !node.is_leaf() {
-                i += 1;
-                continue;
-            }
-            for t in node.start as usize..node.end as usize {
-                let j = self.index[t] as usize;
-                if near[j] {
-                    continue;
-                }
-                let c = Vector3::new(self.x[t], self.y[t], self.z[t]);
-                if let Ok(d) = probe.ball_distance(&c, self.r[t], bound, true) {
-                    near[j] = d <= bound;
+            match f(Visit::Node(slacked(probe.node_bound(node)))) {
+                Flow::Stop => return,
+                Flow::Skip => i = node.skip as usize,
+                Flow::Enter if !node.is_leaf() => i += 1,
+                Flow::Enter => {
+                    if let Flow::Stop = f(Visit::Leaf(node.start as usize..node.end as usize)) {
+                        return;
+                    }
+                    i = node.skip as usize;
                 }
             }
-            i = node.skip as usize;
         }
     }
 

@@ -15,7 +15,7 @@ import profrobot
 from profrobot import problems, scenes
 from profrobot.crosscheck import mujoco_labels
 from profrobot.layouts import backproject, estimate_layout
-from profrobot.layouts.depth import expected_depth
+from profrobot.layouts.depth import cast_depth as depth_by_rays
 from profrobot.render import Cameras
 
 NOISE = (0.002, 0.005)
@@ -42,16 +42,9 @@ CLUTTER_CAMS = ([(1.25, -0.85, 1.0), (0.95, 1.15, 1.1)], [(0.2, 0.05, 0.15), (0.
 
 def cast_depth(family, theta, delta, cams) -> np.ndarray:
     """Depth (C, H, W) of the whole scene by MuJoCo's ray caster (no GL): each pixel centre's ray."""
-    m = family.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[:] = m.qpos0
-    d.qpos[family.qpos_adr] = family.compose(theta, delta)
-    mujoco.mj_kinematics(m, d)
-    out = []
-    for c in range(len(cams)):
-        z, _ = expected_depth(m, d, cams, c)
-        out.append(np.where(np.isfinite(z), z, 0.0).reshape(cams.height, cams.width))
-    return np.stack(out)
+    qpos = family.mj_model.qpos0.copy()
+    qpos[family.qpos_adr] = family.compose(theta, delta)
+    return depth_by_rays(family.mj_model, qpos, cams)
 
 
 def noisy(depth, seed):

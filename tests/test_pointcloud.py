@@ -14,7 +14,7 @@ import profrobot
 from profrobot import scenes
 from profrobot.clouds import cloud_from_depth, cloud_picture, self_filter
 from profrobot.crosscheck import mujoco_labels
-from profrobot.layouts.depth import backproject, expected_depth
+from profrobot.layouts.depth import backproject, cast_depth, expected_depth
 from profrobot.pointcloud import PointCloud, reference_model
 from profrobot.render import Cameras
 
@@ -172,26 +172,15 @@ def test_cloud_robot_pickles_and_labels_alike(cloudy):
     assert pickle.loads(pickle.dumps(cloudy.cloud)) == cloudy.cloud
 
 
-def cast_depth(robot, q, cams) -> np.ndarray:
-    """Depth (C, H, W) of the whole scene by MuJoCo's ray caster (no GL)."""
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[robot.qpos_adr] = q
-    mujoco.mj_kinematics(m, d)
-    out = []
-    for c in range(len(cams)):
-        z, _ = expected_depth(m, d, cams, c)
-        out.append(np.where(np.isfinite(z), z, 0.0).reshape(cams.height, cams.width))
-    return np.stack(out)
-
-
 def test_depth_to_cloud_removes_the_robot_and_covers_the_objects(tmp_path):
     true = scenes.panda_clutter()
     base = profrobot.Robot.from_menagerie("franka_emika_panda", "panda").with_obstacles([scenes.FLOOR])
     K = np.array([[[131.0, 0, 80.6], [0, 131.7, 59.1], [0, 0, 1]], [[125.5, 0, 78.8], [0, 125.1, 60.9], [0, 0, 1]]])
     cams = Cameras.look_at([(1.6, -0.9, 1.2), (-0.6, 0.9, 1.5)], [(0.45, 0.0, 0.2), (0.45, 0.0, 0.15)],
                            width=160, height=120, K=K)
-    depth = cast_depth(true, Q0, cams)
+    qpos = true.mj_model.qpos0.copy()
+    qpos[true.qpos_adr] = Q0
+    depth = cast_depth(true.mj_model, qpos, cams)
     build = cloud_from_depth(base, depth, cams, pose=Q0)
     assert build.robot_points > 500 and len(build.cloud) > 300, build.summary()
     # no robot pixel survives: the robot's own points are those its ray meets first

@@ -28,7 +28,7 @@ from ..errors import InputError, InputTypeError
 from ..render.cameras import Cameras
 from ..render.distortion import undistort_images
 
-__all__ = ["DepthPoints", "check_depth", "backproject", "pixel_rays", "expected_depth", "DEFAULT_GEOMGROUP"]
+__all__ = ["DepthPoints", "check_depth", "backproject", "pixel_rays", "expected_depth", "cast_depth", "DEFAULT_GEOMGROUP"]
 
 #: the geom groups MuJoCo's renderer draws by default (``mjvOption.geomgroup``): what a depth
 #: camera sees of a model whose collision geoms sit in group 3
@@ -129,3 +129,18 @@ def expected_depth(model: mujoco.MjModel, data: mujoco.MjData, cameras: Cameras,
                        1, -1, geomid, dist, None, n, 1e6)
     z = np.where(geomid >= 0, dist / length, np.inf)
     return z, geomid
+
+
+def cast_depth(model: mujoco.MjModel, qpos, cameras: Cameras, geomgroup=DEFAULT_GEOMGROUP) -> np.ndarray:
+    """Depth images (C, H, W) metres of ``model`` at ``qpos`` (its full ``nq`` vector) from
+    ``cameras``, by MuJoCo's ray caster (:func:`expected_depth`, each pixel centre's ray; no
+    OpenGL): 0 where a ray meets nothing. A renderer-free stand-in for a depth camera (pinhole)."""
+    d = mujoco.MjData(model)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(model, d)
+    out = []
+    for c in range(len(cameras)):
+        z, _ = expected_depth(model, d, cameras, c, geomgroup)
+        out.append(np.where(np.isfinite(z), z, 0.0).reshape(cameras.height, cameras.width))
+    return np.stack(out)
+
