@@ -242,6 +242,9 @@ fn rows_of<'a, T: numpy::Element + Copy, D: numpy::ndarray::Dimension>(a: &'a nu
 /// `RobotModel.pairs()`: geom ids `(P, 2)`, is-self `(P,)`, margin `(P,)`.
 type PairArrays<'py> = (Bound<'py, PyArray2<i32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<f64>>);
 
+/// `voxel_downsample()`: centres `(M, 3)`, radii `(M,)`.
+type Balls<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>);
+
 /// `RobotModel.forward_kinematics()`: xpos `(B, nbody, 3)`, xquat `(B, nbody, 4)`.
 type FrameArrays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>);
 
@@ -666,12 +669,7 @@ fn interpolate<'py>(
 
 /// Conservative voxel downsampling (`cloud::voxel_downsample`): `(points (M, 3), radius (M,))`.
 #[pyfunction]
-fn voxel_downsample<'py>(
-    py: Python<'py>,
-    points: &Bound<'py, PyAny>,
-    radius: &Bound<'py, PyAny>,
-    voxel: f64,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+fn voxel_downsample<'py>(py: Python<'py>, points: &Bound<'py, PyAny>, radius: &Bound<'py, PyAny>, voxel: f64) -> PyResult<Balls<'py>> {
     let p = point_rows(points, "points")?;
     let r = radius_vec(radius, p.len())?;
     let (m, mr) = py.detach(|| downsample(&p, &r, voxel)).map_err(to_py)?;
