@@ -136,7 +136,6 @@ def main() -> None:
     flat = np.concatenate([np.flatnonzero(depth[c].ravel() > 0) + c * depth[c].size for c in range(len(cams))])
     robot_pix = robot_pixels(true, depth, cams)[flat]
     kept_robot = int((robot_pix & ~removed).sum())
-    # how far the robot's kept points (if any) are from its geoms: exact, by the filter at growing margins
     say(f"## Self-filter\n\n{int(robot_pix.sum())} pixels see the robot; {kept_robot} of them kept after the filter "
         f"(margin 2 cm); {int((own & ~robot_pix).sum())} other pixels removed as the robot's (points within 2 cm of it)\n")
 

@@ -114,18 +114,7 @@ impl Cloud {
     /// non-finite centres or radii, negative radii, lengths that differ, more than 2³² − 1 balls.
     /// An empty cloud is allowed (it is free space).
     pub fn new(centres: &[[f64; 3]], radius: &[f64]) -> Result<Self> {
-        if radius.len() != centres.len() {
-            return invalid_input(format!("{} cloud points but {} radii", centres.len(), radius.len()));
-        }
-        if centres.len() >= u32::MAX as usize {
-            return invalid_input(format!("{} cloud points is too many (at most {})", centres.len(), u32::MAX - 1));
-        }
-        if let Some(i) = centres.iter().position(|c| c.iter().any(|v| !v.is_finite())) {
-            return invalid_input(format!("cloud point {i} is not finite ({:?})", centres[i]));
-        }
-        if let Some(i) = radius.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
-            return invalid_input(format!("cloud radius {i} is {}; radii must be finite and >= 0", radius[i]));
-        }
+        check_balls(centres, radius)?;
         let mut order: Vec<u32> = (0..centres.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * centres.len() / LEAF + 1);
         if !centres.is_empty() {
@@ -290,6 +279,24 @@ impl Cloud {
     }
 }
 
+/// `Ok` for balls a cloud can hold: as many radii as centres, fewer than 2³² − 1 of them, finite
+/// centres, finite radii ≥ 0; else an error naming the first bad entry.
+fn check_balls(centres: &[[f64; 3]], radius: &[f64]) -> Result<()> {
+    if radius.len() != centres.len() {
+        return invalid_input(format!("{} cloud points but {} radii", centres.len(), radius.len()));
+    }
+    if centres.len() >= u32::MAX as usize {
+        return invalid_input(format!("{} cloud points is too many (at most {})", centres.len(), u32::MAX - 1));
+    }
+    if let Some(i) = centres.iter().position(|c| c.iter().any(|v| !v.is_finite())) {
+        return invalid_input(format!("cloud point {i} is not finite ({:?})", centres[i]));
+    }
+    if let Some(i) = radius.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+        return invalid_input(format!("cloud radius {i} is {}; radii must be finite and >= 0", radius[i]));
+    }
+    Ok(())
+}
+
 /// Builds the subtree over `order` (balls `start..start + order.len()` in tree order).
 fn build(nodes: &mut Vec<Node>, order: &mut [u32], c: &[[f64; 3]], r: &[f64], start: usize) {
     let me = nodes.len();
@@ -391,11 +398,6 @@ impl<'a, S: PointDistance> Probe<'a, S> {
             Err(lb) => Err(slacked(lb - r)),
         }
     }
-
-    /// The geom's frame in the cloud's frame.
-    pub fn pose(&self) -> &Isometry3<f64> {
-        &self.pose
-    }
 }
 
 /// Signed distance from `p` to the box `±h` (negative inside: minus the depth).
@@ -414,17 +416,7 @@ pub fn voxel_downsample(centres: &[[f64; 3]], radius: &[f64], voxel: f64) -> Res
     if !(voxel.is_finite() && voxel > 0.0) {
         return invalid_input(format!("voxel must be a positive number of metres; got {voxel}"));
     }
-    // (validates like the cloud itself)
-    Cloud::new(&[], &[])?;
-    if radius.len() != centres.len() {
-        return invalid_input(format!("{} cloud points but {} radii", centres.len(), radius.len()));
-    }
-    if let Some(i) = centres.iter().position(|c| c.iter().any(|v| !v.is_finite())) {
-        return invalid_input(format!("cloud point {i} is not finite ({:?})", centres[i]));
-    }
-    if let Some(i) = radius.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
-        return invalid_input(format!("cloud radius {i} is {}; radii must be finite and >= 0", radius[i]));
-    }
+    check_balls(centres, radius)?;
     let cell = |p: &[f64; 3]| p.map(|v| (v / voxel).floor() as i64);
     let mut group: std::collections::HashMap<[i64; 3], usize> = std::collections::HashMap::with_capacity(centres.len() / 4);
     let mut of = Vec::with_capacity(centres.len());

@@ -184,7 +184,6 @@ def reference_model(robot) -> mujoco.MjModel:
     ids[first:first + n] = CLOUD_GEOM_ID
     ids[first + n:] -= n
     robot.__dict__["_reference_model"] = model
-    robot.__dict__["_reference_balls"] = balls
     robot.__dict__["_reference_ids"] = ids
     return model
 
@@ -193,8 +192,7 @@ def cloud_geom_ids(robot) -> np.ndarray:
     """The MuJoCo geom ids of the cloud's balls in :func:`reference_model` (empty without a cloud)."""
     if getattr(robot, "cloud", None) is None or not len(robot.cloud):
         return np.zeros(0, dtype=np.int64)
-    reference_model(robot)
-    return robot.__dict__["_reference_balls"]
+    return np.flatnonzero(robot_geom_ids(robot) == CLOUD_GEOM_ID)
 
 
 def robot_geom_ids(robot) -> np.ndarray:

@@ -41,6 +41,10 @@ CLEARANCE = 1e-6
 
 _STATE_FORMAT = "profrobot.Robot/1"
 
+#: what a Robot keeps for itself only: derived scenes (at(), with_margin()) and the MuJoCo reference
+#: with its point cloud (pointcloud.reference_model); left out of copies, derived robots and pickles
+_CACHES = ("_layouts", "_margins", "_reference_model", "_reference_ids")
+
 
 # --------------------------------------------------------------------------------------------
 # Robot
@@ -633,7 +637,7 @@ class Robot:
             cloud = PointCloud(points, 0.005 if radius is None else radius)
         new = object.__new__(type(self))
         new.__dict__.update({k: v for k, v in self.__dict__.items()
-                             if k not in ("_layouts", "_margins", "_reference_model", "_reference_balls", "_reference_ids")})
+                             if k not in _CACHES})
         arrays = {k: v for k, v in self._arrays.items() if not k.startswith("cloud_")}
         if cloud is not None and len(cloud):
             arrays.update(cloud.core_arrays(self.margin))
@@ -959,7 +963,7 @@ class Robot:
         about 6 MB (the meshes' files, compressed).
         """
         state = {k: v for k, v in self.__dict__.items()
-                 if k not in ("_mj_model", "_spec", "_source", "_layouts", "_margins", "_reference_model", "_reference_balls", "_reference_ids")}
+                 if k not in ("_mj_model", "_spec", "_source") + _CACHES}
         source = self._source
         if source is not None and not isinstance(source.root, _Mjcf):
             try:
@@ -999,11 +1003,9 @@ class Robot:
         new = object.__new__(type(self))
         memo[id(self)] = new
         for key, value in self.__dict__.items():
-            if key in ("_layouts", "_margins"):  # caches
-                value = {}
-            elif key in ("_reference_model", "_reference_balls", "_reference_ids"):  # compiled again on first use
+            if key in _CACHES:  # built again on first use
                 continue
-            elif key == "_spec":
+            if key == "_spec":
                 value = None if value is None else value.copy()
             elif key != "_source":  # immutable; its root may be an MjSpec, which deepcopy cannot copy
                 value = copy.deepcopy(value, memo)
