@@ -317,3 +317,42 @@ def test_revolute_without_limits_is_continuous_and_xacro_is_refused(files):
                                        '<xacro:property name="r" value="0.1"/>'))
     with pytest.raises(InputError, match="xacro"):
         Robot.from_urdf(path, package_dirs=dirs)
+
+
+def test_unphysical_inertias_load_balanced_or_replaced_and_named_in_the_report(files):
+    # issue 37: UFactory's xArm6 URDF has links whose principal moments break A + B >= C, which
+    # MuJoCo's compiler refuses; labels do not depend on inertia, so such files load, and the
+    # collision report names each link changed and how
+    text = arm_urdf().replace(
+        '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>',
+        '<inertia ixx="0.001" iyy="0.0012" izz="0.01" ixy="0.0001" ixz="0" iyz="0"/>').replace(
+        '<link name="l2">',
+        '<link name="l2"><inertial><mass value="0.5"/><inertia ixx="0.01" iyy="-0.002" izz="0.01" ixy="0" ixz="0" '
+        'iyz="0"/></inertial>')
+    path = files / "robot" / "inertia.urdf"
+    path.write_text(text)
+    plain = files / "robot" / "inertia_plain.urdf"   # MuJoCo's own compile, meshes as paths: refused
+    plain.write_text(text.replace("package://mypkg/meshes/link.stl", "../ws/mypkg/meshes/link.stl").replace(
+        '<visual><geometry><mesh filename="package://mypkg/meshes/base_visual.dae"/></geometry></visual>', ""))
+    with pytest.raises(ValueError, match="A \\+ B >= C"):
+        mujoco.MjModel.from_xml_path(str(plain))
+
+    robot = Robot.from_urdf(path, package_dirs={"mypkg": files / "ws" / "mypkg"})
+    report = robot.collision_report()
+    assert "l1: principal moments" in report and "balanceinertia" in report, report
+    assert "l2: principal moments" in report and "not all positive; replaced by diag(" in report, report
+    assert "finger_a" not in report.split("inertias")[1].split("collisions")[0]   # only the links changed
+    m = robot.mj_model
+    l1, l2 = robot.body_names.index("l1"), robot.body_names.index("l2")
+    np.testing.assert_allclose(m.body_inertia[l1], np.full(3, m.body_inertia[l1].mean()))   # balanced
+    assert (m.body_inertia[l2] > 0).all()
+    poses = profrobot.sample_poses(robot, N_CHECK, seed=5)
+    assert profrobot.crosscheck(robot, poses, progress=False).agreement == 1.0
+    np.testing.assert_array_equal(profrobot.collides(robot, poses),
+                                  profrobot.collides(pickle.loads(pickle.dumps(robot)), poses))
+
+    # a file that asks for MuJoCo's refusal gets it, naming the link
+    path.write_text(text.replace('<robot name="toyarm">',
+                                 '<robot name="toyarm"><mujoco><compiler balanceinertia="false"/></mujoco>'))
+    with pytest.raises(InputError, match="A \\+ B >= C.*l1"):
+        Robot.from_urdf(path, package_dirs={"mypkg": files / "ws" / "mypkg"})

@@ -433,8 +433,8 @@ class Robot:
 
         ``package_dirs``: where ``package://pkg/...`` meshes live, as ``{"pkg": "/path/to/pkg"}``
         or a list of folders that contain ``pkg/``; then ``ROS_PACKAGE_PATH``,
-        ``AMENT_PREFIX_PATH`` (``share/pkg``) and a folder named ``pkg`` above the URDF are
-        tried. Relative mesh paths are relative to the URDF's folder. A mesh that cannot be found
+        ``AMENT_PREFIX_PATH`` (``share/pkg``), a folder named ``pkg`` above the URDF and, last,
+        one beside it (pybullet_data's layout) are tried. Relative mesh paths are relative to the URDF's folder. A mesh that cannot be found
         raises :class:`InputError` naming the URDF, the URI, where it looked and what to pass.
 
         Collision geometry only (MuJoCo's ``discardvisual``, unless the URDF's ``<mujoco>``
@@ -443,6 +443,8 @@ class Robot:
         ``robot.continuous``. A ``<mimic>`` joint becomes a MuJoCo joint equality
         (``polycoef = offset, multiplier``), enforced by ``sample_poses``' ``equalities="auto"``.
         Floating, planar and spherical joints are refused (profrobot labels fixed-base robots).
+        Inertias MuJoCo's compiler refuses (A + B < C, as in UFactory's xArm6, or a moment <= 0)
+        are balanced or replaced, and named in the collision report: labels do not depend on them.
 
         Collisions: by default the pairs are MuJoCo's (labels agree with MuJoCo's compile of the
         file), and link pairs that collide in >= 99 % of 2000 seeded uniform poses are warned
@@ -512,6 +514,9 @@ class Robot:
         lines = [f"{self.name}: from URDF {files.path} ({len(files.assets)} mesh file{'' if len(files.assets) == 1 else 's'}; links kept as bodies)"]
         cont = [j for j, c in zip(self.joint_names, self.continuous) if c]
         lines.append(f"  {self.njoint} joints; continuous: {', '.join(cont) or 'none'}")
+        if files.inertias:
+            lines.append("  inertias MuJoCo's compiler refuses, changed (labels do not depend on inertia):")
+            lines += [f"    {line}" for line in files.inertias]
         for joint, other, mult, offset in files.mimics:
             lines.append(f"  mimic: {joint} = {mult:g}·{other} {'-' if offset < 0 else '+'} {abs(offset):g} (a MuJoCo "
                          "joint equality)")

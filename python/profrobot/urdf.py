@@ -6,8 +6,8 @@ about URDF (and SRDF) rather than about MuJoCo models, and imports nothing of pr
 the errors (``robot.py`` imports it):
 
 - :func:`read_urdf`: the URDF text with every mesh it loads resolved to a real file
-  (``package://pkg/...`` through ``package_dirs``, ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``
-  or a folder named ``pkg`` above the URDF; ``file://`` URIs; paths relative to the URDF's
+  (``package://pkg/...`` through ``package_dirs``, ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``,
+  a folder named ``pkg`` above the URDF, or, last, one beside it (pybullet_data's layout); ``file://`` URIs; paths relative to the URDF's
   folder) and renamed to a flat asset name, the mesh bytes keyed by that name, and what MuJoCo's
   compiler cannot take (floating / planar / spherical joints, unlimited prismatic joints,
   unprocessed xacro) refused with the joint or file named;
@@ -21,7 +21,15 @@ URDF extension), each only where the file does not set it itself: ``fusestatic="
 link stays a body, so that the base link's contacts are self-collisions with a name that an
 ``<exclude>`` can use; MuJoCo's weld filters, hence which poses collide, are the same fused or
 not), ``boundmass="1e-6" boundinertia="1e-10"`` (links without ``<inertial>`` compile; masses
-decide no label). ``meshdir`` is dropped: every mesh name is already resolved.
+decide no label), ``balanceinertia="true"`` (see :func:`fix_inertias`). ``meshdir`` is
+dropped: every mesh name is already resolved.
+
+Inertias: vendors' URDFs often carry inertia tensors that are not physical (UFactory's xArm6
+``link2``: principal moments that break the triangle inequality A + B >= C, which MuJoCo's
+compiler refuses). Collision labels do not depend on mass or inertia, so such files load:
+triangle violations through MuJoCo's own ``balanceinertia`` (the principal moments set to their
+mean), tensors with a principal moment <= 0 or not finite replaced by a diagonal one, each link
+named in ``robot.collision_report()``.
 """
 
 from __future__ import annotations
@@ -118,6 +126,7 @@ class UrdfFiles:
     mimics: tuple[tuple[str, str, float, float], ...]
     meshes: dict[str, str] = field(default_factory=dict)   # asset name -> the URI the URDF gave
     notes: list[str] = field(default_factory=list)
+    inertias: list[str] = field(default_factory=list)   # links whose <inertia> MuJoCo could not take as given
 
 
 # --------------------------------------------------------------------------------------------
@@ -154,6 +163,9 @@ def _package_candidates(pkg: str, package_dirs, urdf_folder: str) -> list[tuple[
         if parent == here:
             break
         here = parent
+    # last: a folder named after the package beside the URDF (pybullet_data's franka_panda/panda.urdf
+    # names package://meshes/... for franka_panda/meshes/)
+    out.append((os.path.join(os.path.abspath(urdf_folder), pkg), "a folder beside the URDF"))
     return out
 
 
@@ -170,9 +182,10 @@ def _resolve(uri: str, urdf_path: str, package_dirs, meshdir: str = "", strip: b
         cands = _package_candidates(pkg, package_dirs, folder)
         found = [(d, why) for d, why in cands if os.path.isdir(d)]
         if not found:
-            looked = "; ".join(f"{d} ({why})" for d, why in cands) or (
-                "nowhere: package_dirs does not name it, ROS_PACKAGE_PATH and AMENT_PREFIX_PATH are unset, and no "
-                "folder above the URDF has its name")
+            looked = "; ".join(f"{d} ({why})" for d, why in cands)
+            if len(cands) == 1:
+                looked += ("; package_dirs does not name it, ROS_PACKAGE_PATH and AMENT_PREFIX_PATH are unset, and "
+                           "no folder above the URDF has its name")
             return None, (f"package {pkg!r} not found (looked in: {looked}). Pass package_dirs={{{pkg!r}: "
                           f"'/path/to/{pkg}'}} (the folder holding {rel.split('/')[0] or 'the meshes'}/), or a list "
                           f"of folders that contain a {pkg}/ folder")
@@ -236,6 +249,8 @@ def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
     discard = comp.get("discardvisual", "true").strip().lower() != "false"
     for key, value in (("fusestatic", "false"), ("boundmass", "1e-6"), ("boundinertia", "1e-10")):
         comp.attrib.setdefault(key, value)
+    balance = comp.attrib.setdefault("balanceinertia", "true").strip().lower() == "true"
+    inertias = fix_inertias(root, balance)
     meshdir = comp.attrib.pop("meshdir", "")
     strip = comp.get("strippath", "false").strip().lower() == "true"
 
@@ -295,7 +310,55 @@ def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
         raise InputError(f"{path}: " + "; ".join(problems))
     name = root.get("name") or os.path.splitext(os.path.basename(path))[0]
     xml = ET.tostring(root, encoding="unicode")
-    return UrdfFiles(path, name, xml, assets, os.path.dirname(path), tuple(mimics), meshes, notes)
+    return UrdfFiles(path, name, xml, assets, os.path.dirname(path), tuple(mimics), meshes, notes, inertias)
+
+
+_INERTIA = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+def fix_inertias(root: ET.Element, balance: bool) -> list[str]:
+    """Make every link's ``<inertial><inertia/>`` one MuJoCo's compiler takes, in place, and say
+    what was done, one line per link. Labels do not depend on inertia (module docs).
+
+    - principal moments (eigenvalues of the symmetric tensor) that break A + B >= C: left to
+      MuJoCo's ``balanceinertia`` (``balance``, the compiler setting, true unless the file sets
+      it false), which sets them to their mean: the check is MuJoCo's (strict, on the
+      principal moments), reported here;
+    - a principal moment <= 0, or an entry that is not a finite number: the tensor replaced by
+      the diagonal of its moments' mean magnitude (``boundinertia`` where that is 0), which
+      ``balanceinertia`` cannot do.
+    """
+    out = []
+    for link in root.findall("link"):
+        el = link.find("inertial/inertia")
+        if el is None:
+            continue
+        v = [_float(el, k) if el.get(k) is not None else 0.0 for k in _INERTIA]
+        lname = link.get("name", "?")
+        if any(x is None or not np.isfinite(x) for x in v):
+            bad = ", ".join(f"{k}={el.get(k)!r}" for k, x in zip(_INERTIA, v) if x is None or not np.isfinite(x))
+            _set_diagonal(el, 1e-10)
+            out.append(f"{lname}: inertia entries that are not finite numbers ({bad}); replaced by diag(1e-10) kg·m²")
+            continue
+        xx, xy, xz, yy, yz, zz = v
+        eig = np.linalg.eigvalsh(np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]))
+        moments = ", ".join(f"{x:.4g}" for x in eig)
+        if eig[0] <= 0:
+            mean = float(np.mean(np.abs(eig))) or 1e-10
+            _set_diagonal(el, mean)
+            out.append(f"{lname}: principal moments ({moments}) kg·m² are not all positive; replaced by "
+                       f"diag({mean:.4g}) kg·m²")
+        elif eig[0] + eig[1] < eig[2]:
+            if not balance:
+                continue   # the file asked for MuJoCo's refusal: its error names the link
+            out.append(f"{lname}: principal moments ({moments}) kg·m² break A + B >= C; balanced by MuJoCo's "
+                       f"balanceinertia (each set to their mean, {float(np.mean(eig)):.4g})")
+    return out
+
+
+def _set_diagonal(el: ET.Element, value: float) -> None:
+    for k in _INERTIA:
+        el.set(k, repr(value) if k in ("ixx", "iyy", "izz") else "0")
 
 
 def explain_compile_error(files: UrdfFiles, err: Exception) -> str:
