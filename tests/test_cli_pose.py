@@ -233,7 +233,9 @@ def test_a_urdf_robot_with_package_meshes_from_the_command_line(tmp_path, render
     base = ["pose", "--images", str(tmp_path / "photos"), "--cameras", str(tmp_path / "cams.json"), "--field",
             str(tmp_path / "field"), "--model", str(tmp_path / "gs.safetensors"), "--iterations", "3",
             "--field-iterations", "2", "--init", ",".join(map(str, truth + 0.05)), "--out", str(tmp_path / "out")]
-    assert main(base) == 2 and "--robot FILE" in capsys.readouterr().err     # not a bundled scene: say what to pass
+    # the field directory stores its robot (issue 37): the URDF arm needs naming no more
+    assert main(base) == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / "out" / "poses.json").read_text())["robot_fingerprint"] == arm.fingerprint
     assert main(base + ["--robot", str(urdf), "--package-dir", str(tmp_path / "ws")]) == 0, capsys.readouterr().err
     doc = json.loads((tmp_path / "out" / "poses.json").read_text())
     assert doc["certified"] is True and doc["robot_fingerprint"] == arm.fingerprint

@@ -1,7 +1,8 @@
 """Every command of the command line with ``--robot FILE`` (MJCF and URDF) and with a family's
 ``--scene`` (issue 33): only ``pose`` took ``--robot``, ``plan --out`` crashed, ``train -n`` and
 ``plan -n`` were listed and ignored, the help showed no defaults and ``--scene``'s help left out
-the families. (``pose --robot FILE.urdf``: tests/test_cli_pose.py.)"""
+the families; and with ``--field DIR`` alone, the robot the field directory stores (issue 37).
+(``pose --robot FILE.urdf``: tests/test_cli_pose.py.)"""
 
 from __future__ import annotations
 
@@ -68,18 +69,27 @@ def test_every_command_takes_the_robot(robot_args, tmp_path, capsys):
     run(capsys, "dataset", *robot_args, "-n", "300", "--out", str(tmp_path / "d.npz"))
     field = tmp_path / "field"
     run(capsys, "train", *robot_args, "--n-poses", "3000", "--iterations", "20", "--out", str(field))
-    # resolve and plan with the field and the robot named the same way (exit 1 only when an
-    # answer is not certified: a 20-step field may leave one, which is reported, not crashed)
-    for cmd in (["resolve", *robot_args, "--field", str(field), "-n", "4", "--out", str(tmp_path / "r.npz")],
-                ["plan", *robot_args, "--field", str(field), "--steps", "12", "--iterations", "10",
-                 "--out", str(tmp_path / "p.npz")]):
-        code = main(cmd)
-        out = capsys.readouterr()
-        assert code in (0, 1), (cmd, out.err[-3000:])
-        assert "saved" in out.out, out.out
-    with np.load(tmp_path / "p.npz") as z:
+    # resolve and plan with the field and the robot named the same way, then with the field
+    # alone (issue 37: the directory stores its robot; a URDF or MJCF cell could not be named
+    # before): the same answers (exit 1 only when an answer is not certified: a 20-step field
+    # may leave one, which is reported, not crashed)
+    for named in (robot_args, []):
+        tag = "named" if named else "alone"
+        for cmd in (["resolve", *named, "--field", str(field), "-n", "4", "--out", str(tmp_path / f"r_{tag}.npz")],
+                    ["plan", *named, "--field", str(field), "--steps", "12", "--iterations", "10",
+                     "--out", str(tmp_path / f"p_{tag}.npz")]):
+            code = main(cmd)
+            out = capsys.readouterr()
+            assert code in (0, 1), (cmd, out.err[-3000:])
+            assert "saved" in out.out, out.out
+    for kind in ("r", "p"):
+        with np.load(tmp_path / f"{kind}_named.npz") as a, np.load(tmp_path / f"{kind}_alone.npz") as b:
+            assert sorted(a.files) == sorted(b.files)
+            for key in a.files:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{kind}: {key}")
+    with np.load(tmp_path / "p_alone.npz") as z:
         assert z["path"].shape[0] == 12
-    with np.load(tmp_path / "r.npz") as z:
+    with np.load(tmp_path / "r_alone.npz") as z:
         assert z["poses"].shape[0] == 4
 
 

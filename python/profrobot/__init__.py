@@ -44,6 +44,7 @@ from .planning import PathResult, plan_path  # noqa: E402
 from .ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from .pointcloud import PointCloud  # noqa: E402
+from .robotfile import load_robot, save_robot  # noqa: E402
 from . import family  # noqa: E402
 from .family import Moves  # noqa: E402
 
@@ -68,7 +69,7 @@ _SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints
 
 __all__ = [
     "__version__", "scenes", "render", "field", "optim", "viz", "errors",
-    "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "family", "Moves",
+    "Robot", "save_robot", "load_robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "family", "Moves",
     "PointCloud", "pointcloud", "clouds", "cloud_from_depth", "CloudBuild",
     "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",

@@ -1,6 +1,8 @@
 """A robot named on the command line: a bundled scene or family (``--scene NAME``), or a file
-(``--robot FILE``: MJCF ``.xml`` or URDF ``.urdf``, meshes through ``--package-dir``). Every
-command takes both (base layer: no torch)."""
+(``--robot FILE``: MJCF ``.xml``, URDF ``.urdf`` with meshes through ``--package-dir``, or a
+robot file ``.pkl`` from :func:`profrobot.save_robot`). A command given ``--field DIR`` and
+neither takes the robot the field directory stores. Every command takes these (base layer: no
+torch)."""
 
 from __future__ import annotations
 
@@ -10,15 +12,17 @@ from pathlib import Path
 from . import scenes
 from .errors import InputError
 from .robot import Robot
+from .robotfile import ROBOT_FILE, load_robot
 
-__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_scene", "numbers", "DefaultsFormatter"]
+__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_robot", "numbers", "DefaultsFormatter"]
 
 DEFAULT_SCENE = "panda_blocks"
 
 
 def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
-    """An MJCF (.xml) or URDF (.urdf, or a ``<robot>`` root; meshes by ``package://`` through
-    ``package_dirs``) file, e.g. the robot in its cell that a field was trained for."""
+    """An MJCF (.xml), URDF (.urdf, or a ``<robot>`` root; meshes by ``package://`` through
+    ``package_dirs``) or :func:`profrobot.save_robot` (.pkl) file, e.g. the robot in its cell
+    that a field was trained for."""
     p = Path(path)
     if not p.is_file():
         if path in scenes.names() + scenes.family_names() and not package_dirs:  # a bundled name works too
@@ -29,6 +33,8 @@ def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
         return Robot.from_urdf(p, package_dirs=package_dirs)
     if package_dirs:
         raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
+    if p.suffix.lower() == ".pkl":   # profrobot.save_robot's file: the robot in its cell
+        return load_robot(p)
     return Robot.from_mjcf(p)
 
 
@@ -39,17 +45,19 @@ def add_robot_arguments(sp: argparse.ArgumentParser, *, scene_default: str | Non
                     help=f"a bundled scene or family of scenes: {', '.join(every)} "
                          f"(default: {scene_default or 'the one the field was trained for'}, unless --robot)")
     sp.add_argument("--robot", default=None, metavar="FILE",
-                    help="the robot (and its cell) as a file instead: MJCF .xml or URDF .urdf")
+                    help="the robot (and its cell) as a file instead: MJCF .xml, URDF .urdf, or "
+                         "profrobot.save_robot's .pkl")
     sp.add_argument("--package-dir", dest="package_dir", action="append", default=None, metavar="DIR",
                     help="where a URDF's package:// meshes live (a package's folder or a folder of packages; "
                          "repeatable)")
     sp.set_defaults(scene_default=scene_default)
 
 
-def robot_of(args: argparse.Namespace, field: str | None = None) -> Robot:
+def robot_of(args: argparse.Namespace, field: str | Path | None = None) -> Robot:
     """The robot ``args`` name (:func:`add_robot_arguments`): ``--robot FILE``, else ``--scene``,
-    else, for a command given a field checkpoint directory ``field``, the bundled scene the
-    field was trained for, else the command's default scene."""
+    else, for a command given a field checkpoint directory ``field``, the robot the directory
+    stores (or, for one written before fields stored their robot, the bundled scene it names),
+    else the command's default scene."""
     robot = getattr(args, "robot", None)
     scene = getattr(args, "scene", None)
     if robot is not None and scene is not None:
@@ -59,7 +67,7 @@ def robot_of(args: argparse.Namespace, field: str | None = None) -> Robot:
     if getattr(args, "package_dir", None):
         raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
     if scene is None and field is not None:
-        scene = field_scene(field)
+        return field_robot(field)
     name = scene or getattr(args, "scene_default", None) or DEFAULT_SCENE
     if name not in scenes.names() + scenes.family_names():
         raise InputError(f"--scene: unknown scene {name!r}; one of {', '.join(scenes.names() + scenes.family_names())} "
@@ -67,9 +75,10 @@ def robot_of(args: argparse.Namespace, field: str | None = None) -> Robot:
     return scenes.load(name)
 
 
-def field_scene(field: str | Path) -> str:
-    """The bundled scene a field checkpoint directory was trained for (its config.json), or a
-    clear error saying to name the robot."""
+def field_robot(field: str | Path) -> Robot:
+    """The robot a field checkpoint directory was trained for: the one it stores
+    (``robot.pkl``), else, for directories written before fields stored their robot, the bundled
+    scene its config.json names; a clear error saying to name the robot otherwise."""
     import json
 
     from .errors import CorruptFileError, MissingFileError
@@ -77,6 +86,8 @@ def field_scene(field: str | Path) -> str:
     field = Path(field)
     if not field.is_dir():
         raise MissingFileError(f"--field {field}: no such checkpoint directory (profrobot train --out)")
+    if (field / ROBOT_FILE).is_file():
+        return load_robot(field / ROBOT_FILE)
     cfg = field / "config.json"
     if not cfg.is_file():
         raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")
@@ -85,9 +96,10 @@ def field_scene(field: str | Path) -> str:
     except (ValueError, AttributeError, OSError) as e:
         raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
     if name not in scenes.names() + scenes.family_names():
-        raise InputError(f"--field {field}: its robot {name!r} is not a bundled scene; pass --robot FILE (the "
-                         f"MJCF or URDF it was trained for) or --scene NAME")
-    return name
+        raise InputError(f"--field {field}: it stores no robot (written before fields stored theirs) and its robot "
+                         f"{name!r} is not a bundled scene; pass --robot FILE (the MJCF, URDF or save_robot file it "
+                         "was trained for) or --scene NAME")
+    return scenes.load(name)
 
 
 def numbers(text: str, option: str):

@@ -1,6 +1,8 @@
-"""Checkpoints: a directory with ``model.safetensors`` (weights and buffers) and ``config.json``
-(architecture, robot fingerprint, metrics). Nothing is unpickled. Export for deployment with
-``torch.export``."""
+"""Checkpoints: a directory with ``model.safetensors`` (weights and buffers), ``config.json``
+(architecture, robot fingerprint, metrics) and ``robot.pkl``, the robot it was trained for, in its
+cell (:func:`profrobot.robotfile.save_robot`: read back by a restricted unpickler that builds
+profrobot's classes and numpy arrays only), so that ``PoseSDF.load(path)`` and every command
+given ``--field`` need nothing else. Export for deployment with ``torch.export``."""
 
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ from safetensors.torch import load_file, save_file
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from ..robot import Robot
+from ..robotfile import ROBOT_FILE, load_robot, save_robot
 
 if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
     from .model import PoseSDF
@@ -35,12 +38,14 @@ def write_checkpoint(sdf: "PoseSDF", path: str | os.PathLike) -> Path:
     with atomic_dir(path) as d:
         save_file(tensors, str(d / "model.safetensors"), metadata={"format": FORMAT})
         (d / "config.json").write_text(json.dumps(config, indent=2))
+        save_robot(sdf.robot, d / ROBOT_FILE)
     return path
 
 
-def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot) -> "PoseSDF":
+def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot | None = None) -> "PoseSDF":
     """Load a checkpoint saved by :func:`write_checkpoint` for ``robot`` as a ``cls``:
-    :meth:`PoseSDF.load`.
+    :meth:`PoseSDF.load`. ``robot=None``: the robot stored beside the weights (``robot.pkl``;
+    checkpoints written before it was stored need ``robot``).
 
     Raises :class:`~profrobot.errors.RobotMismatchError` if the checkpoint is for another robot
     (its fingerprint differs), :class:`~profrobot.errors.CorruptFileError` if its files are
@@ -62,6 +67,12 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
     check_format(config.get("format"), "PoseSDF", FORMAT_VERSION, str(cfg_path))
     if not isinstance(config.get("model"), dict):
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
+    if robot is None:
+        robot = stored_robot(path)
+        if robot is None:
+            raise MissingFileError(f"checkpoint {path} stores no robot (written before fields stored theirs): pass the "
+                                   f"profrobot.Robot it was trained for, {config.get('robot')!r}: PoseSDF.load(path, robot)")
+        check_robot(config, robot, f"checkpoint {path}'s stored robot {ROBOT_FILE}")   # the pair must be whole
     if not isinstance(robot, Robot):
         raise InputTypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
     check_robot(config, robot, f"checkpoint {path}", geometry=True)
@@ -84,6 +95,12 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot)
     sdf.metrics = dict(config.get("metrics", {}))
     sdf.eval()
     return sdf
+
+
+def stored_robot(path: str | os.PathLike) -> Robot | None:
+    """The robot a checkpoint directory stores (``robot.pkl``), or None where it stores none."""
+    file = Path(path) / ROBOT_FILE
+    return load_robot(file) if file.is_file() else None
 
 
 def family_description(sdf: "PoseSDF") -> dict | None:

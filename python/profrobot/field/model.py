@@ -188,15 +188,18 @@ class PoseSDF(nn.Module):
     # ---- persistence ---------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Save to the directory ``path`` (``model.safetensors`` + ``config.json``: architecture,
-        robot fingerprint, metrics, format version), created or replaced atomically."""
+        robot fingerprint, metrics, format version; ``robot.pkl``: the robot), created or replaced
+        atomically."""
         return write_checkpoint(self, path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, robot) -> "PoseSDF":
-        """A field saved by :meth:`save`, for ``robot`` (the :class:`~profrobot.Robot` it was
-        trained for). Raises :class:`~profrobot.errors.RobotMismatchError` for another robot and
-        :class:`~profrobot.errors.CorruptFileError` for missing, corrupt or newer files. Nothing
-        is unpickled."""
+    def load(cls, path: str | os.PathLike, robot=None) -> "PoseSDF":
+        """A field saved by :meth:`save`. ``robot``: the :class:`~profrobot.Robot` it was trained
+        for (its fingerprint is checked), or None for the robot the directory stores
+        (``robot.pkl``: the robot in its cell, obstacles, URDF meshes and all; read by a restricted
+        unpickler, :mod:`profrobot.robotfile`). Raises :class:`~profrobot.errors.RobotMismatchError`
+        for another robot and :class:`~profrobot.errors.CorruptFileError` for missing, corrupt or
+        newer files."""
         return read_checkpoint(cls, path, robot)
 
     def __repr__(self) -> str:

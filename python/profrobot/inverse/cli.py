@@ -12,8 +12,8 @@ Input, on disk::
     cams.json                 --cameras: Cameras.save / Cameras.to_dict (K, world_to_cam, size,
                                 optional OpenCV distortion); the images may be at any
                                 resolution with the calibration's aspect ratio
-    FIELD/                    --field: a PoseSDF checkpoint; its robot is the bundled scene it
-                                names (or --scene); --model is a GaussianRobot for that robot
+    FIELD/                    --field: a PoseSDF checkpoint; its robot is the one it stores
+                                (or --robot / --scene); --model is a GaussianRobot for that robot
 
 Several targets: ``DIR/<target>/cam*.png`` (one subfolder per target, each with C images, in
 name order), masks and depth mirrored (``DIR/masks/<target>/cam0.png``).
@@ -242,7 +242,7 @@ def cmd_pose(args) -> int:
         raise InputError(f"--images {args.images}: the images are {W}x{H} pixels but {args.cameras} was calibrated at "
                          f"{cameras.width}x{cameras.height}, another aspect ratio (a rotated or cropped photo?): "
                          "images may be scaled, not cropped")
-    robot = robot_of(args, field=field)   # --robot FILE, --scene NAME, or the bundled scene the field names
+    robot = robot_of(args, field=field)   # --robot FILE, --scene NAME, or the robot the field stores
     try:
         sdf = PoseSDF.load(field, robot)
     except RobotMismatchError as e:
