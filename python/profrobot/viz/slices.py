@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .files import atomic_path
-from .errors import InputError
+from ..files import atomic_path
+from ..errors import InputError
 
 
 def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
@@ -32,7 +32,7 @@ def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarra
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from .labels import label_poses
+    from ..labels import label_poses
 
     i, j = (int(k) for k in joints)
     K = robot.njoint

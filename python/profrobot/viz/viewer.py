@@ -1,0 +1,416 @@
+"""A live 3-D view in the browser, on viser: the robot's collision geometry at a pose, its
+obstacles (a family at a layout), point clouds, camera frusta and their images, paths animated
+with every segment coloured by its certificate, a field slice, and the exact verdict, updated as
+joint sliders or a target gizmo (through :func:`profrobot.ik`) move the robot.
+
+What is drawn is what the labeller checks: MuJoCo's collision geoms (``contype`` or
+``conaffinity`` set, or named by an explicit ``<pair>``), primitives tessellated and meshes as
+MuJoCo stores them, placed by ``mj_kinematics`` at the pose; the robot's geoms in orange, those in
+contact in red, obstacles in grey. Colours:
+
+- a pose: the exact labeller's verdict (:func:`profrobot.label_poses` with the colliding pairs,
+  and :func:`profrobot.certify_poses` for the clearance), shown in the panel;
+- a path: each segment by :func:`profrobot.certify_motions` (:data:`VERDICT_COLOURS`: certified
+  green, blocked red, unproven amber), the traced frame drawn through the interpolated poses.
+
+``Viewer(robot)`` starts the server at once (``viewer.url``); ``with Viewer(...) as v:`` stops it
+on exit. ``profrobot view`` is the command line.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import mujoco
+import numpy as np
+
+from ..certification import certify_motions, certify_poses
+from ..errors import BackendUnavailableError, InputError, InputTypeError
+from ..ik import frame_of, ik
+from ..labels import interpolate, label_poses
+from ..robot import Robot
+from ..validate import as_poses
+
+__all__ = ["Viewer", "VERDICT_COLOURS", "ROBOT_COLOUR", "CONTACT_COLOUR", "OBSTACLE_COLOUR"]
+
+VERDICT_COLOURS = {"certified": (30, 160, 60), "blocked": (215, 30, 30), "unproven": (235, 165, 0)}
+ROBOT_COLOUR = (255, 120, 0)
+CONTACT_COLOUR = (215, 0, 0)
+OBSTACLE_COLOUR = (140, 145, 160)
+_PLANE_HALF = 2.0   # metres: an infinite plane is drawn this far out
+
+
+def _quat(mat: np.ndarray) -> np.ndarray:
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(mat, dtype=np.float64).reshape(9))
+    return q
+
+
+def geom_triangles(m: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Geom ``g`` as triangles in its own frame: vertices (V, 3) metres and faces (F, 3); None
+    for kinds not drawn (height fields, SDF plugins)."""
+    import trimesh
+
+    t, size = int(m.geom_type[g]), np.asarray(m.geom_size[g], dtype=np.float64)
+    G = mujoco.mjtGeom
+    if t == G.mjGEOM_MESH:
+        mid = int(m.geom_dataid[g])
+        va, vn = int(m.mesh_vertadr[mid]), int(m.mesh_vertnum[mid])
+        fa, fn = int(m.mesh_faceadr[mid]), int(m.mesh_facenum[mid])
+        return np.asarray(m.mesh_vert[va:va + vn], dtype=np.float64), np.asarray(m.mesh_face[fa:fa + fn])
+    if t == G.mjGEOM_BOX:
+        mesh = trimesh.creation.box(extents=2 * size)
+    elif t == G.mjGEOM_SPHERE:
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=size[0])
+    elif t == G.mjGEOM_ELLIPSOID:
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+        mesh.vertices *= size
+    elif t == G.mjGEOM_CAPSULE:
+        mesh = trimesh.creation.capsule(height=2 * size[1], radius=size[0], count=[16, 16])
+    elif t == G.mjGEOM_CYLINDER:
+        mesh = trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=24)
+    elif t == G.mjGEOM_PLANE:
+        hx, hy = (s if s > 0 else _PLANE_HALF for s in size[:2])
+        v = np.array([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0]], dtype=np.float64)
+        return v, np.array([[0, 1, 2], [0, 2, 3]])
+    else:
+        return None
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)
+
+
+def robot_bodies(robot: Robot) -> np.ndarray:
+    """(nbody,) bool: bodies of the robot (moved by its joints, or carrying a body that is),
+    not of the world or of the scene (a family's scene joints move obstacles, not the robot)."""
+    m = robot.mj_model
+    parent = np.asarray(m.body_parentid)
+    moved = np.zeros(m.nbody, dtype=bool)
+    for j in np.asarray(robot.robot_index if robot.is_family else np.arange(robot.njoint)):
+        moved[int(m.jnt_bodyid[j])] = True
+    out = np.zeros(m.nbody, dtype=bool)
+    for b in range(1, m.nbody):
+        chain, a = [], b
+        while a > 0:
+            chain.append(a)
+            a = int(parent[a])
+        if moved[chain].any():   # b moves with a robot joint, or is an ancestor of one that does
+            out[b] = True
+    for b in np.nonzero(moved)[0]:   # the base links above the first joint
+        a = int(parent[b])
+        while a > 0:
+            out[a] = True
+            a = int(parent[a])
+    return out
+
+
+def tool_body(robot: Robot) -> int:
+    """The body a gripper's frame is on by default: the deepest body that every leaf of the
+    robot hangs from (a Panda's hand, above its two fingers; a serial arm's last link)."""
+    m = robot.mj_model
+    mine = robot_bodies(robot)
+    parent = np.asarray(m.body_parentid)
+    has_child = np.zeros(m.nbody, dtype=bool)
+    for b in range(1, m.nbody):
+        if mine[b]:
+            has_child[parent[b]] = True
+    leaves = [b for b in range(1, m.nbody) if mine[b] and not has_child[b]]
+    if not leaves:
+        return 0
+
+    def chain(b: int) -> list[int]:
+        out = [b]
+        while b > 0:
+            b = int(parent[b])
+            out.append(b)
+        return out[::-1]   # world first
+
+    common = chain(leaves[0])
+    for leaf in leaves[1:]:
+        c = chain(leaf)
+        n = 0
+        while n < min(len(c), len(common)) and c[n] == common[n]:
+            n += 1
+        common = common[:n]
+    return int(common[-1])
+
+
+class Viewer:
+    """A viser server showing ``robot`` at ``pose`` (module docs).
+
+    ``robot``: a :class:`~profrobot.Robot`; a family needs ``layout`` (δ, (D,) or a dict), and is
+    shown and checked as ``robot.at(layout)``. ``pose``: (K,) radians / metres (default: the middle
+    of the joint limits). ``frame``: the site, body or geom the target gizmo moves through
+    :func:`~profrobot.ik` and paths are traced by (default: the last robot body). ``port``: the
+    port to serve on (``viewer.url``); ``host="0.0.0.0"`` to be seen from other machines.
+    ``sliders``/``gizmo``: the panel's joint sliders and the target gizmo.
+    """
+
+    def __init__(self, robot: Robot, pose=None, *, layout=None, frame: str | None = None, host: str = "127.0.0.1",
+                 port: int = 8080, sliders: bool = True, gizmo: bool = True, verbose: bool = False):
+        try:
+            import viser
+        except ImportError as e:
+            raise BackendUnavailableError("profrobot.viz.Viewer needs viser: pip install 'profrobot[viewer]'") from e
+        if not isinstance(robot, Robot):
+            raise InputTypeError(f"Viewer needs a profrobot.Robot; got {type(robot).__name__}")
+        if robot.is_family:
+            if layout is None:
+                raise InputError(f"{robot.name} is a family of scenes: pass layout=δ, the layout to show "
+                                 f"({', '.join(robot.scene_joints)})")
+            robot = robot.at(layout)
+        elif layout is not None:
+            raise InputError(f"layout= is for a family of scenes; {robot.name} has no scene joints")
+        self.robot = robot
+        m = robot.mj_model
+        self._m, self._d = m, mujoco.MjData(m)
+        self._lock = threading.RLock()
+        self._quiet = False   # set while the viewer moves its own sliders
+        self.frame = frame if frame is not None else robot.body_names[tool_body(robot)]
+        self._frame = frame_of(robot, self.frame)
+        self.server = viser.ViserServer(host=host, port=int(port), verbose=verbose)
+        self.server.scene.set_up_direction("+z")
+        self.server.gui.configure_theme(show_share_button=False)
+        self.server.gui.main_panel.dock_right()   # the panel beside the view, not over it
+        self._geoms: dict[int, object] = {}
+        self._is_robot: dict[int, bool] = {}
+        self._paths: dict[str, dict] = {}
+        self._playing = threading.Event()
+        self._closed = False
+        self.verdict = ""
+        self.last_ik = None
+        self._add_geoms()
+        if robot.cloud is not None:
+            self.show_cloud(robot.cloud)
+        self._status = self.server.gui.add_markdown("", order=0)
+        self.pose = robot.joint_limits.mean(1) if pose is None else as_poses(robot, pose, name="pose").reshape(-1)
+        self._sliders = []
+        if sliders:
+            with self.server.gui.add_folder("Joints", order=1):
+                for k, (name, (lo, hi)) in enumerate(zip(robot.joint_names, robot.joint_limits)):
+                    s = self.server.gui.add_slider(name, float(lo), float(hi), step=float(hi - lo) / 1000,
+                                                   initial_value=float(np.clip(self.pose[k], lo, hi)))
+                    s.on_update(lambda _e, k=k, s=s: self._from_slider(k, s.value))
+                    self._sliders.append(s)
+        self._gizmo = None
+        if gizmo:
+            pos, quat = self.frame_pose(self.pose)
+            self._gizmo = self.server.scene.add_transform_controls("/target", scale=0.15, position=pos, wxyz=quat)
+            self._gizmo.on_update(lambda _e: self.follow(self._gizmo.position, self._gizmo.wxyz))
+        self.set_pose(self.pose)
+
+    # ---- the scene -------------------------------------------------------------------------------
+    def _add_geoms(self) -> None:
+        m, robot = self._m, self.robot
+        bodies = robot_bodies(robot)
+        paired = {int(g) for g in np.asarray(robot.pair_geoms).reshape(-1) if g >= 0}
+        for g in range(m.ngeom):
+            if not (m.geom_contype[g] or m.geom_conaffinity[g] or g in paired):
+                continue
+            tri = geom_triangles(m, g)
+            if tri is None:
+                continue
+            mine = bool(bodies[int(m.geom_bodyid[g])])
+            plane = int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_PLANE
+            self._is_robot[g] = mine
+            self._geoms[g] = self.server.scene.add_mesh_simple(
+                f"/geoms/{'robot' if mine else 'scene'}/g{g}", tri[0].astype(np.float32), tri[1].astype(np.uint32),
+                color=ROBOT_COLOUR if mine else OBSTACLE_COLOUR, opacity=0.35 if plane else None,
+                side="double" if plane else "front")
+
+    def _place(self, pose: np.ndarray) -> None:
+        m, d = self._m, self._d
+        d.qpos[self.robot.qpos_adr] = pose
+        mujoco.mj_kinematics(m, d)
+
+    def frame_pose(self, pose) -> tuple[np.ndarray, np.ndarray]:
+        """World position (3,) metres and quaternion (w, x, y, z) of :attr:`frame` at ``pose``."""
+        with self._lock:
+            self._place(np.asarray(pose, dtype=np.float64))
+            body, lpos, lquat = self._frame
+            R = self._d.xmat[body].reshape(3, 3)
+            pos = self._d.xpos[body] + R @ lpos
+            q = np.empty(4)
+            mujoco.mju_mulQuat(q, self._d.xquat[body], lquat)
+            return pos.copy(), q
+
+    def set_pose(self, pose) -> str:
+        """Show the robot at ``pose`` (K,) and the exact verdict; returns the verdict's text."""
+        pose = as_poses(self.robot, pose, name="pose").reshape(-1)
+        with self._lock:
+            labels = label_poses(self.robot, pose[None], pairs=True)
+            certified = bool(certify_poses(self.robot, pose[None])[0])
+            pairs = np.asarray(self.robot.pair_geoms)[labels.colliding_pairs[:, 1]] if labels.collides[0] else []
+            touching = {int(g) for pair in pairs for g in pair}
+            self._place(pose)
+            d = self._d
+            with self.server.atomic():
+                for g, h in self._geoms.items():
+                    h.position = d.geom_xpos[g].copy()
+                    h.wxyz = _quat(d.geom_xmat[g])
+                    if self._is_robot[g]:
+                        h.color = CONTACT_COLOUR if g in touching else ROBOT_COLOUR
+            self.pose = pose
+            self.colliding_pairs = [tuple(self._geom_name(int(g)) for g in pair) for pair in pairs]
+            if labels.collides[0]:
+                listed = ", ".join(f"{a} – {b}" for a, b in self.colliding_pairs[:8])
+                more = f" (+{len(self.colliding_pairs) - 8})" if len(self.colliding_pairs) > 8 else ""
+                self.verdict = f"colliding: {listed}{more}"
+            else:
+                self.verdict = "free, certified" if certified else "free, not certified (within the clearance)"
+            self._status.content = f"**{self.robot.name}**: {self.verdict}"
+            if self._sliders and not self._quiet:
+                self._quiet = True
+                try:
+                    for s, v in zip(self._sliders, pose):
+                        s.value = float(v)
+                finally:
+                    self._quiet = False
+            return self.verdict
+
+    def _geom_name(self, g: int) -> str:
+        if g < 0:
+            return "point cloud"
+        return mujoco.mj_id2name(self._m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g} ({self.robot.body_names[int(self._m.geom_bodyid[g])]})"
+
+    def _from_slider(self, k: int, value: float) -> None:
+        if self._quiet:
+            return
+        pose = self.pose.copy()
+        pose[k] = value
+        pose = self.robot.couplings.apply(pose[None])[0]   # dependent joints follow their independent ones
+        self.set_pose(pose)
+
+    def follow(self, position, wxyz=None):
+        """Move :attr:`frame` to ``position`` (3,) metres (and orientation ``wxyz``): the nearest
+        certified :func:`~profrobot.ik` answer from the current pose, shown; the
+        :class:`~profrobot.IKResult` is returned (and kept as ``last_ik``). An unreachable
+        target leaves the pose and says so."""
+        target = np.eye(4)
+        target[:3, 3] = np.asarray(position, dtype=np.float64)
+        if wxyz is not None:
+            R = np.empty(9)
+            mujoco.mju_quat2Mat(R, np.asarray(wxyz, dtype=np.float64))
+            target[:3, :3] = R.reshape(3, 3)
+        res = ik(self.robot, (target if wxyz is not None else target[:3, 3])[None], frame=self.frame, start=self.pose,
+                 seeds=16)
+        self.last_ik = res
+        if res.certified[0]:
+            self.set_pose(res.poses[0])
+        else:
+            why = "reached only in collision" if res.outcome[0] == 2 else "unreachable"
+            self._status.content = f"**{self.robot.name}**: {self.verdict}; target {why} (no certified pose)"
+        return res
+
+    # ---- what else is shown ----------------------------------------------------------------------
+    def show_cloud(self, cloud, name: str = "cloud"):
+        """A :class:`~profrobot.PointCloud` (default: the robot's), coloured by height."""
+        pts = np.asarray(cloud.points, dtype=np.float32)
+        z = pts[:, 2] if len(pts) else np.zeros(0)
+        t = (z - z.min()) / max(float(np.ptp(z)), 1e-9) if len(z) else z
+        colours = np.stack([40 + 200 * t, 90 + 60 * (1 - t), 230 - 180 * t], 1).astype(np.uint8)
+        size = 2 * float(np.median(cloud.radius)) if len(pts) else 0.01
+        return self.server.scene.add_point_cloud(f"/{name}", pts, colours, point_size=max(size, 0.004))
+
+    def show_cameras(self, cameras, images=None, name: str = "cameras", scale: float = 0.15) -> list:
+        """Camera frusta of calibrated ``cameras`` (:class:`profrobot.render.Cameras`, or
+        anything with ``K`` (C, 3, 3), ``world_to_cam`` (C, 4, 4) OpenCV, ``width``, ``height``),
+        with ``images`` (C, H, W, 3) uint8 on them where given."""
+        K, T = np.asarray(cameras.K, dtype=np.float64), np.asarray(cameras.world_to_cam, dtype=np.float64)
+        W, H = int(cameras.width), int(cameras.height)
+        out = []
+        for c in range(len(K)):
+            c2w = np.linalg.inv(T[c])
+            img = None if images is None else np.asarray(images[c])
+            out.append(self.server.scene.add_camera_frustum(
+                f"/{name}/cam{c}", fov=float(2 * np.arctan(H / (2 * K[c, 1, 1]))), aspect=W / H, scale=scale,
+                image=img, wxyz=_quat(c2w[:3, :3]), position=c2w[:3, 3]))
+        return out
+
+    def show_path(self, path, *, name: str = "path", steps: int = 12, fps: float = 20.0) -> dict:
+        """Waypoints ``path`` (S, K): each segment certified by :func:`~profrobot.certify_motions`
+        and the frame's trace drawn coloured by its verdict (:data:`VERDICT_COLOURS`); a slider
+        and a play button animate the robot along it (``steps`` poses per segment). Returns
+        ``{"verdicts": [...] (S - 1,), "certified": bool}``."""
+        path = as_poses(self.robot, path, name="path")
+        if path.ndim != 2 or len(path) < 2:
+            raise InputError(f"path must be (S, K) waypoints with S >= 2; got shape {path.shape}")
+        cert = certify_motions(self.robot, path[:-1], path[1:])
+        verdicts = ["certified" if c else "blocked" if b else "unproven"
+                    for c, b in zip(cert.certified, cert.blocked)]
+        dense = interpolate(self.robot, path[:-1], path[1:], steps)   # (S - 1, steps, K)
+        trace = np.array([[self.frame_pose(q)[0] for q in seg] for seg in dense])   # (S - 1, steps, 3)
+        segs = np.stack([trace[:, :-1], trace[:, 1:]], 2).reshape(-1, 2, 3)
+        colours = np.repeat([VERDICT_COLOURS[v] for v in verdicts], steps - 1, axis=0)
+        lines = self.server.scene.add_line_segments(f"/{name}", segs.astype(np.float32),
+                                                    np.repeat(colours[:, None], 2, 1).astype(np.uint8), thickness=0.012)
+        poses = np.concatenate([dense[:, :-1].reshape(-1, path.shape[1]), path[-1:]])
+        with self.server.gui.add_folder(f"Path '{name}'", order=2):
+            n_ok = verdicts.count("certified")
+            self.server.gui.add_markdown(f"{n_ok}/{len(verdicts)} segments certified"
+                                         + "".join(f"; segment {i}: {v}" for i, v in enumerate(verdicts) if v != "certified"))
+            slider = self.server.gui.add_slider("t", 0, len(poses) - 1, 1, 0)
+            play = self.server.gui.add_button("Play / pause")
+        slider.on_update(lambda _e: self.set_pose(poses[int(slider.value)]))
+        play.on_click(lambda _e: self._toggle(slider, len(poses), fps))
+        info = dict(verdicts=verdicts, certified=n_ok == len(verdicts), poses=poses, lines=lines, slider=slider)
+        self._paths[name] = info
+        return {"verdicts": verdicts, "certified": n_ok == len(verdicts)}
+
+    def _toggle(self, slider, n: int, fps: float) -> None:
+        if self._playing.is_set():
+            self._playing.clear()
+            return
+        self._playing.set()
+
+        def run():
+            while self._playing.is_set() and not self._closed:
+                slider.value = (int(slider.value) + 1) % n
+                time.sleep(1.0 / fps)
+
+        threading.Thread(target=run, daemon=True).start()
+
+    def show_field_slice(self, sdf, joints: tuple[int, int] = (1, 3), resolution: int = 60):
+        """The field's slice over two joints (:func:`profrobot.viz.sdf_slice`, at the current
+        pose), with the exact boundary over it, as an image in the panel (needs torch)."""
+        from .slices import sdf_slice
+
+        fig = sdf_slice(sdf, self.robot, joints=joints, base_pose=self.pose, resolution=resolution)
+        fig.canvas.draw()
+        img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+        with self.server.gui.add_folder("Field slice", order=3):
+            return self.server.gui.add_image(img, label=f"g over {self.robot.joint_names[joints[0]]}, "
+                                                        f"{self.robot.joint_names[joints[1]]}")
+
+    def look(self, position, look_at, fov: float = 50.0) -> None:
+        """Point the browser's camera: from ``position`` (3,) at ``look_at`` (3,), metres, with
+        a vertical field of view of ``fov`` degrees (pages open there, and "Reset View" returns
+        there; pages already open are moved too). World +z is up."""
+        cam = self.server.initial_camera
+        cam.position, cam.look_at, cam.fov = tuple(map(float, position)), tuple(map(float, look_at)), np.radians(fov)
+        for client in self.server.get_clients().values():
+            client.camera.position, client.camera.look_at = cam.position, cam.look_at
+            client.camera.fov = cam.fov
+
+    # ---- lifetime --------------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{self.server.get_port()}"
+
+    def close(self) -> None:
+        """Stop the server (and any animation)."""
+        self._closed = True
+        self._playing.clear()
+        self.server.stop()
+
+    def __enter__(self) -> "Viewer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Viewer({self.robot.name!r}, url={self.url!r}, verdict={self.verdict!r})"

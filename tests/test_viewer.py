@@ -1,0 +1,217 @@
+"""The browser viewer (issue 37): ``profrobot.viz.Viewer`` served by viser and looked at in a real
+headless Chromium (Debian's, driven by playwright through ``executable_path``; nothing is
+downloaded). The robot's pixels in the page's canvas must be where its projection through the
+viewer's camera says; moving a joint slider with the keyboard must change the pose and the
+exact verdict. Without the ``viewer`` extra, playwright or a browser, skipped with the reason.
+The server side (paths and their certificates, the gizmo through ik, clouds, cameras, families)
+is checked without a browser."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot.certification import certify_poses
+
+pytest.importorskip("viser", reason="the viewer needs viser: pip install '.[viewer]'")
+from profrobot.viz import Viewer  # noqa: E402
+from profrobot.viz.viewer import ROBOT_COLOUR, geom_triangles, robot_bodies  # noqa: E402
+
+BROWSER = os.environ.get("PROFROBOT_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+W, H = 960, 640
+EYE, TARGET, FOV = (1.9, -1.3, 1.3), (0.2, 0.0, 0.45), 45.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """panda_blocks, a certified pose, and a joint that, pushed to its upper limit, collides."""
+    robot = profrobot.scenes.load("panda_blocks")
+    poses = profrobot.sample_poses(robot, 400, seed=11)
+    ok = certify_poses(robot, poses)
+    hi = robot.joint_limits[:, 1]
+    for p in poses[ok]:
+        for j in range(7):
+            q = p.copy()
+            q[j] = hi[j]
+            if profrobot.collides(robot, q[None])[0]:
+                return robot, p, j
+    raise AssertionError("no certified pose whose joint at its limit collides")
+
+
+def projected_mask(robot, pose, width: int, height: int) -> np.ndarray:
+    """(H, W) bool: the robot's collision geoms at ``pose`` projected through the viewer's
+    camera (three.js: vertical fov, look-at with +z up), filled triangle by triangle."""
+    from PIL import Image, ImageDraw
+
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[robot.qpos_adr] = pose
+    mujoco.mj_kinematics(m, d)
+    eye, tgt = np.array(EYE), np.array(TARGET)
+    f = (tgt - eye) / np.linalg.norm(tgt - eye)
+    r = np.cross(f, [0, 0, 1.0])
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    focal = (height / 2) / np.tan(np.radians(FOV) / 2)
+    img = Image.new("1", (width, height), 0)
+    draw = ImageDraw.Draw(img)
+    mine = robot_bodies(robot)
+    for g in range(m.ngeom):
+        if not (m.geom_contype[g] or m.geom_conaffinity[g]) or not mine[m.geom_bodyid[g]]:
+            continue
+        tri = geom_triangles(m, g)
+        if tri is None:
+            continue
+        v = tri[0] @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g] - eye
+        x, y, z = v @ r, v @ u, v @ f
+        px = np.column_stack([width / 2 + focal * x / z, height / 2 - focal * y / z])
+        for a, b, c in tri[1]:
+            draw.polygon([tuple(px[a]), tuple(px[b]), tuple(px[c])], fill=1)
+    return np.asarray(img, dtype=bool)
+
+
+def orange(rgb: np.ndarray) -> np.ndarray:
+    """Pixels of the robot's colour under any shading: red well above green, green above blue."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (r > 90) & (r - g > 45) & (g - b > 15) & (r - b > 110)
+
+
+def dilate(mask: np.ndarray, k: int) -> np.ndarray:
+    out = mask.copy()
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            out |= np.roll(np.roll(mask, dy, 0), dx, 1)
+    return out
+
+
+def test_the_page_shows_the_robot_where_its_projection_says_and_a_slider_moves_it(scene, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the browser test needs playwright: pip install '.[dev]'")
+    if BROWSER is None:
+        pytest.skip("no Chromium here (Debian: apt-get install chromium; or set PROFROBOT_CHROMIUM)")
+    robot, pose, joint = scene
+    with Viewer(robot, pose, port=free_port(), gizmo=False) as viewer:
+        viewer.look(EYE, TARGET, FOV)
+        assert viewer.verdict == "free, certified"
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=BROWSER, args=[
+                "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
+            try:
+                page = browser.new_page(viewport={"width": W, "height": H})
+                page.goto(viewer.url)
+                page.add_style_tag(content=".mantine-Notifications-root { display: none !important; }")
+                canvas = page.locator("canvas").first
+                canvas.wait_for(state="visible", timeout=30_000)
+
+                def shot(path) -> np.ndarray:
+                    from PIL import Image
+
+                    canvas.screenshot(path=str(path))
+                    return np.asarray(Image.open(path).convert("RGB"))
+
+                deadline, seen = time.time() + 60, None
+                while time.time() < deadline:   # the scene streams in after the page loads
+                    seen = shot(tmp_path / "before.png")
+                    if orange(seen).sum() > 2000:
+                        break
+                    page.wait_for_timeout(500)
+                detected = orange(seen)
+                box = canvas.bounding_box()
+                assert seen.shape[:2] == (round(box["height"]), round(box["width"]))
+                truth = projected_mask(robot, pose, seen.shape[1], seen.shape[0])
+                precision = (detected & dilate(truth, 4)).sum() / max(detected.sum(), 1)
+                recall = (truth & dilate(detected, 4)).sum() / max(truth.sum(), 1)
+                assert detected.sum() > 2000, f"no robot on the page ({detected.sum()} robot-coloured pixels)"
+                assert precision > 0.97 and recall > 0.85, (precision, recall, detected.sum(), truth.sum())
+
+                # the joint's slider, moved to its end with the keyboard: pose and verdict follow
+                sliders = page.get_by_role("slider")
+                assert sliders.count() == robot.njoint
+                sliders.nth(joint).focus()
+                page.keyboard.press("End")
+                deadline = time.time() + 20
+                while time.time() < deadline and not viewer.verdict.startswith("colliding"):
+                    page.wait_for_timeout(200)
+                assert viewer.pose[joint] == pytest.approx(robot.joint_limits[joint, 1], abs=1e-3)
+                assert viewer.verdict.startswith("colliding"), viewer.verdict
+                page.wait_for_timeout(1500)
+                after = shot(tmp_path / "after.png")
+                assert page.get_by_text("colliding:").count() >= 1   # the verdict in the panel
+                red = (after[..., 0].astype(int) > 150) & (after[..., 1] < 60) & (after[..., 2] < 60)
+                assert red.sum() > 50, "the geoms in contact are not drawn red"
+                assert (orange(after) != detected).sum() > 500   # the robot moved on the page
+            finally:
+                browser.close()
+
+
+def test_paths_are_coloured_by_their_certificates(scene):
+    robot, pose, joint = scene
+    free = profrobot.sample_poses(robot, 300, seed=2)[certify_poses(robot, profrobot.sample_poses(robot, 300, seed=2))]
+    res = profrobot.plan_path(robot, free[0], free[1])
+    assert res.certified
+    with Viewer(robot, free[0], port=free_port()) as viewer:
+        good = viewer.show_path(res.path, name="planned")
+        assert good["certified"] and set(good["verdicts"]) == {"certified"}
+        straight = np.stack([free[0], free[1]])
+        bad = viewer.show_path(straight, name="straight")
+        cert = profrobot.certify_motions(robot, straight[:1], straight[1:])
+        assert bad["verdicts"] == ["certified" if cert.certified[0] else "blocked" if cert.blocked[0] else "unproven"]
+        colours = viewer._paths["straight"]["lines"].colors
+        assert (np.asarray(colours) == np.array(
+            profrobot.viz.VERDICT_COLOURS[bad["verdicts"][0]], dtype=np.uint8)).all()
+        # the animation slider walks the path's poses, with the verdict at each
+        info = viewer._paths["planned"]
+        info["slider"].value = len(info["poses"]) - 1
+        np.testing.assert_allclose(viewer.pose, res.path[-1])
+        assert viewer.verdict.startswith("free")
+
+
+def test_the_gizmo_follows_through_ik_and_refuses_what_it_cannot_certify(scene):
+    robot, pose, joint = scene
+    with Viewer(robot, pose, port=free_port()) as viewer:
+        assert viewer.frame == "hand"   # the body both fingers hang from
+        start, _ = viewer.frame_pose(pose)
+        res = viewer.follow(start + [0.0, 0.05, -0.03])
+        assert res.certified[0]
+        np.testing.assert_allclose(viewer.frame_pose(viewer.pose)[0], start + [0.0, 0.05, -0.03], atol=2e-4)
+        assert certify_poses(robot, viewer.pose[None])[0] and viewer.verdict == "free, certified"
+        before = viewer.pose.copy()
+        res = viewer.follow([3.0, 0.0, 0.5])   # out of reach
+        assert not res.certified[0]
+        np.testing.assert_array_equal(viewer.pose, before)
+
+
+def test_a_family_at_a_layout_with_a_cloud_and_cameras():
+    family = profrobot.scenes.load("panda_blocks_moving")
+    delta = family.joint_limits[family.scene_index].mean(1) + 0.3 * np.ptp(family.joint_limits[family.scene_index], 1) / 2
+    cloud = profrobot.PointCloud(np.random.default_rng(0).uniform(-0.5, 0.5, (100, 3)) + [0, 0, 0.5], radius=0.01)
+    with pytest.raises(profrobot.InputError, match="layout="):
+        Viewer(family, port=free_port())
+    at = family.at(delta).with_points(cloud)
+    with Viewer(at, port=free_port()) as viewer:
+        # the obstacles are drawn where the layout puts them
+        m, d = at.mj_model, mujoco.MjData(at.mj_model)
+        d.qpos[at.qpos_adr] = viewer.pose
+        mujoco.mj_kinematics(m, d)
+        for g, h in viewer._geoms.items():
+            np.testing.assert_allclose(h.position, d.geom_xpos[g], atol=1e-12)
+        from profrobot.render import Cameras
+
+        cams = Cameras.look_at([[1.5, 0, 1.0], [0, 1.5, 1.0]], [0, 0, 0.4], width=64, height=48)
+        frusta = viewer.show_cameras(cams, images=np.zeros((2, 48, 64, 3), np.uint8))
+        assert len(frusta) == 2
+        c2w = np.linalg.inv(cams.world_to_cam[0])
+        np.testing.assert_allclose(frusta[0].position, c2w[:3, 3], atol=1e-9)
+    assert ROBOT_COLOUR != (0, 0, 0)
