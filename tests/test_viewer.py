@@ -215,3 +215,22 @@ def test_a_family_at_a_layout_with_a_cloud_and_cameras():
         c2w = np.linalg.inv(cams.world_to_cam[0])
         np.testing.assert_allclose(frusta[0].position, c2w[:3, 3], atol=1e-9)
     assert ROBOT_COLOUR != (0, 0, 0)
+
+
+def test_the_view_command_serves_a_path_and_a_field_directory(scene, tmp_path, capsys):
+    from profrobot.cli import main
+
+    robot, pose, joint = scene
+    free = profrobot.sample_poses(robot, 200, seed=4)[certify_poses(robot, profrobot.sample_poses(robot, 200, seed=4))]
+    np.savez(tmp_path / "p.npz", path=profrobot.plan_path(robot, free[0], free[1]).path)
+    assert main(["view", "--scene", "panda_blocks", "--path", str(tmp_path / "p.npz"), "--for", "0.2",
+                 "--port", str(free_port())]) == 0
+    out = capsys.readouterr().out
+    assert "http://127.0.0.1:" in out and "segments certified" in out
+    # a field directory alone names the robot (it stores it), and its slice is shown
+    profrobot.PoseSDF(robot, hidden=(8,)).save(tmp_path / "field")
+    assert main(["view", "--field", str(tmp_path / "field"), "--for", "0.2", "--port", str(free_port())]) == 0
+    assert "panda_blocks" in capsys.readouterr().out
+    np.savez(tmp_path / "bad.npz", poses=free[:2])
+    assert main(["view", "--path", str(tmp_path / "bad.npz"), "--for", "0.1", "--port", str(free_port())]) == 2
+    assert "no 'path' array" in capsys.readouterr().err

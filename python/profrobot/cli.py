@@ -1,5 +1,5 @@
 """The ``profrobot`` command line: ``demo``, ``label``, ``crosscheck``, ``dataset``, ``train``, ``resolve``, ``plan``,
-``render``, ``pose``, ``ik``, ``scenes``."""
+``render``, ``pose``, ``ik``, ``layout``, ``view``, ``scenes``."""
 
 from __future__ import annotations
 
@@ -223,6 +223,39 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*a, **kw)
 
 
+def cmd_view(args) -> int:
+    from .viz import Viewer
+
+    robot = robot_of(args, field=args.field)
+    layout = None
+    if robot.is_family:
+        layout = (np.zeros(len(robot.scene_index)) if args.layout is None else numbers(args.layout, "layout"))
+    elif args.layout is not None:
+        raise InputError(f"--layout is for a family of scenes; {robot.name} has no scene joints")
+    pose = None if args.pose is None else numbers(args.pose, "pose")
+    viewer = Viewer(robot, pose, layout=layout, frame=args.frame, host=args.host, port=args.port)
+    try:
+        print(f"profrobot view: {viewer.url}  ({viewer.robot.name}: {viewer.verdict})", flush=True)
+        if args.path:
+            with np.load(args.path, allow_pickle=False) as z:
+                if "path" not in z.files:
+                    raise InputError(f"--path {args.path}: no 'path' array (profrobot plan --out writes one)")
+                path = z["path"]
+            out = viewer.show_path(path)
+            print(f"path: {out['verdicts'].count('certified')}/{len(out['verdicts'])} segments certified", flush=True)
+        if args.field:
+            from .field import PoseSDF
+
+            sdf = PoseSDF.load(args.field, robot)
+            viewer.show_field_slice(sdf.at(layout) if robot.is_family else sdf)
+        deadline = None if args.seconds is None else time.monotonic() + args.seconds
+        while deadline is None or time.monotonic() < deadline:
+            time.sleep(0.1 if deadline is not None else 1.0)
+    finally:
+        viewer.close()
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="profrobot", description=__doc__, formatter_class=DefaultsFormatter)
     p.add_argument("--version", action="version", version=f"profrobot {__version__}")
@@ -384,6 +417,21 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--out", default="layout.json", help="the estimate as JSON (atomic)")
     sp.add_argument("--picture", default=None, help="a PNG of the points and the fitted obstacles")
     sp.set_defaults(fn=_layouts("cmd_layout"))
+    sp = sub.add_parser("view", help="a live 3-D view in the browser (viser): the robot, its obstacles, a path, "
+                                     "joint sliders and an ik gizmo, with the exact verdict")
+    add_robot_arguments(sp, scene_default=None)
+    sp.add_argument("--field", default=None, help="a PoseSDF checkpoint directory: its robot (the one it stores, "
+                                                  "unless --robot / --scene) and a field slice in the panel")
+    layout(sp)
+    sp.add_argument("--pose", help="comma-separated pose to show (default: the middle of the joint limits)")
+    sp.add_argument("--path", help="a .npz with a 'path' (S, K) (profrobot plan --out) to animate, each segment "
+                                   "coloured by its certificate")
+    sp.add_argument("--frame", help="the site, body or geom the gizmo moves (default: the body the leaves hang from)")
+    sp.add_argument("--host", default="127.0.0.1", help="0.0.0.0 to be seen from other machines")
+    sp.add_argument("--port", type=int, default=8080)
+    sp.add_argument("--for", dest="seconds", type=float, default=None,
+                    help="serve this many seconds, then exit (default: until Ctrl-C)")
+    sp.set_defaults(fn=cmd_view)
     sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 

@@ -103,6 +103,17 @@ def robot_bodies(robot: Robot) -> np.ndarray:
     return out
 
 
+def _robot_pixels(png: bytes) -> int:
+    """Pixels of the robot's colour (or the contact colour) in a PNG screenshot."""
+    import io
+
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    return int(((r > 90) & (r - b > 110) & (r - g > 45)).sum())
+
+
 def tool_body(robot: Robot) -> int:
     """The body a gripper's frame is on by default: the deepest body that every leaf of the
     robot hangs from (a Panda's hand, above its two fingers; a serial arm's last link)."""
@@ -393,6 +404,47 @@ class Viewer:
         for client in self.server.get_clients().values():
             client.camera.position, client.camera.look_at = cam.position, cam.look_at
             client.camera.fov = cam.fov
+
+    def screenshot(self, path, *, width: int = 960, height: int = 640, browser: str | None = None,
+                   timeout: float = 60.0):
+        """Save the 3-D view as a browser draws it to the PNG ``path``, from a headless
+        Chromium (playwright, the system browser ``browser``, default ``chromium`` on PATH;
+        nothing is downloaded). Waits until the robot is on the page. Returns the path."""
+        import shutil
+        from pathlib import Path
+
+        from ..files import atomic_path
+
+        try:
+            from playwright.sync_api import sync_playwright
+        except ImportError as e:
+            raise BackendUnavailableError("Viewer.screenshot needs playwright: pip install playwright") from e
+        exe = browser or shutil.which("chromium") or shutil.which("chromium-browser")
+        if exe is None:
+            raise BackendUnavailableError("Viewer.screenshot needs Chromium (Debian: apt-get install chromium), "
+                                          "or browser= its path")
+        path = Path(path)
+        with sync_playwright() as p:
+            b = p.chromium.launch(executable_path=exe, args=["--no-sandbox", "--use-angle=swiftshader",
+                                                             "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
+            try:
+                page = b.new_page(viewport={"width": int(width), "height": int(height)})
+                page.goto(self.url)
+                page.add_style_tag(content=".mantine-Notifications-root { display: none !important; }")
+                canvas = page.locator("canvas").first
+                canvas.wait_for(state="visible", timeout=timeout * 1000)
+                deadline = time.time() + timeout
+                with atomic_path(path, suffix=".png") as tmp:
+                    while True:   # the scene streams in after the page loads: wait for the robot's colour
+                        png = canvas.screenshot(path=str(tmp))
+                        if _robot_pixels(png) > 500 or time.time() > deadline:
+                            break
+                        page.wait_for_timeout(500)
+                    page.wait_for_timeout(500)
+                    canvas.screenshot(path=str(tmp))
+            finally:
+                b.close()
+        return path
 
     # ---- lifetime --------------------------------------------------------------------------------
     @property
