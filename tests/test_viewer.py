@@ -9,6 +9,7 @@ is checked without a browser."""
 from __future__ import annotations
 
 import os
+import pickle
 import shutil
 import socket
 import time
@@ -187,6 +188,8 @@ def test_the_gizmo_follows_through_ik_and_refuses_what_it_cannot_certify(scene):
         assert res.certified[0]
         np.testing.assert_allclose(viewer.frame_pose(viewer.pose)[0], start + [0.0, 0.05, -0.03], atol=2e-4)
         assert certify_poses(robot, viewer.pose[None])[0] and viewer.verdict == "free, certified"
+        with pytest.raises(TypeError, match="does not pickle: pickle its robot"):
+            pickle.dumps(viewer)
         before = viewer.pose.copy()
         res = viewer.follow([3.0, 0.0, 0.5])   # out of reach
         assert not res.certified[0]

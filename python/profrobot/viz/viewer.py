@@ -458,6 +458,10 @@ class Viewer:
         self._playing.clear()
         self.server.stop()
 
+    def __reduce__(self):
+        raise TypeError("a Viewer is a live server and does not pickle: pickle its robot (viewer.robot) and pose "
+                        "(viewer.pose), and start a Viewer from them where they are unpickled")
+
     def __enter__(self) -> "Viewer":
         return self
 
