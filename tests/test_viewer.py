@@ -12,7 +12,6 @@ import os
 import pickle
 import shutil
 import socket
-import time
 
 import mujoco
 import numpy as np
@@ -23,7 +22,7 @@ from profrobot.certification import certify_poses
 
 pytest.importorskip("viser", reason="the viewer needs viser: pip install '.[viewer]'")
 from profrobot.viz import Viewer  # noqa: E402
-from profrobot.viz.viewer import ROBOT_COLOUR, geom_triangles, robot_bodies  # noqa: E402
+from profrobot.viz.viewer import ROBOT_COLOUR, geom_triangles, robot_bodies, robot_pixels  # noqa: E402
 
 BROWSER = os.environ.get("PROFROBOT_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
 W, H = 960, 640
@@ -84,12 +83,6 @@ def projected_mask(robot, pose, width: int, height: int) -> np.ndarray:
     return np.asarray(img, dtype=bool)
 
 
-def orange(rgb: np.ndarray) -> np.ndarray:
-    """Pixels of the robot's colour under any shading: red well above green, green above blue."""
-    r, g, b = (rgb[..., i].astype(int) for i in range(3))
-    return (r > 90) & (r - g > 45) & (g - b > 15) & (r - b > 110)
-
-
 def dilate(mask: np.ndarray, k: int) -> np.ndarray:
     out = mask.copy()
     for dy in range(-k, k + 1):
@@ -122,13 +115,12 @@ def test_the_page_shows_the_robot_where_its_projection_says_and_a_slider_moves_i
                     canvas.screenshot(path=str(path))
                     return np.asarray(Image.open(path).convert("RGB"))
 
-                deadline, seen = time.time() + 60, None
-                while time.time() < deadline:   # the scene streams in after the page loads
+                for _ in range(120):   # the scene streams in after the page loads: poll until the robot is drawn
                     seen = shot(tmp_path / "before.png")
-                    if orange(seen).sum() > 2000:
+                    if robot_pixels(seen).sum() > 2000:
                         break
                     page.wait_for_timeout(500)
-                detected = orange(seen)
+                detected = robot_pixels(seen)
                 box = canvas.bounding_box()
                 assert seen.shape[:2] == (round(box["height"]), round(box["width"]))
                 truth = projected_mask(robot, pose, seen.shape[1], seen.shape[0])
@@ -142,8 +134,9 @@ def test_the_page_shows_the_robot_where_its_projection_says_and_a_slider_moves_i
                 assert sliders.count() == robot.njoint
                 sliders.nth(joint).focus()
                 page.keyboard.press("End")
-                deadline = time.time() + 20
-                while time.time() < deadline and not viewer.verdict.startswith("colliding"):
+                for _ in range(100):   # the slider's message reaches the server: poll until the verdict follows
+                    if viewer.verdict.startswith("colliding"):
+                        break
                     page.wait_for_timeout(200)
                 assert viewer.pose[joint] == pytest.approx(robot.joint_limits[joint, 1], abs=1e-3)
                 assert viewer.verdict.startswith("colliding"), viewer.verdict
@@ -152,7 +145,7 @@ def test_the_page_shows_the_robot_where_its_projection_says_and_a_slider_moves_i
                 assert page.get_by_text("colliding:").count() >= 1   # the verdict in the panel
                 red = (after[..., 0].astype(int) > 150) & (after[..., 1] < 60) & (after[..., 2] < 60)
                 assert red.sum() > 50, "the geoms in contact are not drawn red"
-                assert (orange(after) != detected).sum() > 500   # the robot moved on the page
+                assert (robot_pixels(after) != detected).sum() > 500   # the robot moved on the page
             finally:
                 browser.close()
 

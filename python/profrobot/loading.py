@@ -12,7 +12,7 @@ from pathlib import Path
 from . import scenes
 from .errors import InputError
 from .robot import Robot
-from .robotfile import ROBOT_FILE, load_robot
+from .robotfile import load_robot, stored_robot
 
 __all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_robot", "numbers", "DefaultsFormatter"]
 
@@ -86,8 +86,9 @@ def field_robot(field: str | Path) -> Robot:
     field = Path(field)
     if not field.is_dir():
         raise MissingFileError(f"--field {field}: no such checkpoint directory (profrobot train --out)")
-    if (field / ROBOT_FILE).is_file():
-        return load_robot(field / ROBOT_FILE)
+    robot = stored_robot(field)
+    if robot is not None:
+        return robot
     cfg = field / "config.json"
     if not cfg.is_file():
         raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")

@@ -434,8 +434,9 @@ class Robot:
         ``package_dirs``: where ``package://pkg/...`` meshes live, as ``{"pkg": "/path/to/pkg"}``
         or a list of folders that contain ``pkg/``; then ``ROS_PACKAGE_PATH``,
         ``AMENT_PREFIX_PATH`` (``share/pkg``), a folder named ``pkg`` above the URDF and, last,
-        one beside it (pybullet_data's layout) are tried. Relative mesh paths are relative to the URDF's folder. A mesh that cannot be found
-        raises :class:`InputError` naming the URDF, the URI, where it looked and what to pass.
+        one beside it (pybullet_data's layout) are tried. Relative mesh paths are relative to the
+        URDF's folder. A mesh that cannot be found raises :class:`InputError` naming the URDF,
+        the URI, where it looked and what to pass.
 
         Collision geometry only (MuJoCo's ``discardvisual``, unless the URDF's ``<mujoco>``
         section says otherwise); meshes collide as MuJoCo's convex hulls. Joint limits are the

@@ -23,7 +23,7 @@ from .errors import CorruptFileError, InputTypeError, MissingFileError
 from .files import atomic_path
 from .robot import Robot
 
-__all__ = ["save_robot", "load_robot", "ROBOT_FILE"]
+__all__ = ["save_robot", "load_robot", "stored_robot", "ROBOT_FILE"]
 
 ROBOT_FILE = "robot.pkl"   # the name a field directory stores its robot under
 
@@ -101,3 +101,10 @@ def load_robot(path: str | os.PathLike) -> Robot:
     if not isinstance(robot, Robot):
         raise CorruptFileError(f"{path}: holds a {type(robot).__name__}, not a profrobot.Robot")
     return robot
+
+
+def stored_robot(folder: str | os.PathLike) -> Robot | None:
+    """The robot a field checkpoint directory stores (``folder/robot.pkl``), or None where it
+    stores none (directories written before fields stored their robot)."""
+    file = Path(folder) / ROBOT_FILE
+    return load_robot(file) if file.is_file() else None

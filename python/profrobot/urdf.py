@@ -7,8 +7,8 @@ the errors (``robot.py`` imports it):
 
 - :func:`read_urdf`: the URDF text with every mesh it loads resolved to a real file
   (``package://pkg/...`` through ``package_dirs``, ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``,
-  a folder named ``pkg`` above the URDF, or, last, one beside it (pybullet_data's layout); ``file://`` URIs; paths relative to the URDF's
-  folder) and renamed to a flat asset name, the mesh bytes keyed by that name, and what MuJoCo's
+  a folder named ``pkg`` above the URDF, or, last, one beside it (pybullet_data's layout);
+  ``file://`` URIs; paths relative to the URDF's folder) and renamed to a flat asset name, the mesh bytes keyed by that name, and what MuJoCo's
   compiler cannot take (floating / planar / spherical joints, unlimited prismatic joints,
   unprocessed xacro) refused with the joint or file named;
 - :func:`read_srdf`: MoveIt's ``<disable_collisions link1= link2= reason=/>`` pairs;

@@ -18,7 +18,7 @@ from safetensors.torch import load_file, save_file
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from ..robot import Robot
-from ..robotfile import ROBOT_FILE, load_robot, save_robot
+from ..robotfile import ROBOT_FILE, save_robot, stored_robot
 
 if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
     from .model import PoseSDF
@@ -95,12 +95,6 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot 
     sdf.metrics = dict(config.get("metrics", {}))
     sdf.eval()
     return sdf
-
-
-def stored_robot(path: str | os.PathLike) -> Robot | None:
-    """The robot a checkpoint directory stores (``robot.pkl``), or None where it stores none."""
-    file = Path(path) / ROBOT_FILE
-    return load_robot(file) if file.is_file() else None
 
 
 def family_description(sdf: "PoseSDF") -> dict | None:

@@ -103,15 +103,19 @@ def robot_bodies(robot: Robot) -> np.ndarray:
     return out
 
 
-def _robot_pixels(png: bytes) -> int:
-    """Pixels of the robot's colour (or the contact colour) in a PNG screenshot."""
+def robot_pixels(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of an (H, W, 3) uint8 screenshot in :data:`ROBOT_COLOUR` under
+    any shading (red well above green, green above blue)."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (r > 90) & (r - g > 45) & (g - b > 15) & (r - b > 110)
+
+
+def _decode(png: bytes) -> np.ndarray:
     import io
 
     from PIL import Image
 
-    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    return int(((r > 90) & (r - b > 110) & (r - g > 45)).sum())
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
 def tool_body(robot: Robot) -> int:
@@ -437,7 +441,7 @@ class Viewer:
                 with atomic_path(path, suffix=".png") as tmp:
                     while True:   # the scene streams in after the page loads: wait for the robot's colour
                         png = canvas.screenshot(path=str(tmp))
-                        if _robot_pixels(png) > 500 or time.time() > deadline:
+                        if robot_pixels(_decode(png)).sum() > 500 or time.time() > deadline:
                             break
                         page.wait_for_timeout(500)
                     page.wait_for_timeout(500)
