@@ -12,6 +12,12 @@ if "MENAGERIE_ROOT" not in os.environ and _LOCAL.is_dir():
 if os.environ.get("MENAGERIE_ROOT"):
     os.environ["MENAGERIE_ROOT"] = os.path.abspath(os.environ["MENAGERIE_ROOT"])
 
+# Under pytest-xdist (the README's command runs two workers, one per core) each worker's torch
+# takes one thread, set before torch loads: two workers of two OpenMP threads each on two cores
+# spin against each other. The Rust pools keep theirs (results do not depend on thread counts).
+if os.environ.get("PYTEST_XDIST_WORKER") and "OMP_NUM_THREADS" not in os.environ:
+    os.environ["OMP_NUM_THREADS"] = "1"
+
 # MuJoCo's GL backend, fixed before MuJoCo's GL stack loads (issue 32). ``import profrobot`` imports
 # mujoco with its GL deferred; the probe (each candidate in a throwaway subprocess: EGL, then
 # OSMesa, without a display) picks the backend, and ``MUJOCO_GL`` is set to it for this process, so

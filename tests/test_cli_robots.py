@@ -43,7 +43,10 @@ ARM_URDF = MIMIC_URDF.replace(
     '  <joint name="j1"', 1)
 
 
-@pytest.fixture(scope="module", params=["mjcf", "urdf", "family"])
+# the URDF cell in the default run (its robot is the one only a stored robot.pkl can name); the
+# MJCF cell and the family in the slow tier (each is every command end to end: 6-20 s)
+@pytest.fixture(scope="module", params=[pytest.param("mjcf", marks=pytest.mark.slow), "urdf",
+                                        pytest.param("family", marks=pytest.mark.slow)])
 def robot_args(request, tmp_path_factory) -> list[str]:
     folder = tmp_path_factory.mktemp(f"cli_{request.param}")
     if request.param == "family":

@@ -141,6 +141,11 @@ def test_planned_paths_are_coupled_certified_and_free_in_mujoco(robot):
         assert mujoco_free_along(robot, res.path)
 
 
+# a field trained per robot (6-11 s each): the nonlinear couplings in the default run, the
+# scenes whose couplings are mirrored fingers in the slow tier
+@pytest.mark.parametrize("robot", [pytest.param(n, marks=pytest.mark.slow)
+                                   for n in ("panda_blocks", "vx300s_clutter", "ur5e_wall_box")]
+                         + ["mimic_urdf", "polycoef_mjcf"], indirect=True)
 def test_field_answers_are_coupled(robot):
     sdf = profrobot.train_sdf(robot, hidden=(32,), n_poses=4000, iterations=60, batch_size=512, eikonal_batch=64,
                               progress=False, seed=0)

@@ -144,12 +144,13 @@ def test_scale_is_clamped(panda):
 
 
 def test_a_tiny_training_run_beats_90_percent(panda, tmp_path):
-    """The default recipe at toy scale: held-out balanced accuracy > 90 % within a minute or two."""
-    sdf = train_sdf(panda, hidden=(128, 128), n_poses=30_000, iterations=250, batch_size=1024,
-                    eikonal_batch=128, progress=False, seed=1)
+    """The default recipe at toy scale (two 64-wide layers, 150 steps: seconds): held-out balanced
+    accuracy > 90 % (93.7 % when written)."""
+    sdf = train_sdf(panda, hidden=(64, 64), n_poses=20_000, iterations=150, batch_size=1024,
+                    eikonal_batch=64, progress=False, seed=1)
     m = sdf.metrics
     assert m["accuracy"] > 0.90, m
-    assert m["n"] == 3000 and m["iterations"] == 250
+    assert m["n"] == 2000 and m["iterations"] == 150
     assert 0.0 <= m["false_free_rate"] <= 1.0 and m["auroc"] > 0.95
     # the picture: g over two joints with the exact labels drawn over it
     from profrobot.viz import sdf_slice
