@@ -141,8 +141,9 @@ def test_planned_paths_are_coupled_certified_and_free_in_mujoco(robot):
         assert mujoco_free_along(robot, res.path)
 
 
-# a field trained per robot (6-11 s each): the nonlinear couplings in the default run, the
-# scenes whose couplings are mirrored fingers in the slow tier
+# a field trained per robot (5-11 s each): the two hand-made couplings (the mimic URDF's, linear
+# with an offset; the polycoef MJCF's, nonlinear) in the default run; the bundled scenes (mirrored
+# fingers: the Panda, the vx300s; the UR5e: limits only) in the slow tier
 @pytest.mark.parametrize("robot", [pytest.param(n, marks=pytest.mark.slow)
                                    for n in ("panda_blocks", "vx300s_clutter", "ur5e_wall_box")]
                          + ["mimic_urdf", "polycoef_mjcf"], indirect=True)

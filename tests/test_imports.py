@@ -59,13 +59,15 @@ def test_cli_commands_without_torch(argv, tmp_path):
 
 
 def test_torch_side_loads_on_first_access():
-    # the attribute (module __getattr__) and the from-import (the same hook) in one interpreter:
-    # torch is absent until the first of them
+    # the attribute loads it (the module's __getattr__; `from profrobot import PoseSDF` goes
+    # through the same hook, and gets the same object)
     assert "torch" in loaded_after("""
         import sys, profrobot
         assert "torch" not in sys.modules
+        profrobot.train_sdf
+        assert "torch" in sys.modules
         from profrobot import PoseSDF
-        assert "torch" in sys.modules and profrobot.train_sdf is not None
+        assert PoseSDF is profrobot.field.PoseSDF
         """)
     assert "torch" in loaded_after("import profrobot.field")
 
