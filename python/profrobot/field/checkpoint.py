@@ -67,15 +67,18 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot 
     check_format(config.get("format"), "PoseSDF", FORMAT_VERSION, str(cfg_path))
     if not isinstance(config.get("model"), dict):
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
-    if robot is None:
+    stored = robot is None
+    if stored:
         robot = stored_robot(path)
         if robot is None:
             raise MissingFileError(f"checkpoint {path} stores no robot (written before fields stored theirs): pass the "
                                    f"profrobot.Robot it was trained for, {config.get('robot')!r}: PoseSDF.load(path, robot)")
-        check_robot(config, robot, f"checkpoint {path}'s stored robot {ROBOT_FILE}")   # the pair must be whole
-    if not isinstance(robot, Robot):
+    elif not isinstance(robot, Robot):
         raise InputTypeError(f"PoseSDF.load needs the profrobot.Robot the field was trained for; got {type(robot).__name__}")
-    check_robot(config, robot, f"checkpoint {path}", geometry=True)
+    # the stored robot is the one the weights were saved with (the pair must be whole: its exact
+    # fingerprint); a robot passed may also be that robot with a safety margin (geometry)
+    check_robot(config, robot, f"checkpoint {path}'s stored robot {ROBOT_FILE}" if stored else f"checkpoint {path}",
+                geometry=not stored)
     family = config.get("family")
     if (family or {}).get("scene_joints", []) != list(getattr(robot, "scene_joints", ())):
         raise CorruptFileError(f"{cfg_path}: its family's scene joints {(family or {}).get('scene_joints', [])} are not "

@@ -29,6 +29,7 @@ from ..certification import certify_motions, certify_poses
 from ..errors import BackendUnavailableError, InputError, InputTypeError
 from ..ik import frame_of, ik
 from ..labels import interpolate, label_poses
+from ..margin import obstacle_bodies
 from ..robot import Robot
 from ..validate import as_poses
 
@@ -81,26 +82,9 @@ def geom_triangles(m: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] |
 
 def robot_bodies(robot: Robot) -> np.ndarray:
     """(nbody,) bool: bodies of the robot (moved by its joints, or carrying a body that is),
-    not of the world or of the scene (a family's scene joints move obstacles, not the robot)."""
-    m = robot.mj_model
-    parent = np.asarray(m.body_parentid)
-    moved = np.zeros(m.nbody, dtype=bool)
-    for j in np.asarray(robot.robot_index if robot.is_family else np.arange(robot.njoint)):
-        moved[int(m.jnt_bodyid[j])] = True
-    out = np.zeros(m.nbody, dtype=bool)
-    for b in range(1, m.nbody):
-        chain, a = [], b
-        while a > 0:
-            chain.append(a)
-            a = int(parent[a])
-        if moved[chain].any():   # b moves with a robot joint, or is an ancestor of one that does
-            out[b] = True
-    for b in np.nonzero(moved)[0]:   # the base links above the first joint
-        a = int(parent[b])
-        while a > 0:
-            out[a] = True
-            a = int(parent[a])
-    return out
+    not of the world or of the scene (a family's scene joints move obstacles, not the robot):
+    the complement of :func:`profrobot.margin.obstacle_bodies`."""
+    return ~obstacle_bodies(robot.mj_model, robot.scene_joints)
 
 
 def robot_pixels(rgb: np.ndarray) -> np.ndarray:
