@@ -96,9 +96,30 @@ impl Real for f64 {
     }
 }
 
+/// The index of the first non-finite value of `v`, if any: blocks scanned in parallel (one
+/// flag each, not a shared atomic per value), then the first bad block searched in order.
+pub(crate) fn first_non_finite<T: Real>(v: &[T]) -> Option<usize> {
+    use rayon::prelude::*;
+    const BLOCK: usize = 1 << 14;
+    let bad: Vec<bool> = v.par_chunks(BLOCK).map(|c| c.iter().any(|x| !x.is_finite())).collect();
+    let b = bad.iter().position(|&b| b)?;
+    v[b * BLOCK..].iter().position(|x| !x.is_finite()).map(|k| b * BLOCK + k)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn first_non_finite_finds_the_first_in_any_block() {
+        let mut v = vec![1.0f32; 100_000];
+        assert_eq!(first_non_finite(&v), None);
+        v[70_000] = f32::INFINITY;
+        v[99_999] = f32::NAN;
+        assert_eq!(first_non_finite(&v), Some(70_000));
+        v[3] = f32::NAN;
+        assert_eq!(first_non_finite(&v), Some(3));
+    }
 
     #[test]
     fn f32_kernel_exp_within_2e7_of_exp() {

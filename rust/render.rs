@@ -45,7 +45,7 @@
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, Result};
-use crate::real::Real;
+use crate::real::{first_non_finite, Real};
 use crate::splat::{self, Cutoff, Splats, NEAR};
 
 /// EWA low-pass filter added to the 2-D covariance (px²).
@@ -636,7 +636,8 @@ impl<T: Real> Scene<T> {
             if a.len() != rows * per {
                 return invalid_input(format!("render: {name} holds {} values; expected {rows} x {per}", a.len()));
             }
-            if let Some(k) = a.iter().position(|x| !x.is_finite()) {
+            // (scanned in parallel blocks; the first non-finite entry is then found in order)
+            if let Some(k) = first_non_finite(a) {
                 let (r, i) = (k / per, (k % per) / (per / n).max(1));
                 return invalid_input(format!("render: {name}[{r}, {i}] is {:?}", a[k].f64()));
             }
@@ -760,25 +761,34 @@ pub fn forward<T: Real>(mut scene: Scene<T>) -> Result<Forward<T>> {
              (conics[{view}, {i}] = ({a:?}, {b:?}, {cc:?})): a covariance must be positive semi-definite"
         ));
     }
+    // the records split into the rasterizer's arrays, in parallel
     let mut splats = Splats {
         cameras: v,
         n,
         width: scene.width,
         height: scene.height,
-        uv: Vec::with_capacity(2 * v * n),
-        conic: Vec::with_capacity(3 * v * n),
-        opacity: Vec::with_capacity(v * n),
-        color: Vec::with_capacity(3 * v * n),
-        depth: Vec::with_capacity(v * n),
+        uv: vec![T::zero(); 2 * v * n],
+        conic: vec![T::zero(); 3 * v * n],
+        opacity: vec![T::zero(); v * n],
+        color: vec![T::zero(); 3 * v * n],
+        depth: vec![T::zero(); v * n],
         cutoff: scene.cutoff,
     };
-    for r in rec {
-        splats.uv.extend_from_slice(&r[0..2]);
-        splats.conic.extend_from_slice(&r[2..5]);
-        splats.opacity.push(r[5]);
-        splats.color.extend_from_slice(&r[6..9]);
-        splats.depth.push(r[9]);
-    }
+    splats
+        .uv
+        .par_chunks_mut(2)
+        .zip(splats.conic.par_chunks_mut(3))
+        .zip(splats.opacity.par_iter_mut())
+        .zip(splats.color.par_chunks_mut(3))
+        .zip(splats.depth.par_iter_mut())
+        .zip(rec.par_iter())
+        .for_each(|(((((uv, conic), opacity), color), depth), r)| {
+            uv.copy_from_slice(&r[0..2]);
+            conic.copy_from_slice(&r[2..5]);
+            *opacity = r[5];
+            color.copy_from_slice(&r[6..9]);
+            *depth = r[9];
+        });
     Ok(splat::forward_checked(splats)?.with_state(|splat| State { scene, splat }))
 }
 

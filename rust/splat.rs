@@ -36,10 +36,20 @@
 //! colour, depth, pixel box), the records in (camera, depth) order so that a tile reads them at
 //! increasing addresses. A tile walks its list front to back; per row it keeps a bit per column
 //! still compositing. A Gaussian visits only the rows of its box with an open pixel in its
-//! columns, and on each computes `o G` for the row's 8 columns in one straight-line loop
-//! (`exp` is a branch-free polynomial in `f32`, [`Real::exp_kernel`]), which the compiler
-//! vectorises; then it composites the open columns where `α > 0`. Most Gaussians behind the
-//! front surface cost a few mask tests.
+//! columns, and on each runs every step on the row's 8 columns at once, without branches:
+//! `o G` (`exp` is a branch-free polynomial in `f32`, [`Real::exp_kernel`]), `α`, the next
+//! transmittance, the masks of the columns that composite and stop, then the sums and `T`
+//! updated with the composited columns' `α` (0 elsewhere, which leaves a sum or `T` exactly as
+//! it was). The compiler vectorises it: one AVX2 instruction per step in `f32` where the CPU
+//! has AVX2 (chosen at run time; the same IEEE operations in the same order, no fused
+//! multiply-add, so the images are bit-identical with or without it). Only the composited
+//! pairs' records are written one by one. Most Gaussians behind the front surface cost a few
+//! mask tests.
+//!
+//! The tile lists are built camera by camera in parallel (each camera's Gaussians, entries,
+//! tiles and list positions are contiguous blocks of the frame's arrays), the images assembled
+//! camera by camera, and the backward's per-Gaussian sums read each entry's gradient through
+//! its list position: nothing is serial over the frame.
 //!
 //! # Backward, without searching again
 //! The forward records every composited pair of a tile, in the order it composited them,
@@ -67,7 +77,7 @@
 use rayon::prelude::*;
 
 use crate::error::{invalid_input, Result};
-use crate::real::Real;
+use crate::real::{first_non_finite, Real};
 
 /// Tile side in pixels.
 pub const TILE: usize = 8;
@@ -181,8 +191,6 @@ struct Bins {
     tiles_x: usize,
     tiles_y: usize,
     gauss_start: Vec<usize>,
-    /// Per entry: its Gaussian's flat index `camera * N + i`.
-    entry_gauss: Vec<u32>,
     order: Vec<u32>,
     /// Per tile-list position: the Gaussian's slot in the depth-sorted record array
     /// (`sorted`), so that a tile reads its records in increasing address order.
@@ -193,6 +201,20 @@ struct Bins {
     /// col1)` (tile-local, end exclusive).
     order_box: Vec<[u8; 4]>,
     tile_start: Vec<usize>,
+    /// Per entry: its tile-list position (the inverse of `order`).
+    entry_pos: Vec<u32>,
+}
+
+/// `v` cut into consecutive pieces, piece `k` of length `bounds[k + 1] - bounds[k]`
+/// (`bounds` ascending from 0; each camera's or tile's block of a frame-wide array).
+fn pieces<'a, X>(mut v: &'a mut [X], bounds: &[usize]) -> Vec<&'a mut [X]> {
+    let mut out = Vec::with_capacity(bounds.len().saturating_sub(1));
+    for w in bounds.windows(2) {
+        let (piece, rest) = std::mem::take(&mut v).split_at_mut(w[1] - w[0]);
+        out.push(piece);
+        v = rest;
+    }
+    out
 }
 
 /// `floor` without a libm call (x86-64 without SSE4.1 has no rounding instruction); exact for
@@ -252,7 +274,8 @@ impl<T: Real> Splats<T> {
             if v.len() != c * n * per {
                 return invalid_input(format!("rasterize: {name} holds {} values; expected {c} x {n} x {per}", v.len()));
             }
-            if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+            // (scanned in parallel blocks; the first non-finite entry is then found in order)
+            if let Some(k) = first_non_finite(v) {
                 let g = k / per;
                 return invalid_input(format!("rasterize: {name}[{}, {}] is {:?}", g / n, g % n, v[k].f64()));
             }
@@ -330,106 +353,171 @@ impl<T: Real> Splats<T> {
             .collect()
     }
 
+    /// The tile lists, built camera by camera in parallel: a camera's Gaussians, entries, tiles,
+    /// tile-list positions and depth-sorted slots are each one contiguous block of the global
+    /// arrays (Gaussians are numbered camera-major, entries Gaussian-major, tiles camera-major),
+    /// so each camera fills its own blocks, with global indices, and no step is serial over the
+    /// frame. The blocks' offsets come from per-camera counts taken first.
     fn bin(&self) -> Result<Bins> {
         let (tx, ty) = (self.tiles_x(), self.tiles_y());
         let per_cam = tx * ty;
-        let total = self.cameras * self.n;
-        // Tile rectangle of every Gaussian, then Gaussian-major entries.
-        let boxes: Vec<Option<PixelBox>> = (0..total).into_par_iter().map(|g| self.pixel_box(g)).collect();
-        let rects: Vec<Option<[usize; 4]>> =
-            boxes.iter().map(|b| b.as_ref().map(|b| [b.x0 / TILE, b.x1 / TILE, b.y0 / TILE, b.y1 / TILE])).collect();
-        let pboxes: Vec<[u32; 4]> =
-            boxes.iter().map(|b| b.as_ref().map_or([1, 0, 1, 0], |b| [b.x0 as u32, b.x1 as u32, b.y0 as u32, b.y1 as u32])).collect();
-        let mut gauss_start = Vec::with_capacity(total + 1);
-        gauss_start.push(0usize);
-        for r in &rects {
-            let k = r.map_or(0, |[x0, x1, y0, y1]| (x1 - x0 + 1) * (y1 - y0 + 1));
-            gauss_start.push(gauss_start.last().unwrap() + k);
+        let (n, cams) = (self.n, self.cameras);
+        let total = cams * n;
+        // Every Gaussian's pixel box and tile rectangle `[x0, x1, y0, y1]` (None: not drawn).
+        let boxes: Vec<Option<([u32; 4], [u32; 4])>> = (0..total)
+            .into_par_iter()
+            .map(|g| {
+                self.pixel_box(g).map(|b| {
+                    let p = [b.x0, b.x1, b.y0, b.y1].map(|v| v as u32);
+                    (p, p.map(|v| v / TILE as u32))
+                })
+            })
+            .collect();
+        let tiles_of = |b: &Option<([u32; 4], [u32; 4])>| b.map_or(0, |(_, [x0, x1, y0, y1])| ((x1 - x0 + 1) * (y1 - y0 + 1)) as usize);
+        // Per camera: entries (= tile-list positions) and drawn Gaussians; Gaussian-major
+        // entry starts within each camera, then offset by the cameras before.
+        let per_camera: Vec<(Vec<usize>, usize)> = boxes
+            .par_chunks(n)
+            .map(|bs| {
+                let mut starts = Vec::with_capacity(n + 1);
+                let mut acc = 0usize;
+                starts.push(0);
+                for b in bs {
+                    acc += tiles_of(b);
+                    starts.push(acc);
+                }
+                (starts, bs.iter().filter(|b| b.is_some()).count())
+            })
+            .collect();
+        let mut entry0 = vec![0usize; cams + 1];
+        let mut slot0 = vec![0usize; cams + 1];
+        for (c, (starts, drawn)) in per_camera.iter().enumerate() {
+            entry0[c + 1] = entry0[c] + starts[n];
+            slot0[c + 1] = slot0[c] + drawn;
         }
-        let m = *gauss_start.last().unwrap();
+        let m = entry0[cams];
         if m as u64 > u32::MAX as u64 {
             return invalid_input(format!("rasterize: {m} (Gaussian, tile) incidences are too many for 32-bit indices"));
         }
-        let mut entry_gauss = vec![0u32; m];
-        let mut entry_tile = vec![0u32; m];
-        for (g, r) in rects.iter().enumerate() {
-            if let Some([x0, x1, y0, y1]) = *r {
-                let cam = g / self.n;
-                let mut e = gauss_start[g];
-                for ty_ in y0..=y1 {
-                    for tx_ in x0..=x1 {
-                        entry_gauss[e] = g as u32;
-                        entry_tile[e] = (cam * per_cam + ty_ * tx + tx_) as u32;
-                        e += 1;
+        let mut gauss_start = vec![0usize; total + 1];
+        gauss_start[total] = m;
+        let mut order = vec![0u32; m];
+        let mut order_slot = vec![0u32; m];
+        let mut order_box = vec![[0u8; 4]; m];
+        let mut sorted = vec![0u32; slot0[cams]];
+        let mut tile_start = vec![0usize; cams * per_cam + 1];
+        tile_start[cams * per_cam] = m;
+        let mut entry_pos = vec![0u32; m];
+        // Each camera's blocks of the global arrays.
+        struct Blocks<'a> {
+            gauss_start: &'a mut [usize],
+            order: &'a mut [u32],
+            order_slot: &'a mut [u32],
+            order_box: &'a mut [[u8; 4]],
+            sorted: &'a mut [u32],
+            tile_start: &'a mut [usize],
+            entry_pos: &'a mut [u32],
+        }
+        let by_gauss: Vec<usize> = (0..=cams).map(|c| c * n).collect();
+        let by_tile: Vec<usize> = (0..=cams).map(|c| c * per_cam).collect();
+        let blocks: Vec<Blocks> = pieces(&mut gauss_start[..total], &by_gauss)
+            .into_iter()
+            .zip(pieces(&mut order, &entry0))
+            .zip(pieces(&mut order_slot, &entry0))
+            .zip(pieces(&mut order_box, &entry0))
+            .zip(pieces(&mut sorted, &slot0))
+            .zip(pieces(&mut tile_start[..cams * per_cam], &by_tile))
+            .zip(pieces(&mut entry_pos, &entry0))
+            .map(|((((((gauss_start, order), order_slot), order_box), sorted), tile_start), entry_pos)| Blocks {
+                gauss_start,
+                order,
+                order_slot,
+                order_box,
+                sorted,
+                tile_start,
+                entry_pos,
+            })
+            .collect();
+        let results: Vec<Result<()>> = blocks
+            .into_par_iter()
+            .zip(per_camera.into_par_iter())
+            .enumerate()
+            .map(|(c, (blk, (starts, _)))| {
+                let (g0, e0) = (c * n, entry0[c]);
+                let boxes = &boxes[g0..g0 + n];
+                for (dst, s) in blk.gauss_start.iter_mut().zip(&starts) {
+                    *dst = e0 + s;
+                }
+                // The drawn Gaussians front to back by (z, g), a total order (z > NEAR > 0, so
+                // a depth's bits order like the depth). In f32 the key (z bits, g) packs into
+                // one u64, which sorts several times faster than a pair.
+                let drawn = (0..n).filter(|&i| boxes[i].is_some());
+                if T::DEPTH_BITS == 32 {
+                    let mut v: Vec<u64> = drawn.map(|i| self.depth[g0 + i].order_bits() << 32 | i as u64).collect();
+                    radix_sort(&mut v);
+                    for (dst, k) in blk.sorted.iter_mut().zip(v) {
+                        *dst = (g0 as u64 + (k & u32::MAX as u64)) as u32;
+                    }
+                } else {
+                    let mut v: Vec<(u64, u32)> = drawn.map(|i| (self.depth[g0 + i].order_bits(), i as u32)).collect();
+                    v.sort_unstable();
+                    for (dst, (_, i)) in blk.sorted.iter_mut().zip(v) {
+                        *dst = g0 as u32 + i;
                     }
                 }
-            }
-        }
-        // Tile by tile, front to back. The drawn Gaussians are sorted once by (camera, z, g),
-        // a total order (z > NEAR > 0, so its bits order like the numbers); a counting sort of
-        // their entries by tile, taken in that order, keeps each tile's list front to back.
-        let n = self.n;
-        // z > NEAR > 0, so a depth's bits order like the depth. In f32 the key (z bits, g)
-        // packs into one u64, which sorts several times faster than a pair.
-        let by_depth: Vec<Vec<u32>> = (0..self.cameras)
-            .into_par_iter()
-            .map(|c| {
-                let drawn = (c * n..(c + 1) * n).filter(|&g| rects[g].is_some());
-                if T::DEPTH_BITS == 32 {
-                    let mut v: Vec<u64> = drawn.map(|g| self.depth[g].order_bits() << 32 | g as u64).collect();
-                    radix_sort(&mut v);
-                    v.into_iter().map(|k| k as u32).collect()
-                } else {
-                    let mut v: Vec<(u64, u32)> = drawn.map(|g| (self.depth[g].order_bits(), g as u32)).collect();
-                    v.sort_unstable();
-                    v.into_iter().map(|(_, g)| g).collect()
+                // A counting sort of the entries by tile, taken in depth order, keeps each
+                // tile's list front to back.
+                let mut count = vec![0usize; per_cam + 1];
+                for (_, [x0, x1, y0, y1]) in boxes.iter().flatten() {
+                    for ty_ in *y0 as usize..=*y1 as usize {
+                        for c in &mut count[ty_ * tx + *x0 as usize + 1..=ty_ * tx + *x1 as usize + 1] {
+                            *c += 1;
+                        }
+                    }
                 }
-            })
-            .collect();
-        let ntiles = self.cameras * per_cam;
-        let mut tile_start = vec![0usize; ntiles + 1];
-        for &t in &entry_tile {
-            tile_start[t as usize + 1] += 1;
-        }
-        for t in 0..ntiles {
-            if tile_start[t + 1] >= MAX_TILE_ENTRIES {
-                return invalid_input(format!(
-                    "rasterize: {} Gaussians reach one 8x8 tile (at most {} can)",
-                    tile_start[t + 1],
-                    MAX_TILE_ENTRIES - 1
-                ));
-            }
-            tile_start[t + 1] += tile_start[t];
-        }
-        let mut cursor = tile_start.clone();
-        let mut order = vec![0u32; m];
-        for &g in by_depth.iter().flatten() {
-            let g = g as usize;
-            let entries = gauss_start[g]..gauss_start[g + 1];
-            for (e, &t) in entries.clone().zip(&entry_tile[entries]) {
-                order[cursor[t as usize]] = e as u32;
-                cursor[t as usize] += 1;
-            }
-        }
-        let sorted: Vec<u32> = by_depth.into_iter().flatten().collect();
-        let mut slot = vec![0u32; total];
-        for (k, &g) in sorted.iter().enumerate() {
-            slot[g as usize] = k as u32;
-        }
-        let order_slot = order.par_iter().map(|&e| slot[entry_gauss[e as usize] as usize]).collect();
-        let order_box = order
-            .par_iter()
-            .map(|&e| {
-                let t = entry_tile[e as usize] as usize % per_cam;
-                let (x0, y0) = ((t % tx) * TILE, (t / tx) * TILE);
-                let [bx0, bx1, by0, by1] = pboxes[entry_gauss[e as usize] as usize].map(|v| v as usize);
+                for t in 0..per_cam {
+                    if count[t + 1] >= MAX_TILE_ENTRIES {
+                        return invalid_input(format!(
+                            "rasterize: {} Gaussians reach one 8x8 tile (at most {} can)",
+                            count[t + 1],
+                            MAX_TILE_ENTRIES - 1
+                        ));
+                    }
+                    count[t + 1] += count[t];
+                }
+                for (dst, &s) in blk.tile_start.iter_mut().zip(&count) {
+                    *dst = e0 + s;
+                }
+                let s0 = slot0[c] as u32;
+                // the pixel box `[lo, hi]` within the tile starting at pixel `o`: tile-local, end
+                // exclusive
                 let local = |lo: usize, hi: usize, o: usize| [(lo.max(o) - o) as u8, ((hi + 1).min(o + TILE) - o) as u8];
-                let [r0, r1] = local(by0, by1, y0);
-                let [c0, c1] = local(bx0, bx1, x0);
-                [r0, r1, c0, c1]
+                for (k, &g) in blk.sorted.iter().enumerate() {
+                    let i = g as usize - g0;
+                    let (slot, (pbox, [x0, x1, y0, y1])) = (s0 + k as u32, boxes[i].expect("a sorted Gaussian is drawn"));
+                    let [bx0, bx1, by0, by1] = pbox.map(|v| v as usize);
+                    // its entries in row-major tile order, numbered from `starts[i]`
+                    let mut e = starts[i];
+                    for ty_ in y0 as usize..=y1 as usize {
+                        let [r0, r1] = local(by0, by1, ty_ * TILE);
+                        for tx_ in x0 as usize..=x1 as usize {
+                            let t = ty_ * tx + tx_;
+                            let pos = count[t];
+                            count[t] += 1;
+                            blk.order[pos] = (e0 + e) as u32;
+                            blk.entry_pos[e] = (e0 + pos) as u32;
+                            blk.order_slot[pos] = slot;
+                            let [c0, c1] = local(bx0, bx1, tx_ * TILE);
+                            blk.order_box[pos] = [r0, r1, c0, c1];
+                            e += 1;
+                        }
+                    }
+                }
+                Ok(())
             })
             .collect();
-        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, entry_gauss, order, order_slot, sorted, order_box, tile_start })
+        results.into_iter().collect::<Result<Vec<()>>>()?;
+        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, order, order_slot, sorted, order_box, tile_start, entry_pos })
     }
 }
 
@@ -477,19 +565,6 @@ struct Packed<T> {
     z: T,
 }
 
-/// `(α, clamped)` from `o G` under `cutoff`; α ≤ 0 means "not composited".
-#[inline(always)]
-fn cut_alpha<T: Real>(raw: T, cutoff: Cutoff) -> (T, bool) {
-    let max = T::c(ALPHA_MAX);
-    let clamped = raw > max;
-    let a = match cutoff {
-        Cutoff::Soft => (raw.min(max) - T::c(ALPHA_MIN)).max(T::zero()),
-        Cutoff::Hard if raw >= T::c(ALPHA_MIN) => raw.min(max),
-        Cutoff::Hard => T::zero(),
-    };
-    (a, clamped)
-}
-
 /// Pixel rectangle of global tile `t`: image, x range, y range.
 fn tile_rect(width: usize, height: usize, bins: &Bins, t: usize) -> (usize, std::ops::Range<usize>, std::ops::Range<usize>) {
     let per_cam = bins.tiles_x * bins.tiles_y;
@@ -500,22 +575,68 @@ fn tile_rect(width: usize, height: usize, bins: &Bins, t: usize) -> (usize, std:
     (cam, xs, ys)
 }
 
-/// One tile's forward: per pixel (row-major within the tile, `TILE` columns) rgb, alpha,
-/// dsum; per list entry the largest weight; the composited pairs in compositing order.
+/// One tile's forward: per channel (r, g, b, alpha, dsum), row and column of the tile, the
+/// pixel's sum; the composited pairs in compositing order. (Each list entry's largest weight
+/// goes to the caller's slice.)
 struct TileForward<T> {
-    pixels: [[T; 5]; TILE_PIXELS],
-    entry_max: Vec<T>,
+    pixels: [[[T; TILE]; TILE]; 5],
     pairs: Vec<Pair<T>>,
 }
 
-#[inline(never)]
-fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize) -> TileForward<T> {
+/// [`forward_tile_with`], compiled for AVX2 where the CPU has it (8 `f32` lanes: one row of a
+/// tile per instruction). The arithmetic is the same IEEE operations in the same order either
+/// way (no fused multiply-add), so the images and pairs are bit-identical on any x86-64.
+fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize, entry_max: &mut [T]) -> TileForward<T> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { forward_tile_avx2(s, packed, bins, t, entry_max) };
+    }
+    forward_tile_with(s, packed, bins, t, entry_max)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn forward_tile_avx2<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize, entry_max: &mut [T]) -> TileForward<T> {
+    forward_tile_with(s, packed, bins, t, entry_max)
+}
+
+/// `x < y ? x : y` and `x > y ? x : y` (no NaN here: one instruction each, unlike `min`/`max`,
+/// which order NaNs).
+#[inline(always)]
+fn lesser<T: Real>(x: T, y: T) -> T {
+    if x < y {
+        x
+    } else {
+        y
+    }
+}
+
+#[inline(always)]
+fn greater<T: Real>(x: T, y: T) -> T {
+    if x > y {
+        x
+    } else {
+        y
+    }
+}
+
+/// The tile loop (see the module docs). Per row a Gaussian visits, every step runs on the
+/// row's `TILE` columns at once, without branches: `o G`, `α`, the next transmittance, which
+/// columns composite (open, `α > 0`) and which stop (`T` would fall below `T_MIN`), then the
+/// sums and `T` updated by selection; only the composited pairs' records are written one by
+/// one, in column order. `entry_max` (the tile's list positions): each entry's largest weight.
+#[inline(always)]
+fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: usize, entry_max: &mut [T]) -> TileForward<T> {
     let first = bins.tile_start[t];
     let entries = &bins.order_slot[first..bins.tile_start[t + 1]];
     let (_, xs, ys) = tile_rect(s.width, s.height, bins, t);
     let (zero, one, t_min) = (T::zero(), T::one(), T::c(T_MIN));
-    let mut px = [[zero; 5]; TILE_PIXELS]; // r, g, b, alpha, dsum
-    let mut tt = [one; TILE_PIXELS];
+    let (amin, amax) = (T::c(ALPHA_MIN), T::c(ALPHA_MAX));
+    let soft = s.cutoff == Cutoff::Soft;
+    // r, g, b, alpha, dsum; transmittance: [row][column]
+    let mut px = [[[zero; TILE]; TILE]; 5];
+    let mut tt = [[one; TILE]; TILE];
     // Per row of the tile, a bit per column still compositing.
     let full = ((1u32 << xs.len()) - 1) as u16;
     let mut open_row = [0u16; TILE];
@@ -523,13 +644,11 @@ fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: us
         *r = full;
     }
     let mut open = ys.len();
-    let mut entry_max = vec![zero; entries.len()];
     let mut pairs = Vec::with_capacity(4 * entries.len());
     let cols: [T; TILE] = std::array::from_fn(|k| T::c((xs.start + k) as f64));
     // Gaussians front to back; each visits only the rows of the tile its box spans that still
-    // have open pixels in its columns and, on each, the columns its ellipse spans; the tile
-    // ends when every pixel has stopped. Most Gaussians behind the front surface cost a few
-    // mask tests.
+    // have open pixels in its columns; the tile ends when every pixel has stopped. Most
+    // Gaussians behind the front surface cost a few mask tests.
     for (j, &k) in entries.iter().enumerate() {
         if open == 0 {
             break;
@@ -542,58 +661,77 @@ fn forward_tile<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, t: us
             continue;
         }
         let p = &packed[k as usize];
-        #[allow(clippy::needless_range_loop)] // `row` also places the pixel: `y`, `i` below
+        let mut w_max = zero;
         for row in r0..r1 {
-            let y = ys.start + row;
             let live = open_row[row] & box_mask;
             if live == 0 {
                 continue;
             }
-            // o G at the row's TILE columns at once: straight-line arithmetic and the
-            // branch-free kernel exp, which the compiler vectorises (no square root, no
-            // division, no per-pixel call); columns outside the ellipse come out < 1/255 and
-            // are not composited, exactly as if they had been skipped.
-            let dy = T::c(y as f64) - p.v;
+            // o G at the row's columns (the branch-free kernel exp; columns outside the
+            // ellipse come out < 1/255 and do not composite, as if they had been skipped)
+            let dy = T::c((ys.start + row) as f64) - p.v;
             let (cdy, bdy) = (p.c * dy * dy, T::c(2.0) * p.b * dy);
-            let mut raw = [zero; TILE];
-            for (k, r) in raw.iter_mut().enumerate() {
+            let t_row = tt[row];
+            let (mut alpha, mut t_next) = ([zero; TILE], [zero; TILE]);
+            let (mut positive, mut low, mut clamped) = (0u16, 0u16, 0u16);
+            for k in 0..TILE {
                 let dx = cols[k] - p.u;
-                *r = p.o * (T::c(-0.5) * (p.a * dx * dx + bdy * dx + cdy)).exp_kernel();
+                let raw = p.o * (T::c(-0.5) * (p.a * dx * dx + bdy * dx + cdy)).exp_kernel();
+                // α = min(0.99, o G) - 1/255, kept when > 0 (soft); min(0.99, o G) when
+                // o G >= 1/255 (hard); `cut_alpha`
+                let capped = lesser(raw, amax);
+                let a = if soft {
+                    greater(capped - amin, zero)
+                } else if raw >= amin {
+                    capped
+                } else {
+                    zero
+                };
+                alpha[k] = a;
+                t_next[k] = t_row[k] * (one - a);
+                positive |= ((a > zero) as u16) << k;
+                low |= ((t_next[k] < t_min) as u16) << k;
+                clamped |= ((raw > amax) as u16) << k;
             }
-            let mut bits = live;
+            // a pixel stops at the first Gaussian after which T would fall below T_MIN (that
+            // one is not composited)
+            let stop = live & positive & low;
+            let comp = live & positive & !low;
+            if stop != 0 {
+                open_row[row] &= !stop;
+                if open_row[row] == 0 {
+                    open -= 1;
+                }
+            }
+            if comp == 0 {
+                continue;
+            }
+            // the composited columns' α, 0 elsewhere: then every update below is plain
+            // arithmetic on the whole row, exact where a column does not composite (T (1 - 0)
+            // = T, and a sum plus ±0 is the sum: sums start at +0 and never become -0)
+            let am: [T; TILE] = std::array::from_fn(|k| if comp >> k & 1 != 0 { alpha[k] } else { zero });
+            let wm: [T; TILE] = std::array::from_fn(|k| am[k] * t_row[k]);
+            for k in 0..TILE {
+                px[0][row][k] = px[0][row][k] + wm[k] * p.col[0];
+                px[1][row][k] = px[1][row][k] + wm[k] * p.col[1];
+                px[2][row][k] = px[2][row][k] + wm[k] * p.col[2];
+                px[3][row][k] = px[3][row][k] + wm[k];
+                px[4][row][k] = px[4][row][k] + wm[k] * p.z;
+                tt[row][k] = t_row[k] * (one - am[k]);
+                w_max = greater(w_max, wm[k]);
+            }
+            let mut bits = comp;
             while bits != 0 {
                 let col = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let (a, clamped) = cut_alpha(raw[col], s.cutoff);
-                if a <= zero {
-                    continue;
-                }
                 let i = row * TILE + col;
-                let t_next = tt[i] * (one - a);
-                if t_next < t_min {
-                    open_row[row] &= !(1 << col);
-                    if open_row[row] == 0 {
-                        open -= 1;
-                    }
-                    continue;
-                }
-                let w = a * tt[i];
-                let q = &mut px[i];
-                q[0] = q[0] + w * p.col[0];
-                q[1] = q[1] + w * p.col[1];
-                q[2] = q[2] + w * p.col[2];
-                q[3] = q[3] + w;
-                q[4] = q[4] + w * p.z;
-                let key = (j as u32) << ENTRY_SHIFT | if clamped { CLAMP_BIT } else { 0 } | i as u32;
-                pairs.push(Pair { key, alpha: a, t: tt[i] });
-                tt[i] = t_next;
-                if w > entry_max[j] {
-                    entry_max[j] = w;
-                }
+                let flag = if clamped >> col & 1 != 0 { CLAMP_BIT } else { 0 };
+                pairs.push(Pair { key: (j as u32) << ENTRY_SHIFT | flag | i as u32, alpha: alpha[col], t: t_row[col] });
             }
         }
+        entry_max[j] = w_max;
     }
-    TileForward { pixels: px, entry_max, pairs }
+    TileForward { pixels: px, pairs }
 }
 
 /// Rasterizes `splats` after checking them (see the module docs). Errors name the input.
@@ -607,36 +745,44 @@ pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> 
     let s = &splats;
     let bins = s.bin()?;
     let packed = s.pack(&bins);
-    let ntiles = bins.tile_start.len() - 1;
-    let tiles: Vec<TileForward<T>> = (0..ntiles).into_par_iter().map(|t| forward_tile(s, &packed, &bins, t)).collect();
+    // per tile-list position: the entry's largest weight
+    let mut pos_max = vec![T::zero(); bins.order.len()];
+    let tiles: Vec<TileForward<T>> =
+        pieces(&mut pos_max, &bins.tile_start).into_par_iter().enumerate().map(|(t, em)| forward_tile(s, &packed, &bins, t, em)).collect();
+    // the images, camera by camera in parallel
     let (w, h) = (s.width, s.height);
+    let per_cam = bins.tiles_x * bins.tiles_y;
     let npix = s.cameras * w * h;
     let mut rgb = vec![T::zero(); 3 * npix];
     let mut alpha = vec![T::zero(); npix];
     let mut dsum = vec![T::zero(); npix];
-    let mut entry_max = vec![T::zero(); bins.entry_gauss.len()];
-    let mut npairs = 0;
-    let mut pairs = Vec::with_capacity(ntiles);
-    for (t, tf) in tiles.into_iter().enumerate() {
-        let (cam, xs, ys) = tile_rect(w, h, &bins, t);
-        for (row, y) in ys.enumerate() {
-            for (col, x) in xs.clone().enumerate() {
-                let p = (cam * h + y) * w + x;
-                let [r, g, b, acc, ds] = tf.pixels[row * TILE + col];
-                rgb[3 * p..3 * p + 3].copy_from_slice(&[r, g, b]);
-                alpha[p] = acc;
-                dsum[p] = ds;
+    rgb.par_chunks_mut(3 * w * h)
+        .zip(alpha.par_chunks_mut(w * h))
+        .zip(dsum.par_chunks_mut(w * h))
+        .zip(tiles.par_chunks(per_cam))
+        .enumerate()
+        .for_each(|(cam, (((rgb, alpha), dsum), tiles))| {
+            for (local, tf) in tiles.iter().enumerate() {
+                let (_, xs, ys) = tile_rect(w, h, &bins, cam * per_cam + local);
+                for (row, y) in ys.enumerate() {
+                    for (col, x) in xs.clone().enumerate() {
+                        let p = y * w + x;
+                        let [r, g, b, acc, ds] = [0, 1, 2, 3, 4].map(|ch| tf.pixels[ch][row][col]);
+                        rgb[3 * p..3 * p + 3].copy_from_slice(&[r, g, b]);
+                        alpha[p] = acc;
+                        dsum[p] = ds;
+                    }
+                }
             }
-        }
-        for (i, &e) in bins.order[bins.tile_start[t]..bins.tile_start[t + 1]].iter().enumerate() {
-            entry_max[e as usize] = tf.entry_max[i];
-        }
-        npairs += tf.pairs.len() as u64;
-        pairs.push(tf.pairs);
-    }
+        });
+    let npairs = tiles.iter().map(|tf| tf.pairs.len() as u64).sum();
+    let pairs: Vec<Vec<Pair<T>>> = tiles.into_iter().map(|tf| tf.pairs).collect();
     let contrib: Vec<T> = (0..s.cameras * s.n)
         .into_par_iter()
-        .map(|g| entry_max[bins.gauss_start[g]..bins.gauss_start[g + 1]].iter().fold(T::zero(), |m, &x| m.max(x)))
+        .map(|g| {
+            let entries = &bins.entry_pos[bins.gauss_start[g]..bins.gauss_start[g + 1]];
+            entries.iter().fold(T::zero(), |m, &pos| m.max(pos_max[pos as usize]))
+        })
         .collect();
     Ok(Forward { rgb, alpha, dsum, contrib, npairs, state: State { splats, bins, packed, pairs } })
 }
@@ -644,12 +790,12 @@ pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> 
 /// `[u, v, a, b, c, o, r, g, b, z]` gradient of one list entry.
 type EntryGrad<T> = [T; 10];
 
-fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]) -> Vec<EntryGrad<T>> {
+/// Tile `t`'s backward: the gradient of each of its list entries into `grads` (the tile's
+/// list positions).
+fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T], grads: &mut [EntryGrad<T>]) {
     let (s, bins) = (&st.splats, &st.bins);
-    let entries = &bins.order[bins.tile_start[t]..bins.tile_start[t + 1]];
     let slots = &bins.order_slot[bins.tile_start[t]..bins.tile_start[t + 1]];
     let zero = T::zero();
-    let mut grads = vec![[zero; 10]; entries.len()];
     let (cam, xs, ys) = tile_rect(s.width, s.height, bins, t);
     let (w, h) = (s.width, s.height);
     // Upstream gradients of the tile's pixels (index row * TILE + column).
@@ -698,7 +844,6 @@ fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g
         e[0] = e[0] - d_q * two * (p.a * dx + p.b * dy);
         e[1] = e[1] - d_q * two * (p.b * dx + p.c * dy);
     }
-    grads
 }
 
 /// Gradients of `L = Σ g_rgb·rgb + g_alpha·alpha + g_dsum·dsum` (layouts of [`Forward`]).
@@ -714,41 +859,43 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
         }
     }
     let bins = &st.bins;
-    let ntiles = bins.tile_start.len() - 1;
-    let tiles: Vec<Vec<EntryGrad<T>>> = (0..ntiles).into_par_iter().map(|t| backward_tile(st, t, g_rgb, g_alpha, g_dsum)).collect();
-    // Entry gradients back in Gaussian-major numbering, then one fixed-order sum per Gaussian.
-    let mut by_entry = vec![[T::zero(); 10]; bins.entry_gauss.len()];
-    for (t, tg) in tiles.iter().enumerate() {
-        for (i, &e) in bins.order[bins.tile_start[t]..bins.tile_start[t + 1]].iter().enumerate() {
-            by_entry[e as usize] = tg[i];
-        }
-    }
-    let per_gauss: Vec<EntryGrad<T>> = (0..s.cameras * s.n)
+    // per tile-list position: the entry's gradient
+    let mut pos_grad = vec![[T::zero(); 10]; bins.order.len()];
+    pieces(&mut pos_grad, &bins.tile_start)
         .into_par_iter()
-        .map(|g| {
+        .enumerate()
+        .for_each(|(t, grads)| backward_tile(st, t, g_rgb, g_alpha, g_dsum, grads));
+    // one fixed-order sum per Gaussian (its entries in Gaussian-major order), straight into the
+    // outputs
+    let total = s.cameras * s.n;
+    let mut out = Grads {
+        uv: vec![T::zero(); 2 * total],
+        conic: vec![T::zero(); 3 * total],
+        opacity: vec![T::zero(); total],
+        color: vec![T::zero(); 3 * total],
+        depth: vec![T::zero(); total],
+    };
+    out.uv
+        .par_chunks_mut(2)
+        .zip(out.conic.par_chunks_mut(3))
+        .zip(out.opacity.par_iter_mut())
+        .zip(out.color.par_chunks_mut(3))
+        .zip(out.depth.par_iter_mut())
+        .enumerate()
+        .for_each(|(g, ((((uv, conic), opacity), color), depth))| {
             let mut acc = [T::zero(); 10];
-            for e in &by_entry[bins.gauss_start[g]..bins.gauss_start[g + 1]] {
+            for &pos in &bins.entry_pos[bins.gauss_start[g]..bins.gauss_start[g + 1]] {
+                let e = &pos_grad[pos as usize];
                 for k in 0..10 {
                     acc[k] = acc[k] + e[k];
                 }
             }
-            acc
-        })
-        .collect();
-    let mut out = Grads {
-        uv: Vec::with_capacity(2 * per_gauss.len()),
-        conic: Vec::with_capacity(3 * per_gauss.len()),
-        opacity: Vec::with_capacity(per_gauss.len()),
-        color: Vec::with_capacity(3 * per_gauss.len()),
-        depth: Vec::with_capacity(per_gauss.len()),
-    };
-    for g in &per_gauss {
-        out.uv.extend_from_slice(&g[0..2]);
-        out.conic.extend_from_slice(&g[2..5]);
-        out.opacity.push(g[5]);
-        out.color.extend_from_slice(&g[6..9]);
-        out.depth.push(g[9]);
-    }
+            uv.copy_from_slice(&acc[0..2]);
+            conic.copy_from_slice(&acc[2..5]);
+            *opacity = acc[5];
+            color.copy_from_slice(&acc[6..9]);
+            *depth = acc[9];
+        });
     Ok(out)
 }
 
