@@ -729,39 +729,9 @@ pub fn forward<T: Real>(mut scene: Scene<T>) -> Result<Forward<T>> {
     }
     let (n, v) = (scene.n, scene.nviews());
     let centres: Vec<[T; 3]> = scene.cameras.iter().map(centre).collect();
-    // Projection and colour of every (view, Gaussian): [uv 2, conic 3, opacity, colour 3, z];
-    // a conic that is not positive definite is marked by a NaN centre and named below.
-    let rec: Vec<[T; 10]> = (0..v * n)
-        .into_par_iter()
-        .map(|k| {
-            let (view, i) = (k / n, k % n);
-            let [pose, c] = scene.views[view];
-            let cam = &scene.cameras[c];
-            let mu = scene.mean(pose, i);
-            let p = project(mu, scene.cov(pose, i), cam, scene.width, scene.height);
-            let o = scene.opacity(view, i);
-            let z = p.x[2];
-            if z.f64() <= NEAR {
-                // not drawn: any positive-definite conic keeps the rasterizer's checks simple
-                return [T::zero(), T::zero(), T::one(), T::zero(), T::one(), o, T::zero(), T::zero(), T::zero(), z];
-            }
-            let col = scene.color(view, i, mu, centres[c]).map(|x| x.max(T::zero()));
-            let [a, b, cc] = p.conic;
-            let finite = p.uv.iter().chain(&p.conic).all(|x| x.is_finite());
-            let u = if finite && a > T::zero() && cc > T::zero() && a * cc - b * b > T::zero() { p.uv[0] } else { T::nan() };
-            [u, p.uv[1], a, b, cc, o, col[0], col[1], col[2], z]
-        })
-        .collect();
-    if let Some(k) = rec.iter().position(|r| r[0].is_nan()) {
-        let (view, i) = (k / n, k % n);
-        let [pose, c] = scene.views[view];
-        let [a, b, cc] = [rec[k][2], rec[k][3], rec[k][4]].map(|x| x.f64());
-        return invalid_input(format!(
-            "render: covs[{pose}, {i}] projects to a 2D covariance that is not positive definite in camera {c} \
-             (conics[{view}, {i}] = ({a:?}, {b:?}, {cc:?})): a covariance must be positive semi-definite"
-        ));
-    }
-    // the records split into the rasterizer's arrays, in parallel
+    // Projection and colour of every (view, Gaussian), straight into the rasterizer's arrays,
+    // in parallel; a conic that is not positive definite is marked by a NaN centre and named
+    // below.
     let mut splats = Splats {
         cameras: v,
         n,
@@ -781,14 +751,36 @@ pub fn forward<T: Real>(mut scene: Scene<T>) -> Result<Forward<T>> {
         .zip(splats.opacity.par_iter_mut())
         .zip(splats.color.par_chunks_mut(3))
         .zip(splats.depth.par_iter_mut())
-        .zip(rec.par_iter())
-        .for_each(|(((((uv, conic), opacity), color), depth), r)| {
-            uv.copy_from_slice(&r[0..2]);
-            conic.copy_from_slice(&r[2..5]);
-            *opacity = r[5];
-            color.copy_from_slice(&r[6..9]);
-            *depth = r[9];
+        .enumerate()
+        .for_each(|(k, ((((uv, conic), opacity), color), depth))| {
+            let (view, i) = (k / n, k % n);
+            let [pose, c] = scene.views[view];
+            let cam = &scene.cameras[c];
+            let mu = scene.mean(pose, i);
+            let p = project(mu, scene.cov(pose, i), cam, scene.width, scene.height);
+            *opacity = scene.opacity(view, i);
+            *depth = p.x[2];
+            if p.x[2].f64() <= NEAR {
+                // not drawn: any positive-definite conic keeps the rasterizer's checks simple
+                conic.copy_from_slice(&[T::one(), T::zero(), T::one()]);
+                return;
+            }
+            color.copy_from_slice(&scene.color(view, i, mu, centres[c]).map(|x| x.max(T::zero())));
+            let [a, b, cc] = p.conic;
+            let finite = p.uv.iter().chain(&p.conic).all(|x| x.is_finite());
+            let u = if finite && a > T::zero() && cc > T::zero() && a * cc - b * b > T::zero() { p.uv[0] } else { T::nan() };
+            uv.copy_from_slice(&[u, p.uv[1]]);
+            conic.copy_from_slice(&p.conic);
         });
+    if let Some(k) = splats.uv.iter().step_by(2).position(|u| u.is_nan()) {
+        let (view, i) = (k / n, k % n);
+        let [pose, c] = scene.views[view];
+        let [a, b, cc] = [0, 1, 2].map(|j| splats.conic[3 * k + j].f64());
+        return invalid_input(format!(
+            "render: covs[{pose}, {i}] projects to a 2D covariance that is not positive definite in camera {c} \
+             (conics[{view}, {i}] = ({a:?}, {b:?}, {cc:?})): a covariance must be positive semi-definite"
+        ));
+    }
     Ok(splat::forward_checked(splats)?.with_state(|splat| State { scene, splat }))
 }
 
