@@ -744,34 +744,27 @@ pub fn forward<T: Real>(mut scene: Scene<T>) -> Result<Forward<T>> {
         depth: vec![T::zero(); v * n],
         cutoff: scene.cutoff,
     };
-    splats
-        .uv
-        .par_chunks_mut(2)
-        .zip(splats.conic.par_chunks_mut(3))
-        .zip(splats.opacity.par_iter_mut())
-        .zip(splats.color.par_chunks_mut(3))
-        .zip(splats.depth.par_iter_mut())
-        .enumerate()
-        .for_each(|(k, ((((uv, conic), opacity), color), depth))| {
-            let (view, i) = (k / n, k % n);
-            let [pose, c] = scene.views[view];
-            let cam = &scene.cameras[c];
-            let mu = scene.mean(pose, i);
-            let p = project(mu, scene.cov(pose, i), cam, scene.width, scene.height);
-            *opacity = scene.opacity(view, i);
-            *depth = p.x[2];
-            if p.x[2].f64() <= NEAR {
-                // not drawn: any positive-definite conic keeps the rasterizer's checks simple
-                conic.copy_from_slice(&[T::one(), T::zero(), T::one()]);
-                return;
-            }
-            color.copy_from_slice(&scene.color(view, i, mu, centres[c]).map(|x| x.max(T::zero())));
-            let [a, b, cc] = p.conic;
-            let finite = p.uv.iter().chain(&p.conic).all(|x| x.is_finite());
-            let u = if finite && a > T::zero() && cc > T::zero() && a * cc - b * b > T::zero() { p.uv[0] } else { T::nan() };
-            uv.copy_from_slice(&[u, p.uv[1]]);
-            conic.copy_from_slice(&p.conic);
-        });
+    let Splats { uv, conic, opacity, color, depth, .. } = &mut splats;
+    splat::for_each_gaussian(uv, conic, opacity, color, depth, |k, uv, conic, opacity, color, depth| {
+        let (view, i) = (k / n, k % n);
+        let [pose, c] = scene.views[view];
+        let cam = &scene.cameras[c];
+        let mu = scene.mean(pose, i);
+        let p = project(mu, scene.cov(pose, i), cam, scene.width, scene.height);
+        *opacity = scene.opacity(view, i);
+        *depth = p.x[2];
+        if p.x[2].f64() <= NEAR {
+            // not drawn: any positive-definite conic keeps the rasterizer's checks simple
+            conic.copy_from_slice(&[T::one(), T::zero(), T::one()]);
+            return;
+        }
+        color.copy_from_slice(&scene.color(view, i, mu, centres[c]).map(|x| x.max(T::zero())));
+        let [a, b, cc] = p.conic;
+        let finite = p.uv.iter().chain(&p.conic).all(|x| x.is_finite());
+        let u = if finite && a > T::zero() && cc > T::zero() && a * cc - b * b > T::zero() { p.uv[0] } else { T::nan() };
+        uv.copy_from_slice(&[u, p.uv[1]]);
+        conic.copy_from_slice(&p.conic);
+    });
     if let Some(k) = splats.uv.iter().step_by(2).position(|u| u.is_nan()) {
         let (view, i) = (k / n, k % n);
         let [pose, c] = scene.views[view];

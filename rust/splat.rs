@@ -205,6 +205,26 @@ struct Bins {
     entry_pos: Vec<u32>,
 }
 
+/// `f(g, uv, conic, opacity, colour, depth)` on every Gaussian `g` of five arrays laid out as
+/// [`Splats`]' (2, 3, 1, 3 and 1 values per Gaussian), in parallel: the projection writes the
+/// rasterizer's inputs this way, the backward its gradients.
+pub(crate) fn for_each_gaussian<T: Real>(
+    uv: &mut [T],
+    conic: &mut [T],
+    opacity: &mut [T],
+    color: &mut [T],
+    depth: &mut [T],
+    f: impl Fn(usize, &mut [T], &mut [T], &mut T, &mut [T], &mut T) + Sync + Send,
+) {
+    uv.par_chunks_mut(2)
+        .zip(conic.par_chunks_mut(3))
+        .zip(opacity.par_iter_mut())
+        .zip(color.par_chunks_mut(3))
+        .zip(depth.par_iter_mut())
+        .enumerate()
+        .for_each(|(g, ((((uv, conic), opacity), color), depth))| f(g, uv, conic, opacity, color, depth));
+}
+
 /// `v` cut into consecutive pieces, piece `k` of length `bounds[k + 1] - bounds[k]`
 /// (`bounds` ascending from 0; each camera's or tile's block of a frame-wide array).
 fn pieces<'a, X>(mut v: &'a mut [X], bounds: &[usize]) -> Vec<&'a mut [X]> {
@@ -813,6 +833,9 @@ fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g
     }
     let (one, two, half) = (T::one(), T::c(2.0), T::c(0.5));
     let cut = if s.cutoff == Cutoff::Soft { T::c(ALPHA_MIN) } else { zero };
+    // the tile's pixel coordinates, converted once
+    let cols: [T; TILE] = std::array::from_fn(|k| T::c((xs.start + k) as f64));
+    let rows: [T; TILE] = std::array::from_fn(|k| T::c((ys.start + k) as f64));
     // The tile's pairs read backwards: every pixel back to front.
     for pair in st.pairs[t].iter().rev() {
         let i = (pair.key & (TILE_PIXELS as u32 - 1)) as usize;
@@ -835,8 +858,8 @@ fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g
         let raw = a + cut;
         e[5] = e[5] + d_alpha * raw / p.o;
         let d_q = -half * raw * d_alpha;
-        let dx = T::c((xs.start + i % TILE) as f64) - p.u;
-        let dy = T::c((ys.start + i / TILE) as f64) - p.v;
+        let dx = cols[i % TILE] - p.u;
+        let dy = rows[i / TILE] - p.v;
         e[2] = e[2] + d_q * dx * dx;
         e[3] = e[3] + d_q * two * dx * dy;
         e[4] = e[4] + d_q * dy * dy;
@@ -875,14 +898,13 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
         color: vec![T::zero(); 3 * total],
         depth: vec![T::zero(); total],
     };
-    out.uv
-        .par_chunks_mut(2)
-        .zip(out.conic.par_chunks_mut(3))
-        .zip(out.opacity.par_iter_mut())
-        .zip(out.color.par_chunks_mut(3))
-        .zip(out.depth.par_iter_mut())
-        .enumerate()
-        .for_each(|(g, ((((uv, conic), opacity), color), depth))| {
+    for_each_gaussian(
+        &mut out.uv,
+        &mut out.conic,
+        &mut out.opacity,
+        &mut out.color,
+        &mut out.depth,
+        |g, uv, conic, opacity, color, depth| {
             let mut acc = [T::zero(); 10];
             for &pos in &bins.entry_pos[bins.gauss_start[g]..bins.gauss_start[g + 1]] {
                 let e = &pos_grad[pos as usize];
@@ -895,7 +917,8 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
             *opacity = acc[5];
             color.copy_from_slice(&acc[6..9]);
             *depth = acc[9];
-        });
+        },
+    );
     Ok(out)
 }
 
