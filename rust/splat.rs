@@ -693,7 +693,8 @@ fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, 
             let (cdy, bdy) = (p.c * dy * dy, T::c(2.0) * p.b * dy);
             let t_row = tt[row];
             let (mut alpha, mut t_next) = ([zero; TILE], [zero; TILE]);
-            let (mut positive, mut low, mut clamped) = (0u16, 0u16, 0u16);
+            // (u8 masks: one bit per column, TILE = 8; LLVM turns these into one movemask each)
+            let (mut positive, mut low, mut clamped) = (0u8, 0u8, 0u8);
             for k in 0..TILE {
                 let dx = cols[k] - p.u;
                 let raw = p.o * (T::c(-0.5) * (p.a * dx * dx + bdy * dx + cdy)).exp_kernel();
@@ -709,12 +710,13 @@ fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, 
                 };
                 alpha[k] = a;
                 t_next[k] = t_row[k] * (one - a);
-                positive |= ((a > zero) as u16) << k;
-                low |= ((t_next[k] < t_min) as u16) << k;
-                clamped |= ((raw > amax) as u16) << k;
+                positive |= ((a > zero) as u8) << k;
+                low |= ((t_next[k] < t_min) as u8) << k;
+                clamped |= ((raw > amax) as u8) << k;
             }
             // a pixel stops at the first Gaussian after which T would fall below T_MIN (that
             // one is not composited)
+            let (positive, low, clamped) = (u16::from(positive), u16::from(low), u16::from(clamped));
             let stop = live & positive & low;
             let comp = live & positive & !low;
             if stop != 0 {
@@ -740,13 +742,13 @@ fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, 
                 tt[row][k] = t_row[k] * (one - am[k]);
                 w_max = greater(w_max, wm[k]);
             }
+            let base = (j as u32) << ENTRY_SHIFT | (row * TILE) as u32;
             let mut bits = comp;
             while bits != 0 {
                 let col = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let i = row * TILE + col;
-                let flag = if clamped >> col & 1 != 0 { CLAMP_BIT } else { 0 };
-                pairs.push(Pair { key: (j as u32) << ENTRY_SHIFT | flag | i as u32, alpha: alpha[col], t: t_row[col] });
+                let flag = (clamped as u32 >> col & 1) << PIXEL_BITS; // CLAMP_BIT when clamped
+                pairs.push(Pair { key: base | flag | col as u32, alpha: alpha[col], t: t_row[col] });
             }
         }
         entry_max[j] = w_max;
