@@ -982,28 +982,15 @@ fn render_backward<'py>(
 }
 
 /// The extension's Rust allocations go through mimalloc (the interpreter's and numpy's do not):
-/// freed blocks are kept for the next call instead of returned to the OS, whose pages glibc's
-/// allocator gives back and faults in again on every large allocation (measured: 24 000 page
-/// faults and 70-100 ms of system time per render of 40 views, against ~1 600 and 24 ms).
+/// freed blocks stay with the process for a second (mimalloc 3's default purge delay,
+/// `MIMALLOC_PURGE_DELAY` to change it) and the next call reuses them, where glibc gives large
+/// blocks back to the OS at once and faults their pages in again on the next call (measured:
+/// 26 000 page faults per render of 40 views, against 2 000-5 000).
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// `mi_option_purge_delay` in mimalloc's option enum (its 16th entry; the sys crate does not
-/// name experimental options, and documents passing them by number).
-const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
-
-/// Milliseconds a freed, unused span stays with the process before mimalloc gives it back to the
-/// OS (its default, 10 ms, is shorter than one render call, so every call faulted its pages in
-/// again). A user's `MIMALLOC_PURGE_DELAY` wins.
-const PURGE_DELAY_MS: std::os::raw::c_long = 1000;
-
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
-        // SAFETY: an FFI call with a valid option number and value; at import, before this
-        // module starts any thread.
-        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, PURGE_DELAY_MS) };
-    }
     m.add_class::<PyRobotModel>()?;
     let py = m.py();
     let root = py.get_type::<ProfrobotError>();

@@ -33,7 +33,7 @@
 //!
 //! # Per-Gaussian constants, folded once; rows at once
 //! Each drawn Gaussian is packed once into one record (`Packed`: centre, conic, opacity,
-//! colour, depth, pixel box), the records in (camera, depth) order so that a tile reads them at
+//! colour, depth; its box within each tile is in the tile list itself), the records in (camera, depth) order so that a tile reads them at
 //! increasing addresses. A tile walks its list front to back; per row it keeps a bit per column
 //! still compositing. A Gaussian visits only the rows of its box with an open pixel in its
 //! columns, and on each runs every step on the row's 8 columns at once, without branches:
@@ -49,7 +49,7 @@
 //! The tile lists are built camera by camera in parallel (each camera's Gaussians, entries,
 //! tiles and list positions are contiguous blocks of the frame's arrays), the images assembled
 //! camera by camera, and the backward's per-Gaussian sums read each entry's gradient through
-//! its list position: nothing is serial over the frame.
+//! its list position: no step that costs more than a pass over the Gaussians is serial.
 //!
 //! # Backward, without searching again
 //! The forward records every composited pair of a tile, in the order it composited them,
@@ -351,7 +351,7 @@ impl<T: Real> Splats<T> {
         Some(PixelBox { x0: x0 as usize, x1: x1 as usize, y0: y0 as usize, y1: y1 as usize })
     }
 
-    /// Every Gaussian's tile-loop record (`rows` from its pixel box; unused when not drawn).
+    /// The drawn Gaussians' tile-loop records, in `bins.sorted` order.
     fn pack(&self, bins: &Bins) -> Vec<Packed<T>> {
         bins.sorted
             .par_iter()
@@ -490,8 +490,8 @@ impl<T: Real> Splats<T> {
                 let mut count = vec![0usize; per_cam + 1];
                 for (_, [x0, x1, y0, y1]) in boxes.iter().flatten() {
                     for ty_ in *y0 as usize..=*y1 as usize {
-                        for c in &mut count[ty_ * tx + *x0 as usize + 1..=ty_ * tx + *x1 as usize + 1] {
-                            *c += 1;
+                        for n_tile in &mut count[ty_ * tx + *x0 as usize + 1..=ty_ * tx + *x1 as usize + 1] {
+                            *n_tile += 1;
                         }
                     }
                 }
@@ -699,7 +699,7 @@ fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, 
                 let dx = cols[k] - p.u;
                 let raw = p.o * (T::c(-0.5) * (p.a * dx * dx + bdy * dx + cdy)).exp_kernel();
                 // α = min(0.99, o G) - 1/255, kept when > 0 (soft); min(0.99, o G) when
-                // o G >= 1/255 (hard); `cut_alpha`
+                // o G >= 1/255 (hard)
                 let capped = lesser(raw, amax);
                 let a = if soft {
                     greater(capped - amin, zero)
@@ -1095,6 +1095,49 @@ mod tests {
             let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
             let err = a.iter().zip(b.iter()).fold(0.0f64, |m, (x, y)| m.max((x - *y as f64).abs()));
             assert!(err <= 1e-3 * scale, "{err} vs scale {scale}");
+        }
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn avx2_tile_loop_is_bit_identical_to_the_portable_one() {
+        // `forward_tile` takes the AVX2 copy where the CPU has it; the portable loop (other
+        // CPUs) must give the same bits: pixels, pair records and per-entry weights.
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        for cutoff in [Cutoff::Soft, Cutoff::Hard] {
+            let s = scene(400, 2, 37, 29, 9);
+            let to32 = |v: &Vec<f64>| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+            let s = Splats::<f32> {
+                cameras: s.cameras,
+                n: s.n,
+                width: s.width,
+                height: s.height,
+                uv: to32(&s.uv),
+                conic: to32(&s.conic),
+                opacity: to32(&s.opacity),
+                color: to32(&s.color),
+                depth: to32(&s.depth),
+                cutoff,
+            };
+            let bins = s.bin().unwrap();
+            let packed = s.pack(&bins);
+            let mut pairs = 0;
+            for t in 0..bins.tile_start.len() - 1 {
+                let n = bins.tile_start[t + 1] - bins.tile_start[t];
+                let (mut max_a, mut max_b) = (vec![0f32; n], vec![0f32; n]);
+                let a = forward_tile_with(&s, &packed, &bins, t, &mut max_a);
+                // SAFETY: the CPU has AVX2 (checked above).
+                let b = unsafe { forward_tile_avx2(&s, &packed, &bins, t, &mut max_b) };
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+                assert_eq!(bits(a.pixels.as_flattened().as_flattened()), bits(b.pixels.as_flattened().as_flattened()), "tile {t}");
+                assert_eq!(bits(&max_a), bits(&max_b), "tile {t}");
+                let rec = |p: &[Pair<f32>]| p.iter().map(|p| (p.key, p.alpha.to_bits(), p.t.to_bits())).collect::<Vec<_>>();
+                assert_eq!(rec(&a.pairs), rec(&b.pairs), "tile {t}");
+                pairs += a.pairs.len();
+            }
+            assert!(pairs > 1000, "{pairs} composited pairs: the scene tests too little");
         }
     }
 
