@@ -1067,12 +1067,10 @@ mod tests {
         assert!(a.4.iter().zip(&b.4).all(|(x, y)| x.to_bits() == y.to_bits()));
     }
 
-    #[test]
-    fn float32_images_and_gradients_follow_float64() {
-        // The same scene in f32: images within 1e-5, gradients within 1e-3 relative of f64's.
-        let s = scene(300, 2, 37, 29, 4);
+    /// `s` rounded to `f32`, with `cutoff`.
+    fn in_f32(s: &Splats<f64>, cutoff: Cutoff) -> Splats<f32> {
         let to32 = |v: &Vec<f64>| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-        let s32 = Splats::<f32> {
+        Splats {
             cameras: s.cameras,
             n: s.n,
             width: s.width,
@@ -1082,8 +1080,15 @@ mod tests {
             opacity: to32(&s.opacity),
             color: to32(&s.color),
             depth: to32(&s.depth),
-            cutoff: s.cutoff,
-        };
+            cutoff,
+        }
+    }
+
+    #[test]
+    fn float32_images_and_gradients_follow_float64() {
+        // The same scene in f32: images within 1e-5, gradients within 1e-3 relative of f64's.
+        let s = scene(300, 2, 37, 29, 4);
+        let s32 = in_f32(&s, s.cutoff);
         let (f64_, f32_) = (forward(s.clone()).unwrap(), forward(s32).unwrap());
         for (a, b) in f64_.rgb.iter().zip(&f32_.rgb).chain(f64_.alpha.iter().zip(&f32_.alpha)) {
             assert!((a - *b as f64).abs() < 1e-5, "{a} vs {b}");
@@ -1107,20 +1112,7 @@ mod tests {
             return;
         }
         for cutoff in [Cutoff::Soft, Cutoff::Hard] {
-            let s = scene(400, 2, 37, 29, 9);
-            let to32 = |v: &Vec<f64>| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-            let s = Splats::<f32> {
-                cameras: s.cameras,
-                n: s.n,
-                width: s.width,
-                height: s.height,
-                uv: to32(&s.uv),
-                conic: to32(&s.conic),
-                opacity: to32(&s.opacity),
-                color: to32(&s.color),
-                depth: to32(&s.depth),
-                cutoff,
-            };
+            let s = in_f32(&scene(400, 2, 37, 29, 9), cutoff);
             let bins = s.bin().unwrap();
             let packed = s.pack(&bins);
             let mut pairs = 0;
