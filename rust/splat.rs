@@ -184,14 +184,14 @@ pub struct Grads<T> {
 
 /// Tile lists. An *entry* is one (Gaussian, tile) incidence; entries are numbered
 /// Gaussian-major (`gauss_start[g]..gauss_start[g + 1]` are Gaussian `g`'s tiles in row-major
-/// order), and `order` lists them tile by tile, depth-sorted within a tile
-/// (`tile_start[t]..tile_start[t + 1]` for global tile `t = camera * tiles + tile`).
+/// order); the tile lists hold them tile by tile, depth-sorted within a tile (list positions
+/// `tile_start[t]..tile_start[t + 1]` for global tile `t = camera * tiles + tile`), and
+/// `entry_pos` maps each entry to its list position.
 #[derive(Clone, Debug)]
 struct Bins {
     tiles_x: usize,
     tiles_y: usize,
     gauss_start: Vec<usize>,
-    order: Vec<u32>,
     /// Per tile-list position: the Gaussian's slot in the depth-sorted record array
     /// (`sorted`), so that a tile reads its records in increasing address order.
     order_slot: Vec<u32>,
@@ -201,7 +201,7 @@ struct Bins {
     /// col1)` (tile-local, end exclusive).
     order_box: Vec<[u8; 4]>,
     tile_start: Vec<usize>,
-    /// Per entry: its tile-list position (the inverse of `order`).
+    /// Per entry: its tile-list position.
     entry_pos: Vec<u32>,
 }
 
@@ -421,7 +421,6 @@ impl<T: Real> Splats<T> {
         }
         let mut gauss_start = vec![0usize; total + 1];
         gauss_start[total] = m;
-        let mut order = vec![0u32; m];
         let mut order_slot = vec![0u32; m];
         let mut order_box = vec![[0u8; 4]; m];
         let mut sorted = vec![0u32; slot0[cams]];
@@ -431,7 +430,6 @@ impl<T: Real> Splats<T> {
         // Each camera's blocks of the global arrays.
         struct Blocks<'a> {
             gauss_start: &'a mut [usize],
-            order: &'a mut [u32],
             order_slot: &'a mut [u32],
             order_box: &'a mut [[u8; 4]],
             sorted: &'a mut [u32],
@@ -442,15 +440,13 @@ impl<T: Real> Splats<T> {
         let by_tile: Vec<usize> = (0..=cams).map(|c| c * per_cam).collect();
         let blocks: Vec<Blocks> = pieces(&mut gauss_start[..total], &by_gauss)
             .into_iter()
-            .zip(pieces(&mut order, &entry0))
             .zip(pieces(&mut order_slot, &entry0))
             .zip(pieces(&mut order_box, &entry0))
             .zip(pieces(&mut sorted, &slot0))
             .zip(pieces(&mut tile_start[..cams * per_cam], &by_tile))
             .zip(pieces(&mut entry_pos, &entry0))
-            .map(|((((((gauss_start, order), order_slot), order_box), sorted), tile_start), entry_pos)| Blocks {
+            .map(|(((((gauss_start, order_slot), order_box), sorted), tile_start), entry_pos)| Blocks {
                 gauss_start,
-                order,
                 order_slot,
                 order_box,
                 sorted,
@@ -524,7 +520,6 @@ impl<T: Real> Splats<T> {
                             let t = ty_ * tx + tx_;
                             let pos = count[t];
                             count[t] += 1;
-                            blk.order[pos] = (e0 + e) as u32;
                             blk.entry_pos[e] = (e0 + pos) as u32;
                             blk.order_slot[pos] = slot;
                             let [c0, c1] = local(bx0, bx1, tx_ * TILE);
@@ -537,7 +532,7 @@ impl<T: Real> Splats<T> {
             })
             .collect();
         results.into_iter().collect::<Result<Vec<()>>>()?;
-        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, order, order_slot, sorted, order_box, tile_start, entry_pos })
+        Ok(Bins { tiles_x: tx, tiles_y: ty, gauss_start, order_slot, sorted, order_box, tile_start, entry_pos })
     }
 }
 
@@ -583,6 +578,12 @@ struct Packed<T> {
     o: T,
     col: [T; 3],
     z: T,
+}
+
+/// The pixel coordinates `start, start + 1, ..` of a tile's `TILE` columns (or rows), in `T`.
+#[inline(always)]
+fn coords<T: Real>(start: usize) -> [T; TILE] {
+    std::array::from_fn(|k| T::c((start + k) as f64))
 }
 
 /// Pixel rectangle of global tile `t`: image, x range, y range.
@@ -665,7 +666,7 @@ fn forward_tile_with<T: Real>(s: &Splats<T>, packed: &[Packed<T>], bins: &Bins, 
     }
     let mut open = ys.len();
     let mut pairs = Vec::with_capacity(4 * entries.len());
-    let cols: [T; TILE] = std::array::from_fn(|k| T::c((xs.start + k) as f64));
+    let cols = coords::<T>(xs.start);
     // Gaussians front to back; each visits only the rows of the tile its box spans that still
     // have open pixels in its columns; the tile ends when every pixel has stopped. Most
     // Gaussians behind the front surface cost a few mask tests.
@@ -768,7 +769,7 @@ pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> 
     let bins = s.bin()?;
     let packed = s.pack(&bins);
     // per tile-list position: the entry's largest weight
-    let mut pos_max = vec![T::zero(); bins.order.len()];
+    let mut pos_max = vec![T::zero(); bins.entry_pos.len()];
     let tiles: Vec<TileForward<T>> =
         pieces(&mut pos_max, &bins.tile_start).into_par_iter().enumerate().map(|(t, em)| forward_tile(s, &packed, &bins, t, em)).collect();
     // the images, camera by camera in parallel
@@ -836,8 +837,7 @@ fn backward_tile<T: Real>(st: &State<T>, t: usize, g_rgb: &[T], g_alpha: &[T], g
     let (one, two, half) = (T::one(), T::c(2.0), T::c(0.5));
     let cut = if s.cutoff == Cutoff::Soft { T::c(ALPHA_MIN) } else { zero };
     // the tile's pixel coordinates, converted once
-    let cols: [T; TILE] = std::array::from_fn(|k| T::c((xs.start + k) as f64));
-    let rows: [T; TILE] = std::array::from_fn(|k| T::c((ys.start + k) as f64));
+    let (cols, rows) = (coords::<T>(xs.start), coords::<T>(ys.start));
     // The tile's pairs read backwards: every pixel back to front.
     for pair in st.pairs[t].iter().rev() {
         let i = (pair.key & (TILE_PIXELS as u32 - 1)) as usize;
@@ -885,7 +885,7 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
     }
     let bins = &st.bins;
     // per tile-list position: the entry's gradient
-    let mut pos_grad = vec![[T::zero(); 10]; bins.order.len()];
+    let mut pos_grad = vec![[T::zero(); 10]; bins.entry_pos.len()];
     pieces(&mut pos_grad, &bins.tile_start)
         .into_par_iter()
         .enumerate()
