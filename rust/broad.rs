@@ -20,6 +20,7 @@ use nalgebra::{Isometry3, Matrix3, Vector3};
 
 use crate::geom::Geom;
 use crate::pairs::CandidatePair;
+use crate::sphere_pairs::{has_avx2, Centres, PairList, LANES};
 
 /// Metres: the largest clearance a certification may ask for (`fastpath::certified_pose`). The
 /// broad phase keeps every pair that may come this close, so a pair it drops is clear of it.
@@ -95,7 +96,15 @@ pub(crate) struct Broad {
     /// Non-plane geoms of some pair, whose world sphere centres are needed per pose.
     geoms: Vec<u32>,
     groups: Vec<Group>,
+    /// The groups' body-sphere tests (`sphere_pairs.rs`), in group order, padded at the end.
+    group_tests: PairList,
+    /// Each group's members start on a lane boundary; the gaps are padding members that never
+    /// pass (pair `NONE`).
     members: Vec<Member>,
+    /// The members' geom-sphere tests, entry for entry.
+    member_tests: PairList,
+    /// Whether `sphere_pairs`' AVX2 kernel runs here.
+    avx2: bool,
     planes: Vec<PlanePair>,
     /// The plane geoms of `planes`, once each.
     plane_geoms: Vec<u32>,
@@ -113,8 +122,8 @@ const NONE: u32 = u32::MAX;
 #[derive(Clone, Debug)]
 pub(crate) struct BroadScratch {
     rot: Vec<Matrix3<f64>>,
-    body_world: Vec<Vector3<f64>>,
-    geom_world: Vec<Vector3<f64>>,
+    body_world: Centres,
+    geom_world: Centres,
     /// Per plane geom: world normal and `normal . origin`.
     plane: Vec<(Vector3<f64>, f64)>,
     /// Room for every pair.
@@ -177,6 +186,7 @@ impl Broad {
 
         let mut groups = Vec::new();
         let mut members = Vec::new();
+        let padding = Member { pair: NONE, g1: 0, g2: 0, reach2: -1.0 };
         for ((b1, b2), ks) in by_bodies {
             let mut margin = 0.0f64;
             for &k in &ks {
@@ -185,6 +195,9 @@ impl Broad {
             let reach = reach2(body_radius[b1 as usize] + body_radius[b2 as usize] + margin);
             // At most 64 members a group, so that a group's survivors fit one bit mask.
             for chunk in ks.chunks(64) {
+                while members.len() % LANES != 0 {
+                    members.push(padding);
+                }
                 let start = members.len() as u32;
                 for &k in chunk {
                     let p = &pairs[k as usize];
@@ -194,6 +207,18 @@ impl Broad {
                 groups.push(Group { b1, b2, reach2: reach, start, end: members.len() as u32 });
             }
         }
+        while members.len() % LANES != 0 {
+            members.push(padding);
+        }
+        let mut member_tests = PairList::default();
+        for m in &members {
+            member_tests.push(m.g1, m.g2, m.reach2);
+        }
+        let mut group_tests = PairList::default();
+        for g in &groups {
+            group_tests.push(g.b1, g.b2, g.reach2);
+        }
+        group_tests.pad();
         let mut bodies: Vec<u32> = (0..geoms.len()).filter(|&g| sphere[g]).map(|g| geom_body[g]).collect();
         bodies.sort_unstable();
         bodies.dedup();
@@ -202,13 +227,28 @@ impl Broad {
         plane_geoms.sort_unstable();
         plane_geoms.dedup();
         let mut of_pair = vec![NONE; pairs.len()];
-        for (i, m) in members.iter().enumerate() {
+        for (i, m) in members.iter().enumerate().filter(|(_, m)| m.pair != NONE) {
             of_pair[m.pair as usize] = i as u32;
         }
         for (i, p) in planes.iter().enumerate() {
             of_pair[p.pair as usize] = i as u32 | PLANE;
         }
-        Broad { bodies, body_centre, geom_centre, geom_rot, geom_body, geoms, groups, members, planes, plane_geoms, of_pair }
+        Broad {
+            bodies,
+            body_centre,
+            geom_centre,
+            geom_rot,
+            geom_body,
+            geoms,
+            groups,
+            group_tests,
+            members,
+            member_tests,
+            avx2: has_avx2(),
+            planes,
+            plane_geoms,
+            of_pair,
+        }
     }
 
     /// The plane geoms whose world frames `near_pairs` needs.
@@ -220,8 +260,8 @@ impl Broad {
         let (nb, ng) = (self.body_centre.len(), self.geom_centre.len());
         BroadScratch {
             rot: vec![Matrix3::identity(); nb],
-            body_world: vec![Vector3::zeros(); nb],
-            geom_world: vec![Vector3::zeros(); ng],
+            body_world: Centres::zeros(nb),
+            geom_world: Centres::zeros(ng),
             plane: vec![(Vector3::zeros(), 0.0); ng],
             buf: vec![0; self.members.len() + self.planes.len()],
         }
@@ -235,12 +275,12 @@ impl Broad {
             let x = &bodies[b];
             let r = x.rotation.to_rotation_matrix().into_inner();
             s.rot[b] = r;
-            s.body_world[b] = x.translation.vector + r * self.body_centre[b];
+            s.body_world.set(b, &(x.translation.vector + r * self.body_centre[b]));
         }
         for &g in &self.geoms {
             let g = g as usize;
             let b = self.geom_body[g] as usize;
-            s.geom_world[g] = bodies[b].translation.vector + s.rot[b] * self.geom_centre[g];
+            s.geom_world.set(g, &(bodies[b].translation.vector + s.rot[b] * self.geom_centre[g]));
         }
         for &g in &self.plane_geoms {
             let x = &geom_poses[g as usize];
@@ -253,7 +293,7 @@ impl Broad {
     /// the body's rotation matrix times the geom's, and its centre, the sphere centre.
     #[inline]
     pub(crate) fn geom_box(&self, s: &BroadScratch, g: usize) -> (Matrix3<f64>, Vector3<f64>) {
-        (s.rot[self.geom_body[g] as usize] * self.geom_rot[g], s.geom_world[g])
+        (s.rot[self.geom_body[g] as usize] * self.geom_rot[g], s.geom_world.get(g))
     }
 
     /// Whether candidate pair `k` passes its own sphere test in the placed pose (`near_pairs`
@@ -266,10 +306,10 @@ impl Broad {
         } else if i & PLANE != 0 {
             let p = &self.planes[(i & !PLANE) as usize];
             let (normal, offset) = s.plane[p.plane as usize];
-            normal.dot(&s.geom_world[p.geom as usize]) - offset < p.reach
+            normal.dot(&s.geom_world.get(p.geom as usize)) - offset < p.reach
         } else {
             let m = &self.members[i as usize];
-            (s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize]).norm_squared() <= m.reach2
+            (s.geom_world.get(m.g1 as usize) - s.geom_world.get(m.g2 as usize)).norm_squared() <= m.reach2
         }
     }
 
@@ -286,11 +326,11 @@ impl Broad {
             let p = &self.planes[(i & !PLANE) as usize];
             let (normal, offset) = s.plane[p.plane as usize];
             let r = geoms[p.geom as usize].shape.radius;
-            (normal.dot(&s.geom_world[p.geom as usize]) - offset - r, r)
+            (normal.dot(&s.geom_world.get(p.geom as usize)) - offset - r, r)
         } else {
             let m = &self.members[i as usize];
             let r = geoms[m.g1 as usize].shape.radius + geoms[m.g2 as usize].shape.radius;
-            ((s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize]).norm() - r, r)
+            ((s.geom_world.get(m.g1 as usize) - s.geom_world.get(m.g2 as usize)).norm() - r, r)
         };
         (gap - 1e-9 * (1.0 + reach + gap.abs()), reach)
     }
@@ -298,33 +338,48 @@ impl Broad {
     /// Geom `g`'s placed bounding-sphere centre (a non-plane geom of some pair).
     #[inline]
     pub(crate) fn sphere_centre(&self, s: &BroadScratch, g: usize) -> Vector3<f64> {
-        s.geom_world[g]
+        s.geom_world.get(g)
     }
 
     /// Appends to `near` the candidate pairs that may touch in the placed pose (see `place`),
     /// in no particular order.
     pub(crate) fn near_pairs(&self, s: &mut BroadScratch, near: &mut Vec<u32>) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only where the CPU has AVX2 (`Broad::new`), and the lists
+            // are laid out as `PairList::mask_avx2` asks: every group's members start on a lane
+            // boundary and both lists are padded to one; their indices are bodies and geoms,
+            // within the scratch's centres.
+            return unsafe { self.near_pairs_avx2(s, near) };
+        }
+        self.near_pairs_with(s, near, |l, c, start, len| l.mask_portable(c, start, len))
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn near_pairs_avx2(&self, s: &mut BroadScratch, near: &mut Vec<u32>) {
+        // SAFETY: as `near_pairs` says.
+        self.near_pairs_with(s, near, |l, c, start, len| unsafe { l.mask_avx2(c, start, len) })
+    }
+
+    /// `near_pairs` with the sphere-pair kernel `mask` (`PairList::mask_portable` or its AVX2
+    /// twin, which give the same bits).
+    #[inline(always)]
+    fn near_pairs_with(&self, s: &mut BroadScratch, near: &mut Vec<u32>, mask: impl Fn(&PairList, &Centres, usize, usize) -> u64) {
         // Without branches (few pass, unpredictably): one bit per group in 64-group words,
         // then one bit per member of each surviving group, then the survivors.
         let buf = &mut s.buf;
         let mut n = 0usize;
-        for (w, groups) in self.groups.chunks(64).enumerate() {
-            let mut bits = 0u64;
-            for (i, gr) in groups.iter().enumerate() {
-                let d = s.body_world[gr.b1 as usize] - s.body_world[gr.b2 as usize];
-                bits |= ((d.norm_squared() <= gr.reach2) as u64) << i;
-            }
+        for w in 0..self.groups.len().div_ceil(64) {
+            let len = (self.groups.len() - w * 64).min(64);
+            let mut bits = mask(&self.group_tests, &s.body_world, w * 64, len);
             while bits != 0 {
                 let gr = &self.groups[w * 64 + bits.trailing_zeros() as usize];
                 bits &= bits - 1;
-                let members = &self.members[gr.start as usize..gr.end as usize];
-                let mut near_bits = 0u64;
-                for (i, m) in members.iter().enumerate() {
-                    let d = s.geom_world[m.g1 as usize] - s.geom_world[m.g2 as usize];
-                    near_bits |= ((d.norm_squared() <= m.reach2) as u64) << i;
-                }
+                let (start, len) = (gr.start as usize, (gr.end - gr.start) as usize);
+                let mut near_bits = mask(&self.member_tests, &s.geom_world, start, len);
                 while near_bits != 0 {
-                    buf[n] = members[near_bits.trailing_zeros() as usize].pair;
+                    buf[n] = self.members[start + near_bits.trailing_zeros() as usize].pair;
                     n += 1;
                     near_bits &= near_bits - 1;
                 }
@@ -332,7 +387,7 @@ impl Broad {
         }
         for p in &self.planes {
             let (normal, offset) = s.plane[p.plane as usize];
-            if normal.dot(&s.geom_world[p.geom as usize]) - offset < p.reach {
+            if normal.dot(&s.geom_world.get(p.geom as usize)) - offset < p.reach {
                 buf[n] = p.pair;
                 n += 1;
             }

@@ -22,6 +22,7 @@ use parry3d_f64::shape::{Shape, SupportMap};
 use rayon::prelude::*;
 
 use crate::broad::BroadScratch;
+use crate::capsules;
 use crate::cloud::{Nearest, Probe};
 use crate::error::{Error, Result};
 use crate::geom::Geom;
@@ -228,6 +229,9 @@ impl Scratch {
                     // (parry's intersection tests for these shapes cannot fail.)
                     return Ok(intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]));
                 }
+                if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
+                    return Ok(capsules::signed_distance(c1, c2, &pa.inv_mul(pb)) < pair.margin);
+                }
                 match query::distance(pa, sa.as_ref(), pb, sb.as_ref()) {
                     Ok(d) => Ok(d < pair.margin),
                     Err(query::Unsupported) => Err(Undecided { pair: k as u32 }),
@@ -284,7 +288,8 @@ impl Scratch {
     /// axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
     /// axis and none is known); `Err` when parry cannot decide the pair (module docs).
     ///
-    /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
+    /// Exactness: a plane pair's distance is exact (the support point along the normal), and so
+    /// is two capsules' (their segments' distance less the radii, `capsules.rs`). For two other
     /// convex geoms every answer is a separation along a unit axis `n` (in the first geom's
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
@@ -316,6 +321,10 @@ impl Scratch {
             (Solid::Convex { convex: ca, .. }, Solid::Convex { convex: cb, .. }) => (ca, cb),
         };
         let pos12 = self.geoms[g1].inv_mul(&self.geoms[g2]);
+        // Two capsules: their distance itself, in closed form (`capsules.rs`).
+        if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
+            return Ok(capsules::signed_distance(c1, c2, &pos12));
+        }
         let separation = |n: &Vector3<f64>| n.dot(&(cb.support_point(&pos12, &-n).coords - ca.local_support_point(n).coords));
         let axis = self.axes[k];
         let mut best = f64::NEG_INFINITY;
@@ -499,7 +508,9 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
 /// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
 /// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
-/// GJK would find apart).
+/// GJK would find apart). Two capsules are measured in closed form (`capsules.rs`: parry's
+/// GJK misses penetrations of micrometres between them), touching counting as contact as in
+/// GJK's test.
 fn intersection_test(
     a: (&Convex, &dyn Shape),
     pa: &Isometry3<f64>,
@@ -514,6 +525,7 @@ fn intersection_test(
         (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
         (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
         (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
+        (Convex::Capsule(c1), Convex::Capsule(c2)) => capsules::signed_distance(c1, c2, &pos12) <= 0.0,
         (ca, cb) => intersection_test_remembering(ca, cb, &pos12, axis),
     }
 }
@@ -534,10 +546,14 @@ fn pair_signed_distance(model: &RobotModel, k: usize, poses: &[Isometry3<f64>], 
         (Solid::Convex { convex, .. }, Solid::HalfSpace) => Ok(Some(plane_distance(pb, convex, pa))),
         // Never a candidate (see `Scratch::in_contact`).
         (Solid::HalfSpace, Solid::HalfSpace) => Ok(None),
-        (Solid::Convex { shape: sa, .. }, Solid::Convex { shape: sb, .. }) => {
+        (Solid::Convex { convex: ca, shape: sa }, Solid::Convex { convex: cb, shape: sb }) => {
             let lower = (pa.translation.vector - pb.translation.vector).norm() - a.shape.rbound - b.shape.rbound;
             if lower >= bound {
                 return Ok(None);
+            }
+            // (closed form for two capsules: `capsules.rs`)
+            if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
+                return Ok(Some(capsules::signed_distance(c1, c2, &pa.inv_mul(pb))));
             }
             let (sa, sb) = (sa.as_ref(), sb.as_ref());
             let undecided = |_: query::Unsupported| Undecided { pair: k as u32 };

@@ -48,6 +48,7 @@
 pub mod angles;
 mod broad;
 pub mod budget;
+mod capsules;
 pub mod cloud;
 pub mod collide;
 pub mod couplings;
@@ -70,6 +71,7 @@ pub mod render;
 pub mod sample;
 mod sat;
 pub mod shapes;
+mod sphere_pairs;
 pub mod splat;
 pub mod threads;
 
