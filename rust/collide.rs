@@ -472,9 +472,27 @@ fn plane_distance(plane: &Isometry3<f64>, g: &Convex, pose: &Isometry3<f64>) -> 
 /// (GJK, parry's distance) rejects it too.
 fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
     let (ha, hb) = (&a.shape.obb_half, &b.shape.obb_half);
+    // First each box against the other geom's bounding sphere (about its box centre, `radius`),
+    // on the box's own three axes: the sphere holds the geom, so a sphere clear of the box is a
+    // geom clear of it; most pairs that get here are rejected without the 3 x 3 products below.
+    // The same 1e-9 inflation as the box tests, relative to what each test sums.
+    let d = ob.center - oa.center;
+    let t = oa.rot.tr_mul(&d);
+    let rb = b.shape.radius + margin;
+    for i in 0..3 {
+        if t[i].abs() > (ha[i] + rb) * (1.0 + 1e-9) + 1e-9 {
+            return false;
+        }
+    }
+    let u = ob.rot.tr_mul(&d);
+    let ra = a.shape.radius + margin;
+    for j in 0..3 {
+        if u[j].abs() > (hb[j] + ra) * (1.0 + 1e-9) + 1e-9 {
+            return false;
+        }
+    }
     // Everything in a's frame.
     let r = oa.rot.tr_mul(&ob.rot);
-    let t = oa.rot.tr_mul(&(ob.center - oa.center));
     let abs_r = r.abs().add_scalar(1e-9);
     for i in 0..3 {
         let rb_proj = hb[0] * abs_r[(i, 0)] + hb[1] * abs_r[(i, 1)] + hb[2] * abs_r[(i, 2)];
