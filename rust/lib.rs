@@ -71,6 +71,7 @@ pub mod render;
 pub mod sample;
 mod sat;
 pub mod shapes;
+mod spans;
 mod sphere_pairs;
 pub mod splat;
 pub mod threads;

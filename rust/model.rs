@@ -48,6 +48,10 @@ pub struct RobotModel {
     /// Per candidate pair and joint, the pair's lever, and the pairs' joint chains
     /// (`motion::Levers`), on first use.
     pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>)>,
+    /// Per candidate pair whose distance one joint alone changes: that joint and the spans of
+    /// its values over which the pair is proven clear (`spans.rs`); `u32::MAX` and none for
+    /// the other pairs. On first use by `motion.rs`.
+    pub(crate) joint_spans: std::sync::OnceLock<Vec<(u32, Vec<[f64; 2]>)>>,
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -289,6 +293,7 @@ impl RobotModel {
             broad,
             likely_pairs: std::sync::OnceLock::new(),
             lever_rows: std::sync::OnceLock::new(),
+            joint_spans: std::sync::OnceLock::new(),
         })
     }
 

@@ -53,6 +53,7 @@ use crate::collide::{first_error, Scratch, Undecided};
 use crate::couplings::{Couplings, FEASIBLE_TOL};
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
+use crate::spans::{clear_spans, covers, span_need};
 
 /// Radians / metres: the smallest joint move of an interval the certificate halves further.
 pub const MIN_STEP: f64 = 1e-7;
@@ -169,6 +170,28 @@ impl<'m> Levers<'m> {
     fn chain(&self, p: usize) -> &'m [u32] {
         let n = self.rows.len() / self.k.max(1) + 1;
         &self.chains[n + self.chains[p] as usize..n + self.chains[p + 1] as usize]
+    }
+
+    /// The one joint pair `p`'s distance depends on, when there is just one (`spans.rs`).
+    #[inline]
+    fn sole_joint(&self, p: usize) -> Option<usize> {
+        match self.chain(p) {
+            [e] => Some((e >> 1) as usize),
+            _ => None,
+        }
+    }
+
+    /// Per candidate pair, the joint and the spans of `spans.rs` (`RobotModel::joint_spans`),
+    /// swept on first use (on the calling thread, as `fastpath::likely_pairs`).
+    fn spans(&self, model: &'m RobotModel) -> &'m [(u32, Vec<[f64; 2]>)] {
+        model.joint_spans.get_or_init(|| {
+            (0..model.pairs.len())
+                .map(|p| match self.sole_joint(p) {
+                    Some(j) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j])),
+                    None => (u32::MAX, Vec::new()),
+                })
+                .collect()
+        })
     }
 
     /// The pair's rate `M` (metres per unit of `t`) for joint moves `|Δ|`; an infinite lever
@@ -518,8 +541,15 @@ pub(crate) fn certify_motion(
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
     ms.axes.at = 0;
     ms.scratch.forget_axes();
+    let spans = levers.spans(model);
     let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
     let need = |p: usize| model.pairs[p].margin.max(clearance);
+    // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
+    // inside one of its spans (`spans.rs`), proven at a need at least the motion's.
+    let spanned = |p: usize| {
+        let (j, sp) = &spans[p];
+        *j != u32::MAX && need(p) <= span_need(model, p) && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])
+    };
     let stop = |e: Stop, t: f64| match e {
         Stop::Blocked => Ok(Motion::Blocked(t)),
         Stop::Undecided(u) => Err(u),
@@ -531,6 +561,10 @@ pub(crate) fn certify_motion(
     ms.scratch.place(model, q, false);
     ms.states += 1;
     for p in 0..npairs {
+        if spanned(p) {
+            ms.radius1[p] = f64::INFINITY;
+            continue;
+        }
         match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 0.0, 0.0) {
             Ok(r) => ms.radius1[p] = r,
             Err(e) => return stop(e, 1.0),
@@ -659,6 +693,18 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
         )
         .collect();
     Ok(first_error(parts)?.concat())
+}
+
+/// The model's spans (`spans.rs`), per candidate pair.
+#[cfg(test)]
+pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
+    Levers::of(model).spans(model)
+}
+
+/// Pair `p`'s lever for joint `j` (0 for a joint at or above its common ancestor).
+#[cfg(test)]
+pub(crate) fn lever_of(model: &RobotModel, p: usize, j: usize) -> f64 {
+    Levers::of(model).rows[p * model.njoint() + j]
 }
 
 #[cfg(test)]
