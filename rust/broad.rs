@@ -283,10 +283,26 @@ impl Broad {
             s.geom_world.set(g, &(bodies[b].translation.vector + s.rot[b] * self.geom_centre[g]));
         }
         for &g in &self.plane_geoms {
-            let x = &geom_poses[g as usize];
-            let normal = x.rotation * Vector3::z();
-            s.plane[g as usize] = (normal, normal.dot(&x.translation.vector));
+            self.place_plane(&geom_poses[g as usize], g as usize, s);
         }
+    }
+
+    /// What `place` computes for the non-plane geom `g` of some pair (its body's rotation matrix
+    /// and its sphere centre), alone, from its body's frame in `bodies`.
+    #[inline]
+    pub(crate) fn place_geom(&self, bodies: &[Isometry3<f64>], g: usize, s: &mut BroadScratch) {
+        let b = self.geom_body[g] as usize;
+        let x = &bodies[b];
+        let r = x.rotation.to_rotation_matrix().into_inner();
+        s.rot[b] = r;
+        s.geom_world.set(g, &(x.translation.vector + r * self.geom_centre[g]));
+    }
+
+    /// What `place` computes for the plane geom `g`, alone, from its world frame `x`.
+    #[inline]
+    pub(crate) fn place_plane(&self, x: &Isometry3<f64>, g: usize, s: &mut BroadScratch) {
+        let normal = x.rotation * Vector3::z();
+        s.plane[g] = (normal, normal.dot(&x.translation.vector));
     }
 
     /// The placed world box frame of geom `g` (a non-plane geom of some pair): its rotation,

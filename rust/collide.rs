@@ -26,7 +26,7 @@ use crate::capsules;
 use crate::cloud::{Nearest, Probe};
 use crate::error::{Error, Result};
 use crate::geom::Geom;
-use crate::kinematics::body_poses;
+use crate::kinematics::{body_poses, marked_body_poses};
 use crate::model::RobotModel;
 use crate::pairs::{CandidatePair, PairKind};
 use crate::sat::intersection_test_remembering;
@@ -103,6 +103,8 @@ pub struct Scratch {
     /// `obb_stamp[g] == pose`.
     stamp: Vec<u32>,
     obb_stamp: Vec<u32>,
+    /// Per body: `place_pairs` placed it for the current pose when `body_stamp[b] == pose`.
+    body_stamp: Vec<u32>,
     pose: u32,
     pub(crate) broad: BroadScratch,
     /// The pairs the broad phase keeps.
@@ -132,6 +134,7 @@ impl Scratch {
             obbs: vec![Obb { rot: Matrix3::identity(), center: Vector3::zeros() }; n],
             stamp: vec![0; n],
             obb_stamp: vec![0; n],
+            body_stamp: vec![0; model.nbody()],
             pose: 0,
             broad: model.broad.scratch(),
             near: Vec::new(),
@@ -148,6 +151,7 @@ impl Scratch {
         if self.pose == 0 {
             self.stamp.fill(0);
             self.obb_stamp.fill(0);
+            self.body_stamp.fill(0);
             self.tested.fill(0);
             self.pose = 1;
         }
@@ -191,6 +195,39 @@ impl Scratch {
             }
         }
         model.broad.place(&self.bodies, &self.geoms, &mut self.broad);
+    }
+
+    /// `place(.., false)` for what the candidate pairs `pairs` read, and nothing else: the frames
+    /// of their geoms' bodies and those bodies' ancestors (bit for bit `place`'s), and their
+    /// geoms' spheres and planes. Whatever is asked of these pairs in this pose (`sphere_gap`,
+    /// their boxes, frames and distances, the frames of the joints between their geoms) is then
+    /// what `place` would give; another pair's is stale. For states where few pairs are still
+    /// open (`motion.rs`).
+    pub(crate) fn place_pairs(&mut self, model: &RobotModel, q: &[f64], pairs: impl Iterator<Item = usize> + Clone) {
+        self.next_pose();
+        let pose = self.pose;
+        for k in pairs.clone() {
+            let pair = &model.pairs[k];
+            for g in [pair.g1, pair.g2] {
+                let mut b = model.geoms[g].body;
+                while b != 0 && self.body_stamp[b] != pose {
+                    self.body_stamp[b] = pose;
+                    b = model.body_parent[b];
+                }
+            }
+        }
+        marked_body_poses(model, q, &mut self.bodies, &self.body_stamp, pose);
+        for k in pairs {
+            let pair = &model.pairs[k];
+            for g in [pair.g1, pair.g2] {
+                if model.geoms[g].shape.is_half_space() {
+                    self.frame(model, g);
+                    model.broad.place_plane(&self.geoms[g], g, &mut self.broad);
+                } else {
+                    model.broad.place_geom(&self.bodies, g, &mut self.broad);
+                }
+            }
+        }
     }
 
     /// Whether candidate pair `k` is in contact (signed distance below its margin) in the
@@ -768,6 +805,51 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `place_pairs` gives the pairs it places what `place` gives them, bit for bit: their
+    /// geoms' spheres, boxes and frames, their bodies' frames, their sphere gaps and their
+    /// exact distances; on the Shadow Hand, the Panda and the UR5e, for random subsets of pairs.
+    #[test]
+    fn placing_some_pairs_gives_them_what_placing_all_does() {
+        use rand::{Rng, SeedableRng};
+        for scene in ["shadow_hand", "panda_blocks", "ur5e_wall_box"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: crate::desc::ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc).unwrap();
+            let poses = crate::sample::sample_uniform(&model.sampling_ranges().unwrap(), 200, 4).unwrap();
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+            let (mut all, mut some) = (Scratch::new(&model), Scratch::new(&model));
+            for q in poses.chunks_exact(model.njoint()) {
+                let pairs: Vec<usize> = (0..rng.random_range(1..6)).map(|_| rng.random_range(0..model.pairs.len())).collect();
+                all.place(&model, q, false);
+                // (`some` keeps the previous pose's values elsewhere: they must not be read)
+                some.place_pairs(&model, q, pairs.iter().copied());
+                for &k in &pairs {
+                    let pair = &model.pairs[k];
+                    let gap = |s: &Scratch| model.broad.sphere_gap(&s.broad, k, &model.geoms);
+                    assert_eq!(gap(&all), gap(&some), "{scene}: pair {k}");
+                    for g in [pair.g1, pair.g2] {
+                        let mut b = model.geoms[g].body;
+                        while b != 0 {
+                            assert_eq!(all.body(b), some.body(b), "{scene}: body {b}");
+                            b = model.body_parent[b];
+                        }
+                        if !model.geoms[g].shape.is_half_space() {
+                            assert_eq!(model.broad.geom_box(&all.broad, g), model.broad.geom_box(&some.broad, g));
+                        }
+                        all.frame(&model, g);
+                        some.frame(&model, g);
+                        assert_eq!(all.geom_frame(g), some.geom_frame(g));
+                    }
+                    let (ca, cs) = (all.clear_of(&model, k, 1e-6).unwrap(), some.clear_of(&model, k, 1e-6).unwrap());
+                    assert_eq!(ca, cs);
+                    let (la, ls) =
+                        (all.pair_lower_bound(&model, k, 0.05, 0.0).unwrap(), some.pair_lower_bound(&model, k, 0.05, 0.0).unwrap());
+                    assert_eq!(la.to_bits(), ls.to_bits(), "{scene}: pair {k}");
+                }
+            }
+        }
+    }
     use crate::desc::ModelDesc;
     use crate::sample::sample_uniform;
 

@@ -26,28 +26,48 @@ pub fn body_poses(model: &RobotModel, q: &[f64], out: &mut [Isometry3<f64>]) {
     debug_assert_eq!(q.len(), model.njoint());
     out[0] = Isometry3::identity();
     for b in 1..model.body_parent.len() {
-        let mut x = out[model.body_parent[b]] * model.body_local[b];
-        let (j0, j1) = model.body_joints[b];
-        for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
-            let angle = qj - jnt.qpos0;
-            if jnt.hinge {
-                let mut rot = x.rotation * UnitQuaternion::from_axis_angle(&jnt.axis, angle);
-                rot.renormalize_fast();
-                // A hinge at the body origin (every bundled robot's) leaves the translation
-                // as it is, bit for bit: the rotated zero anchor is +-0 in every component, and
-                // t + (+-0) - (+-0) == t for t != 0. (A zero component could change sign, so
-                // it takes the general formula.)
-                if jnt.anchor != Vector3::zeros() || x.translation.vector.iter().any(|&t| t == 0.0) {
-                    let anchor_world: Point3<f64> = x * Point3::from(jnt.anchor);
-                    x.translation.vector = anchor_world.coords - rot * jnt.anchor;
-                }
-                x.rotation = rot;
-            } else {
-                x.translation.vector += x.rotation * (jnt.axis.into_inner() * angle);
-            }
-        }
-        out[b] = x;
+        out[b] = body_pose(model, q, out, b);
     }
+}
+
+/// `body_poses` for the bodies `b` with `marks[b] == mark` only, which must include every
+/// marked body's parent (the world aside): their frames are `body_poses`' bit for bit; the
+/// others keep what `out` held.
+pub(crate) fn marked_body_poses(model: &RobotModel, q: &[f64], out: &mut [Isometry3<f64>], marks: &[u32], mark: u32) {
+    debug_assert_eq!(q.len(), model.njoint());
+    out[0] = Isometry3::identity();
+    for b in 1..model.body_parent.len() {
+        if marks[b] == mark {
+            debug_assert!(model.body_parent[b] == 0 || marks[model.body_parent[b]] == mark);
+            out[b] = body_pose(model, q, out, b);
+        }
+    }
+}
+
+/// Body `b`'s world frame from its parent's (already in `out`) and its joints' values in `q`.
+#[inline(always)]
+fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) -> Isometry3<f64> {
+    let mut x = out[model.body_parent[b]] * model.body_local[b];
+    let (j0, j1) = model.body_joints[b];
+    for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
+        let angle = qj - jnt.qpos0;
+        if jnt.hinge {
+            let mut rot = x.rotation * UnitQuaternion::from_axis_angle(&jnt.axis, angle);
+            rot.renormalize_fast();
+            // A hinge at the body origin (every bundled robot's) leaves the translation
+            // as it is, bit for bit: the rotated zero anchor is +-0 in every component, and
+            // t + (+-0) - (+-0) == t for t != 0. (A zero component could change sign, so
+            // it takes the general formula.)
+            if jnt.anchor != Vector3::zeros() || x.translation.vector.iter().any(|&t| t == 0.0) {
+                let anchor_world: Point3<f64> = x * Point3::from(jnt.anchor);
+                x.translation.vector = anchor_world.coords - rot * jnt.anchor;
+            }
+            x.rotation = rot;
+        } else {
+            x.translation.vector += x.rotation * (jnt.axis.into_inner() * angle);
+        }
+    }
+    x
 }
 
 /// Poses per parallel work item (fixed, so the split never depends on the thread count).

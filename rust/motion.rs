@@ -147,16 +147,16 @@ impl<'m> Levers<'m> {
 
     /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
     /// |Δ_i|·R_i` over each branch's hinges, `i` the joints below `j` on its branch.
-    fn quad(&self, model: &RobotModel, p: usize, abs_delta: &[f64]) -> f64 {
+    fn quad(&self, p: usize, abs_delta: &[f64]) -> f64 {
         let mut b = 0.0;
         let mut suffix = [0.0f64; 2];
         for &e in self.chain(p).iter().rev() {
-            let (j, side) = ((e >> 1) as usize, (e & 1) as usize);
+            let (j, side) = (entry_joint(e), (e & SIDE) as usize);
             let d = abs_delta[j];
             if d == 0.0 {
                 continue;
             }
-            if tight(model, j) {
+            if e & TIGHT != 0 {
                 b += d * suffix[side];
             }
             suffix[side] += d * self.rows[p * self.k + j];
@@ -164,8 +164,8 @@ impl<'m> Levers<'m> {
         b
     }
 
-    /// Pair `p`'s chain: its moving joints, each `joint << 1 | side` (side 0: the first geom's
-    /// branch), each branch from the common ancestor down to its geom.
+    /// Pair `p`'s chain: its moving joints, each `joint << 2 | TIGHT if tight | side` (side 0:
+    /// the first geom's branch), each branch from the common ancestor down to its geom.
     #[inline]
     fn chain(&self, p: usize) -> &'m [u32] {
         let n = self.rows.len() / self.k.max(1) + 1;
@@ -176,7 +176,7 @@ impl<'m> Levers<'m> {
     #[inline]
     fn sole_joint(&self, p: usize) -> Option<usize> {
         match self.chain(p) {
-            [e] => Some((e >> 1) as usize),
+            [e] => Some(entry_joint(*e)),
             _ => None,
         }
     }
@@ -195,11 +195,11 @@ impl<'m> Levers<'m> {
     }
 
     /// The pair's rate `M` (metres per unit of `t`) for joint moves `|Δ|`; an infinite lever
-    /// counts only for a joint that moves.
+    /// counts only for a joint that moves. (Over the chain: the row is 0 elsewhere.)
     #[inline]
     fn rate(&self, pair: usize, abs_delta: &[f64]) -> f64 {
         let row = &self.rows[pair * self.k..(pair + 1) * self.k];
-        row.iter().zip(abs_delta).filter(|(_, &d)| d != 0.0).map(|(r, d)| r * d).sum()
+        self.chain(pair).iter().map(|&e| entry_joint(e)).filter(|&j| abs_delta[j] != 0.0).map(|j| row[j] * abs_delta[j]).sum()
     }
 }
 
@@ -228,7 +228,7 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
                     let (j0, j1) = model.body_joints[b];
                     for j in j0..j1 {
                         rows[p * k + j] += joint_reach(model, j, g, up);
-                        entries.push((j as u32) << 1 | side as u32);
+                        entries.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32);
                     }
                 }
             }
@@ -237,6 +237,16 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
         offsets.extend(entries);
         (rows, offsets)
     }
+}
+
+/// A chain entry's bits: the geom's side (0: the first geom's branch), and whether the joint is
+/// `tight`; the joint is the rest (`entry_joint`).
+const SIDE: u32 = 1;
+const TIGHT: u32 = 2;
+
+#[inline]
+fn entry_joint(e: u32) -> usize {
+    (e >> 2) as usize
 }
 
 /// Whether joint `j`'s world axis and anchor can be read off its body's placed frame: a hinge
@@ -288,37 +298,41 @@ impl Rate {
     }
 }
 
-/// World anchors and axes of the `tight` joints in the placed state `at`.
+/// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
+/// joint `j`'s belong to the state placed with stamp `at[j]` (0: none).
 struct Axes {
     anchor: Vec<nalgebra::Vector3<f64>>,
     axis: Vec<nalgebra::Vector3<f64>>,
-    at: u32,
+    at: Vec<u32>,
+}
+
+impl Axes {
+    fn new(k: usize) -> Self {
+        Axes { anchor: vec![Default::default(); k], axis: vec![Default::default(); k], at: vec![0; k] }
+    }
 }
 
 /// The state-local `a` of pair `p` (`Rate`) in the state placed in `s`.
 fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
     let state = s.pose_stamp();
-    if axes.at != state {
-        for (j, jnt) in model.joints.iter().enumerate() {
-            if tight(model, j) {
-                let x = s.body(jnt.body);
-                axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
-                axes.axis[j] = x.rotation * jnt.axis.into_inner();
-            }
-        }
-        axes.at = state;
-    }
     let pair = &model.pairs[p];
     let mut a = 0.0;
     for &e in levers.chain(p) {
-        let j = (e >> 1) as usize;
+        let j = entry_joint(e);
         let d = abs_delta[j];
         if d == 0.0 {
             continue;
         }
-        let g = if e & 1 == 0 { pair.g1 } else { pair.g2 };
+        let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
         let lever = levers.rows[p * levers.k + j];
-        a += d * if tight(model, j) {
+        a += d * if e & TIGHT != 0 {
+            if axes.at[j] != state {
+                let jnt = &model.joints[j];
+                let x = s.body(jnt.body);
+                axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
+                axes.axis[j] = x.rotation * jnt.axis.into_inner();
+                axes.at[j] = state;
+            }
             let c = model.broad.sphere_centre(&s.broad, g);
             // (1e-9 relative: rounding of the placed frames and of the cross product)
             (((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9)).min(lever)
@@ -385,7 +399,6 @@ fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize]) -> f64 {
 struct Open {
     pair: u32,
     rate: f64,
-    quad: f64,
     r0: f64,
     r1: f64,
 }
@@ -418,7 +431,7 @@ impl MotionScratch {
             hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
             quads: vec![0.0; model.pairs.len()],
-            axes: Axes { anchor: vec![Default::default(); model.njoint()], axis: vec![Default::default(); model.njoint()], at: 0 },
+            axes: Axes::new(model.njoint()),
             q: vec![0.0; model.njoint()],
             radius1: vec![0.0; model.pairs.len()],
             open: Vec::new(),
@@ -457,7 +470,7 @@ fn radius(
     s: &mut Scratch,
     k: usize,
     chain: f64,
-    quad: f64,
+    quad: &mut f64,
     need: f64,
     cover_min: f64,
     cover_max: f64,
@@ -471,7 +484,11 @@ fn radius(
     }
     if chain > 0.0 {
         rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
-        rate.b = quad;
+        // (the growth of the rate, computed for the pair on its first use in the motion)
+        if quad.is_nan() {
+            *quad = at.levers.quad(k, at.abs_delta);
+        }
+        rate.b = *quad;
     }
     if gap > 0.0 && (gap >= rate.drop(cover_max) || gap + reach < rate.drop(cover_min)) {
         return Ok(rate.reach(gap));
@@ -536,10 +553,10 @@ pub(crate) fn certify_motion(
     let npairs = model.pairs.len();
     for p in 0..npairs {
         ms.rates[p] = levers.rate(p, &ms.abs_delta);
-        ms.quads[p] = levers.quad(model, p, &ms.abs_delta);
+        ms.quads[p] = f64::NAN;
     }
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
-    ms.axes.at = 0;
+    ms.axes.at.fill(0);
     ms.scratch.forget_axes();
     let spans = levers.spans(model);
     let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
@@ -565,7 +582,7 @@ pub(crate) fn certify_motion(
             ms.radius1[p] = f64::INFINITY;
             continue;
         }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 0.0, 0.0) {
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 0.0, 0.0) {
             Ok(r) => ms.radius1[p] = r,
             Err(e) => return stop(e, 1.0),
         }
@@ -580,19 +597,20 @@ pub(crate) fn certify_motion(
         if r1 >= 1.0 {
             continue;
         }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
             Ok(r0) if r0 + r1 >= 1.0 => {}
-            Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], quad: ms.quads[p], r0, r1 }),
+            Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], r0, r1 }),
             Err(e) => return stop(e, 0.0),
         }
     }
     if !ms.next.is_empty() {
         space.along(a, delta, 1.0, q);
-        ms.scratch.place(model, q, false);
+        // (only what the open pairs read: `Scratch::place_pairs`)
+        ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
         ms.states += 1;
         for o in &ms.next {
             let p = o.pair as usize;
-            match radius(&mut at, &mut ms.scratch, p, o.rate, o.quad, need(p), 1.0 - o.r0, 1.0 - o.r0) {
+            match radius(&mut at, &mut ms.scratch, p, o.rate, &mut ms.quads[p], need(p), 1.0 - o.r0, 1.0 - o.r0) {
                 Ok(r1) if o.r0 + r1 >= 1.0 => {}
                 Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
                 Err(e) => return stop(e, 1.0),
@@ -618,14 +636,14 @@ pub(crate) fn certify_motion(
             }
             let tm = t0 + half;
             space.along(a, delta, tm, q);
-            ms.scratch.place(model, q, false);
+            ms.scratch.place_pairs(model, q, ms.open[start..end].iter().map(|o| o.pair as usize));
             ms.states += 1;
             ms.mid.clear();
             for o in &ms.open[start..end] {
                 let p = o.pair as usize;
                 // What the midpoint must give to close one half, and both.
                 let (c0, c1) = (half - o.r0, half - o.r1);
-                match radius(&mut at, &mut ms.scratch, p, o.rate, o.quad, need(p), c0.min(c1), c0.max(c1)) {
+                match radius(&mut at, &mut ms.scratch, p, o.rate, &mut ms.quads[p], need(p), c0.min(c1), c0.max(c1)) {
                     Ok(rm) => ms.mid.push((*o, rm)),
                     Err(e) => {
                         verdict = stop(e, tm);
@@ -758,7 +776,7 @@ pub(crate) mod tests {
         let levers = Levers::of(&model);
         let space = Space::of(&model).unwrap();
         let mut s = Scratch::new(&model);
-        let mut axes = Axes { anchor: vec![Default::default(); 4], axis: vec![Default::default(); 4], at: 0 };
+        let mut axes = Axes::new(4);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (mut tight_wins, mut checks) = (0, 0);
         for _ in 0..400 {
@@ -774,7 +792,7 @@ pub(crate) mod tests {
                 let d0 = distance(&model, &mut s, &q0, k);
                 let chain = levers.rate(k, &abs);
                 let local = local_rate(&model, levers, &abs, &s, &mut axes, k);
-                let rate = Rate { chain, a: local.min(chain), b: levers.quad(&model, k, &abs) };
+                let rate = Rate { chain, a: local.min(chain), b: levers.quad(k, &abs) };
                 tight_wins += (local < 0.9 * chain) as usize;
                 for tau in [1e-3, 1e-2, 0.05, 0.2] {
                     for sign in [-1.0, 1.0] {
