@@ -4,7 +4,10 @@
 //! A capsule is the set of points within its radius of a segment (its Minkowski sum with a
 //! ball), so two capsules are `dist(segments) - ra - rb` apart, penetrating when negative; the
 //! closest points of the segments come from Ericson's clamped parameters (*Real-Time Collision
-//! Detection*, 5.1.9), exact up to rounding (~1e-16 m for segments within metres of the origin).
+//! Detection*, 5.1.9), checked against the four ends' clamped projections for segments parallel
+//! to within rounding (`closest_points`). Where a lower bound must hold whatever the rounding
+//! (the certificates), `collide::Scratch::pair_lower_bound` takes the separation along the line
+//! between these points from the two exact support points instead.
 //!
 //! Why not parry: its `intersection_test`, `distance` and `contact` treat capsules as generic
 //! support maps (GJK, EPA), whose stopping rules leave micrometres on curved surfaces. The Shadow
@@ -46,15 +49,46 @@ fn closest_parameters(p1: &Point3<f64>, d1: &Vector3<f64>, p2: &Point3<f64>, d2:
     }
 }
 
-/// Signed distance (metres; negative: penetration depth) of capsules `a` and `b`, `b` at
-/// `pos12` in `a`'s frame.
+/// The point of segment `p + s d` (s in [0, 1]) nearest `x`: a clamped projection.
 #[inline]
-pub(crate) fn signed_distance(a: &Capsule, b: &Capsule, pos12: &Isometry3<f64>) -> f64 {
+fn nearest_on(p: &Point3<f64>, d: &Vector3<f64>, x: &Point3<f64>) -> Point3<f64> {
+    let dd = d.dot(d);
+    let s = if dd > 0.0 { ((x - p).dot(d) / dd).clamp(0.0, 1.0) } else { 0.0 };
+    p + d * s
+}
+
+/// A point of each capsule's segment (`a`'s, then `b`'s, both in `a`'s frame; `b` at `pos12`),
+/// the two nearest to each other: Ericson's pair, or the nearest of an end of one segment to
+/// the other segment where that is nearer. (When the segments are parallel to within rounding,
+/// `a·e − b²` in Ericson's parameters is rounding alone and may put his `s` at the wrong end, up
+/// to ~1e-8 rad × the length too far; the true minimum of two near-parallel segments is then at
+/// an end, which the clamped projections find exactly. Near-parallel segments that cross inside
+/// both, where neither is so, overlap their capsules by nearly the radii anyway.)
+#[inline]
+pub(crate) fn closest_points(a: &Capsule, b: &Capsule, pos12: &Isometry3<f64>) -> (Point3<f64>, Point3<f64>) {
     let (p1, q1) = (a.segment.a, a.segment.b);
     let (p2, q2) = (pos12 * b.segment.a, pos12 * b.segment.b);
     let (d1, d2) = (q1 - p1, q2 - p2);
     let (s, t) = closest_parameters(&p1, &d1, &p2, &d2);
-    ((p2 + d2 * t) - (p1 + d1 * s)).norm() - a.radius - b.radius
+    let mut best = (p1 + d1 * s, p2 + d2 * t);
+    let mut best_d2 = (best.1 - best.0).norm_squared();
+    for (x, y) in
+        [(p1, nearest_on(&p2, &d2, &p1)), (q1, nearest_on(&p2, &d2, &q1)), (nearest_on(&p1, &d1, &p2), p2), (nearest_on(&p1, &d1, &q2), q2)]
+    {
+        let d = (y - x).norm_squared();
+        if d < best_d2 {
+            (best, best_d2) = ((x, y), d);
+        }
+    }
+    best
+}
+
+/// Signed distance (metres; negative: penetration depth) of capsules `a` and `b`, `b` at
+/// `pos12` in `a`'s frame.
+#[inline]
+pub(crate) fn signed_distance(a: &Capsule, b: &Capsule, pos12: &Isometry3<f64>) -> f64 {
+    let (x, y) = closest_points(a, b, pos12);
+    (y - x).norm() - a.radius - b.radius
 }
 
 #[cfg(test)]
@@ -88,10 +122,10 @@ mod tests {
         f(0.5 * (lo + hi)).min(f(0.0)).min(f(1.0)) - a.radius - b.radius
     }
 
-    /// On random placements (parallel, crossing and end-to-end segments among them), the
-    /// distance is the reference's to 1e-12 m, never above parry's (GJK's distance is an upper
-    /// bound) and the sign is GJK's intersection test's wherever the two are more than 1e-5 m
-    /// from touching.
+    /// On random placements (parallel, near-parallel, crossing and end-to-end segments among
+    /// them), the distance is the reference's to 1e-12 m, never above parry's (GJK's distance
+    /// is an upper bound) and the sign is GJK's intersection test's wherever the two are more
+    /// than 1e-5 m from touching.
     #[test]
     fn agrees_with_parry_away_from_touching() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
@@ -101,7 +135,14 @@ mod tests {
             let b = Capsule::new_z(rng.random_range(0.0..0.2), rng.random_range(0.005..0.05));
             let rot =
                 UnitQuaternion::from_euler_angles(rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
-            let rot = if i % 10 == 0 { UnitQuaternion::identity() } else { rot };
+            // parallel, and parallel to within rounding (1e-9 to 1e-7 rad), where Ericson's
+            // parameters alone can pick the wrong end
+            let tiny = UnitQuaternion::from_euler_angles(rng.random_range(-1e-7..1e-7), rng.random_range(-1e-7..1e-7), 0.0);
+            let rot = match i % 10 {
+                0 => UnitQuaternion::identity(),
+                1 | 2 => tiny,
+                _ => rot,
+            };
             let t = Vector3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3));
             let pos12 = Isometry3::from_parts(Translation3::from(t), rot);
             let d = signed_distance(&a, &b, &pos12);

@@ -325,9 +325,9 @@ impl Scratch {
     /// axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
     /// axis and none is known); `Err` when parry cannot decide the pair (module docs).
     ///
-    /// Exactness: a plane pair's distance is exact (the support point along the normal), and so
-    /// is two capsules' (their segments' distance less the radii, `capsules.rs`). For two other
-    /// convex geoms every answer is a separation along a unit axis `n` (in the first geom's
+    /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
+    /// capsules it is the separation along the line between their segments' nearest points
+    /// (`capsules.rs`), for two other convex geoms every answer is a separation along a unit axis `n` (in the first geom's
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
     /// GJK converges to. The caller takes off its rounding slack (support points and dot
@@ -358,11 +358,17 @@ impl Scratch {
             (Solid::Convex { convex: ca, .. }, Solid::Convex { convex: cb, .. }) => (ca, cb),
         };
         let pos12 = self.geoms[g1].inv_mul(&self.geoms[g2]);
-        // Two capsules: their distance itself, in closed form (`capsules.rs`).
-        if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
-            return Ok(capsules::signed_distance(c1, c2, &pos12));
-        }
         let separation = |n: &Vector3<f64>| n.dot(&(cb.support_point(&pos12, &-n).coords - ca.local_support_point(n).coords));
+        // Two capsules: the separation along the line between their segments' nearest points
+        // (`capsules.rs`), from exact support points: a lower bound whatever the rounding of
+        // those points, and their distance to second order. Segments that meet overlap.
+        if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
+            let (x, y) = capsules::closest_points(c1, c2, &pos12);
+            return Ok(match (y - x).try_normalize(1e-12) {
+                Some(n) => separation(&n),
+                None => capsules::signed_distance(c1, c2, &pos12).min(0.0),
+            });
+        }
         let axis = self.axes[k];
         let mut best = f64::NEG_INFINITY;
         // The remembered axis, else the line between the two geoms' origins.

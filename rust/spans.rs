@@ -89,14 +89,14 @@ pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64) ->
         if r >= MIN_RADIUS {
             open.get_or_insert((q[j] - r).max(lo));
             if q[j] + r >= hi {
-                spans.push([open.take().unwrap_or(lo), hi]);
+                push(&mut spans, [open.take().unwrap_or(lo), hi]);
                 break;
             }
             theta = q[j] + r;
         } else {
             // (the previous state's span reached this one: it ends here)
             if let Some(start) = open.take() {
-                spans.push([start, q[j]]);
+                push(&mut spans, [start, q[j]]);
             }
             if q[j] >= hi {
                 break;
@@ -106,9 +106,18 @@ pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64) ->
     }
     if let Some(start) = open {
         // (cut short: proven up to the last state placed)
-        spans.push([start, q[j]]);
+        push(&mut spans, [start, q[j]]);
     }
     spans
+}
+
+/// Appends `span` to the sorted `spans`, merged with the last one where they meet (a state
+/// after a blocked one can prove back past where the blocked one ended the last span).
+fn push(spans: &mut Spans, span: [f64; 2]) {
+    match spans.last_mut() {
+        Some(last) if span[0] <= last[1] => last[1] = last[1].max(span[1]),
+        _ => spans.push(span),
+    }
 }
 
 #[cfg(test)]
