@@ -26,6 +26,17 @@ use crate::sphere_pairs::{has_avx2, Centres, PairList, LANES};
 /// broad phase keeps every pair that may come this close, so a pair it drops is clear of it.
 pub const MAX_CLEARANCE: f64 = 1e-6;
 
+/// Relative and absolute (metres) rounding slack the certificates take off every measured
+/// distance (`motion.rs`, `spans.rs`).
+pub(crate) const DISTANCE_SLACK: f64 = 1e-9;
+
+/// How far the measured distance `d` (metres) proves a pair above `need`, after the rounding
+/// slack: positive when it does.
+#[inline]
+pub(crate) fn slack_above(d: f64, need: f64) -> f64 {
+    d - DISTANCE_SLACK * (1.0 + d.abs()) - need
+}
+
 /// `Ok` for a clearance a certification may ask for, in (0, [`MAX_CLEARANCE`]] metres. (0 is
 /// refused: "apart" at clearance 0 would be decided by distances, not by the intersection
 /// tests the labels use for touching shapes.)
@@ -280,7 +291,7 @@ impl Broad {
         for &g in &self.geoms {
             let g = g as usize;
             let b = self.geom_body[g] as usize;
-            s.geom_world.set(g, &(bodies[b].translation.vector + s.rot[b] * self.geom_centre[g]));
+            self.set_geom_centre(&bodies[b], &s.rot[b], g, &mut s.geom_world);
         }
         for &g in &self.plane_geoms {
             self.place_plane(&geom_poses[g as usize], g as usize, s);
@@ -293,9 +304,14 @@ impl Broad {
     pub(crate) fn place_geom(&self, bodies: &[Isometry3<f64>], g: usize, s: &mut BroadScratch) {
         let b = self.geom_body[g] as usize;
         let x = &bodies[b];
-        let r = x.rotation.to_rotation_matrix().into_inner();
-        s.rot[b] = r;
-        s.geom_world.set(g, &(x.translation.vector + r * self.geom_centre[g]));
+        s.rot[b] = x.rotation.to_rotation_matrix().into_inner();
+        self.set_geom_centre(x, &s.rot[b], g, &mut s.geom_world);
+    }
+
+    /// Geom `g`'s world sphere centre from its body's frame `x` and rotation matrix `r`.
+    #[inline]
+    fn set_geom_centre(&self, x: &Isometry3<f64>, r: &Matrix3<f64>, g: usize, out: &mut Centres) {
+        out.set(g, &(x.translation.vector + r * self.geom_centre[g]));
     }
 
     /// What `place` computes for the plane geom `g`, alone, from its world frame `x`.

@@ -262,12 +262,15 @@ impl Scratch {
                 self.frame(model, g1);
                 self.frame(model, g2);
                 let (pa, pb) = (&self.geoms[g1], &self.geoms[g2]);
+                // Two capsules in closed form (`capsules.rs`: parry's GJK misses penetrations of
+                // micrometres between them); touching counts as contact, as in GJK's test.
+                if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
+                    let d = capsules::signed_distance(c1, c2, &pa.inv_mul(pb));
+                    return Ok(if pair.margin == 0.0 { d <= 0.0 } else { d < pair.margin });
+                }
                 if pair.margin == 0.0 {
                     // (parry's intersection tests for these shapes cannot fail.)
                     return Ok(intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]));
-                }
-                if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
-                    return Ok(capsules::signed_distance(c1, c2, &pa.inv_mul(pb)) < pair.margin);
                 }
                 match query::distance(pa, sa.as_ref(), pb, sb.as_ref()) {
                     Ok(d) => Ok(d < pair.margin),
@@ -569,9 +572,7 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
 /// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
 /// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
-/// GJK would find apart). Two capsules are measured in closed form (`capsules.rs`: parry's
-/// GJK misses penetrations of micrometres between them), touching counting as contact as in
-/// GJK's test.
+/// GJK would find apart).
 fn intersection_test(
     a: (&Convex, &dyn Shape),
     pa: &Isometry3<f64>,
@@ -586,7 +587,6 @@ fn intersection_test(
         (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
         (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
         (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
-        (Convex::Capsule(c1), Convex::Capsule(c2)) => capsules::signed_distance(c1, c2, &pos12) <= 0.0,
         (ca, cb) => intersection_test_remembering(ca, cb, &pos12, axis),
     }
 }

@@ -31,7 +31,7 @@
 //! the two shapes' exact support points (`collide::Scratch::pair_lower_bound`: the pair's axis
 //! from the previous state or the line between the geoms, and GJK's where that cannot decide
 //! or nearly closes the interval; the support point for a plane), reduced by
-//! [`DISTANCE_SLACK`] for rounding. A state where some pair is not shown above `need` ends the
+//! `broad::DISTANCE_SLACK` for rounding. A state where some pair is not shown above `need` ends the
 //! motion: [`Motion::Blocked`] (in contact, within the clearance, or, rarely, a pair GJK found no
 //! separating axis for). The halving stops when an open interval moves no joint more than
 //! [`MIN_STEP`]: a motion that grazes a pair within ~`M·MIN_STEP` of `need` may be
@@ -48,7 +48,7 @@
 use std::f64::consts::PI;
 
 use crate::angles::wrap;
-use crate::broad::check_clearance;
+use crate::broad::{check_clearance, slack_above, DISTANCE_SLACK};
 use crate::collide::{first_error, Scratch, Undecided};
 use crate::couplings::{Couplings, FEASIBLE_TOL};
 use crate::error::{Error, Result};
@@ -62,8 +62,6 @@ pub const MAX_STATES: usize = 1 << 16;
 /// Radians / metres: a motion with a joint beyond this, at either end, is unproven (too far to
 /// place meaningfully in floating point).
 pub const MAX_JOINT: f64 = 1e6;
-/// Relative and absolute (metres) rounding slack taken off every measured distance.
-const DISTANCE_SLACK: f64 = 1e-9;
 
 /// The verdict on one motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -398,7 +396,6 @@ fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize]) -> f64 {
 #[derive(Clone, Copy, Debug)]
 struct Open {
     pair: u32,
-    rate: f64,
     r0: f64,
     r1: f64,
 }
@@ -502,7 +499,7 @@ fn radius(
             need * (1.0 + 2.0 * DISTANCE_SLACK) + 2.0 * DISTANCE_SLACK,
         )
         .map_err(Stop::Undecided)?;
-    let slack = d - DISTANCE_SLACK * (1.0 + d.abs()) - need;
+    let slack = slack_above(d, need);
     if slack.is_nan() || slack <= 0.0 {
         return Err(Stop::Blocked);
     }
@@ -599,7 +596,7 @@ pub(crate) fn certify_motion(
         }
         match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
             Ok(r0) if r0 + r1 >= 1.0 => {}
-            Ok(r0) => ms.next.push(Open { pair: p as u32, rate: ms.rates[p], r0, r1 }),
+            Ok(r0) => ms.next.push(Open { pair: p as u32, r0, r1 }),
             Err(e) => return stop(e, 0.0),
         }
     }
@@ -610,7 +607,7 @@ pub(crate) fn certify_motion(
         ms.states += 1;
         for o in &ms.next {
             let p = o.pair as usize;
-            match radius(&mut at, &mut ms.scratch, p, o.rate, &mut ms.quads[p], need(p), 1.0 - o.r0, 1.0 - o.r0) {
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - o.r0, 1.0 - o.r0) {
                 Ok(r1) if o.r0 + r1 >= 1.0 => {}
                 Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
                 Err(e) => return stop(e, 1.0),
@@ -643,7 +640,7 @@ pub(crate) fn certify_motion(
                 let p = o.pair as usize;
                 // What the midpoint must give to close one half, and both.
                 let (c0, c1) = (half - o.r0, half - o.r1);
-                match radius(&mut at, &mut ms.scratch, p, o.rate, &mut ms.quads[p], need(p), c0.min(c1), c0.max(c1)) {
+                match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), c0.min(c1), c0.max(c1)) {
                     Ok(rm) => ms.mid.push((*o, rm)),
                     Err(e) => {
                         verdict = stop(e, tm);

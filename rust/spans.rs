@@ -24,7 +24,7 @@
 //! serves every clearance a motion may be certified at. Spans are a function of the model alone
 //! (a fresh scratch, pairs in order), the same on any thread.
 
-use crate::broad::MAX_CLEARANCE;
+use crate::broad::{slack_above, MAX_CLEARANCE};
 use crate::collide::Scratch;
 use crate::model::RobotModel;
 use crate::shapes::Solid;
@@ -35,9 +35,6 @@ pub(crate) const MIN_RADIUS: f64 = 1e-5;
 pub(crate) const BLOCKED_STEP: f64 = 1e-3;
 /// Most states one pair's sweep may place; a sweep cut short keeps the spans it found.
 const MAX_STATES: usize = 20_000;
-/// Relative and absolute (metres) rounding slack taken off every measured distance (as
-/// `motion.rs`'s).
-const DISTANCE_SLACK: f64 = 1e-9;
 
 /// Sorted, disjoint intervals `[lo, hi]` of one joint's value over which a pair is proven
 /// above its `need`.
@@ -84,7 +81,7 @@ pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64) ->
         let Ok(d) = s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY) else {
             return Vec::new();
         };
-        let slack = d - DISTANCE_SLACK * (1.0 + d.abs()) - need;
+        let slack = slack_above(d, need);
         let r = if slack > 0.0 { slack / lever } else { 0.0 };
         if r >= MIN_RADIUS {
             open.get_or_insert((q[j] - r).max(lo));
