@@ -7,6 +7,8 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
     python benches/field.py shadow   [--minutes 15 | --iterations 4000]  # Shadow Hand, self-collision only
     python benches/field.py scenes   [--minutes 13] [--layouts 20] [--upper 2] [--upper-minutes 6]
                                      # one field for a family of scenes (panda_blocks_moving)
+    python benches/field.py heldout  [--scenes xarm7_table,vx300s_clutter]
+                                     # the default field on held-out static scenes, MuJoCo labels
 
 Every row trains on the same balanced dataset (exact labels) and is scored on the same held-out
 balanced split. Writes markdown to benches/out/field_<command>.md; prints wall time and threads.
@@ -165,7 +167,7 @@ def write_table(rows: list[dict], path: Path, header: str) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes"))
+    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes", "heldout"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
     ap.add_argument("--iterations", type=int, default=None,
                     help="tables: iterations per row (default 400; fairer than minutes on a shared CPU); "
@@ -181,6 +183,7 @@ def main(argv=None) -> int:
     ap.add_argument("--upper-minutes", type=float, default=6.0, help="scenes: budget of each per-layout field")
     ap.add_argument("--pairs", type=int, default=5, help="scenes: hard trajectory problems per held-out layout")
     ap.add_argument("--retrain", action="store_true", help="scenes: train again even if cached")
+    ap.add_argument("--scenes", default=None, help="heldout: comma-separated static scenes (default xarm7_table,vx300s_clutter)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -188,6 +191,10 @@ def main(argv=None) -> int:
         from family_bench import scenes_bench
 
         return scenes_bench(args)
+    if args.command == "heldout":
+        from field_heldout import heldout_bench
+
+        return heldout_bench(args)
     wall = time.perf_counter()
     scene = "shadow_hand" if args.command == "shadow" else "panda_blocks"
     robot = profrobot.scenes.load(scene)

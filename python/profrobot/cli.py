@@ -124,7 +124,7 @@ def cmd_train(args) -> int:
 
     robot = _robot(args)
     opts = dict(seed=args.seed, threads=args.threads)
-    for key in ("n_poses", "iterations", "batch_size", "lr", "encoder", "eikonal_weight"):
+    for key in ("n_poses", "iterations", "batch_size", "lr", "encoder", "eikonal_weight", "device"):
         if getattr(args, key) is not None:
             opts[key] = getattr(args, key)
     if args.minutes is not None:
@@ -301,13 +301,15 @@ def main(argv: list[str] | None = None) -> int:
     sp.set_defaults(fn=cmd_dataset)
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
     common(sp)
-    sp.add_argument("--preset", default="cpu", help="cpu (ours, minutes) or paper (the paper's recipe)")
+    sp.add_argument("--preset", default="cpu", choices=["cpu", "pairs", "paper"],
+                    help="cpu (ours, minutes), pairs (one MLP per body pair: sharper, ~10 min on 2 cores) or paper")
     sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
     sp.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     sp.add_argument("--batch-size", dest="batch_size", type=int, default=None, help="poses per step (default: the preset's)")
     sp.add_argument("--lr", type=float, default=None, help="Adam's learning rate (default: the preset's)")
-    sp.add_argument("--encoder", choices=("kinematic", "hierarchical", "flat"), default=None,
+    sp.add_argument("--encoder", choices=("kinematic", "hierarchical", "flat", "pairs"), default=None,
                     help="pose features (default: the preset's)")
+    sp.add_argument("--device", default=None, help="torch device to train on, e.g. cuda (default: cpu)")
     sp.add_argument("--eikonal-weight", dest="eikonal_weight", type=float, default=None,
                     help="weight of the Eikonal term (default: the preset's)")
     sp.add_argument("--minutes", type=float, default=None, help="stop after this much training time")

@@ -17,6 +17,7 @@ from . import _core, validate
 from .equalities import EqualityMode
 from .errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from .files import atomic_path, check_format, check_robot, format_tag
+from .angles import wrap
 from .labels import check_threads, label_poses, sample_poses
 from .robot import Robot
 
@@ -206,3 +207,69 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
                     uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
                     core_version=_core.__version__)
     return Dataset(poses, *labels, metadata=metadata)
+
+
+def boundary_dataset(robot: Robot, n: int, seed: int = 0, *, spread: float = 0.02, bisections: int = 12,
+                     batch: int = 100_000, threads: int | None = None) -> Dataset:
+    """``n`` poses near the collision boundary, with exact labels (about half of them collide).
+
+    Each round draws uniform poses, pairs colliding with free ones, and bisects the segment
+    between them (SO(2) for continuous hinges) ``bisections`` times with the exact labeller to a
+    boundary point; each point is then moved by Gaussian noise of ``spread`` × the joint's range
+    per joint (continuous hinges: of 2π), clipped to the limits and put back on the robot's
+    couplings, and labelled exactly. So the poses are where a field's sign is hardest to get
+    right. Same seed, same poses, whatever the thread count.
+    """
+    if not isinstance(robot, Robot):
+        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    n = validate.count("n", n)
+    validate.memory("n", n, robot.njoint + 4)
+    spread = validate.finite("spread", spread)
+    if spread <= 0:
+        raise InputError(f"spread must be > 0; got {spread}")
+    threads = check_threads(threads)
+    lim = robot.joint_limits
+    cont = robot.continuous
+    width = np.where(cont, 2 * np.pi, lim[:, 1] - lim[:, 0])
+    kept: list[np.ndarray] = []
+    have, r = 0, 0
+    while have < n:
+        if r > 64 and have == 0:
+            raise InputError(f"{robot.name}: no boundary poses after {r} rounds (is there any collision, or any free pose?)")
+        rng = np.random.default_rng(_round_seed(seed, 0xB0 + r))
+        q = sample_poses(robot, batch, _round_seed(seed, 0xB000 + r), threads=threads)
+        c = robot.core.collides(q, threads=threads)
+        coll, free = rng.permutation(np.flatnonzero(c)), rng.permutation(np.flatnonzero(~c))
+        m = min(len(coll), len(free))
+        r += 1
+        if m == 0:
+            continue
+        a, b = q[free[:m]], q[coll[:m]]
+        step = b - a
+        step[:, cont] = wrap(step[:, cont])          # continuous hinges the short way round
+
+        def at(t: np.ndarray, a: np.ndarray = a, step: np.ndarray = step) -> np.ndarray:
+            x = a + t[:, None] * step
+            x[:, cont] = wrap(x[:, cont])
+            robot.couplings.apply(x)
+            return x
+
+        lo, hi = np.zeros(m), np.ones(m)             # lo free, hi colliding (exact labels)
+        for _ in range(bisections):
+            mid = 0.5 * (lo + hi)
+            hit = robot.core.collides(at(mid), threads=threads)
+            hi = np.where(hit, mid, hi)
+            lo = np.where(hit, lo, mid)
+        x = at(hi) + rng.standard_normal((m, robot.njoint)) * (spread * width)
+        x[:, cont] = wrap(x[:, cont])
+        x[:, ~cont] = np.clip(x[:, ~cont], lim[~cont, 0], lim[~cont, 1])
+        robot.couplings.apply(x)
+        x = x[robot.feasible(x)] if robot.couplings else x
+        kept.append(x[: n - have])
+        have += len(kept[-1])
+    poses = np.concatenate(kept)
+    lab = label_poses(robot, poses, threads=threads)
+    metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
+                    seed=int(seed), boundary=dict(spread=float(spread), bisections=int(bisections)),
+                    library_version=_core.__version__, core_version=_core.__version__)
+    return Dataset(poses, *(getattr(lab, k) for k in _LABELS), metadata=metadata)

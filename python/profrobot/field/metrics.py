@@ -12,21 +12,24 @@ from .model import PoseSDF
 @torch.no_grad()
 def field_values(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> np.ndarray:
     """g (N,) for poses (N, K), evaluated in chunks without gradients."""
-    out = [sdf(torch.as_tensor(poses[i:i + chunk], dtype=torch.float32)).numpy() for i in range(0, len(poses), chunk)]
+    dev = sdf.joint_limits.device
+    out = [sdf(torch.as_tensor(poses[i:i + chunk], dtype=torch.float32, device=dev)).cpu().numpy()
+           for i in range(0, len(poses), chunk)]
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
 def _values_and_gradient_norms(sdf: PoseSDF, poses: np.ndarray, chunk: int = 2048) -> tuple[np.ndarray, np.ndarray]:
     """g (N,) and ‖∂g/∂θ‖₂ (N,) for poses (N, K), one backward pass (see :func:`gradient_norms`)."""
     gs, out = [], []
+    dev = sdf.joint_limits.device
     for i in range(0, len(poses), chunk):
-        q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32).requires_grad_(True)
+        q = torch.as_tensor(poses[i:i + chunk], dtype=torch.float32, device=dev).requires_grad_(True)
         g = sdf(q)
         (grad,) = torch.autograd.grad(g.sum(), q)
         if getattr(sdf, "scene_joints", None):
             grad = grad[:, sdf.robot_index]
-        gs.append(g.detach().numpy())
-        out.append(grad.norm(dim=1).numpy())
+        gs.append(g.detach().cpu().numpy())
+        out.append(grad.norm(dim=1).cpu().numpy())
     empty = np.zeros(0, dtype=np.float32)
     return (np.concatenate(gs), np.concatenate(out)) if out else (empty, empty)
 

@@ -12,11 +12,12 @@ from torch import nn
 
 from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
+from .pairs import PairEncoder, PairHead
 from .identity import _Shared
 from .layout import LayoutField
 from ..errors import InputError, InputTypeError
 
-Encoder = Literal["kinematic", "hierarchical", "flat"]
+Encoder = Literal["kinematic", "hierarchical", "flat", "pairs"]
 Objective = Literal["sdf", "ndf"]
 ENCODERS: tuple[str, ...] = get_args(Encoder)
 OBJECTIVES: tuple[str, ...] = get_args(Objective)
@@ -47,7 +48,9 @@ class PoseSDF(nn.Module):
     Options (the paper's model is ``encoder="hierarchical"``; ours, the default, ``"kinematic"``):
 
     - ``encoder``: "kinematic" (link poses and pair clearances from torch FK), "hierarchical"
-      (paper), "flat" (ablation);
+      (paper), "flat" (ablation), "pairs" (one MLP per candidate body pair over its relative
+      pose, g the largest pair logit; ``hidden`` is then each pair's widths, e.g. (32, 32):
+      :mod:`profrobot.field.pairs`);
     - ``feature_size`` (hierarchical/flat, default 8); ``hidden``: MLP widths (default 4 × 512);
     - ``learn_scale`` (default True; False fixes s = 1: the ablation), ``init_scale`` 10;
     - ``lipschitz``: Lipschitz-constrained MLP layers;
@@ -93,16 +96,23 @@ class PoseSDF(nn.Module):
             self.encoder = HierarchicalEncoder(robot.joint_parents, feature_size)
         elif encoder == "flat":
             self.encoder = FlatEncoder(robot.njoint, feature_size)
+        elif encoder == "pairs":
+            self.encoder = PairEncoder(robot, spheres_per_body=spheres_per_body)
         else:
             self.encoder = KinematicEncoder(robot, spheres_per_body=spheres_per_body)
-        Lin = LipschitzLinear if lipschitz else nn.Linear
-        layers: list[nn.Module] = [nn.LeakyReLU()] if encoder != "kinematic" else []
-        width = self.encoder.out_features
-        for h in self.config["hidden"]:
-            layers += [Lin(width, h), nn.LeakyReLU()]
-            width = h
-        layers.append(Lin(width, 1))
-        self.head = nn.Sequential(*layers)
+        if encoder == "pairs":   # one MLP per body pair, g the largest pair logit (field/pairs.py)
+            if lipschitz:
+                raise InputError("lipschitz=True is for the single-MLP encoders, not encoder='pairs'")
+            self.head = PairHead(self.encoder.npair, tuple(self.config["hidden"]))
+        else:
+            Lin = LipschitzLinear if lipschitz else nn.Linear
+            layers: list[nn.Module] = [nn.LeakyReLU()] if encoder != "kinematic" else []
+            width = self.encoder.out_features
+            for h in self.config["hidden"]:
+                layers += [Lin(width, h), nn.LeakyReLU()]
+                width = h
+            layers.append(Lin(width, 1))
+            self.head = nn.Sequential(*layers)
         self.s_raw = nn.Parameter(torch.tensor(math.log(init_scale)), requires_grad=learn_scale)
         # NDF: g = distance − threshold (set by training)
         self.register_buffer("ndf_threshold", torch.tensor(0.0))
@@ -129,8 +139,8 @@ class PoseSDF(nn.Module):
                              f"{float(theta[i, j])}; poses must be finite")
 
     def head_g(self, features: torch.Tensor) -> torch.Tensor:
-        """g (B,) from encoder features (B, F)."""
-        g = self.head(features)[:, 0]
+        """g (B,) from encoder features (B, F) (``encoder="pairs"``: the largest pair logit)."""
+        g = self.head(features).max(dim=1).values if self.config["encoder"] == "pairs" else self.head(features)[:, 0]
         return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
 
     def forward(self, theta: torch.Tensor, scene=None) -> torch.Tensor:

@@ -1,11 +1,18 @@
 """Training the pose collision field: BCE(sigmoid(s·g), label) + α (‖∂g/∂θ‖ − 1)² (paper §3).
 
-Two presets:
+Three presets:
 
 - ``"cpu"`` (default): our kinematics-aware field (4 × 256 MLP), 2 M balanced poses, BCE on
   batches of 8192 with the encoder's features computed once per pose (they have no parameters),
-  the Eikonal term on a sub-batch of 256 through the full differentiable FK, Adam (lr 2e-3) with a
-  cosine schedule. Minutes on a laptop CPU.
+  the Eikonal term on 256 poses a step, drawn from a pool whose feature Jacobians ∂f/∂θ were
+  computed once (so a step differentiates the MLP, not the FK), Adam (lr 2e-3) with a cosine
+  schedule. Minutes on a laptop CPU.
+- ``"pairs"``: the pair-structured field (:mod:`profrobot.field.pairs`: one 32 × 32 MLP per
+  candidate body pair over its relative pose, each pair supervised by its own exact label), 1 M
+  poses, batch 2048, 5000 iterations. On two CPU cores about 10 minutes for a 7-DoF arm and
+  gripper, and sharper than ``"cpu"`` (98.9 % against 98.2 % balanced accuracy held out, 0.7 %
+  against 1.6 % of colliding poses called free, xarm7_table). With ``device="cuda"`` pass
+  ``hidden=(64, 64), batch_size=8192``: 99.3 % in a minute on one GPU.
 - ``"paper"``: the paper's model and recipe: hierarchical encoder, 10 M poses, batch 100 000,
   10 000 iterations, Adam lr 1e-3 halved at iterations 100, 500, 1400, 3000, 5500, 9100.
 
@@ -31,10 +38,10 @@ from ..dataset import Dataset, make_dataset
 from ..robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
-from ..errors import InputError, InputTypeError
+from ..errors import BackendUnavailableError, InputError, InputTypeError
 
 Schedule = Literal["cosine", "paper", "constant"]
-Preset = Literal["cpu", "paper"]
+Preset = Literal["cpu", "pairs", "paper"]
 PAPER_MILESTONES = (100, 500, 1400, 3000, 5500, 9100)
 MODEL_OPTIONS = ("encoder", "feature_size", "hidden", "learn_scale", "init_scale", "lipschitz", "objective",
                  "spheres_per_body")
@@ -51,7 +58,10 @@ class TrainConfig:
     lr: float = 1e-3
     schedule: Schedule = "cosine"          # "cosine", "paper" (halvings at PAPER_MILESTONES), "constant"
     eikonal_weight: float = 0.1       # α
+    pair_weight: float = 1.0          # encoder="pairs": weight of the per-pair BCE (summed over pairs)
+    collision_weight: float = 1.0     # BCE weight of colliding poses (> 1: fewer colliding poses called free)
     eikonal_batch: int = 0            # poses per iteration for the Eikonal term (0: whole batch)
+    eikonal_pool: int = 8192          # parameter-free encoders: poses whose ∂f/∂θ is kept for the Eikonal term (0: off)
     steik_weight: float = 0.0         # StEik directional-divergence term |dᵀ H d|, d = ∇g/‖∇g‖
     lipschitz_weight: float = 1e-6    # weight of the product of Lipschitz bounds (lipschitz MLPs)
     time_budget: float | None = None  # seconds of optimisation; None: run all iterations
@@ -59,10 +69,16 @@ class TrainConfig:
     threads: int | None = None        # torch and labeller threads (None: as configured)
     eval_every: int = 0               # evaluate on the test split every N iterations (0: at the end)
     eval_at_seconds: tuple = ()       # full test metrics when training time passes each of these
+    boundary_fraction: float = 0.0    # extra training poses near the collision boundary, × the uniform ones
+    boundary_spread: float = 0.02     # their distance from the boundary: Gaussian, × each joint's range
+    device: str = "cpu"               # torch device to train on ("cuda", "cuda:1"); the field stays there
 
 
 PRESETS: dict[str, dict] = {
     "cpu": dict(encoder="kinematic", hidden=(256, 256, 256, 256), lr=2e-3, eikonal_batch=256),
+    # one MLP per body pair with its own labels (field/pairs.py): sharper, features P·13 per pose
+    "pairs": dict(encoder="pairs", hidden=(32, 32), n_poses=1_000_000, batch_size=2048, iterations=5000, lr=2e-3,
+                  eikonal_batch=256),
     "paper": dict(encoder="hierarchical", hidden=(512, 512, 512, 512), n_poses=10_000_000, batch_size=100_000, iterations=10_000,
                   schedule="paper", eikonal_batch=0),
 }
@@ -83,9 +99,34 @@ def _split_options(preset: Preset, options: dict) -> tuple[dict, TrainConfig]:
     cfg = TrainConfig(**{k: v for k, v in merged.items() if k in fields})
     if cfg.schedule not in get_args(Schedule):
         raise InputError(f"schedule must be 'cosine', 'paper' or 'constant'; got {cfg.schedule!r}")
+    if not (cfg.collision_weight > 0 and math.isfinite(cfg.collision_weight)):
+        raise InputError(f"collision_weight must be a positive number; got {cfg.collision_weight!r}")
+    if not (0 <= cfg.boundary_fraction <= 10 and cfg.boundary_spread > 0):
+        raise InputError(f"boundary_fraction must be in [0, 10] and boundary_spread > 0; got "
+                         f"{cfg.boundary_fraction!r}, {cfg.boundary_spread!r}")
     if cfg.batch_size < 2 or cfg.iterations < 1 or cfg.lr <= 0:
         raise InputError("batch_size >= 2, iterations >= 1 and lr > 0 are required")
+    cfg.device = str(_check_device(cfg.device))
     return model_opts, cfg
+
+
+def _check_device(device) -> torch.device:
+    """``device`` as a torch.device that can run here: a clear error for a name torch does not
+    know, and :class:`BackendUnavailableError` for a CUDA device this machine has not."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as e:
+        raise InputError(f"device must name a torch device ('cpu', 'cuda', 'cuda:1'); got {device!r}") from e
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise BackendUnavailableError(f"train_sdf(device={device!r}): this torch ({torch.__version__}) sees no CUDA "
+                                          "device; train on device='cpu'")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise BackendUnavailableError(f"train_sdf(device={device!r}): only {torch.cuda.device_count()} CUDA "
+                                          "device(s) here")
+    elif dev.type != "cpu":
+        raise BackendUnavailableError(f"train_sdf(device={device!r}): only 'cpu' and CUDA devices are supported")
+    return dev
 
 
 def _lr_factor(cfg: TrainConfig, progress: float, it: int) -> float:
@@ -107,12 +148,44 @@ def eikonal_terms(sdf: PoseSDF, theta: torch.Tensor, steik: bool = False) -> tup
     norm = grad.norm(dim=1)
     eik = ((norm - 1) ** 2).mean()
     if not steik:
-        return eik, torch.zeros((), dtype=eik.dtype)
+        return eik, torch.zeros((), dtype=eik.dtype, device=eik.device)
     d = (grad / norm.clamp(min=1e-8)[:, None]).detach()
     (hd,) = torch.autograd.grad((grad * d).sum(), theta, create_graph=True)  # H d
     if getattr(sdf, "scene_joints", None):
         hd = hd[:, sdf.robot_index]
     return eik, (hd * d).sum(1).abs().mean()
+
+
+def feature_jacobians(encoder, theta: torch.Tensor, columns, chunk: int = 256) -> torch.Tensor:
+    """∂f/∂θ of a parameter-free encoder at poses θ (B, K), for the joint ``columns`` (C,):
+    (B, F, C), exact: forward-mode dual numbers through the FK, the C tangents of ``chunk`` poses
+    in one pass of C·chunk rows."""
+    import torch.autograd.forward_ad as fwad
+
+    columns = torch.as_tensor(list(columns), dtype=torch.long, device=theta.device)
+    C = len(columns)
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(theta), chunk):
+            q = theta[i:i + chunk]
+            b = len(q)
+            tangent = torch.zeros(C, b, q.shape[1], dtype=q.dtype, device=q.device)
+            tangent[torch.arange(C), :, columns] = 1.0                        # row block c moves joint columns[c]
+            with fwad.dual_level():
+                y = encoder(fwad.make_dual(q.repeat(C, 1), tangent.reshape(C * b, -1)))
+                jac = fwad.unpack_dual(y).tangent                             # (C·b, F)
+            out.append(jac.reshape(C, b, -1).permute(1, 2, 0))                # (b, F, C)
+    return torch.cat(out)
+
+
+def eikonal_from_features(sdf: PoseSDF, features: torch.Tensor, jacobians: torch.Tensor) -> torch.Tensor:
+    """The Eikonal loss mean (‖∂g/∂θ‖ − 1)² from features f (B, F) and their Jacobians ∂f/∂θ
+    (B, F, C): ∂g/∂θ = (∂f/∂θ)ᵀ ∂g/∂f by the chain rule, so only the MLP is differentiated (twice),
+    never the FK. Equal to :func:`eikonal_terms`'s for a parameter-free encoder."""
+    f = features.detach().requires_grad_(True)
+    (gf,) = torch.autograd.grad(sdf.head_g(f).sum(), f, create_graph=True)     # (B, F)
+    grad = torch.einsum("bfc,bf->bc", jacobians, gf)                             # (B, C)
+    return ((grad.norm(dim=1) - 1) ** 2).mean()
 
 
 def _fit_ndf_targets(train: Dataset) -> np.ndarray:
@@ -133,6 +206,9 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     labeller) or a :class:`~profrobot.Dataset` (then pass ``robot=``, or the dataset's robot must
     be a bundled scene). Options: the fields of :class:`TrainConfig` and PoseSDF's ``encoder``,
     ``feature_size``, ``hidden``, ``learn_scale``, ``init_scale``, ``lipschitz``, ``objective``.
+    ``device="cuda"`` trains on a GPU (features, batches and the Eikonal FK all on it); the field
+    is returned on that device (``.cpu()`` moves it back; checkpoints load on the CPU). Labelling
+    stays on the CPU's exact labeller either way.
     Ctrl-C stops training early; the model trained so far is evaluated and returned.
     """
     model_opts, cfg = _split_options(preset, options)
@@ -160,12 +236,23 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
                          f"(test_fraction {cfg.test_fraction}, {int(test.collides.sum())} colliding): at least "
                          f"{MIN_HELD_OUT}, colliding and free both, are needed to report metrics; raise n_poses (or test_fraction)")
 
+    if cfg.boundary_fraction > 0:
+        # poses where the sign of g is hardest to get right; the held-out split stays uniform
+        from ..dataset import boundary_dataset
+
+        near = boundary_dataset(robot, max(1, int(cfg.boundary_fraction * len(train))), seed=cfg.seed,
+                                spread=cfg.boundary_spread, threads=cfg.threads)
+        train = Dataset(np.concatenate([train.poses, near.poses]),
+                        *(np.concatenate([getattr(train, k), getattr(near, k)]) for k in
+                          ("collides", "self_collides", "scene_collides", "n_pairs")), metadata=train.metadata)
+
     torch.manual_seed(cfg.seed)
-    sdf = PoseSDF(robot, **model_opts)
+    dev = torch.device(cfg.device)
+    sdf = PoseSDF(robot, **model_opts).to(dev)   # built (and its encoder standardised) on the CPU, then moved
     ndf = sdf.config["objective"] == "ndf"
     rng = np.random.default_rng(cfg.seed)
-    theta_all = torch.as_tensor(train.poses, dtype=torch.float32)
-    target = torch.as_tensor(_fit_ndf_targets(train) if ndf else train.collides.astype(np.float32))
+    theta_all = torch.as_tensor(train.poses, dtype=torch.float32, device=dev)
+    target = torch.as_tensor(_fit_ndf_targets(train) if ndf else train.collides.astype(np.float32), device=dev)
 
     # Parameter-free encoders: features once per pose, so BCE costs only the MLP. Small chunks
     # keep the FK's intermediates in cache (2x faster than 16k-pose chunks on a laptop CPU).
@@ -176,6 +263,27 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             features = torch.cat([sdf.encoder(theta_all[i:i + 2048])
                                   for i in tqdm(chunks, desc="features", disable=None if progress else True, leave=False)])
 
+    # The Eikonal term of a parameter-free encoder through stored Jacobians: ∂f/∂θ of a pool of
+    # training poses, computed once (forward mode), so each step differentiates the MLP only
+    # (10x cheaper than the FK's double backward; the same loss, see eikonal_from_features).
+    # Capped at 256 MB; the Hessian term (StEik) still needs the FK itself.
+    pool = jac = None
+    eik_cols = sdf.robot_index if sdf.scene_joints else torch.arange(sdf.njoint)
+    if (features is not None and cfg.eikonal_pool > 0 and cfg.eikonal_weight > 0 and cfg.steik_weight == 0
+            and cfg.eikonal_batch > 0):
+        per_pose = 4 * features.shape[1] * len(eik_cols)
+        size = int(min(len(theta_all), cfg.eikonal_pool, max(cfg.eikonal_batch, 256 * 2**20 // per_pose)))
+        pool = torch.as_tensor(np.sort(rng.permutation(len(theta_all))[:size]), device=dev)
+        jac = feature_jacobians(sdf.encoder, theta_all[pool], eik_cols.tolist())
+
+    pos_weight = None if cfg.collision_weight == 1.0 else torch.tensor(float(cfg.collision_weight), device=dev)
+    # encoder="pairs": every pair's own exact label (body pairs in contact), P labels per pose
+    pair_y = None
+    if sdf.config["encoder"] == "pairs" and cfg.pair_weight > 0 and not ndf and features is not None:
+        from ..labels import label_poses
+
+        lab = label_poses(robot, train.poses, pairs=True, threads=cfg.threads)
+        pair_y = torch.as_tensor(sdf.encoder.pair_labels(lab.colliding_pairs, len(train)), device=dev)
     params = [p for p in sdf.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
@@ -206,17 +314,28 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
                 group["lr"] = cfg.lr * _lr_factor(cfg, progress_frac, it)
             if cursor + bs > n:
                 order, cursor = rng.permutation(n), 0
-            idx = torch.as_tensor(order[cursor:cursor + bs])
+            idx = torch.as_tensor(order[cursor:cursor + bs], device=dev)
             cursor += bs
-            g = sdf.head_g(features[idx]) if features is not None else sdf(theta_all[idx])
+            if pair_y is not None:
+                z = sdf.head(features[idx])                                  # (B, P) pair logits
+                g = z.max(dim=1).values
+            else:
+                g = sdf.head_g(features[idx]) if features is not None else sdf(theta_all[idx])
             y = target[idx]
             if ndf:
                 data_loss = torch.nn.functional.l1_loss(g + sdf.ndf_threshold, y)
             else:
-                data_loss = torch.nn.functional.binary_cross_entropy_with_logits(sdf.scale * g, y)
+                data_loss = torch.nn.functional.binary_cross_entropy_with_logits(sdf.scale * g, y, pos_weight=pos_weight)
+            if pair_y is not None:
+                data_loss = data_loss + cfg.pair_weight * torch.nn.functional.binary_cross_entropy_with_logits(
+                    sdf.scale * z, pair_y[idx].to(z.dtype), pos_weight=pos_weight, reduction="none").sum(1).mean()
             loss = data_loss
-            eik = steik = torch.zeros(())
-            if cfg.eikonal_weight > 0 or cfg.steik_weight > 0:
+            eik = steik = torch.zeros((), device=dev)
+            if jac is not None:
+                pick = torch.as_tensor(rng.integers(0, len(pool), cfg.eikonal_batch), device=dev)
+                eik = eikonal_from_features(sdf, features[pool[pick]], jac[pick])
+                loss = loss + cfg.eikonal_weight * eik
+            elif cfg.eikonal_weight > 0 or cfg.steik_weight > 0:
                 sub = idx[: cfg.eikonal_batch] if cfg.eikonal_batch else idx
                 eik, steik = eikonal_terms(sdf, theta_all[sub], steik=cfg.steik_weight > 0)
                 loss = loss + cfg.eikonal_weight * eik + cfg.steik_weight * steik
@@ -244,7 +363,8 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
         _set_ndf_threshold(sdf, train, features)
     sdf.eval()
     sdf.metrics = dict(evaluate(sdf, test.poses, test.collides), iterations=len(history),
-                       train_seconds=train_seconds, train_poses=n, threads=torch.get_num_threads())
+                       train_seconds=train_seconds, train_poses=n, threads=torch.get_num_threads(),
+                       device=str(dev))
     sdf.history = history
     sdf.snapshots = snapshots
     return sdf
@@ -266,8 +386,8 @@ def _set_ndf_threshold(sdf: PoseSDF, train: Dataset, features, n: int = 200_000)
     """The NDF baseline classifies "colliding" when its distance exceeds a threshold; pick the one
     that maximises training accuracy (fair to the baseline)."""
     sdf.ndf_threshold.zero_()
-    q = torch.as_tensor(train.poses[:n], dtype=torch.float32)
-    d = (sdf.head_g(features[:n]) if features is not None else sdf(q)).numpy()
+    q = torch.as_tensor(train.poses[:n], dtype=torch.float32, device=sdf.joint_limits.device)
+    d = (sdf.head_g(features[:n]) if features is not None else sdf(q)).cpu().numpy()
     y = train.collides[:n]
     cands = np.quantile(d, np.linspace(0.01, 0.99, 99))
     acc = [np.mean((d > c) == y) for c in cands]

@@ -1,0 +1,151 @@
+"""The pair-structured field: one small network per candidate body pair, g = the largest pair's.
+
+A collision is the union of its pairs' contacts, and whether two rigid bodies touch depends on
+their relative pose alone. So instead of one MLP over the whole robot (the kinematic encoder's),
+``encoder="pairs"`` gives every candidate pair p (a moving body against another, or against a
+static geom) its own MLP over what decides that pair:
+
+- x_p (13,): the relative pose — b's origin in a's frame ``R_aᵀ (x_b − x_a)`` (3) and
+  ``R_aᵀ R_b`` (9); for a static geom, the body's pose in the geom's frame — and the pair's proxy
+  clearance (:mod:`profrobot.field.proxies`, 1), standardised;
+- z_p = MLP_p(x_p), all pairs at once as batched matrix products ``(P, B, in) @ (P, in, out)``;
+- g = max_p z_p: the field of a union is the largest of its parts' (as a signed distance is the
+  smallest of the parts' distances), so ∂g/∂θ is the deciding pair's gradient.
+
+Training supervises every pair with its own exact label (``label_poses(..., pairs=True)``, geom
+pairs grouped to body pairs by :meth:`PairEncoder.pair_labels`) beside the pose's label: a
+pose gives P labels instead of one.
+
+Pairs that no robot joint moves (a family's obstacle against the robot's fixed base) have no
+pair here: they depend on the layout δ alone, and the labeller certifies them as ever.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..kinematics import Kinematics
+from ..pointcloud import CLOUD_GEOM_ID
+from .proxies import PairClearance
+
+PER_PAIR = 13  # relative position (3), relative rotation (9), proxy clearance (1)
+
+
+class PairEncoder(nn.Module):
+    """θ (B, K) → per-pair relative poses and clearances, (B, P·13), standardised; no learnable
+    parameters (training computes them once per pose)."""
+
+    learnable = False
+
+    def __init__(self, robot, *, spheres_per_body: int = 4, clearance_clip: float = 0.3, stats_poses: int = 4096):
+        super().__init__()
+        self.kin = Kinematics.from_robot(robot)
+        self.clearance = PairClearance(robot, self.kin, spheres_per_body)
+        self.clip = float(clearance_clip)
+        self.npair = self.clearance.npair
+        self.out_features = PER_PAIR * self.npair
+        self.register_buffer("mean", torch.zeros(self.out_features))
+        self.register_buffer("std", torch.ones(self.out_features))
+        self._geom_to_pair = self._map_geom_pairs(robot)
+        from ..labels import sample_poses
+
+        with torch.no_grad():
+            raw = self.raw(torch.as_tensor(sample_poses(robot, stats_poses, seed=0), dtype=torch.float32))
+            self.mean.copy_(raw.mean(0))
+            self.std.copy_(raw.std(0).clamp(min=1e-3))
+
+    def _map_geom_pairs(self, robot) -> np.ndarray:
+        """Each of ``robot.pair_geoms`` → its body-level pair (the clearance's column), −1 for
+        pairs without a proxy (point clouds, two static geoms)."""
+        c = self.clearance
+        arr = robot.core_arrays()
+        gid, gbody = np.asarray(arr["geom_id"]), np.asarray(arr["geom_body"])
+        index_of = {int(g): i for i, g in enumerate(gid)}
+        body_slot = {int(b): s for s, b in enumerate(c.body_ids.tolist())}
+        bb = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(c.bb_a.tolist(), c.bb_b.tolist()))}
+        nbb = len(bb)
+        bs = {(int(a), int(g)): nbb + k for k, (a, g) in enumerate(zip(c.bs_a.tolist(), c.bs_g.tolist()))}
+        moving_geoms = {i for i in range(len(gid)) if int(gbody[i]) in body_slot}
+        static_slot = {i: s for s, i in enumerate(i for i in range(len(gid)) if i not in moving_geoms)}
+        out = np.full(len(robot.pair_geoms), -1, dtype=np.int64)
+        for k, (g1, g2) in enumerate(np.asarray(robot.pair_geoms)):
+            if CLOUD_GEOM_ID in (int(g1), int(g2)):
+                continue
+            a, b = index_of[int(g1)], index_of[int(g2)]
+            if a not in moving_geoms:
+                a, b = b, a
+            if a not in moving_geoms:
+                continue
+            sa = body_slot[int(gbody[a])]
+            if b in moving_geoms:
+                out[k] = bb.get(tuple(sorted((sa, body_slot[int(gbody[b])]))), -1)
+            else:
+                out[k] = bs.get((sa, static_slot[b]), -1)
+        return out
+
+    def pair_labels(self, colliding_pairs: np.ndarray, n: int) -> np.ndarray:
+        """(n, P) uint8: 1 where the pose's body pair is in contact, from ``label_poses(...,
+        pairs=True).colliding_pairs`` rows (pose, geom pair)."""
+        y = np.zeros((n, self.npair), dtype=np.uint8)
+        if len(colliding_pairs):
+            col = self._geom_to_pair[colliding_pairs[:, 1]]
+            keep = col >= 0
+            y[colliding_pairs[keep, 0], col[keep]] = 1
+        return y
+
+    def raw(self, theta: torch.Tensor) -> torch.Tensor:
+        c = self.clearance
+        bp = self.kin(theta)
+        R, x = bp.rot[:, c.body_ids], bp.pos[:, c.body_ids]                          # (B, nb, 3, 3), (B, nb, 3)
+        frames = c.static_frames(bp)
+        parts = []
+        if len(c.bb_a):
+            Ra, Rb = R[:, c.bb_a], R[:, c.bb_b]
+            p = torch.einsum("bpji,bpj->bpi", Ra, x[:, c.bb_b] - x[:, c.bb_a])
+            parts.append(torch.cat([p, torch.einsum("bpji,bpjk->bpik", Ra, Rb).flatten(2)], 2))
+        if len(c.bs_a):
+            Ra = R[:, c.bs_a]
+            if frames is None:   # fixed obstacles: one frame per pair, broadcast over the batch
+                Rg, xg = c.st_rot[c.bs_g], c.st_pos[c.bs_g]
+                p = torch.einsum("pji,bpj->bpi", Rg, x[:, c.bs_a] - xg)
+                rel = torch.einsum("pji,bpjk->bpik", Rg, Ra)
+            else:
+                Rg, xg = frames[0][:, c.bs_g], frames[1][:, c.bs_g]
+                p = torch.einsum("bpji,bpj->bpi", Rg, x[:, c.bs_a] - xg)
+                rel = torch.einsum("bpji,bpjk->bpik", Rg, Ra)
+            parts.append(torch.cat([p, rel.flatten(2)], 2))
+        clear = c.from_centres(c.sphere_centres(bp), frames).clamp(max=self.clip)   # (B, P)
+        return torch.cat([torch.cat(parts, 1), clear[..., None]], 2).flatten(1)     # (B, P·13)
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        return (self.raw(theta) - self.mean) / self.std
+
+
+class PairHead(nn.Module):
+    """One MLP per pair over its 13 features: (B, P·13) → pair logits z (B, P); ``hidden``: the
+    widths of each pair's MLP. LeakyReLU between layers, as the field's MLP."""
+
+    def __init__(self, npair: int, hidden: tuple[int, ...] = (64, 64)):
+        super().__init__()
+        self.npair = npair
+        widths = [PER_PAIR, *hidden, 1]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for n_in, n_out in zip(widths[:-1], widths[1:]):
+            bound = 1 / math.sqrt(n_in)        # nn.Linear's initialisation, per pair
+            self.weights.append(nn.Parameter(torch.empty(npair, n_in, n_out).uniform_(-bound, bound)))
+            self.biases.append(nn.Parameter(torch.empty(npair, 1, n_out).uniform_(-bound, bound)))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        B = features.shape[0]
+        h = features.reshape(B, self.npair, PER_PAIR).transpose(0, 1)               # (P, B, 13)
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+            h = torch.baddbmm(b, h, w)                                               # (P, B, out)
+            if i < last:
+                h = nn.functional.leaky_relu(h)
+        return h[..., 0].transpose(0, 1)                                             # (B, P)

@@ -1,0 +1,85 @@
+"""The CUDA paths: a field trained on a GPU, resolving with it, rendering CUDA tensors.
+
+The device checks are skipped where torch sees no CUDA device (CI has none); on a GPU machine
+``pytest tests/test_cuda.py`` runs them. The errors for a device that cannot run are checked
+everywhere.
+"""
+
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+import profrobot
+from profrobot.errors import BackendUnavailableError, InputError
+from profrobot.field import train_sdf
+from profrobot.field.metrics import field_values
+
+cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no CUDA device")
+TINY = dict(hidden=(64, 64), n_poses=20_000, iterations=150, batch_size=1024, eikonal_batch=64, progress=False, seed=1)
+
+
+def test_a_device_torch_does_not_know_is_named(panda):
+    with pytest.raises(InputError, match="device must name a torch device.*'gpu0'"):
+        train_sdf(panda, device="gpu0", **TINY)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+def test_cuda_without_a_cuda_device_says_so_before_any_work(panda):
+    with pytest.raises(BackendUnavailableError, match="sees no CUDA device"):
+        train_sdf(panda, device="cuda", **TINY)
+
+
+@cuda
+@pytest.mark.parametrize("encoder", ["kinematic", "pairs"])
+def test_a_tiny_training_run_on_cuda_beats_90_percent_and_matches_its_cpu_copy(panda, encoder):
+    """The CPU test's recipe on the GPU: the same held-out bar, the field on the GPU, and its CPU
+    copy giving the same g (float32 kernels differ in summation order only)."""
+    sdf = train_sdf(panda, device="cuda", **{**TINY, "encoder": encoder, **({"hidden": (16,)} if encoder == "pairs" else {})})
+    assert sdf.joint_limits.device.type == "cuda" and sdf.metrics["device"].startswith("cuda")
+    assert sdf.metrics["accuracy"] > 0.90, sdf.metrics
+    q = profrobot.sample_poses(panda, 2000, seed=5)
+    g_gpu = field_values(sdf, q)
+    g_cpu = field_values(sdf.cpu(), q)
+    np.testing.assert_allclose(g_gpu, g_cpu, atol=1e-4, rtol=1e-4)
+
+
+@cuda
+def test_resolve_with_a_cuda_field_returns_certified_poses(panda):
+    sdf = train_sdf(panda, device="cuda", **TINY)
+    from profrobot.problems import colliding_poses
+
+    q = colliding_poses(panda, 40, seed=2)
+    res = profrobot.resolve(sdf, q, robot=panda)
+    assert res.certified.mean() > 0.9
+    assert not profrobot.collides(panda, res.poses[res.certified]).any()
+
+
+@cuda
+def test_rasterize_cuda_tensors_agree_with_the_cpu_kernel():
+    """backend="torch" on the GPU and the Rust kernel ("auto" without gsplat copies CUDA tensors
+    to the CPU and back): the same image and the same gradients, to float32 rounding."""
+    from profrobot.render.rasterize import rasterize
+
+    gen = torch.Generator().manual_seed(0)
+    n = 200
+    means = torch.rand(n, 3, generator=gen) * 0.4 - 0.2
+    means[:, 2] += 1.0
+    a = torch.randn(n, 3, 3, generator=gen) * 0.02
+    covs = a @ a.transpose(1, 2) + 1e-5 * torch.eye(3)
+    opac = torch.rand(n, generator=gen) * 0.9
+    cols = torch.rand(n, 3, generator=gen)
+    view = torch.eye(4)[None]
+    K = torch.tensor([[[60.0, 0, 32], [0, 60.0, 32], [0, 0, 1]]])
+    out = {}
+    for name, dev, backend in (("cpu", "cpu", "rust"), ("torch", "cuda", "torch"), ("auto", "cuda", "auto")):
+        m = means.detach().clone().to(dev).requires_grad_(True)   # a leaf on each device
+        r = rasterize(m, covs.to(dev), opac.to(dev), cols.to(dev), view.to(dev), K.to(dev), 64, 64, backend=backend)
+        assert r.rgb.device.type == dev
+        (r.rgb.sum() + r.depth.sum()).backward()
+        out[name] = (r.rgb.detach().cpu(), m.grad.cpu())
+    # with gsplat installed "auto" takes its kernel (a hard cutoff): compared here only without it
+    for name in ("torch",) if importlib.util.find_spec("gsplat") else ("torch", "auto"):
+        torch.testing.assert_close(out[name][0], out["cpu"][0], atol=1e-5, rtol=1e-4)
+        torch.testing.assert_close(out[name][1], out["cpu"][1], atol=1e-4, rtol=1e-3)
