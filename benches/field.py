@@ -7,7 +7,7 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
     python benches/field.py shadow   [--minutes 15 | --iterations 4000]  # Shadow Hand, self-collision only
     python benches/field.py scenes   [--minutes 13] [--layouts 20] [--upper 2] [--upper-minutes 6]
                                      # one field for a family of scenes (panda_blocks_moving)
-    python benches/field.py heldout  [--scenes xarm7_table,vx300s_clutter]
+    python benches/field.py heldout  [--scenes xarm7_table,vx300s_clutter] [--options '{"preset": "pairs"}']
                                      # the default field on held-out static scenes, MuJoCo labels
 
 Every row trains on the same balanced dataset (exact labels) and is scored on the same held-out
@@ -184,6 +184,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", type=int, default=5, help="scenes: hard trajectory problems per held-out layout")
     ap.add_argument("--retrain", action="store_true", help="scenes: train again even if cached")
     ap.add_argument("--scenes", default=None, help="heldout: comma-separated static scenes (default xarm7_table,vx300s_clutter)")
+    ap.add_argument("--options", default=None, help="heldout: train_sdf options as JSON, e.g. '{\"preset\": \"pairs\"}'")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
