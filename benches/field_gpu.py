@@ -24,15 +24,14 @@ import profrobot
 from profrobot.field.metrics import field_values
 from profrobot.files import atomic_path
 
+from family_bench import scores
 from field import OUT
-
-TEST_SEED = 987654
+from field_heldout import TEST_SEED
 
 
 def scored(sdf, test) -> dict:
-    pred, y = field_values(sdf, test.poses) > 0, test.collides
-    tpr, tnr = float((pred & y).sum() / y.sum()), float((~pred & ~y).sum() / (~y).sum())
-    return dict(balanced_accuracy=round(100 * (tpr + tnr) / 2, 3), colliding_called_free=round(100 * (1 - tpr), 3))
+    r = scores(field_values(sdf, test.poses), test.collides)
+    return dict(balanced_accuracy=round(100 * r["balanced"], 3), colliding_called_free=round(100 * r["false_free"], 3))
 
 
 def main() -> int:

@@ -22,6 +22,7 @@ from profrobot.crosscheck import mujoco_labels
 from profrobot.field.metrics import field_values
 from profrobot.files import atomic_path
 
+from family_bench import scores
 from field import OUT
 
 TEST_SEED = 987654
@@ -34,10 +35,10 @@ def load() -> str:
 def score(sdf, robot, n: int = 20_000) -> dict:
     test = profrobot.make_dataset(robot, n, seed=TEST_SEED, progress=False)
     mj = mujoco_labels(robot, test.poses, progress=False).collides
-    pred = field_values(sdf, test.poses) > 0
-    tpr, tnr = float((pred & mj).sum() / mj.sum()), float((~pred & ~mj).sum() / (~mj).sum())
-    return dict(balanced_accuracy=100 * (tpr + tnr) / 2, colliding_called_free=100 * (1 - tpr),
-                free_called_colliding=100 * (1 - tnr), n=int(n), mujoco_agrees=float(np.mean(mj == test.collides)))
+    r = scores(field_values(sdf, test.poses), mj)
+    return dict(balanced_accuracy=100 * r["balanced"], colliding_called_free=100 * r["false_free"],
+                free_called_colliding=100 * r["free_called_colliding"], n=int(n),
+                mujoco_agrees=float(np.mean(mj == test.collides)))
 
 
 def heldout_bench(args) -> int:

@@ -57,6 +57,12 @@ class Dataset:
         """The fingerprint of the robot the poses were labelled for (None if unknown)."""
         return self.metadata.get("robot_fingerprint")
 
+    def concat(self, other: "Dataset") -> "Dataset":
+        """These poses followed by ``other``'s, with their labels; this dataset's metadata."""
+        return Dataset(np.concatenate([self.poses, other.poses]),
+                       *(np.concatenate([getattr(self, k), getattr(other, k)]) for k in _LABELS),
+                       metadata=dict(self.metadata))
+
     def _take(self, idx: np.ndarray) -> "Dataset":
         return Dataset(self.poses[idx], *(getattr(self, k)[idx] for k in _LABELS), metadata=dict(self.metadata))
 

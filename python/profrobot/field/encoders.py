@@ -67,7 +67,32 @@ class FlatEncoder(nn.Module):
         return self.linear(theta)
 
 
-class KinematicEncoder(nn.Module):
+class StandardisedEncoder(nn.Module):
+    """A parameter-free encoder whose raw features (:meth:`raw`, (B, F)) are standardised with
+    the statistics of ``stats_poses`` uniform poses (fixed seed: the same robot gives the same
+    encoder; saved with checkpoints all the same)."""
+
+    learnable = False
+
+    def _fit_standardisation(self, robot, stats_poses: int) -> None:
+        F = self.out_features
+        self.register_buffer("mean", torch.zeros(F))
+        self.register_buffer("std", torch.ones(F))
+        from ..labels import sample_poses
+
+        with torch.no_grad():
+            raw = self.raw(torch.as_tensor(sample_poses(robot, stats_poses, seed=0), dtype=torch.float32))
+            self.mean.copy_(raw.mean(0))
+            self.std.copy_(raw.std(0).clamp(min=1e-3))
+
+    def raw(self, theta: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def forward(self, theta: torch.Tensor) -> torch.Tensor:
+        return (self.raw(theta) - self.mean) / self.std
+
+
+class KinematicEncoder(StandardisedEncoder):
     """Link-pose and pair-clearance features from differentiable FK (ours): (B, F), standardised.
 
     ``clearance_clip`` (metres): clearances above it are clipped, so far-apart pairs stop moving
@@ -85,18 +110,8 @@ class KinematicEncoder(nn.Module):
         hinge = np.array([t == "hinge" for t in robot.joint_types])
         self.register_buffer("hinge", torch.as_tensor(hinge), persistent=False)
         self.register_buffer("bodies", self.clearance.body_ids.clone(), persistent=False)
-        F = 2 * int(hinge.sum()) + int((~hinge).sum()) + 12 * len(self.bodies) + self.clearance.npair
-        self.out_features = F
-        self.register_buffer("mean", torch.zeros(F))
-        self.register_buffer("std", torch.ones(F))
-        # standardise with statistics of uniform poses (fixed seed: the same robot gives the same
-        # encoder); saved with checkpoints all the same
-        from ..labels import sample_poses
-
-        with torch.no_grad():
-            raw = self.raw(torch.as_tensor(sample_poses(robot, stats_poses, seed=0), dtype=torch.float32))
-            self.mean.copy_(raw.mean(0))
-            self.std.copy_(raw.std(0).clamp(min=1e-3))
+        self.out_features = 2 * int(hinge.sum()) + int((~hinge).sum()) + 12 * len(self.bodies) + self.clearance.npair
+        self._fit_standardisation(robot, stats_poses)
 
     def raw(self, theta: torch.Tensor) -> torch.Tensor:
         h = self.hinge
@@ -108,6 +123,3 @@ class KinematicEncoder(nn.Module):
         clear = self.clearance.from_centres(self.clearance.sphere_centres(bp),
                                             self.clearance.static_frames(bp)).clamp(max=self.clip)
         return torch.cat(ang + [pos, rot, clear], dim=1)
-
-    def forward(self, theta: torch.Tensor) -> torch.Tensor:
-        return (self.raw(theta) - self.mean) / self.std

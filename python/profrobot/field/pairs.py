@@ -29,17 +29,15 @@ import torch
 from torch import nn
 
 from ..kinematics import Kinematics
-from ..pointcloud import CLOUD_GEOM_ID
+from .encoders import StandardisedEncoder
 from .proxies import PairClearance
 
 PER_PAIR = 13  # relative position (3), relative rotation (9), proxy clearance (1)
 
 
-class PairEncoder(nn.Module):
+class PairEncoder(StandardisedEncoder):
     """θ (B, K) → per-pair relative poses and clearances, (B, P·13), standardised; no learnable
     parameters (training computes them once per pose)."""
-
-    learnable = False
 
     def __init__(self, robot, *, spheres_per_body: int = 4, clearance_clip: float = 0.3, stats_poses: int = 4096):
         super().__init__()
@@ -48,44 +46,8 @@ class PairEncoder(nn.Module):
         self.clip = float(clearance_clip)
         self.npair = self.clearance.npair
         self.out_features = PER_PAIR * self.npair
-        self.register_buffer("mean", torch.zeros(self.out_features))
-        self.register_buffer("std", torch.ones(self.out_features))
-        self._geom_to_pair = self._map_geom_pairs(robot)
-        from ..labels import sample_poses
-
-        with torch.no_grad():
-            raw = self.raw(torch.as_tensor(sample_poses(robot, stats_poses, seed=0), dtype=torch.float32))
-            self.mean.copy_(raw.mean(0))
-            self.std.copy_(raw.std(0).clamp(min=1e-3))
-
-    def _map_geom_pairs(self, robot) -> np.ndarray:
-        """Each of ``robot.pair_geoms`` → its body-level pair (the clearance's column), −1 for
-        pairs without a proxy (point clouds, two static geoms)."""
-        c = self.clearance
-        arr = robot.core_arrays()
-        gid, gbody = np.asarray(arr["geom_id"]), np.asarray(arr["geom_body"])
-        index_of = {int(g): i for i, g in enumerate(gid)}
-        body_slot = {int(b): s for s, b in enumerate(c.body_ids.tolist())}
-        bb = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(c.bb_a.tolist(), c.bb_b.tolist()))}
-        nbb = len(bb)
-        bs = {(int(a), int(g)): nbb + k for k, (a, g) in enumerate(zip(c.bs_a.tolist(), c.bs_g.tolist()))}
-        moving_geoms = {i for i in range(len(gid)) if int(gbody[i]) in body_slot}
-        static_slot = {i: s for s, i in enumerate(i for i in range(len(gid)) if i not in moving_geoms)}
-        out = np.full(len(robot.pair_geoms), -1, dtype=np.int64)
-        for k, (g1, g2) in enumerate(np.asarray(robot.pair_geoms)):
-            if CLOUD_GEOM_ID in (int(g1), int(g2)):
-                continue
-            a, b = index_of[int(g1)], index_of[int(g2)]
-            if a not in moving_geoms:
-                a, b = b, a
-            if a not in moving_geoms:
-                continue
-            sa = body_slot[int(gbody[a])]
-            if b in moving_geoms:
-                out[k] = bb.get(tuple(sorted((sa, body_slot[int(gbody[b])]))), -1)
-            else:
-                out[k] = bs.get((sa, static_slot[b]), -1)
-        return out
+        self._geom_to_pair = self.clearance.pair_column      # labeller pair → pair column (−1: none)
+        self._fit_standardisation(robot, stats_poses)
 
     def pair_labels(self, colliding_pairs: np.ndarray, n: int) -> np.ndarray:
         """(n, P) uint8: 1 where the pose's body pair is in contact, from ``label_poses(...,
@@ -120,9 +82,6 @@ class PairEncoder(nn.Module):
             parts.append(torch.cat([p, rel.flatten(2)], 2))
         clear = c.from_centres(c.sphere_centres(bp), frames).clamp(max=self.clip)   # (B, P)
         return torch.cat([torch.cat(parts, 1), clear[..., None]], 2).flatten(1)     # (B, P·13)
-
-    def forward(self, theta: torch.Tensor) -> torch.Tensor:
-        return (self.raw(theta) - self.mean) / self.std
 
 
 class PairHead(nn.Module):

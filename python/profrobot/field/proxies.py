@@ -145,7 +145,9 @@ class PairClearance(torch.nn.Module):
 
         # candidate geom pairs → distinct (body, body) and (body, static geom) pairs
         bb, bs = set(), set()
+        keys: list = []                              # each labeller pair's key, None without a proxy
         for g1, g2 in np.asarray(robot.pair_geoms):
+            keys.append(None)
             if CLOUD_GEOM_ID in (int(g1), int(g2)):  # a point cloud has no proxy: the labeller certifies it
                 continue
             a, b = index_of[int(g1)], index_of[int(g2)]
@@ -154,10 +156,16 @@ class PairClearance(torch.nn.Module):
             if not moving[a]:
                 continue
             if moving[b]:
-                bb.add(tuple(sorted((slot[int(gbody[a])], slot[int(gbody[b])]))))
+                keys[-1] = ("bb", tuple(sorted((slot[int(gbody[a])], slot[int(gbody[b])]))))
+                bb.add(keys[-1][1])
             else:
-                bs.add((slot[int(gbody[a])], static_slot[int(b)]))
+                keys[-1] = ("bs", (slot[int(gbody[a])], static_slot[int(b)]))
+                bs.add(keys[-1][1])
         bb, bs = sorted(bb), sorted(bs)
+        column = {("bb", k): i for i, k in enumerate(bb)} | {("bs", k): len(bb) + i for i, k in enumerate(bs)}
+        #: (len(robot.pair_geoms),) int64: each labeller pair's clearance column, −1 where it has no
+        #: proxy (point clouds; pairs no robot joint moves)
+        self.pair_column = np.array([-1 if k is None else column[k] for k in keys], dtype=np.int64)
         idx = lambda pairs, k: torch.as_tensor(np.array([p[k] for p in pairs], dtype=np.int64))
         self.register_buffer("bb_a", idx(bb, 0), persistent=False)
         self.register_buffer("bb_b", idx(bb, 1), persistent=False)

@@ -242,9 +242,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
 
         near = boundary_dataset(robot, max(1, int(cfg.boundary_fraction * len(train))), seed=cfg.seed,
                                 spread=cfg.boundary_spread, threads=cfg.threads)
-        train = Dataset(np.concatenate([train.poses, near.poses]),
-                        *(np.concatenate([getattr(train, k), getattr(near, k)]) for k in
-                          ("collides", "self_collides", "scene_collides", "n_pairs")), metadata=train.metadata)
+        train = train.concat(near)
 
     torch.manual_seed(cfg.seed)
     dev = torch.device(cfg.device)
