@@ -9,6 +9,8 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
                                      # one field for a family of scenes (panda_blocks_moving)
     python benches/field.py heldout  [--scenes xarm7_table,vx300s_clutter] [--options '{"preset": "pairs"}']
                                      # the default field on held-out static scenes, MuJoCo labels
+    python benches/field.py families [--scenes panda_blocks_moving,vx300s_clutter_moving] [--layouts 20]
+                                     # the default field of each family on held-out layouts
 
 Every row trains on the same balanced dataset (exact labels) and is scored on the same held-out
 balanced split. Writes markdown to benches/out/field_<command>.md; prints wall time and threads.
@@ -167,7 +169,7 @@ def write_table(rows: list[dict], path: Path, header: str) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes", "heldout"))
+    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes", "heldout", "families"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
     ap.add_argument("--iterations", type=int, default=None,
                     help="tables: iterations per row (default 400; fairer than minutes on a shared CPU); "
@@ -183,8 +185,9 @@ def main(argv=None) -> int:
     ap.add_argument("--upper-minutes", type=float, default=6.0, help="scenes: budget of each per-layout field")
     ap.add_argument("--pairs", type=int, default=5, help="scenes: hard trajectory problems per held-out layout")
     ap.add_argument("--retrain", action="store_true", help="scenes: train again even if cached")
-    ap.add_argument("--scenes", default=None, help="heldout: comma-separated static scenes (default xarm7_table,vx300s_clutter)")
-    ap.add_argument("--options", default=None, help="heldout: train_sdf options as JSON, e.g. '{\"preset\": \"pairs\"}'")
+    ap.add_argument("--scenes", default=None, help="heldout: comma-separated static scenes (default xarm7_table,vx300s_clutter); "
+                    "families: families (default panda_blocks_moving,vx300s_clutter_moving)")
+    ap.add_argument("--options", default=None, help="heldout, families: train_sdf options as JSON, e.g. '{\"preset\": \"pairs\"}'")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -196,6 +199,10 @@ def main(argv=None) -> int:
         from field_heldout import heldout_bench
 
         return heldout_bench(args)
+    if args.command == "families":
+        from field_families import families_bench
+
+        return families_bench(args)
     wall = time.perf_counter()
     scene = "shadow_hand" if args.command == "shadow" else "panda_blocks"
     robot = profrobot.scenes.load(scene)

@@ -229,6 +229,96 @@ def test_a_pair_field_round_trips_and_trains(panda, tmp_path):
         assert torch.equal(sdf(q), back(q))
 
 
+def test_a_trained_pair_field_keeps_the_pairs_its_data_shows_colliding(panda, tmp_path):
+    """prune_pairs: the pairs that get a network are exactly those some training pose has in
+    contact (so every colliding training pose still has one), the list is in the config and
+    survives a checkpoint, and prune_pairs=False keeps every pair."""
+    from profrobot.field.proxies import PairClearance
+    from profrobot.kinematics import Kinematics
+
+    sdf = train_sdf(panda, encoder="pairs", hidden=(8,), n_poses=4000, iterations=5, batch_size=256,
+                    eikonal_batch=32, progress=False, seed=2)
+    full = PairClearance(panda, Kinematics.from_robot(panda))
+    kept = sdf.config["pairs"]
+    assert 0 < len(kept) < full.all_npair == sdf.encoder.clearance.all_npair
+    assert sdf.encoder.npair == len(kept) == sdf.head.npair
+    assert [full.names[i] for i in kept] == sdf.encoder.clearance.names
+    train = profrobot.make_dataset(panda, 4000, seed=2, progress=False).split(0.1, seed=2)[0]
+    lab = profrobot.label_poses(panda, train.poses, pairs=True)
+    assert np.array_equal(full.pair_hits(lab.colliding_pairs), kept)
+    y = sdf.encoder.pair_labels(lab.colliding_pairs, len(train))
+    assert np.array_equal(y.any(1), lab.collides)          # nothing colliding lost its pair
+    sdf.save(tmp_path / "pruned")
+    back = profrobot.PoseSDF.load(tmp_path / "pruned")
+    assert back.config["pairs"] == kept
+    q = torch.as_tensor(profrobot.sample_poses(panda, 64, seed=5), dtype=torch.float32)
+    with torch.no_grad():
+        assert torch.equal(sdf(q), back(q))
+    every = train_sdf(panda, encoder="pairs", hidden=(8,), n_poses=4000, iterations=2, batch_size=256,
+                      eikonal_batch=32, progress=False, seed=2, prune_pairs=False)
+    assert "pairs" not in every.config and every.encoder.npair == full.all_npair
+
+
+def test_bad_pair_lists_are_named(panda):
+    from profrobot.errors import InputError
+
+    for bad in ([], [-1], [10**6], ["a"]):
+        with pytest.raises(InputError, match="pair ind"):
+            PoseSDF(panda, encoder="pairs", hidden=(8,), pairs=bad)
+    with pytest.raises(InputError, match="encoder='pairs'"):
+        PoseSDF(panda, pairs=[0])
+
+
+@pytest.mark.parametrize("encoder", ["kinematic", "pairs"])
+def test_clearance_through_the_nearest_spheres_is_min_over_all_of_them(panda, encoder):
+    """The proxy clearance takes its nearest sphere pair on detached tensors and differentiates
+    that one term: the same values as the min over all m² terms, and the same gradient, in
+    reverse and forward mode (float64)."""
+    import torch.autograd.forward_ad as fwad
+
+    sdf = PoseSDF(panda, encoder=encoder, hidden=(8,)).double()
+    c = sdf.encoder.clearance
+
+    def brute(theta):   # every sphere pair with autograd, min over them (the definition)
+        bp = c.kin(theta)
+        cen = c.sphere_centres(bp)
+        ca, cb = cen[:, c.bb_a], cen[:, c.bb_b]
+        d = (ca[:, :, :, None] - cb[:, :, None]).norm(dim=-1) - c.sph_radius[c.bb_a][:, :, None] - c.sph_radius[c.bb_b][:, None]
+        s = c.static_sdf(cen[:, c.bs_a], c.bs_g, c.static_frames(bp)) - c.sph_radius[c.bs_a]
+        return torch.cat([d.flatten(2).min(-1).values, s.min(-1).values], 1)
+
+    q = torch.as_tensor(profrobot.sample_poses(panda, 300, seed=8), dtype=torch.float64).requires_grad_()
+    fast, ref = c(q), brute(q)
+    assert torch.allclose(fast, ref, atol=1e-12)
+    w = torch.randn_like(ref)
+    (g1,), (g2,) = torch.autograd.grad((fast * w).sum(), q), torch.autograd.grad((ref * w).sum(), q)
+    assert torch.allclose(g1, g2, atol=1e-10)
+    t = torch.randn_like(q)
+    with fwad.dual_level():
+        j1 = fwad.unpack_dual(c(fwad.make_dual(q.detach(), t))).tangent
+        j2 = fwad.unpack_dual(brute(fwad.make_dual(q.detach(), t))).tangent
+    assert torch.allclose(j1, j2, atol=1e-10)
+
+
+@pytest.mark.parametrize("encoder", ["kinematic", "pairs"])
+def test_chunked_evaluation_gives_the_whole_batchs_values_and_gradients(panda, encoder, monkeypatch):
+    """A CPU batch runs in chunks (field/chunking.py); pose by pose the result is the batch's."""
+    import profrobot.field.model as model
+    import profrobot.field.pairs as pairs
+
+    sdf = PoseSDF(panda, encoder=encoder, hidden=(16, 16))
+    q = torch.as_tensor(profrobot.sample_poses(panda, 700, seed=9), dtype=torch.float32)
+    values, grads = [], []
+    for chunk in (10**6, 128):
+        monkeypatch.setattr(model, "EVAL_CHUNK", chunk)
+        monkeypatch.setattr(pairs, "HEAD_CHUNK", min(chunk, 100))
+        t = q.clone().requires_grad_()
+        g = sdf(t)
+        values.append(g.detach())
+        grads.append(torch.autograd.grad(g.sum(), t)[0])
+    assert torch.allclose(values[0], values[1], atol=1e-5) and torch.allclose(grads[0], grads[1], atol=1e-4)
+
+
 def test_regression_torch_optim_after_an_osmesa_render_does_not_segfault():
     """torch.optim's first use imports triton's LLVM; after MuJoCo loaded OSMesa's that crashed."""
     import subprocess

@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     sp.set_defaults(fn=cmd_dataset)
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
     common(sp)
-    sp.add_argument("--preset", default="cpu", choices=["cpu", "pairs", "paper"],
+    sp.add_argument("--preset", default="pairs", choices=["cpu", "pairs", "paper"],
                     help="cpu (ours, minutes), pairs (one MLP per body pair: sharper, ~10 min on 2 cores) or paper")
     sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
     sp.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")

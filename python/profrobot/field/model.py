@@ -10,12 +10,16 @@ from typing import Literal, get_args
 import torch
 from torch import nn
 
+from .chunking import cpu_chunks
 from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
 from .pairs import PairEncoder, PairHead
 from .identity import _Shared
 from .layout import LayoutField
 from ..errors import InputError, InputTypeError
+
+#: poses per chunk when a CPU batch is larger (:meth:`PoseSDF.forward`)
+EVAL_CHUNK = 4096
 
 Encoder = Literal["kinematic", "hierarchical", "flat", "pairs"]
 Objective = Literal["sdf", "ndf"]
@@ -51,6 +55,10 @@ class PoseSDF(nn.Module):
       (paper), "flat" (ablation), "pairs" (one MLP per candidate body pair over its relative
       pose, g the largest pair logit; ``hidden`` is then each pair's widths, e.g. (32, 32):
       :mod:`profrobot.field.pairs`);
+    - ``pairs`` (``encoder="pairs"``): indices of the candidate pairs that get a network (the
+      full list is ``PairClearance.all_npair`` long); None: all. ``train_sdf`` keeps the pairs
+      its dataset shows in contact (``prune_pairs``): a pair never seen colliding can only learn
+      "free", which leaving it out says exactly, at a third less cost;
     - ``feature_size`` (hierarchical/flat, default 8); ``hidden``: MLP widths (default 4 × 512);
     - ``learn_scale`` (default True; False fixes s = 1: the ablation), ``init_scale`` 10;
     - ``lipschitz``: Lipschitz-constrained MLP layers;
@@ -66,7 +74,7 @@ class PoseSDF(nn.Module):
     def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
                  hidden: tuple[int, ...] = (512, 512, 512, 512), learn_scale: bool = True,
                  init_scale: float = 10.0, lipschitz: bool = False, objective: Objective = "sdf",
-                 spheres_per_body: int = 4):
+                 spheres_per_body: int = 4, pairs=None):
         super().__init__()
         if encoder not in ENCODERS:
             raise InputError(f"encoder must be one of {ENCODERS}; got {encoder!r}")
@@ -74,6 +82,8 @@ class PoseSDF(nn.Module):
             raise InputError(f"objective must be one of {OBJECTIVES}; got {objective!r}")
         if not hidden or any(int(h) <= 0 for h in hidden):
             raise InputError(f"hidden must be a non-empty list of positive widths; got {hidden!r}")
+        if pairs is not None and encoder != "pairs":
+            raise InputError(f"pairs= selects the pair networks of encoder='pairs'; got encoder={encoder!r}")
         self.config = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
                            learn_scale=bool(learn_scale), init_scale=float(init_scale), lipschitz=bool(lipschitz),
                            objective=objective, spheres_per_body=int(spheres_per_body))
@@ -97,7 +107,9 @@ class PoseSDF(nn.Module):
         elif encoder == "flat":
             self.encoder = FlatEncoder(robot.njoint, feature_size)
         elif encoder == "pairs":
-            self.encoder = PairEncoder(robot, spheres_per_body=spheres_per_body)
+            self.encoder = PairEncoder(robot, spheres_per_body=spheres_per_body, pairs=pairs)
+            if pairs is not None:
+                self.config["pairs"] = self.encoder.clearance.kept
         else:
             self.encoder = KinematicEncoder(robot, spheres_per_body=spheres_per_body)
         if encoder == "pairs":   # one MLP per body pair, g the largest pair logit (field/pairs.py)
@@ -150,7 +162,10 @@ class PoseSDF(nn.Module):
             theta = self.compose(theta, scene)
         self.check_poses(theta)
         theta = theta.to(self.joint_limits.dtype)
-        return self.head_g(self.encoder(theta))
+        # chunks of poses (field/chunking.py): the intermediates stay in cache; the backward runs
+        # chunk by chunk too (each chunk's graph is its own branch)
+        parts = [self.head_g(self.encoder(t)) for t in cpu_chunks(theta, EVAL_CHUNK)]
+        return parts[0] if len(parts) == 1 else torch.cat(parts)
 
     def prob(self, theta: torch.Tensor, scene=None) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""

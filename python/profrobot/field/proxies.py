@@ -27,6 +27,7 @@ import torch
 from ..kinematics import Kinematics, quat_to_matrix
 from ..errors import InputError
 from ..pointcloud import CLOUD_GEOM_ID
+from .chunking import cpu_chunks
 
 # MuJoCo geom types
 PLANE, SPHERE, CAPSULE, CYLINDER, BOX, MESH = 0, 2, 3, 5, 6, 7
@@ -72,7 +73,7 @@ class PairClearance(torch.nn.Module):
     ``names`` lists the pairs ("link3|link5", "hand|block_1", …).
     """
 
-    def __init__(self, robot, kinematics: Kinematics, spheres_per_body: int = 4):
+    def __init__(self, robot, kinematics: Kinematics, spheres_per_body: int = 4, keep=None):
         super().__init__()
         arr = robot.core_arrays()
         self.kin = kinematics
@@ -162,10 +163,17 @@ class PairClearance(torch.nn.Module):
                 keys[-1] = ("bs", (slot[int(gbody[a])], static_slot[int(b)]))
                 bs.add(keys[-1][1])
         bb, bs = sorted(bb), sorted(bs)
+        #: every candidate pair's count before ``keep`` (``keep`` indexes that list: bb, then bs)
+        self.all_npair = len(bb) + len(bs)
+        #: the kept pairs' indices in the full list (``keep``, sorted), or None: all
+        self.kept = None
+        if keep is not None:
+            keep = self.kept = _check_keep(keep, self.all_npair)
+            bb, bs = [bb[i] for i in keep if i < len(bb)], [bs[i - len(bb)] for i in keep if i >= len(bb)]
         column = {("bb", k): i for i, k in enumerate(bb)} | {("bs", k): len(bb) + i for i, k in enumerate(bs)}
         #: (len(robot.pair_geoms),) int64: each labeller pair's clearance column, −1 where it has no
-        #: proxy (point clouds; pairs no robot joint moves)
-        self.pair_column = np.array([-1 if k is None else column[k] for k in keys], dtype=np.int64)
+        #: proxy (point clouds; pairs no robot joint moves; pairs left out by ``keep``)
+        self.pair_column = np.array([column.get(k, -1) if k is not None else -1 for k in keys], dtype=np.int64)
         idx = lambda pairs, k: torch.as_tensor(np.array([p[k] for p in pairs], dtype=np.int64))
         self.register_buffer("bb_a", idx(bb, 0), persistent=False)
         self.register_buffer("bb_b", idx(bb, 1), persistent=False)
@@ -180,6 +188,16 @@ class PairClearance(torch.nn.Module):
         self.names = ([f"{bname[bodies[a]]}|{bname[bodies[b]]}" for a, b in bb]
                       + [f"{bname[bodies[a]]}|{gname[st_idx[g]]}" for a, g in bs])
         self.npair = len(self.names)
+
+    def pair_hits(self, colliding_pairs: np.ndarray) -> np.ndarray:
+        """Indices (into the full pair list, before ``keep``) of the pairs in contact in at least
+        one row of ``label_poses(..., pairs=True).colliding_pairs`` (rows (pose, labeller pair)),
+        sorted: a ``keep`` for the pairs that a dataset shows colliding. Needs a PairClearance
+        built without ``keep``."""
+        if self.npair != self.all_npair:
+            raise ValueError("pair_hits needs the full pair list (a PairClearance built without keep)")
+        col = self.pair_column[np.asarray(colliding_pairs)[:, 1]] if len(colliding_pairs) else np.zeros(0, np.int64)
+        return np.unique(col[col >= 0])
 
     def _kind_columns(self, g: torch.Tensor) -> list[tuple[int, torch.Tensor]]:
         """(kind, columns of g with that kind); cached for the pair list so that tracing
@@ -241,18 +259,63 @@ class PairClearance(torch.nn.Module):
 
     def from_centres(self, c: torch.Tensor, frames=None) -> torch.Tensor:
         """Clearances (B, npair) from sphere centres (B, nb, m, 3) (``frames``: the static geoms'
-        world frames, :meth:`static_frames`, when obstacles move)."""
+        world frames, :meth:`static_frames`, when obstacles move).
+
+        A pair's clearance is the smallest of its m² (or m) sphere terms, and the gradient of a
+        minimum is its smallest term's. So the nearest spheres are found on detached tensors
+        (no autograd graph over the m² terms, :func:`_argmin_sphere_pair`), and only that term
+        is computed again with gradients: the same value, and the same ∂/∂θ as ``min``'s (a tie
+        goes to the first index, as ``min`` does), in first, second and forward-mode AD."""
         feats = []
+        m = c.shape[2]
         if len(self.bb_a):
-            ca, cb = c[:, self.bb_a], c[:, self.bb_b]                               # (B, P, m, 3)
-            # |a - b|² = |a|² + |b|² - 2 a·b: no (B, P, m, m, 3) tensor; the floor keeps sqrt's
-            # gradient finite
-            sq = ((ca * ca).sum(-1)[..., :, None] + (cb * cb).sum(-1)[..., None, :]
-                  - 2 * torch.einsum("bpid,bpjd->bpij", ca, cb))
-            d = sq.clamp(min=1e-10).sqrt()                                          # (B, P, m, m)
-            d = d - self.sph_radius[self.bb_a][:, :, None] - self.sph_radius[self.bb_b][:, None, :]
-            feats.append(d.flatten(2).min(-1).values)
+            ca, cb = c.index_select(1, self.bb_a), c.index_select(1, self.bb_b)     # (B, P, m, 3)
+            ra, rb = self.sph_radius.index_select(0, self.bb_a), self.sph_radius.index_select(0, self.bb_b)  # (P, m)
+            k = _argmin_sphere_pair(ca.detach(), cb.detach(), ra, rb)                # (B, P): i·m + j
+            i, j = k // m, k % m
+            pa = ca.gather(2, i[..., None, None].expand(-1, -1, 1, 3))[:, :, 0]      # (B, P, 3)
+            pb = cb.gather(2, j[..., None, None].expand(-1, -1, 1, 3))[:, :, 0]
+            # the floor keeps sqrt's gradient finite for coincident centres
+            d = ((pa - pb) ** 2).sum(-1).clamp(min=1e-10).sqrt()
+            feats.append(d - _pick(ra, i) - _pick(rb, j))
         if len(self.bs_a):
-            d = self.static_sdf(c[:, self.bs_a], self.bs_g, frames) - self.sph_radius[self.bs_a]
-            feats.append(d.min(-1).values)
+            cs = c.index_select(1, self.bs_a)                                         # (B, n, m, 3)
+            r = self.sph_radius.index_select(0, self.bs_a)                            # (n, m)
+            with torch.no_grad():
+                k = (self.static_sdf(cs.detach(), self.bs_g, _detach(frames)) - r).argmin(-1)   # (B, n)
+            p = cs.gather(2, k[..., None, None].expand(-1, -1, 1, 3))                # (B, n, 1, 3)
+            feats.append(self.static_sdf(p, self.bs_g, frames)[..., 0] - _pick(r, k))
         return torch.cat(feats, 1)
+
+
+def _check_keep(keep, n: int) -> list[int]:
+    """``keep`` as sorted distinct pair indices in [0, n), or a clear error."""
+    try:
+        idx = sorted({int(i) for i in keep})
+    except (TypeError, ValueError) as e:
+        raise InputError(f"pairs must be a list of pair indices; got {keep!r}") from e
+    if not idx or idx[0] < 0 or idx[-1] >= n:
+        raise InputError(f"pairs must list at least one pair index in [0, {n}); got {list(keep)!r}")
+    return idx
+
+
+def _pick(r: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
+    """r[p, i[b, p]] (B, P) from radii r (P, m) and indices i (B, P)."""
+    return r.expand(i.shape[0], -1, -1).gather(2, i[..., None])[..., 0]
+
+
+def _detach(frames):
+    return None if frames is None else tuple(f.detach() for f in frames)
+
+
+def _argmin_sphere_pair(ca: torch.Tensor, cb: torch.Tensor, ra: torch.Tensor, rb: torch.Tensor,
+                        chunk: int = 1024) -> torch.Tensor:
+    """Index i·m + j (B, P) of the sphere pair with the smallest ``‖ca_i − cb_j‖ − ra_i − rb_j``,
+    centres ca, cb (B, P, m, 3), radii (P, m); no gradient. In chunks of poses, so that the
+    (chunk, P, m, m) distances stay in cache."""
+    P, m = ca.shape[1], ca.shape[2]
+    with torch.no_grad():
+        rr = ra[:, :, None] + rb[:, None, :]                                        # (P, m, m)
+        out = [(torch.cdist(a.reshape(-1, m, 3), b.reshape(-1, m, 3)).view(-1, P, m, m) - rr).flatten(2).argmin(-1)
+               for a, b in zip(cpu_chunks(ca, chunk), cpu_chunks(cb, chunk))]
+    return out[0] if len(out) == 1 else torch.cat(out)

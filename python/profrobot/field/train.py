@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -44,7 +45,7 @@ Schedule = Literal["cosine", "paper", "constant"]
 Preset = Literal["cpu", "pairs", "paper"]
 PAPER_MILESTONES = (100, 500, 1400, 3000, 5500, 9100)
 MODEL_OPTIONS = ("encoder", "feature_size", "hidden", "learn_scale", "init_scale", "lipschitz", "objective",
-                 "spheres_per_body")
+                 "spheres_per_body", "pairs")
 
 
 @dataclass
@@ -59,9 +60,11 @@ class TrainConfig:
     schedule: Schedule = "cosine"          # "cosine", "paper" (halvings at PAPER_MILESTONES), "constant"
     eikonal_weight: float = 0.1       # α
     pair_weight: float = 1.0          # encoder="pairs": weight of the per-pair BCE (summed over pairs)
+    prune_pairs: bool = True          # encoder="pairs": networks only for the pairs some training pose has in contact
     collision_weight: float = 1.0     # BCE weight of colliding poses (> 1: fewer colliding poses called free)
     eikonal_batch: int = 0            # poses per iteration for the Eikonal term (0: whole batch)
     eikonal_pool: int = 8192          # parameter-free encoders: poses whose ∂f/∂θ is kept for the Eikonal term (0: off)
+    feature_memory: float = 4 * 2**30  # bytes for stored features: float16 past it in float32, fewer poses past that
     steik_weight: float = 0.0         # StEik directional-divergence term |dᵀ H d|, d = ∇g/‖∇g‖
     lipschitz_weight: float = 1e-6    # weight of the product of Lipschitz bounds (lipschitz MLPs)
     time_budget: float | None = None  # seconds of optimisation; None: run all iterations
@@ -77,8 +80,8 @@ class TrainConfig:
 PRESETS: dict[str, dict] = {
     "cpu": dict(encoder="kinematic", hidden=(256, 256, 256, 256), lr=2e-3, eikonal_batch=256),
     # one MLP per body pair with its own labels (field/pairs.py): sharper, features P·13 per pose
-    "pairs": dict(encoder="pairs", hidden=(32, 32), n_poses=1_000_000, batch_size=2048, iterations=5000, lr=2e-3,
-                  eikonal_batch=256),
+    "pairs": dict(encoder="pairs", hidden=(32, 32), n_poses=1_000_000, batch_size=2048, iterations=8000, lr=2e-3,
+                  eikonal_batch=256, collision_weight=1.5),
     "paper": dict(encoder="hierarchical", hidden=(512, 512, 512, 512), n_poses=10_000_000, batch_size=100_000, iterations=10_000,
                   schedule="paper", eikonal_batch=0),
 }
@@ -188,6 +191,40 @@ def eikonal_from_features(sdf: PoseSDF, features: torch.Tensor, jacobians: torch
     return ((grad.norm(dim=1) - 1) ** 2).mean()
 
 
+#: |logit| beyond which a correctly classified pose's BCE gradient is dropped (σ(−30) ≈ 1e-13)
+SETTLED_LOGIT = 30.0 if os.environ.get("PROFROBOT_NOSETTLE") is None else 1e30
+
+
+def _settled(logit: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """The logit, held at ±SETTLED_LOGIT on the side its label agrees with (y = 0: not below
+    −30; y = 1: not above +30), so that a pose or pair classified right with that margin gives a
+    gradient of exactly 0 instead of σ(−|logit|). That gradient is under 1e-13 (no step can use
+    it), and past |logit| ≈ 87 it is a denormal float: most pairs of a pair field are far apart,
+    their logits drift there during training, and denormals make the CPU's backward products
+    several times slower. A wrong logit keeps its whole gradient."""
+    return torch.where(y > 0.5, logit.clamp(max=SETTLED_LOGIT), logit.clamp(min=-SETTLED_LOGIT))
+
+
+def _stored_features(sdf: PoseSDF, theta: torch.Tensor, budget: float, progress: bool) -> tuple[torch.Tensor, int]:
+    """The features of a parameter-free encoder at every training pose θ (N, K), computed once,
+    and how many poses they cover: (n, F) in float32 when that fits ``budget`` bytes, else
+    float16 (standardised features to 3 significant digits: a 0.1 m-wide clearance feature to
+    0.05 mm), else float16 for the first n poses that fit, with a warning. Filled in place, in
+    chunks that keep the FK's intermediates in cache (no second copy of the whole)."""
+    n, F = len(theta), sdf.encoder.out_features
+    dtype = torch.float32 if n * F * 4 <= budget else torch.float16
+    keep = n if dtype == torch.float32 else min(n, max(1, int(budget // (F * 2))))
+    if keep < n:
+        warnings.warn(f"train_sdf: the features of {n} poses ({F} each) need {n * F * 2 / 2**30:.1f} GiB in float16, over "
+                      f"feature_memory={budget / 2**30:.1f} GiB; training on the first {keep} (raise feature_memory, or "
+                      "lower n_poses)", stacklevel=3)
+    out = torch.empty(keep, F, dtype=dtype, device=theta.device)
+    with torch.no_grad():
+        for i in tqdm(range(0, keep, 2048), desc="features", disable=None if progress else True, leave=False):
+            out[i:i + 2048] = sdf.encoder(theta[i:min(i + 2048, keep)])
+    return out, keep
+
+
 def _fit_ndf_targets(train: Dataset) -> np.ndarray:
     """NDF targets: L2 distance (in θ) from each pose to the nearest free training pose."""
     from scipy.spatial import cKDTree
@@ -197,7 +234,7 @@ def _fit_ndf_targets(train: Dataset) -> np.ndarray:
     return dist.astype(np.float32)
 
 
-def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Preset = "cpu",
+def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Preset = "pairs",
               progress: bool = True, **options) -> PoseSDF:
     """Train a :class:`PoseSDF` and return it with ``.metrics`` (held-out balanced split) and
     ``.history`` attached.
@@ -244,6 +281,21 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
                                 spread=cfg.boundary_spread, threads=cfg.threads)
         train = train.concat(near)
 
+    # encoder="pairs": every pair's own exact label (body pairs in contact), P labels per pose;
+    # a pair no training pose has in contact gets no network (prune_pairs): it could only learn "free"
+    pair_lab = None
+    if model_opts.get("encoder") == "pairs" and model_opts.get("objective", "sdf") == "sdf":
+        from ..kinematics import Kinematics
+        from ..labels import label_poses
+        from .proxies import PairClearance
+
+        if cfg.pair_weight > 0 or (cfg.prune_pairs and model_opts.get("pairs") is None):
+            pair_lab = label_poses(robot, train.poses, pairs=True, threads=cfg.threads).colliding_pairs
+        if cfg.prune_pairs and model_opts.get("pairs") is None:
+            hit = PairClearance(robot, Kinematics.from_robot(robot)).pair_hits(pair_lab)
+            if len(hit):
+                model_opts = {**model_opts, "pairs": hit.tolist()}
+
     torch.manual_seed(cfg.seed)
     dev = torch.device(cfg.device)
     sdf = PoseSDF(robot, **model_opts).to(dev)   # built (and its encoder standardised) on the CPU, then moved
@@ -256,10 +308,11 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     # keep the FK's intermediates in cache (2x faster than 16k-pose chunks on a laptop CPU).
     features = None
     if not sdf.encoder.learnable:
-        with torch.no_grad():
-            chunks = range(0, len(theta_all), 2048)
-            features = torch.cat([sdf.encoder(theta_all[i:i + 2048])
-                                  for i in tqdm(chunks, desc="features", disable=None if progress else True, leave=False)])
+        features, kept = _stored_features(sdf, theta_all, cfg.feature_memory, progress)
+        if kept < len(theta_all):
+            theta_all, target, train = theta_all[:kept], target[:kept], train._take(np.arange(kept))
+            if pair_lab is not None:
+                pair_lab = pair_lab[pair_lab[:, 0] < kept]
 
     # The Eikonal term of a parameter-free encoder through stored Jacobians: ∂f/∂θ of a pool of
     # training poses, computed once (forward mode), so each step differentiates the MLP only
@@ -275,13 +328,9 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
         jac = feature_jacobians(sdf.encoder, theta_all[pool], eik_cols.tolist())
 
     pos_weight = None if cfg.collision_weight == 1.0 else torch.tensor(float(cfg.collision_weight), device=dev)
-    # encoder="pairs": every pair's own exact label (body pairs in contact), P labels per pose
     pair_y = None
-    if sdf.config["encoder"] == "pairs" and cfg.pair_weight > 0 and not ndf and features is not None:
-        from ..labels import label_poses
-
-        lab = label_poses(robot, train.poses, pairs=True, threads=cfg.threads)
-        pair_y = torch.as_tensor(sdf.encoder.pair_labels(lab.colliding_pairs, len(train)), device=dev)
+    if pair_lab is not None and cfg.pair_weight > 0 and features is not None:
+        pair_y = torch.as_tensor(sdf.encoder.pair_labels(pair_lab, len(train)), device=dev)
     params = [p for p in sdf.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=cfg.lr)
     history: list[dict] = []
@@ -315,23 +364,25 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             idx = torch.as_tensor(order[cursor:cursor + bs], device=dev)
             cursor += bs
             if pair_y is not None:
-                z = sdf.head(features[idx])                                  # (B, P) pair logits
+                z = sdf.head(features[idx].float())                          # (B, P) pair logits
                 g = z.max(dim=1).values
             else:
-                g = sdf.head_g(features[idx]) if features is not None else sdf(theta_all[idx])
+                g = sdf.head_g(features[idx].float()) if features is not None else sdf(theta_all[idx])
             y = target[idx]
             if ndf:
                 data_loss = torch.nn.functional.l1_loss(g + sdf.ndf_threshold, y)
             else:
-                data_loss = torch.nn.functional.binary_cross_entropy_with_logits(sdf.scale * g, y, pos_weight=pos_weight)
+                data_loss = torch.nn.functional.binary_cross_entropy_with_logits(
+                    _settled(sdf.scale * g, y), y, pos_weight=pos_weight)
             if pair_y is not None:
+                yp = pair_y[idx].to(z.dtype)
                 data_loss = data_loss + cfg.pair_weight * torch.nn.functional.binary_cross_entropy_with_logits(
-                    sdf.scale * z, pair_y[idx].to(z.dtype), pos_weight=pos_weight, reduction="none").sum(1).mean()
+                    _settled(sdf.scale * z, yp), yp, pos_weight=pos_weight, reduction="none").sum(1).mean()
             loss = data_loss
             eik = steik = torch.zeros((), device=dev)
             if jac is not None:
                 pick = torch.as_tensor(rng.integers(0, len(pool), cfg.eikonal_batch), device=dev)
-                eik = eikonal_from_features(sdf, features[pool[pick]], jac[pick])
+                eik = eikonal_from_features(sdf, features[pool[pick]].float(), jac[pick])
                 loss = loss + cfg.eikonal_weight * eik
             elif cfg.eikonal_weight > 0 or cfg.steik_weight > 0:
                 sub = idx[: cfg.eikonal_batch] if cfg.eikonal_batch else idx
