@@ -6,7 +6,7 @@ For each scene: ``train_sdf(robot)`` with the library's defaults (or ``--options
 its features and the training all timed, as a user would wait for them), then scored on 10 000
 colliding + 10 000 free poses of a seed training never used, labelled by MuJoCo
 (``mujoco_labels``): balanced accuracy (TPR + TNR) / 2, and colliding poses called free (1 − TPR).
-Writes benches/out/field_heldout.md and .json; the fields go to benches/out/fields/.
+Writes benches/out/field_heldout.md and .json (``--out-name``: another name); the fields go to benches/out/fields/.
 """
 
 from __future__ import annotations
@@ -68,9 +68,10 @@ def heldout_bench(args) -> int:
                      f"{r['free_called_colliding']:.2f} | {r['minutes']:.1f} | {r['iterations']} | "
                      f"{100 * r['mujoco_agrees']:.2f} % | {r['load_before']} → {r['load_after']} |")
     OUT.mkdir(exist_ok=True)
-    with atomic_path(OUT / "field_heldout.md") as tmp:
+    name = args.out_name or "field_heldout"
+    with atomic_path(OUT / f"{name}.md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")
-    with atomic_path(OUT / "field_heldout.json") as tmp:
+    with atomic_path(OUT / f"{name}.json") as tmp:
         tmp.write_text(json.dumps(rows, indent=1))
     print("\n".join(lines))
     return 0

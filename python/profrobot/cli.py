@@ -302,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("train", help="train the pose collision field (PoseSDF) on a scene")
     common(sp)
     sp.add_argument("--preset", default="pairs", choices=["cpu", "pairs", "paper"],
-                    help="cpu (ours, minutes), pairs (one MLP per body pair: sharper, ~10 min on 2 cores) or paper")
+                    help="pairs (default: one MLP per body pair, ~9 min on 2 cores for a 7-DoF arm), cpu (one MLP: "
+                         "cheaper, less sharp) or paper")
     sp.add_argument("--n-poses", dest="n_poses", type=int, default=None, help="balanced poses to generate")
     sp.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     sp.add_argument("--batch-size", dest="batch_size", type=int, default=None, help="poses per step (default: the preset's)")

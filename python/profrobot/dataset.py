@@ -50,7 +50,7 @@ class Dataset:
             raise InputError(f"test_fraction must be in (0, 1); got {test_fraction}")
         idx = np.random.default_rng(seed).permutation(len(self))
         n_test = max(1, int(round(len(self) * test_fraction)))
-        return self._take(idx[n_test:]), self._take(idx[:n_test])
+        return self.take(idx[n_test:]), self.take(idx[:n_test])
 
     @property
     def fingerprint(self) -> str | None:
@@ -63,7 +63,8 @@ class Dataset:
                        *(np.concatenate([getattr(self, k), getattr(other, k)]) for k in _LABELS),
                        metadata=dict(self.metadata))
 
-    def _take(self, idx: np.ndarray) -> "Dataset":
+    def take(self, idx) -> "Dataset":
+        """The poses at ``idx`` (indices or a boolean mask) with their labels and this metadata."""
         return Dataset(self.poses[idx], *(getattr(self, k)[idx] for k in _LABELS), metadata=dict(self.metadata))
 
     def save(self, path: str | os.PathLike) -> Path:

@@ -4,7 +4,7 @@
   (roots: ``W_k θ_k + b_k``), ν ∈ R^8, along the robot's kinematic tree (branching trees too).
   Evaluated level by level: all joints at one depth in one batched einsum.
 - :class:`FlatEncoder` — the ablation: one Linear over all joints, same output size.
-- :class:`KinematicEncoder` — ours (the default): what decides collision is where the links are,
+- :class:`KinematicEncoder` — ours (``train_sdf(preset="cpu")``): what decides collision is where the links are,
   so the features are [sin θ, cos θ] (slides: θ), each moving body's world position and rotation
   from the torch FK, and the proxy clearance of every candidate body pair
   (:mod:`profrobot.field.proxies`), standardised. No learnable parameters, so training can

@@ -49,7 +49,8 @@ class PoseSDF(nn.Module):
     ``forward(theta)``: θ (B, K), radians / metres in MuJoCo joint order → g (B,); g < 0 is free.
     ``prob(theta)``: collision probability sigmoid(s·g), (B,).
 
-    Options (the paper's model is ``encoder="hierarchical"``; ours, the default, ``"kinematic"``):
+    Options (the paper's model is ``encoder="hierarchical"``; ours ``"kinematic"``, the class's
+    default, and ``"pairs"``, the default of :func:`~profrobot.field.train_sdf`):
 
     - ``encoder``: "kinematic" (link poses and pair clearances from torch FK), "hierarchical"
       (paper), "flat" (ablation), "pairs" (one MLP per candidate body pair over its relative
