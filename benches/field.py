@@ -11,6 +11,7 @@ our default field, and the paper's exact recipe — paper numbers beside ours.
                                      # the default field on held-out static scenes, MuJoCo labels
     python benches/field.py families [--scenes panda_blocks_moving,vx300s_clutter_moving] [--layouts 20]
                                      # the default field of each family on held-out layouts
+    python benches/field.py cost [--scenes xarm7_table] [--field DIR]   # evaluation cost per pose
 
 Every row trains on the same balanced dataset (exact labels) and is scored on the same held-out
 balanced split. Writes markdown to benches/out/field_<command>.md; prints wall time and threads.
@@ -49,7 +50,8 @@ PAPER = {
 }
 # The paper's encoder and loss at CPU scale (4 × 256 MLP, batch 4096, the Eikonal term on 512 of
 # them; the full-scale recipe is `paper`); each ablation changes one thing from this row.
-_PAPER_MODEL = dict(encoder="hierarchical", hidden=(256, 256, 256, 256), lr=2e-3, eikonal_batch=512, batch_size=4096)
+_PAPER_MODEL = dict(preset="cpu", encoder="hierarchical", hidden=(256, 256, 256, 256), lr=2e-3, eikonal_batch=512,
+                    batch_size=4096)
 ROWS = {
     "hierarchical (paper)": dict(_PAPER_MODEL),
     "flattened": dict(_PAPER_MODEL, encoder="flat"),
@@ -58,8 +60,9 @@ ROWS = {
     "NDF": dict(_PAPER_MODEL, objective="ndf", eikonal_weight=0.0),
     "StEik": dict(_PAPER_MODEL, steik_weight=0.01),
     "Lipschitz MLP": dict(_PAPER_MODEL, lipschitz=True),
-    "ours (kinematic, default)": dict(),
-    # the same directions with our encoder (T2–T4: each changes one thing from the row above)
+    "ours (kinematic, cpu preset)": dict(preset="cpu"),
+    "ours (pairs, default)": dict(),
+    # the same directions with our default field (T2–T4: each changes one thing from the row above)
     "ours: no Eikonal": dict(eikonal_weight=0.0),
     "ours: s = 1": dict(learn_scale=False, init_scale=1.0),
     "ours: NDF": dict(objective="ndf", eikonal_weight=0.0),
@@ -80,7 +83,8 @@ def row_report(name, sdf, robot, colliding: np.ndarray, seconds: float, test=Non
         d = field_values(sdf, test.poses) + float(sdf.ndf_threshold)
         out["acc_cut0"] = 100 * float(np.mean((d > 0) == test.collides))
         out["cut"] = float(sdf.ndf_threshold)
-    if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, default)", "ours: no Eikonal"):
+    if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, cpu preset)", "ours (pairs, default)",
+                "ours: no Eikonal"):
         # paper §4.2's protocol: Adam (lr 0.01) on g, each pose frozen once g <= -0.1, at most
         # 1000 steps, no refinement rounds, no exact shrink; the result re-labelled by MuJoCo
         res = profrobot.resolve(sdf, colliding, l_thres=-0.1, lr=0.01, iterations=1000, robot=robot, refine=False,
@@ -169,7 +173,7 @@ def write_table(rows: list[dict], path: Path, header: str) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes", "heldout", "families"))
+    ap.add_argument("command", choices=("tables", "default", "paper", "shadow", "scenes", "heldout", "families", "cost"))
     ap.add_argument("--minutes", type=float, default=None, help="training budget per row")
     ap.add_argument("--iterations", type=int, default=None,
                     help="tables: iterations per row (default 400; fairer than minutes on a shared CPU); "
@@ -187,6 +191,7 @@ def main(argv=None) -> int:
     ap.add_argument("--retrain", action="store_true", help="scenes: train again even if cached")
     ap.add_argument("--scenes", default=None, help="heldout: comma-separated static scenes (default xarm7_table,vx300s_clutter); "
                     "families: families (default panda_blocks_moving,vx300s_clutter_moving)")
+    ap.add_argument("--field", default=None, help="cost: a trained field directory to time beside the cpu preset's")
     ap.add_argument("--options", default=None, help="heldout, families: train_sdf options as JSON, e.g. '{\"preset\": \"pairs\"}'")
     args = ap.parse_args(argv)
     if args.threads:
@@ -199,6 +204,10 @@ def main(argv=None) -> int:
         from field_heldout import heldout_bench
 
         return heldout_bench(args)
+    if args.command == "cost":
+        from field_cost import cost_bench
+
+        return cost_bench(args)
     if args.command == "families":
         from field_families import families_bench
 
@@ -225,14 +234,14 @@ def main(argv=None) -> int:
         plot_history(rows, OUT / f"{out_name}_gradients.png")
         what = f"{args.minutes:g} min" if "time_budget" in budget else f"{budget['iterations']} iterations"
         header = (f"# Panda-blocks field ablations: {what} of training per row\n\n"
-                  f"Paper rows at CPU scale: {_PAPER_MODEL}; ours: the `cpu` preset.")
+                  f"Paper rows at CPU scale: {_PAPER_MODEL}; ours: the `cpu` preset and the default (`pairs`).")
     elif args.command in ("default", "shadow"):
         minutes = args.minutes or 15.0
         # --iterations: a fixed iteration count (the schedule over it), immune to a shared CPU's pauses
         budget = dict(iterations=args.iterations) if args.iterations else dict(time_budget=60 * minutes)
         t = time.perf_counter()
         sdf = train_sdf(data, robot=robot, seed=args.seed, eval_every=max(1, (args.iterations or 3000) // 10), **budget)
-        rows.append(row_report("ours (kinematic, default)", sdf, robot, colliding, time.perf_counter() - t))
+        rows.append(row_report("ours (default)", sdf, robot, colliding, time.perf_counter() - t))
         what = f"{args.iterations} iterations" if args.iterations else f"{minutes:g} min budget"
         header = f"# {scene}: our default field, {what} (dataset generation excluded)"
         if args.command == "default":

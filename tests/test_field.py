@@ -259,6 +259,25 @@ def test_a_trained_pair_field_keeps_the_pairs_its_data_shows_colliding(panda, tm
     assert "pairs" not in every.config and every.encoder.npair == full.all_npair
 
 
+def test_features_past_feature_memory_go_float16_then_to_fewer_poses(panda):
+    """Stored features within ``feature_memory`` bytes: float32 when they fit, float16 when only
+    that fits (every pose kept, no warning), else the first poses that fit, with a warning that
+    names the numbers."""
+    import warnings
+
+    F = PoseSDF(panda, encoder="pairs", hidden=(8,)).encoder.out_features
+    kw = dict(encoder="pairs", hidden=(8,), n_poses=4000, iterations=3, batch_size=256, eikonal_batch=32,
+              progress=False, seed=2, prune_pairs=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        half = train_sdf(panda, feature_memory=3600 * F * 3, **kw)
+    assert half.metrics["train_poses"] == 3600
+    assert not [w for w in caught if "feature_memory" in str(w.message)]
+    with pytest.warns(UserWarning, match="training on the first 1000"):
+        few = train_sdf(panda, feature_memory=1000 * F * 2, **kw)
+    assert few.metrics["train_poses"] == 1000
+
+
 def test_bad_pair_lists_are_named(panda):
     from profrobot.errors import InputError
 
