@@ -60,8 +60,8 @@ ROWS = {
     "NDF": dict(_PAPER_MODEL, objective="ndf", eikonal_weight=0.0),
     "StEik": dict(_PAPER_MODEL, steik_weight=0.01),
     "Lipschitz MLP": dict(_PAPER_MODEL, lipschitz=True),
-    "ours (kinematic, cpu preset)": dict(preset="cpu"),
-    "ours (pairs, default)": dict(),
+    "ours: kinematic (cpu preset)": dict(preset="cpu"),
+    "ours: pairs (default)": dict(),
     # the same directions with our default field (T2–T4: each changes one thing from the row above)
     "ours: no Eikonal": dict(eikonal_weight=0.0),
     "ours: s = 1": dict(learn_scale=False, init_scale=1.0),
@@ -83,7 +83,7 @@ def row_report(name, sdf, robot, colliding: np.ndarray, seconds: float, test=Non
         d = field_values(sdf, test.poses) + float(sdf.ndf_threshold)
         out["acc_cut0"] = 100 * float(np.mean((d > 0) == test.collides))
         out["cut"] = float(sdf.ndf_threshold)
-    if name in ("hierarchical (paper)", "no Eikonal", "ours (kinematic, cpu preset)", "ours (pairs, default)",
+    if name in ("hierarchical (paper)", "no Eikonal", "ours: kinematic (cpu preset)", "ours: pairs (default)",
                 "ours: no Eikonal"):
         # paper §4.2's protocol: Adam (lr 0.01) on g, each pose frozen once g <= -0.1, at most
         # 1000 steps, no refinement rounds, no exact shrink; the result re-labelled by MuJoCo

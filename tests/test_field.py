@@ -167,8 +167,9 @@ def test_same_seed_same_field(panda):
         assert torch.equal(v, w), k
 
 
+@pytest.mark.parametrize("encoder", ["kinematic", "pairs"])
 @pytest.mark.parametrize("scene_name", ["panda_blocks", "panda_blocks_moving"])
-def test_eikonal_through_stored_jacobians_is_the_fk_path(scene_name):
+def test_eikonal_through_stored_jacobians_is_the_fk_path(scene_name, encoder):
     """The training's fast Eikonal term (∂f/∂θ stored, the MLP differentiated alone) gives the
     same loss and the same weight gradients as differentiating through the FK; for a family
     field over the robot joints only."""
@@ -177,7 +178,7 @@ def test_eikonal_through_stored_jacobians_is_the_fk_path(scene_name):
 
     robot = scene(scene_name)
     torch.manual_seed(0)
-    sdf = PoseSDF(robot, hidden=(32, 32))
+    sdf = PoseSDF(robot, encoder=encoder, hidden=(32, 32))
     q = torch.as_tensor(profrobot.sample_poses(robot, 64, seed=4), dtype=torch.float32)
     cols = sdf.robot_index.tolist() if sdf.scene_joints else list(range(robot.njoint))
     jac = feature_jacobians(sdf.encoder, q, cols, chunk=20)
@@ -186,7 +187,7 @@ def test_eikonal_through_stored_jacobians_is_the_fk_path(scene_name):
         f = sdf.encoder(q)
     slow, _ = eikonal_terms(sdf, q)
     fast = eikonal_from_features(sdf, f, jac)
-    w = sdf.head[0].weight
+    w = sdf.head.weights[0] if encoder == "pairs" else sdf.head[0].weight
     (g_slow,) = torch.autograd.grad(slow, w)
     (g_fast,) = torch.autograd.grad(fast, w)
     assert abs(float(slow) - float(fast)) < 1e-5 * max(1.0, float(slow))
