@@ -277,6 +277,10 @@ def test_features_past_feature_memory_go_float16_then_to_fewer_poses(panda):
     with pytest.warns(UserWarning, match="training on the first 1000"):
         few = train_sdf(panda, feature_memory=1000 * F * 2, **kw)
     assert few.metrics["train_poses"] == 1000
+    # the NDF baseline reads the stored features again for its threshold: float16 too
+    ndf = train_sdf(panda, preset="cpu", objective="ndf", eikonal_weight=0.0, hidden=(8,), n_poses=2000,
+                    iterations=3, batch_size=256, progress=False, seed=2, feature_memory=1)
+    assert ndf.metrics["train_poses"] == 1 and np.isfinite(float(ndf.ndf_threshold))
 
 
 def test_bad_pair_lists_are_named(panda):

@@ -439,7 +439,7 @@ def _set_ndf_threshold(sdf: PoseSDF, train: Dataset, features, n: int = 200_000)
     that maximises training accuracy (fair to the baseline)."""
     sdf.ndf_threshold.zero_()
     q = torch.as_tensor(train.poses[:n], dtype=torch.float32, device=sdf.joint_limits.device)
-    d = (sdf.head_g(features[:n]) if features is not None else sdf(q)).cpu().numpy()
+    d = (sdf.head_g(features[:n].float()) if features is not None else sdf(q)).cpu().numpy()
     y = train.collides[:n]
     cands = np.quantile(d, np.linspace(0.01, 0.99, 99))
     acc = [np.mean((d > c) == y) for c in cands]
