@@ -386,18 +386,30 @@ def _gsplat_available(device) -> bool:
 
 
 def _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background):
-    """gsplat.rasterization per camera (our means may differ per camera), RGB + expected depth."""
+    """gsplat.rasterization, RGB + expected depth: one call for Gaussians shared by the C cameras,
+    one per camera where they differ (means (C, N, 3)).
+
+    gsplat evaluates pixel (i, j) at image point (j + 0.5, i + 0.5) of its K; ours puts pixel
+    centres at integers (OpenCV's convention), so the principal point moves by +0.5 px in gsplat's
+    K and both draw the same image."""
     from gsplat import rasterization
 
+    Ks = Ks + Ks.new_tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]])   # (C, 3, 3)
     C, N = viewmats.shape[0], means.shape[-2]
-    means, covs = means.expand(C, N, 3), covs.expand(C, N, 3, 3)
-    opac, cols = opacities.expand(C, N), colors.expand(C, N, 3)
-    outs = []
-    for c in range(C):
-        img, alpha, _ = rasterization(means[c], None, None, opac[c], cols[c], viewmats[c:c + 1], Ks[c:c + 1],
-                                      width, height, near_plane=NEAR, eps2d=LOWPASS, render_mode="RGB+ED",
-                                      covars=covs[c], packed=False)
-        outs.append((img[0], alpha[0, ..., 0]))
+    kw = dict(near_plane=NEAR, eps2d=LOWPASS, render_mode="RGB+ED", packed=False)
+    if means.ndim == 2 and covs.ndim == 3 and opacities.ndim == 1:
+        # one scene seen by C cameras: one call (colors (N, 3) or (C, N, 3) both accepted)
+        img, alpha, _ = rasterization(means, None, None, opacities, colors, viewmats, Ks, width, height,
+                                      covars=covs, **kw)                       # (C, H, W, 4), (C, H, W, 1)
+        outs = [(img[c], alpha[c, ..., 0]) for c in range(C)]
+    else:
+        means, covs = means.expand(C, N, 3), covs.expand(C, N, 3, 3)
+        opac, cols = opacities.expand(C, N), colors.expand(C, N, 3)
+        outs = []
+        for c in range(C):
+            img, alpha, _ = rasterization(means[c], None, None, opac[c], cols[c], viewmats[c:c + 1], Ks[c:c + 1],
+                                          width, height, covars=covs[c], **kw)
+            outs.append((img[0], alpha[0, ..., 0]))
     img = torch.stack([o[0] for o in outs])
     acc = torch.stack([o[1] for o in outs])
     rgb, depth = img[..., :3], img[..., 3] * (acc > 1e-6)
