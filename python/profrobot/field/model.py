@@ -13,7 +13,7 @@ from torch import nn
 from .chunking import cpu_chunks
 from .checkpoint import read_checkpoint, write_checkpoint
 from .encoders import FlatEncoder, HierarchicalEncoder, KinematicEncoder
-from .pairs import PairEncoder, PairHead
+from .pairs import PairEncoder, PairHead, pair_union
 from .identity import _Shared
 from .layout import LayoutField
 from ..errors import InputError, InputTypeError
@@ -54,7 +54,7 @@ class PoseSDF(nn.Module):
 
     - ``encoder``: "kinematic" (link poses and pair clearances from torch FK), "hierarchical"
       (paper), "flat" (ablation), "pairs" (one MLP per candidate body pair over its relative
-      pose, g the largest pair logit; ``hidden`` is then each pair's widths, e.g. (32, 32):
+      pose, g their union (the largest pair logit where all are free); ``hidden`` is then each pair's widths, e.g. (32, 32):
       :mod:`profrobot.field.pairs`);
     - ``pairs`` (``encoder="pairs"``): indices of the candidate pairs that get a network (the
       full list is ``PairClearance.all_npair`` long); None: all. ``train_sdf`` keeps the pairs
@@ -113,7 +113,7 @@ class PoseSDF(nn.Module):
                 self.config["pairs"] = self.encoder.clearance.kept
         else:
             self.encoder = KinematicEncoder(robot, spheres_per_body=spheres_per_body)
-        if encoder == "pairs":   # one MLP per body pair, g the largest pair logit (field/pairs.py)
+        if encoder == "pairs":   # one MLP per body pair, g their union (field/pairs.py)
             if lipschitz:
                 raise InputError("lipschitz=True is for the single-MLP encoders, not encoder='pairs'")
             self.head = PairHead(self.encoder.npair, tuple(self.config["hidden"]))
@@ -152,8 +152,8 @@ class PoseSDF(nn.Module):
                              f"{float(theta[i, j])}; poses must be finite")
 
     def head_g(self, features: torch.Tensor) -> torch.Tensor:
-        """g (B,) from encoder features (B, F) (``encoder="pairs"``: the largest pair logit)."""
-        g = self.head(features).max(dim=1).values if self.config["encoder"] == "pairs" else self.head(features)[:, 0]
+        """g (B,) from encoder features (B, F) (``encoder="pairs"``: the pairs' union, :func:`~.pairs.pair_union`)."""
+        g = pair_union(self.head(features)) if self.config["encoder"] == "pairs" else self.head(features)[:, 0]
         return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
 
     def forward(self, theta: torch.Tensor, scene=None) -> torch.Tensor:

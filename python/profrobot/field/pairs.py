@@ -1,4 +1,4 @@
-"""The pair-structured field: one small network per candidate body pair, g = the largest pair's.
+"""The pair-structured field: one small network per candidate body pair, g their union.
 
 A collision is the union of its pairs' contacts, and whether two rigid bodies touch depends on
 their relative pose alone. So instead of one MLP over the whole robot (the kinematic encoder's),
@@ -9,8 +9,16 @@ static geom) its own MLP over what decides that pair:
   ``R_aᵀ R_b`` (9); for a static geom, the body's pose in the geom's frame — and the pair's proxy
   clearance (:mod:`profrobot.field.proxies`, 1), standardised;
 - z_p = MLP_p(x_p), all pairs at once as batched matrix products ``(P, B, in) @ (P, in, out)``;
-- g = max_p z_p: the field of a union is the largest of its parts' (as a signed distance is the
-  smallest of the parts' distances), so ∂g/∂θ is the deciding pair's gradient.
+- g = :func:`pair_union` (z): max_p z_p where every pair is free, Σ_p max(z_p, 0) where some
+  pair is in contact. Its sign is always max_p z_p's (the union of the pairs' contacts: a pose
+  collides iff some pair does), so the field classifies exactly as the max would; it is
+  continuous (where one pair is in contact both read z_p). Inside a collision its gradient is
+  the sum of the colliding pairs' gradients, so a step guided by g frees them together. Under
+  the max, the gradient is the deciding pair's alone: a pose where two pairs' logits tie and
+  their gradients oppose (freeing one drives the other deeper) is a fixed point the paper's
+  Adam protocol cannot leave. Measured on panda_blocks with one trained field, the same weights
+  read both ways: 18 of 1000 colliding poses stuck for its 1000 steps under the max, 5 under the
+  sum; 4.1 % still colliding after the protocol against 1.9 %; 54 steps a pose against 31.
 
 Training supervises every pair with its own exact label (``label_poses(..., pairs=True)``, geom
 pairs grouped to body pairs by :meth:`PairEncoder.pair_labels`) beside the pose's label: a
@@ -35,6 +43,12 @@ from .proxies import PairClearance
 
 PER_PAIR = 13  # relative position (3), relative rotation (9), proxy clearance (1)
 HEAD_CHUNK = 256  # poses per chunk of the pair MLPs on a CPU
+
+
+def pair_union(z: torch.Tensor) -> torch.Tensor:
+    """g (B,) from pair logits z (B, P): Σ_p max(z_p, 0) + min(max_p z_p, 0) — the largest
+    logit where no pair is in contact, the sum of the positive ones where some is (module docs)."""
+    return torch.relu(z).sum(1) + z.max(dim=1).values.clamp(max=0)
 
 
 class PairEncoder(StandardisedEncoder):
