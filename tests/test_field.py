@@ -233,7 +233,7 @@ def test_pair_union_classifies_as_the_max_and_sums_the_colliding_pairs():
     assert free.any() and (~free).any()
     torch.testing.assert_close(g[free], m[free], rtol=0, atol=0)
     torch.testing.assert_close(g[~free], z.clamp(min=0).sum(1)[~free])
-    # continuity where the max crosses zero and at ties of two positive pairs
+    # continuity where the max crosses zero (and a second pair turns positive with it)
     t = torch.linspace(-1e-3, 1e-3, 201)
     zz = torch.stack([t, t - 0.5, 2 * t], 1)
     assert float(pair_union(zz).diff().abs().max()) < 1e-4
@@ -401,7 +401,7 @@ def test_pair_eikonal_is_each_pairs_slope_through_the_fk():
     with torch.no_grad():
         f = sdf.encoder(q)
         z = sdf.head(f)
-    band = float(z.median())                          # about half the entries in the band
+    band = -float(z.median())                         # about half the entries above −band
     fast = pair_eikonal_from_features(sdf, f, jac, band=band)
     qq = q.clone().requires_grad_(True)
     zz = sdf.head(sdf.encoder(qq))                     # (B, P) through the FK

@@ -16,9 +16,10 @@ static geom) its own MLP over what decides that pair:
   the sum of the colliding pairs' gradients, so a step guided by g frees them together. Under
   the max, the gradient is the deciding pair's alone: a pose where two pairs' logits tie and
   their gradients oppose (freeing one drives the other deeper) is a fixed point the paper's
-  Adam protocol cannot leave. Measured on panda_blocks with one trained field, the same weights
-  read both ways: 18 of 1000 colliding poses stuck for its 1000 steps under the max, 5 under the
-  sum; 4.1 % still colliding after the protocol against 1.9 %; 54 steps a pose against 31.
+  Adam protocol cannot leave. Measured on panda_blocks (benches/field_results.md): one field
+  trained under the max, its weights read both ways, left 18 of 1000 colliding poses stuck for
+  the protocol's 1000 steps under the max and 5 under the sum (4.1 % against 1.9 % still
+  colliding after it; 54 steps a pose against 31); trained as the union, 6 stuck, 1.1 %, 33.
 
 Training supervises every pair with its own exact label (``label_poses(..., pairs=True)``, geom
 pairs grouped to body pairs by :meth:`PairEncoder.pair_labels`) beside the pose's label: a

@@ -1,4 +1,6 @@
-"""Training the pose collision field: BCE(sigmoid(s·g), label) + α (‖∂g/∂θ‖ − 1)² (paper §3).
+"""Training the pose collision field: BCE(sigmoid(s·g), label) + α (‖∂g/∂θ‖ − 1)² (paper §3);
+a pair field adds each pair's BCE on its own label, and takes the Eikonal term on each pair's
+logit near contact instead of on g (:func:`pair_eikonal_from_features`).
 
 Three presets:
 
@@ -6,9 +8,9 @@ Three presets:
   MLP per candidate body pair over its relative pose, each pair supervised by its own exact
   label; pairs no training pose has in contact get none, ``prune_pairs``), 1 M poses, batch
   2048, 8000 iterations, Adam (lr 2e-3, cosine), colliding poses weighted 1.5 in the BCE (fewer
-  of them called free). Its cost grows with the pairs that collide: on two CPU cores about 9
-  minutes for a 7-DoF arm and gripper in a scene (82 pairs). With ``device="cuda"`` pass
-  ``hidden=(64, 64), batch_size=8192``.
+  of them called free). Its cost grows with the pairs that collide: on two CPU cores about 9.5
+  minutes for a 7-DoF arm and gripper in a scene (82 pairs); with ``device="cuda"`` about one
+  minute on an H200 (benches/field_gpu_results.md).
 - ``"cpu"``: the kinematics-aware field (one 4 × 256 MLP over link poses and pair clearances),
   2 M balanced poses, batch 8192, 3000 iterations, Adam (lr 2e-3). Cheaper per pose; less sharp
   (98.2 % against 99 % balanced accuracy held out on xarm7_table).
@@ -16,9 +18,9 @@ Three presets:
   10 000 iterations, Adam lr 1e-3 halved at iterations 100, 500, 1400, 3000, 5500, 9100.
 
 ``"pairs"`` and ``"cpu"`` (parameter-free encoders): BCE on batches with the features computed
-once per pose (float16 past ``feature_memory``), the Eikonal term on 256 poses a step, drawn from
-a pool whose feature Jacobians ∂f/∂θ were computed once (so a step differentiates the MLP, not
-the FK).
+once per pose (float16 past ``feature_memory``), the Eikonal term on 256 poses a step (a pair
+field: on their pairs within 0.3 of contact), drawn from a pool whose feature Jacobians ∂f/∂θ
+were computed once (so a step differentiates the MLP, not the FK).
 
 Any option can be overridden by keyword. ``time_budget`` (seconds) ends training early and
 stretches the schedule over the budget instead of the iteration count.
@@ -415,7 +417,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             eik = steik = torch.zeros((), device=dev)
             if jac is not None:
                 pick = torch.as_tensor(rng.integers(0, len(pool), cfg.eikonal_batch), device=dev)
-                if sdf.config["encoder"] == "pairs":   # each pair's own slope (pair_eikonal_from_features)
+                if sdf.config["encoder"] == "pairs" and not ndf:   # each pair's own slope (pair_eikonal_from_features)
                     eik = pair_eikonal_from_features(sdf, features[pool[pick]].float(), jac[pick])
                 else:
                     eik = eikonal_from_features(sdf, features[pool[pick]].float(), jac[pick])

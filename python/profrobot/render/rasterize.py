@@ -398,7 +398,9 @@ def _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, heigh
     C, N = viewmats.shape[0], means.shape[-2]
     kw = dict(near_plane=NEAR, eps2d=LOWPASS, render_mode="RGB+ED", packed=False)
     if means.ndim == 2 and covs.ndim == 3 and opacities.ndim == 1:
-        # one scene seen by C cameras: one call (colors (N, 3) or (C, N, 3) both accepted)
+        # one scene seen by C cameras: one call; gsplat takes colors (N, 3) or exactly (C, N, 3)
+        if colors.ndim == 3:
+            colors = colors.expand(C, N, 3)
         img, alpha, _ = rasterization(means, None, None, opacities, colors, viewmats, Ks, width, height,
                                       covars=covs, **kw)                       # (C, H, W, 4), (C, H, W, 1)
         outs = [(img[c], alpha[c, ..., 0]) for c in range(C)]
@@ -471,12 +473,12 @@ def rasterize_unchecked(means, covs, opacities, colors, viewmats, Ks, width: int
                                           "(pip install gsplat), or use backend='auto'") from e
         try:
             return _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background)
-        except (TypeError, RuntimeError) as e:
+        except (AssertionError, TypeError, RuntimeError) as e:   # gsplat checks its shapes with assert
             raise BackendUnavailableError(f"rasterize(backend='gsplat') failed: {type(e).__name__}: {e}") from e
     if backend == "auto" and _gsplat_available(means.device):
         try:
             return _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, height, background)
-        except (ImportError, TypeError, RuntimeError) as e:
+        except (ImportError, AssertionError, TypeError, RuntimeError) as e:
             global _warned
             if not _warned:
                 warnings.warn(f"gsplat rasterization failed ({e}); using the Rust CPU rasterizer", stacklevel=2)
