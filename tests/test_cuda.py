@@ -56,20 +56,24 @@ def test_resolve_with_a_cuda_field_returns_certified_poses(panda):
     assert not profrobot.collides(panda, res.poses[res.certified]).any()
 
 
+def _random_gaussians(n: int, seed: int):
+    """n random Gaussians about 1 m in front of an identity camera: means (n, 3) m, covariances
+    (n, 3, 3) m², opacities (n,) below 0.9, colours (n, 3)."""
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.rand(n, 3, generator=gen) * 0.4 - 0.2
+    means[:, 2] += 1.0
+    a = torch.randn(n, 3, 3, generator=gen) * 0.02
+    covs = a @ a.transpose(1, 2) + 1e-5 * torch.eye(3)
+    return means, covs, torch.rand(n, generator=gen) * 0.9, torch.rand(n, 3, generator=gen)
+
+
 @cuda
 def test_rasterize_cuda_tensors_agree_with_the_cpu_kernel():
     """backend="torch" on the GPU and the Rust kernel ("auto" without gsplat copies CUDA tensors
     to the CPU and back): the same image and the same gradients, to float32 rounding."""
     from profrobot.render.rasterize import rasterize
 
-    gen = torch.Generator().manual_seed(0)
-    n = 200
-    means = torch.rand(n, 3, generator=gen) * 0.4 - 0.2
-    means[:, 2] += 1.0
-    a = torch.randn(n, 3, 3, generator=gen) * 0.02
-    covs = a @ a.transpose(1, 2) + 1e-5 * torch.eye(3)
-    opac = torch.rand(n, generator=gen) * 0.9
-    cols = torch.rand(n, 3, generator=gen)
+    means, covs, opac, cols = _random_gaussians(200, seed=0)
     view = torch.eye(4)[None]
     K = torch.tensor([[[60.0, 0, 32], [0, 60.0, 32], [0, 0, 1]]])
     out = {}
@@ -83,15 +87,6 @@ def test_rasterize_cuda_tensors_agree_with_the_cpu_kernel():
     for name in ("torch",) if importlib.util.find_spec("gsplat") else ("torch", "auto"):
         torch.testing.assert_close(out[name][0], out["cpu"][0], atol=1e-5, rtol=1e-4)
         torch.testing.assert_close(out[name][1], out["cpu"][1], atol=1e-4, rtol=1e-3)
-
-
-def _random_gaussians(n: int, seed: int):
-    gen = torch.Generator().manual_seed(seed)
-    means = torch.rand(n, 3, generator=gen) * 0.4 - 0.2
-    means[:, 2] += 1.0
-    a = torch.randn(n, 3, 3, generator=gen) * 0.02
-    covs = a @ a.transpose(1, 2) + 1e-5 * torch.eye(3)
-    return means, covs, torch.rand(n, generator=gen) * 0.9, torch.rand(n, 3, generator=gen)
 
 
 @cuda

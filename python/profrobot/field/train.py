@@ -417,10 +417,9 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             eik = steik = torch.zeros((), device=dev)
             if jac is not None:
                 pick = torch.as_tensor(rng.integers(0, len(pool), cfg.eikonal_batch), device=dev)
-                if sdf.config["encoder"] == "pairs" and not ndf:   # each pair's own slope (pair_eikonal_from_features)
-                    eik = pair_eikonal_from_features(sdf, features[pool[pick]].float(), jac[pick])
-                else:
-                    eik = eikonal_from_features(sdf, features[pool[pick]].float(), jac[pick])
+                # a pair field: each pair's own slope (pair_eikonal_from_features); else g's
+                term = pair_eikonal_from_features if sdf.config["encoder"] == "pairs" and not ndf else eikonal_from_features
+                eik = term(sdf, features[pool[pick]].float(), jac[pick])
                 loss = loss + cfg.eikonal_weight * eik
             elif cfg.eikonal_weight > 0 or cfg.steik_weight > 0:
                 sub = idx[: cfg.eikonal_batch] if cfg.eikonal_batch else idx

@@ -403,17 +403,13 @@ def _rasterize_gsplat(means, covs, opacities, colors, viewmats, Ks, width, heigh
             colors = colors.expand(C, N, 3)
         img, alpha, _ = rasterization(means, None, None, opacities, colors, viewmats, Ks, width, height,
                                       covars=covs, **kw)                       # (C, H, W, 4), (C, H, W, 1)
-        outs = [(img[c], alpha[c, ..., 0]) for c in range(C)]
     else:
         means, covs = means.expand(C, N, 3), covs.expand(C, N, 3, 3)
         opac, cols = opacities.expand(C, N), colors.expand(C, N, 3)
-        outs = []
-        for c in range(C):
-            img, alpha, _ = rasterization(means[c], None, None, opac[c], cols[c], viewmats[c:c + 1], Ks[c:c + 1],
-                                          width, height, covars=covs[c], **kw)
-            outs.append((img[0], alpha[0, ..., 0]))
-    img = torch.stack([o[0] for o in outs])
-    acc = torch.stack([o[1] for o in outs])
+        outs = [rasterization(means[c], None, None, opac[c], cols[c], viewmats[c:c + 1], Ks[c:c + 1],
+                              width, height, covars=covs[c], **kw)[:2] for c in range(C)]
+        img, alpha = torch.cat([o[0] for o in outs]), torch.cat([o[1] for o in outs])
+    acc = alpha[..., 0]                                                        # (C, H, W)
     rgb, depth = img[..., :3], img[..., 3] * (acc > 1e-6)
     if background is not None:
         rgb = rgb + (1 - acc)[..., None] * background.reshape(-1, 1, 1, 3)
