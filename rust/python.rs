@@ -721,10 +721,18 @@ struct SceneArgs<'a, 'py> {
     height: usize,
     world: Option<(&'a Bound<'py, PyAny>, &'a Bound<'py, PyAny>)>,
     frames: Option<&'a Bound<'py, PyAny>>,
-    rigid: Option<[&'a Bound<'py, PyAny>; 6]>,
+    /// body_rot, body_pos, body, local_means, scales; the local rotations.
+    rigid: Option<([&'a Bound<'py, PyAny>; 5], Rots<'a, 'py>)>,
     colors: Option<&'a Bound<'py, PyAny>>,
     sh: Option<&'a Bound<'py, PyAny>>,
     cutoff: Cutoff,
+}
+
+/// `local_rots=` (N, 3, 3) or `local_quats=` (N, 4).
+#[derive(Clone, Copy)]
+enum Rots<'a, 'py> {
+    Matrices(&'a Bound<'py, PyAny>),
+    Quats(&'a Bound<'py, PyAny>),
 }
 
 fn read_scene<T: numpy::Element + Real>(a: &SceneArgs<'_, '_>, dtype: &str) -> PyResult<render::Scene<T>> {
@@ -737,7 +745,7 @@ fn read_scene<T: numpy::Element + Real>(a: &SceneArgs<'_, '_>, dtype: &str) -> P
             let frames = a.frames.map(|f| real_array::<T>(f, "frames", &[Some(p), Some(n), Some(3), Some(3)], dtype)).transpose()?;
             (means, covs, frames.map(|f| f.0), None, p, n)
         }
-        (None, Some([body_rot, body_pos, body, local_means, local_rots, scales])) => {
+        (None, Some(([body_rot, body_pos, body, local_means, scales], local_rots))) => {
             let (body_rot, bs) = real_array::<T>(body_rot, "body_rot", &[None, None, Some(3), Some(3)], dtype)?;
             let (p, nb) = (bs[0], bs[1]);
             let (body_pos, _) = real_array::<T>(body_pos, "body_pos", &[Some(p), Some(nb), Some(3)], dtype)?;
@@ -756,7 +764,12 @@ fn read_scene<T: numpy::Element + Real>(a: &SceneArgs<'_, '_>, dtype: &str) -> P
                 body_pos,
                 body: body.iter().map(|&b| b as u32).collect(),
                 means: real_array::<T>(local_means, "local_means", &[Some(n), Some(3)], dtype)?.0,
-                rots: real_array::<T>(local_rots, "local_rots", &[Some(n), Some(3), Some(3)], dtype)?.0,
+                rots: match local_rots {
+                    Rots::Matrices(r) => {
+                        render::LocalRots::Matrices(real_array::<T>(r, "local_rots", &[Some(n), Some(3), Some(3)], dtype)?.0)
+                    }
+                    Rots::Quats(q) => render::LocalRots::Quats(real_array::<T>(q, "local_quats", &[Some(n), Some(4)], dtype)?.0),
+                },
                 scales: real_array::<T>(scales, "scales", &[Some(n), Some(3)], dtype)?.0,
             };
             (Vec::new(), Vec::new(), None, Some(rigid), p, n)
@@ -838,7 +851,7 @@ fn render_outputs<'py, T: numpy::Element + Real>(
 /// The renderer after FK: projection, SH colour, rasterization (see `_core.pyi` and `render.rs`).
 #[pyfunction]
 #[pyo3(signature = (opacities, viewmats, Ks, views, width, height, *, means=None, covs=None, frames=None, body_rot=None,
-                    body_pos=None, body=None, local_means=None, local_rots=None, scales=None, colors=None, sh=None,
+                    body_pos=None, body=None, local_means=None, local_rots=None, local_quats=None, scales=None, colors=None, sh=None,
                     cutoff="soft", threads=None))]
 #[allow(clippy::too_many_arguments)]
 fn render_forward<'py>(
@@ -857,6 +870,7 @@ fn render_forward<'py>(
     body: Option<&Bound<'py, PyAny>>,
     local_means: Option<&Bound<'py, PyAny>>,
     local_rots: Option<&Bound<'py, PyAny>>,
+    local_quats: Option<&Bound<'py, PyAny>>,
     scales: Option<&Bound<'py, PyAny>>,
     colors: Option<&Bound<'py, PyAny>>,
     sh: Option<&Bound<'py, PyAny>>,
@@ -882,12 +896,19 @@ fn render_forward<'py>(
         (None, None) => None,
         _ => return Err(input_error("render_forward: means= and covs= go together")),
     };
-    let rigid = match (body_rot, body_pos, body, local_means, local_rots, scales) {
-        (Some(a), Some(b), Some(c), Some(d), Some(e), Some(f)) => Some([a, b, c, d, e, f]),
+    let rots = match (local_rots, local_quats) {
+        (Some(r), None) => Some(Rots::Matrices(r)),
+        (None, Some(q)) => Some(Rots::Quats(q)),
+        (None, None) => None,
+        (Some(_), Some(_)) => return Err(input_error("render_forward: give local_rots= or local_quats=, not both")),
+    };
+    let rigid = match (body_rot, body_pos, body, local_means, scales, rots) {
+        (Some(a), Some(b), Some(c), Some(d), Some(f), Some(e)) => Some(([a, b, c, d, f], e)),
         (None, None, None, None, None, None) => None,
         _ => {
             return Err(input_error(
-                "render_forward: the rigid arrays body_rot=, body_pos=, body=, local_means=, local_rots=, scales= go together",
+                "render_forward: the rigid arrays body_rot=, body_pos=, body=, local_means=, local_rots= (or local_quats=), \
+                 scales= go together",
             ))
         }
     };
@@ -953,7 +974,10 @@ fn render_grads<'py, T: numpy::Element + Real>(
             out.set_item("body_rot", PyArray1::from_vec(py, r.body_rot).reshape([p, nb, 3, 3])?)?;
             out.set_item("body_pos", PyArray1::from_vec(py, r.body_pos).reshape([p, nb, 3])?)?;
             out.set_item("local_means", PyArray1::from_vec(py, r.means).reshape([n, 3])?)?;
-            out.set_item("local_rots", PyArray1::from_vec(py, r.rots).reshape([n, 3, 3])?)?;
+            match s.rigid.as_ref().map(|r| &r.rots) {
+                Some(render::LocalRots::Quats(_)) => out.set_item("local_quats", PyArray1::from_vec(py, r.rots).reshape([n, 4])?)?,
+                _ => out.set_item("local_rots", PyArray1::from_vec(py, r.rots).reshape([n, 3, 3])?)?,
+            }
             out.set_item("scales", PyArray1::from_vec(py, r.scales).reshape([n, 3])?)?;
         }
     }

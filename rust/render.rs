@@ -95,10 +95,84 @@ pub struct Rigid<T> {
     pub body_pos: Vec<T>,
     /// `[N]` each Gaussian's body.
     pub body: Vec<u32>,
-    /// `[N, 3]`, `[N, 3, 3]`, `[N, 3]`.
+    /// `[N, 3]` local means (m), each Gaussian's rotation `Q` in its body, `[N, 3]` scales (m).
     pub means: Vec<T>,
-    pub rots: Vec<T>,
+    pub rots: LocalRots<T>,
     pub scales: Vec<T>,
+}
+
+/// The Gaussians' rotations in their bodies, as the caller keeps them.
+#[derive(Clone, Debug)]
+pub enum LocalRots<T> {
+    /// `[N, 3, 3]` row-major matrices.
+    Matrices(Vec<T>),
+    /// `[N, 4]` quaternions `(w, x, y, z)` of any nonzero norm: `Q` is that of `q / |q|`
+    /// (`kinematics.py: quat_to_matrix`), and the gradient comes back through the
+    /// normalisation. Saves the caller a batched quaternion-to-matrix op and its backward.
+    Quats(Vec<T>),
+}
+
+impl<T: Real> LocalRots<T> {
+    /// The input's name and values per Gaussian (for the checks).
+    fn named(&self) -> (&'static str, &Vec<T>, usize) {
+        match self {
+            LocalRots::Matrices(m) => ("local_rots", m, 9),
+            LocalRots::Quats(q) => ("local_quats", q, 4),
+        }
+    }
+
+    /// `[N, 9]` row-major matrices (computed from quaternions, or borrowed).
+    fn matrices(&self) -> std::borrow::Cow<'_, [T]> {
+        match self {
+            LocalRots::Matrices(m) => std::borrow::Cow::Borrowed(m),
+            LocalRots::Quats(q) => std::borrow::Cow::Owned(q.chunks_exact(4).flat_map(|q| quat_matrix([q[0], q[1], q[2], q[3]])).collect()),
+        }
+    }
+}
+
+/// The rotation matrix (row-major) of `q / |q|`, `q = (w, x, y, z)`, by the formula of
+/// `kinematics.py: quat_to_matrix`:
+///
+/// ```text
+/// [[1 - 2(y² + z²), 2(xy - wz),     2(xz + wy)    ],
+///  [2(xy + wz),     1 - 2(x² + z²), 2(yz - wx)    ],
+///  [2(xz - wy),     2(yz + wx),     1 - 2(x² + y²)]]
+/// ```
+#[inline]
+pub(crate) fn quat_matrix<T: Real>(q: [T; 4]) -> [T; 9] {
+    let len = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let [w, x, y, z] = q.map(|c| c / len);
+    let (one, two) = (T::one(), T::c(2.0));
+    [
+        one - two * (y * y + z * z),
+        two * (x * y - w * z),
+        two * (x * z + w * y),
+        two * (x * y + w * z),
+        one - two * (x * x + z * z),
+        two * (y * z - w * x),
+        two * (x * z - w * y),
+        two * (y * z + w * x),
+        one - two * (x * x + y * y),
+    ]
+}
+
+/// `∂L/∂q` from `g = ∂L/∂Q` (row-major) for [`quat_matrix`]: first w.r.t. the unit `q̂`, entry
+/// by entry of the formula (e.g. `∂/∂x̂ = 2(ŷ g01 + ẑ g02 + ŷ g10 - 2x̂ g11 - ŵ g12 + ẑ g20 +
+/// ŵ g21 - 2x̂ g22)`), then through `q̂ = q / |q|`: `(g_q̂ - q̂ (q̂ · g_q̂)) / |q|`.
+#[inline]
+pub(crate) fn quat_matrix_backward<T: Real>(q: [T; 4], g: &[T]) -> [T; 4] {
+    let len = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let [w, x, y, z] = q.map(|c| c / len);
+    let two = T::c(2.0);
+    let gh = [
+        two * (-z * g[1] + y * g[2] + z * g[3] - x * g[5] - y * g[6] + x * g[7]),
+        two * (y * g[1] + z * g[2] + y * g[3] - two * x * g[4] - w * g[5] + z * g[6] + w * g[7] - two * x * g[8]),
+        two * (-two * y * g[0] + x * g[1] + w * g[2] + x * g[3] + z * g[5] - w * g[6] + z * g[7] - two * y * g[8]),
+        two * (-two * z * g[0] - w * g[1] + x * g[2] + w * g[3] - two * z * g[4] + y * g[5] + x * g[6] + y * g[7]),
+    ];
+    let dot = w * gh[0] + x * gh[1] + y * gh[2] + z * gh[3];
+    let qh = [w, x, y, z];
+    std::array::from_fn(|k| (gh[k] - qh[k] * dot) / len)
 }
 
 /// Gradients w.r.t. [`Rigid`]'s arrays, same layouts.
@@ -107,6 +181,7 @@ pub struct RigidGrads<T> {
     pub body_rot: Vec<T>,
     pub body_pos: Vec<T>,
     pub means: Vec<T>,
+    /// In the layout of [`Rigid::rots`]' variant (`[N, 3, 3]` or `[N, 4]`).
     pub rots: Vec<T>,
     pub scales: Vec<T>,
 }
@@ -127,6 +202,7 @@ impl<T: Real> Rigid<T> {
     /// World means `[P, N, 3]`, covariances `[P, N, 9]` and frames `[P, N, 9]`.
     fn world(&self, poses: usize) -> (Vec<T>, Vec<T>, Vec<T>) {
         let n = self.body.len();
+        let rots = self.rots.matrices();
         let per: Vec<[T; 21]> = (0..poses * n)
             .into_par_iter()
             .map(|k| {
@@ -135,7 +211,7 @@ impl<T: Real> Rigid<T> {
                 let r = &self.body_rot[9 * b..9 * b + 9];
                 let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
                 let mu = mat_vec(r, m);
-                let a = mat_mul(r, &self.rots[9 * i..9 * i + 9]);
+                let a = mat_mul(r, &rots[9 * i..9 * i + 9]);
                 let s2 = [0, 1, 2].map(|k| self.scales[3 * i + k] * self.scales[3 * i + k]);
                 let mut out = [T::zero(); 21];
                 for d in 0..3 {
@@ -167,6 +243,7 @@ impl<T: Real> Rigid<T> {
         let n = self.body.len();
         let nb = self.nbody;
         let zero = T::zero();
+        let rots = self.rots.matrices();
         // per chunk: its Gaussians' local gradients and its partial body sums [P, nb, 12]
         let chunks: Vec<(Vec<[T; 15]>, Vec<T>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
@@ -178,7 +255,7 @@ impl<T: Real> Rigid<T> {
                     for i in i0..i1 {
                         let b = self.body[i] as usize;
                         let r = &self.body_rot[9 * (p * nb + b)..9 * (p * nb + b) + 9];
-                        let q = &self.rots[9 * i..9 * i + 9];
+                        let q = &rots[9 * i..9 * i + 9];
                         let a = mat_mul(r, q);
                         let s = [self.scales[3 * i], self.scales[3 * i + 1], self.scales[3 * i + 2]];
                         let g_mu = &g_means[3 * (p * n + i)..3 * (p * n + i) + 3];
@@ -240,13 +317,19 @@ impl<T: Real> Rigid<T> {
             body_rot: vec![zero; poses * nb * 9],
             body_pos: vec![zero; poses * nb * 3],
             means: Vec::with_capacity(3 * n),
-            rots: Vec::with_capacity(9 * n),
+            rots: Vec::with_capacity(self.rots.named().2 * n),
             scales: Vec::with_capacity(3 * n),
         };
-        for (local, bodies) in &chunks {
-            for l in local {
+        for (k, (local, bodies)) in chunks.iter().enumerate() {
+            for (i, l) in (k * CHUNK..).zip(local) {
                 g.means.extend_from_slice(&l[0..3]);
-                g.rots.extend_from_slice(&l[3..12]);
+                match &self.rots {
+                    LocalRots::Matrices(_) => g.rots.extend_from_slice(&l[3..12]),
+                    LocalRots::Quats(q) => {
+                        let q = [q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]];
+                        g.rots.extend_from_slice(&quat_matrix_backward(q, &l[3..12]))
+                    }
+                }
                 g.scales.extend_from_slice(&l[12..15]);
             }
             for pb in 0..poses * nb {
@@ -616,7 +699,8 @@ impl<T: Real> Scene<T> {
                 arrays.push(("body_rot", &r.body_rot, p, nb * 9));
                 arrays.push(("body_pos", &r.body_pos, p, nb * 3));
                 arrays.push(("local_means", &r.means, 1, n * 3));
-                arrays.push(("local_rots", &r.rots, 1, n * 9));
+                let (name, rots, per) = r.rots.named();
+                arrays.push((name, rots, 1, n * per));
                 arrays.push(("scales", &r.scales, 1, n * 3));
             }
         }
@@ -640,6 +724,16 @@ impl<T: Real> Scene<T> {
             if let Some(k) = first_non_finite(a) {
                 let (r, i) = (k / per, (k % per) / (per / n).max(1));
                 return invalid_input(format!("render: {name}[{r}, {i}] is {:?}", a[k].f64()));
+            }
+        }
+        if let Some(Rigid { rots: LocalRots::Quats(q), .. }) = &self.rigid {
+            let norm2 = |q: &[T]| q.iter().fold(T::zero(), |acc, &c| acc + c * c);
+            if let Some(i) = q.chunks_exact(4).position(|q| !(norm2(q) > T::zero() && norm2(q).is_finite())) {
+                let q = &q[4 * i..4 * i + 4];
+                return invalid_input(format!(
+                    "render: local_quats[{i}] = {:?} has no usable norm (zero, or too large to square): a rotation needs a nonzero quaternion",
+                    q.iter().map(|c| c.f64()).collect::<Vec<_>>()
+                ));
             }
         }
         for (k, cam) in self.cameras.iter().enumerate() {

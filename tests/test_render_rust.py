@@ -168,6 +168,43 @@ def test_gradcheck_native_rigid_skinning():
     assert torch.autograd.gradcheck(f, inputs, eps=1e-7, atol=1e-5, rtol=1e-4)
 
 
+def test_native_local_quats_are_local_rots_of_the_normalised_quaternion():
+    """``local_quats`` (any nonzero norm) draws what ``local_rots = quat_to_matrix(q)`` draws, and
+    its gradient is gradcheck's through the kernel's normalisation; a zero quaternion is an
+    error that names it."""
+    from profrobot.kinematics import quat_to_matrix
+    from profrobot.render.rasterize import render_native
+
+    g = torch.Generator().manual_seed(3)
+    means, _, op, sh, _, vm, K = _sh_scene(6, 5)
+    n = means.shape[1]
+    body = torch.tensor([0, 1, 0, 1, 1, 0])
+    R = torch.eye(3, dtype=torch.float64).repeat(1, 2, 1, 1)
+    x = torch.zeros(1, 2, 3, dtype=torch.float64)
+    q = torch.randn(n, 4, generator=g, dtype=torch.float64) * 1.7     # not unit: the kernel normalises
+    scales = 0.03 + 0.03 * torch.rand(n, 3, generator=g, dtype=torch.float64)
+    kw = dict(body_rot=R, body_pos=x, body=body, local_means=means[0], scales=scales, opacities=op, sh=sh,
+              viewmats=vm, Ks=K)
+    a = render_native([(0, 0), (0, 1)], 16, 12, local_quats=q, **kw)
+    b = render_native([(0, 0), (0, 1)], 16, 12, local_rots=quat_to_matrix(q), **kw)
+    assert a.alpha.sum() > 1.0
+    for k in ("rgb", "alpha", "depth"):
+        torch.testing.assert_close(getattr(a, k), getattr(b, k), rtol=1e-12, atol=1e-12)
+
+    def f(q, scales):
+        out = render_native([(0, 0), (0, 1)], 16, 12, **{**kw, "scales": scales}, local_quats=q)
+        return out.rgb, out.alpha, out.depth * out.alpha
+
+    inputs = (q.clone().requires_grad_(True), scales.clone().requires_grad_(True))
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-7, atol=1e-5, rtol=1e-4)
+    bad = q.clone()
+    bad[4] = 0.0
+    with pytest.raises(ValueError, match=r"local_quats\[4\].*nonzero quaternion"):
+        render_native([(0, 0)], 16, 12, local_quats=bad, **kw)
+    with pytest.raises(ValueError, match="local_rots= or local_quats=, not both"):
+        render_native([(0, 0)], 16, 12, local_quats=q, local_rots=quat_to_matrix(q), **kw)
+
+
 def test_same_bits_for_one_and_two_threads(panda_model, cams128):
     """Acceptance 5: forward outputs and every gradient identical for 1 and 2 threads (float32,
     two poses x four cameras in one call)."""

@@ -178,7 +178,8 @@ def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.N
                    height: int, *, means: _Float | None = None, covs: _Float | None = None, frames: _Float | None = None,
                    body_rot: _Float | None = None, body_pos: _Float | None = None,
                    body: npt.NDArray[np.int64] | None = None, local_means: _Float | None = None,
-                   local_rots: _Float | None = None, scales: _Float | None = None, colors: _Float | None = None,
+                   local_rots: _Float | None = None, local_quats: _Float | None = None, scales: _Float | None = None,
+                   colors: _Float | None = None,
                    sh: _Float | None = None, cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
                    ) -> tuple[_Float, _Float, _Float, _Float, int, RenderState]:
     """The Gaussian renderer after forward kinematics (``rust/render.rs``, ``rust/splat.rs``):
@@ -188,8 +189,9 @@ def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.N
     The Gaussians of P poses, either in the world (``means`` (P, N, 3) m, ``covs`` (P, N, 3, 3)
     m^2, optional ``frames`` (P, N, 3, 3), each Gaussian's frame to world) or rigidly on
     bodies (``body_rot`` (P, nb, 3, 3), ``body_pos`` (P, nb, 3) m, ``body`` (N,) int64,
-    ``local_means`` (N, 3) m, ``local_rots`` (N, 3, 3), ``scales`` (N, 3) m: ``mu = R_b m +
-    x_b``, ``Sigma = R_b Q diag(s^2) Q^T R_b^T``, frame ``R_b``); ``opacities`` (N,) or (V, N);
+    ``local_means`` (N, 3) m, ``local_rots`` (N, 3, 3) or ``local_quats`` (N, 4) (w, x, y, z),
+    any nonzero norm, normalised here), ``scales`` (N, 3) m: ``mu = R_b m + x_b``,
+    ``Sigma = R_b Q diag(s^2) Q^T R_b^T``, frame ``R_b``); ``opacities`` (N,) or (V, N);
     colours either ``sh`` (N, 1 | 4 | 9, 3) (3DGS's basis, in each Gaussian's frame, viewed from
     the camera centre; degree >= 1 needs frames) or ``colors`` (N, 3) or (V, N, 3); cameras
     ``viewmats`` (C, 4, 4) world-to-camera (OpenCV) and ``Ks`` (C, 3, 3) (fx, fy > 0, pixel

@@ -337,7 +337,7 @@ class GaussianRobot(torch.nn.Module):
             if self.skin_mlp is None:
                 fk = self.kin.fast(theta)                  # FK with its backward in closed form
                 return render_native(views, width, height, body_rot=fk.rot, body_pos=fk.pos, body=self.body,
-                                     local_means=self.means, local_rots=quat_to_matrix(self.quats),
+                                     local_means=self.means, local_quats=self.quats,
                                      scales=torch.exp(self.log_scales), **common)
             mu, A, Ab = self._world_frames(theta)
             return render_native(views, width, height, means=mu, covs=self.covariances(A),

@@ -291,7 +291,8 @@ class _Render(torch.autograd.Function):
     ``viewmats`` [C, 4, 4], ``Ks`` [C, 3, 3]; the Gaussians either in the world, ``means``
     [P, N, 3], ``covs`` [P, N, 3, 3] and optionally ``frames`` [P, N, 3, 3], or rigidly on
     bodies, ``body_rot`` [P, nb, 3, 3], ``body_pos`` [P, nb, 3], ``body`` [N] int64,
-    ``local_means`` [N, 3], ``local_rots`` [N, 3, 3], ``scales`` [N, 3]; colours ``sh``
+    ``local_means`` [N, 3], ``local_rots`` [N, 3, 3] or ``local_quats`` [N, 4] (w, x, y, z; any
+    nonzero norm), ``scales`` [N, 3]; colours ``sh``
     [N, nsh, 3] or ``colors`` [N, 3] or [V, N, 3]); ``views`` (V, 2) int64 numpy ``(pose,
     camera)``. Returns rgb [V, H, W, 3] (``Σ w c``, no background), alpha [V, H, W]
     (``Σ w``), dsum [V, H, W] (``Σ w z``), contrib [V, N] (no gradient), npairs (0-d int64,
