@@ -165,6 +165,8 @@ struct Pair<T> {
 /// The tile lists and every tile's composited pairs, kept for the backward.
 #[derive(Clone, Debug)]
 pub struct State<T> {
+    /// The frame's sizes and cutoff; its arrays are emptied once packed (the records hold every
+    /// value the tile loops and the backward read).
     pub splats: Splats<T>,
     bins: Bins,
     packed: Vec<Packed<T>>,
@@ -765,9 +767,11 @@ pub fn forward<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
 
 /// [`forward`] for splats known to be well formed (`render.rs` makes them).
 pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
+    let bins = splats.bin()?;
+    let packed = splats.pack(&bins);
+    // ~0.5 MB a view less to hold until the backward (a large batch's page faults)
+    let splats = Splats { uv: Vec::new(), conic: Vec::new(), opacity: Vec::new(), color: Vec::new(), depth: Vec::new(), ..splats };
     let s = &splats;
-    let bins = s.bin()?;
-    let packed = s.pack(&bins);
     // per tile-list position: the entry's largest weight
     let mut pos_max = vec![T::zero(); bins.entry_pos.len()];
     let tiles: Vec<TileForward<T>> =
