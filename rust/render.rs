@@ -125,7 +125,11 @@ impl<T: Real> LocalRots<T> {
     fn matrices(&self) -> std::borrow::Cow<'_, [T]> {
         match self {
             LocalRots::Matrices(m) => std::borrow::Cow::Borrowed(m),
-            LocalRots::Quats(q) => std::borrow::Cow::Owned(q.chunks_exact(4).flat_map(|q| quat_matrix([q[0], q[1], q[2], q[3]])).collect()),
+            LocalRots::Quats(q) => {
+                let mut m = vec![T::zero(); q.len() / 4 * 9];
+                m.par_chunks_mut(9).zip(q.par_chunks(4)).for_each(|(m, q)| m.copy_from_slice(&quat_matrix([q[0], q[1], q[2], q[3]])));
+                std::borrow::Cow::Owned(m)
+            }
         }
     }
 }
@@ -203,37 +207,27 @@ impl<T: Real> Rigid<T> {
     fn world(&self, poses: usize) -> (Vec<T>, Vec<T>, Vec<T>) {
         let n = self.body.len();
         let rots = self.rots.matrices();
-        let per: Vec<[T; 21]> = (0..poses * n)
-            .into_par_iter()
-            .map(|k| {
-                let (p, i) = (k / n, k % n);
-                let b = p * self.nbody + self.body[i] as usize;
-                let r = &self.body_rot[9 * b..9 * b + 9];
-                let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
-                let mu = mat_vec(r, m);
-                let a = mat_mul(r, &rots[9 * i..9 * i + 9]);
-                let s2 = [0, 1, 2].map(|k| self.scales[3 * i + k] * self.scales[3 * i + k]);
-                let mut out = [T::zero(); 21];
-                for d in 0..3 {
-                    out[d] = mu[d] + self.body_pos[3 * b + d];
+        let mut means = vec![T::zero(); 3 * poses * n];
+        let mut covs = vec![T::zero(); 9 * poses * n];
+        let mut frames = vec![T::zero(); 9 * poses * n];
+        means.par_chunks_mut(3).zip(covs.par_chunks_mut(9)).zip(frames.par_chunks_mut(9)).enumerate().for_each(|(k, ((mu, cov), frame))| {
+            let (p, i) = (k / n, k % n);
+            let b = p * self.nbody + self.body[i] as usize;
+            let r = &self.body_rot[9 * b..9 * b + 9];
+            let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
+            let rm = mat_vec(r, m);
+            let a = mat_mul(r, &rots[9 * i..9 * i + 9]);
+            let s2 = [0, 1, 2].map(|k| self.scales[3 * i + k] * self.scales[3 * i + k]);
+            for d in 0..3 {
+                mu[d] = rm[d] + self.body_pos[3 * b + d];
+            }
+            for x in 0..3 {
+                for y in 0..3 {
+                    cov[3 * x + y] = a[3 * x] * s2[0] * a[3 * y] + a[3 * x + 1] * s2[1] * a[3 * y + 1] + a[3 * x + 2] * s2[2] * a[3 * y + 2];
                 }
-                for x in 0..3 {
-                    for y in 0..3 {
-                        out[3 + 3 * x + y] =
-                            a[3 * x] * s2[0] * a[3 * y] + a[3 * x + 1] * s2[1] * a[3 * y + 1] + a[3 * x + 2] * s2[2] * a[3 * y + 2];
-                    }
-                }
-                out[12..21].copy_from_slice(r);
-                out
-            })
-            .collect();
-        let (mut means, mut covs, mut frames) =
-            (Vec::with_capacity(3 * per.len()), Vec::with_capacity(9 * per.len()), Vec::with_capacity(9 * per.len()));
-        for r in &per {
-            means.extend_from_slice(&r[0..3]);
-            covs.extend_from_slice(&r[3..12]);
-            frames.extend_from_slice(&r[12..21]);
-        }
+            }
+            frame.copy_from_slice(r);
+        });
         (means, covs, frames)
     }
 
@@ -310,6 +304,13 @@ impl<T: Real> Rigid<T> {
                         }
                     }
                 }
+                // a quaternion's gradient from its matrix's, here in parallel (slots 3..7)
+                if let LocalRots::Quats(q) = &self.rots {
+                    for (i, l) in (i0..i1).zip(local.iter_mut()) {
+                        let g_q = quat_matrix_backward([q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]], &l[3..12]);
+                        l[3..7].copy_from_slice(&g_q);
+                    }
+                }
                 (local, bodies)
             })
             .collect();
@@ -320,15 +321,12 @@ impl<T: Real> Rigid<T> {
             rots: Vec::with_capacity(self.rots.named().2 * n),
             scales: Vec::with_capacity(3 * n),
         };
-        for (k, (local, bodies)) in chunks.iter().enumerate() {
-            for (i, l) in (k * CHUNK..).zip(local) {
+        for (local, bodies) in &chunks {
+            for l in local {
                 g.means.extend_from_slice(&l[0..3]);
                 match &self.rots {
                     LocalRots::Matrices(_) => g.rots.extend_from_slice(&l[3..12]),
-                    LocalRots::Quats(q) => {
-                        let q = [q[4 * i], q[4 * i + 1], q[4 * i + 2], q[4 * i + 3]];
-                        g.rots.extend_from_slice(&quat_matrix_backward(q, &l[3..12]))
-                    }
+                    LocalRots::Quats(_) => g.rots.extend_from_slice(&l[3..7]),
                 }
                 g.scales.extend_from_slice(&l[12..15]);
             }
