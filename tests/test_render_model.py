@@ -115,8 +115,14 @@ def test_fit_pose_recovers_joints_and_respects_limits(arm, cams):
         calls.append(theta.shape)
         return 0.0 * theta.sum()
 
+    g.opacity_logits.requires_grad_(False)            # a caller's own choice, kept
     fit = fit_pose(g, targets, cams, target.numpy() + np.array([[0.3, -0.3]]), iterations=40, lr=0.02, extra_loss=extra)
     assert np.abs(fit.poses - target.numpy()).max() < 0.02, fit.poses
+    # the fit differentiates w.r.t. the joints only: the model gets no gradients, and its
+    # parameters' requires_grad are as they were (regression: 40 steps of summed gradients)
+    assert all(p.grad is None for p in g.parameters())
+    assert [n for n, p in g.named_parameters() if not p.requires_grad] == ["opacity_logits"]
+    g.opacity_logits.requires_grad_(True)
     assert (fit.poses[:, 1] <= 2.0 + 1e-6).all() and fit.history.shape == (40, 1) and len(calls) == 40
     with pytest.raises(ValueError, match="rgb"):
         fit_pose(g, dict(rgb=np.zeros((1, 2, 32, 32, 3)), depth=targets["depth"], mask=targets["mask"]), cams, target.numpy())

@@ -36,6 +36,7 @@ from ..optim.resolve import certify_and_continue
 from ..validate import finite, positive
 from ..certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
+from ..render.gaussians import pose_only
 from ..render.cameras import Cameras
 from ..render.targets import ImageTargets, as_pinhole_targets
 from ..certification import CLEARANCE
@@ -103,6 +104,7 @@ class InverseResult:
 
 
 @renamed_arguments(iters="image_iterations", field_iters="field_iterations")
+@pose_only
 def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
                      image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,

@@ -22,6 +22,7 @@ from ..certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
+from ..render.gaussians import pose_only
 from ..robot import Robot
 from ..field.layout import field_at_layout
 from ..certification import CLEARANCE
@@ -31,6 +32,7 @@ __all__ = ["trajectory_from_images"]
 
 
 @renamed_arguments(smooth_iters="smooth_iterations")
+@pose_only
 def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None, goal=None, sdf=None, steps: int = 100,
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,

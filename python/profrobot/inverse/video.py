@@ -26,6 +26,7 @@ from ..certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
+from ..render.gaussians import pose_only
 from ..robot import Robot
 from ..field.layout import field_at_layout
 from ..certification import CLEARANCE
@@ -36,6 +37,7 @@ __all__ = ["actions_from_video"]
 
 @renamed_arguments(steps_per_frame="iterations_per_frame", first_frame_steps="first_frame_iterations",
                    joint_iters="joint_iterations")
+@pose_only
 def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iterations_per_frame: int = 5, lr: float = 0.01,
                        first_frame_iterations: int = 50,
                        joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,

@@ -28,12 +28,12 @@ from .cameras import Cameras, ring_cameras, sphere_cameras
 from .mjviews import robot_visual_model
 from .views import Views, make_views, render_depth
 
-_LAZY = {"GaussianRobot": ".gaussians", "rasterize": ".rasterize", "RenderOut": ".rasterize",
+_LAZY = {"GaussianRobot": ".gaussians", "frozen": ".gaussians", "rasterize": ".rasterize", "RenderOut": ".rasterize",
          "fit_gaussians": ".fit", "fit_pose": ".pose", "PoseFit": ".pose", "ImageTargets": ".targets",
          "pose_loss": ".targets"}
 
 __all__ = ["make_views", "render_depth", "Cameras", "Views", "ring_cameras", "sphere_cameras", "robot_visual_model", "GaussianRobot",
-           "rasterize", "RenderOut", "fit_gaussians", "fit_pose", "PoseFit", "ImageTargets", "pose_loss"]
+           "frozen", "rasterize", "RenderOut", "fit_gaussians", "fit_pose", "PoseFit", "ImageTargets", "pose_loss"]
 
 
 def __getattr__(name: str):

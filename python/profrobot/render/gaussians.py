@@ -21,6 +21,8 @@ spherical harmonics represent exactly.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import math
 import os
@@ -39,7 +41,34 @@ from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, ra
 from ..errors import InputError
 from ..deprecation import deprecated_alias
 
-__all__ = ["GaussianRobot", "sample_visual_surface"]
+__all__ = ["GaussianRobot", "frozen", "sample_visual_surface"]
+
+
+@contextlib.contextmanager
+def frozen(module: torch.nn.Module):
+    """``module``'s parameters out of autograd for the block, their ``requires_grad`` restored
+    after (also on an exception). A pose loop differentiates w.r.t. the joints only: frozen, the
+    model's gradients are neither built in torch (the opacity's sigmoid, the scales' exp) nor
+    accumulated into its ``.grad`` on every step, which also left the caller's model with the
+    summed gradients of a whole fit."""
+    flags = [(p, p.requires_grad) for p in module.parameters()]
+    try:
+        for p, _ in flags:
+            p.requires_grad_(False)
+        yield module
+    finally:
+        for p, f in flags:
+            p.requires_grad_(f)
+
+
+def pose_only(fn):
+    """Runs ``fn(model, ...)`` (the model first, or as ``model=``) with the model :func:`frozen`."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        model = args[0] if args else kwargs["model"]
+        with frozen(model):
+            return fn(*args, **kwargs)
+    return wrapper
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199

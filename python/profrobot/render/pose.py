@@ -36,7 +36,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ..joints import Limits
-from .gaussians import GaussianRobot
+from .gaussians import GaussianRobot, pose_only
 from .targets import ImageTargets, as_pinhole_targets, pose_loss
 from .cameras import Cameras
 from ..deprecation import deprecated_alias, renamed_arguments
@@ -201,6 +201,7 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
 
 
 @renamed_arguments(iters="iterations")
+@pose_only
 def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iterations: int = 100, lr: float = 0.02,
              restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
              extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
