@@ -210,24 +210,27 @@ impl<T: Real> Rigid<T> {
         let mut means = vec![T::zero(); 3 * poses * n];
         let mut covs = vec![T::zero(); 9 * poses * n];
         let mut frames = vec![T::zero(); 9 * poses * n];
-        means.par_chunks_mut(3).zip(covs.par_chunks_mut(9)).zip(frames.par_chunks_mut(9)).enumerate().for_each(|(k, ((mu, cov), frame))| {
-            let (p, i) = (k / n, k % n);
-            let b = p * self.nbody + self.body[i] as usize;
-            let r = &self.body_rot[9 * b..9 * b + 9];
-            let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
-            let rm = mat_vec(r, m);
-            let a = mat_mul(r, &rots[9 * i..9 * i + 9]);
-            let s2 = [0, 1, 2].map(|k| self.scales[3 * i + k] * self.scales[3 * i + k]);
-            for d in 0..3 {
-                mu[d] = rm[d] + self.body_pos[3 * b + d];
-            }
-            for x in 0..3 {
-                for y in 0..3 {
-                    cov[3 * x + y] = a[3 * x] * s2[0] * a[3 * y] + a[3 * x + 1] * s2[1] * a[3 * y + 1] + a[3 * x + 2] * s2[2] * a[3 * y + 2];
+        means.par_chunks_mut(3).zip(covs.par_chunks_mut(9)).zip(frames.par_chunks_mut(9)).enumerate().for_each(
+            |(k, ((mu, cov), frame))| {
+                let (p, i) = (k / n, k % n);
+                let b = p * self.nbody + self.body[i] as usize;
+                let r = &self.body_rot[9 * b..9 * b + 9];
+                let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
+                let rm = mat_vec(r, m);
+                let a = mat_mul(r, &rots[9 * i..9 * i + 9]);
+                let s2 = [0, 1, 2].map(|k| self.scales[3 * i + k] * self.scales[3 * i + k]);
+                for d in 0..3 {
+                    mu[d] = rm[d] + self.body_pos[3 * b + d];
                 }
-            }
-            frame.copy_from_slice(r);
-        });
+                for x in 0..3 {
+                    for y in 0..3 {
+                        cov[3 * x + y] =
+                            a[3 * x] * s2[0] * a[3 * y] + a[3 * x + 1] * s2[1] * a[3 * y + 1] + a[3 * x + 2] * s2[2] * a[3 * y + 2];
+                    }
+                }
+                frame.copy_from_slice(r);
+            },
+        );
         (means, covs, frames)
     }
 
