@@ -732,7 +732,7 @@ impl<T: Real> Scene<T> {
             if let Some(i) = q.chunks_exact(4).position(|q| !(norm2(q) > T::zero() && norm2(q).is_finite())) {
                 let q = &q[4 * i..4 * i + 4];
                 return invalid_input(format!(
-                    "render: local_quats[{i}] = {:?} has no usable norm (zero, or too large to square): a rotation needs a nonzero quaternion",
+                    "render: local_quats[{i}] = {:?} has no usable norm (zero, or too small or too large to square): a rotation needs a nonzero quaternion",
                     q.iter().map(|c| c.f64()).collect::<Vec<_>>()
                 ));
             }

@@ -766,11 +766,12 @@ pub fn forward<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
 }
 
 /// [`forward`] for splats known to be well formed (`render.rs` makes them).
-pub(crate) fn forward_checked<T: Real>(splats: Splats<T>) -> Result<Forward<T>> {
-    let bins = splats.bin()?;
-    let packed = splats.pack(&bins);
+pub(crate) fn forward_checked<T: Real>(full: Splats<T>) -> Result<Forward<T>> {
+    let bins = full.bin()?;
+    let packed = full.pack(&bins);
     // ~0.5 MB a view less to hold until the backward (a large batch's page faults)
-    let splats = Splats { uv: Vec::new(), conic: Vec::new(), opacity: Vec::new(), color: Vec::new(), depth: Vec::new(), ..splats };
+    let splats = Splats { uv: Vec::new(), conic: Vec::new(), opacity: Vec::new(), color: Vec::new(), depth: Vec::new(), ..full };
+    drop(full);
     let s = &splats;
     // per tile-list position: the entry's largest weight
     let mut pos_max = vec![T::zero(); bins.entry_pos.len()];

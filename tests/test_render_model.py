@@ -126,6 +126,7 @@ def test_fit_pose_recovers_joints_and_respects_limits(arm, cams):
     assert (fit.poses[:, 1] <= 2.0 + 1e-6).all() and fit.history.shape == (40, 1) and len(calls) == 40
     with pytest.raises(ValueError, match="rgb"):
         fit_pose(g, dict(rgb=np.zeros((1, 2, 32, 32, 3)), depth=targets["depth"], mask=targets["mask"]), cams, target.numpy())
+    assert all(p.requires_grad for p in g.parameters())   # restored after the error too
     with pytest.raises(ValueError, match="init"):
         fit_pose(g, targets, cams, np.zeros((1, 5)))
 

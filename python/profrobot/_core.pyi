@@ -189,7 +189,7 @@ def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.N
     The Gaussians of P poses, either in the world (``means`` (P, N, 3) m, ``covs`` (P, N, 3, 3)
     m^2, optional ``frames`` (P, N, 3, 3), each Gaussian's frame to world) or rigidly on
     bodies (``body_rot`` (P, nb, 3, 3), ``body_pos`` (P, nb, 3) m, ``body`` (N,) int64,
-    ``local_means`` (N, 3) m, ``local_rots`` (N, 3, 3) or ``local_quats`` (N, 4) (w, x, y, z),
+    ``local_means`` (N, 3) m, ``local_rots`` (N, 3, 3) or ``local_quats`` (N, 4) (w, x, y, z,
     any nonzero norm, normalised here), ``scales`` (N, 3) m: ``mu = R_b m + x_b``,
     ``Sigma = R_b Q diag(s^2) Q^T R_b^T``, frame ``R_b``); ``opacities`` (N,) or (V, N);
     colours either ``sh`` (N, 1 | 4 | 9, 3) (3DGS's basis, in each Gaussian's frame, viewed from

@@ -65,7 +65,7 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
         if len(old_order) != 1 or start is not None:
             raise InputTypeError("trajectory_from_images(model, targets, cameras, *, start=...)")
         warnings.warn("trajectory_from_images(model, start, targets, cameras) is deprecated; use "
-                      "trajectory_from_images(model, targets, cameras, start=...)", DeprecationWarning, stacklevel=3)
+                      "trajectory_from_images(model, targets, cameras, start=...)", DeprecationWarning, stacklevel=4)   # < pose_only < renamed_arguments < the caller
         start, targets, cameras = targets, cameras, old_order[0]
     elif old_order:
         raise InputTypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")

@@ -41,7 +41,7 @@ from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, ra
 from ..errors import InputError
 from ..deprecation import deprecated_alias
 
-__all__ = ["GaussianRobot", "frozen", "sample_visual_surface"]
+__all__ = ["GaussianRobot", "frozen", "pose_only", "sample_visual_surface"]
 
 
 @contextlib.contextmanager
@@ -50,7 +50,10 @@ def frozen(module: torch.nn.Module):
     after (also on an exception). A pose loop differentiates w.r.t. the joints only: frozen, the
     model's gradients are neither built in torch (the opacity's sigmoid, the scales' exp) nor
     accumulated into its ``.grad`` on every step, which also left the caller's model with the
-    summed gradients of a whole fit."""
+    summed gradients of a whole fit.
+
+    It sets the flags on the module itself: not for a model another thread trains or fits at the
+    same time (use a copy per thread; processes, as the executors use, are unaffected)."""
     flags = [(p, p.requires_grad) for p in module.parameters()]
     try:
         for p, _ in flags:
@@ -65,7 +68,9 @@ def pose_only(fn):
     """Runs ``fn(model, ...)`` (the model first, or as ``model=``) with the model :func:`frozen`."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        model = args[0] if args else kwargs["model"]
+        model = args[0] if args else kwargs.get("model")
+        if not isinstance(model, torch.nn.Module):
+            return fn(*args, **kwargs)                  # fn's own error for a missing or bad model
         with frozen(model):
             return fn(*args, **kwargs)
     return wrapper

@@ -188,7 +188,7 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
         Hc, Wc = H, W
     if "iters" in coarse:   # the name of earlier releases
         warnings.warn("fit_pose(coarse=dict(iters=...)) is deprecated; use iterations=...", DeprecationWarning,
-                      stacklevel=5)   # _coarse_to_fine < fit_pose < renamed_arguments' wrapper < the caller
+                      stacklevel=5)   # _coarse_to_fine < fit_pose < pose_only < renamed_arguments < the caller
         coarse["iterations"] = coarse.pop("iters")
     unknown = set(coarse) - {"iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
     if unknown:
