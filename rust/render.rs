@@ -134,6 +134,13 @@ impl<T: Real> LocalRots<T> {
     }
 }
 
+/// `|q|` and `q / |q|`.
+#[inline(always)]
+fn unit_quat<T: Real>(q: [T; 4]) -> (T, [T; 4]) {
+    let len = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    (len, q.map(|c| c / len))
+}
+
 /// The rotation matrix (row-major) of `q / |q|`, `q = (w, x, y, z)`, by the formula of
 /// `kinematics.py: quat_to_matrix`:
 ///
@@ -144,8 +151,7 @@ impl<T: Real> LocalRots<T> {
 /// ```
 #[inline]
 pub(crate) fn quat_matrix<T: Real>(q: [T; 4]) -> [T; 9] {
-    let len = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let [w, x, y, z] = q.map(|c| c / len);
+    let (_, [w, x, y, z]) = unit_quat(q);
     let (one, two) = (T::one(), T::c(2.0));
     [
         one - two * (y * y + z * z),
@@ -165,8 +171,7 @@ pub(crate) fn quat_matrix<T: Real>(q: [T; 4]) -> [T; 9] {
 /// ŵ g21 - 2x̂ g22)`), then through `q̂ = q / |q|`: `(g_q̂ - q̂ (q̂ · g_q̂)) / |q|`.
 #[inline]
 pub(crate) fn quat_matrix_backward<T: Real>(q: [T; 4], g: &[T]) -> [T; 4] {
-    let len = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let [w, x, y, z] = q.map(|c| c / len);
+    let (len, [w, x, y, z]) = unit_quat(q);
     let two = T::c(2.0);
     let gh = [
         two * (-z * g[1] + y * g[2] + z * g[3] - x * g[5] - y * g[6] + x * g[7]),
@@ -728,8 +733,11 @@ impl<T: Real> Scene<T> {
             }
         }
         if let Some(Rigid { rots: LocalRots::Quats(q), .. }) = &self.rigid {
-            let norm2 = |q: &[T]| q.iter().fold(T::zero(), |acc, &c| acc + c * c);
-            if let Some(i) = q.chunks_exact(4).position(|q| !(norm2(q) > T::zero() && norm2(q).is_finite())) {
+            let unusable = |q: &[T]| {
+                let norm2 = q.iter().fold(T::zero(), |acc, &c| acc + c * c);
+                !(norm2 > T::zero() && norm2.is_finite())
+            };
+            if let Some(i) = q.chunks_exact(4).position(unusable) {
                 let q = &q[4 * i..4 * i + 4];
                 return invalid_input(format!(
                     "render: local_quats[{i}] = {:?} has no usable norm (zero, or too small or too large to square): a rotation needs a nonzero quaternion",
