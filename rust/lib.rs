@@ -41,6 +41,7 @@
 //! | [`real`] | `f32`/`f64`: the float types the renderer computes in |
 //! | [`splat`] | Gaussian-splat tile rasterizer: forward compositing and its exact backward |
 //! | [`render`] | the renderer after FK: EWA projection, SH colour, rasterization, fused backward |
+//! | [`images`] | rendered images finished (background, expected depth) and compared (the image loss), with gradients |
 //! | [`threads`] | one rayon pool per thread count, fork-safe |
 //!
 //! Nothing here knows Python; `python.rs` (feature `python`) is the only binding layer.
@@ -59,6 +60,7 @@ pub mod filter;
 pub mod geom;
 pub mod hull;
 pub mod ik;
+pub mod images;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;

@@ -21,7 +21,7 @@ from typing import Literal, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "voxel_downsample", "RenderState", "render_forward", "render_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "voxel_downsample", "RenderState", "render_forward", "render_backward", "finish_images", "finish_images_backward", "image_loss", "image_loss_backward",
            "__version__"]
 
 __version__: str
@@ -210,3 +210,35 @@ def render_backward(state: RenderState, grad_rgb: _Float, grad_alpha: _Float, gr
     w.r.t. :func:`render_forward`'s inputs, by keyword (the rigid arrays' or ``means``,
     ``covs``, ``frames``; ``sh`` or ``colors``; ``opacities``, ``viewmats``, ``Ks``), same
     shapes, in the state's dtype. Deterministic: every sum runs in a fixed order."""
+
+def finish_images(rgb: _Float, alpha: _Float, dsum: _Float, *, background: _Float | None = None,
+                  threads: int | None = None) -> None:
+    """Finishes :func:`render_forward`'s images in place (``rust/images.rs``): ``rgb`` (V, H, W,
+    3) gets ``(1 - alpha) background`` added (``background`` (3,) or (V, 3); None: black),
+    ``dsum`` (V, H, W) becomes the expected depth ``dsum / alpha`` (0 where ``alpha <= 1e-6``).
+    ``rgb`` and ``dsum`` must be writeable and C-contiguous, every array one float dtype."""
+
+def finish_images_backward(grad_rgb: _Float, grad_alpha: _Float, grad_depth: _Float, alpha: _Float, depth: _Float,
+                           *, background: _Float | None = None, threads: int | None = None
+                           ) -> tuple[_Float, _Float]:
+    """The gradient of :func:`finish_images`: ``(grad_alpha, grad_dsum)`` w.r.t. the raw alpha
+    and dsum, from the gradients w.r.t. the finished images (``grad_rgb`` passes through
+    unchanged); ``alpha`` and ``depth`` are the finished images."""
+
+def image_loss(rgb: _Float, alpha: _Float, depth: _Float, rgb_t: _Float, depth_t: _Float,
+               mask_t: npt.NDArray[np.bool_], *, valid: npt.NDArray[np.bool_] | None = None, w_depth: float = 1.0,
+               w_mask: float = 0.5, threads: int | None = None) -> _Float:
+    """Per-image loss (V,) of finished renders (rgb (V, H, W, 3), alpha and depth (V, H, W))
+    against targets ``rgb_t`` (V, H, W, 3), ``depth_t`` (V, H, W) metres, ``mask_t`` (V, H, W):
+    ``mean_mask |rgb - rgb_t|^2 + w_mask mean_valid |alpha - mask| + w_depth
+    mean_{mask & alpha > 1/2} |depth - depth_t|`` (``profrobot.render.targets.pose_loss``,
+    term for term; the depth term only when ``w_depth`` is not 0). Float arrays share one
+    dtype; wrong shapes or dtypes raise naming the array."""
+
+def image_loss_backward(seed: _Float, rgb: _Float, alpha: _Float, depth: _Float, rgb_t: _Float, depth_t: _Float,
+                        mask_t: npt.NDArray[np.bool_], *, valid: npt.NDArray[np.bool_] | None = None,
+                        w_depth: float = 1.0, w_mask: float = 0.5, threads: int | None = None
+                        ) -> tuple[_Float, _Float, _Float]:
+    """The gradient of ``sum(seed * image_loss(...))`` (``seed`` (V,)) w.r.t. ``(rgb, alpha,
+    depth)``; ``alpha > 1/2`` selects pixels and carries no gradient, ``|x|``'s gradient at 0
+    is 0."""

@@ -294,9 +294,11 @@ class _Render(torch.autograd.Function):
     ``local_means`` [N, 3], ``local_rots`` [N, 3, 3] or ``local_quats`` [N, 4] (w, x, y, z; any
     nonzero norm), ``scales`` [N, 3]; colours ``sh``
     [N, nsh, 3] or ``colors`` [N, 3] or [V, N, 3]); ``views`` (V, 2) int64 numpy ``(pose,
-    camera)``. Returns rgb [V, H, W, 3] (``Σ w c``, no background), alpha [V, H, W]
-    (``Σ w``), dsum [V, H, W] (``Σ w z``), contrib [V, N] (no gradient), npairs (0-d int64,
-    no gradient).
+    camera)``; ``finish``: the images finished in the kernel (``_core.finish_images``), with
+    the background ``spec[7]`` ([3] or [V, 3] tensor, or None: black, no gradient). Returns rgb
+    [V, H, W, 3] (``Σ w c``, plus ``(1 - Σ w) background`` when finished), alpha [V, H, W]
+    (``Σ w``), dsum [V, H, W] (``Σ w z``; finished: the expected depth ``Σ w z / Σ w``, 0
+    where ``Σ w <= 1e-6``), contrib [V, N] (no gradient), npairs (0-d int64, no gradient).
 
     Computes in float32 when every float input is float32, else in float64 (gradient checks);
     outputs and gradients take each input's dtype and device."""
@@ -305,7 +307,7 @@ class _Render(torch.autograd.Function):
     def forward(ctx, spec, *tensors):
         from .. import _core
 
-        names, views, width, height, cutoff, threads = spec
+        names, views, width, height, cutoff, threads, finish, background = spec
         floats = [t for k, t in zip(names, tensors) if k != "body"]
         dt = torch.float32 if all(t.dtype == torch.float32 for t in floats) else torch.float64
         arrays = {k: t.detach().to(device="cpu", dtype=torch.int64 if k == "body" else dt).contiguous().numpy()
@@ -313,10 +315,18 @@ class _Render(torch.autograd.Function):
         rgb, alpha, dsum, contrib, npairs, state = _core.render_forward(
             arrays.pop("opacities"), arrays.pop("viewmats"), arrays.pop("Ks"), views, width, height, cutoff=cutoff,
             threads=threads, **arrays)
-        ctx.state, ctx.threads, ctx.compute_dtype, ctx.names = state, threads, dt, names
+        bg = None
+        if finish:
+            # background and expected depth in one pass over the frame (dsum becomes the depth)
+            bg = None if background is None else background.detach().to(device="cpu", dtype=dt).contiguous().numpy()
+            _core.finish_images(rgb, alpha, dsum, background=bg, threads=threads)
+        ctx.state, ctx.threads, ctx.compute_dtype, ctx.names, ctx.finish, ctx.background = (
+            state, threads, dt, names, finish, bg)
         ctx.meta = [(t.dtype, t.device) for t in tensors]
         odt, dev = floats[0].dtype, floats[0].device
         out = [torch.from_numpy(a).to(device=dev, dtype=odt) for a in (rgb, alpha, dsum, contrib)]
+        if finish:
+            ctx.save_for_backward(out[1], out[2])           # alpha and depth (in-place edits are caught)
         npairs_t = torch.tensor(npairs, dtype=torch.int64)
         ctx.mark_non_differentiable(out[3], npairs_t)
         return (*out, npairs_t)
@@ -330,8 +340,12 @@ class _Render(torch.autograd.Function):
         dt = ctx.compute_dtype
         arr = lambda t, shape: (torch.zeros(shape, dtype=dt) if t is None
                                 else t.detach().to(device="cpu", dtype=dt).contiguous()).numpy()
-        grads = _core.render_backward(ctx.state, arr(g_rgb, (V, H, W, 3)), arr(g_alpha, (V, H, W)),
-                                      arr(g_dsum, (V, H, W)), threads=ctx.threads)
+        g_rgb, g_alpha, g_dsum = arr(g_rgb, (V, H, W, 3)), arr(g_alpha, (V, H, W)), arr(g_dsum, (V, H, W))
+        if ctx.finish:      # back through the background and the expected depth
+            alpha, depth = (t.detach().to(device="cpu", dtype=dt).contiguous().numpy() for t in ctx.saved_tensors)
+            g_alpha, g_dsum = _core.finish_images_backward(g_rgb, g_alpha, g_dsum, alpha, depth,
+                                                           background=ctx.background, threads=ctx.threads)
+        grads = _core.render_backward(ctx.state, g_rgb, g_alpha, g_dsum, threads=ctx.threads)
         out = [None if k not in grads else torch.from_numpy(grads[k]).to(device=dev, dtype=t)
                for k, (t, dev) in zip(ctx.names, ctx.meta)]
         return (None, *out)
@@ -346,14 +360,23 @@ def render_native(views, width, height, *, background=None, cutoff: Cutoff = "so
 
     views = np.ascontiguousarray(np.asarray(views, dtype=np.int64).reshape(-1, 2))
     named = {k: v for k, v in tensors.items() if v is not None}
-    spec = (tuple(named), views, int(width), int(height), cutoff, threads)
-    rgb, acc, dsum, contrib, npairs = _Render.apply(spec, *named.values())
-    depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
+    cam_bg = None
     if background is not None:
-        cam_bg = torch.as_tensor(background, dtype=rgb.dtype, device=rgb.device).reshape(-1, 3)
+        first = next(iter(named.values()))
+        cam_bg = torch.as_tensor(background, dtype=first.dtype, device=first.device).reshape(-1, 3)
         if cam_bg.shape[0] not in (1, len(views)):          # one background per camera
             cam_bg = cam_bg[torch.as_tensor(views[:, 1], device=cam_bg.device)]
-        rgb = rgb + (1 - acc)[..., None] * cam_bg.reshape(-1, 1, 1, 3)
+        elif cam_bg.shape[0] == 1:                          # one for every view: (3,)
+            cam_bg = cam_bg[0]
+    # the background and expected depth are finished in the kernel, unless the background
+    # itself needs a gradient (then in torch, below)
+    finish = cam_bg is None or not cam_bg.requires_grad
+    spec = (tuple(named), views, int(width), int(height), cutoff, threads, finish, cam_bg if finish else None)
+    rgb, acc, dsum, contrib, npairs = _Render.apply(spec, *named.values())
+    if finish:
+        return RenderOut(rgb, dsum, acc, int(npairs), contrib)
+    depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
+    rgb = rgb + (1 - acc)[..., None] * cam_bg.to(rgb.dtype).reshape(-1, 1, 1, 3)
     return RenderOut(rgb, depth, acc, int(npairs), contrib)
 
 

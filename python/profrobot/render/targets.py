@@ -35,12 +35,66 @@ from .distortion import undistort_images, undistort_map
 __all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
 
 
+class _ImageLoss(torch.autograd.Function):
+    """:func:`pose_loss` on CPU tensors in one native pass each way (``rust/images.rs``; the
+    same formula, term for term): forward(rgb [N, H, W, 3], alpha [N, H, W], depth [N, H, W],
+    rgb_t, depth_t, mask_t, valid, w_depth, w_mask) -> [N]; gradients reach rgb, alpha and
+    depth."""
+
+    @staticmethod
+    def forward(ctx, rgb, alpha, depth, rgb_t, depth_t, mask_t, valid, w_depth, w_mask):
+        from .. import _core
+
+        dt = rgb.dtype
+        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
+        ctx.targets = (np_(rgb_t.to(dt)), np_(depth_t.to(dt)), np_(mask_t.to(torch.bool)),
+                       np_(None if valid is None else valid.to(torch.bool)))
+        ctx.weights = dict(w_depth=float(w_depth), w_mask=float(w_mask))
+        ctx.save_for_backward(rgb, alpha, depth)
+        rgb_t, depth_t, mask_t, valid = ctx.targets
+        loss = _core.image_loss(np_(rgb), np_(alpha.to(dt)), np_(depth.to(dt)), rgb_t, depth_t, mask_t, valid=valid,
+                                **ctx.weights)
+        return torch.from_numpy(loss)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, g_loss):
+        from .. import _core
+
+        rgb, alpha, depth = ctx.saved_tensors
+        dt = rgb.dtype
+        np_ = lambda t: t.detach().to(dt).contiguous().numpy()
+        rgb_t, depth_t, mask_t, valid = ctx.targets
+        g_rgb, g_alpha, g_depth = _core.image_loss_backward(np_(g_loss), np_(rgb), np_(alpha), np_(depth), rgb_t,
+                                                            depth_t, mask_t, valid=valid, **ctx.weights)
+        return (torch.from_numpy(g_rgb), torch.from_numpy(g_alpha).to(alpha.dtype),
+                torch.from_numpy(g_depth).to(depth.dtype), None, None, None, None, None, None)
+
+
+def _native_loss(out, *targets) -> bool:
+    """Whether :func:`pose_loss` runs natively: every tensor on the CPU, the renders float32 or
+    float64 alike, and no gradient wanted for a target."""
+    imgs = (out.rgb, out.alpha, out.depth)
+    ts = [t for t in targets if t is not None]
+    return (all(t.device.type == "cpu" for t in (*imgs, *ts)) and out.rgb.dtype in (torch.float32, torch.float64)
+            and all(t.dtype == out.rgb.dtype for t in imgs) and not any(t.requires_grad for t in ts))
+
+
 def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
               w_mask: float = 0.5, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Per-image loss (N,) of renders ``out`` (a :class:`~profrobot.render.RenderOut` of N images)
     against targets ``rgb_t`` (N, H, W, 3) in [0, 1], ``depth_t`` (N, H, W) metres, ``mask_t``
     (N, H, W) bool (module docs); ``valid`` (N, H, W) bool: pixels the photo saw (after
-    undistortion, a lens may leave corners unseen), the only ones the silhouette term counts."""
+    undistortion, a lens may leave corners unseen), the only ones the silhouette term counts.
+    On the CPU one native pass each way (``rust/images.rs``), elsewhere torch; the same
+    formula."""
+    if _native_loss(out, rgb_t, depth_t, mask_t, valid):
+        return _ImageLoss.apply(out.rgb, out.alpha, out.depth, rgb_t, depth_t, mask_t, valid, w_depth, w_mask)
+    return _pose_loss_torch(out, rgb_t, depth_t, mask_t, w_depth=w_depth, w_mask=w_mask, valid=valid)
+
+
+def _pose_loss_torch(out, rgb_t, depth_t, mask_t, *, w_depth: float = 1.0, w_mask: float = 0.5, valid=None):
+    """:func:`pose_loss` in torch (any device; the reference the native pass is tested on)."""
     mt = mask_t.to(out.rgb.dtype)
     drawn = (out.alpha.detach() > 0.5).to(out.rgb.dtype)
     l_rgb = (((out.rgb - rgb_t) ** 2).sum(-1) * mt).sum((1, 2)) / mt.sum((1, 2)).clamp_min(1)
