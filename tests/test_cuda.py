@@ -137,3 +137,44 @@ def test_gsplat_draws_the_hard_cutoff_reference_pixel_for_pixel():
 
 def _sym(g: torch.Tensor) -> torch.Tensor:
     return 0.5 * (g + g.transpose(-1, -2))
+
+
+@cuda
+def test_pose_loss_on_cuda_equals_the_native_cpu_pass():
+    """pose_loss on CUDA tensors runs in torch; on CPU tensors in one native pass
+    (``rust/images.rs``): the same losses and gradients."""
+    from profrobot.render.rasterize import RenderOut
+    from profrobot.render.targets import pose_loss
+
+    g = torch.Generator().manual_seed(0)
+    imgs = (torch.rand(3, 16, 20, 3, generator=g), torch.rand(3, 16, 20, generator=g), torch.rand(3, 16, 20, generator=g))
+    tg = (torch.rand(3, 16, 20, 3, generator=g), torch.rand(3, 16, 20, generator=g), torch.rand(3, 16, 20, generator=g) > 0.5)
+    res = {}
+    for dev in ("cpu", "cuda"):
+        rgb, alpha, depth = (t.to(dev).requires_grad_(True) for t in imgs)
+        loss = pose_loss(RenderOut(rgb, depth, alpha), *(t.to(dev) for t in tg), w_depth=5.0)
+        res[dev] = (loss, *torch.autograd.grad(loss.sum(), (rgb, alpha, depth)))
+    assert res["cuda"][0].device.type == "cuda"
+    for a, b in zip(res["cpu"], res["cuda"]):
+        torch.testing.assert_close(a, b.cpu(), atol=1e-5, rtol=1e-5)
+
+
+@cuda
+def test_native_render_of_cuda_tensors_finishes_a_cuda_background(panda):
+    """backend="rust" on a model moved to CUDA: the kernel runs on copies on the CPU, the
+    background (a CUDA tensor) is finished there; images and pose gradients come back to the GPU
+    equal to the CPU model's."""
+    from profrobot.render import GaussianRobot, ring_cameras
+
+    model = GaussianRobot.from_robot(panda, 1500, seed=0)
+    cams = ring_cameras(2, size=32, distance=1.5, lookat=(0.0, 0.0, 0.45))
+    res = {}
+    for dev in ("cpu", "cuda"):
+        m = model.to(dev)
+        th = torch.tensor([[0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5, 0.02, 0.02]], device=dev, requires_grad=True)
+        out = m.render_views(th, cams, background=torch.tensor([0.2, 0.4, 0.6], device=dev), backend="rust")
+        assert out.rgb.device.type == dev
+        (out.rgb.sum() + out.depth.sum()).backward()
+        res[dev] = (out.rgb.detach().cpu(), out.depth.detach().cpu(), th.grad.cpu())
+    for a, b in zip(res["cpu"], res["cuda"]):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-4)
