@@ -4,8 +4,13 @@
 //! descends (`render/targets.py: pose_loss`). In torch each is a dozen element-wise passes over
 //! the frame, forward and backward (40 % of a pose fit's time outside the renderer); here each
 //! is one, per image in parallel. Generic over [`Real`]; every formula below is the torch
-//! one, operation for operation (no fused multiply-add), so the `f32` results match torch's to
-//! rounding of the sums.
+//! one, in torch's order of operations (no fused multiply-add). The loss's sums over pixels
+//! accumulate in `f64` (torch's cascade sums in `f32` round differently; both are within a few
+//! units in the last place of the exact sum).
+//!
+//! Where torch and this differ: a non-finite weight is an error here (torch returns NaN); a
+//! pixel outside every term (off the mask, not seen) is not read, so a NaN there does not reach
+//! the loss (the renderer's outputs are finite: its inputs are checked).
 //!
 //! # Finishing (per pixel, image `v`, background `b_v`)
 //! ```text
@@ -148,7 +153,7 @@ pub struct LossTargets<'a, T> {
 }
 
 impl<T: Real> LossTargets<'_, T> {
-    fn check(&self, images: usize, hw: usize) -> Result<()> {
+    fn check(&self, who: &str, images: usize, hw: usize) -> Result<()> {
         check_len("rgb_t", self.rgb.len(), images, hw, 3)?;
         check_len("depth_t", self.depth.len(), images, hw, 1)?;
         check_len("mask_t", self.mask.len(), images, hw, 1)?;
@@ -156,11 +161,7 @@ impl<T: Real> LossTargets<'_, T> {
             check_len("valid", v.len(), images, hw, 1)?;
         }
         if !(self.w_depth.is_finite() && self.w_mask.is_finite()) {
-            return invalid_input(format!(
-                "image_loss: w_depth ({:?}) and w_mask ({:?}) must be finite",
-                self.w_depth.f64(),
-                self.w_mask.f64()
-            ));
+            return invalid_input(format!("{who}: w_depth ({:?}) and w_mask ({:?}) must be finite", self.w_depth.f64(), self.w_mask.f64()));
         }
         Ok(())
     }
@@ -184,7 +185,7 @@ pub fn image_loss<T: Real>(rgb: &[T], alpha: &[T], depth: &[T], targets: &LossTa
     check_len("rgb", rgb.len(), images, hw, 3)?;
     check_len("alpha", alpha.len(), images, hw, 1)?;
     check_len("depth", depth.len(), images, hw, 1)?;
-    targets.check(images, hw)?;
+    targets.check("image_loss", images, hw)?;
     let (zero, half) = (T::zero(), T::c(0.5));
     Ok((0..images)
         .into_par_iter()
@@ -195,24 +196,27 @@ pub fn image_loss<T: Real>(rgb: &[T], alpha: &[T], depth: &[T], targets: &LossTa
             let [nm, nv, nmd] = counts(mask, valid, alpha);
             let (rgb, rgb_t) = (&rgb[3 * px.start..3 * px.end], &targets.rgb[3 * px.start..3 * px.end]);
             let (depth, depth_t) = (&depth[px.clone()], &targets.depth[px]);
-            let (mut l_rgb, mut l_mask, mut l_depth) = (zero, zero, zero);
+            // each pixel's term in T (as torch's element-wise ops), the sums in f64
+            let (mut l_rgb, mut l_mask, mut l_depth) = (0.0f64, 0.0f64, 0.0f64);
             for i in 0..hw {
                 let k = mask[i];
                 let mt = if k { T::one() } else { zero };
                 if k {
                     let d = [0, 1, 2].map(|c| rgb[3 * i + c] - rgb_t[3 * i + c]);
-                    l_rgb = l_rgb + (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                    l_rgb += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).f64();
                     if alpha[i] > half {
-                        l_depth = l_depth + (depth[i] - depth_t[i]).abs();
+                        l_depth += (depth[i] - depth_t[i]).abs().f64();
                     }
                 }
                 if valid.is_none_or(|x| x[i]) {
-                    l_mask = l_mask + (alpha[i] - mt).abs();
+                    l_mask += (alpha[i] - mt).abs().f64();
                 }
             }
+            let [l_rgb, l_mask, l_depth] = [l_rgb, l_mask, l_depth].map(T::c);
+            // torch: l_rgb / n + w_mask * (l_mask / n) + (w_depth * l_depth) / n
             let mut loss = l_rgb / nm + targets.w_mask * (l_mask / nv);
             if targets.w_depth != zero {
-                loss = loss + targets.w_depth * (l_depth / nmd);
+                loss = loss + targets.w_depth * l_depth / nmd;
             }
             loss
         })
@@ -234,7 +238,7 @@ pub fn image_loss_backward<T: Real>(
     check_len("rgb", rgb.len(), images, hw, 3)?;
     check_len("alpha", alpha.len(), images, hw, 1)?;
     check_len("depth", depth.len(), images, hw, 1)?;
-    targets.check(images, hw)?;
+    targets.check("image_loss_backward", images, hw)?;
     let (zero, half, two) = (T::zero(), T::c(0.5), T::c(2.0));
     let sgn = |x: T| {
         if x > zero {
@@ -260,7 +264,7 @@ pub fn image_loss_backward<T: Real>(
             // each term's seed over its denominator, as torch chains `sum / n` then `* w`
             let s = seed[v];
             let (c_rgb, c_mask) = (s / nm, targets.w_mask * s / nv);
-            let c_depth = if targets.w_depth != zero { targets.w_depth * s / nmd } else { zero };
+            let c_depth = if targets.w_depth != zero { s / nmd * targets.w_depth } else { zero };
             for i in 0..hw {
                 let k = mask[i];
                 let mt = if k { T::one() } else { zero };

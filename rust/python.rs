@@ -939,12 +939,14 @@ fn render_forward<'py>(
 }
 
 /// Gradients of one dtype, by input name (the rigid arrays' or the world ones').
+#[allow(clippy::too_many_arguments)]
 fn render_grads<'py, T: numpy::Element + Real>(
     py: Python<'py>,
     st: &render::State<T>,
     grad_rgb: &Bound<'py, PyAny>,
     grad_alpha: &Bound<'py, PyAny>,
     grad_dsum: &Bound<'py, PyAny>,
+    needs: render::Needs,
     threads: Option<usize>,
     dtype: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -965,18 +967,14 @@ fn render_grads<'py, T: numpy::Element + Real>(
     let (gr, ga, gd) = (img(grad_rgb, "grad_rgb", &[3])?, img(grad_alpha, "grad_alpha", &[])?, img(grad_dsum, "grad_dsum", &[])?);
     let (gr, ga, gd) = (rows_of(&gr), rows_of(&ga), rows_of(&gd));
     let (gr, ga, gd): (&[T], &[T], &[T]) = (&gr, &ga, &gd);
-    let g = py.detach(|| with_threads(threads, || render::backward(st, gr, ga, gd))).map_err(to_py)?.map_err(to_py)?;
-    let colors = match &s.colors {
-        render::Colors::Sh { nsh, .. } => PyArray1::from_vec(py, g.colors).reshape([n, *nsh, 3])?.into_any(),
-        render::Colors::Rgb { per_view: true, .. } => PyArray1::from_vec(py, g.colors).reshape([v, n, 3])?.into_any(),
-        render::Colors::Rgb { per_view: false, .. } => PyArray1::from_vec(py, g.colors).reshape([n, 3])?.into_any(),
-    };
-    let opacity = if s.opacity_per_view {
-        PyArray1::from_vec(py, g.opacity).reshape([v, n])?.into_any()
-    } else {
-        PyArray1::from_vec(py, g.opacity).into_any()
-    };
+    let g = py.detach(|| with_threads(threads, || render::backward(st, gr, ga, gd, needs))).map_err(to_py)?.map_err(to_py)?;
     let out = PyDict::new(py);
+    let colors = match &s.colors {
+        _ if !needs.colors => None,
+        render::Colors::Sh { nsh, .. } => Some(PyArray1::from_vec(py, g.colors).reshape([n, *nsh, 3])?.into_any()),
+        render::Colors::Rgb { per_view: true, .. } => Some(PyArray1::from_vec(py, g.colors).reshape([v, n, 3])?.into_any()),
+        render::Colors::Rgb { per_view: false, .. } => Some(PyArray1::from_vec(py, g.colors).reshape([n, 3])?.into_any()),
+    };
     match g.rigid {
         None => {
             out.set_item("means", PyArray1::from_vec(py, g.means).reshape([p, n, 3])?)?;
@@ -989,35 +987,83 @@ fn render_grads<'py, T: numpy::Element + Real>(
             let nb = s.rigid.as_ref().map_or(0, |r| r.nbody);
             out.set_item("body_rot", PyArray1::from_vec(py, r.body_rot).reshape([p, nb, 3, 3])?)?;
             out.set_item("body_pos", PyArray1::from_vec(py, r.body_pos).reshape([p, nb, 3])?)?;
-            out.set_item("local_means", PyArray1::from_vec(py, r.means).reshape([n, 3])?)?;
-            match s.rigid.as_ref().map(|r| &r.rots) {
-                Some(render::LocalRots::Quats(_)) => out.set_item("local_quats", PyArray1::from_vec(py, r.rots).reshape([n, 4])?)?,
-                _ => out.set_item("local_rots", PyArray1::from_vec(py, r.rots).reshape([n, 3, 3])?)?,
+            if needs.local {
+                out.set_item("local_means", PyArray1::from_vec(py, r.means).reshape([n, 3])?)?;
+                match s.rigid.as_ref().map(|r| &r.rots) {
+                    Some(render::LocalRots::Quats(_)) => out.set_item("local_quats", PyArray1::from_vec(py, r.rots).reshape([n, 4])?)?,
+                    _ => out.set_item("local_rots", PyArray1::from_vec(py, r.rots).reshape([n, 3, 3])?)?,
+                }
+                out.set_item("scales", PyArray1::from_vec(py, r.scales).reshape([n, 3])?)?;
             }
-            out.set_item("scales", PyArray1::from_vec(py, r.scales).reshape([n, 3])?)?;
         }
     }
-    out.set_item(if matches!(s.colors, render::Colors::Sh { .. }) { "sh" } else { "colors" }, colors)?;
-    out.set_item("opacities", opacity)?;
-    out.set_item("viewmats", PyArray1::from_vec(py, g.viewmats).reshape([c, 4, 4])?)?;
-    out.set_item("Ks", PyArray1::from_vec(py, g.ks).reshape([c, 3, 3])?)?;
+    if let Some(colors) = colors {
+        out.set_item(if matches!(s.colors, render::Colors::Sh { .. }) { "sh" } else { "colors" }, colors)?;
+    }
+    if needs.opacity {
+        let opacity = if s.opacity_per_view {
+            PyArray1::from_vec(py, g.opacity).reshape([v, n])?.into_any()
+        } else {
+            PyArray1::from_vec(py, g.opacity).into_any()
+        };
+        out.set_item("opacities", opacity)?;
+    }
+    if needs.cameras {
+        out.set_item("viewmats", PyArray1::from_vec(py, g.viewmats).reshape([c, 4, 4])?)?;
+        out.set_item("Ks", PyArray1::from_vec(py, g.ks).reshape([c, 3, 3])?)?;
+    }
     Ok(out)
+}
+
+/// The gradient groups `needs` names (None: all): any of `render_forward`'s array keywords.
+fn needs_of(needs: Option<Vec<String>>) -> PyResult<render::Needs> {
+    let Some(names) = needs else { return Ok(render::Needs::ALL) };
+    let known = [
+        "means",
+        "covs",
+        "frames",
+        "body_rot",
+        "body_pos",
+        "body",
+        "local_means",
+        "local_rots",
+        "local_quats",
+        "scales",
+        "colors",
+        "sh",
+        "opacities",
+        "viewmats",
+        "Ks",
+    ];
+    if let Some(bad) = names.iter().find(|k| !known.contains(&k.as_str())) {
+        return Err(input_error(format!("render_backward: needs names {bad:?}, not one of render_forward's arrays {known:?}")));
+    }
+    let any = |ks: &[&str]| names.iter().any(|k| ks.contains(&k.as_str()));
+    Ok(render::Needs {
+        colors: any(&["colors", "sh"]),
+        opacity: any(&["opacities"]),
+        cameras: any(&["viewmats", "Ks"]),
+        local: any(&["local_means", "local_rots", "local_quats", "scales"]),
+    })
 }
 
 /// Gradients w.r.t. `render_forward`'s inputs (see `_core.pyi`).
 #[pyfunction]
-#[pyo3(signature = (state, grad_rgb, grad_alpha, grad_dsum, *, threads=None))]
+#[pyo3(signature = (state, grad_rgb, grad_alpha, grad_dsum, *, needs=None, threads=None))]
+#[allow(clippy::too_many_arguments)]
 fn render_backward<'py>(
     py: Python<'py>,
     state: &PyRenderState,
     grad_rgb: &Bound<'py, PyAny>,
     grad_alpha: &Bound<'py, PyAny>,
     grad_dsum: &Bound<'py, PyAny>,
+    needs: Option<Vec<String>>,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let needs = needs_of(needs)?;
     match &state.state {
-        AnyRenderState::F32(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, threads, "float32"),
-        AnyRenderState::F64(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, threads, "float64"),
+        AnyRenderState::F32(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, needs, threads, "float32"),
+        AnyRenderState::F64(st) => render_grads(py, st, grad_rgb, grad_alpha, grad_dsum, needs, threads, "float64"),
     }
 }
 
@@ -1028,8 +1074,10 @@ fn image_array<'py, T: numpy::Element>(
     name: &str,
     dtype: &str,
 ) -> PyResult<numpy::PyReadonlyArrayDyn<'py, T>> {
-    obj.extract()
-        .map_err(|_| type_error(format!("{who}: {name} must be a {dtype} numpy array (the images and targets share one float dtype)")))
+    obj.extract().map_err(|_| {
+        let got = obj.getattr("dtype").map(|d| d.to_string()).unwrap_or_else(|_| obj.get_type().to_string());
+        type_error(format!("{who}: {name} must be a {dtype} numpy array, alpha's dtype (float32 or float64); got {got}"))
+    })
 }
 
 /// Checks `got` against `want` (`[V, H, W]` then a tail), naming the array.
@@ -1062,6 +1110,8 @@ fn background_arg<T: numpy::Element + Real>(bg: Option<&Bound<'_, PyAny>>, who: 
     Ok(Some(b))
 }
 
+/// The compute dtype the image functions take from `alpha`: float32, else float64 (any other
+/// dtype then fails its read with a TypeError naming what it got).
 fn dtype_of(obj: &Bound<'_, PyAny>) -> &'static str {
     match obj.getattr("dtype").and_then(|d| d.str()).map(|s| s.to_string()).as_deref() {
         Ok("float32") => "float32",
@@ -1083,9 +1133,9 @@ fn finish_t<T: numpy::Element + Real>(
     let [v, h, w] = frame_of(who, &alpha)?;
     let bg = background_arg::<T>(background, who, v, dtype)?;
     let mut rgb: numpy::PyReadwriteArrayDyn<'_, T> =
-        rgb.extract().map_err(|_| type_error(format!("{who}: rgb must be a writeable {dtype} numpy array")))?;
+        rgb.extract().map_err(|_| type_error(format!("{who}: rgb must be a writeable {dtype} numpy array, not borrowed elsewhere")))?;
     let mut dsum: numpy::PyReadwriteArrayDyn<'_, T> =
-        dsum.extract().map_err(|_| type_error(format!("{who}: dsum must be a writeable {dtype} numpy array")))?;
+        dsum.extract().map_err(|_| type_error(format!("{who}: dsum must be a writeable {dtype} numpy array, not borrowed elsewhere")))?;
     image_shape(who, "rgb", rgb.shape(), &[v, h, w, 3])?;
     image_shape(who, "dsum", dsum.shape(), &[v, h, w])?;
     if !(rgb.is_c_contiguous() && dsum.is_c_contiguous()) {
@@ -1134,19 +1184,20 @@ fn finish_backward_t<'py, T: numpy::Element + Real>(
     let alpha = image_array::<T>(alpha, who, "alpha", dtype)?;
     let [v, h, w] = frame_of(who, &alpha)?;
     let bg = background_arg::<T>(background, who, v, dtype)?;
-    let read = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<Vec<T>> {
+    let read = |obj: &Bound<'py, PyAny>, name: &str, tail: &[usize]| -> PyResult<numpy::PyReadonlyArrayDyn<'py, T>> {
         let a = image_array::<T>(obj, who, name, dtype)?;
         let want: Vec<usize> = [v, h, w].iter().chain(tail).copied().collect();
         image_shape(who, name, a.shape(), &want)?;
-        Ok(rows_of(&a).into_owned())
+        Ok(a)
     };
-    let (g_rgb, mut g_alpha, mut g_depth) =
-        (read(grad_rgb, "grad_rgb", &[3])?, read(grad_alpha, "grad_alpha", &[])?, read(grad_depth, "grad_depth", &[])?);
-    let depth = read(depth, "depth", &[])?;
-    let alpha = rows_of(&alpha);
-    let alpha: &[T] = &alpha;
+    // the two gradients it rewrites are copies; grad_rgb, alpha and depth are read in place
+    let mut g_alpha = rows_of(&read(grad_alpha, "grad_alpha", &[])?).into_owned();
+    let mut g_depth = rows_of(&read(grad_depth, "grad_depth", &[])?).into_owned();
+    let (g_rgb, depth) = (read(grad_rgb, "grad_rgb", &[3])?, read(depth, "depth", &[])?);
+    let (g_rgb, depth, alpha) = (rows_of(&g_rgb), rows_of(&depth), rows_of(&alpha));
+    let (g_rgb, depth, alpha): (&[T], &[T], &[T]) = (&g_rgb, &depth, &alpha);
     py.detach(|| {
-        with_threads(threads, || images::finish_backward(&g_rgb, &mut g_alpha, &mut g_depth, alpha, &depth, bg.as_deref(), v, h * w))
+        with_threads(threads, || images::finish_backward(g_rgb, &mut g_alpha, &mut g_depth, alpha, depth, bg.as_deref(), v, h * w))
     })
     .map_err(to_py)?
     .map_err(to_py)?;

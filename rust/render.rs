@@ -184,7 +184,29 @@ pub(crate) fn quat_matrix_backward<T: Real>(q: [T; 4], g: &[T]) -> [T; 4] {
     std::array::from_fn(|k| (gh[k] - qh[k] * dot) / len)
 }
 
-/// Gradients w.r.t. [`Rigid`]'s arrays, same layouts.
+/// Which gradients a backward computes. The scene's world (or body) gradients always are (every
+/// other one chains through them); each group here can be left out, and then comes back empty
+/// (length 0): a pose fit needs none of them (its model and cameras are constants), and skips
+/// the colour coefficients' products, the camera sums of every (view, Gaussian) and the
+/// Gaussians' local chain.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Needs {
+    /// SH coefficients or colours.
+    pub colors: bool,
+    pub opacity: bool,
+    /// `viewmats` and `ks`.
+    pub cameras: bool,
+    /// The rigid mode's local means, rotations (or quaternions) and scales.
+    pub local: bool,
+}
+
+impl Needs {
+    /// Every gradient.
+    pub const ALL: Needs = Needs { colors: true, opacity: true, cameras: true, local: true };
+}
+
+/// Gradients w.r.t. [`Rigid`]'s arrays, same layouts (`means`, `rots`, `scales` empty when the
+/// local gradients are not needed).
 #[derive(Clone, Debug)]
 pub struct RigidGrads<T> {
     pub body_rot: Vec<T>,
@@ -241,7 +263,7 @@ impl<T: Real> Rigid<T> {
 
     /// Chains the world gradients (`g_means` `[P, N, 3]`, `g_covs` `[P, N, 9]`, `g_frames`
     /// `[P, N, 9]` or None) to the rigid inputs; sums in a fixed order (bodies: chunk by chunk).
-    fn backward(&self, poses: usize, g_means: &[T], g_covs: &[T], g_frames: Option<&[T]>) -> RigidGrads<T> {
+    fn backward(&self, poses: usize, g_means: &[T], g_covs: &[T], g_frames: Option<&[T]>, local_needed: bool) -> RigidGrads<T> {
         let n = self.body.len();
         let nb = self.nbody;
         let zero = T::zero();
@@ -251,7 +273,7 @@ impl<T: Real> Rigid<T> {
             .into_par_iter()
             .map(|k| {
                 let (i0, i1) = (k * CHUNK, ((k + 1) * CHUNK).min(n));
-                let mut local = vec![[zero; 15]; i1 - i0];
+                let mut local = vec![[zero; 15]; if local_needed { i1 - i0 } else { 0 }];
                 let mut bodies = vec![zero; poses * nb * 12];
                 for p in 0..poses {
                     for i in i0..i1 {
@@ -274,18 +296,19 @@ impl<T: Real> Rigid<T> {
                                 g_a[3 * x + kk] = acc * s[kk] * s[kk];
                             }
                         }
-                        for kk in 0..3 {
-                            let mut acc = zero;
-                            for x in 0..3 {
-                                for y in 0..3 {
-                                    acc = acc + g_cov[3 * x + y] * a[3 * x + kk] * a[3 * y + kk];
+                        if local_needed {
+                            for kk in 0..3 {
+                                let mut acc = zero;
+                                for x in 0..3 {
+                                    for y in 0..3 {
+                                        acc = acc + g_cov[3 * x + y] * a[3 * x + kk] * a[3 * y + kk];
+                                    }
                                 }
+                                g_s[kk] = T::c(2.0) * s[kk] * acc;
                             }
-                            g_s[kk] = T::c(2.0) * s[kk] * acc;
                         }
                         // A = R Q: ∂/∂R = G_A Qᵀ, ∂/∂Q = Rᵀ G_A; μ = R m + x: ∂/∂R += g_μ mᵀ, ∂/∂m = Rᵀ g_μ
                         let m = [self.means[3 * i], self.means[3 * i + 1], self.means[3 * i + 2]];
-                        let g_m = mat_t_vec(r, [g_mu[0], g_mu[1], g_mu[2]]);
                         let gb = &mut bodies[12 * (p * nb + b)..12 * (p * nb + b) + 12];
                         for x in 0..3 {
                             for y in 0..3 {
@@ -300,7 +323,11 @@ impl<T: Real> Rigid<T> {
                             }
                             gb[9 + x] = gb[9 + x] + g_mu[x];
                         }
+                        if !local_needed {
+                            continue;
+                        }
                         let l = &mut local[i - i0];
+                        let g_m = mat_t_vec(r, [g_mu[0], g_mu[1], g_mu[2]]);
                         for x in 0..3 {
                             l[x] = l[x] + g_m[x];
                             l[12 + x] = l[12 + x] + g_s[x];
@@ -500,7 +527,7 @@ fn project_backward<T: Real>(
     g_uv: [T; 2],
     g_conic: [T; 3],
     g_z: T,
-    g_cam: &mut [T; 16],
+    g_cam: Option<&mut [T; 16]>,
 ) -> ([T; 3], [T; 9]) {
     let zero = T::zero();
     let two = T::c(2.0);
@@ -532,9 +559,6 @@ fn project_backward<T: Real>(
         g_fyz = g_fyz + g_m1[j] * (r[1][j] - p.tyz * r[2][j]);
         g_txz = g_txz - g_m0[j] * fxz * r[2][j];
         g_tyz = g_tyz - g_m1[j] * fyz * r[2][j];
-        g_cam[j] = g_cam[j] + g_m0[j] * fxz;
-        g_cam[3 + j] = g_cam[3 + j] + g_m1[j] * fyz;
-        g_cam[6 + j] = g_cam[6 + j] - g_m0[j] * fxz * p.txz - g_m1[j] * fyz * p.tyz;
     }
     let (mut g_fx, mut g_fy, mut g_cx, mut g_cy) = (g_fxz * p.iz, g_fyz * p.iz, zero, zero);
     let mut g_iz = g_fxz * cam.fx + g_fyz * cam.fy;
@@ -570,16 +594,24 @@ fn project_backward<T: Real>(
     }
     // x = R μ + t
     let g_mu = mat_t_vec(&[r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2]], g_x);
-    for i in 0..3 {
+    if let Some(g_cam) = g_cam {
+        // M's rows (R₀ - x̃ R₂, R₁ - ỹ R₂ scaled) and x = R μ + t, w.r.t. R, t and the intrinsics
         for j in 0..3 {
-            g_cam[3 * i + j] = g_cam[3 * i + j] + g_x[i] * mu[j];
+            g_cam[j] = g_cam[j] + g_m0[j] * fxz;
+            g_cam[3 + j] = g_cam[3 + j] + g_m1[j] * fyz;
+            g_cam[6 + j] = g_cam[6 + j] - g_m0[j] * fxz * p.txz - g_m1[j] * fyz * p.tyz;
         }
-        g_cam[9 + i] = g_cam[9 + i] + g_x[i];
+        for i in 0..3 {
+            for j in 0..3 {
+                g_cam[3 * i + j] = g_cam[3 * i + j] + g_x[i] * mu[j];
+            }
+            g_cam[9 + i] = g_cam[9 + i] + g_x[i];
+        }
+        g_cam[12] = g_cam[12] + g_fx;
+        g_cam[13] = g_cam[13] + g_fy;
+        g_cam[14] = g_cam[14] + g_cx;
+        g_cam[15] = g_cam[15] + g_cy;
     }
-    g_cam[12] = g_cam[12] + g_fx;
-    g_cam[13] = g_cam[13] + g_fy;
-    g_cam[14] = g_cam[14] + g_cx;
-    g_cam[15] = g_cam[15] + g_cy;
     (g_mu, g_cov)
 }
 
@@ -894,7 +926,15 @@ struct Local<T> {
 /// The gradient of Gaussian `i` in view `view` from the rasterizer's gradients `g2`; the
 /// camera's part is added to `g_cam`.
 #[inline(always)]
-fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]], view: usize, i: usize, g_cam: &mut [T; 16]) -> Local<T> {
+fn local_backward<T: Real>(
+    s: &Scene<T>,
+    g2: &splat::Grads<T>,
+    centres: &[[T; 3]],
+    view: usize,
+    i: usize,
+    needs: Needs,
+    g_cam: &mut [T; 16],
+) -> Local<T> {
     let zero = T::zero();
     let n = s.n;
     let mut out = Local::default();
@@ -933,9 +973,11 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
             let coef = &coeffs[3 * nsh * i..3 * nsh * (i + 1)];
             let raw = sh_color(nsh, coef, &y); // as `Scene::color`, from the same basis
             let gc = [0, 1, 2].map(|ch| if raw[ch] >= zero { g_col[ch] } else { zero });
-            for k in 0..nsh {
-                for ch in 0..3 {
-                    out.color[3 * k + ch] = y[k] * gc[ch];
+            if needs.colors {
+                for k in 0..nsh {
+                    for ch in 0..3 {
+                        out.color[3 * k + ch] = y[k] * gc[ch];
+                    }
                 }
             }
             if let Some(f) = frame {
@@ -959,11 +1001,13 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
                 let g_d = mat_vec(f, g_loc);
                 out.mu = g_d;
                 // d = μ - o, o = -Rᵀ t: ∂/∂R_jk = g_d_k t_j, ∂/∂t_j = Σ_k R_jk g_d_k
-                for j in 0..3 {
-                    for k in 0..3 {
-                        g_cam[3 * j + k] = g_cam[3 * j + k] + g_d[k] * cam.t[j];
+                if needs.cameras {
+                    for j in 0..3 {
+                        for k in 0..3 {
+                            g_cam[3 * j + k] = g_cam[3 * j + k] + g_d[k] * cam.t[j];
+                        }
+                        g_cam[9 + j] = g_cam[9 + j] + dot3(cam.r[j], g_d);
                     }
-                    g_cam[9 + j] = g_cam[9 + j] + dot3(cam.r[j], g_d);
                 }
             }
         }
@@ -971,7 +1015,7 @@ fn local_backward<T: Real>(s: &Scene<T>, g2: &splat::Grads<T>, centres: &[[T; 3]
     out.opacity = g2.opacity[g];
     let g_uv = [g2.uv[2 * g], g2.uv[2 * g + 1]];
     let g_conic = [g2.conic[3 * g], g2.conic[3 * g + 1], g2.conic[3 * g + 2]];
-    let (g_mu, g_cov) = project_backward(&pj, mu, cov, cam, g_uv, g_conic, g2.depth[g], g_cam);
+    let (g_mu, g_cov) = project_backward(&pj, mu, cov, cam, g_uv, g_conic, g2.depth[g], needs.cameras.then_some(g_cam));
     for a in 0..3 {
         out.mu[a] = out.mu[a] + g_mu[a];
     }
@@ -990,8 +1034,9 @@ struct ChunkGrads<T> {
     cams: Vec<[T; 16]>,
 }
 
-/// Gradients of `L = Σ g_rgb·rgb + g_alpha·alpha + g_dsum·dsum` w.r.t. the scene's inputs.
-pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]) -> Result<Grads<T>> {
+/// Gradients of `L = Σ g_rgb·rgb + g_alpha·alpha + g_dsum·dsum` w.r.t. the scene's inputs; the
+/// groups `needs` leaves out come back empty (length 0).
+pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T], needs: Needs) -> Result<Grads<T>> {
     let s = &st.scene;
     let g2 = splat::backward(&st.splat, g_rgb, g_alpha, g_dsum)?;
     let (n, v, p, c) = (s.n, s.nviews(), s.poses, s.cameras.len());
@@ -1013,15 +1058,15 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
                 means: vec![zero; p * m * 3],
                 covs: vec![zero; p * m * 9],
                 frames: if has_frames { vec![zero; p * m * 9] } else { Vec::new() },
-                colors: vec![zero; if colors_per_view { v } else { 1 } * m * nc],
-                opacity: vec![zero; if op_per_view { v } else { 1 } * m],
+                colors: vec![zero; if needs.colors { (if colors_per_view { v } else { 1 }) * m * nc } else { 0 }],
+                opacity: vec![zero; if needs.opacity { (if op_per_view { v } else { 1 }) * m } else { 0 }],
                 cams: vec![[zero; 16]; v],
             };
             for view in 0..v {
                 let pose = s.views[view][0];
                 let mut g_cam = [zero; 16];
                 for i in i0..i1 {
-                    let l = local_backward(s, &g2, &centres, view, i, &mut g_cam);
+                    let l = local_backward(s, &g2, &centres, view, i, needs, &mut g_cam);
                     let li = i - i0;
                     let add = |dst: &mut [T], src: &[T]| {
                         for (d, x) in dst.iter_mut().zip(src) {
@@ -1033,10 +1078,14 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
                     if has_frames {
                         add(&mut out.frames[9 * (pose * m + li)..9 * (pose * m + li) + 9], &l.frame);
                     }
-                    let cr = if colors_per_view { view * m + li } else { li };
-                    add(&mut out.colors[nc * cr..nc * cr + nc], &l.color[..nc]);
-                    let orow = if op_per_view { view * m + li } else { li };
-                    out.opacity[orow] = out.opacity[orow] + l.opacity;
+                    if needs.colors {
+                        let cr = if colors_per_view { view * m + li } else { li };
+                        add(&mut out.colors[nc * cr..nc * cr + nc], &l.color[..nc]);
+                    }
+                    if needs.opacity {
+                        let orow = if op_per_view { view * m + li } else { li };
+                        out.opacity[orow] = out.opacity[orow] + l.opacity;
+                    }
                 }
                 out.cams[view] = g_cam;
             }
@@ -1048,10 +1097,10 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
         means: vec![zero; p * n * 3],
         covs: vec![zero; p * n * 9],
         frames: if has_frames { Some(vec![zero; p * n * 9]) } else { None },
-        colors: vec![zero; if colors_per_view { v } else { 1 } * n * nc],
-        opacity: vec![zero; if op_per_view { v } else { 1 } * n],
-        viewmats: vec![zero; 16 * c],
-        ks: vec![zero; 9 * c],
+        colors: vec![zero; if needs.colors { (if colors_per_view { v } else { 1 }) * n * nc } else { 0 }],
+        opacity: vec![zero; if needs.opacity { (if op_per_view { v } else { 1 }) * n } else { 0 }],
+        viewmats: vec![zero; if needs.cameras { 16 * c } else { 0 }],
+        ks: vec![zero; if needs.cameras { 9 * c } else { 0 }],
         rigid: None,
     };
     let place = |dst: &mut [T], src: &[T], rows: usize, i0: usize, m: usize, per: usize| {
@@ -1066,8 +1115,15 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
         if let Some(f) = g.frames.as_mut() {
             place(f, &ch.frames, p, i0, m, 9);
         }
-        place(&mut g.colors, &ch.colors, if colors_per_view { v } else { 1 }, i0, m, nc);
-        place(&mut g.opacity, &ch.opacity, if op_per_view { v } else { 1 }, i0, m, 1);
+        if needs.colors {
+            place(&mut g.colors, &ch.colors, if colors_per_view { v } else { 1 }, i0, m, nc);
+        }
+        if needs.opacity {
+            place(&mut g.opacity, &ch.opacity, if op_per_view { v } else { 1 }, i0, m, 1);
+        }
+        if !needs.cameras {
+            continue;
+        }
         for (view, gc) in ch.cams.iter().enumerate() {
             let ci = s.views[view][1];
             for a in 0..3 {
@@ -1083,7 +1139,7 @@ pub fn backward<T: Real>(st: &State<T>, g_rgb: &[T], g_alpha: &[T], g_dsum: &[T]
         }
     }
     if let Some(r) = &s.rigid {
-        g.rigid = Some(r.backward(p, &g.means, &g.covs, g.frames.as_deref()));
+        g.rigid = Some(r.backward(p, &g.means, &g.covs, g.frames.as_deref(), needs.local));
     }
     Ok(g)
 }

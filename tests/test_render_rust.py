@@ -346,3 +346,40 @@ def test_regression_background_as_a_list_on_the_native_path(panda_model, cams128
         c = panda_model.render_views(th, cams128, background=np.array([0.2, 0.3, 0.4]), backend="rust")
     assert b.rgb.dtype == c.rgb.dtype == torch.float32
     assert torch.equal(a.rgb, b.rgb) and torch.equal(a.rgb, c.rgb)
+
+
+def test_backward_computes_only_the_gradients_asked_for(panda):
+    """``needs``: a frozen model's render (a pose fit) skips the colour, opacity, camera and local
+    gradients; the pose gradient is the same, bit for bit, as with every gradient computed."""
+    from profrobot.render import frozen
+
+    model = GaussianRobot.from_robot(panda, 2000, seed=0)
+    cams = ring_cameras(2, size=24, distance=1.5, lookat=(0.0, 0.0, 0.45))
+    grads = {}
+    for name in ("all", "frozen"):
+        th = torch.tensor(THETA, dtype=torch.float32, requires_grad=True)
+        model.zero_grad(set_to_none=True)
+        if name == "frozen":
+            with frozen(model):
+                out = model.render_views(th, cams, background=torch.ones(3), backend="rust")
+                (out.rgb.sum() + out.depth.sum()).backward()
+            assert all(p.grad is None for p in model.parameters())
+        else:
+            out = model.render_views(th, cams, background=torch.ones(3), backend="rust")
+            (out.rgb.sum() + out.depth.sum()).backward()
+            assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
+        grads[name] = th.grad
+    assert torch.equal(grads["all"], grads["frozen"])
+    # the native call itself: only the keys asked for, an unknown name named
+    m, c, o, col = _small_scene()
+    vm, K = _cam()
+    views = np.array([[0, 0]], np.int64)
+    state = _core.render_forward(o.numpy(), vm.numpy(), K.numpy(), views, 16, 12, means=m[None].numpy(),
+                                 covs=c[None].numpy(), colors=col.numpy())[5]
+    g = [np.ones((1, 12, 16, 3)), np.ones((1, 12, 16)), np.ones((1, 12, 16))]
+    full = _core.render_backward(state, *g)
+    some = _core.render_backward(state, *g, needs=["means", "covs"])
+    assert set(some) == {"means", "covs"} and set(full) >= {"means", "covs", "colors", "opacities", "viewmats", "Ks"}
+    assert all(np.array_equal(full[k], some[k]) for k in some)
+    with pytest.raises(ProfrobotError, match='needs names "colour"'):
+        _core.render_backward(state, *g, needs=["colour"])

@@ -205,11 +205,18 @@ def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.N
     the entry; a wrong dtype :class:`InputTypeError`."""
 
 def render_backward(state: RenderState, grad_rgb: _Float, grad_alpha: _Float, grad_dsum: _Float, *,
-                    threads: int | None = None) -> dict[str, _Float]:
+                    needs: list[str] | None = None, threads: int | None = None) -> dict[str, _Float]:
     """Exact gradients of ``sum(grad_rgb * rgb) + sum(grad_alpha * alpha) + sum(grad_dsum * dsum)``
     w.r.t. :func:`render_forward`'s inputs, by keyword (the rigid arrays' or ``means``,
     ``covs``, ``frames``; ``sh`` or ``colors``; ``opacities``, ``viewmats``, ``Ks``), same
-    shapes, in the state's dtype. Deterministic: every sum runs in a fixed order."""
+    shapes, in the state's dtype. Deterministic: every sum runs in a fixed order.
+
+    ``needs``: the keywords whose gradients are wanted (None: all). The world (or body) ones are
+    always returned; colours, opacities, cameras (``viewmats``/``Ks``) and the rigid mode's local
+    arrays only when named, and then skipped in the kernel (a pose fit's model and cameras are
+    constants). An unknown name raises :class:`InputError`. The gradients returned are the same
+    bits either way. The upstream gradients are read in place, with the GIL released: do not
+    write to them from another thread during the call."""
 
 def finish_images(rgb: _Float, alpha: _Float, dsum: _Float, *, background: _Float | None = None,
                   threads: int | None = None) -> None:
@@ -230,10 +237,11 @@ def image_loss(rgb: _Float, alpha: _Float, depth: _Float, rgb_t: _Float, depth_t
                w_mask: float = 0.5, threads: int | None = None) -> _Float:
     """Per-image loss (V,) of finished renders (rgb (V, H, W, 3), alpha and depth (V, H, W))
     against targets ``rgb_t`` (V, H, W, 3), ``depth_t`` (V, H, W) metres, ``mask_t`` (V, H, W):
-    ``mean_mask |rgb - rgb_t|^2 + w_mask mean_valid |alpha - mask| + w_depth
+    ``mean_mask sum_c (rgb - rgb_t)^2 + w_mask mean_valid |alpha - mask| + w_depth
     mean_{mask & alpha > 1/2} |depth - depth_t|`` (``profrobot.render.targets.pose_loss``,
-    term for term; the depth term only when ``w_depth`` is not 0). Float arrays share one
-    dtype; wrong shapes or dtypes raise naming the array."""
+    term for term; the depth term only when ``w_depth`` is not 0; every array C-contiguous is
+    read in place, others copied). Float arrays share alpha's dtype; wrong shapes or dtypes
+    raise naming the array; a non-finite weight raises :class:`InputError`."""
 
 def image_loss_backward(seed: _Float, rgb: _Float, alpha: _Float, depth: _Float, rgb_t: _Float, depth_t: _Float,
                         mask_t: npt.NDArray[np.bool_], *, valid: npt.NDArray[np.bool_] | None = None,

@@ -286,7 +286,8 @@ class _Render(torch.autograd.Function):
     """The native renderer (``rust/render.rs``) as one autograd node: EWA projection, colour
     (SH or given), tile rasterization, and the fused backward of all three.
 
-    forward(spec, *tensors): ``spec = (names, views, width, height, cutoff, threads)`` names
+    forward(spec, *tensors): ``spec = (names, views, width, height, cutoff, threads, finish,
+    background)`` names
     the tensors (the keywords of ``_core.render_forward``: ``opacities`` [N] or [V, N],
     ``viewmats`` [C, 4, 4], ``Ks`` [C, 3, 3]; the Gaussians either in the world, ``means``
     [P, N, 3], ``covs`` [P, N, 3, 3] and optionally ``frames`` [P, N, 3, 3], or rigidly on
@@ -318,15 +319,19 @@ class _Render(torch.autograd.Function):
         bg = None
         if finish:
             # background and expected depth in one pass over the frame (dsum becomes the depth)
-            bg = None if background is None else background.detach().to(device="cpu", dtype=dt).contiguous().numpy()
+            # (a copy: the caller's background may change before the backward)
+            bg = None if background is None else background.detach().to(device="cpu", dtype=dt).numpy().copy()
             _core.finish_images(rgb, alpha, dsum, background=bg, threads=threads)
         ctx.state, ctx.threads, ctx.compute_dtype, ctx.names, ctx.finish, ctx.background = (
             state, threads, dt, names, finish, bg)
         ctx.meta = [(t.dtype, t.device) for t in tensors]
         odt, dev = floats[0].dtype, floats[0].device
         out = [torch.from_numpy(a).to(device=dev, dtype=odt) for a in (rgb, alpha, dsum, contrib)]
-        if finish:
-            ctx.save_for_backward(out[1], out[2])           # alpha and depth (in-place edits are caught)
+        ctx.finished = None
+        if finish and dev.type == "cpu" and odt == dt:
+            ctx.save_for_backward(out[1], out[2])   # alpha and depth: the outputs themselves (edits are caught)
+        elif finish:
+            ctx.finished = (alpha, dsum)            # the kernel's own arrays (the outputs are copies)
         npairs_t = torch.tensor(npairs, dtype=torch.int64)
         ctx.mark_non_differentiable(out[3], npairs_t)
         return (*out, npairs_t)
@@ -342,10 +347,12 @@ class _Render(torch.autograd.Function):
                                 else t.detach().to(device="cpu", dtype=dt).contiguous()).numpy()
         g_rgb, g_alpha, g_dsum = arr(g_rgb, (V, H, W, 3)), arr(g_alpha, (V, H, W)), arr(g_dsum, (V, H, W))
         if ctx.finish:      # back through the background and the expected depth
-            alpha, depth = (t.detach().to(device="cpu", dtype=dt).contiguous().numpy() for t in ctx.saved_tensors)
+            alpha, depth = ctx.finished or [t.detach().numpy() for t in ctx.saved_tensors]
             g_alpha, g_dsum = _core.finish_images_backward(g_rgb, g_alpha, g_dsum, alpha, depth,
                                                            background=ctx.background, threads=ctx.threads)
-        grads = _core.render_backward(ctx.state, g_rgb, g_alpha, g_dsum, threads=ctx.threads)
+        # only the gradients autograd asks for (a pose fit's model and cameras are constants)
+        needs = [k for k, need in zip(ctx.names, ctx.needs_input_grad[1:]) if need]
+        grads = _core.render_backward(ctx.state, g_rgb, g_alpha, g_dsum, needs=needs, threads=ctx.threads)
         out = [None if k not in grads else torch.from_numpy(grads[k]).to(device=dev, dtype=t)
                for k, (t, dev) in zip(ctx.names, ctx.meta)]
         return (None, *out)
@@ -362,7 +369,7 @@ def render_native(views, width, height, *, background=None, cutoff: Cutoff = "so
     named = {k: v for k, v in tensors.items() if v is not None}
     cam_bg = None
     if background is not None:
-        first = next(iter(named.values()))
+        first = next(t for k, t in named.items() if k != "body")       # a float input: the compute's dtype
         cam_bg = torch.as_tensor(background, dtype=first.dtype, device=first.device).reshape(-1, 3)
         if cam_bg.shape[0] not in (1, len(views)):          # one background per camera
             cam_bg = cam_bg[torch.as_tensor(views[:, 1], device=cam_bg.device)]

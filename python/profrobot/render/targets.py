@@ -46,14 +46,13 @@ class _ImageLoss(torch.autograd.Function):
         from .. import _core
 
         dt = rgb.dtype
-        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
-        ctx.targets = (np_(rgb_t.to(dt)), np_(depth_t.to(dt)), np_(mask_t.to(torch.bool)),
-                       np_(None if valid is None else valid.to(torch.bool)))
+        rgb_t, depth_t = rgb_t.to(dt), depth_t.to(dt)
         ctx.weights = dict(w_depth=float(w_depth), w_mask=float(w_mask))
-        ctx.save_for_backward(rgb, alpha, depth)
-        rgb_t, depth_t, mask_t, valid = ctx.targets
-        loss = _core.image_loss(np_(rgb), np_(alpha.to(dt)), np_(depth.to(dt)), rgb_t, depth_t, mask_t, valid=valid,
-                                **ctx.weights)
+        # the targets too: an edit between forward and backward is then caught, not silently used
+        ctx.save_for_backward(rgb, alpha, depth, rgb_t, depth_t, mask_t, valid)
+        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
+        loss = _core.image_loss(np_(rgb), np_(alpha), np_(depth), np_(rgb_t), np_(depth_t), np_(mask_t),
+                                valid=np_(valid), **ctx.weights)
         return torch.from_numpy(loss)
 
     @staticmethod
@@ -61,23 +60,32 @@ class _ImageLoss(torch.autograd.Function):
     def backward(ctx, g_loss):
         from .. import _core
 
-        rgb, alpha, depth = ctx.saved_tensors
-        dt = rgb.dtype
-        np_ = lambda t: t.detach().to(dt).contiguous().numpy()
-        rgb_t, depth_t, mask_t, valid = ctx.targets
-        g_rgb, g_alpha, g_depth = _core.image_loss_backward(np_(g_loss), np_(rgb), np_(alpha), np_(depth), rgb_t,
-                                                            depth_t, mask_t, valid=valid, **ctx.weights)
-        return (torch.from_numpy(g_rgb), torch.from_numpy(g_alpha).to(alpha.dtype),
-                torch.from_numpy(g_depth).to(depth.dtype), None, None, None, None, None, None)
+        rgb, alpha, depth, rgb_t, depth_t, mask_t, valid = ctx.saved_tensors
+        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
+        g_rgb, g_alpha, g_depth = _core.image_loss_backward(np_(g_loss.to(rgb.dtype)), np_(rgb), np_(alpha), np_(depth),
+                                                            np_(rgb_t), np_(depth_t), np_(mask_t), valid=np_(valid),
+                                                            **ctx.weights)
+        return (torch.from_numpy(g_rgb), torch.from_numpy(g_alpha), torch.from_numpy(g_depth),
+                None, None, None, None, None, None)
 
 
-def _native_loss(out, *targets) -> bool:
-    """Whether :func:`pose_loss` runs natively: every tensor on the CPU, the renders float32 or
-    float64 alike, and no gradient wanted for a target."""
+def _native_loss(out, rgb_t, depth_t, mask_t, valid, w_depth, w_mask) -> bool:
+    """Whether :func:`pose_loss` runs natively, where it gives what torch gives: every tensor on
+    the CPU; the renders float32 or float64 alike, the targets no wider (torch would promote),
+    each of the renders' shape (no broadcasting); the masks bool; the weights plain numbers; no
+    gradient wanted for a target."""
     imgs = (out.rgb, out.alpha, out.depth)
-    ts = [t for t in targets if t is not None]
-    return (all(t.device.type == "cpu" for t in (*imgs, *ts)) and out.rgb.dtype in (torch.float32, torch.float64)
-            and all(t.dtype == out.rgb.dtype for t in imgs) and not any(t.requires_grad for t in ts))
+    dt = out.rgb.dtype
+    if dt not in (torch.float32, torch.float64) or any(t.dtype != dt for t in imgs):
+        return False
+    if not all(isinstance(w, (int, float)) for w in (w_depth, w_mask)):
+        return False
+    ts = [t for t in (rgb_t, depth_t, mask_t, valid) if t is not None]
+    widest = torch.float64 if dt == torch.float64 else torch.float32
+    return (all(t.device.type == "cpu" for t in (*imgs, *ts)) and not any(t.requires_grad for t in ts)
+            and rgb_t.shape == out.rgb.shape and all(t.shape == out.alpha.shape for t in ts[1:])
+            and all(t.dtype in (torch.float32, widest) for t in (rgb_t, depth_t))
+            and all(t.dtype == torch.bool for t in ts[2:]))
 
 
 def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
@@ -88,7 +96,7 @@ def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Ten
     undistortion, a lens may leave corners unseen), the only ones the silhouette term counts.
     On the CPU one native pass each way (``rust/images.rs``), elsewhere torch; the same
     formula."""
-    if _native_loss(out, rgb_t, depth_t, mask_t, valid):
+    if _native_loss(out, rgb_t, depth_t, mask_t, valid, w_depth, w_mask):
         return _ImageLoss.apply(out.rgb, out.alpha, out.depth, rgb_t, depth_t, mask_t, valid, w_depth, w_mask)
     return _pose_loss_torch(out, rgb_t, depth_t, mask_t, w_depth=w_depth, w_mask=w_mask, valid=valid)
 
