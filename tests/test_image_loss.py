@@ -119,3 +119,33 @@ def test_bad_image_arrays_are_named():
     with pytest.raises(InputError, match="must be finite"):
         _core.image_loss(f32(1, 2, 2, 3), f32(1, 2, 2), f32(1, 2, 2), f32(1, 2, 2, 3), f32(1, 2, 2), mask,
                          w_depth=float("nan"))
+
+
+def test_a_large_rigid_batch_drawn_in_groups_equals_one_call(small_panda, monkeypatch):
+    """More than GROUP_VIEWS views go to the kernel in groups (the bodies' poses sliced per
+    group): the same image bits as one call, and the same gradients to float64 rounding."""
+    import importlib
+
+    R = importlib.import_module("profrobot.render.rasterize")      # the module (the package exports a function of its name)
+
+    cams = ring_cameras(3, size=16, distance=1.5, lookat=(0.0, 0.0, 0.45))
+    g = torch.Generator().manual_seed(4)
+    base = torch.tensor([[0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5, 0.02, 0.02]], dtype=torch.float64)
+    theta = base + 0.3 * torch.randn(7, 9, generator=g, dtype=torch.float64)             # 21 views
+    bg = torch.rand(3, 3, generator=g, dtype=torch.float64)                                # per camera
+    w = torch.rand(21, 16, 16, 3, generator=g, dtype=torch.float64)
+    res = {}
+    for name, group in (("grouped", R.GROUP_VIEWS), ("one call", 10**9)):
+        monkeypatch.setattr(R, "GROUP_VIEWS", group)
+        small_panda.zero_grad(set_to_none=True)
+        th = theta.clone().requires_grad_(True)
+        out = small_panda.render_views(th, cams, background=bg, backend="rust")
+        ((out.rgb * w).sum() + (out.depth * w[..., 0]).sum() + (out.alpha * w[..., 1]).sum()).backward()
+        res[name] = (out.rgb, out.depth, out.alpha, out.contrib, th.grad, small_panda.sh.grad, small_panda.means.grad)
+        assert out.npairs > 0
+    assert R.GROUP_VIEWS == 10**9 and 21 > 16
+    for i, (a, b) in enumerate(zip(res["grouped"], res["one call"])):
+        if i < 4:
+            assert torch.equal(a, b), i
+        else:
+            assert torch.allclose(a, b, rtol=1e-10, atol=1e-12), (i, (a - b).abs().max())
