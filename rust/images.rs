@@ -179,23 +179,60 @@ fn counts<T: Real>(mask: &[bool], valid: Option<&[bool]>, alpha: &[T]) -> [T; 3]
     [m, v, md].map(|k| T::c(k.max(1) as f64))
 }
 
-/// Per-image losses `[V]` of finished images (`rgb` `[V, hw, 3]`, `alpha`, `depth` `[V, hw]`)
-/// against `targets` (module docs).
-pub fn image_loss<T: Real>(rgb: &[T], alpha: &[T], depth: &[T], targets: &LossTargets<'_, T>, images: usize, hw: usize) -> Result<Vec<T>> {
+/// The renders' and the targets' lengths for `images` images of `hw` pixels.
+fn check_frame<T: Real>(
+    who: &str,
+    rgb: &[T],
+    alpha: &[T],
+    depth: &[T],
+    targets: &LossTargets<'_, T>,
+    images: usize,
+    hw: usize,
+) -> Result<()> {
     check_len("rgb", rgb.len(), images, hw, 3)?;
     check_len("alpha", alpha.len(), images, hw, 1)?;
     check_len("depth", depth.len(), images, hw, 1)?;
-    targets.check("image_loss", images, hw)?;
+    targets.check(who, images, hw)
+}
+
+/// Image `v`'s slices of the renders and the targets, and its loss's denominators.
+struct Image<'a, T> {
+    rgb: &'a [T],
+    rgb_t: &'a [T],
+    alpha: &'a [T],
+    depth: &'a [T],
+    depth_t: &'a [T],
+    mask: &'a [bool],
+    valid: Option<&'a [bool]>,
+    /// `max(|M*|, 1)`, `max(|V|, 1)`, `max(|M* ∧ α > 1/2|, 1)`.
+    counts: [T; 3],
+}
+
+fn image<'a, T: Real>(rgb: &'a [T], alpha: &'a [T], depth: &'a [T], t: &LossTargets<'a, T>, v: usize, hw: usize) -> Image<'a, T> {
+    let px = v * hw..(v + 1) * hw;
+    let (alpha, mask) = (&alpha[px.clone()], &t.mask[px.clone()]);
+    let valid = t.valid.map(|x| &x[px.clone()]);
+    Image {
+        rgb: &rgb[3 * px.start..3 * px.end],
+        rgb_t: &t.rgb[3 * px.start..3 * px.end],
+        alpha,
+        depth: &depth[px.clone()],
+        depth_t: &t.depth[px],
+        mask,
+        valid,
+        counts: counts(mask, valid, alpha),
+    }
+}
+
+/// Per-image losses `[V]` of finished images (`rgb` `[V, hw, 3]`, `alpha`, `depth` `[V, hw]`)
+/// against `targets` (module docs).
+pub fn image_loss<T: Real>(rgb: &[T], alpha: &[T], depth: &[T], targets: &LossTargets<'_, T>, images: usize, hw: usize) -> Result<Vec<T>> {
+    check_frame("image_loss", rgb, alpha, depth, targets, images, hw)?;
     let (zero, half) = (T::zero(), T::c(0.5));
     Ok((0..images)
         .into_par_iter()
         .map(|v| {
-            let px = v * hw..(v + 1) * hw;
-            let (alpha, mask) = (&alpha[px.clone()], &targets.mask[px.clone()]);
-            let valid = targets.valid.map(|x| &x[px.clone()]);
-            let [nm, nv, nmd] = counts(mask, valid, alpha);
-            let (rgb, rgb_t) = (&rgb[3 * px.start..3 * px.end], &targets.rgb[3 * px.start..3 * px.end]);
-            let (depth, depth_t) = (&depth[px.clone()], &targets.depth[px]);
+            let Image { rgb, rgb_t, alpha, depth, depth_t, mask, valid, counts: [nm, nv, nmd] } = image(rgb, alpha, depth, targets, v, hw);
             // each pixel's term in T (as torch's element-wise ops), the sums in f64
             let (mut l_rgb, mut l_mask, mut l_depth) = (0.0f64, 0.0f64, 0.0f64);
             for i in 0..hw {
@@ -235,10 +272,7 @@ pub fn image_loss_backward<T: Real>(
     hw: usize,
 ) -> Result<(Vec<T>, Vec<T>, Vec<T>)> {
     check_len("seed", seed.len(), images, 1, 1)?;
-    check_len("rgb", rgb.len(), images, hw, 3)?;
-    check_len("alpha", alpha.len(), images, hw, 1)?;
-    check_len("depth", depth.len(), images, hw, 1)?;
-    targets.check("image_loss_backward", images, hw)?;
+    check_frame("image_loss_backward", rgb, alpha, depth, targets, images, hw)?;
     let (zero, half, two) = (T::zero(), T::c(0.5), T::c(2.0));
     let sgn = |x: T| {
         if x > zero {
@@ -255,12 +289,7 @@ pub fn image_loss_backward<T: Real>(
     }
     g_rgb.par_chunks_mut(3 * hw).zip(g_alpha.par_chunks_mut(hw)).zip(g_depth.par_chunks_mut(hw)).enumerate().for_each(
         |(v, ((gr, ga), gd))| {
-            let px = v * hw..(v + 1) * hw;
-            let (alpha, mask) = (&alpha[px.clone()], &targets.mask[px.clone()]);
-            let valid = targets.valid.map(|x| &x[px.clone()]);
-            let [nm, nv, nmd] = counts(mask, valid, alpha);
-            let (rgb, rgb_t) = (&rgb[3 * px.start..3 * px.end], &targets.rgb[3 * px.start..3 * px.end]);
-            let (depth, depth_t) = (&depth[px.clone()], &targets.depth[px]);
+            let Image { rgb, rgb_t, alpha, depth, depth_t, mask, valid, counts: [nm, nv, nmd] } = image(rgb, alpha, depth, targets, v, hw);
             // each term's seed over its denominator, as torch chains `sum / n` then `* w`
             let s = seed[v];
             let (c_rgb, c_mask) = (s / nm, targets.w_mask * s / nv);

@@ -936,8 +936,7 @@ fn render_forward<'py>(
         }
     };
     let args = SceneArgs { opacities, viewmats, ks: Ks, views, width, height, world, frames, rigid, colors, sh, cutoff };
-    let is_f32 = opacities.getattr("dtype").and_then(|d| d.str()).map(|s| s == "float32").unwrap_or(false);
-    if is_f32 {
+    if dtype_of(opacities) == "float32" {
         let sc = read_scene::<f32>(&args, "float32")?;
         let f = py.detach(|| with_threads(threads, || render::forward(sc))).map_err(to_py)?.map_err(to_py)?;
         render_outputs(py, f, AnyRenderState::F32)
