@@ -9,7 +9,7 @@
 use nalgebra::{Isometry3, Point3, Unit, UnitQuaternion, Vector3};
 use parry3d_f64::query::details::local_point_projection_on_support_map;
 use parry3d_f64::query::gjk::VoronoiSimplex;
-use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, Shape, SupportMap};
+use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, Segment, Shape, SupportMap};
 
 use std::sync::Arc;
 
@@ -228,6 +228,42 @@ impl Convex {
             Convex::Capsule(s) => Box::new(*s),
             Convex::Cylinder(s) => Box::new(*s),
             Convex::Hull(h) => Box::new(h.poly().clone()),
+        }
+    }
+}
+
+/// A convex shape less its rounding: a ball's centre, a capsule's segment, any other shape
+/// itself; the shape is its core dilated by its radius (a Minkowski sum with a ball).
+///
+/// Two such shapes are `dist(cores) - r_a - r_b` apart (`r`: the radii), and their closest points
+/// lie on the line between the cores' closest points; GJK on the cores finds that line in a few
+/// exact steps where one core is a point or a segment (a polytope), instead of creeping toward
+/// its tolerance on the rounded surface (`collide::Scratch::pair_lower_bound`).
+pub enum Core<'a> {
+    Point,
+    Segment(Segment),
+    Whole(&'a Convex),
+}
+
+impl Convex {
+    /// This shape's core (see [`Core`]).
+    #[inline]
+    pub fn core(&self) -> Core<'_> {
+        match self {
+            Convex::Ball(_) => Core::Point,
+            Convex::Capsule(c) => Core::Segment(c.segment),
+            _ => Core::Whole(self),
+        }
+    }
+}
+
+impl SupportMap for Core<'_> {
+    #[inline]
+    fn local_support_point(&self, dir: &Vector3<f64>) -> Point3<f64> {
+        match self {
+            Core::Point => Point3::origin(),
+            Core::Segment(s) => s.local_support_point(dir),
+            Core::Whole(c) => c.local_support_point(dir),
         }
     }
 }
