@@ -299,12 +299,16 @@ impl Broad {
     }
 
     /// What `place` computes for the non-plane geom `g` of some pair (its body's rotation matrix
-    /// and its sphere centre), alone, from its body's frame in `bodies`.
+    /// and its sphere centre), alone, from its body's frame in `bodies`; the body's rotation
+    /// matrix only when `rotation` (else it must be this pose's already: another geom of the
+    /// body was placed).
     #[inline]
-    pub(crate) fn place_geom(&self, bodies: &[Isometry3<f64>], g: usize, s: &mut BroadScratch) {
+    pub(crate) fn place_geom(&self, bodies: &[Isometry3<f64>], g: usize, rotation: bool, s: &mut BroadScratch) {
         let b = self.geom_body[g] as usize;
         let x = &bodies[b];
-        s.rot[b] = x.rotation.to_rotation_matrix().into_inner();
+        if rotation {
+            s.rot[b] = x.rotation.to_rotation_matrix().into_inner();
+        }
         self.set_geom_centre(x, &s.rot[b], g, &mut s.geom_world);
     }
 

@@ -105,6 +105,10 @@ pub struct Scratch {
     obb_stamp: Vec<u32>,
     /// Per body: `place_pairs` placed it for the current pose when `body_stamp[b] == pose`.
     body_stamp: Vec<u32>,
+    /// `place_pairs`' progress in the current pose: per geom, its sphere (or plane) is placed
+    /// when `placed_geom[g] == pose`; per body, its rotation matrix when `placed_body[b] == pose`.
+    placed_geom: Vec<u32>,
+    placed_body: Vec<u32>,
     pose: u32,
     pub(crate) broad: BroadScratch,
     /// The pairs the broad phase keeps.
@@ -135,6 +139,8 @@ impl Scratch {
             stamp: vec![0; n],
             obb_stamp: vec![0; n],
             body_stamp: vec![0; model.nbody()],
+            placed_geom: vec![0; n],
+            placed_body: vec![0; model.nbody()],
             pose: 0,
             broad: model.broad.scratch(),
             near: Vec::new(),
@@ -152,6 +158,8 @@ impl Scratch {
             self.stamp.fill(0);
             self.obb_stamp.fill(0);
             self.body_stamp.fill(0);
+            self.placed_geom.fill(0);
+            self.placed_body.fill(0);
             self.tested.fill(0);
             self.pose = 1;
         }
@@ -217,14 +225,23 @@ impl Scratch {
             }
         }
         marked_body_poses(model, q, &mut self.bodies, &self.body_stamp, pose);
+        // Each geom once, each body's rotation matrix once (`placed`: this pose's stamp once
+        // done; a body's entry is its rotation's, a geom's its sphere's or plane's).
         for k in pairs {
             let pair = &model.pairs[k];
             for g in [pair.g1, pair.g2] {
+                if self.placed_geom[g] == pose {
+                    continue;
+                }
+                self.placed_geom[g] = pose;
                 if model.geoms[g].shape.is_half_space() {
                     self.frame(model, g);
                     model.broad.place_plane(&self.geoms[g], g, &mut self.broad);
                 } else {
-                    model.broad.place_geom(&self.bodies, g, &mut self.broad);
+                    let b = model.geoms[g].body;
+                    let rotation = self.placed_body[b] != pose;
+                    self.placed_body[b] = pose;
+                    model.broad.place_geom(&self.bodies, g, rotation, &mut self.broad);
                 }
             }
         }
