@@ -135,12 +135,15 @@ pub(crate) struct Levers<'m> {
     rows: &'m [f64],
     /// `npairs + 1` offsets, then every pair's chain (`chain`).
     chains: &'m [u32],
+    /// Where the chains start in `chains`: `npairs + 1` (kept, not divided out of `rows` on
+    /// every call: an integer division costs tens of cycles, and `chain` runs per pair per state).
+    base: usize,
 }
 
 impl<'m> Levers<'m> {
     pub(crate) fn of(model: &'m RobotModel) -> Levers<'m> {
         let (rows, chains) = model.lever_rows.get_or_init(|| lever_rows(model));
-        Levers { k: model.njoint(), rows, chains }
+        Levers { k: model.njoint(), rows, chains, base: model.pairs.len() + 1 }
     }
 
     /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
@@ -166,7 +169,7 @@ impl<'m> Levers<'m> {
     /// the first geom's branch), each branch from the common ancestor down to its geom.
     #[inline]
     fn chain(&self, p: usize) -> &'m [u32] {
-        let n = self.rows.len() / self.k.max(1) + 1;
+        let n = self.base;
         &self.chains[n + self.chains[p] as usize..n + self.chains[p + 1] as usize]
     }
 
@@ -297,16 +300,35 @@ impl Rate {
 }
 
 /// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
-/// joint `j`'s belong to the state placed with stamp `at[j]` (0: none).
+/// joint `j`'s belong to the state placed with stamp `at[j]` (0: none). And each tight joint's
+/// reach to each geom's sphere, `reach[j · ngeom + g]`, of the state `reach_at[..]` (0: none):
+/// a function of the joint and the geom alone, shared by every pair of the geom (a Panda's 272
+/// pairs over 26 geoms: most of `local_rate`'s terms are repeats within a state).
 struct Axes {
     anchor: Vec<nalgebra::Vector3<f64>>,
     axis: Vec<nalgebra::Vector3<f64>>,
     at: Vec<u32>,
+    ngeom: usize,
+    reach: Vec<f64>,
+    reach_at: Vec<u32>,
 }
 
 impl Axes {
-    fn new(k: usize) -> Self {
-        Axes { anchor: vec![Default::default(); k], axis: vec![Default::default(); k], at: vec![0; k] }
+    fn new(k: usize, ngeom: usize) -> Self {
+        Axes {
+            anchor: vec![Default::default(); k],
+            axis: vec![Default::default(); k],
+            at: vec![0; k],
+            ngeom,
+            reach: vec![0.0; k * ngeom],
+            reach_at: vec![0; k * ngeom],
+        }
+    }
+
+    /// Forgets every state's values (a new motion).
+    fn forget(&mut self) {
+        self.at.fill(0);
+        self.reach_at.fill(0);
     }
 }
 
@@ -324,16 +346,21 @@ fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch
         let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
         let lever = levers.rows[p * levers.k + j];
         a += d * if e & TIGHT != 0 {
-            if axes.at[j] != state {
-                let jnt = &model.joints[j];
-                let x = s.body(jnt.body);
-                axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
-                axes.axis[j] = x.rotation * jnt.axis.into_inner();
-                axes.at[j] = state;
+            let at = j * axes.ngeom + g;
+            if axes.reach_at[at] != state {
+                if axes.at[j] != state {
+                    let jnt = &model.joints[j];
+                    let x = s.body(jnt.body);
+                    axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
+                    axes.axis[j] = x.rotation * jnt.axis.into_inner();
+                    axes.at[j] = state;
+                }
+                let c = model.broad.sphere_centre(&s.broad, g);
+                // (1e-9 relative: rounding of the placed frames and of the cross product)
+                axes.reach[at] = ((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9);
+                axes.reach_at[at] = state;
             }
-            let c = model.broad.sphere_centre(&s.broad, g);
-            // (1e-9 relative: rounding of the placed frames and of the cross product)
-            (((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9)).min(lever)
+            axes.reach[at].min(lever)
         } else {
             lever
         };
@@ -428,7 +455,7 @@ impl MotionScratch {
             hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
             quads: vec![0.0; model.pairs.len()],
-            axes: Axes::new(model.njoint()),
+            axes: Axes::new(model.njoint(), model.geoms.len()),
             q: vec![0.0; model.njoint()],
             radius1: vec![0.0; model.pairs.len()],
             open: Vec::new(),
@@ -553,7 +580,7 @@ pub(crate) fn certify_motion(
         ms.quads[p] = f64::NAN;
     }
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
-    ms.axes.at.fill(0);
+    ms.axes.forget();
     ms.scratch.forget_axes();
     let spans = levers.spans(model);
     let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
@@ -773,7 +800,7 @@ pub(crate) mod tests {
         let levers = Levers::of(&model);
         let space = Space::of(&model).unwrap();
         let mut s = Scratch::new(&model);
-        let mut axes = Axes::new(4);
+        let mut axes = Axes::new(4, model.geoms.len());
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (mut tight_wins, mut checks) = (0, 0);
         for _ in 0..400 {

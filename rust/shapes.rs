@@ -255,6 +255,17 @@ impl Convex {
             _ => Core::Whole(self),
         }
     }
+
+    /// The radius by which [`Convex::core`] is dilated into this shape (metres; 0 for a shape
+    /// that is its own core).
+    #[inline]
+    pub fn rounding(&self) -> f64 {
+        match self {
+            Convex::Ball(b) => b.radius,
+            Convex::Capsule(c) => c.radius,
+            _ => 0.0,
+        }
+    }
 }
 
 impl SupportMap for Core<'_> {
