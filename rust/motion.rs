@@ -290,6 +290,12 @@ impl Rate {
             return f64::INFINITY;
         }
         let linear = slack / self.chain;
+        if self.b == 0.0 && self.a == self.chain {
+            // (the chain rate alone: the quadratic form is `2s / (c + sqrt(c²))`, which is `s / c`
+            // bit for bit for a rate in the normal range, the square root of a rounded square
+            // being exact)
+            return linear;
+        }
         let quadratic = 2.0 * slack / (self.a + (self.a * self.a + 2.0 * self.b * slack).sqrt());
         if quadratic.is_nan() {
             linear
