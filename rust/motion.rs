@@ -292,8 +292,9 @@ impl Rate {
         let linear = slack / self.chain;
         if self.b == 0.0 && self.a == self.chain {
             // (the chain rate alone: the quadratic form is `2s / (c + sqrt(c²))`, which is `s / c`
-            // bit for bit for a rate in the normal range, the square root of a rounded square
-            // being exact)
+            // bit for bit for a rate and slack in the normal range, the square root of a rounded
+            // square being exact; below ~1e-154 or above ~1e307, where the square or `2s` leaves
+            // the range, the quadratic form read past `s / c`, and `s / c` is the right answer)
             return linear;
         }
         let quadratic = 2.0 * slack / (self.a + (self.a * self.a + 2.0 * self.b * slack).sqrt());
