@@ -95,7 +95,8 @@ struct PlanePair {
 /// The model's broad-phase data, built once from the geoms and candidate pairs.
 #[derive(Debug, Default)]
 pub(crate) struct Broad {
-    /// Bodies that carry a geom in `geoms` (their rotation matrices are needed per pose).
+    /// Moving bodies (not the world) that carry a geom in `geoms` (their rotation matrices are
+    /// needed per pose).
     bodies: Vec<u32>,
     /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.
     body_centre: Vec<Vector3<f64>>,
@@ -104,8 +105,14 @@ pub(crate) struct Broad {
     geom_centre: Vec<Vector3<f64>>,
     geom_rot: Vec<Matrix3<f64>>,
     geom_body: Vec<u32>,
-    /// Non-plane geoms of some pair, whose world sphere centres are needed per pose.
-    geoms: Vec<u32>,
+    /// Non-plane geoms of some pair on a moving body, whose world sphere centres are needed per
+    /// pose, each with its body.
+    geoms: Vec<(u32, u32)>,
+    /// Non-plane geoms of some pair on the world body: their sphere centres never move, and
+    /// `scratch` places them once.
+    static_geoms: Vec<u32>,
+    /// Whether the world body holds such a geom (its sphere is then placed once, too).
+    static_body: bool,
     groups: Vec<Group>,
     /// The groups' body-sphere tests (`sphere_pairs.rs`), in group order, padded at the end.
     group_tests: PairList,
@@ -233,7 +240,13 @@ impl Broad {
         let mut bodies: Vec<u32> = (0..geoms.len()).filter(|&g| sphere[g]).map(|g| geom_body[g]).collect();
         bodies.sort_unstable();
         bodies.dedup();
-        let geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize]).collect();
+        let static_body = bodies.first() == Some(&0);
+        bodies.retain(|&b| b != 0);
+        let static_geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize] && geom_body[g as usize] == 0).collect();
+        let geoms = (0..geoms.len() as u32)
+            .filter(|&g| sphere[g as usize] && geom_body[g as usize] != 0)
+            .map(|g| (g, geom_body[g as usize]))
+            .collect();
         let mut plane_geoms: Vec<u32> = planes.iter().map(|p| p.plane).collect();
         plane_geoms.sort_unstable();
         plane_geoms.dedup();
@@ -251,6 +264,8 @@ impl Broad {
             geom_rot,
             geom_body,
             geoms,
+            static_geoms,
+            static_body,
             groups,
             group_tests,
             members,
@@ -269,18 +284,35 @@ impl Broad {
 
     pub(crate) fn scratch(&self) -> BroadScratch {
         let (nb, ng) = (self.body_centre.len(), self.geom_centre.len());
-        BroadScratch {
+        let mut s = BroadScratch {
             rot: vec![Matrix3::identity(); nb],
             body_world: Centres::zeros(nb),
             geom_world: Centres::zeros(ng),
             plane: vec![(Vector3::zeros(), 0.0); ng],
             buf: vec![0; self.members.len() + self.planes.len()],
+        };
+        // The world body's frame is the identity in every pose (`kinematics::body_poses`): its
+        // sphere and its geoms' are placed here, once, as `place` would place them (bit for bit:
+        // the identity's rotation matrix is exact, and adding its zero translation is too).
+        let world = Isometry3::identity();
+        let r = world.rotation.to_rotation_matrix().into_inner();
+        if self.static_body {
+            s.rot[0] = r;
+            s.body_world.set(0, &(world.translation.vector + r * self.body_centre[0]));
         }
+        for &g in &self.static_geoms {
+            self.set_geom_centre(&world, &r, g as usize, &mut s.geom_world);
+        }
+        s
     }
 
     /// Places the spheres for the pose whose body frames are `bodies` (`geom_poses` must hold
     /// the world frames of the plane geoms): what `near_pairs` and `may_touch` test.
+    ///
+    /// The world body's sphere and its geoms' were placed with the scratch (`scratch`): `bodies[0]`
+    /// must be the identity, as `kinematics::body_poses` makes it.
     pub(crate) fn place(&self, bodies: &[Isometry3<f64>], geom_poses: &[Isometry3<f64>], s: &mut BroadScratch) {
+        debug_assert!(bodies[0] == Isometry3::identity());
         for &b in &self.bodies {
             let b = b as usize;
             let x = &bodies[b];
@@ -288,9 +320,8 @@ impl Broad {
             s.rot[b] = r;
             s.body_world.set(b, &(x.translation.vector + r * self.body_centre[b]));
         }
-        for &g in &self.geoms {
-            let g = g as usize;
-            let b = self.geom_body[g] as usize;
+        for &(g, b) in &self.geoms {
+            let (g, b) = (g as usize, b as usize);
             self.set_geom_centre(&bodies[b], &s.rot[b], g, &mut s.geom_world);
         }
         for &g in &self.plane_geoms {
@@ -313,7 +344,7 @@ impl Broad {
     }
 
     /// Geom `g`'s world sphere centre from its body's frame `x` and rotation matrix `r`.
-    #[inline]
+    #[inline(always)]
     fn set_geom_centre(&self, x: &Isometry3<f64>, r: &Matrix3<f64>, g: usize, out: &mut Centres) {
         out.set(g, &(x.translation.vector + r * self.geom_centre[g]));
     }
