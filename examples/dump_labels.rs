@@ -34,6 +34,8 @@ fn main() {
         }
         return;
     }
+    // (as the Python entry points label: skipping the pairs proven apart)
+    profrobot::motion::prove_apart(&model);
     let mut s = Scratch::new(&model);
     let mut hits = Vec::new();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());

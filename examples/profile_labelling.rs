@@ -41,6 +41,11 @@ fn main() {
     let n: usize = n.parse().expect("N poses");
     let poses = sample_uniform(&model.sampling_ranges().unwrap(), n, 0).unwrap();
     likely_pairs(&model); // computed once per model, outside the count
+    if std::env::var_os("NO_APART").is_none() {
+        let t = std::time::Instant::now();
+        profrobot::motion::prove_apart(&model); // likewise
+        eprintln!("prove_apart: {:.3} s", t.elapsed().as_secs_f64());
+    }
     let hits = run(&model, &poses, mode);
     println!("{hits} of {n} collide");
 }

@@ -795,7 +795,12 @@ pub fn label_pose(
         near.sort_unstable();
     }
     let mut label = Label { min_distance: f64::INFINITY, ..Label::default() };
+    // (pairs proven clear at this pose's joint value are not in contact: `motion::prove_apart`)
+    let apart = model.apart();
     for &k in &near {
+        if apart.is_some_and(|a| a[k as usize].holds(q)) {
+            continue;
+        }
         let hit = match scratch.in_contact(model, k as usize) {
             Ok(hit) => hit,
             Err(e) => {

@@ -52,6 +52,34 @@ pub struct RobotModel {
     /// its values over which the pair is proven clear (`spans.rs`); `u32::MAX` and none for
     /// the other pairs. On first use by `motion.rs`.
     pub(crate) joint_spans: std::sync::OnceLock<Vec<(u32, Vec<[f64; 2]>)>>,
+    /// Per candidate pair: a joint and the widest span of its values over which the pair is
+    /// proven clear (its widest of `joint_spans`; `u32::MAX` for none), so that labelling skips
+    /// the pair in any pose whose joint value lies inside (`proven_apart`). Set by
+    /// `motion::prove_apart`; unset, nothing is skipped.
+    pub(crate) apart: std::sync::OnceLock<Vec<Apart>>,
+}
+
+/// A candidate pair proven clear while `lo <= q[joint] <= hi` (`RobotModel::apart`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Apart {
+    pub joint: u32,
+    pub lo: f64,
+    pub hi: f64,
+}
+
+impl Apart {
+    /// For a pair with no span.
+    pub(crate) const NONE: Apart = Apart { joint: u32::MAX, lo: f64::NAN, hi: f64::NAN };
+
+    /// Whether pose `q` (length K) is inside the span: the pair is then clear in it.
+    #[inline]
+    pub(crate) fn holds(&self, q: &[f64]) -> bool {
+        // (NONE's joint is never read: its comparisons with NaN fail first)
+        self.lo <= self.hi && {
+            let v = q[self.joint as usize];
+            self.lo <= v && v <= self.hi
+        }
+    }
 }
 
 fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
@@ -294,7 +322,15 @@ impl RobotModel {
             likely_pairs: std::sync::OnceLock::new(),
             lever_rows: std::sync::OnceLock::new(),
             joint_spans: std::sync::OnceLock::new(),
+            apart: std::sync::OnceLock::new(),
         })
+    }
+
+    /// The pairs' spans of `motion::prove_apart`, once it has run (else None: no pair is
+    /// skipped).
+    #[inline]
+    pub(crate) fn apart(&self) -> Option<&[Apart]> {
+        self.apart.get().map(Vec::as_slice)
     }
 
     /// Number of joints, i.e. the length K of a pose vector.

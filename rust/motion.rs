@@ -52,7 +52,7 @@ use crate::broad::{check_clearance, slack_above, DISTANCE_SLACK};
 use crate::collide::{first_error, Scratch, Undecided};
 use crate::couplings::{Couplings, FEASIBLE_TOL};
 use crate::error::{Error, Result};
-use crate::model::RobotModel;
+use crate::model::{Apart, RobotModel};
 use crate::spans::{clear_spans, covers, span_need};
 
 /// Radians / metres: the smallest joint move of an interval the certificate halves further.
@@ -745,9 +745,29 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
 }
 
 /// The model's spans (`spans.rs`), per candidate pair.
-#[cfg(test)]
 pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
     Levers::of(model).spans(model)
+}
+
+/// Sweeps the spans of the pairs one joint alone moves (`spans.rs`), once per model, and keeps
+/// each pair's widest (`RobotModel::apart`): from then on the labeller and the fast paths skip
+/// a pair in every pose whose joint value lies inside it.
+///
+/// Exact: a span proves the pair more than `max(margin, MAX_CLEARANCE)` apart at every value
+/// inside it, so the pair is neither in contact nor within any clearance a certificate asks
+/// (`broad::MAX_CLEARANCE`), and its tests would have said so. Labels, `collides` and
+/// certificates are the same with the spans as without (`tests`), only cheaper: on a Panda the
+/// link 0 / link 1 pair reaches the narrow phase in every pose, and never touches.
+pub fn prove_apart(model: &RobotModel) {
+    model.apart.get_or_init(|| {
+        joint_spans(model)
+            .iter()
+            .map(|(j, spans)| match spans.iter().max_by(|a, b| (a[1] - a[0]).total_cmp(&(b[1] - b[0]))) {
+                Some(&[lo, hi]) if *j != u32::MAX => Apart { joint: *j, lo, hi },
+                _ => Apart::NONE,
+            })
+            .collect()
+    });
 }
 
 /// Pair `p`'s lever for joint `j` (0 for a joint at or above its common ancestor).
@@ -800,6 +820,62 @@ pub(crate) mod tests {
 
     /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
     /// changes by more than `Rate::drop(τ)`, at the chain rate or the state-local one.
+    /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
+    /// counts, colliding pairs), `collides` and certificates are those of the same model without
+    /// the proofs, on poses within the limits and on poses up to 1 rad beyond them (outside the
+    /// spans, where nothing is skipped); and the proofs do skip pairs (the Panda's link 0 /
+    /// link 1 pair, which reaches the narrow phase in every pose).
+    #[test]
+    fn pairs_proven_apart_are_skipped_without_changing_any_answer() {
+        use crate::collide::{label_batch, LabelOptions};
+        use crate::fastpath::{certified_batch, collides_batch};
+        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let (plain, proven) = (RobotModel::new(desc.clone()).unwrap(), RobotModel::new(desc).unwrap());
+            prove_apart(&proven);
+            let apart = proven.apart().unwrap();
+            assert!(plain.apart().is_none());
+            let skipped = apart.iter().filter(|a| a.joint != u32::MAX).count();
+            assert!(skipped > 0, "{scene}: no pair proven apart");
+            let ranges = plain.sampling_ranges().unwrap();
+            let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 1.0, r[1] + 1.0]).collect();
+            for (what, ranges) in [("within limits", &ranges), ("beyond them", &wide)] {
+                let poses = crate::sample::sample_uniform(ranges, 3000, 9).unwrap();
+                let opts = LabelOptions { pairs: true, distance: false };
+                let (a, b) = (label_batch(&plain, &poses, opts).unwrap(), label_batch(&proven, &poses, opts).unwrap());
+                assert_eq!(a.colliding_pairs, b.colliding_pairs, "{scene}, {what}");
+                for (x, y) in a.labels.iter().zip(&b.labels) {
+                    assert_eq!(
+                        (x.self_collides, x.scene_collides, x.n_pairs),
+                        (y.self_collides, y.scene_collides, y.n_pairs),
+                        "{scene}, {what}"
+                    );
+                }
+                assert_eq!(collides_batch(&plain, &poses).unwrap(), collides_batch(&proven, &poses).unwrap(), "{scene}, {what}");
+                assert_eq!(
+                    certified_batch(&plain, &poses, 1e-6).unwrap(),
+                    certified_batch(&proven, &poses, 1e-6).unwrap(),
+                    "{scene}, {what}"
+                );
+            }
+        }
+        // the Panda's link 0 / link 1 pair (bodies 1 and 2, one hinge between them): proven over
+        // the hinge's whole range
+        let path = format!("{}/benches/data/panda_blocks.json", env!("CARGO_MANIFEST_DIR"));
+        let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+        prove_apart(&model);
+        let k = (0..model.pairs.len())
+            .find(|&k| {
+                let p = &model.pairs[k];
+                (model.geoms[p.g1].body, model.geoms[p.g2].body) == (1, 2)
+            })
+            .unwrap();
+        let a = model.apart().unwrap()[k];
+        let r = model.sampling_ranges().unwrap()[a.joint as usize];
+        assert_eq!((a.joint, a.lo, a.hi), (0, r[0], r[1]));
+    }
+
     #[test]
     fn no_pair_closes_faster_than_its_rate() {
         let model = arm();

@@ -23,6 +23,7 @@ use crate::images;
 use crate::interpolate::interpolate_so2;
 use crate::kinematics::forward_kinematics;
 use crate::model::RobotModel;
+use crate::motion::prove_apart;
 use crate::motion::{certify_motions, Motion};
 use crate::oracle::{nearest_free, OracleOptions};
 use crate::pairs::PairKind;
@@ -411,7 +412,15 @@ impl PyRobotModel {
         let q = rows_of(&poses);
         let q: &[f64] = &q;
         let opts = LabelOptions { pairs, distance };
-        let batch = py.detach(|| with_threads(threads, || label_batch(model, q, opts))).map_err(to_py)?.map_err(to_py)?;
+        let batch = py
+            .detach(|| {
+                with_threads(threads, || {
+                    prove_apart(model);
+                    label_batch(model, q, opts)
+                })
+            })
+            .map_err(to_py)?
+            .map_err(to_py)?;
         let labels = &batch.labels;
         let out = PyDict::new(py);
         out.set_item("collides", PyArray1::from_iter(py, labels.iter().map(|l| l.collides())))?;
@@ -436,7 +445,15 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = py.detach(|| with_threads(threads, || collides_batch(model, q))).map_err(to_py)?.map_err(to_py)?;
+        let out = py
+            .detach(|| {
+                with_threads(threads, || {
+                    prove_apart(model);
+                    collides_batch(model, q)
+                })
+            })
+            .map_err(to_py)?
+            .map_err(to_py)?;
         Ok(PyArray1::from_vec(py, out))
     }
 
@@ -454,7 +471,15 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = py.detach(|| with_threads(threads, || certified_batch(model, q, clearance))).map_err(to_py)?.map_err(to_py)?;
+        let out = py
+            .detach(|| {
+                with_threads(threads, || {
+                    prove_apart(model);
+                    certified_batch(model, q, clearance)
+                })
+            })
+            .map_err(to_py)?
+            .map_err(to_py)?;
         Ok(PyArray1::from_vec(py, out))
     }
 
