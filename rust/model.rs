@@ -59,26 +59,38 @@ pub struct RobotModel {
     pub(crate) apart: std::sync::OnceLock<Vec<Apart>>,
 }
 
-/// A candidate pair proven clear while `lo <= q[joint] <= hi` (`RobotModel::apart`).
+/// A candidate pair proven clear while `lo[i] <= q[joints[i]] <= hi[i]` for both entries
+/// (`RobotModel::apart`); an entry with joint `u32::MAX` holds for every pose (a pair one joint
+/// alone moves uses one entry).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Apart {
-    pub joint: u32,
-    pub lo: f64,
-    pub hi: f64,
+    pub joints: [u32; 2],
+    pub lo: [f64; 2],
+    pub hi: [f64; 2],
 }
 
 impl Apart {
-    /// For a pair with no span.
-    pub(crate) const NONE: Apart = Apart { joint: u32::MAX, lo: f64::NAN, hi: f64::NAN };
+    /// For a pair with no proof.
+    pub(crate) const NONE: Apart = Apart { joints: [u32::MAX; 2], lo: [f64::NAN; 2], hi: [f64::NAN; 2] };
 
-    /// Whether pose `q` (length K) is inside the span: the pair is then clear in it.
+    /// Whether this proves anything.
+    #[cfg(test)]
+    pub(crate) fn some(&self) -> bool {
+        self.joints[0] != u32::MAX
+    }
+
+    /// Whether pose `q` (length K) is inside the proven box: the pair is then clear in it.
     #[inline]
     pub(crate) fn holds(&self, q: &[f64]) -> bool {
-        // (NONE's joint is never read: its comparisons with NaN fail first)
-        self.lo <= self.hi && {
-            let v = q[self.joint as usize];
-            self.lo <= v && v <= self.hi
-        }
+        // (NONE's joints are never read: its comparisons with NaN fail first)
+        let inside = |i: usize| {
+            let j = self.joints[i];
+            j == u32::MAX || {
+                let v = q[j as usize];
+                self.lo[i] <= v && v <= self.hi[i]
+            }
+        };
+        self.lo[0] <= self.hi[0] && inside(0) && inside(1)
     }
 }
 

@@ -749,25 +749,112 @@ pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
     Levers::of(model).spans(model)
 }
 
-/// Sweeps the spans of the pairs one joint alone moves (`spans.rs`), once per model, and keeps
-/// each pair's widest (`RobotModel::apart`): from then on the labeller and the fast paths skip
-/// a pair in every pose whose joint value lies inside it.
+/// Proves pairs clear over boxes of joint values, once per model (`RobotModel::apart`): from
+/// then on the labeller and the fast paths skip a pair in every pose inside its box.
 ///
-/// Exact: a span proves the pair more than `max(margin, MAX_CLEARANCE)` apart at every value
-/// inside it, so the pair is neither in contact nor within any clearance a certificate asks
-/// (`broad::MAX_CLEARANCE`), and its tests would have said so. Labels, `collides` and
-/// certificates are the same with the spans as without (`tests`), only cheaper: on a Panda the
+/// - A pair one joint alone moves: its widest span of `spans.rs`.
+/// - A pair two joints move (a Panda's link 6 and its hand, a wrist's two links): the box of
+///   both joints' sampling ranges, by branch and bound ([`box_clear`]), when it can be proven
+///   whole within [`BOX_CELLS`] cells.
+///
+/// Exact: a span or a box proves the pair more than `max(margin, MAX_CLEARANCE)` apart at every
+/// pose inside it, so the pair is neither in contact nor within any clearance a certificate
+/// asks (`broad::MAX_CLEARANCE`), and its tests would have said so. Labels, `collides` and
+/// certificates are the same with the proofs as without (`tests`), only cheaper: on a Panda the
 /// link 0 / link 1 pair reaches the narrow phase in every pose, and never touches.
 pub fn prove_apart(model: &RobotModel) {
     model.apart.get_or_init(|| {
+        let levers = Levers::of(model);
+        let ranges = model.sampling_ranges().ok();
+        let mut s = Scratch::new(model);
         joint_spans(model)
             .iter()
-            .map(|(j, spans)| match spans.iter().max_by(|a, b| (a[1] - a[0]).total_cmp(&(b[1] - b[0]))) {
-                Some(&[lo, hi]) if *j != u32::MAX => Apart { joint: *j, lo, hi },
-                _ => Apart::NONE,
+            .enumerate()
+            .map(|(p, (j, spans))| {
+                if *j != u32::MAX {
+                    return match spans.iter().max_by(|a, b| (a[1] - a[0]).total_cmp(&(b[1] - b[0]))) {
+                        Some(&[lo, hi]) => Apart { joints: [*j, u32::MAX], lo: [lo, f64::NAN], hi: [hi, f64::NAN] },
+                        None => Apart::NONE,
+                    };
+                }
+                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
+                joints.sort_unstable();
+                joints.dedup();
+                match (&ranges, joints.as_slice()) {
+                    (Some(r), &[a, b])
+                        if box_clear(
+                            model,
+                            &mut s,
+                            p,
+                            [a, b],
+                            [r[a], r[b]],
+                            [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]],
+                        ) =>
+                    {
+                        Apart { joints: [a as u32, b as u32], lo: [r[a][0], r[b][0]], hi: [r[a][1], r[b][1]] }
+                    }
+                    _ => Apart::NONE,
+                }
             })
             .collect()
     });
+}
+
+/// Most cells [`box_clear`] places for one pair before it gives up.
+pub(crate) const BOX_CELLS: usize = 2048;
+
+/// Whether candidate pair `p`, whose distance depends on joints `joints` alone, is proven above
+/// its span need (`spans::span_need`) at every pose with those joints in `ranges`, their levers
+/// `levers` (`Levers`). Branch and bound: a cell with centre `c` and half-widths `h` is proven
+/// when the pair's lower bound at `c` exceeds the need by `Σ_i h_i·R_i`, the most its distance
+/// can fall within the cell (module docs, step 1); else it is halved across its longer side (in
+/// `h_i·R_i`), or the whole box fails where a centre is not above the need, past
+/// [`BOX_CELLS`] cells, or where the narrow phase cannot bound the pair. The other joints stay
+/// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
+/// order, the pair's remembered axis forgotten first).
+fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], ranges: [[f64; 2]; 2], levers: [f64; 2]) -> bool {
+    if !levers.iter().all(|r| r.is_finite() && *r > 0.0) || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite()) {
+        return false;
+    }
+    let Ok(all) = model.sampling_ranges() else {
+        return false;
+    };
+    let need = span_need(model, p);
+    let mut q: Vec<f64> = all.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
+    s.forget_axes();
+    let mut cells = vec![ranges];
+    let mut placed = 0usize;
+    while let Some(cell) = cells.pop() {
+        placed += 1;
+        if placed > BOX_CELLS {
+            return false;
+        }
+        let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
+        for i in 0..2 {
+            q[joints[i]] = cell[i][0] + h[i];
+        }
+        s.place_pairs(model, &q, std::iter::once(p));
+        let Ok(d) = s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY) else {
+            return false;
+        };
+        let slack = slack_above(d, need);
+        // (the fall bound rounded up a little: it is a sum of products)
+        let fall = (h[0] * levers[0] + h[1] * levers[1]) * (1.0 + 1e-12);
+        if slack >= fall {
+            continue;
+        }
+        if slack <= 0.0 {
+            return false;
+        }
+        let i = if h[0] * levers[0] >= h[1] * levers[1] { 0 } else { 1 };
+        let mid = cell[i][0] + h[i];
+        let (mut lo, mut hi) = (cell, cell);
+        lo[i][1] = mid;
+        hi[i][0] = mid;
+        cells.push(hi);
+        cells.push(lo);
+    }
+    true
 }
 
 /// Pair `p`'s lever for joint `j` (0 for a joint at or above its common ancestor).
@@ -823,21 +910,24 @@ pub(crate) mod tests {
     /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
     /// counts, colliding pairs), `collides` and certificates are those of the same model without
     /// the proofs, on poses within the limits and on poses up to 1 rad beyond them (outside the
-    /// spans, where nothing is skipped); and the proofs do skip pairs (the Panda's link 0 /
-    /// link 1 pair, which reaches the narrow phase in every pose).
+    /// spans and boxes, where nothing is skipped); and the proofs do skip pairs, over one joint
+    /// and over two (the Panda's link 0 / link 1 pair, which reaches the narrow phase in every
+    /// pose, over its hinge's whole range).
     #[test]
     fn pairs_proven_apart_are_skipped_without_changing_any_answer() {
         use crate::collide::{label_batch, LabelOptions};
         use crate::fastpath::{certified_batch, collides_batch};
-        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf"] {
+        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf", "shadow_hand", "vx300s_clutter"] {
             let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
             let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
             let (plain, proven) = (RobotModel::new(desc.clone()).unwrap(), RobotModel::new(desc).unwrap());
             prove_apart(&proven);
             let apart = proven.apart().unwrap();
             assert!(plain.apart().is_none());
-            let skipped = apart.iter().filter(|a| a.joint != u32::MAX).count();
+            let skipped = apart.iter().filter(|a| a.some()).count();
             assert!(skipped > 0, "{scene}: no pair proven apart");
+            // (and boxes of two joints among them, where one joint's spans are not enough)
+            assert!(apart.iter().any(|a| a.joints[1] != u32::MAX), "{scene}: no pair proven over two joints");
             let ranges = plain.sampling_ranges().unwrap();
             let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 1.0, r[1] + 1.0]).collect();
             for (what, ranges) in [("within limits", &ranges), ("beyond them", &wide)] {
@@ -872,8 +962,9 @@ pub(crate) mod tests {
             })
             .unwrap();
         let a = model.apart().unwrap()[k];
-        let r = model.sampling_ranges().unwrap()[a.joint as usize];
-        assert_eq!((a.joint, a.lo, a.hi), (0, r[0], r[1]));
+        let r = model.sampling_ranges().unwrap()[a.joints[0] as usize];
+        let r = [r, [f64::NAN; 2]];
+        assert_eq!((a.joints[0], a.lo[0], a.hi[0], a.joints[1]), (0, r[0][0], r[0][1], u32::MAX));
     }
 
     #[test]
