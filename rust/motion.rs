@@ -753,7 +753,8 @@ pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
 /// then on the labeller and the fast paths skip a pair in every pose inside its box.
 ///
 /// - A pair one joint alone moves: its widest span of `spans.rs`.
-/// - A pair two joints move (a Panda's link 6 and its hand, a wrist's two links): the box of
+/// - A pair two joints move (a Panda's link 5 and its hand, an arm's base against its third
+///   link): the box of
 ///   both joints' sampling ranges, by branch and bound ([`box_clear`]), when it can be proven
 ///   whole within [`BOX_CELLS`] cells.
 ///
@@ -801,15 +802,16 @@ pub fn prove_apart(model: &RobotModel) {
 }
 
 /// Most cells [`box_clear`] places for one pair before it gives up.
-pub(crate) const BOX_CELLS: usize = 2048;
+pub(crate) const BOX_CELLS: usize = 16_384;
 
 /// Whether candidate pair `p`, whose distance depends on joints `joints` alone, is proven above
 /// its span need (`spans::span_need`) at every pose with those joints in `ranges`, their levers
 /// `levers` (`Levers`). Branch and bound: a cell with centre `c` and half-widths `h` is proven
 /// when the pair's lower bound at `c` exceeds the need by `Σ_i h_i·R_i`, the most its distance
 /// can fall within the cell (module docs, step 1); else it is halved across its longer side (in
-/// `h_i·R_i`), or the whole box fails where a centre is not above the need, past
-/// [`BOX_CELLS`] cells, or where the narrow phase cannot bound the pair. The other joints stay
+/// `h_i·R_i`), or the whole box fails where a centre (or a point of a coarse grid, tried first)
+/// is not above the need, past [`BOX_CELLS`] cells, or where the narrow phase cannot bound the
+/// pair. The other joints stay
 /// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
 /// order, the pair's remembered axis forgotten first).
 fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], ranges: [[f64; 2]; 2], levers: [f64; 2]) -> bool {
@@ -822,6 +824,20 @@ fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], 
     let need = span_need(model, p);
     let mut q: Vec<f64> = all.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
     s.forget_axes();
+    // A pair that comes within its need somewhere on a coarse grid cannot be proven: found
+    // with GRID² cells, not after most of the budget.
+    const GRID: usize = 8;
+    for a in 0..GRID {
+        for b in 0..GRID {
+            q[joints[0]] = ranges[0][0] + (a as f64 + 0.5) / GRID as f64 * (ranges[0][1] - ranges[0][0]);
+            q[joints[1]] = ranges[1][0] + (b as f64 + 0.5) / GRID as f64 * (ranges[1][1] - ranges[1][0]);
+            s.place_pairs(model, &q, std::iter::once(p));
+            match s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY) {
+                Ok(d) if slack_above(d, need) > 0.0 => {}
+                _ => return false,
+            }
+        }
+    }
     let mut cells = vec![ranges];
     let mut placed = 0usize;
     while let Some(cell) = cells.pop() {
