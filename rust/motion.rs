@@ -594,9 +594,23 @@ pub(crate) fn certify_motion(
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
     // inside one of its spans (`spans.rs`), proven at a need at least the motion's.
+    // A pair two joints move, likewise, when both joints' sweeps stay inside its proven box
+    // (`prove_apart`; run here once per model, so that verdicts do not depend on whether
+    // something else ran it first).
+    prove_apart(model);
+    let apart = model.apart().unwrap_or(&[]);
+    let boxed = |p: usize| {
+        apart.get(p).is_some_and(|a| {
+            a.joints[1] != u32::MAX
+                && (0..2).all(|i| {
+                    let j = a.joints[i] as usize;
+                    a.lo[i] <= ms.lo[j] && ms.hi[j] <= a.hi[i]
+                })
+        })
+    };
     let spanned = |p: usize| {
         let (j, sp) = &spans[p];
-        *j != u32::MAX && need(p) <= span_need(model, p) && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])
+        need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed(p))
     };
     let stop = |e: Stop, t: f64| match e {
         Stop::Blocked => Ok(Motion::Blocked(t)),
