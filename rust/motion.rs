@@ -832,6 +832,11 @@ fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], 
     if !levers.iter().all(|r| r.is_finite() && *r > 0.0) || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite()) {
         return false;
     }
+    // (as `spans::clear_spans`: a point cloud's nearest-ball search gives no bound to prove by)
+    let pair = &model.pairs[p];
+    if [pair.g1, pair.g2].iter().any(|&g| matches!(model.geoms[g].shape.solid, crate::shapes::Solid::Cloud(_))) {
+        return false;
+    }
     let Ok(all) = model.sampling_ranges() else {
         return false;
     };
