@@ -52,9 +52,10 @@ pub struct RobotModel {
     /// its values over which the pair is proven clear (`spans.rs`); `u32::MAX` and none for
     /// the other pairs. On first use by `motion.rs`.
     pub(crate) joint_spans: std::sync::OnceLock<Vec<(u32, Vec<[f64; 2]>)>>,
-    /// Per candidate pair: a joint and the widest span of its values over which the pair is
-    /// proven clear (its widest of `joint_spans`; `u32::MAX` for none), so that labelling skips
-    /// the pair in any pose whose joint value lies inside (`proven_apart`). Set by
+    /// Per candidate pair: a box of one or two joints' values over which the pair is proven
+    /// clear (a one-joint pair's widest of `joint_spans`, or a two-joint pair's whole sampling
+    /// box; `Apart::NONE` for the others), so that labelling, the fast paths and motion
+    /// certificates skip the pair in any pose (or motion) inside it (`Apart::holds`). Set by
     /// `motion::prove_apart`; unset, nothing is skipped.
     pub(crate) apart: std::sync::OnceLock<Vec<Apart>>,
 }

@@ -776,7 +776,13 @@ pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
 /// pose inside it, so the pair is neither in contact nor within any clearance a certificate
 /// asks (`broad::MAX_CLEARANCE`), and its tests would have said so. Labels, `collides` and
 /// certificates are the same with the proofs as without (`tests`), only cheaper: on a Panda the
-/// link 0 / link 1 pair reaches the narrow phase in every pose, and never touches.
+/// link 0 / link 1 pair reaches the narrow phase in every pose, and never touches. (One
+/// difference: a pair parry cannot decide, `collide::Undecided`, is decided clear inside its
+/// box once the proofs exist; the Python entry points, `plan_path` and `certify_motions` always
+/// make them first.)
+///
+/// Sequential and a function of the model alone (a fresh scratch, pairs in order): 0.02-0.05 s on
+/// each bundled model.
 pub fn prove_apart(model: &RobotModel) {
     model.apart.get_or_init(|| {
         let levers = Levers::of(model);
@@ -940,8 +946,43 @@ pub(crate) mod tests {
         s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY).unwrap().max(0.0)
     }
 
-    /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
-    /// changes by more than `Rate::drop(τ)`, at the chain rate or the state-local one.
+    /// Every proof of `prove_apart` holds where it says: at random poses inside each pair's span
+    /// or box, every other joint anywhere in its range, the pair is clear of `MAX_CLEARANCE`
+    /// by the exact narrow phase (`clear_of`); on arms with boxes over two hinges, the Panda's
+    /// fingers (two slides), and the Shadow Hand's fingers.
+    #[test]
+    fn proofs_of_prove_apart_hold_inside_their_boxes() {
+        use crate::broad::MAX_CLEARANCE;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            prove_apart(&model);
+            let ranges = model.sampling_ranges().unwrap();
+            let mut s = Scratch::new(&model);
+            let (mut ones, mut twos) = (0, 0);
+            for (k, a) in model.apart().unwrap().iter().enumerate() {
+                if a.lo[0] > a.hi[0] || a.lo[0].is_nan() {
+                    continue;
+                }
+                let two = a.joints[1] != u32::MAX;
+                (ones, twos) = if two { (ones, twos + 1) } else { (ones + 1, twos) };
+                for _ in 0..200 {
+                    let mut q: Vec<f64> = ranges.iter().map(|r| rng.random_range(r[0]..=r[1])).collect();
+                    for i in 0..if two { 2 } else { 1 } {
+                        q[a.joints[i] as usize] = rng.random_range(a.lo[i]..=a.hi[i]);
+                    }
+                    assert!(a.holds(&q));
+                    s.place(&model, &q, false);
+                    assert!(s.clear_of(&model, k, MAX_CLEARANCE).unwrap(), "{scene}: pair {k} not clear at {q:?}");
+                }
+            }
+            // (the Shadow Hand's one-joint pairs are its phalanges, parent and child: never
+            // candidates)
+            assert!(twos > 0 && (ones > 0 || scene == "shadow_hand"), "{scene}: {ones} spans and {twos} boxes");
+        }
+    }
+
     /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
     /// counts, colliding pairs), `collides` and certificates are those of the same model without
     /// the proofs, on poses within the limits and on poses up to 1 rad beyond them (outside the
@@ -1002,6 +1043,8 @@ pub(crate) mod tests {
         assert_eq!((a.joints[0], a.lo[0], a.hi[0], a.joints[1]), (0, r[0][0], r[0][1], u32::MAX));
     }
 
+    /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
+    /// changes by more than `Rate::drop(τ)`, at the chain rate or the state-local one.
     #[test]
     fn no_pair_closes_faster_than_its_rate() {
         let model = arm();

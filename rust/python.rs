@@ -415,6 +415,8 @@ impl PyRobotModel {
         let batch = py
             .detach(|| {
                 with_threads(threads, || {
+                    // (checked first, so that bad input costs no proofs)
+                    model.check_poses(q)?;
                     prove_apart(model);
                     label_batch(model, q, opts)
                 })
@@ -448,6 +450,7 @@ impl PyRobotModel {
         let out = py
             .detach(|| {
                 with_threads(threads, || {
+                    model.check_poses(q)?;
                     prove_apart(model);
                     collides_batch(model, q)
                 })
@@ -474,6 +477,8 @@ impl PyRobotModel {
         let out = py
             .detach(|| {
                 with_threads(threads, || {
+                    model.check_poses(q)?;
+                    crate::broad::check_clearance(clearance)?;
                     prove_apart(model);
                     certified_batch(model, q, clearance)
                 })
