@@ -186,9 +186,10 @@ impl<'m> Levers<'m> {
     /// swept on first use (on the calling thread, as `fastpath::likely_pairs`).
     fn spans(&self, model: &'m RobotModel) -> &'m [(u32, Vec<[f64; 2]>)] {
         model.joint_spans.get_or_init(|| {
+            let mut s = Scratch::new(model);
             (0..model.pairs.len())
                 .map(|p| match self.sole_joint(p) {
-                    Some(j) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j])),
+                    Some(j) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j], &mut s)),
                     None => (u32::MAX, Vec::new()),
                 })
                 .collect()

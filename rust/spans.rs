@@ -58,7 +58,7 @@ pub(crate) fn covers(spans: &[[f64; 2]], lo: f64, hi: f64) -> bool {
 /// (`R` in the module docs). Empty for a pair with the point cloud (its nearest-ball search
 /// gives no bound above `need` to advance by), a joint without a bounded sampling range, or a
 /// pair the narrow phase cannot measure.
-pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64) -> Spans {
+pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64, s: &mut Scratch) -> Spans {
     let pair = &model.pairs[k];
     let is_cloud = |g: usize| matches!(model.geoms[g].shape.solid, Solid::Cloud(_));
     let Ok(ranges) = model.sampling_ranges() else {
@@ -71,13 +71,15 @@ pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64) ->
     let [lo, hi] = ranges[j];
     // The base pose: every joint at the middle of its range (only joint `j` matters).
     let mut q: Vec<f64> = ranges.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
-    let mut s = Scratch::new(model);
+    // (the pair's remembered axis forgotten: the sweep is a function of the model alone)
+    s.forget_axes();
     let mut spans = Vec::new();
     let mut open: Option<f64> = None;
     let mut theta = lo;
     for _ in 0..MAX_STATES {
         q[j] = theta.min(hi);
-        s.place(model, &q, false);
+        // (only what the pair reads, bit for bit `place`'s: `Scratch::place_pairs`)
+        s.place_pairs(model, &q, std::iter::once(k));
         let Ok(d) = s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY) else {
             return Vec::new();
         };
@@ -144,7 +146,7 @@ mod tests {
         let model = RobotModel::new(desc).unwrap();
         let [lo, hi] = model.sampling_ranges().unwrap()[0];
         let lever = crate::motion::lever_of(&model, 0, 0);
-        let spans = clear_spans(&model, 0, 0, lever);
+        let spans = clear_spans(&model, 0, 0, lever, &mut Scratch::new(&model));
         assert!(!spans.is_empty() && spans.windows(2).all(|w| w[0][1] < w[1][0]), "{spans:?}");
         let angles: Vec<f64> = (0..=20_000).map(|i| lo + (hi - lo) * i as f64 / 20_000.0).collect();
         let labels = label_batch(&model, &angles, LabelOptions { pairs: false, distance: true }).unwrap();
