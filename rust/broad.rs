@@ -95,7 +95,7 @@ struct PlanePair {
 /// The model's broad-phase data, built once from the geoms and candidate pairs.
 #[derive(Debug, Default)]
 pub(crate) struct Broad {
-    /// Moving bodies (not the world) that carry a geom in `geoms` (their rotation matrices are
+    /// Bodies other than the world that carry a geom in `geoms` (their rotation matrices are
     /// needed per pose).
     bodies: Vec<u32>,
     /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.

@@ -83,13 +83,17 @@ impl Apart {
     /// Whether pose `q` (length K) is inside the proven box: the pair is then clear in it.
     #[inline]
     pub(crate) fn holds(&self, q: &[f64]) -> bool {
+        self.covers(q, q)
+    }
+
+    /// Whether the box holds every pose with each joint `j` in `[lo[j], hi[j]]` (a motion's
+    /// sweep, `motion::certify_motion`).
+    #[inline]
+    pub(crate) fn covers(&self, lo: &[f64], hi: &[f64]) -> bool {
         // (NONE's joints are never read: its comparisons with NaN fail first)
         let inside = |i: usize| {
             let j = self.joints[i];
-            j == u32::MAX || {
-                let v = q[j as usize];
-                self.lo[i] <= v && v <= self.hi[i]
-            }
+            j == u32::MAX || (self.lo[i] <= lo[j as usize] && hi[j as usize] <= self.hi[i])
         };
         self.lo[0] <= self.hi[0] && inside(0) && inside(1)
     }

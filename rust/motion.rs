@@ -53,7 +53,7 @@ use crate::collide::{first_error, Scratch, Undecided};
 use crate::couplings::{Couplings, FEASIBLE_TOL};
 use crate::error::{Error, Result};
 use crate::model::{Apart, RobotModel};
-use crate::spans::{clear_spans, covers, span_need};
+use crate::spans::{clear_spans, covers, has_cloud, span_need};
 
 /// Radians / metres: the smallest joint move of an interval the certificate halves further.
 pub const MIN_STEP: f64 = 1e-7;
@@ -600,15 +600,7 @@ pub(crate) fn certify_motion(
     // something else ran it first).
     prove_apart(model);
     let apart = model.apart().unwrap_or(&[]);
-    let boxed = |p: usize| {
-        apart.get(p).is_some_and(|a| {
-            a.joints[1] != u32::MAX
-                && (0..2).all(|i| {
-                    let j = a.joints[i] as usize;
-                    a.lo[i] <= ms.lo[j] && ms.hi[j] <= a.hi[i]
-                })
-        })
-    };
+    let boxed = |p: usize| apart.get(p).is_some_and(|a| a.joints[1] != u32::MAX && a.covers(&ms.lo, &ms.hi));
     let spanned = |p: usize| {
         let (j, sp) = &spans[p];
         need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed(p))
@@ -804,14 +796,7 @@ pub fn prove_apart(model: &RobotModel) {
                 joints.dedup();
                 match (&ranges, joints.as_slice()) {
                     (Some(r), &[a, b])
-                        if box_clear(
-                            model,
-                            &mut s,
-                            p,
-                            [a, b],
-                            [r[a], r[b]],
-                            [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]],
-                        ) =>
+                        if box_clear(model, &mut s, p, [a, b], r, [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]]) =>
                     {
                         Apart { joints: [a as u32, b as u32], lo: [r[a][0], r[b][0]], hi: [r[a][1], r[b][1]] }
                     }
@@ -826,7 +811,8 @@ pub fn prove_apart(model: &RobotModel) {
 pub(crate) const BOX_CELLS: usize = 16_384;
 
 /// Whether candidate pair `p`, whose distance depends on joints `joints` alone, is proven above
-/// its span need (`spans::span_need`) at every pose with those joints in `ranges`, their levers
+/// its span need (`spans::span_need`) at every pose with those joints in their ranges of `all`
+/// (the model's sampling ranges), their levers
 /// `levers` (`Levers`). Branch and bound: a cell with centre `c` and half-widths `h` is proven
 /// when the pair's lower bound at `c` exceeds the need by `Σ_i h_i·R_i`, the most its distance
 /// can fall within the cell (module docs, step 1); else it is halved across its longer side (in
@@ -835,31 +821,31 @@ pub(crate) const BOX_CELLS: usize = 16_384;
 /// pair. The other joints stay
 /// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
 /// order, the pair's remembered axis forgotten first).
-fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], ranges: [[f64; 2]; 2], levers: [f64; 2]) -> bool {
-    if !levers.iter().all(|r| r.is_finite() && *r > 0.0) || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite()) {
+fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], all: &[[f64; 2]], levers: [f64; 2]) -> bool {
+    let ranges = joints.map(|j| all[j]);
+    if !levers.iter().all(|r| r.is_finite() && *r > 0.0)
+        || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite())
+        || has_cloud(model, p)
+    {
         return false;
     }
-    // (as `spans::clear_spans`: a point cloud's nearest-ball search gives no bound to prove by)
-    let pair = &model.pairs[p];
-    if [pair.g1, pair.g2].iter().any(|&g| matches!(model.geoms[g].shape.solid, crate::shapes::Solid::Cloud(_))) {
-        return false;
-    }
-    let Ok(all) = model.sampling_ranges() else {
-        return false;
-    };
     let need = span_need(model, p);
     let mut q: Vec<f64> = all.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
     s.forget_axes();
+    // How far the pair is proven above its need with the two joints at `at`.
+    let mut slack_at = |s: &mut Scratch, at: [f64; 2]| {
+        (q[joints[0]], q[joints[1]]) = (at[0], at[1]);
+        s.place_pairs(model, &q, std::iter::once(p));
+        s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY).map(|d| slack_above(d, need))
+    };
     // A pair that comes within its need somewhere on a coarse grid cannot be proven: found
     // with GRID² cells, not after most of the budget.
     const GRID: usize = 8;
+    let grid = |i: usize, a: usize| ranges[i][0] + (a as f64 + 0.5) / GRID as f64 * (ranges[i][1] - ranges[i][0]);
     for a in 0..GRID {
         for b in 0..GRID {
-            q[joints[0]] = ranges[0][0] + (a as f64 + 0.5) / GRID as f64 * (ranges[0][1] - ranges[0][0]);
-            q[joints[1]] = ranges[1][0] + (b as f64 + 0.5) / GRID as f64 * (ranges[1][1] - ranges[1][0]);
-            s.place_pairs(model, &q, std::iter::once(p));
-            match s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY) {
-                Ok(d) if slack_above(d, need) > 0.0 => {}
+            match slack_at(s, [grid(0, a), grid(1, b)]) {
+                Ok(slack) if slack > 0.0 => {}
                 _ => return false,
             }
         }
@@ -872,14 +858,9 @@ fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], 
             return false;
         }
         let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
-        for i in 0..2 {
-            q[joints[i]] = cell[i][0] + h[i];
-        }
-        s.place_pairs(model, &q, std::iter::once(p));
-        let Ok(d) = s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY) else {
+        let Ok(slack) = slack_at(s, [cell[0][0] + h[0], cell[1][0] + h[1]]) else {
             return false;
         };
-        let slack = slack_above(d, need);
         // (the fall bound rounded up a little: it is a sum of products)
         let fall = (h[0] * levers[0] + h[1] * levers[1]) * (1.0 + 1e-12);
         if slack >= fall {

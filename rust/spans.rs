@@ -54,17 +54,22 @@ pub(crate) fn covers(spans: &[[f64; 2]], lo: f64, hi: f64) -> bool {
     i < spans.len() && spans[i][0] <= lo
 }
 
+/// Whether candidate pair `k` has the point cloud: its nearest-ball search gives no bound above
+/// a need to prove by, so neither a sweep nor a box (`motion::prove_apart`) proves it.
+pub(crate) fn has_cloud(model: &RobotModel, k: usize) -> bool {
+    let pair = &model.pairs[k];
+    [pair.g1, pair.g2].iter().any(|&g| matches!(model.geoms[g].shape.solid, Solid::Cloud(_)))
+}
+
 /// The spans of candidate pair `k`, whose distance depends on joint `j` alone, with lever `lever`
 /// (`R` in the module docs). Empty for a pair with the point cloud (its nearest-ball search
 /// gives no bound above `need` to advance by), a joint without a bounded sampling range, or a
 /// pair the narrow phase cannot measure.
 pub(crate) fn clear_spans(model: &RobotModel, k: usize, j: usize, lever: f64, s: &mut Scratch) -> Spans {
-    let pair = &model.pairs[k];
-    let is_cloud = |g: usize| matches!(model.geoms[g].shape.solid, Solid::Cloud(_));
     let Ok(ranges) = model.sampling_ranges() else {
         return Vec::new();
     };
-    if is_cloud(pair.g1) || is_cloud(pair.g2) || !(lever > 0.0 && lever.is_finite()) {
+    if has_cloud(model, k) || !(lever > 0.0 && lever.is_finite()) {
         return Vec::new();
     }
     let need = span_need(model, k);
