@@ -8,7 +8,9 @@
 //!
 //! Modes: `label` (the four labels), `collides` (the booleans-only fast path), `distance`
 //! (labels and the minimum signed distance). Poses are `sample_uniform(.., n, 0)`. Prints the
-//! number of colliding poses, so that two builds can be checked to agree.
+//! number of colliding poses, so that two builds can be checked to agree. With `TIME=R` set, also
+//! the best of R timed runs in microseconds a pose (one thread; a quiet machine, load average
+//! beside it).
 
 use profrobot::collide::{label_pose, LabelOptions, Scratch};
 use profrobot::fastpath::{collides_pose, likely_pairs};
@@ -48,4 +50,14 @@ fn main() {
     }
     let hits = run(&model, &poses, mode);
     println!("{hits} of {n} collide");
+    if let Some(reps) = std::env::var("TIME").ok().and_then(|r| r.parse::<usize>().ok()) {
+        let best = (0..reps)
+            .map(|_| {
+                let t = std::time::Instant::now();
+                std::hint::black_box(run(&model, &poses, mode));
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min);
+        println!("{:.3} us a pose (best of {reps})", best / n as f64 * 1e6);
+    }
 }

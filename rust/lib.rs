@@ -23,6 +23,7 @@
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map, face planes |
 //! | [`cloud`] | point clouds: balls in a tree, exact queries against one convex shape, voxel downsampling |
+//! | `inner` | balls inside each convex shape: overlaps proven without GJK |
 //! | [`shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space, convex or cloud), `Convex` |
 //! | `sat` | remembered separating axes, tried before GJK |
 //! | [`geom`] | `Geom`: a shape on a body |
@@ -61,6 +62,7 @@ pub mod geom;
 pub mod hull;
 pub mod ik;
 pub mod images;
+mod inner;
 pub mod interpolate;
 pub mod kinematics;
 pub mod model;

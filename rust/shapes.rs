@@ -16,6 +16,7 @@ use std::sync::Arc;
 use crate::cloud::{box_sd, Cloud, PointDistance};
 use crate::error::{invalid_model, Result};
 use crate::hull::Hull;
+use crate::inner::{self, InnerBall};
 
 /// MuJoCo's `mjtGeom` codes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -79,6 +80,8 @@ pub struct GeomShape {
     /// hull, not the corner of its box, so the broad phase (`broad.rs`) culls more pairs.
     /// Infinite for half-spaces.
     pub radius: f64,
+    /// Balls inside the shape, in its frame (`inner.rs`): none for half-spaces and clouds.
+    pub inner: Vec<InnerBall>,
 }
 
 impl std::fmt::Debug for GeomShape {
@@ -145,6 +148,7 @@ impl GeomShape {
         let sphere = shape.compute_local_bounding_sphere();
         let obb_center = aabb.center().coords;
         let radius = convex.radius_about(&obb_center);
+        let inner = convex.inner_balls();
         let shape = GeomShape {
             kind,
             solid: Solid::Convex { convex, shape },
@@ -152,6 +156,7 @@ impl GeomShape {
             obb_half: aabb.half_extents(),
             rbound: sphere.center.coords.norm() + sphere.radius,
             radius,
+            inner,
         };
         Ok((shape, axis_fix))
     }
@@ -165,6 +170,7 @@ impl GeomShape {
             obb_half: Vector3::repeat(f64::INFINITY),
             rbound: f64::INFINITY,
             radius: f64::INFINITY,
+            inner: Vec::new(),
         }
     }
 
@@ -183,6 +189,7 @@ impl GeomShape {
             obb_center,
             obb_half,
             radius,
+            inner: Vec::new(),
         })
     }
 
@@ -219,6 +226,31 @@ impl Convex {
             Convex::Hull(h) => h.points().iter().map(|p| (p.coords - c).norm()).fold(0.0, f64::max),
         };
         r * (1.0 + 1e-12)
+    }
+
+    /// Balls inside the shape (`inner.rs`).
+    fn inner_balls(&self) -> Vec<InnerBall> {
+        match self {
+            Convex::Ball(s) => inner::of_ball(s),
+            Convex::Cuboid(s) => inner::of_cuboid(s),
+            Convex::Capsule(s) => inner::of_capsule(s),
+            Convex::Cylinder(s) => inner::of_cylinder(s),
+            Convex::Hull(h) => inner::of_hull(h),
+        }
+    }
+
+    /// Whether one of `balls` (in the frame `pose` maps into this shape's) reaches more than
+    /// `inner::SLACK` into this shape, measured exactly; `None` for a hull, whose distance from a
+    /// point takes GJK.
+    #[inline]
+    pub fn reached_by(&self, balls: &[InnerBall], pose: &Isometry3<f64>) -> Option<bool> {
+        Some(match self {
+            Convex::Ball(s) => inner::reach_into(balls, pose, |p| inner::outside_ball(s, p)),
+            Convex::Cuboid(s) => inner::reach_into(balls, pose, |p| inner::outside_cuboid(s, p)),
+            Convex::Capsule(s) => inner::reach_into(balls, pose, |p| inner::outside_capsule(s, p)),
+            Convex::Cylinder(s) => inner::reach_into(balls, pose, |p| inner::outside_cylinder(s, p)),
+            Convex::Hull(_) => return None,
+        })
     }
 
     fn to_shape(&self) -> Box<dyn Shape> {
