@@ -10,7 +10,7 @@
 
 use std::io::Write;
 
-use profrobot::collide::{label_pose, LabelOptions, Scratch};
+use profrobot::collide::{label_batch, label_pose, LabelBatch, LabelOptions, Scratch};
 use profrobot::{sample_uniform, ModelDesc, RobotModel};
 
 fn main() {
@@ -37,11 +37,26 @@ fn main() {
     // (as the Python entry points label: skipping the pairs proven apart)
     profrobot::motion::prove_apart(&model);
     let mut s = Scratch::new(&model);
-    let mut hits = Vec::new();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    for q in poses.chunks_exact(model.njoint()) {
-        hits.clear();
-        let l = label_pose(&model, q, &mut s, opts, &mut hits).expect("a decidable pose");
+    // (through the batch, as users label: poses placed four at a time; `ONE=1`: one at a time)
+    let batch = if std::env::var_os("ONE").is_some() {
+        let mut batch = LabelBatch::default();
+        let mut hits = Vec::new();
+        for (i, q) in poses.chunks_exact(model.njoint()).enumerate() {
+            hits.clear();
+            batch.labels.push(label_pose(&model, q, &mut s, opts, &mut hits).expect("a decidable pose"));
+            batch.colliding_pairs.extend(hits.iter().map(|&k| [i as u32, k]));
+        }
+        batch
+    } else {
+        label_batch(&model, &poses, opts).expect("decidable poses")
+    };
+    let mut pairs = batch.colliding_pairs.iter().peekable();
+    for (i, l) in batch.labels.iter().enumerate() {
+        let mut hits = Vec::new();
+        while let Some(&[_, k]) = pairs.next_if(|p| p[0] == i as u32) {
+            hits.push(k);
+        }
         let bits = l.min_distance.to_bits();
         let (c, sc, ss) = (l.collides() as u8, l.self_collides as u8, l.scene_collides as u8);
         writeln!(out, "{c} {sc} {ss} {} {bits:x} {hits:?}", l.n_pairs).expect("stdout");

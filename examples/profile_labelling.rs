@@ -1,4 +1,4 @@
-//! A single-threaded labelling loop for instruction counts (`valgrind --tool=callgrind`), free of
+//! Single-threaded labelling (the batch functions in a pool of one thread) for instruction counts (`valgrind --tool=callgrind`), free of
 //! thread-pool noise: `cargo build --release --example profile_labelling`, then
 //!
 //! ```text
@@ -12,23 +12,18 @@
 //! the best of R timed runs in microseconds a pose (one thread; a quiet machine, load average
 //! beside it).
 
-use profrobot::collide::{label_pose, LabelOptions, Scratch};
-use profrobot::fastpath::{collides_pose, likely_pairs};
+use profrobot::collide::{label_batch, LabelOptions};
+use profrobot::fastpath::{collides_batch, likely_pairs};
 use profrobot::{sample_uniform, ModelDesc, RobotModel};
 
 #[inline(never)]
 fn run(model: &RobotModel, poses: &[f64], mode: &str) -> usize {
-    let k = model.njoint();
-    let mut scratch = Scratch::new(model);
-    let mut hits = Vec::new();
+    // (the batches users call, on this thread: poses placed four at a time)
     let opts = LabelOptions { pairs: false, distance: mode == "distance" };
-    poses
-        .chunks_exact(k)
-        .filter(|q| match mode {
-            "collides" => collides_pose(model, q, &mut scratch).expect("a decidable pose"),
-            _ => label_pose(model, q, &mut scratch, opts, &mut hits).expect("a decidable pose").collides(),
-        })
-        .count()
+    match mode {
+        "collides" => collides_batch(model, poses).expect("decidable poses").into_iter().filter(|&c| c).count(),
+        _ => label_batch(model, poses, opts).expect("decidable poses").labels.iter().filter(|l| l.collides()).count(),
+    }
 }
 
 fn main() {
@@ -48,6 +43,9 @@ fn main() {
         profrobot::motion::prove_apart(&model); // likewise
         eprintln!("prove_apart: {:.3} s", t.elapsed().as_secs_f64());
     }
+    // One thread: the batches run inline in a pool of one.
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("a pool of one");
+    let run = |model: &RobotModel, poses: &[f64], mode: &str| pool.install(|| run(model, poses, mode));
     let hits = run(&model, &poses, mode);
     println!("{hits} of {n} collide");
     if let Some(reps) = std::env::var("TIME").ok().and_then(|r| r.parse::<usize>().ok()) {

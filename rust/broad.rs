@@ -19,6 +19,7 @@
 use nalgebra::{Isometry3, Matrix3, Vector3};
 
 use crate::geom::Geom;
+use crate::lanes::{Frames4, F4, M4, V4};
 use crate::pairs::CandidatePair;
 use crate::sphere_pairs::{has_avx2, Centres, PairList, LANES};
 
@@ -324,8 +325,40 @@ impl Broad {
             let (g, b) = (g as usize, b as usize);
             self.set_geom_centre(&bodies[b], &s.rot[b], g, &mut s.geom_world);
         }
+        self.place_planes(geom_poses, s);
+    }
+
+    /// `place`'s planes alone, from the plane geoms' world frames in `geom_poses`.
+    pub(crate) fn place_planes(&self, geom_poses: &[Isometry3<f64>], s: &mut BroadScratch) {
         for &g in &self.plane_geoms {
             self.place_plane(&geom_poses[g as usize], g as usize, s);
+        }
+    }
+
+    /// `place`'s spheres (not its planes) for four poses at once, from their body frames in four
+    /// lanes (`kinematics::body_poses4`, in `room`), into their four scratches, bit for bit
+    /// (`lanes.rs`). Inlined into its caller, which compiles it for the vector width it has.
+    #[inline(always)]
+    pub(crate) fn place_spheres4(&self, room: &mut Frames4, mut out: [&mut BroadScratch; 4]) {
+        let (bodies, rots) = (&room.bodies, &mut room.rots);
+        rots.resize(bodies.len(), M4([[F4::splat(0.0); 3]; 3]));
+        for &b in &self.bodies {
+            let b = b as usize;
+            let x = &bodies[b];
+            let r = M4::rotation(&x.r);
+            let c = x.t.add(&r.mul_vec(&V4::splat(&self.body_centre[b])));
+            rots[b] = r;
+            for (l, s) in out.iter_mut().enumerate() {
+                s.rot[b] = r.lane(l);
+                s.body_world.set(b, &c.lane(l));
+            }
+        }
+        for &(g, b) in &self.geoms {
+            let (g, b) = (g as usize, b as usize);
+            let c = bodies[b].t.add(&rots[b].mul_vec(&V4::splat(&self.geom_centre[g])));
+            for (l, s) in out.iter_mut().enumerate() {
+                s.geom_world.set(g, &c.lane(l));
+            }
         }
     }
 

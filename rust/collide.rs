@@ -27,7 +27,9 @@ use crate::cloud::{Nearest, Probe};
 use crate::error::{Error, Result};
 use crate::geom::Geom;
 use crate::inner;
+use crate::kinematics::body_poses4;
 use crate::kinematics::{body_poses, marked_body_poses};
+use crate::lanes::Frames4;
 use crate::model::RobotModel;
 use crate::pairs::{CandidatePair, PairKind};
 use crate::sat::intersection_test_remembering;
@@ -193,6 +195,12 @@ impl Scratch {
     /// the broad phase's spheres: what every pair test of the pose needs first.
     pub(crate) fn place(&mut self, model: &RobotModel, q: &[f64], all_geoms: bool) {
         body_poses(model, q, &mut self.bodies);
+        self.place_geoms(model, all_geoms, true);
+    }
+
+    /// `place` after its forward kinematics, with the pose's body frames already in `bodies`;
+    /// the broad phase's spheres too where `spheres` (else `Scratch4` placed them).
+    fn place_geoms(&mut self, model: &RobotModel, all_geoms: bool, spheres: bool) {
         self.next_pose();
         if all_geoms {
             for g in 0..model.geoms.len() {
@@ -203,7 +211,11 @@ impl Scratch {
                 self.frame(model, g as usize);
             }
         }
-        model.broad.place(&self.bodies, &self.geoms, &mut self.broad);
+        if spheres {
+            model.broad.place(&self.bodies, &self.geoms, &mut self.broad);
+        } else {
+            model.broad.place_planes(&self.geoms, &mut self.broad);
+        }
     }
 
     /// `place(.., false)` for what the candidate pairs `pairs` read, and nothing else: the frames
@@ -820,6 +832,76 @@ fn cloud_witness(model: &RobotModel, frames: &[Isometry3<f64>], k: usize, predic
     Some(if c == model.pairs[k].g1 { (d, on_ball, on_geom, -n) } else { (d, on_geom, on_ball, n) })
 }
 
+/// Four scratches, whose poses are placed four at a time (`lanes.rs`: forward kinematics in
+/// four lanes, bit for bit `body_poses`), for the batches: each pose is then decided alone on
+/// its own scratch, as on one placed by `Scratch::place`.
+pub(crate) struct Scratch4 {
+    s: [Scratch; 4],
+    room: Frames4,
+}
+
+impl Scratch4 {
+    pub(crate) fn new(model: &RobotModel) -> Self {
+        Scratch4 { s: std::array::from_fn(|_| Scratch::new(model)), room: Frames4::default() }
+    }
+
+    /// Calls `f(i, q, scratch)` on each pose `i` of the row-major `poses` (length K each), in
+    /// order, with `scratch` placed as `Scratch::place(model, q, all_geoms)` places it; stops at
+    /// the first error.
+    pub(crate) fn for_each<E>(
+        &mut self,
+        model: &RobotModel,
+        poses: &[f64],
+        all_geoms: bool,
+        mut f: impl FnMut(usize, &[f64], &mut Scratch) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
+        let k = model.njoint();
+        if k == 0 {
+            return Ok(());
+        }
+        let mut quads = poses.chunks_exact(4 * k);
+        for (n, quad) in quads.by_ref().enumerate() {
+            let q: [&[f64]; 4] = std::array::from_fn(|l| &quad[l * k..(l + 1) * k]);
+            self.place4(model, q);
+            for (l, s) in self.s.iter_mut().enumerate() {
+                s.place_geoms(model, all_geoms, false);
+                f(4 * n + l, q[l], s)?;
+            }
+        }
+        let done = (poses.len() - quads.remainder().len()) / k;
+        for (i, q) in quads.remainder().chunks_exact(k).enumerate() {
+            self.s[0].place(model, q, all_geoms);
+            f(done + i, q, &mut self.s[0])?;
+        }
+        Ok(())
+    }
+}
+
+impl Scratch4 {
+    /// Forward kinematics and the broad phase's spheres of four poses, in four lanes.
+    fn place4(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::sphere_pairs::has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe { self.place4_avx2(model, q) };
+        }
+        self.place4_with(model, q)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn place4_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        self.place4_with(model, q)
+    }
+
+    #[inline(always)]
+    fn place4_with(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        let [s0, s1, s2, s3] = &mut self.s;
+        body_poses4(model, q, [&mut s0.bodies, &mut s1.bodies, &mut s2.bodies, &mut s3.bodies], &mut self.room);
+        model.broad.place_spheres4(&mut self.room, [&mut s0.broad, &mut s1.broad, &mut s2.broad, &mut s3.broad]);
+    }
+}
+
 /// Labels one pose `q` (length K), appending its colliding pair indices to `hits` if asked;
 /// `Err` for a pair the narrow phase cannot decide (module docs).
 pub fn label_pose(
@@ -830,6 +912,18 @@ pub fn label_pose(
     hits: &mut Vec<u32>,
 ) -> std::result::Result<Label, Undecided> {
     scratch.place(model, q, opts.distance);
+    label_placed(model, q, scratch, opts, hits)
+}
+
+/// `label_pose` of the pose `q` that `scratch` holds placed (with every geom's frame when
+/// distances are asked).
+fn label_placed(
+    model: &RobotModel,
+    q: &[f64],
+    scratch: &mut Scratch,
+    opts: LabelOptions,
+    hits: &mut Vec<u32>,
+) -> std::result::Result<Label, Undecided> {
     let mut near = std::mem::take(&mut scratch.near);
     near.clear();
     model.broad.near_pairs(&mut scratch.broad, &mut near);
@@ -889,16 +983,17 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
         .par_chunks(CHUNK * k)
         .enumerate()
         .map_init(
-            || (Scratch::new(model), Vec::new()),
+            || (Scratch4::new(model), Vec::new()),
             |(scratch, hits), (c, chunk)| {
                 let mut labels = Vec::with_capacity(chunk.len() / k);
                 let mut pairs = Vec::new();
-                for (i, q) in chunk.chunks_exact(k).enumerate() {
+                scratch.for_each(model, chunk, opts.distance, |i, q, s| {
                     hits.clear();
                     let pose = c * CHUNK + i;
-                    labels.push(label_pose(model, q, scratch, opts, hits).map_err(|e| e.error(model, format!("pose {pose}")))?);
+                    labels.push(label_placed(model, q, s, opts, hits).map_err(|e| e.error(model, format!("pose {pose}")))?);
                     pairs.extend(hits.iter().map(|&p| [pose as u32, p]));
-                }
+                    Ok(())
+                })?;
                 Ok((labels, pairs))
             },
         )
@@ -915,6 +1010,81 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Poses placed four at a time (`Scratch4`: forward kinematics and spheres in four lanes)
+    /// are placed as `Scratch::place` places them, bit for bit: every body frame, every geom's
+    /// box and sphere centre, every pair's sphere gap and the near pairs; and the batches then
+    /// answer as one pose at a time does (labels with pairs and distances, `collides`,
+    /// `certified`), on six scenes, within and beyond the limits, with a remainder of poses
+    /// that are not a multiple of four.
+    #[test]
+    fn poses_placed_four_at_a_time_are_placed_bit_for_bit() {
+        use crate::fastpath::{certified_batch, certified_pose, collides_batch, collides_pose};
+        let bits = |x: &Isometry3<f64>| {
+            let (t, r) = (x.translation.vector, x.rotation.coords);
+            [t.x, t.y, t.z, r.x, r.y, r.z, r.w].map(f64::to_bits)
+        };
+        let vbits = |v: Vector3<f64>| [v.x, v.y, v.z].map(f64::to_bits);
+        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: crate::desc::ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc).unwrap();
+            crate::motion::prove_apart(&model);
+            let ranges = model.sampling_ranges().unwrap();
+            let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 1.0, r[1] + 1.0]).collect();
+            let mut poses = crate::sample::sample_uniform(&ranges, 601, 7).unwrap();
+            poses.extend(crate::sample::sample_uniform(&wide, 402, 8).unwrap());
+            let (mut four, mut one) = (Scratch4::new(&model), Scratch::new(&model));
+            let (mut near4, mut near1) = (Vec::new(), Vec::new());
+            four.for_each(&model, &poses, false, |i, q, s| {
+                one.place(&model, q, false);
+                for b in 0..model.nbody() {
+                    assert_eq!(bits(&s.bodies[b]), bits(&one.bodies[b]), "{scene}: pose {i}, body {b}");
+                }
+                for g in 0..model.geoms.len() {
+                    if model.geoms[g].shape.is_half_space() {
+                        continue;
+                    }
+                    let (a, b) = (model.broad.geom_box(&s.broad, g), model.broad.geom_box(&one.broad, g));
+                    assert_eq!(a.0.map(f64::to_bits), b.0.map(f64::to_bits), "{scene}: pose {i}, geom {g}");
+                    assert_eq!(vbits(a.1), vbits(b.1), "{scene}: pose {i}, geom {g}");
+                }
+                for k in 0..model.pairs.len() {
+                    let (a, b) = (model.broad.sphere_gap(&s.broad, k, &model.geoms), model.broad.sphere_gap(&one.broad, k, &model.geoms));
+                    assert_eq!((a.0.to_bits(), a.1.to_bits()), (b.0.to_bits(), b.1.to_bits()), "{scene}: pose {i}, pair {k}");
+                }
+                near4.clear();
+                near1.clear();
+                model.broad.near_pairs(&mut s.broad, &mut near4);
+                model.broad.near_pairs(&mut one.broad, &mut near1);
+                assert_eq!(near4, near1, "{scene}: pose {i}");
+                Ok::<(), ()>(())
+            })
+            .unwrap();
+            let k = model.njoint();
+            for distance in [false, true] {
+                let opts = LabelOptions { pairs: true, distance };
+                let batch = label_batch(&model, &poses, opts).unwrap();
+                let (mut want, mut hits) = (LabelBatch::default(), Vec::new());
+                for (i, q) in poses.chunks_exact(k).enumerate() {
+                    hits.clear();
+                    want.labels.push(label_pose(&model, q, &mut one, opts, &mut hits).unwrap());
+                    want.colliding_pairs.extend(hits.iter().map(|&p| [i as u32, p]));
+                }
+                assert_eq!(batch.colliding_pairs, want.colliding_pairs, "{scene}");
+                for (x, y) in batch.labels.iter().zip(&want.labels) {
+                    assert_eq!((x.self_collides, x.scene_collides, x.n_pairs), (y.self_collides, y.scene_collides, y.n_pairs), "{scene}");
+                    assert_eq!(x.min_distance.to_bits(), y.min_distance.to_bits(), "{scene}");
+                }
+            }
+            let collides: Vec<bool> = poses.chunks_exact(k).map(|q| collides_pose(&model, q, &mut one).unwrap()).collect();
+            assert_eq!(collides_batch(&model, &poses).unwrap(), collides, "{scene}");
+            let certified: Vec<bool> =
+                poses.chunks_exact(k).map(|q| model.feasible(q) && certified_pose(&model, q, 1e-6, &mut one).unwrap()).collect();
+            assert_eq!(certified_batch(&model, &poses, 1e-6).unwrap(), certified, "{scene}");
+            assert!(certified.iter().any(|&c| c) && collides.iter().any(|&c| c), "{scene}");
+        }
+    }
 
     /// Every overlap the inner balls prove is a contact of parry's own intersection test (the
     /// narrow phase's answer without them), at zero distance; and a ball against a hull is

@@ -29,7 +29,7 @@
 use rayon::prelude::*;
 
 use crate::broad::check_clearance;
-use crate::collide::{first_error, label_pose, LabelOptions, Scratch, Undecided};
+use crate::collide::{first_error, label_pose, LabelOptions, Scratch, Scratch4, Undecided};
 use crate::error::Result;
 use crate::model::RobotModel;
 use crate::sample::{fill_block, BLOCK};
@@ -58,7 +58,6 @@ fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails:
 where
     F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
 {
-    s.place(model, q, false);
     let pose = s.pose_stamp();
     let last = s.last_hit;
     let first = (last != NO_PAIR).then_some(last);
@@ -109,10 +108,14 @@ where
         .par_chunks(CHUNK * k)
         .enumerate()
         .map_init(
-            || Scratch::new(model),
+            || Scratch4::new(model),
             |s, (c, chunk)| {
-                let one = |(i, q): (usize, &[f64])| per_pose(q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)));
-                chunk.chunks_exact(k).enumerate().map(one).collect()
+                let mut out = Vec::with_capacity(chunk.len() / k);
+                s.for_each(model, chunk, false, |i, q, s| {
+                    out.push(per_pose(q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
+                    Ok(())
+                })?;
+                Ok(out)
             },
         )
         .collect();
@@ -122,6 +125,12 @@ where
 /// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
 /// for a pair the narrow phase cannot decide, met before any pair in contact.
 pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    s.place(model, q, false);
+    collides_placed(model, q, s)
+}
+
+/// `collides_pose` of the pose `q` that `s` holds placed.
+fn collides_placed(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
     some_pair_fails(model, q, s, |s, k| s.in_contact(model, k))
 }
 
@@ -129,7 +138,7 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::res
 /// rayon's current pool. Every pose is decided alone, so the result does not depend on the
 /// number of threads.
 pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
-    batch(model, poses, |q, s| collides_pose(model, q, s))
+    batch(model, poses, |q, s| collides_placed(model, q, s))
 }
 
 /// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
@@ -140,6 +149,12 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
 /// (`broad.rs`), so clear. `Err` for a pair the narrow phase cannot decide, met before any pair
 /// that is not clear.
 pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    s.place(model, q, false);
+    certified_placed(model, q, clearance, s)
+}
+
+/// `certified_pose` of the pose `q` that `s` holds placed.
+fn certified_placed(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
     some_pair_fails(model, q, s, |s, k| s.clear_of(model, k, clearance).map(|clear| !clear)).map(|fails| !fails)
 }
 
@@ -150,7 +165,7 @@ pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scr
 /// never certified.
 pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
     check_clearance(clearance)?;
-    batch(model, poses, |q, s| if model.feasible(q) { certified_pose(model, q, clearance, s) } else { Ok(false) })
+    batch(model, poses, |q, s| if model.feasible(q) { certified_placed(model, q, clearance, s) } else { Ok(false) })
 }
 
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:

@@ -6,6 +6,8 @@
 //! - slide: translate along the world axis, `x <- x + R * axis * (q - qpos0)`.
 
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+
+use crate::lanes::{Frames4, Iso4, F4, Q4, V4};
 use rayon::prelude::*;
 
 use crate::error::Result;
@@ -70,6 +72,58 @@ fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) ->
     x
 }
 
+/// `body_poses` of four poses `q` (each of length K) into `out` (each of length nbody), bit for
+/// bit, the frames also left in `room`, four lanes a body (`lanes.rs`). Inlined into its caller,
+/// which compiles it for the vector width it has (`collide::Scratch4`).
+#[inline(always)]
+pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isometry3<f64>]; 4], room: &mut Frames4) {
+    let nbody = model.body_parent.len();
+    let bodies = &mut room.bodies;
+    bodies.clear();
+    bodies.push(Iso4::splat(&Isometry3::identity()));
+    for b in 1..nbody {
+        let mut x = bodies[model.body_parent[b]].mul(&Iso4::splat(&model.body_local[b]));
+        let (j0, j1) = model.body_joints[b];
+        for (j, jnt) in model.joints[j0..j1].iter().enumerate() {
+            let j = j0 + j;
+            let angle = F4([q[0][j], q[1][j], q[2][j], q[3][j]]) - F4::splat(jnt.qpos0);
+            if jnt.hinge {
+                // nalgebra's `from_axis_angle`: `(sin, cos)` of half the angle, the axis times
+                // the sine; per lane, the scalar code's own libm call.
+                let (mut s, mut c) = ([0.0; 4], [0.0; 4]);
+                for l in 0..4 {
+                    (s[l], c[l]) = (angle.0[l] / 2.0).sin_cos();
+                }
+                let axis = jnt.axis.into_inner();
+                let (s, c) = (F4(s), F4(c));
+                let turn = Q4 { i: F4::splat(axis.x) * s, j: F4::splat(axis.y) * s, k: F4::splat(axis.z) * s, w: c };
+                let rot = x.r.mul(&turn).renormalize_fast();
+                // (as `kinematics::body_pose`: the general formula where the anchor is off the
+                // body origin or a translation component is zero, lane by lane)
+                let general = jnt.anchor != Vector3::zeros();
+                let anchor = V4::splat(&jnt.anchor);
+                let t = x.r.rotate(&anchor).add(&x.t).sub(&rot.rotate(&anchor));
+                for l in 0..4 {
+                    if general || x.t.x.0[l] == 0.0 || x.t.y.0[l] == 0.0 || x.t.z.0[l] == 0.0 {
+                        x.t.x.0[l] = t.x.0[l];
+                        x.t.y.0[l] = t.y.0[l];
+                        x.t.z.0[l] = t.z.0[l];
+                    }
+                }
+                x.r = rot;
+            } else {
+                x.t = x.t.add(&x.r.rotate(&V4::splat(&jnt.axis.into_inner()).scale(angle)));
+            }
+        }
+        bodies.push(x);
+    }
+    for (l, out) in out.into_iter().enumerate() {
+        for (o, x) in out.iter_mut().zip(bodies.iter()) {
+            *o = x.lane(l);
+        }
+    }
+}
+
 /// Poses per parallel work item (fixed, so the split never depends on the thread count).
 const CHUNK: usize = 256;
 
@@ -112,6 +166,43 @@ pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Four lanes give `body_poses` bit for bit (every coordinate's bits, signs of zero
+    /// included) on every bundled robot, at random poses within and beyond the limits and at
+    /// each joint's `qpos0` (angles of exactly zero).
+    #[test]
+    fn four_lanes_are_body_poses_bit_for_bit() {
+        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: crate::desc::ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc).unwrap();
+            let k = model.njoint();
+            let ranges = model.sampling_ranges().unwrap();
+            let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 2.0, r[1] + 2.0]).collect();
+            let mut poses = crate::sample::sample_uniform(&ranges, 400, 3).unwrap();
+            poses.extend(crate::sample::sample_uniform(&wide, 400, 4).unwrap());
+            poses.extend(model.joints.iter().map(|j| j.qpos0).cycle().take(4 * k));
+            let nb = model.nbody();
+            let bits = |x: &Isometry3<f64>| {
+                let (t, r) = (x.translation.vector, x.rotation.coords);
+                [t.x, t.y, t.z, r.x, r.y, r.z, r.w].map(f64::to_bits)
+            };
+            let mut room = Frames4::default();
+            for quad in poses.chunks_exact(4 * k) {
+                let q: Vec<&[f64]> = quad.chunks_exact(k).collect();
+                let mut out = vec![vec![Isometry3::identity(); nb]; 4];
+                let [o0, o1, o2, o3] = &mut out[..] else { unreachable!() };
+                body_poses4(&model, [q[0], q[1], q[2], q[3]], [o0, o1, o2, o3], &mut room);
+                for l in 0..4 {
+                    let mut want = vec![Isometry3::identity(); nb];
+                    body_poses(&model, q[l], &mut want);
+                    for b in 0..nb {
+                        assert_eq!(bits(&out[l][b]), bits(&want[b]), "{scene}: lane {l}, body {b}");
+                    }
+                }
+            }
+        }
+    }
     use crate::desc::ModelDesc;
 
     #[test]

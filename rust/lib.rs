@@ -19,6 +19,7 @@
 //! | [`error`] | the one error type |
 //! | [`budget`] | sizes checked against the memory available before they are allocated |
 //! | [`angles`] | the one angle wrap (SO(2), shortest arcs) |
+//! | `lanes` | four poses at once: nalgebra's quaternion and matrix arithmetic lane for lane, bit for bit |
 //! | [`couplings`] | joint equalities: dependent joints, feasible poses, coupled motions |
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |
 //! | [`hull`] | convex hulls: support points by hill climbing, the cube map, face planes |
@@ -65,6 +66,7 @@ pub mod images;
 mod inner;
 pub mod interpolate;
 pub mod kinematics;
+mod lanes;
 pub mod model;
 pub mod motion;
 pub mod oracle;
