@@ -83,6 +83,16 @@ struct Group {
     end: u32,
 }
 
+/// The body-pair groups and their members without padding, for `near_pairs4`, which tests
+/// four poses a member rather than four members a pose: all of them (`Broad`), or those left
+/// once the pairs proven apart over the whole sampling box are dropped (`RobotModel::pruned4`).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Lists4 {
+    /// `(b1, b2, reach2, members[start..end])`, as `Group`.
+    groups: Vec<Group>,
+    members: Vec<Member>,
+}
+
 /// A pair of a plane geom with a non-plane geom.
 #[derive(Clone, Copy, Debug)]
 struct PlanePair {
@@ -122,6 +132,8 @@ pub(crate) struct Broad {
     members: Vec<Member>,
     /// The members' geom-sphere tests, entry for entry.
     member_tests: PairList,
+    /// The groups and members without padding (`near_pairs4`).
+    all4: Lists4,
     /// Whether `sphere_pairs`' AVX2 kernel runs here.
     avx2: bool,
     planes: Vec<PlanePair>,
@@ -130,6 +142,33 @@ pub(crate) struct Broad {
     /// Per candidate pair: its index in `members`, or in `planes` with the `PLANE` bit set
     /// (`NONE` for a plane-plane pair, which is never a candidate).
     of_pair: Vec<u32>,
+}
+
+impl Lists4 {
+    /// The members of `groups` (padded, in `members`) that are real pairs and `keep`, group by
+    /// group in order; groups left empty are dropped.
+    fn of(groups: &[Group], members: &[Member], keep: impl Fn(u32) -> bool) -> Self {
+        let mut out = Lists4::default();
+        for g in groups {
+            let start = out.members.len() as u32;
+            out.members.extend(members[g.start as usize..g.end as usize].iter().filter(|m| m.pair != NONE && keep(m.pair)));
+            if out.members.len() as u32 > start {
+                out.groups.push(Group { start, end: out.members.len() as u32, ..*g });
+            }
+        }
+        out
+    }
+
+    /// `broad`'s lists without the pairs `dead` (in their original order).
+    pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool) -> Self {
+        Lists4::of(&broad.groups, &broad.members, |k| !dead(k))
+    }
+
+    /// Number of members (pairs) the lists test.
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> usize {
+        self.members.len()
+    }
 }
 
 /// Tag of an `of_pair` entry that indexes `planes`.
@@ -229,6 +268,7 @@ impl Broad {
         while members.len() % LANES != 0 {
             members.push(padding);
         }
+        let all4 = Lists4::of(&groups, &members, |_| true);
         let mut member_tests = PairList::default();
         for m in &members {
             member_tests.push(m.g1, m.g2, m.reach2);
@@ -271,11 +311,17 @@ impl Broad {
             group_tests,
             members,
             member_tests,
+            all4,
             avx2: has_avx2(),
             planes,
             plane_geoms,
             of_pair,
         }
+    }
+
+    /// Every group and member, for `near_pairs4`.
+    pub(crate) fn all4(&self) -> &Lists4 {
+        &self.all4
     }
 
     /// The plane geoms whose world frames `near_pairs` needs.
@@ -340,24 +386,65 @@ impl Broad {
     /// (`lanes.rs`). Inlined into its caller, which compiles it for the vector width it has.
     #[inline(always)]
     pub(crate) fn place_spheres4(&self, room: &mut Frames4, mut out: [&mut BroadScratch; 4]) {
+        let (nb, ng) = (self.body_centre.len(), self.geom_centre.len());
+        // Each lane's destinations, written through pointers below: the loops write one
+        // coordinate of four scratches per step, and indexing each would check its bounds.
+        let mut rot = [std::ptr::null_mut::<Matrix3<f64>>(); 4];
+        let mut body_world = [[std::ptr::null_mut::<f64>(); 3]; 4];
+        let mut geom_world = [[std::ptr::null_mut::<f64>(); 3]; 4];
+        let centres = |c: &mut Centres| [c.x.as_mut_ptr(), c.y.as_mut_ptr(), c.z.as_mut_ptr()];
+        for (l, s) in out.iter_mut().enumerate() {
+            let (bw, gw) = (&s.body_world, &s.geom_world);
+            assert!(s.rot.len() == nb && [&bw.x, &bw.y, &bw.z].iter().all(|v| v.len() == nb), "a scratch of this broad phase");
+            assert!([&gw.x, &gw.y, &gw.z].iter().all(|v| v.len() == ng), "a scratch of this broad phase");
+            rot[l] = s.rot.as_mut_ptr();
+            body_world[l] = centres(&mut s.body_world);
+            geom_world[l] = centres(&mut s.geom_world);
+        }
         let (bodies, rots) = (&room.bodies, &mut room.rots);
         rots.resize(bodies.len(), M4([[F4::splat(0.0); 3]; 3]));
+        let zero = V4 { x: F4::splat(0.0), y: F4::splat(0.0), z: F4::splat(0.0) };
+        let (body_centres, geom_centres) = (&mut room.body_centres, &mut room.geom_centres);
+        body_centres.resize(nb, zero);
+        geom_centres.resize(ng, zero);
+        // (the world's spheres, placed once a scratch: lane 0's, the same in every scratch)
+        if self.static_body {
+            body_centres[0] = V4::splat(&out[0].body_world.get(0));
+        }
+        for &g in &self.static_geoms {
+            geom_centres[g as usize] = V4::splat(&out[0].geom_world.get(g as usize));
+        }
         for &b in &self.bodies {
             let b = b as usize;
             let x = &bodies[b];
             let r = M4::rotation(&x.r);
             let c = x.t.add(&r.mul_vec(&V4::splat(&self.body_centre[b])));
             rots[b] = r;
-            for (l, s) in out.iter_mut().enumerate() {
-                s.rot[b] = r.lane(l);
-                s.body_world.set(b, &c.lane(l));
+            body_centres[b] = c;
+            for l in 0..4 {
+                // SAFETY: `b < nb` (a body of the model), the length of every lane's `rot` and
+                // `body_world` (asserted above); the pointers come from four distinct `&mut`
+                // scratches, whose vectors are neither read nor resized while they live.
+                unsafe {
+                    rot[l].add(b).write(r.lane(l));
+                    for (dst, v) in body_world[l].iter().zip([c.x, c.y, c.z]) {
+                        dst.add(b).write(v.0[l]);
+                    }
+                }
             }
         }
         for &(g, b) in &self.geoms {
             let (g, b) = (g as usize, b as usize);
             let c = bodies[b].t.add(&rots[b].mul_vec(&V4::splat(&self.geom_centre[g])));
-            for (l, s) in out.iter_mut().enumerate() {
-                s.geom_world.set(g, &c.lane(l));
+            geom_centres[g] = c;
+            for (l, lane) in geom_world.iter().enumerate() {
+                // SAFETY: `g < ng` (a geom of the model), the length of every lane's `geom_world`
+                // (asserted above); as above.
+                unsafe {
+                    for (dst, v) in lane.iter().zip([c.x, c.y, c.z]) {
+                        dst.add(g).write(v.0[l]);
+                    }
+                }
             }
         }
     }
@@ -439,6 +526,42 @@ impl Broad {
     #[inline]
     pub(crate) fn sphere_centre(&self, s: &BroadScratch, g: usize) -> Vector3<f64> {
         s.geom_world.get(g)
+    }
+
+    /// `near_pairs` of four poses at once, into `near` (each cleared first), in the order
+    /// `near_pairs` gives, of the pairs in `lists` (`all4`, or a pruned list that holds every
+    /// pair the four poses need tested): the sphere tests on the four poses' centres in lanes (`room`, as
+    /// `place_spheres4` left them; the same values, the same sums, so the same bits), the
+    /// planes from each pose's scratch (placed by `place_planes`). Inlined into its caller,
+    /// which compiles it for the vector width it has.
+    #[inline(always)]
+    pub(crate) fn near_pairs4(&self, lists: &Lists4, room: &Frames4, s: [&BroadScratch; 4], near: [&mut Vec<u32>; 4]) {
+        let (bodies, geoms) = (&room.body_centres, &room.geom_centres);
+        let mut near = near;
+        for n in near.iter_mut() {
+            n.clear();
+        }
+        for gr in &lists.groups {
+            let poses = bodies[gr.b1 as usize].within(&bodies[gr.b2 as usize], gr.reach2);
+            if poses == 0 {
+                continue;
+            }
+            for m in &lists.members[gr.start as usize..gr.end as usize] {
+                let mut hit = poses & geoms[m.g1 as usize].within(&geoms[m.g2 as usize], m.reach2);
+                while hit != 0 {
+                    near[hit.trailing_zeros() as usize].push(m.pair);
+                    hit &= hit - 1;
+                }
+            }
+        }
+        for (s, near) in s.iter().zip(near) {
+            for p in &self.planes {
+                let (normal, offset) = s.plane[p.plane as usize];
+                if normal.dot(&s.geom_world.get(p.geom as usize)) - offset < p.reach {
+                    near.push(p.pair);
+                }
+            }
+        }
     }
 
     /// Appends to `near` the candidate pairs that may touch in the placed pose (see `place`),

@@ -114,8 +114,10 @@ pub struct Scratch {
     placed_body: Vec<u32>,
     pose: u32,
     pub(crate) broad: BroadScratch,
-    /// The pairs the broad phase keeps.
+    /// The pairs the broad phase keeps; already for the current pose when `near_stamp == pose`
+    /// (`Scratch4` tests four poses at once).
     pub(crate) near: Vec<u32>,
+    near_stamp: u32,
     /// Per candidate pair: `tested[k] == pose` once the fast path (`fastpath.rs`) has decided
     /// pair `k` for the current pose.
     pub(crate) tested: Vec<u32>,
@@ -147,6 +149,7 @@ impl Scratch {
             pose: 0,
             broad: model.broad.scratch(),
             near: Vec::new(),
+            near_stamp: 0,
             tested: vec![0; model.pairs.len()],
             axes: vec![Vector3::zeros(); model.pairs.len()],
             hints: vec![u32::MAX; model.pairs.len()],
@@ -164,12 +167,26 @@ impl Scratch {
             self.placed_geom.fill(0);
             self.placed_body.fill(0);
             self.tested.fill(0);
+            self.near_stamp = 0;
             self.pose = 1;
         }
     }
 
     pub(crate) fn pose_stamp(&self) -> u32 {
         self.pose
+    }
+
+    /// The placed pose's near pairs (`Broad::near_pairs`) into `near`, unless `Scratch4` found
+    /// them already: `scratch.near` itself, taken (the caller puts it back).
+    pub(crate) fn take_near(&mut self, model: &RobotModel) -> Vec<u32> {
+        let mut near = std::mem::take(&mut self.near);
+        if self.near_stamp != self.pose {
+            near.clear();
+            model.broad.near_pairs(&mut self.broad, &mut near);
+        }
+        // (once: what the caller puts back is its own)
+        self.near_stamp = 0;
+        near
     }
 
     /// Forgets every pair's remembered separating axis, so that what follows does not depend
@@ -855,6 +872,23 @@ impl Scratch4 {
         all_geoms: bool,
         mut f: impl FnMut(usize, &[f64], &mut Scratch) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
+        self.for_each_lazy(model, poses, all_geoms, |_, _, _| None, |i, q, s| f(i, q, s), |_, r| r)
+    }
+
+    /// `second(i, q, scratch)` on each pose `i` of the row-major `poses` (length K each), in
+    /// order, unless `first(i, q, scratch)` decides it, each answer handed to `emit(i, answer)`;
+    /// `scratch` is placed as `Scratch::place(model, q, all_geoms)` places it, with its near
+    /// pairs found four poses at once (`Broad::near_pairs4`) when `first` leaves a pose of
+    /// the four undecided. Stops at the first error `emit` returns.
+    pub(crate) fn for_each_lazy<R, E>(
+        &mut self,
+        model: &RobotModel,
+        poses: &[f64],
+        all_geoms: bool,
+        mut first: impl FnMut(usize, &[f64], &mut Scratch) -> Option<R>,
+        mut second: impl FnMut(usize, &[f64], &mut Scratch) -> R,
+        mut emit: impl FnMut(usize, R) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
         let k = model.njoint();
         if k == 0 {
             return Ok(());
@@ -863,15 +897,30 @@ impl Scratch4 {
         for (n, quad) in quads.by_ref().enumerate() {
             let q: [&[f64]; 4] = std::array::from_fn(|l| &quad[l * k..(l + 1) * k]);
             self.place4(model, q);
-            for (l, s) in self.s.iter_mut().enumerate() {
+            for s in self.s.iter_mut() {
                 s.place_geoms(model, all_geoms, false);
-                f(4 * n + l, q[l], s)?;
+            }
+            let mut decided: [Option<R>; 4] = std::array::from_fn(|l| first(4 * n + l, q[l], &mut self.s[l]));
+            if decided.iter().any(Option::is_none) {
+                self.near4(model, q);
+            }
+            for (l, s) in self.s.iter_mut().enumerate() {
+                let answer = match decided[l].take() {
+                    Some(answer) => answer,
+                    None => second(4 * n + l, q[l], s),
+                };
+                emit(4 * n + l, answer)?;
             }
         }
         let done = (poses.len() - quads.remainder().len()) / k;
         for (i, q) in quads.remainder().chunks_exact(k).enumerate() {
-            self.s[0].place(model, q, all_geoms);
-            f(done + i, q, &mut self.s[0])?;
+            let s = &mut self.s[0];
+            s.place(model, q, all_geoms);
+            let answer = match first(done + i, q, s) {
+                Some(answer) => answer,
+                None => second(done + i, q, s),
+            };
+            emit(done + i, answer)?;
         }
         Ok(())
     }
@@ -892,6 +941,37 @@ impl Scratch4 {
     #[target_feature(enable = "avx2")]
     unsafe fn place4_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
         self.place4_with(model, q)
+    }
+
+    /// The near pairs of the four placed poses, into their scratches.
+    fn near4(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::sphere_pairs::has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe { self.near4_avx2(model, q) };
+        }
+        self.near4_with(model, q)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn near4_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        self.near4_with(model, q)
+    }
+
+    #[inline(always)]
+    fn near4_with(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+        // (without the pairs proven clear over the sampling box, when the four poses lie in it)
+        let lists = match model.pruned4.get() {
+            Some(p) if q.iter().all(|q| p.inside(q)) => &p.lists,
+            _ => model.broad.all4(),
+        };
+        let [s0, s1, s2, s3] = &mut self.s;
+        let near = [&mut s0.near, &mut s1.near, &mut s2.near, &mut s3.near];
+        model.broad.near_pairs4(lists, &self.room, [&s0.broad, &s1.broad, &s2.broad, &s3.broad], near);
+        for s in self.s.iter_mut() {
+            s.near_stamp = s.pose;
+        }
     }
 
     #[inline(always)]
@@ -924,9 +1004,7 @@ fn label_placed(
     opts: LabelOptions,
     hits: &mut Vec<u32>,
 ) -> std::result::Result<Label, Undecided> {
-    let mut near = std::mem::take(&mut scratch.near);
-    near.clear();
-    model.broad.near_pairs(&mut scratch.broad, &mut near);
+    let mut near = scratch.take_near(model);
     if opts.pairs {
         // Colliding pairs are reported in pair order; the labels do not depend on the order.
         near.sort_unstable();
@@ -1030,12 +1108,15 @@ mod tests {
             let desc: crate::desc::ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
             let model = RobotModel::new(desc).unwrap();
             crate::motion::prove_apart(&model);
+            // (pairs proven clear over the whole sampling box leave the lists inside it)
+            assert!(model.pruned4.get().unwrap().lists.len() < model.broad.all4().len(), "{scene}");
             let ranges = model.sampling_ranges().unwrap();
             let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 1.0, r[1] + 1.0]).collect();
             let mut poses = crate::sample::sample_uniform(&ranges, 601, 7).unwrap();
             poses.extend(crate::sample::sample_uniform(&wide, 402, 8).unwrap());
             let (mut four, mut one) = (Scratch4::new(&model), Scratch::new(&model));
             let (mut near4, mut near1) = (Vec::new(), Vec::new());
+            let in_quads = poses.len() / model.njoint() / 4 * 4;
             four.for_each(&model, &poses, false, |i, q, s| {
                 one.place(&model, q, false);
                 for b in 0..model.nbody() {
@@ -1058,6 +1139,20 @@ mod tests {
                 model.broad.near_pairs(&mut s.broad, &mut near4);
                 model.broad.near_pairs(&mut one.broad, &mut near1);
                 assert_eq!(near4, near1, "{scene}: pose {i}");
+                // The four poses' near pairs found at once (`near_pairs4`): `near_pairs`' in its
+                // order, less pairs proven clear at the pose (over the whole sampling box).
+                if i >= in_quads {
+                    return Ok(()); // (the last poses, placed one at a time)
+                }
+                assert_eq!(s.near_stamp, s.pose, "{scene}: pose {i}");
+                let apart = model.apart().unwrap();
+                let mut rest = s.near.iter().peekable();
+                for &k in &near1 {
+                    if rest.next_if_eq(&&k).is_none() {
+                        assert!(apart[k as usize].holds(q), "{scene}: pose {i}, pair {k} left out");
+                    }
+                }
+                assert!(rest.next().is_none(), "{scene}: pose {i}: {:?} against {near1:?}", s.near);
                 Ok::<(), ()>(())
             })
             .unwrap();

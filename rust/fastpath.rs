@@ -58,6 +58,16 @@ fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails:
 where
     F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
 {
+    likely_pair_fails(model, q, s, &mut fails).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
+}
+
+/// `some_pair_fails`' first phase, on the last pair hit and the likely pairs: `Some` when one
+/// of them fails (or cannot be decided), `None` when the near pairs must be tried
+/// (`near_pair_fails`, on the same placed pose).
+fn likely_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> Option<std::result::Result<bool, Undecided>>
+where
+    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+{
     let pose = s.pose_stamp();
     let last = s.last_hit;
     let first = (last != NO_PAIR).then_some(last);
@@ -70,14 +80,30 @@ where
             continue;
         }
         s.tested[k] = pose;
-        if model.broad.may_touch(&s.broad, k) && !proven(k) && fails(s, k)? {
-            s.last_hit = k as u32;
-            return Ok(true);
+        if model.broad.may_touch(&s.broad, k) && !proven(k) {
+            match fails(s, k) {
+                Ok(false) => {}
+                hit => {
+                    if hit.is_ok() {
+                        s.last_hit = k as u32;
+                    }
+                    return Some(hit);
+                }
+            }
         }
     }
-    let mut near = std::mem::take(&mut s.near);
-    near.clear();
-    model.broad.near_pairs(&mut s.broad, &mut near);
+    None
+}
+
+/// `some_pair_fails`' second phase: the near pairs the first did not try.
+fn near_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> std::result::Result<bool, Undecided>
+where
+    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+{
+    let pose = s.pose_stamp();
+    let apart = model.apart();
+    let proven = |k: usize| apart.is_some_and(|a| a[k].holds(q));
+    let near = s.take_near(model);
     let mut hit = Ok(false);
     for &k in &near {
         if s.tested[k as usize] != pose && !proven(k as usize) {
@@ -95,11 +121,15 @@ where
 }
 
 /// `per_pose` on each pose of a `(B, K)` row-major batch, in pose order, in parallel on rayon's
-/// current pool, one `Scratch` per work item. Every pose is decided alone, so the result does
-/// not depend on the number of threads; the first undecided pose is the error, named.
-fn batch<F>(model: &RobotModel, poses: &[f64], per_pose: F) -> Result<Vec<bool>>
+/// current pool, four `Scratch`es per work item (`collide::Scratch4`). `per_pose` runs in two
+/// phases (`likely_pair_fails`, then `near_pair_fails` where the first decides nothing), so
+/// that the near pairs of four poses are found at once, and only when one of them needs them.
+/// Every pose is decided alone, so the result does not depend on the number of threads; the
+/// first undecided pose is the error, named.
+fn batch<F1, F2>(model: &RobotModel, poses: &[f64], first: F1, second: F2) -> Result<Vec<bool>>
 where
-    F: Fn(&[f64], &mut Scratch) -> std::result::Result<bool, Undecided> + Sync,
+    F1: Fn(&[f64], &mut Scratch) -> Option<std::result::Result<bool, Undecided>> + Sync,
+    F2: Fn(&[f64], &mut Scratch) -> std::result::Result<bool, Undecided> + Sync,
 {
     model.check_poses(poses)?;
     let k = model.njoint();
@@ -111,10 +141,17 @@ where
             || Scratch4::new(model),
             |s, (c, chunk)| {
                 let mut out = Vec::with_capacity(chunk.len() / k);
-                s.for_each(model, chunk, false, |i, q, s| {
-                    out.push(per_pose(q, s).map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
-                    Ok(())
-                })?;
+                s.for_each_lazy(
+                    model,
+                    chunk,
+                    false,
+                    |_, q, s| first(q, s),
+                    |_, q, s| second(q, s),
+                    |i, r| {
+                        out.push(r.map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
+                        Ok(())
+                    },
+                )?;
                 Ok(out)
             },
         )
@@ -126,19 +163,29 @@ where
 /// for a pair the narrow phase cannot decide, met before any pair in contact.
 pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
     s.place(model, q, false);
-    collides_placed(model, q, s)
+    some_pair_fails(model, q, s, in_contact(model))
 }
 
-/// `collides_pose` of the pose `q` that `s` holds placed.
-fn collides_placed(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
-    some_pair_fails(model, q, s, |s, k| s.in_contact(model, k))
+/// The pair test of `collides`: in contact.
+fn in_contact(model: &RobotModel) -> impl FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k| s.in_contact(model, k)
+}
+
+/// The pair test of `certified`: not clear at `clearance`.
+fn not_clear(model: &RobotModel, clearance: f64) -> impl FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k| s.clear_of(model, k, clearance).map(|clear| !clear)
 }
 
 /// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
 /// rayon's current pool. Every pose is decided alone, so the result does not depend on the
 /// number of threads.
 pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
-    batch(model, poses, |q, s| collides_placed(model, q, s))
+    batch(
+        model,
+        poses,
+        |q, s| likely_pair_fails(model, q, s, &mut in_contact(model)),
+        |q, s| near_pair_fails(model, q, s, &mut in_contact(model)),
+    )
 }
 
 /// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
@@ -150,12 +197,7 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
 /// that is not clear.
 pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
     s.place(model, q, false);
-    certified_placed(model, q, clearance, s)
-}
-
-/// `certified_pose` of the pose `q` that `s` holds placed.
-fn certified_placed(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
-    some_pair_fails(model, q, s, |s, k| s.clear_of(model, k, clearance).map(|clear| !clear)).map(|fails| !fails)
+    some_pair_fails(model, q, s, not_clear(model, clearance)).map(|fails| !fails)
 }
 
 /// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres
@@ -165,7 +207,14 @@ fn certified_placed(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scrat
 /// never certified.
 pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
     check_clearance(clearance)?;
-    batch(model, poses, |q, s| if model.feasible(q) { certified_placed(model, q, clearance, s) } else { Ok(false) })
+    // (in `batch`'s terms: a pose "fails" when it is not certified)
+    let fails = batch(
+        model,
+        poses,
+        |q, s| if model.feasible(q) { likely_pair_fails(model, q, s, &mut not_clear(model, clearance)) } else { Some(Ok(true)) },
+        |q, s| near_pair_fails(model, q, s, &mut not_clear(model, clearance)),
+    )?;
+    Ok(fails.into_iter().map(|fails| !fails).collect())
 }
 
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:

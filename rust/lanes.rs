@@ -15,7 +15,7 @@
 use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 /// Four `f64`s, one pose a lane.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub(crate) struct F4(pub(crate) [f64; 4]);
 
 impl F4 {
@@ -41,7 +41,7 @@ lanewise!(Sub, sub, -);
 lanewise!(Mul, mul, *);
 
 /// A vector a lane.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) struct V4 {
     pub(crate) x: F4,
     pub(crate) y: F4,
@@ -75,10 +75,13 @@ impl V4 {
         V4 { x: self.x * s, y: self.y * s, z: self.z * s }
     }
 
-    /// Lane `l` as a vector.
+    /// Bit `l` set where lane `l`'s squared distance to `b`, `(dx² + dy²) + dz²` as the scalar
+    /// sphere tests sum it (`sphere_pairs.rs`), is at most `reach2`.
     #[inline(always)]
-    pub(crate) fn lane(&self, l: usize) -> Vector3<f64> {
-        Vector3::new(self.x.0[l], self.y.0[l], self.z.0[l])
+    pub(crate) fn within(&self, b: &V4, reach2: f64) -> u32 {
+        let d = self.sub(b);
+        let d2 = (d.x * d.x + d.y * d.y) + d.z * d.z;
+        (0..4).map(|l| ((d2.0[l] <= reach2) as u32) << l).sum()
     }
 }
 
@@ -203,4 +206,7 @@ impl M4 {
 pub(crate) struct Frames4 {
     pub(crate) bodies: Vec<Iso4>,
     pub(crate) rots: Vec<M4>,
+    /// The broad phase's sphere centres of the four poses: per body, per geom (`broad.rs`).
+    pub(crate) body_centres: Vec<V4>,
+    pub(crate) geom_centres: Vec<V4>,
 }

@@ -58,6 +58,26 @@ pub struct RobotModel {
     /// certificates skip the pair in any pose (or motion) inside it (`Apart::holds`). Set by
     /// `motion::prove_apart`; unset, nothing is skipped.
     pub(crate) apart: std::sync::OnceLock<Vec<Apart>>,
+    /// The broad phase's four-pose lists without the pairs `apart` proves clear over the whole
+    /// sampling box, and that box: for four poses inside it (`collide::Scratch4`). Set with
+    /// `apart`, where the sampling box exists.
+    pub(crate) pruned4: std::sync::OnceLock<Pruned4>,
+}
+
+/// `RobotModel::pruned4`.
+#[derive(Debug)]
+pub(crate) struct Pruned4 {
+    pub lists: crate::broad::Lists4,
+    /// Per joint, the sampling range (`RobotModel::sampling_ranges`).
+    pub ranges: Vec<[f64; 2]>,
+}
+
+impl Pruned4 {
+    /// Whether pose `q` (length K) lies inside the sampling box.
+    #[inline]
+    pub(crate) fn inside(&self, q: &[f64]) -> bool {
+        q.iter().zip(&self.ranges).all(|(&v, r)| r[0] <= v && v <= r[1])
+    }
 }
 
 /// A candidate pair proven clear while `lo[i] <= q[joints[i]] <= hi[i]` for both entries
@@ -340,6 +360,7 @@ impl RobotModel {
             lever_rows: std::sync::OnceLock::new(),
             joint_spans: std::sync::OnceLock::new(),
             apart: std::sync::OnceLock::new(),
+            pruned4: std::sync::OnceLock::new(),
         })
     }
 

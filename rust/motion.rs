@@ -805,6 +805,15 @@ pub fn prove_apart(model: &RobotModel) {
             })
             .collect()
     });
+    // The pairs proven clear over the whole sampling box leave the four-pose broad phase's lists
+    // for poses inside that box, where `Apart::holds` would skip them anyway.
+    if let (Some(apart), Ok(ranges)) = (model.apart(), model.sampling_ranges()) {
+        model.pruned4.get_or_init(|| {
+            let (lo, hi): (Vec<f64>, Vec<f64>) = ranges.iter().map(|r| (r[0], r[1])).unzip();
+            let lists = crate::broad::Lists4::without(&model.broad, |k| apart[k as usize].covers(&lo, &hi));
+            crate::model::Pruned4 { lists, ranges }
+        });
+    }
 }
 
 /// Most cells [`box_clear`] places for one pair before it gives up.
