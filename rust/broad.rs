@@ -537,9 +537,12 @@ impl Broad {
     #[inline(always)]
     pub(crate) fn near_pairs4(&self, lists: &Lists4, room: &Frames4, s: [&BroadScratch; 4], near: [&mut Vec<u32>; 4]) {
         let (bodies, geoms) = (&room.body_centres, &room.geom_centres);
+        // (every list names bodies and geoms of the model, whose centres `place_spheres4` placed)
+        assert!(bodies.len() == self.body_centre.len() && geoms.len() == self.geom_centre.len(), "centres of this broad phase");
         let mut near = near;
         for n in near.iter_mut() {
             n.clear();
+            n.reserve(lists.members.len() + self.planes.len());
         }
         for gr in &lists.groups {
             let poses = bodies[gr.b1 as usize].within(&bodies[gr.b2 as usize], gr.reach2);
@@ -547,7 +550,10 @@ impl Broad {
                 continue;
             }
             for m in &lists.members[gr.start as usize..gr.end as usize] {
-                let mut hit = poses & geoms[m.g1 as usize].within(&geoms[m.g2 as usize], m.reach2);
+                // SAFETY: a member's geoms are geoms of the model (`Broad::new`), below
+                // `geoms.len()` (asserted above).
+                let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
+                let mut hit = poses & c1.within(c2, m.reach2);
                 while hit != 0 {
                     near[hit.trailing_zeros() as usize].push(m.pair);
                     hit &= hit - 1;
