@@ -91,6 +91,10 @@ pub(crate) struct Lists4 {
     /// `(b1, b2, reach2, members[start..end])`, as `Group`.
     groups: Vec<Group>,
     members: Vec<Member>,
+    /// The numbers of bodies and geoms of the broad phase they come from: every index they hold
+    /// is below them (`near_pairs4` reads the centres unchecked).
+    nbody: usize,
+    ngeom: usize,
 }
 
 /// A pair of a plane geom with a non-plane geom.
@@ -147,8 +151,8 @@ pub(crate) struct Broad {
 impl Lists4 {
     /// The members of `groups` (padded, in `members`) that are real pairs and `keep`, group by
     /// group in order; groups left empty are dropped.
-    fn of(groups: &[Group], members: &[Member], keep: impl Fn(u32) -> bool) -> Self {
-        let mut out = Lists4::default();
+    fn of(groups: &[Group], members: &[Member], nbody: usize, ngeom: usize, keep: impl Fn(u32) -> bool) -> Self {
+        let mut out = Lists4 { nbody, ngeom, ..Lists4::default() };
         for g in groups {
             let start = out.members.len() as u32;
             out.members.extend(members[g.start as usize..g.end as usize].iter().filter(|m| m.pair != NONE && keep(m.pair)));
@@ -161,7 +165,7 @@ impl Lists4 {
 
     /// `broad`'s lists without the pairs `dead` (in their original order).
     pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool) -> Self {
-        Lists4::of(&broad.groups, &broad.members, |k| !dead(k))
+        Lists4::of(&broad.groups, &broad.members, broad.body_centre.len(), broad.geom_centre.len(), |k| !dead(k))
     }
 
     /// Number of members (pairs) the lists test.
@@ -268,7 +272,7 @@ impl Broad {
         while members.len() % LANES != 0 {
             members.push(padding);
         }
-        let all4 = Lists4::of(&groups, &members, |_| true);
+        let all4 = Lists4::of(&groups, &members, nbody, geoms.len(), |_| true);
         let mut member_tests = PairList::default();
         for m in &members {
             member_tests.push(m.g1, m.g2, m.reach2);
@@ -538,7 +542,7 @@ impl Broad {
     pub(crate) fn near_pairs4(&self, lists: &Lists4, room: &Frames4, s: [&BroadScratch; 4], near: [&mut Vec<u32>; 4]) {
         let (bodies, geoms) = (&room.body_centres, &room.geom_centres);
         // (every list names bodies and geoms of the model, whose centres `place_spheres4` placed)
-        assert!(bodies.len() == self.body_centre.len() && geoms.len() == self.geom_centre.len(), "centres of this broad phase");
+        assert!(lists.nbody == bodies.len() && lists.ngeom == geoms.len(), "lists and centres of the same broad phase");
         let mut near = near;
         for n in near.iter_mut() {
             n.clear();
@@ -550,8 +554,8 @@ impl Broad {
                 continue;
             }
             for m in &lists.members[gr.start as usize..gr.end as usize] {
-                // SAFETY: a member's geoms are geoms of the model (`Broad::new`), below
-                // `geoms.len()` (asserted above).
+                // SAFETY: a member's geoms are below the `ngeom` of its lists (`Lists4::of`),
+                // which is `geoms.len()` (asserted above).
                 let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
                 let mut hit = poses & c1.within(c2, m.reach2);
                 while hit != 0 {

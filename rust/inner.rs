@@ -51,7 +51,8 @@ fn count(half: f64, r: f64, cap: usize) -> usize {
     if half <= 0.0 {
         1
     } else {
-        ((2.0 * half / r).ceil() as usize + 1).clamp(2, cap)
+        // (in floats first: a very long, thin shape must not overflow the cast)
+        ((2.0 * half / r).ceil() + 1.0).clamp(2.0, cap as f64) as usize
     }
 }
 
@@ -99,10 +100,19 @@ pub fn of_cylinder(c: &Cylinder) -> Vec<InnerBall> {
 
 /// The largest balls about points of the hull's longest chord (from the vertex farthest from
 /// the centre to the vertex farthest from that one) and about its centre, each as deep as its
-/// centre lies below every face plane; the deepest `MAX_BALLS` of them.
+/// centre lies below every triangle of the hull; the deepest `HULL_BALLS` of them.
+///
+/// Depth is measured against each triangle's own plane (its normal from its three vertices, its
+/// offset the largest over all the hull's vertices, so no vertex lies above it), not against
+/// `Hull::planes`: those are parry's merged faces, whose one normal can tilt away from a
+/// triangle folded by up to ~1.7e-4 rad (`hull_balls_stay_inside_a_face_folded_within_parrys_merge`).
 pub fn of_hull(h: &Hull) -> Vec<InnerBall> {
+    let points = h.points();
+    let Some(depth) = hull_depth(h) else {
+        return Vec::new();
+    };
     let farthest = |from: Vector3<f64>| {
-        h.points()
+        points
             .iter()
             .map(|p| p.coords)
             .fold(from, |best, p| if (p - from).norm_squared() > (best - from).norm_squared() { p } else { best })
@@ -110,7 +120,6 @@ pub fn of_hull(h: &Hull) -> Vec<InnerBall> {
     let c = h.centre();
     let a = farthest(c);
     let b = farthest(a);
-    let depth = |p: &Vector3<f64>| h.planes().iter().map(|(n, d)| d - n.dot(p)).fold(f64::INFINITY, f64::min);
     let mut balls: Vec<InnerBall> = (0..2 * MAX_BALLS)
         .map(|i| a + (b - a) * ((i as f64 + 0.5) / (2 * MAX_BALLS) as f64))
         .chain(std::iter::once(c))
@@ -129,6 +138,25 @@ pub fn of_hull(h: &Hull) -> Vec<InnerBall> {
         }
     }
     kept
+}
+
+/// How deep a point lies inside the hull (metres; negative outside), by the hull's triangles:
+/// the smallest over them of `d − n·p`, with `n` the triangle's unit normal from its vertices
+/// and `d` the largest `n·v` over the hull's vertices `v`. Each such half-space holds the hull,
+/// and their triangles are its facets, so this is its depth up to rounding. `None` when parry
+/// cannot triangulate the vertices again.
+fn hull_depth(h: &Hull) -> Option<impl Fn(&Vector3<f64>) -> f64> {
+    let points = h.points();
+    let (vertices, triangles) = parry3d_f64::transformation::try_convex_hull(points).ok()?;
+    let planes: Vec<(Vector3<f64>, f64)> = triangles
+        .iter()
+        .filter_map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i as usize].coords);
+            let n = (b - a).cross(&(c - a)).try_normalize(1e-300)?;
+            Some((n, points.iter().map(|p| n.dot(&p.coords)).fold(f64::NEG_INFINITY, f64::max)))
+        })
+        .collect();
+    Some(move |p: &Vector3<f64>| planes.iter().map(|(n, d)| d - n.dot(p)).fold(f64::INFINITY, f64::min))
 }
 
 /// Distance (metres) from the point `p` (shape frame) to the ball, 0 inside.
@@ -207,6 +235,49 @@ mod tests {
                     assert!(shape.distance_to_local_point(&p, true) <= 1e-12, "case {i}: ball {s:?} leaves the shape at {p:?}");
                 }
             }
+        }
+    }
+
+    /// Review of 7bb452e: a hull's balls were sized by parry's merged faces, whose one normal
+    /// can tilt away from the triangles of a face folded by less than parry's merge angle, so a
+    /// ball could reach tens of micrometres out of the hull GJK sees. A 1 m x 1 m x 2 cm slab
+    /// whose top is folded down 100 um at one corner (1.4e-4 rad: parry merges the two top
+    /// triangles into one face): at points all over it, the depth the balls are sized by is
+    /// never more than the true depth (under both top triangles and inside the other faces),
+    /// where the merged faces' depth is more by over `SLACK` near the lowered corner.
+    #[test]
+    fn hull_balls_stay_inside_a_face_folded_within_parrys_merge() {
+        let (h, t, fold) = (0.5, 0.01, 1e-4);
+        let mut pts = Vec::new();
+        for (x, y) in [(-h, -h), (h, -h), (-h, h), (h, h)] {
+            pts.push(Point3::new(x, y, -t));
+            pts.push(Point3::new(x, y, if (x, y) == (h, h) { t - fold } else { t }));
+        }
+        let hull = Hull::new(&pts).unwrap();
+        let depth = hull_depth(&hull).unwrap();
+        // The true facets: the bottom, the four sides, the flat top triangle and the one tilted
+        // down to the lowered corner.
+        let tilted = {
+            let (a, b, c) = (Vector3::new(h, -h, t), Vector3::new(-h, h, t), Vector3::new(h, h, t - fold));
+            let n = (b - a).cross(&(c - a)).normalize();
+            let n = if n.z < 0.0 { -n } else { n };
+            (n, n.dot(&a))
+        };
+        let truth = |p: &Vector3<f64>| {
+            [t - p.z, p.z + t, h - p.x.abs(), h - p.y.abs(), tilted.1 - tilted.0.dot(p)].into_iter().fold(f64::INFINITY, f64::min)
+        };
+        let merged = |p: &Vector3<f64>| hull.planes().iter().map(|(n, d)| d - n.dot(p)).fold(f64::INFINITY, f64::min);
+        let mut worst_merged = f64::NEG_INFINITY;
+        for i in 0..=20 {
+            for j in 0..=20 {
+                let p = Vector3::new(-0.45 + 0.045 * i as f64, -0.45 + 0.045 * j as f64, 0.0);
+                assert!(depth(&p) <= truth(&p) + 1e-12, "{p:?}: depth {} against {}", depth(&p), truth(&p));
+                worst_merged = worst_merged.max(merged(&p) - truth(&p));
+            }
+        }
+        assert!(worst_merged > SLACK, "the merged faces' depth is off by {worst_merged} m at most");
+        for s in of_hull(&hull) {
+            assert!(s.radius <= truth(&s.centre) + 1e-12, "ball {s:?}");
         }
     }
 
