@@ -323,6 +323,12 @@ impl Broad {
         }
     }
 
+    /// Whether the CPU has AVX2 (found once, when the model was built).
+    #[inline]
+    pub(crate) fn avx2(&self) -> bool {
+        self.avx2
+    }
+
     /// Every group and member, for `near_pairs4`.
     pub(crate) fn all4(&self) -> &Lists4 {
         &self.all4

@@ -309,20 +309,21 @@ impl Scratch {
                 self.frame(model, g1);
                 self.frame(model, g2);
                 let (pa, pb) = (&self.geoms[g1], &self.geoms[g2]);
+                let pos12 = pa.inv_mul(pb);
                 // Two capsules in closed form (`capsules.rs`: parry's GJK misses penetrations of
                 // micrometres between them); touching counts as contact, as in GJK's test.
                 if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
-                    let d = capsules::signed_distance(c1, c2, &pa.inv_mul(pb));
+                    let d = capsules::signed_distance(c1, c2, &pos12);
                     return Ok(if pair.margin == 0.0 { d <= 0.0 } else { d < pair.margin });
                 }
                 // A deep overlap by the geoms' inner balls: the signed distance is below
                 // `-inner::SLACK`, so below any margin that is not negative (GJK agrees).
-                if pair.margin >= 0.0 && overlap_proven((ca, a), pa, (cb, b), pb) {
+                if pair.margin >= 0.0 && overlap_proven((ca, a), (cb, b), &pos12) {
                     return Ok(true);
                 }
                 if pair.margin == 0.0 {
                     // (parry's intersection tests for these shapes cannot fail.)
-                    return Ok(intersection_test((ca, sa.as_ref()), pa, (cb, sb.as_ref()), pb, &mut self.axes[k]));
+                    return Ok(intersection_test((ca, sa.as_ref()), (cb, sb.as_ref()), &pos12, &mut self.axes[k]));
                 }
                 // (a ball or a capsule by its core, as `pair_signed_distance` measures it, so that
                 // the label and the certificates agree near the margin)
@@ -372,7 +373,7 @@ impl Scratch {
                 // (geoms that overlap are neither out of contact nor `clearance >= 0` apart)
                 self.frame(model, g1);
                 self.frame(model, g2);
-                if overlap_proven((ca, a), &self.geoms[g1], (cb, b), &self.geoms[g2]) {
+                if overlap_proven((ca, a), (cb, b), &self.geoms[g1].inv_mul(&self.geoms[g2])) {
                     return Ok(false);
                 }
             }
@@ -633,47 +634,40 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
     true
 }
 
-/// `query::intersection_test` for two convex geoms (each as its `Convex` and its parry shape),
+/// `query::intersection_test` for two convex geoms (each as its `Convex` and its parry shape; b at
+/// `pos12` in a's frame),
 /// with parry's dispatcher unrolled so that the common support-map case runs GJK on the
 /// concrete `Convex` (same support points, same GJK, same answer) rather than through
 /// `dyn Shape`, after the pair's remembered separating `axis` (`sat.rs`: it decides only pairs
 /// GJK would find apart).
-fn intersection_test(
-    a: (&Convex, &dyn Shape),
-    pa: &Isometry3<f64>,
-    b: (&Convex, &dyn Shape),
-    pb: &Isometry3<f64>,
-    axis: &mut Vector3<f64>,
-) -> bool {
+fn intersection_test(a: (&Convex, &dyn Shape), b: (&Convex, &dyn Shape), pos12: &Isometry3<f64>, axis: &mut Vector3<f64>) -> bool {
     use parry3d_f64::query::details;
-    let pos12 = pa.inv_mul(pb);
     match (a.0, b.0) {
         (Convex::Ball(b1), Convex::Ball(b2)) => details::intersection_test_ball_ball(&pos12.translation.vector.into(), b1, b2),
-        (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(&pos12, c1, c2),
+        (Convex::Cuboid(c1), Convex::Cuboid(c2)) => details::intersection_test_cuboid_cuboid(pos12, c1, c2),
         // A ball against a hull: parry's test through its point projection, whose GJK climbs
         // the hull (`hull.rs`) instead of scanning its vertices; the same support points, so the
         // same projection and the same answer.
         (Convex::Ball(b1), Convex::Hull(_)) => hull_ball(&pos12.inverse(), b.0, b1),
-        (Convex::Hull(_), Convex::Ball(b2)) => hull_ball(&pos12, a.0, b2),
-        (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(&pos12, b1, b.1),
-        (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(&pos12, a.1, b2),
-        (ca, cb) => intersection_test_remembering(ca, cb, &pos12, axis),
+        (Convex::Hull(_), Convex::Ball(b2)) => hull_ball(pos12, a.0, b2),
+        (Convex::Ball(b1), _) => details::intersection_test_ball_point_query(pos12, b1, b.1),
+        (_, Convex::Ball(b2)) => details::intersection_test_point_query_ball(pos12, a.1, b2),
+        (ca, cb) => intersection_test_remembering(ca, cb, pos12, axis),
     }
 }
 
-/// Whether the convex geoms `a` (at `pa`) and `b` (at `pb`) overlap by more than
+/// Whether the convex geoms `a` and `b` (`pos12`: b's frame in a's) overlap by more than
 /// `inner::SLACK`, proven by their inner balls (`inner.rs`): a ball of one reaching that far
 /// into the other, measured exactly where the other is a primitive; ball against ball where both
 /// are hulls. `false` proves nothing.
-fn overlap_proven(a: (&Convex, &Geom), pa: &Isometry3<f64>, b: (&Convex, &Geom), pb: &Isometry3<f64>) -> bool {
+fn overlap_proven(a: (&Convex, &Geom), b: (&Convex, &Geom), pos12: &Isometry3<f64>) -> bool {
     let (ia, ib) = (&a.1.shape.inner, &b.1.shape.inner);
-    let pos12 = pa.inv_mul(pb);
-    if b.0.reached_by(ia, &pb.inv_mul(pa)) == Some(true) {
+    if b.0.reached_by(ia, &pos12.inverse()) == Some(true) {
         return true;
     }
-    match a.0.reached_by(ib, &pos12) {
+    match a.0.reached_by(ib, pos12) {
         Some(hit) => hit,
-        None => matches!(b.0, Convex::Hull(_)) && inner::balls_overlap(ia, ib, &pos12),
+        None => matches!(b.0, Convex::Hull(_)) && inner::balls_overlap(ia, ib, pos12),
     }
 }
 
@@ -896,19 +890,16 @@ impl Scratch4 {
         let mut quads = poses.chunks_exact(4 * k);
         for (n, quad) in quads.by_ref().enumerate() {
             let q: [&[f64]; 4] = std::array::from_fn(|l| &quad[l * k..(l + 1) * k]);
-            self.place4(model, q);
+            self.lanes(model, q, Step::Place);
             for s in self.s.iter_mut() {
                 s.place_geoms(model, all_geoms, false);
             }
             let mut decided: [Option<R>; 4] = std::array::from_fn(|l| first(4 * n + l, q[l], &mut self.s[l]));
             if decided.iter().any(Option::is_none) {
-                self.near4(model, q);
+                self.lanes(model, q, Step::Near);
             }
             for (l, s) in self.s.iter_mut().enumerate() {
-                let answer = match decided[l].take() {
-                    Some(answer) => answer,
-                    None => second(4 * n + l, q[l], s),
-                };
+                let answer = decided[l].take().unwrap_or_else(|| second(4 * n + l, q[l], s));
                 emit(4 * n + l, answer)?;
             }
         }
@@ -916,49 +907,49 @@ impl Scratch4 {
         for (i, q) in quads.remainder().chunks_exact(k).enumerate() {
             let s = &mut self.s[0];
             s.place(model, q, all_geoms);
-            let answer = match first(done + i, q, s) {
-                Some(answer) => answer,
-                None => second(done + i, q, s),
-            };
+            let answer = first(done + i, q, s).unwrap_or_else(|| second(done + i, q, s));
             emit(done + i, answer)?;
         }
         Ok(())
     }
 }
 
+/// What `Scratch4` computes in four lanes.
+#[derive(Clone, Copy)]
+enum Step {
+    /// Forward kinematics and the broad phase's spheres.
+    Place,
+    /// The near pairs of the placed poses, into their scratches.
+    Near,
+}
+
 impl Scratch4 {
-    /// Forward kinematics and the broad phase's spheres of four poses, in four lanes.
-    fn place4(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
+    /// `step` for the four poses `q`, compiled for AVX2 where the CPU has it (as the broad
+    /// phase found when the model was built).
+    fn lanes(&mut self, model: &RobotModel, q: [&[f64]; 4], step: Step) {
         #[cfg(target_arch = "x86_64")]
-        if crate::sphere_pairs::has_avx2() {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { self.place4_avx2(model, q) };
+        if model.broad.avx2() {
+            // SAFETY: the CPU has AVX2 (`Broad::avx2`).
+            return unsafe { self.lanes_avx2(model, q, step) };
         }
-        self.place4_with(model, q)
+        self.lanes_with(model, q, step)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn place4_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
-        self.place4_with(model, q)
+    unsafe fn lanes_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4], step: Step) {
+        self.lanes_with(model, q, step)
     }
 
-    /// The near pairs of the four placed poses, into their scratches.
-    fn near4(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
-        #[cfg(target_arch = "x86_64")]
-        if crate::sphere_pairs::has_avx2() {
-            // SAFETY: the CPU has AVX2 (checked just above).
-            return unsafe { self.near4_avx2(model, q) };
+    #[inline(always)]
+    fn lanes_with(&mut self, model: &RobotModel, q: [&[f64]; 4], step: Step) {
+        match step {
+            Step::Place => self.place4_with(model, q),
+            Step::Near => self.near4_with(model, q),
         }
-        self.near4_with(model, q)
     }
 
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn near4_avx2(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
-        self.near4_with(model, q)
-    }
-
+    /// `Step::Near`.
     #[inline(always)]
     fn near4_with(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
         // (without the pairs proven clear over the sampling box, when the four poses lie in it)
@@ -974,6 +965,7 @@ impl Scratch4 {
         }
     }
 
+    /// `Step::Place`.
     #[inline(always)]
     fn place4_with(&mut self, model: &RobotModel, q: [&[f64]; 4]) {
         let [s0, s1, s2, s3] = &mut self.s;
@@ -1215,7 +1207,7 @@ mod tests {
                             continue;
                         }
                         let (pa, pb) = (&s.geoms[pair.g1], &s.geoms[pair.g2]);
-                        if overlap_proven((ca, a), pa, (cb, b), pb) {
+                        if overlap_proven((ca, a), (cb, b), &pa.inv_mul(pb)) {
                             proven += 1;
                             assert!(
                                 query::intersection_test(pa, sa.as_ref(), pb, sb.as_ref()).unwrap(),
