@@ -708,6 +708,24 @@ fn interpolate<'py>(
     PyArray1::from_vec(py, v).reshape([b, steps, k])
 }
 
+/// `(first non-finite, first outside its column's [lo, hi])` flat indices of `(B, K)` poses, or
+/// `None` each (`validate::first_bad_entries`; see `_core.pyi`).
+#[pyfunction]
+fn first_bad_entries<'py>(
+    py: Python<'py>,
+    poses: &Bound<'py, PyAny>,
+    lo: PyReadonlyArray1<'py, f64>,
+    hi: PyReadonlyArray1<'py, f64>,
+) -> PyResult<(Option<usize>, Option<usize>)> {
+    let (lo, hi) = (lo.as_array().to_vec(), hi.as_array().to_vec());
+    if lo.is_empty() || lo.len() != hi.len() {
+        return Err(input_error(format!("lo and hi must both have shape (K,) with K >= 1; got {} and {}", lo.len(), hi.len())));
+    }
+    let poses = pose_array(poses, lo.len(), "poses")?;
+    let q = rows_of(&poses);
+    Ok(py.detach(|| crate::validate::first_bad_entries(&q, &lo, &hi)))
+}
+
 /// Conservative voxel downsampling (`cloud::voxel_downsample`): `(points (M, 3), radius (M,))`.
 #[pyfunction]
 fn voxel_downsample<'py>(py: Python<'py>, points: &Bound<'py, PyAny>, radius: &Bound<'py, PyAny>, voxel: f64) -> PyResult<Balls<'py>> {
@@ -1445,6 +1463,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add_class::<PyRenderState>()?;
     m.add_function(wrap_pyfunction!(interpolate, m)?)?;
+    m.add_function(wrap_pyfunction!(first_bad_entries, m)?)?;
     m.add_function(wrap_pyfunction!(voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render_backward, m)?)?;

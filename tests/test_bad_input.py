@@ -34,6 +34,35 @@ def test_regression_out_of_limits_poses_are_refused_by_labels_too(panda):
         profrobot.interpolate(panda, pose[0], panda.joint_limits.mean(1), 10)
 
 
+def test_poses_checked_in_one_pass_name_the_entry_numpy_would(panda):
+    """as_poses checks finiteness and limits in one Rust pass (`first_bad_entries`); the entry
+    named is numpy's row-major first, a non-finite one before any outside the limits, within
+    `atol` of a limit allowed, and a continuous joint never out of limits."""
+    from profrobot.validate import as_poses
+    rng = np.random.default_rng(0)
+    lim, k = panda.joint_limits, panda.njoint
+    for _ in range(200):
+        poses = rng.uniform(lim[:, 0], lim[:, 1], size=(int(rng.integers(1, 6)), k))
+        for _ in range(int(rng.integers(0, 3))):
+            i, j = rng.integers(len(poses)), rng.integers(k)
+            poses[i, j] = rng.choice([np.nan, np.inf, -np.inf, lim[j, 1] + 1e-10, lim[j, 1] + 1e-3, lim[j, 0] - 2])
+        nonfinite = ~np.isfinite(poses)
+        outside = ((poses < lim[:, 0] - 1e-9) | (poses > lim[:, 1] + 1e-9)) & ~panda.continuous
+        if nonfinite.any():
+            i, j = np.argwhere(nonfinite)[0]
+            match = rf"poses\[{i}, {j}\] \({panda.joint_names[j]}\) is .*finite"
+        elif outside.any():
+            i, j = np.argwhere(outside)[0]
+            match = rf"poses\[{i}, {j}\] = .* is outside the limits of joint '{panda.joint_names[j]}'"
+        else:
+            assert as_poses(panda, poses, check_limits=True) is not None
+            continue
+        with pytest.raises(profrobot.InputError, match=match):
+            as_poses(panda, poses, check_limits=True)
+        if not nonfinite.any():
+            assert as_poses(panda, poses, check_limits=False).shape == poses.shape
+
+
 def test_whole_numbers_are_poses_too(panda):
     """Issue 33: an int array (or a list of ints) was a plain TypeError."""
     lim = panda.joint_limits

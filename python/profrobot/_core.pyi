@@ -158,6 +158,12 @@ def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], s
     ``continuous`` (K,) (``start + t * wrap(goal - start)``, not wrapped itself; a half turn
     moves the negative way), straight otherwise."""
 
+def first_bad_entries(poses: npt.NDArray[np.float64], lo: npt.NDArray[np.float64],
+                      hi: npt.NDArray[np.float64]) -> tuple[int | None, int | None]:
+    """Row-major flat indices into the C-contiguous (B, K) ``poses`` of the first entry that is not
+    finite and of the first outside ``[lo[j], hi[j]]`` of its column (``lo``, ``hi``: (K,); -inf /
+    inf where unlimited), or None each; one pass, the GIL released (``as_poses``' checks)."""
+
 def voxel_downsample(points: npt.NDArray[np.float64], radius: npt.NDArray[np.float64],
                      voxel: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Conservative voxel downsampling of the balls ``points`` (N, 3) / ``radius`` (N,) metres by

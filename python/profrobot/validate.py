@@ -12,6 +12,7 @@ from numbers import Integral, Real
 
 import numpy as np
 
+from ._core import first_bad_entries
 from .errors import InputError, InputTypeError
 from .robot import Robot
 
@@ -124,18 +125,23 @@ def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool =
     if arr.shape[0] == 0:
         raise InputError(f"{name} is empty: at least one pose is needed")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        i, j = np.argwhere(bad)[0]
-        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
+    # One pass in Rust (numpy's comparisons and reductions took 4-12 ms a 200 000-pose batch):
+    # the first non-finite entry, and the first limited entry outside its limits by more than atol.
+    lim = robot.joint_limits
     if check_limits:
-        lim = robot.joint_limits
         limited = ~robot.continuous
-        out = ((arr < lim[:, 0] - atol) | (arr > lim[:, 1] + atol)) & limited
-        if out.any():
-            i, j = np.argwhere(out)[0]
-            raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
-                             f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
+        lo = np.where(limited, lim[:, 0] - atol, -np.inf)
+        hi = np.where(limited, lim[:, 1] + atol, np.inf)
+    else:
+        lo, hi = np.full(k, -np.inf), np.full(k, np.inf)
+    nonfinite, outside = first_bad_entries(arr, lo, hi) if k else (None, None)
+    if nonfinite is not None:
+        i, j = divmod(nonfinite, k)
+        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
+    if outside is not None:
+        i, j = divmod(outside, k)
+        raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
+                         f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
     return arr
 
 
