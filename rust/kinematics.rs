@@ -5,13 +5,14 @@
 //!   `x <- anchor_world - R * anchor_local`;
 //! - slide: translate along the world axis, `x <- x + R * axis * (q - qpos0)`.
 
-use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::lanes::{Frames4, Iso4, F4, Q4, V4};
 use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::model::RobotModel;
+use crate::trig;
 
 /// Computes every body's world pose for one pose vector `q` (length K) into `out` (nbody).
 ///
@@ -54,7 +55,7 @@ fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) ->
     for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
         let angle = qj - jnt.qpos0;
         if jnt.hinge {
-            let mut rot = x.rotation * UnitQuaternion::from_axis_angle(&jnt.axis, angle);
+            let mut rot = x.rotation * half_turn(jnt.axis.into_inner(), angle);
             rot.renormalize_fast();
             // A hinge at the body origin (every bundled robot's) leaves the translation
             // as it is, bit for bit: the rotated zero anchor is +-0 in every component, and
@@ -70,6 +71,15 @@ fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) ->
         }
     }
     x
+}
+
+/// The rotation by `angle` radians about the unit `axis`: nalgebra's `from_axis_angle`,
+/// `(cos(angle/2), axis sin(angle/2))`, with this crate's `sin_cos` (`trig.rs`: the same bits
+/// on every platform and in every lane).
+#[inline(always)]
+pub(crate) fn half_turn(axis: Vector3<f64>, angle: f64) -> UnitQuaternion<f64> {
+    let (s, c) = trig::sin_cos(angle / 2.0);
+    UnitQuaternion::new_unchecked(Quaternion::from_parts(c, axis * s))
 }
 
 /// `body_poses` of four poses `q` (each of length K) into `out` (each of length nbody), bit for
@@ -88,12 +98,9 @@ pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isomet
             let j = j0 + j;
             let angle = F4([q[0][j], q[1][j], q[2][j], q[3][j]]) - F4::splat(jnt.qpos0);
             if jnt.hinge {
-                // nalgebra's `from_axis_angle`: `(sin, cos)` of half the angle, the axis times
-                // the sine; per lane, the scalar code's own libm call.
-                let (mut s, mut c) = ([0.0; 4], [0.0; 4]);
-                for l in 0..4 {
-                    (s[l], c[l]) = (angle.0[l] / 2.0).sin_cos();
-                }
+                // `half_turn`: `(sin, cos)` of half the angle (`trig.rs`, four lanes), the axis times
+                // the sine.
+                let (s, c) = trig::sin_cos4((angle * F4::splat(0.5)).0);
                 let axis = jnt.axis.into_inner();
                 let (s, c) = (F4(s), F4(c));
                 let turn = Q4 { i: F4::splat(axis.x) * s, j: F4::splat(axis.y) * s, k: F4::splat(axis.z) * s, w: c };

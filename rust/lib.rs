@@ -81,6 +81,7 @@ mod spans;
 mod sphere_pairs;
 pub mod splat;
 pub mod threads;
+mod trig;
 pub mod validate;
 
 #[cfg(feature = "python")]
