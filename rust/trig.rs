@@ -56,44 +56,50 @@ pub(crate) fn sin_cos(x: f64) -> (f64, f64) {
 #[inline(always)]
 pub(crate) fn sin_cos4(x: [f64; 4]) -> ([f64; 4], [f64; 4]) {
     let ix = x.map(|v| ((v.to_bits() >> 32) & 0x7fff_ffff) as u32);
-    if ix.iter().any(|&i| i > 0x3fe9_21fb && (i > 0x400f_6a7a || i & 0xfffff == 0x921fb)) {
+    let other = ix.map(|i| (i > 0x3fe9_21fb) & ((i > 0x400f_6a7a) | (i & 0xfffff == 0x921fb)));
+    if other[0] | other[1] | other[2] | other[3] {
         let (mut s, mut c) = ([0.0; 4], [0.0; 4]);
         for l in 0..4 {
             (s[l], c[l]) = sin_cos(x[l]);
         }
         return (s, c);
     }
-    let (mut s, mut c) = ([0.0; 4], [0.0; 4]);
-    for l in 0..4 {
-        // The quarter turns: 0, 1 or 2, with x's sign.
-        let turns = (ix[l] > 0x3fe9_21fb) as u64 + (ix[l] > 0x4002_d97c) as u64;
+    // (each step on all four lanes at once: lane-wise arithmetic and selects, no branches)
+    let f4 = |f: &dyn Fn(usize) -> f64| -> [f64; 4] { std::array::from_fn(f) };
+    let sel = |m: [bool; 4], a: [f64; 4], b: [f64; 4]| f4(&|l| if m[l] { a[l] } else { b[l] });
+    let flip = |v: [f64; 4], m: [u64; 4]| f4(&|l| f64::from_bits(v[l].to_bits() ^ m[l]));
+    // The quarter turns n: 0, 1 or 2, with x's sign.
+    let turns: [u64; 4] = std::array::from_fn(|l| (ix[l] > 0x3fe9_21fb) as u64 + (ix[l] > 0x4002_d97c) as u64);
+    let n = f4(&|l| f64::from_bits((turns[l] as f64).to_bits() | (x[l].to_bits() & (1 << 63))));
+    let z = f4(&|l| x[l] - n[l] * PIO2_1);
+    let y0 = f4(&|l| z[l] - n[l] * PIO2_1T);
+    let y1 = f4(&|l| (z[l] - y0[l]) - n[l] * PIO2_1T);
+    // msun's `__kernel_sin(y0, y1, iy)`, `iy = 0` where no turn was taken (y1 = 0 there), and
+    // `__kernel_cos(y0, y1)`.
+    let zz = f4(&|l| y0[l] * y0[l]);
+    let w = f4(&|l| zz[l] * zz[l]);
+    let r = f4(&|l| S2 + zz[l] * (S3 + zz[l] * S4) + zz[l] * w[l] * (S5 + zz[l] * S6));
+    let v = f4(&|l| zz[l] * y0[l]);
+    let ks0 = f4(&|l| y0[l] + v[l] * (S1 + zz[l] * r[l]));
+    let ks1 = f4(&|l| y0[l] - ((zz[l] * (0.5 * y1[l] - v[l] * r[l]) - y1[l]) - v[l] * S1));
+    let ks = sel(turns.map(|t| t == 0), ks0, ks1);
+    let rc = f4(&|l| zz[l] * (C1 + zz[l] * (C2 + zz[l] * C3)) + w[l] * w[l] * (C4 + zz[l] * (C5 + zz[l] * C6)));
+    let hz = f4(&|l| 0.5 * zz[l]);
+    let wc = f4(&|l| 1.0 - hz[l]);
+    let kc = f4(&|l| wc[l] + (((1.0 - wc[l]) - hz[l]) + (zz[l] * rc[l] - y0[l] * y1[l])));
+    // The quadrant n mod 4 (msun's match, without branches): an odd n swaps sine and cosine,
+    // bit 1 of n negates the sine, bit 1 of n + 1 the cosine.
+    // (n as a two's complement integer: the turns, negated where x is negative)
+    let q: [u64; 4] = std::array::from_fn(|l| {
         let negative = x[l].to_bits() >> 63;
-        let n = f64::from_bits((turns as f64).to_bits() | (negative << 63));
-        let z = x[l] - n * PIO2_1;
-        let y0 = z - n * PIO2_1T;
-        let y1 = (z - y0) - n * PIO2_1T;
-        // msun's `__kernel_sin(y0, y1, iy)`, `iy = 0` where no turn was taken (y1 = 0 there),
-        // and `__kernel_cos(y0, y1)`.
-        let zz = y0 * y0;
-        let w = zz * zz;
-        let r = S2 + zz * (S3 + zz * S4) + zz * w * (S5 + zz * S6);
-        let v = zz * y0;
-        let ks = if turns == 0 { y0 + v * (S1 + zz * r) } else { y0 - ((zz * (0.5 * y1 - v * r) - y1) - v * S1) };
-        let rc = zz * (C1 + zz * (C2 + zz * C3)) + w * w * (C4 + zz * (C5 + zz * C6));
-        let hz = 0.5 * zz;
-        let wc = 1.0 - hz;
-        let kc = wc + (((1.0 - wc) - hz) + (zz * rc - y0 * y1));
-        // The quadrant n mod 4 (msun's match, without branches): an odd n swaps sine and
-        // cosine, bit 1 of n negates the sine, bit 1 of n + 1 the cosine.
-        let q = (n as i64) as u64;
-        let (a, b) = if q & 1 == 0 { (ks, kc) } else { (kc, ks) };
-        let (a, b) = (f64::from_bits(a.to_bits() ^ ((q & 2) << 62)), f64::from_bits(b.to_bits() ^ ((q.wrapping_add(1) & 2) << 62)));
-        // (below 2^-27 sqrt 2, msun's early return)
-        let tiny = ix[l] < 0x3e46_a09e;
-        s[l] = if tiny { x[l] } else { a };
-        c[l] = if tiny { 1.0 } else { b };
-    }
-    (s, c)
+        (turns[l] ^ negative.wrapping_neg()).wrapping_add(negative)
+    });
+    let odd = q.map(|q| q & 1 == 1);
+    let s = flip(sel(odd, kc, ks), q.map(|q| (q & 2) << 62));
+    let c = flip(sel(odd, ks, kc), q.map(|q| (q.wrapping_add(1) & 2) << 62));
+    // (below 2^-27 sqrt 2, msun's early return)
+    let tiny = ix.map(|i| i < 0x3e46_a09e);
+    (sel(tiny, x, s), sel(tiny, [1.0; 4], c))
 }
 
 #[cfg(test)]
