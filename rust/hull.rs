@@ -198,8 +198,14 @@ fn cube_cell_plain(d: &Vector3<f64>) -> (usize, bool) {
     };
     let face = 2 * m + (d[m] > 0.0) as usize;
     let scale = 0.5 * CUBE as f64 / a[m];
-    let iu = (((u * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
-    let iv = (((v * scale) + 0.5 * CUBE as f64) as usize).min(CUBE - 1);
+    // The grid index, truncated: the value clamped into [0, CUBE - 1] first (NaN to 0, as a
+    // saturating cast gives it), so the conversion needs no range checks.
+    let index = |w: f64| {
+        let x = ((w * scale) + 0.5 * CUBE as f64).max(0.0).min((CUBE - 1) as f64);
+        // SAFETY: `x` is finite and in [0, CUBE - 1] (`max` takes 0 over NaN).
+        unsafe { x.to_int_unchecked::<u32>() as usize }
+    };
+    let (iu, iv) = (index(u), index(v));
     let plain = a[m] >= 1e-100 && a[m] <= 1e100 && !(u + v).is_nan();
     ((face * CUBE + iu) * CUBE + iv, plain)
 }

@@ -108,8 +108,9 @@ pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isomet
                 // (as `kinematics::body_pose`: the general formula where the anchor is off the
                 // body origin or a translation component is zero, lane by lane)
                 let general = jnt.anchor != Vector3::zeros();
-                let zero: [bool; 4] = std::array::from_fn(|l| x.t.x.0[l] == 0.0 || x.t.y.0[l] == 0.0 || x.t.z.0[l] == 0.0);
-                if general || zero.contains(&true) {
+                // (`|`, not `||`: four lanes compared at once)
+                let zero: [bool; 4] = std::array::from_fn(|l| (x.t.x.0[l] == 0.0) | (x.t.y.0[l] == 0.0) | (x.t.z.0[l] == 0.0));
+                if general | zero[0] | zero[1] | zero[2] | zero[3] {
                     let anchor = V4::splat(&jnt.anchor);
                     let t = x.r.rotate(&anchor).add(&x.t).sub(&rot.rotate(&anchor));
                     for (l, &zero) in zero.iter().enumerate() {

@@ -81,7 +81,10 @@ impl V4 {
     pub(crate) fn within(&self, b: &V4, reach2: f64) -> u32 {
         let d = self.sub(b);
         let d2 = (d.x * d.x + d.y * d.y) + d.z * d.z;
-        (0..4).map(|l| ((d2.0[l] <= reach2) as u32) << l).sum()
+        // (four compares and their bits or-ed, which the compiler turns into one vector compare
+        // and a mask move)
+        let m: [bool; 4] = std::array::from_fn(|l| d2.0[l] <= reach2);
+        (m[0] as u32) | ((m[1] as u32) << 1) | ((m[2] as u32) << 2) | ((m[3] as u32) << 3)
     }
 }
 
