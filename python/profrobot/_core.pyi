@@ -21,7 +21,7 @@ from typing import Literal, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "voxel_downsample", "RenderState", "render_forward", "render_backward", "finish_images", "finish_images_backward", "image_loss", "image_loss_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "first_bad_entries", "voxel_downsample", "RenderState", "render_forward", "render_backward", "finish_images", "finish_images_backward", "image_loss", "image_loss_backward",
            "__version__"]
 
 __version__: str
