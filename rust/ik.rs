@@ -140,7 +140,7 @@ fn place(model: &RobotModel, w: &mut Work) {
             let axis = x.rotation * jnt.axis.into_inner();
             if jnt.hinge {
                 let anchor = (x * Point3::from(jnt.anchor)).coords;
-                let mut rot = x.rotation * crate::kinematics::half_turn(jnt.axis.into_inner(), angle);
+                let mut rot = x.rotation * crate::kinematics::axis_rotation(jnt.axis.into_inner(), angle);
                 rot.renormalize_fast();
                 x.translation.vector = anchor - rot * jnt.anchor;
                 x.rotation = rot;

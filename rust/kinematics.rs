@@ -55,7 +55,7 @@ fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) ->
     for (jnt, &qj) in model.joints[j0..j1].iter().zip(&q[j0..j1]) {
         let angle = qj - jnt.qpos0;
         if jnt.hinge {
-            let mut rot = x.rotation * half_turn(jnt.axis.into_inner(), angle);
+            let mut rot = x.rotation * axis_rotation(jnt.axis.into_inner(), angle);
             rot.renormalize_fast();
             // A hinge at the body origin (every bundled robot's) leaves the translation
             // as it is, bit for bit: the rotated zero anchor is +-0 in every component, and
@@ -77,7 +77,7 @@ fn body_pose(model: &RobotModel, q: &[f64], out: &[Isometry3<f64>], b: usize) ->
 /// `(cos(angle/2), axis sin(angle/2))`, with this crate's `sin_cos` (`trig.rs`: the same bits
 /// on every platform and in every lane).
 #[inline(always)]
-pub(crate) fn half_turn(axis: Vector3<f64>, angle: f64) -> UnitQuaternion<f64> {
+pub(crate) fn axis_rotation(axis: Vector3<f64>, angle: f64) -> UnitQuaternion<f64> {
     let (s, c) = trig::sin_cos(angle / 2.0);
     UnitQuaternion::new_unchecked(Quaternion::from_parts(c, axis * s))
 }
@@ -98,7 +98,7 @@ pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isomet
             let j = j0 + j;
             let angle = F4([q[0][j], q[1][j], q[2][j], q[3][j]]) - F4::splat(jnt.qpos0);
             if jnt.hinge {
-                // `half_turn`: `(sin, cos)` of half the angle (`trig.rs`, four lanes), the axis times
+                // `axis_rotation`: `(sin, cos)` of half the angle (`trig.rs`, four lanes), the axis times
                 // the sine.
                 let (s, c) = trig::sin_cos4((angle * F4::splat(0.5)).0);
                 let axis = jnt.axis.into_inner();

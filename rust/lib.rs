@@ -19,6 +19,8 @@
 //! | [`error`] | the one error type |
 //! | [`budget`] | sizes checked against the memory available before they are allocated |
 //! | [`angles`] | the one angle wrap (SO(2), shortest arcs) |
+//! | `trig` | sin and cos of hinge half angles: libm's (msun), one pose or four lanes, bit for bit |
+//! | [`validate`] | caller input checked in one pass (finite poses within limits) |
 //! | `lanes` | four poses at once: nalgebra's quaternion and matrix arithmetic lane for lane, bit for bit |
 //! | [`couplings`] | joint equalities: dependent joints, feasible poses, coupled motions |
 //! | [`desc`] | `ModelDesc`: the robot as plain serde data |

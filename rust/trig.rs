@@ -9,9 +9,11 @@
 //! IEEE `+ - *` only: the same bits everywhere, within one unit in the last place of the truth.
 //!
 //! `sin_cos4` lays the same arithmetic out over four lanes for the arguments a half angle
-//! usually has, `|x| <= 5 pi / 4` away from the multiples of pi/2 (msun's "small" reduction,
-//! one fixed quadrant per range), and hands any quad with another argument to `libm::sincos`
-//! lane by lane. `tests` pin it to `libm::sincos` bit for bit.
+//! usually has, `|x| <= 5 pi / 4` (msun's direct kernels up to pi/4, its "small" reduction with
+//! one fixed quadrant per range beyond), and hands any quad with another argument (beyond
+//! 5 pi / 4, within about 2^-20 of pi/2 or pi, where msun reduces further, or not finite) to
+//! `libm::sincos` lane by lane. `tests` pin it to `libm::sincos` bit for bit. (The same bits
+//! on every platform with IEEE double arithmetic: x86-64, aarch64; not x87-only targets.)
 //!
 //! The coefficients and pi/2's pieces are msun's (`k_sin.c`, `k_cos.c`, `e_rem_pio2.c`), under
 //! its notice:

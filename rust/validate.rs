@@ -8,8 +8,8 @@
 /// none; one pass (a row is inspected entry by entry only when it holds one of either).
 ///
 /// # Panics
-/// When `lo` and `hi` differ in length, or `poses` is not whole rows of it (the caller's shape
-/// check comes first).
+/// When `lo` is empty (K = 0), `lo` and `hi` differ in length, or `poses` is not whole rows of
+/// K entries (the caller's shape checks come first).
 pub fn first_bad_entries(poses: &[f64], lo: &[f64], hi: &[f64]) -> (Option<usize>, Option<usize>) {
     let k = lo.len();
     assert!(hi.len() == k && k > 0 && poses.len() % k == 0, "poses must be whole rows of K = {k} entries");

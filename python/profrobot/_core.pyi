@@ -160,7 +160,7 @@ def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], s
 
 def first_bad_entries(poses: npt.NDArray[np.float64], lo: npt.NDArray[np.float64],
                       hi: npt.NDArray[np.float64]) -> tuple[int | None, int | None]:
-    """Row-major flat indices into the C-contiguous (B, K) ``poses`` of the first entry that is not
+    """Row-major flat indices into the (B, K) ``poses`` (any layout) of the first entry that is not
     finite and of the first outside ``[lo[j], hi[j]]`` of its column (``lo``, ``hi``: (K,); -inf /
     inf where unlimited), or None each; one pass, the GIL released (``as_poses``' checks)."""
 
