@@ -72,6 +72,23 @@ struct Member {
     reach2: f64,
 }
 
+/// One member's box tests (`near_pairs4`), beside it: each geom's sphere against the other's
+/// box, on the box's three axes. Geom 1's box axes are `geom_rot[g1]`'s columns in its body's
+/// frame (body `b1`); `lim1[i]` is the reach along axis `i` beyond which geom 2's sphere is
+/// clear of the box (half extent, sphere radius and margin summed, `inflated`); and the same
+/// with 1 and 2 swapped.
+#[derive(Clone, Copy, Debug)]
+struct MemberBox {
+    b1: u32,
+    b2: u32,
+    lim1: [f64; 3],
+    lim2: [f64; 3],
+    /// Whether `near_pairs4` runs them: not for a pair with a proof of clearance over part of
+    /// the joint space (`Lists4::without`), which every user of the near pairs checks first,
+    /// cheaply (`Apart::holds`), and which holds at most poses it is asked about.
+    run: bool,
+}
+
 /// The pairs between two bodies, `members[start..end]`, and the squared reach of the two
 /// bodies' spheres (plus the largest margin among the pairs).
 #[derive(Clone, Copy, Debug)]
@@ -91,6 +108,8 @@ pub(crate) struct Lists4 {
     /// `(b1, b2, reach2, members[start..end])`, as `Group`.
     groups: Vec<Group>,
     members: Vec<Member>,
+    /// Member by member, its box tests.
+    boxes: Vec<MemberBox>,
     /// The numbers of bodies and geoms of the broad phase they come from: every index they hold
     /// is below them (`near_pairs4` reads the centres unchecked).
     nbody: usize,
@@ -136,6 +155,8 @@ pub(crate) struct Broad {
     members: Vec<Member>,
     /// The members' geom-sphere tests, entry for entry.
     member_tests: PairList,
+    /// The members' box tests, entry for entry (`near_pairs4`).
+    member_boxes: Vec<MemberBox>,
     /// The groups and members without padding (`near_pairs4`).
     all4: Lists4,
     /// Whether `sphere_pairs`' AVX2 kernel runs here.
@@ -151,11 +172,25 @@ pub(crate) struct Broad {
 impl Lists4 {
     /// The members of `groups` (padded, in `members`) that are real pairs and `keep`, group by
     /// group in order; groups left empty are dropped.
-    fn of(groups: &[Group], members: &[Member], nbody: usize, ngeom: usize, keep: impl Fn(u32) -> bool) -> Self {
+    /// A member's box tests run unless its pair is `proven`.
+    fn of(
+        groups: &[Group],
+        members: &[Member],
+        boxes: &[MemberBox],
+        nbody: usize,
+        ngeom: usize,
+        keep: impl Fn(u32) -> bool,
+        proven: impl Fn(u32) -> bool,
+    ) -> Self {
         let mut out = Lists4 { nbody, ngeom, ..Lists4::default() };
         for g in groups {
             let start = out.members.len() as u32;
-            out.members.extend(members[g.start as usize..g.end as usize].iter().filter(|m| m.pair != NONE && keep(m.pair)));
+            for (m, b) in members[g.start as usize..g.end as usize].iter().zip(&boxes[g.start as usize..g.end as usize]) {
+                if m.pair != NONE && keep(m.pair) {
+                    out.members.push(*m);
+                    out.boxes.push(MemberBox { run: !proven(m.pair), ..*b });
+                }
+            }
             if out.members.len() as u32 > start {
                 out.groups.push(Group { start, end: out.members.len() as u32, ..*g });
             }
@@ -163,9 +198,11 @@ impl Lists4 {
         out
     }
 
-    /// `broad`'s lists without the pairs `dead` (in their original order).
-    pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool) -> Self {
-        Lists4::of(&broad.groups, &broad.members, broad.body_centre.len(), broad.geom_centre.len(), |k| !dead(k))
+    /// `broad`'s lists without the pairs `dead` (in their original order), the box tests left
+    /// to the pairs' proofs of clearance where they are `proven` (over part of the joint space).
+    pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool, proven: impl Fn(u32) -> bool) -> Self {
+        let (nbody, ngeom) = (broad.body_centre.len(), broad.geom_centre.len());
+        Lists4::of(&broad.groups, &broad.members, &broad.member_boxes, nbody, ngeom, |k| !dead(k), proven)
     }
 
     /// Number of members (pairs) the lists test.
@@ -272,7 +309,23 @@ impl Broad {
         while members.len() % LANES != 0 {
             members.push(padding);
         }
-        let all4 = Lists4::of(&groups, &members, nbody, geoms.len(), |_| true);
+        let member_boxes: Vec<MemberBox> = members
+            .iter()
+            .map(|m| {
+                if m.pair == NONE {
+                    return MemberBox { b1: 0, b2: 0, lim1: [0.0; 3], lim2: [0.0; 3], run: false };
+                }
+                let (a, b, margin) = (&geoms[m.g1 as usize].shape, &geoms[m.g2 as usize].shape, pairs[m.pair as usize].margin.max(0.0));
+                MemberBox {
+                    b1: geom_body[m.g1 as usize],
+                    b2: geom_body[m.g2 as usize],
+                    lim1: std::array::from_fn(|i| inflated(a.obb_half[i] + b.radius + margin)),
+                    lim2: std::array::from_fn(|i| inflated(b.obb_half[i] + a.radius + margin)),
+                    run: true,
+                }
+            })
+            .collect();
+        let all4 = Lists4::of(&groups, &members, &member_boxes, nbody, geoms.len(), |_| true, |_| false);
         let mut member_tests = PairList::default();
         for m in &members {
             member_tests.push(m.g1, m.g2, m.reach2);
@@ -315,6 +368,7 @@ impl Broad {
             group_tests,
             members,
             member_tests,
+            member_boxes,
             all4,
             avx2: has_avx2(),
             planes,
@@ -412,7 +466,13 @@ impl Broad {
             geom_world[l] = centres(&mut s.geom_world);
         }
         let (bodies, rots) = (&room.bodies, &mut room.rots);
-        rots.resize(bodies.len(), M4([[F4::splat(0.0); 3]; 3]));
+        if rots.len() != bodies.len() {
+            // (the world's frame is the identity in every pose, and no body below writes it:
+            // `near_pairs4`'s box tests read its rotation)
+            rots.clear();
+            rots.resize(bodies.len(), M4([[F4::splat(0.0); 3]; 3]));
+            rots[0] = M4::splat(&Matrix3::identity());
+        }
         let zero = V4 { x: F4::splat(0.0), y: F4::splat(0.0), z: F4::splat(0.0) };
         let (body_centres, geom_centres) = (&mut room.body_centres, &mut room.geom_centres);
         body_centres.resize(nb, zero);
@@ -538,6 +598,43 @@ impl Broad {
         s.geom_world.get(g)
     }
 
+    /// The lanes (bit `l`: pose `l`) in which member `m`'s geoms may come within its reach by
+    /// their box tests (`bx`): neither geom's sphere lies beyond a face of the other's box, by
+    /// more than the sphere's radius, the margin and [`MAX_CLEARANCE`], with the broad phase's
+    /// rounding slack (`inflated`). `c1`, `c2`: the geoms' sphere centres (their box centres),
+    /// `rots`: the bodies' rotation matrices, of the four poses.
+    ///
+    /// Geom 1's box frame is its body's rotation `R` times its own fixed `L`, so the centre
+    /// offset `d = c2 − c1` on its axes is `Lᵀ (Rᵀ d)`: two products by 3 x 3 matrices, four
+    /// poses at a time. In a lane left out, one geom's sphere (which holds the geom) lies beyond
+    /// a face of the other's box (which holds the other) by more than the margin plus
+    /// [`MAX_CLEARANCE`], in exact arithmetic too: the centres' and products' rounding (~1e-15 m
+    /// for geoms within metres of the origin) is far inside the 1e-9 slack, as for the sphere
+    /// tests. So the narrow phase would find the pair apart, and clear, as
+    /// `Scratch::in_contact`'s own box test (`obbs_overlap`, the same test without
+    /// [`MAX_CLEARANCE`]) would reject it: labels do not change, only the work.
+    #[inline(always)]
+    fn boxes_may_touch<const AVX2: bool>(&self, m: &Member, bx: &MemberBox, rots: &[M4], c1: &V4, c2: &V4) -> u32 {
+        let d = c2.sub(c1);
+        // SAFETY: the bodies and geoms of the lists' members are below `rots.len()` (asserted
+        // by the caller) and the number of geoms.
+        let (r1, r2, l1, l2) = unsafe {
+            (
+                rots.get_unchecked(bx.b1 as usize),
+                rots.get_unchecked(bx.b2 as usize),
+                self.geom_rot.get_unchecked(m.g1 as usize),
+                self.geom_rot.get_unchecked(m.g2 as usize),
+            )
+        };
+        #[cfg(target_arch = "x86_64")]
+        if AVX2 {
+            // SAFETY: `AVX2` is set only in code compiled for, and run where the CPU has, AVX2
+            // (`Scratch4::lanes`).
+            return unsafe { !(sphere_beyond_box_avx2(r1, l1, &bx.lim1, &d) | sphere_beyond_box_avx2(r2, l2, &bx.lim2, &d)) & 0xf };
+        }
+        !(sphere_beyond_box(r1, l1, &bx.lim1, &d) | sphere_beyond_box(r2, l2, &bx.lim2, &d)) & 0xf
+    }
+
     /// `near_pairs` of four poses at once, into `near` (each cleared first), in the order
     /// `near_pairs` gives, of the pairs in `lists` (`all4`, or a pruned list that holds every
     /// pair the four poses need tested): the sphere tests on the four poses' centres in lanes (`room`, as
@@ -545,32 +642,48 @@ impl Broad {
     /// planes from each pose's scratch (placed by `place_planes`). Inlined into its caller,
     /// which compiles it for the vector width it has.
     #[inline(always)]
-    pub(crate) fn near_pairs4(&self, lists: &Lists4, room: &Frames4, s: [&BroadScratch; 4], near: [&mut Vec<u32>; 4]) {
-        let (bodies, geoms) = (&room.body_centres, &room.geom_centres);
-        // (every list names bodies and geoms of the model, whose centres `place_spheres4` placed)
+    pub(crate) fn near_pairs4<const AVX2: bool>(
+        &self,
+        lists: &Lists4,
+        room: &Frames4,
+        s: [&BroadScratch; 4],
+        want: u32,
+        near: [&mut Vec<u32>; 4],
+    ) {
+        let (bodies, geoms, rots) = (&room.body_centres, &room.geom_centres, &room.rots);
+        // (every list names bodies and geoms of the model, whose centres and rotations
+        // `place_spheres4` placed)
         assert!(lists.nbody == bodies.len() && lists.ngeom == geoms.len(), "lists and centres of the same broad phase");
+        assert!(rots.len() == bodies.len() && lists.boxes.len() == lists.members.len(), "lists and rotations of the same broad phase");
         let mut near = near;
         for n in near.iter_mut() {
             n.clear();
             n.reserve(lists.members.len() + self.planes.len());
         }
         for gr in &lists.groups {
-            let poses = bodies[gr.b1 as usize].within(&bodies[gr.b2 as usize], gr.reach2);
+            let poses = want & bodies[gr.b1 as usize].within_in::<AVX2>(&bodies[gr.b2 as usize], gr.reach2);
             if poses == 0 {
                 continue;
             }
-            for m in &lists.members[gr.start as usize..gr.end as usize] {
+            let (start, end) = (gr.start as usize, gr.end as usize);
+            for (m, bx) in lists.members[start..end].iter().zip(&lists.boxes[start..end]) {
                 // SAFETY: a member's geoms are below the `ngeom` of its lists (`Lists4::of`),
                 // which is `geoms.len()` (asserted above).
                 let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
-                let mut hit = poses & c1.within(c2, m.reach2);
+                let mut hit = poses & c1.within_in::<AVX2>(c2, m.reach2);
+                if hit != 0 && bx.run {
+                    hit &= self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2);
+                }
                 while hit != 0 {
                     near[hit.trailing_zeros() as usize].push(m.pair);
                     hit &= hit - 1;
                 }
             }
         }
-        for (s, near) in s.iter().zip(near) {
+        for (l, (s, near)) in s.iter().zip(near).enumerate() {
+            if want & 1 << l == 0 {
+                continue;
+            }
             for p in &self.planes {
                 let (normal, offset) = s.plane[p.plane as usize];
                 if normal.dot(&s.geom_world.get(p.geom as usize)) - offset < p.reach {
@@ -632,5 +745,111 @@ impl Broad {
             }
         }
         near.extend_from_slice(&buf[..n]);
+    }
+}
+
+/// `Broad::boxes_may_touch`'s test of one side: bit `l` set where, in lane `l`, the centre
+/// offset `d` on the axes of a box (rotation `R L`: its body's `r`, its own `l`) is beyond
+/// `lim` on some axis, `|t_i| > lim[i]`. `t = Lᵀ (Rᵀ d)`, each dot product summed
+/// `(a0 b0 + a1 b1) + a2 b2`, as `sphere_beyond_box_avx2` sums it (the same bits).
+#[inline(always)]
+fn sphere_beyond_box(r: &M4, l: &Matrix3<f64>, lim: &[f64; 3], d: &V4) -> u32 {
+    let e = r.tr_mul_vec(d);
+    let t = |i: usize| (F4::splat(l[(0, i)]) * e.x + F4::splat(l[(1, i)]) * e.y + F4::splat(l[(2, i)]) * e.z).abs();
+    let (t0, t1, t2) = (t(0), t(1), t(2));
+    let m: [bool; 4] = std::array::from_fn(|k| (t0.0[k] > lim[0]) | (t1.0[k] > lim[1]) | (t2.0[k] > lim[2]));
+    (m[0] as u32) | ((m[1] as u32) << 1) | ((m[2] as u32) << 2) | ((m[3] as u32) << 3)
+}
+
+/// `sphere_beyond_box` in AVX2 registers (LLVM's own vectorisation of the lane arrays
+/// interleaves the two sides' matrices and costs three times as many instructions).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn sphere_beyond_box_avx2(r: &M4, l: &Matrix3<f64>, lim: &[f64; 3], d: &V4) -> u32 {
+    use std::arch::x86_64::*;
+    // SAFETY (every load): an `F4` is four `f64`s.
+    let (dx, dy, dz) = unsafe { (_mm256_loadu_pd(d.x.0.as_ptr()), _mm256_loadu_pd(d.y.0.as_ptr()), _mm256_loadu_pd(d.z.0.as_ptr())) };
+    let r = &r.0;
+    let mut e = [_mm256_setzero_pd(); 3];
+    for (c, e) in e.iter_mut().enumerate() {
+        let (r0, r1, r2) =
+            unsafe { (_mm256_loadu_pd(r[0][c].0.as_ptr()), _mm256_loadu_pd(r[1][c].0.as_ptr()), _mm256_loadu_pd(r[2][c].0.as_ptr())) };
+        *e = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r0, dx), _mm256_mul_pd(r1, dy)), _mm256_mul_pd(r2, dz));
+    }
+    let sign = _mm256_set1_pd(-0.0);
+    let mut beyond = _mm256_setzero_pd();
+    for (i, lim) in lim.iter().enumerate() {
+        let t = _mm256_add_pd(
+            _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(l[(0, i)]), e[0]), _mm256_mul_pd(_mm256_set1_pd(l[(1, i)]), e[1])),
+            _mm256_mul_pd(_mm256_set1_pd(l[(2, i)]), e[2]),
+        );
+        beyond = _mm256_or_pd(beyond, _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_andnot_pd(sign, t), _mm256_set1_pd(*lim)));
+    }
+    _mm256_movemask_pd(beyond) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// `near_pairs4`'s AVX2 kernels give the portable ones' bits, lane by lane (so a batch's near
+    /// pairs do not depend on the CPU); the box test is its definition, some axis with
+    /// `|t_i| > lim[i]` for `t = (R L)ᵀ d` (up to rounding), and never true in a NaN lane.
+    #[test]
+    fn four_lane_box_and_sphere_tests_are_the_portable_ones_and_the_definition() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let vec3 = |rng: &mut rand_chacha::ChaCha8Rng| {
+            Vector3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+        };
+        let rotation = |v: Vector3<f64>| nalgebra::UnitQuaternion::from_scaled_axis(v * 3.0).to_rotation_matrix().into_inner();
+        let lanes = |vs: [Vector3<f64>; 4]| V4 { x: F4(vs.map(|v| v.x)), y: F4(vs.map(|v| v.y)), z: F4(vs.map(|v| v.z)) };
+        let (mut beyond, mut close) = (0, 0);
+        for trial in 0..4000 {
+            let l = rotation(vec3(&mut rng));
+            let rs: [Matrix3<f64>; 4] = std::array::from_fn(|_| rotation(vec3(&mut rng)));
+            let r = M4(std::array::from_fn(|i| std::array::from_fn(|j| F4(rs.map(|m| m[(i, j)])))));
+            let ds: [Vector3<f64>; 4] = std::array::from_fn(|_| vec3(&mut rng));
+            let mut d = lanes(ds);
+            let lim: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..1.0));
+            let nan = trial % 7 == 3;
+            if nan {
+                d.y.0[2] = f64::NAN;
+            }
+            let got = sphere_beyond_box(&r, &l, &lim, &d);
+            for k in 0..4 {
+                let bit = got >> k & 1 == 1;
+                if nan && k == 2 {
+                    assert!(!bit, "trial {trial}: a NaN lane beyond");
+                    continue;
+                }
+                let t = (rs[k] * l).tr_mul(&ds[k]);
+                let over = |slack: f64| (0..3).any(|i| t[i].abs() > lim[i] + slack);
+                // (the definition, but within rounding of a tie)
+                assert!(bit == over(0.0) || over(-1e-12) != over(1e-12), "trial {trial}, lane {k}");
+                beyond += bit as usize;
+                close += !bit as usize;
+            }
+            let (c1, c2) = (lanes(std::array::from_fn(|_| vec3(&mut rng))), lanes(std::array::from_fn(|_| vec3(&mut rng))));
+            let reach2 = rng.random_range(0.0..3.0);
+            let within = c1.within(&c2, reach2);
+            for k in 0..4 {
+                let (a, b) = (Vector3::new(c1.x.0[k], c1.y.0[k], c1.z.0[k]), Vector3::new(c2.x.0[k], c2.y.0[k], c2.z.0[k]));
+                let dd = a - b;
+                assert_eq!(within >> k & 1 == 1, (dd.x * dd.x + dd.y * dd.y) + dd.z * dd.z <= reach2, "trial {trial}, lane {k}");
+            }
+            assert_eq!(c1.within_in::<false>(&c2, reach2), within);
+            #[cfg(target_arch = "x86_64")]
+            if has_avx2() {
+                // SAFETY: the CPU has AVX2.
+                unsafe {
+                    assert_eq!(sphere_beyond_box_avx2(&r, &l, &lim, &d), got, "trial {trial}");
+                    assert_eq!(c1.within_avx2(&c2, reach2), within, "trial {trial}");
+                    assert_eq!(c1.within_in::<true>(&c2, reach2), within, "trial {trial}");
+                }
+            }
+        }
+        assert!(beyond > 1000 && close > 1000, "{beyond} beyond, {close} close");
     }
 }

@@ -23,6 +23,12 @@ impl F4 {
     pub(crate) fn splat(x: f64) -> F4 {
         F4([x; 4])
     }
+
+    /// `|x|` lane by lane.
+    #[inline(always)]
+    pub(crate) fn abs(self) -> F4 {
+        F4(self.0.map(f64::abs))
+    }
 }
 
 macro_rules! lanewise {
@@ -85,6 +91,38 @@ impl V4 {
         // and a mask move)
         let m: [bool; 4] = std::array::from_fn(|l| d2.0[l] <= reach2);
         (m[0] as u32) | ((m[1] as u32) << 1) | ((m[2] as u32) << 2) | ((m[3] as u32) << 3)
+    }
+}
+
+impl V4 {
+    /// `within` in AVX2 registers, the same sums in the same order (so the same bits): LLVM
+    /// vectorises the lane arrays of `within` or not as the code around it allows.
+    ///
+    /// # Safety
+    /// The CPU has AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(crate) unsafe fn within_avx2(&self, b: &V4, reach2: f64) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY (the loads): an `F4` is four `f64`s.
+        let ld = |f: &F4| unsafe { _mm256_loadu_pd(f.0.as_ptr()) };
+        let (dx, dy, dz) =
+            (_mm256_sub_pd(ld(&self.x), ld(&b.x)), _mm256_sub_pd(ld(&self.y), ld(&b.y)), _mm256_sub_pd(ld(&self.z), ld(&b.z)));
+        let d2 = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
+        _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, _mm256_set1_pd(reach2))) as u32
+    }
+
+    /// `within`, in AVX2 registers where `AVX2` (the caller runs with AVX2 enabled and on a
+    /// CPU that has it).
+    #[inline(always)]
+    pub(crate) fn within_in<const AVX2: bool>(&self, b: &V4, reach2: f64) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if AVX2 {
+            // SAFETY: as the caller says.
+            return unsafe { self.within_avx2(b, reach2) };
+        }
+        self.within(b, reach2)
     }
 }
 
@@ -183,6 +221,20 @@ impl M4 {
     pub(crate) fn mul_vec(&self, v: &V4) -> V4 {
         let row = |r: &[F4; 3]| r[0] * v.x + r[1] * v.y + r[2] * v.z;
         V4 { x: row(&self.0[0]), y: row(&self.0[1]), z: row(&self.0[2]) }
+    }
+
+    /// `Mᵀ v`: row `r` is `(m_0r v_0 + m_1r v_1) + m_2r v_2`.
+    #[inline(always)]
+    pub(crate) fn tr_mul_vec(&self, v: &V4) -> V4 {
+        let m = &self.0;
+        let col = |c: usize| m[0][c] * v.x + m[1][c] * v.y + m[2][c] * v.z;
+        V4 { x: col(0), y: col(1), z: col(2) }
+    }
+
+    /// The same matrix in every lane.
+    #[inline(always)]
+    pub(crate) fn splat(m: &Matrix3<f64>) -> M4 {
+        M4(std::array::from_fn(|r| std::array::from_fn(|c| F4::splat(m[(r, c)]))))
     }
 
     /// Lane `l` as a matrix.
