@@ -83,10 +83,6 @@ struct MemberBox {
     b2: u32,
     lim1: [f64; 3],
     lim2: [f64; 3],
-    /// Whether `near_pairs4` runs them: not for a pair with a proof of clearance over part of
-    /// the joint space (`Lists4::without`), which every user of the near pairs checks first,
-    /// cheaply (`Apart::holds`), and which holds at most poses it is asked about.
-    run: bool,
 }
 
 /// The pairs between two bodies, `members[start..end]`, and the squared reach of the two
@@ -172,23 +168,14 @@ pub(crate) struct Broad {
 impl Lists4 {
     /// The members of `groups` (padded, in `members`) that are real pairs and `keep`, group by
     /// group in order; groups left empty are dropped.
-    /// A member's box tests run unless its pair is `proven`.
-    fn of(
-        groups: &[Group],
-        members: &[Member],
-        boxes: &[MemberBox],
-        nbody: usize,
-        ngeom: usize,
-        keep: impl Fn(u32) -> bool,
-        proven: impl Fn(u32) -> bool,
-    ) -> Self {
+    fn of(groups: &[Group], members: &[Member], boxes: &[MemberBox], nbody: usize, ngeom: usize, keep: impl Fn(u32) -> bool) -> Self {
         let mut out = Lists4 { nbody, ngeom, ..Lists4::default() };
         for g in groups {
             let start = out.members.len() as u32;
             for (m, b) in members[g.start as usize..g.end as usize].iter().zip(&boxes[g.start as usize..g.end as usize]) {
                 if m.pair != NONE && keep(m.pair) {
                     out.members.push(*m);
-                    out.boxes.push(MemberBox { run: !proven(m.pair), ..*b });
+                    out.boxes.push(*b);
                 }
             }
             if out.members.len() as u32 > start {
@@ -198,11 +185,10 @@ impl Lists4 {
         out
     }
 
-    /// `broad`'s lists without the pairs `dead` (in their original order), the box tests left
-    /// to the pairs' proofs of clearance where they are `proven` (over part of the joint space).
-    pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool, proven: impl Fn(u32) -> bool) -> Self {
+    /// `broad`'s lists without the pairs `dead` (in their original order).
+    pub(crate) fn without(broad: &Broad, dead: impl Fn(u32) -> bool) -> Self {
         let (nbody, ngeom) = (broad.body_centre.len(), broad.geom_centre.len());
-        Lists4::of(&broad.groups, &broad.members, &broad.member_boxes, nbody, ngeom, |k| !dead(k), proven)
+        Lists4::of(&broad.groups, &broad.members, &broad.member_boxes, nbody, ngeom, |k| !dead(k))
     }
 
     /// Number of members (pairs) the lists test.
@@ -313,7 +299,7 @@ impl Broad {
             .iter()
             .map(|m| {
                 if m.pair == NONE {
-                    return MemberBox { b1: 0, b2: 0, lim1: [0.0; 3], lim2: [0.0; 3], run: false };
+                    return MemberBox { b1: 0, b2: 0, lim1: [0.0; 3], lim2: [0.0; 3] };
                 }
                 let (a, b, margin) = (&geoms[m.g1 as usize].shape, &geoms[m.g2 as usize].shape, pairs[m.pair as usize].margin.max(0.0));
                 MemberBox {
@@ -321,11 +307,10 @@ impl Broad {
                     b2: geom_body[m.g2 as usize],
                     lim1: std::array::from_fn(|i| inflated(a.obb_half[i] + b.radius + margin)),
                     lim2: std::array::from_fn(|i| inflated(b.obb_half[i] + a.radius + margin)),
-                    run: true,
                 }
             })
             .collect();
-        let all4 = Lists4::of(&groups, &members, &member_boxes, nbody, geoms.len(), |_| true, |_| false);
+        let all4 = Lists4::of(&groups, &members, &member_boxes, nbody, geoms.len(), |_| true);
         let mut member_tests = PairList::default();
         for m in &members {
             member_tests.push(m.g1, m.g2, m.reach2);
@@ -671,7 +656,7 @@ impl Broad {
                 // which is `geoms.len()` (asserted above).
                 let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
                 let mut hit = poses & c1.within_in::<AVX2>(c2, m.reach2);
-                if hit != 0 && bx.run {
+                if hit != 0 {
                     hit &= self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2);
                 }
                 while hit != 0 {

@@ -810,7 +810,7 @@ pub fn prove_apart(model: &RobotModel) {
     if let (Some(apart), Ok(ranges)) = (model.apart(), model.sampling_ranges()) {
         model.pruned4.get_or_init(|| {
             let (lo, hi): (Vec<f64>, Vec<f64>) = ranges.iter().map(|r| (r[0], r[1])).unzip();
-            let lists = crate::broad::Lists4::without(&model.broad, |k| apart[k as usize].covers(&lo, &hi), |k| apart[k as usize].some());
+            let lists = crate::broad::Lists4::without(&model.broad, |k| apart[k as usize].covers(&lo, &hi));
             crate::model::Pruned4 { lists, ranges }
         });
     }
