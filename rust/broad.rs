@@ -19,7 +19,7 @@
 use nalgebra::{Isometry3, Matrix3, Vector3};
 
 use crate::geom::Geom;
-use crate::lanes::{Frames4, F4, M4, V4};
+use crate::lanes::{Frames4, Reg, F4, M4, V4};
 use crate::pairs::CandidatePair;
 use crate::sphere_pairs::{has_avx2, Centres, PairList, LANES};
 
@@ -599,7 +599,7 @@ impl Broad {
     /// `Scratch::in_contact`'s own box test (`obbs_overlap`, the same test without
     /// [`MAX_CLEARANCE`]) would reject it: labels do not change, only the work.
     #[inline(always)]
-    fn boxes_may_touch<const AVX2: bool>(&self, m: &Member, bx: &MemberBox, rots: &[M4], c1: &V4, c2: &V4) -> u32 {
+    fn boxes_may_touch<const AVX2: bool>(&self, m: &Member, bx: &MemberBox, rots: &[M4], c1: &V4, c2: &V4, hit: u32) -> u32 {
         let d = c2.sub(c1);
         // SAFETY: the bodies and geoms of the lists' members are below `rots.len()` (asserted
         // by the caller) and the number of geoms.
@@ -613,11 +613,11 @@ impl Broad {
         };
         #[cfg(target_arch = "x86_64")]
         if AVX2 {
-            // SAFETY: `AVX2` is set only in code compiled for, and run where the CPU has, AVX2
-            // (`Scratch4::lanes`).
-            return unsafe { !(sphere_beyond_box_avx2(r1, l1, &bx.lim1, &d) | sphere_beyond_box_avx2(r2, l2, &bx.lim2, &d)) & 0xf };
+            // SAFETY: `AVX2` is set only where the CPU has AVX2 (`Scratch4::lanes`).
+            return unsafe { boxes_close_avx2(r1, l1, r2, l2, bx, &d, hit) };
         }
-        !(sphere_beyond_box(r1, l1, &bx.lim1, &d) | sphere_beyond_box(r2, l2, &bx.lim2, &d)) & 0xf
+        // SAFETY: portable registers.
+        unsafe { boxes_close::<F4>(r1, l1, r2, l2, bx, &d, hit) }
     }
 
     /// `near_pairs` of four poses at once, into `near` (each cleared first), in the order
@@ -657,7 +657,7 @@ impl Broad {
                 let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
                 let mut hit = poses & c1.within_in::<AVX2>(c2, m.reach2);
                 if hit != 0 {
-                    hit &= self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2);
+                    hit = self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2, hit);
                 }
                 while hit != 0 {
                     near[hit.trailing_zeros() as usize].push(m.pair);
@@ -733,45 +733,57 @@ impl Broad {
     }
 }
 
-/// `Broad::boxes_may_touch`'s test of one side: bit `l` set where, in lane `l`, the centre
-/// offset `d` on the axes of a box (rotation `R L`: its body's `r`, its own `l`) is beyond
-/// `lim` on some axis, `|t_i| > lim[i]`. `t = Lᵀ (Rᵀ d)`, each dot product summed
-/// `(a0 b0 + a1 b1) + a2 b2`, as `sphere_beyond_box_avx2` sums it (the same bits).
+/// `Broad::boxes_may_touch` in registers `R`, of the lanes `hit`: each geom's sphere against
+/// the other's box (`sphere_beyond_box`). (The boxes' own face axes, tested next in four lanes,
+/// rejected few more pairs than this on the bundled scenes, and cost more than they saved.)
+///
+/// # Safety
+/// As `Reg` says: with `Avx2`, called from code compiled with AVX2 (`boxes_close_avx2`).
 #[inline(always)]
-fn sphere_beyond_box(r: &M4, l: &Matrix3<f64>, lim: &[f64; 3], d: &V4) -> u32 {
-    let e = r.tr_mul_vec(d);
-    let t = |i: usize| (F4::splat(l[(0, i)]) * e.x + F4::splat(l[(1, i)]) * e.y + F4::splat(l[(2, i)]) * e.z).abs();
-    let (t0, t1, t2) = (t(0), t(1), t(2));
-    let m: [bool; 4] = std::array::from_fn(|k| (t0.0[k] > lim[0]) | (t1.0[k] > lim[1]) | (t2.0[k] > lim[2]));
-    (m[0] as u32) | ((m[1] as u32) << 1) | ((m[2] as u32) << 2) | ((m[3] as u32) << 3)
+unsafe fn boxes_close<R: Reg>(r1: &M4, l1: &Matrix3<f64>, r2: &M4, l2: &Matrix3<f64>, bx: &MemberBox, d: &V4, hit: u32) -> u32 {
+    unsafe {
+        let d = [R::load(&d.x), R::load(&d.y), R::load(&d.z)];
+        hit & !(sphere_beyond_box::<R>(r1, l1, &bx.lim1, d) | sphere_beyond_box::<R>(r2, l2, &bx.lim2, d))
+    }
 }
 
-/// `sphere_beyond_box` in AVX2 registers (LLVM's own vectorisation of the lane arrays
-/// interleaves the two sides' matrices and costs three times as many instructions).
+/// `boxes_close` in AVX2 registers.
+///
+/// # Safety
+/// The CPU has AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn sphere_beyond_box_avx2(r: &M4, l: &Matrix3<f64>, lim: &[f64; 3], d: &V4) -> u32 {
-    use std::arch::x86_64::*;
-    // SAFETY (every load): an `F4` is four `f64`s.
-    let (dx, dy, dz) = unsafe { (_mm256_loadu_pd(d.x.0.as_ptr()), _mm256_loadu_pd(d.y.0.as_ptr()), _mm256_loadu_pd(d.z.0.as_ptr())) };
-    let r = &r.0;
-    let mut e = [_mm256_setzero_pd(); 3];
-    for (c, e) in e.iter_mut().enumerate() {
-        let (r0, r1, r2) =
-            unsafe { (_mm256_loadu_pd(r[0][c].0.as_ptr()), _mm256_loadu_pd(r[1][c].0.as_ptr()), _mm256_loadu_pd(r[2][c].0.as_ptr())) };
-        *e = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(r0, dx), _mm256_mul_pd(r1, dy)), _mm256_mul_pd(r2, dz));
+unsafe fn boxes_close_avx2(r1: &M4, l1: &Matrix3<f64>, r2: &M4, l2: &Matrix3<f64>, bx: &MemberBox, d: &V4, hit: u32) -> u32 {
+    // SAFETY: compiled with AVX2, as `Reg` asks.
+    unsafe { boxes_close::<crate::lanes::Avx2>(r1, l1, r2, l2, bx, d, hit) }
+}
+
+/// Column `c` of the four lanes' matrices `r`.
+#[inline(always)]
+unsafe fn column<R: Reg>(r: &M4, c: usize) -> [R; 3] {
+    unsafe { [R::load(&r.0[0][c]), R::load(&r.0[1][c]), R::load(&r.0[2][c])] }
+}
+
+/// Column `c` of `l`, in every lane.
+#[inline(always)]
+unsafe fn splat_column<R: Reg>(l: &Matrix3<f64>, c: usize) -> [R; 3] {
+    unsafe { [R::splat(l[(0, c)]), R::splat(l[(1, c)]), R::splat(l[(2, c)])] }
+}
+
+/// One side of `boxes_close`'s sphere tests: bit `l` set where, in lane `l`, the centre offset
+/// `d` on the axes of a box (rotation `R L`: its body's `r`, its own fixed `l`) is beyond `lim`
+/// on some axis, `|t_i| > lim[i]`, with `t = Lᵀ (Rᵀ d)`, each dot product `(a0 b0 + a1 b1) + a2 b2`.
+#[inline(always)]
+unsafe fn sphere_beyond_box<R: Reg>(r: &M4, l: &Matrix3<f64>, lim: &[f64; 3], d: [R; 3]) -> u32 {
+    unsafe {
+        let e = [R::dot3(column(r, 0), d), R::dot3(column(r, 1), d), R::dot3(column(r, 2), d)];
+        let mut beyond = 0;
+        for (i, lim) in lim.iter().enumerate() {
+            beyond |= R::dot3(splat_column(l, i), e).abs().gt(R::splat(*lim));
+        }
+        beyond
     }
-    let sign = _mm256_set1_pd(-0.0);
-    let mut beyond = _mm256_setzero_pd();
-    for (i, lim) in lim.iter().enumerate() {
-        let t = _mm256_add_pd(
-            _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(l[(0, i)]), e[0]), _mm256_mul_pd(_mm256_set1_pd(l[(1, i)]), e[1])),
-            _mm256_mul_pd(_mm256_set1_pd(l[(2, i)]), e[2]),
-        );
-        beyond = _mm256_or_pd(beyond, _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_andnot_pd(sign, t), _mm256_set1_pd(*lim)));
-    }
-    _mm256_movemask_pd(beyond) as u32
 }
 
 #[cfg(test)]
@@ -802,7 +814,8 @@ mod tests {
             if nan {
                 d.y.0[2] = f64::NAN;
             }
-            let got = sphere_beyond_box(&r, &l, &lim, &d);
+            // SAFETY: portable registers.
+            let got = unsafe { sphere_beyond_box::<F4>(&r, &l, &lim, [d.x, d.y, d.z]) };
             for k in 0..4 {
                 let bit = got >> k & 1 == 1;
                 if nan && k == 2 {
@@ -829,7 +842,9 @@ mod tests {
             if has_avx2() {
                 // SAFETY: the CPU has AVX2.
                 unsafe {
-                    assert_eq!(sphere_beyond_box_avx2(&r, &l, &lim, &d), got, "trial {trial}");
+                    let bx = MemberBox { b1: 0, b2: 1, lim1: lim, lim2: [f64::INFINITY; 3] };
+                    assert_eq!(boxes_close_avx2(&r, &l, &r, &l, &bx, &d, 0xf), !got & 0xf, "trial {trial}");
+                    assert_eq!(boxes_close::<F4>(&r, &l, &r, &l, &bx, &d, 0xf), !got & 0xf, "trial {trial}");
                     assert_eq!(c1.within_avx2(&c2, reach2), within, "trial {trial}");
                     assert_eq!(c1.within_in::<true>(&c2, reach2), within, "trial {trial}");
                 }

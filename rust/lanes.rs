@@ -23,12 +23,6 @@ impl F4 {
     pub(crate) fn splat(x: f64) -> F4 {
         F4([x; 4])
     }
-
-    /// `|x|` lane by lane.
-    #[inline(always)]
-    pub(crate) fn abs(self) -> F4 {
-        F4(self.0.map(f64::abs))
-    }
 }
 
 macro_rules! lanewise {
@@ -123,6 +117,98 @@ impl V4 {
             return unsafe { self.within_avx2(b, reach2) };
         }
         self.within(b, reach2)
+    }
+}
+
+/// Four `f64` lanes in registers, for kernels written once: the portable arrays (`F4`), or
+/// AVX2's (`Avx2`). The same IEEE operations in the same order, so the same bits.
+///
+/// # Safety
+/// `Avx2`'s operations run only on a CPU that has AVX2; every kernel calls them from a function
+/// compiled with it (`#[target_feature(enable = "avx2")]`), where they inline.
+pub(crate) unsafe trait Reg: Copy {
+    unsafe fn load(x: &F4) -> Self;
+    unsafe fn splat(x: f64) -> Self;
+    unsafe fn add(self, o: Self) -> Self;
+    unsafe fn mul(self, o: Self) -> Self;
+    unsafe fn abs(self) -> Self;
+    /// Bit `l` set where lane `l` of `self` is above `o`'s (never for NaN).
+    unsafe fn gt(self, o: Self) -> u32;
+    /// `(a0 b0 + a1 b1) + a2 b2`, nalgebra's order.
+    #[inline(always)]
+    unsafe fn dot3(a: [Self; 3], b: [Self; 3]) -> Self {
+        unsafe { a[0].mul(b[0]).add(a[1].mul(b[1])).add(a[2].mul(b[2])) }
+    }
+}
+
+// SAFETY: portable code.
+unsafe impl Reg for F4 {
+    #[inline(always)]
+    unsafe fn load(x: &F4) -> Self {
+        *x
+    }
+    #[inline(always)]
+    unsafe fn splat(x: f64) -> Self {
+        F4([x; 4])
+    }
+    #[inline(always)]
+    unsafe fn add(self, o: Self) -> Self {
+        self + o
+    }
+    #[inline(always)]
+    unsafe fn mul(self, o: Self) -> Self {
+        self * o
+    }
+    #[inline(always)]
+    unsafe fn abs(self) -> Self {
+        F4(self.0.map(f64::abs))
+    }
+    #[inline(always)]
+    unsafe fn gt(self, o: Self) -> u32 {
+        let m: [bool; 4] = std::array::from_fn(|l| self.0[l] > o.0[l]);
+        (m[0] as u32) | ((m[1] as u32) << 1) | ((m[2] as u32) << 2) | ((m[3] as u32) << 3)
+    }
+}
+
+/// Four lanes in an AVX2 register (`Reg`'s safety contract).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Avx2(std::arch::x86_64::__m256d);
+
+// SAFETY (every intrinsic below): the trait's contract; the loads read the four `f64`s of an `F4`.
+#[cfg(target_arch = "x86_64")]
+unsafe impl Reg for Avx2 {
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn load(x: &F4) -> Self {
+        Avx2(unsafe { std::arch::x86_64::_mm256_loadu_pd(x.0.as_ptr()) })
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn splat(x: f64) -> Self {
+        Avx2(std::arch::x86_64::_mm256_set1_pd(x))
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn add(self, o: Self) -> Self {
+        Avx2(std::arch::x86_64::_mm256_add_pd(self.0, o.0))
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul(self, o: Self) -> Self {
+        Avx2(std::arch::x86_64::_mm256_mul_pd(self.0, o.0))
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn abs(self) -> Self {
+        use std::arch::x86_64::*;
+        Avx2(_mm256_andnot_pd(_mm256_set1_pd(-0.0), self.0))
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn gt(self, o: Self) -> u32 {
+        use std::arch::x86_64::*;
+        _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(self.0, o.0)) as u32
     }
 }
 
@@ -221,14 +307,6 @@ impl M4 {
     pub(crate) fn mul_vec(&self, v: &V4) -> V4 {
         let row = |r: &[F4; 3]| r[0] * v.x + r[1] * v.y + r[2] * v.z;
         V4 { x: row(&self.0[0]), y: row(&self.0[1]), z: row(&self.0[2]) }
-    }
-
-    /// `Mᵀ v`: row `r` is `(m_0r v_0 + m_1r v_1) + m_2r v_2`.
-    #[inline(always)]
-    pub(crate) fn tr_mul_vec(&self, v: &V4) -> V4 {
-        let m = &self.0;
-        let col = |c: usize| m[0][c] * v.x + m[1][c] * v.y + m[2][c] * v.z;
-        V4 { x: col(0), y: col(1), z: col(2) }
     }
 
     /// The same matrix in every lane.
