@@ -5,7 +5,9 @@
 //! - pairs are grouped by body pair, and a group is dropped with one test when the spheres
 //!   holding each body's geoms are apart (most of the ~60 body pairs of an arm, most poses);
 //! - in a group that survives, each pair is dropped when its geoms' own spheres (about their box
-//!   centre, out to the farthest hull vertex) are apart.
+//!   centre, out to the farthest hull vertex) are apart;
+//! - four poses at a time (`near_pairs4`, the batches), a pair left is dropped in the poses where
+//!   one geom's sphere lies beyond a face of the other's box (`boxes_close`).
 //!
 //! Every test is inflated by a relative and absolute 1e-9, far above the rounding of the sphere
 //! centres (~1e-15 m), and by [`MAX_CLEARANCE`], so a dropped pair is separated by more than its
@@ -620,12 +622,15 @@ impl Broad {
         unsafe { boxes_close::<F4>(r1, l1, r2, l2, bx, &d, hit) }
     }
 
-    /// `near_pairs` of four poses at once, into `near` (each cleared first), in the order
-    /// `near_pairs` gives, of the pairs in `lists` (`all4`, or a pruned list that holds every
-    /// pair the four poses need tested): the sphere tests on the four poses' centres in lanes (`room`, as
-    /// `place_spheres4` left them; the same values, the same sums, so the same bits), the
-    /// planes from each pose's scratch (placed by `place_planes`). Inlined into its caller,
-    /// which compiles it for the vector width it has.
+    /// `near_pairs` of the four poses whose bits `want` sets (bit `l`: pose `l`), into their
+    /// `near` (each cleared first; the others' are left empty), in the order `near_pairs` gives,
+    /// of the pairs in `lists` (`all4`, or a pruned list that holds every pair the four poses
+    /// need tested): the sphere tests on the four poses' centres in lanes (`room`, as
+    /// `place_spheres4` left them; the same values, the same sums, so the same bits), less the
+    /// pairs the box tests drop (`boxes_may_touch`: `near_pairs` keeps them, the narrow phase
+    /// finds them apart and clear), and the planes from each pose's scratch (placed by
+    /// `place_planes`). Inlined into its caller, which compiles it for the vector width it has:
+    /// `AVX2` where that is AVX2 (registers `lanes::Avx2`), the portable lanes elsewhere.
     #[inline(always)]
     pub(crate) fn near_pairs4<const AVX2: bool>(
         &self,
