@@ -585,11 +585,11 @@ impl Broad {
         s.geom_world.get(g)
     }
 
-    /// The lanes (bit `l`: pose `l`) in which member `m`'s geoms may come within its reach by
-    /// their box tests (`bx`): neither geom's sphere lies beyond a face of the other's box, by
-    /// more than the sphere's radius, the margin and [`MAX_CLEARANCE`], with the broad phase's
-    /// rounding slack (`inflated`). `c1`, `c2`: the geoms' sphere centres (their box centres),
-    /// `rots`: the bodies' rotation matrices, of the four poses.
+    /// The lanes of `hit` (bit `l`: pose `l`) in which member `m`'s geoms may come within its
+    /// reach by their box tests (`bx`): neither geom's sphere centre lies beyond a face of the
+    /// other's box by more than the sphere's radius, the margin and [`MAX_CLEARANCE`], with the
+    /// broad phase's rounding slack (`inflated`). `c1`, `c2`: the geoms' sphere centres (their
+    /// box centres), `rots`: the bodies' rotation matrices, of the four poses.
     ///
     /// Geom 1's box frame is its body's rotation `R` times its own fixed `L`, so the centre
     /// offset `d = c2 − c1` on its axes is `Lᵀ (Rᵀ d)`: two products by 3 x 3 matrices, four
@@ -597,11 +597,15 @@ impl Broad {
     /// a face of the other's box (which holds the other) by more than the margin plus
     /// [`MAX_CLEARANCE`], in exact arithmetic too: the centres' and products' rounding (~1e-15 m
     /// for geoms within metres of the origin) is far inside the 1e-9 slack, as for the sphere
-    /// tests. So the narrow phase would find the pair apart, and clear, as
-    /// `Scratch::in_contact`'s own box test (`obbs_overlap`, the same test without
-    /// [`MAX_CLEARANCE`]) would reject it: labels do not change, only the work.
+    /// tests. The geoms are then apart by more than the margin (a negative one counts as 0) and
+    /// the clearance, so the narrow phase would find the pair apart (`in_contact`'s own first box
+    /// test, `obbs_overlap`, rejects it already) and clear (`clear_of`): labels do not change,
+    /// only the work.
+    ///
+    /// # Safety
+    /// With `AVX2`, the CPU has AVX2.
     #[inline(always)]
-    fn boxes_may_touch<const AVX2: bool>(&self, m: &Member, bx: &MemberBox, rots: &[M4], c1: &V4, c2: &V4, hit: u32) -> u32 {
+    unsafe fn boxes_may_touch<const AVX2: bool>(&self, m: &Member, bx: &MemberBox, rots: &[M4], c1: &V4, c2: &V4, hit: u32) -> u32 {
         let d = c2.sub(c1);
         // SAFETY: the bodies and geoms of the lists' members are below `rots.len()` (asserted
         // by the caller) and the number of geoms.
@@ -615,7 +619,7 @@ impl Broad {
         };
         #[cfg(target_arch = "x86_64")]
         if AVX2 {
-            // SAFETY: `AVX2` is set only where the CPU has AVX2 (`Scratch4::lanes`).
+            // SAFETY: as the caller promises.
             return unsafe { boxes_close_avx2(r1, l1, r2, l2, bx, &d, hit) };
         }
         // SAFETY: portable registers.
@@ -631,8 +635,11 @@ impl Broad {
     /// finds them apart and clear), and the planes from each pose's scratch (placed by
     /// `place_planes`). Inlined into its caller, which compiles it for the vector width it has:
     /// `AVX2` where that is AVX2 (registers `lanes::Avx2`), the portable lanes elsewhere.
+    ///
+    /// # Safety
+    /// With `AVX2`, the CPU has AVX2.
     #[inline(always)]
-    pub(crate) fn near_pairs4<const AVX2: bool>(
+    pub(crate) unsafe fn near_pairs4<const AVX2: bool>(
         &self,
         lists: &Lists4,
         room: &Frames4,
@@ -644,6 +651,7 @@ impl Broad {
         // (every list names bodies and geoms of the model, whose centres and rotations
         // `place_spheres4` placed)
         assert!(lists.nbody == bodies.len() && lists.ngeom == geoms.len(), "lists and centres of the same broad phase");
+        assert!(lists.nbody == self.body_centre.len() && lists.ngeom == self.geom_rot.len(), "lists of this broad phase");
         assert!(rots.len() == bodies.len() && lists.boxes.len() == lists.members.len(), "lists and rotations of the same broad phase");
         let mut near = near;
         for n in near.iter_mut() {
@@ -651,7 +659,8 @@ impl Broad {
             n.reserve(lists.members.len() + self.planes.len());
         }
         for gr in &lists.groups {
-            let poses = want & bodies[gr.b1 as usize].within_in::<AVX2>(&bodies[gr.b2 as usize], gr.reach2);
+            // SAFETY (here and below): as the caller promises.
+            let poses = want & unsafe { bodies[gr.b1 as usize].within_in::<AVX2>(&bodies[gr.b2 as usize], gr.reach2) };
             if poses == 0 {
                 continue;
             }
@@ -660,9 +669,9 @@ impl Broad {
                 // SAFETY: a member's geoms are below the `ngeom` of its lists (`Lists4::of`),
                 // which is `geoms.len()` (asserted above).
                 let (c1, c2) = unsafe { (geoms.get_unchecked(m.g1 as usize), geoms.get_unchecked(m.g2 as usize)) };
-                let mut hit = poses & c1.within_in::<AVX2>(c2, m.reach2);
+                let mut hit = poses & unsafe { c1.within_in::<AVX2>(c2, m.reach2) };
                 if hit != 0 {
-                    hit = self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2, hit);
+                    hit = unsafe { self.boxes_may_touch::<AVX2>(m, bx, rots, c1, c2, hit) };
                 }
                 while hit != 0 {
                     near[hit.trailing_zeros() as usize].push(m.pair);
@@ -739,11 +748,13 @@ impl Broad {
 }
 
 /// `Broad::boxes_may_touch` in registers `R`, of the lanes `hit`: each geom's sphere against
-/// the other's box (`sphere_beyond_box`). (The boxes' own face axes, tested next in four lanes,
-/// rejected few more pairs than this on the bundled scenes, and cost more than they saved.)
+/// the other's box (`sphere_beyond_box`). (A test of the boxes' own face axes after this one, in
+/// four lanes too, was measured and dropped: it rejected few more pairs on the bundled scenes,
+/// and cost more than it saved.)
 ///
 /// # Safety
-/// As `Reg` says: with `Avx2`, called from code compiled with AVX2 (`boxes_close_avx2`).
+/// With `Avx2`, the CPU has AVX2 (and, to be fast, the caller is compiled with it:
+/// `boxes_close_avx2`).
 #[inline(always)]
 unsafe fn boxes_close<R: Reg>(r1: &M4, l1: &Matrix3<f64>, r2: &M4, l2: &Matrix3<f64>, bx: &MemberBox, d: &V4, hit: u32) -> u32 {
     unsafe {
@@ -842,7 +853,8 @@ mod tests {
                 let dd = a - b;
                 assert_eq!(within >> k & 1 == 1, (dd.x * dd.x + dd.y * dd.y) + dd.z * dd.z <= reach2, "trial {trial}, lane {k}");
             }
-            assert_eq!(c1.within_in::<false>(&c2, reach2), within);
+            // SAFETY: portable lanes.
+            assert_eq!(unsafe { c1.within_in::<false>(&c2, reach2) }, within);
             #[cfg(target_arch = "x86_64")]
             if has_avx2() {
                 // SAFETY: the CPU has AVX2.

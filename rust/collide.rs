@@ -873,7 +873,8 @@ impl Scratch4 {
     /// order, unless `first(i, q, scratch)` decides it, each answer handed to `emit(i, answer)`;
     /// `scratch` is placed as `Scratch::place(model, q, all_geoms)` places it, with its near
     /// pairs found four poses at once (`Broad::near_pairs4`) when `first` leaves a pose of
-    /// the four undecided. Stops at the first error `emit` returns.
+    /// the four undecided (for those poses only: a pose `first` decided keeps no near pairs,
+    /// and `Scratch::take_near` would find them afresh). Stops at the first error `emit` returns.
     pub(crate) fn for_each_lazy<R, E>(
         &mut self,
         model: &RobotModel,
@@ -969,7 +970,8 @@ impl Scratch4 {
         };
         let [s0, s1, s2, s3] = &mut self.s;
         let near = [&mut s0.near, &mut s1.near, &mut s2.near, &mut s3.near];
-        model.broad.near_pairs4::<AVX2>(lists, &self.room, [&s0.broad, &s1.broad, &s2.broad, &s3.broad], poses, near);
+        // SAFETY: `AVX2` only from `near4_avx2`, which runs where the CPU has AVX2 (`lanes`).
+        unsafe { model.broad.near_pairs4::<AVX2>(lists, &self.room, [&s0.broad, &s1.broad, &s2.broad, &s3.broad], poses, near) };
         for (l, s) in self.s.iter_mut().enumerate() {
             if poses & 1 << l != 0 {
                 s.near_stamp = s.pose;

@@ -107,13 +107,15 @@ impl V4 {
         _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LE_OQ>(d2, _mm256_set1_pd(reach2))) as u32
     }
 
-    /// `within`, in AVX2 registers where `AVX2` (the caller runs with AVX2 enabled and on a
-    /// CPU that has it).
+    /// `within`, in AVX2 registers where `AVX2`.
+    ///
+    /// # Safety
+    /// With `AVX2`, the CPU has AVX2.
     #[inline(always)]
-    pub(crate) fn within_in<const AVX2: bool>(&self, b: &V4, reach2: f64) -> u32 {
+    pub(crate) unsafe fn within_in<const AVX2: bool>(&self, b: &V4, reach2: f64) -> u32 {
         #[cfg(target_arch = "x86_64")]
         if AVX2 {
-            // SAFETY: as the caller says.
+            // SAFETY: as the caller promises.
             return unsafe { self.within_avx2(b, reach2) };
         }
         self.within(b, reach2)
@@ -123,10 +125,10 @@ impl V4 {
 /// Four `f64` lanes in registers, for kernels written once: the portable arrays (`F4`), or
 /// AVX2's (`Avx2`). The same IEEE operations in the same order, so the same bits.
 ///
-/// # Safety
-/// `Avx2`'s operations run only on a CPU that has AVX2; every kernel calls them from a function
-/// compiled with it (`#[target_feature(enable = "avx2")]`), where they inline.
-pub(crate) unsafe trait Reg: Copy {
+/// Every operation is an `unsafe fn`: `Avx2`'s may run only on a CPU that has AVX2. (Kernels
+/// call them from a function compiled with AVX2, `#[target_feature(enable = "avx2")]`, where
+/// they inline: called from code compiled without it, they stay function calls.)
+pub(crate) trait Reg: Copy {
     unsafe fn load(x: &F4) -> Self;
     unsafe fn splat(x: f64) -> Self;
     unsafe fn add(self, o: Self) -> Self;
@@ -141,8 +143,7 @@ pub(crate) unsafe trait Reg: Copy {
     }
 }
 
-// SAFETY: portable code.
-unsafe impl Reg for F4 {
+impl Reg for F4 {
     #[inline(always)]
     unsafe fn load(x: &F4) -> Self {
         *x
@@ -175,9 +176,10 @@ unsafe impl Reg for F4 {
 #[derive(Clone, Copy)]
 pub(crate) struct Avx2(std::arch::x86_64::__m256d);
 
-// SAFETY (every intrinsic below): the trait's contract; the loads read the four `f64`s of an `F4`.
+// SAFETY (every intrinsic below): the CPU has AVX2, the contract of these `unsafe fn`s; the
+// loads read the four `f64`s of an `F4`.
 #[cfg(target_arch = "x86_64")]
-unsafe impl Reg for Avx2 {
+impl Reg for Avx2 {
     #[inline]
     #[target_feature(enable = "avx2")]
     unsafe fn load(x: &F4) -> Self {
