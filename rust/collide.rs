@@ -177,16 +177,18 @@ impl Scratch {
     }
 
     /// The placed pose's near pairs (`Broad::near_pairs`) into `near`, unless `Scratch4` found
-    /// them already: `scratch.near` itself, taken (the caller puts it back).
-    pub(crate) fn take_near(&mut self, model: &RobotModel) -> Vec<u32> {
+    /// them already: `scratch.near` itself, taken (the caller puts it back). The flag: whether
+    /// they are `Scratch4`'s, which passed its box tests too (`Scratch::in_contact_after`).
+    pub(crate) fn take_near(&mut self, model: &RobotModel) -> (Vec<u32>, bool) {
         let mut near = std::mem::take(&mut self.near);
-        if self.near_stamp != self.pose {
+        let boxed = self.near_stamp == self.pose;
+        if !boxed {
             near.clear();
             model.broad.near_pairs(&mut self.broad, &mut near);
         }
         // (once: what the caller puts back is its own)
         self.near_stamp = 0;
-        near
+        (near, boxed)
     }
 
     /// Forgets every pair's remembered separating axis, so that what follows does not depend
@@ -283,7 +285,20 @@ impl Scratch {
     /// The pair's remembered separating axis (`sat.rs`) only ever saves GJK a run whose answer
     /// it has proven, so the result is a function of the pose alone, whatever this scratch saw
     /// before. `Err` when parry cannot decide the pair (module docs): never "free".
+    #[cfg(test)]
     pub(crate) fn in_contact(&mut self, model: &RobotModel, k: usize) -> std::result::Result<bool, Undecided> {
+        self.in_contact_after(model, k, false)
+    }
+
+    /// `in_contact`, where `boxed` says that the four-pose broad phase kept the pair after its
+    /// own box tests (`Broad::near_pairs4`, `boxes_may_touch`): each geom's bounding sphere
+    /// against the other's box, inflated by the margin and [`crate::broad::MAX_CLEARANCE`].
+    /// Those are the first tests of `obbs_overlap` (`spheres_reach_boxes`) with a little more
+    /// room, so they would pass here but for a pair within `MAX_CLEARANCE` of failing them, and
+    /// they are skipped; the boxes' own separating-axis test (`boxes_overlap`) and the exact
+    /// narrow phase decide as ever. Skipping a filter that only rejects pairs the narrow phase
+    /// finds apart cannot change an answer.
+    pub(crate) fn in_contact_after(&mut self, model: &RobotModel, k: usize, boxed: bool) -> std::result::Result<bool, Undecided> {
         let pair = &model.pairs[k];
         let (g1, g2) = (pair.g1, pair.g2);
         let (a, b) = (&model.geoms[g1], &model.geoms[g2]);
@@ -303,7 +318,9 @@ impl Scratch {
                 // (The bounding-sphere culls ran before, in `broad.rs`.)
                 self.obb(model, g1);
                 self.obb(model, g2);
-                if !obbs_overlap(a, &self.obbs[g1], b, &self.obbs[g2], pair.margin) {
+                let (oa, ob) = (&self.obbs[g1], &self.obbs[g2]);
+                let overlap = if boxed { boxes_overlap(a, oa, b, ob, pair.margin) } else { obbs_overlap(a, oa, b, ob, pair.margin) };
+                if !overlap {
                     return Ok(false);
                 }
                 self.frame(model, g1);
@@ -583,11 +600,17 @@ fn plane_distance(plane: &Isometry3<f64>, g: &Convex, pose: &Isometry3<f64>) -> 
 /// (~1e-15 m): a pair rejected here is apart in exact arithmetic, where the exact narrow phase
 /// (GJK, parry's distance) rejects it too.
 fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
+    spheres_reach_boxes(a, oa, b, ob, margin) && boxes_overlap(a, oa, b, ob, margin)
+}
+
+/// `obbs_overlap`'s first tests: each box against the other geom's bounding sphere (about its
+/// box centre, `radius`), on the box's own three axes. The sphere holds the geom, so a sphere
+/// clear of the box is a geom clear of it; most pairs are rejected here without the 3 x 3
+/// products of `boxes_overlap`. The same 1e-9 inflation as the box tests, relative to what each
+/// test sums. `false` proves the geoms apart by more than `margin`.
+#[inline]
+fn spheres_reach_boxes(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
     let (ha, hb) = (&a.shape.obb_half, &b.shape.obb_half);
-    // First each box against the other geom's bounding sphere (about its box centre, `radius`),
-    // on the box's own three axes: the sphere holds the geom, so a sphere clear of the box is a
-    // geom clear of it; most pairs that get here are rejected without the 3 x 3 products below.
-    // The same 1e-9 inflation as the box tests, relative to what each test sums.
     let d = ob.center - oa.center;
     let t = oa.rot.tr_mul(&d);
     let rb = b.shape.radius + margin;
@@ -603,6 +626,15 @@ fn obbs_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
             return false;
         }
     }
+    true
+}
+
+/// `obbs_overlap`'s separating-axis test of the two boxes themselves (15 axes): `false` proves
+/// them apart by more than `margin`.
+#[inline]
+fn boxes_overlap(a: &Geom, oa: &Obb, b: &Geom, ob: &Obb, margin: f64) -> bool {
+    let (ha, hb) = (&a.shape.obb_half, &b.shape.obb_half);
+    let t = oa.rot.tr_mul(&(ob.center - oa.center));
     // Everything in a's frame.
     let r = oa.rot.tr_mul(&ob.rot);
     let abs_r = r.abs().add_scalar(1e-9);
@@ -1010,7 +1042,7 @@ fn label_placed(
     opts: LabelOptions,
     hits: &mut Vec<u32>,
 ) -> std::result::Result<Label, Undecided> {
-    let mut near = scratch.take_near(model);
+    let (mut near, boxed) = scratch.take_near(model);
     if opts.pairs {
         // Colliding pairs are reported in pair order; the labels do not depend on the order.
         near.sort_unstable();
@@ -1022,7 +1054,7 @@ fn label_placed(
         if apart.is_some_and(|a| a[k as usize].holds(q)) {
             continue;
         }
-        let hit = match scratch.in_contact(model, k as usize) {
+        let hit = match scratch.in_contact_after(model, k as usize, boxed) {
             Ok(hit) => hit,
             Err(e) => {
                 scratch.near = near;

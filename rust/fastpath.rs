@@ -52,11 +52,12 @@ const MIN_SHARE: f64 = 0.005;
 const NO_PAIR: u32 = u32::MAX;
 
 /// Whether some candidate pair of pose `q` (length K) `fails` (a pure function of the placed
-/// pose and the pair), trying pairs in the fast path's order (module docs) and stopping at the
+/// pose and the pair; its flag, whether the four-pose broad phase's box tests kept the pair,
+/// only lets it skip a filter), trying pairs in the fast path's order (module docs) and stopping at the
 /// first that fails; `Err` for a pair `fails` cannot decide, met before any that fails.
 fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails: F) -> std::result::Result<bool, Undecided>
 where
-    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
     likely_pair_fails(model, q, s, &mut fails).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
 }
@@ -66,7 +67,7 @@ where
 /// (`near_pair_fails`, on the same placed pose).
 fn likely_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> Option<std::result::Result<bool, Undecided>>
 where
-    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
     let pose = s.pose_stamp();
     let last = s.last_hit;
@@ -81,7 +82,7 @@ where
         }
         s.tested[k] = pose;
         if model.broad.may_touch(&s.broad, k) && !proven(k) {
-            match fails(s, k) {
+            match fails(s, k, false) {
                 Ok(false) => {}
                 hit => {
                     if hit.is_ok() {
@@ -98,16 +99,16 @@ where
 /// `some_pair_fails`' second phase: the near pairs the first did not try.
 fn near_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> std::result::Result<bool, Undecided>
 where
-    F: FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided>,
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
     let pose = s.pose_stamp();
     let apart = model.apart();
     let proven = |k: usize| apart.is_some_and(|a| a[k].holds(q));
-    let near = s.take_near(model);
+    let (near, boxed) = s.take_near(model);
     let mut hit = Ok(false);
     for &k in &near {
         if s.tested[k as usize] != pose && !proven(k as usize) {
-            hit = fails(s, k as usize);
+            hit = fails(s, k as usize, boxed);
             if hit != Ok(false) {
                 if hit.is_ok() {
                     s.last_hit = k;
@@ -166,14 +167,15 @@ pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::res
     some_pair_fails(model, q, s, in_contact(model))
 }
 
-/// The pair test of `collides`: in contact.
-fn in_contact(model: &RobotModel) -> impl FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided> + '_ {
-    move |s, k| s.in_contact(model, k)
+/// The pair test of `collides`: in contact (the flag: the pair passed the four-pose box tests,
+/// `Scratch::in_contact_after`).
+fn in_contact(model: &RobotModel) -> impl FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k, boxed| s.in_contact_after(model, k, boxed)
 }
 
 /// The pair test of `certified`: not clear at `clearance`.
-fn not_clear(model: &RobotModel, clearance: f64) -> impl FnMut(&mut Scratch, usize) -> std::result::Result<bool, Undecided> + '_ {
-    move |s, k| s.clear_of(model, k, clearance).map(|clear| !clear)
+fn not_clear(model: &RobotModel, clearance: f64) -> impl FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k, _| s.clear_of(model, k, clearance).map(|clear| !clear)
 }
 
 /// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
