@@ -6,7 +6,7 @@ at the true one.
 pair as in contact when its signed distance is below its margin, so on that robot:
 
 - a pose is *certified* only if every robot–obstacle pair is at least ``margin`` apart (and every
-  pair more than :data:`~profrobot.robot.CLEARANCE`), and a motion only if that holds at every
+  pair more than :data:`CLEARANCE`), and a motion only if that holds at every
   state of it (the continuous certificate of :mod:`profrobot.certification`);
 - self pairs (robot–robot) keep their own margins: the margin is about where the obstacles are,
   and the robot's own geometry is known.
@@ -39,6 +39,10 @@ import numpy as np
 
 from .errors import InputError
 from .family import spec_scene_joints
+
+#: metres: the least distance every candidate pair keeps in a certified pose (what it means:
+#: :mod:`profrobot.certification`, which re-exports it, as :mod:`profrobot.robot` does).
+CLEARANCE = 1e-6
 
 __all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN"]
 

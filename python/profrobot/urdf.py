@@ -3,7 +3,7 @@ URDF does not care about.
 
 :meth:`profrobot.Robot.from_urdf` is the entry point; this module holds what it needs that is
 about URDF (and SRDF) rather than about MuJoCo models, and imports nothing of profrobot's but
-the errors (``robot.py`` imports it):
+the errors (``robot_loading.py`` imports it):
 
 - :func:`read_urdf`: the URDF text with every mesh it loads resolved to a real file
   (``package://pkg/...`` through ``package_dirs``, ``ROS_PACKAGE_PATH``, ``AMENT_PREFIX_PATH``,
