@@ -427,3 +427,16 @@ def test_image_results(arm):
     cam = ring_cameras(1, size=24, distance=1.4, lookat=(0, 0, 0.3))
     scorer = ImageGoalScorer(out.rgb[0].numpy(), size=8)
     copies(pose_from_text(model, "bent", scorer, camera=cam, init=[0.0, 0.6], iterations=3, robot=arm))  # TextResult
+
+
+@pytest.mark.parametrize("name", ["ExcludedPairs", "_SpecSource", "_Mjcf", "_Urdf", "Box", "Mesh"])
+def test_pickles_from_before_robot_py_was_split_still_find_their_classes(name):
+    """Regression (robot.py split into robot_loading / robot_family / robot_state): a pickle
+    written before names these classes in ``profrobot.robot``; they must still resolve there,
+    through pickle and through the robot file's restricted unpickler, to the classes themselves."""
+    from profrobot.robotfile import _RobotUnpickler
+
+    data = b"\x80\x02cprofrobot.robot\n" + name.encode() + b"\n."
+    cls = getattr(profrobot.robot, name)
+    assert isinstance(cls, type) and pickle.loads(data) is cls
+    assert _RobotUnpickler(io.BytesIO(data), "old.pkl").load() is cls
