@@ -429,7 +429,8 @@ def test_image_results(arm):
     copies(pose_from_text(model, "bent", scorer, camera=cam, init=[0.0, 0.6], iterations=3, robot=arm))  # TextResult
 
 
-@pytest.mark.parametrize("name", ["ExcludedPairs", "_SpecSource", "_Mjcf", "_Urdf", "Box", "Mesh"])
+@pytest.mark.parametrize("name", ["Robot", "ExcludedPairs", "_SpecSource", "_Mjcf", "_Urdf", "Obstacle", "Box", "Sphere",
+                                  "Capsule", "Cylinder", "Plane", "Mesh"])
 def test_pickles_from_before_robot_py_was_split_still_find_their_classes(name):
     """Regression (robot.py split into robot_loading / robot_family / robot_state): a pickle
     written before names these classes in ``profrobot.robot``; they must still resolve there,
@@ -440,3 +441,17 @@ def test_pickles_from_before_robot_py_was_split_still_find_their_classes(name):
     cls = getattr(profrobot.robot, name)
     assert isinstance(cls, type) and pickle.loads(data) is cls
     assert _RobotUnpickler(io.BytesIO(data), "old.pkl").load() is cls
+
+
+def test_excluded_pairs_pickle_under_their_module_before_the_split():
+    """A robot pickled here names its ``<exclude>`` edits ``profrobot.robot.ExcludedPairs``, as
+    before robot.py was split, so that an older profrobot still loads it."""
+    import pickletools
+
+    from profrobot.robot_loading import ExcludedPairs
+
+    edit = ExcludedPairs((("link1", "link2"),))
+    data = pickle.dumps(edit, protocol=5)
+    strings = [arg for op, arg, _ in pickletools.genops(data) if op.name in ("SHORT_BINUNICODE", "BINUNICODE")]
+    assert strings[:2] == ["profrobot.robot", "ExcludedPairs"]
+    assert pickle.loads(data) == edit

@@ -47,14 +47,16 @@ from .deprecation import deprecated_alias
 from .errors import InputError
 from .labels import as_poses, check_threads, interpolate, so2_steps
 from .validate import with_margin, with_scene
-from .robot import CLEARANCE as _ROBOT_CLEARANCE, Robot
+from .margin import CLEARANCE as _MARGIN_CLEARANCE
+from .robot import Robot
 
 __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "path_free_at",
            "PathCheck", "certified_summary", "failures_of"]
 
 #: metres: the least distance every candidate pair keeps in a certified pose (module docs; the
-#: value lives with the Robot, whose layouts are refused within it: ``Robot.at``)
-CLEARANCE = _ROBOT_CLEARANCE
+#: value lives in :mod:`profrobot.margin`, beside the margins it is the floor of: a margin at most
+#: this is no margin, and a layout within it of the robot's base is refused, ``Robot.at``)
+CLEARANCE = _MARGIN_CLEARANCE
 
 
 def _one_clearance(clearance, who: str) -> None:

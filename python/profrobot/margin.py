@@ -44,7 +44,7 @@ from .family import spec_scene_joints
 #: :mod:`profrobot.certification`, which re-exports it, as :mod:`profrobot.robot` does).
 CLEARANCE = 1e-6
 
-__all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN"]
+__all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN", "CLEARANCE"]
 
 #: metres: the largest safety margin accepted (a margin this large means the estimate is not one)
 MAX_MARGIN = 0.25

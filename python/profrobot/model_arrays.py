@@ -3,7 +3,7 @@
 
 The arrays are copied from MuJoCo's *compiled* model, never re-parsed from XML, so bodies, hulls
 and filters are MuJoCo's own; geom frames are taken the way ``mj_kinematics`` takes them
-(:func:`geom_local_frames`). Base layer: numpy and mujoco only.
+(:func:`geom_local_frames`). Base layer: numpy, mujoco and profrobot's errors.
 """
 
 from __future__ import annotations

@@ -120,7 +120,6 @@ class Robot(RobotLoading, RobotFamily, RobotPickling):
         self.layout = None
         self.family_fingerprint = None
 
-
     def with_obstacles(self, obstacles: Sequence[Obstacle], *, name: str | None = None) -> "Robot":
         """A new Robot: this scene plus ``obstacles`` (Box, Sphere, Capsule, Cylinder, Plane, Mesh),
         fixed to the world, or movable within ranges (``moves=Moves(...)``: the result is a family

@@ -2,8 +2,10 @@
 URDF file (with a MoveIt SRDF or an automatic collision matrix), an ``MjSpec`` or a compiled
 ``MjModel``; and the collision report that says which pairs were disabled and why.
 
-Every constructor records the robot's source (:mod:`profrobot.sources`), so that a pickle can
-rebuild its editable spec exactly. Base layer: no torch.
+The file-based constructors (Menagerie, MJCF, URDF) record the robot's source
+(:mod:`profrobot.sources`: the files' bytes), so that a pickle rebuilds its editable spec exactly;
+``from_spec`` keeps the spec itself (its pickle carries the compiled model too) and
+``from_model`` none (obstacles cannot be added to it). Base layer: no torch.
 """
 
 from __future__ import annotations
@@ -47,6 +49,10 @@ class ExcludedPairs:
         for a, b in self.pairs:
             spec.add_exclude(bodyname1=a, bodyname2=b)
 
+
+# Pickles name it where it was defined before robot.py was split (profrobot.robot re-exports it),
+# so that a robot pickled here still loads where profrobot is older.
+ExcludedPairs.__module__ = "profrobot.robot"
 
 
 class RobotLoading:
