@@ -455,3 +455,19 @@ def test_excluded_pairs_pickle_under_their_module_before_the_split():
     strings = [arg for op, arg, _ in pickletools.genops(data) if op.name in ("SHORT_BINUNICODE", "BINUNICODE")]
     assert strings[:2] == ["profrobot.robot", "ExcludedPairs"]
     assert pickle.loads(data) == edit
+
+
+def test_every_robot_methods_annotations_resolve():
+    """Regression (robot.py's split): the mixins' annotations name ``Robot``, which their modules
+    import for type checkers only; ``typing.get_type_hints`` must resolve every method's, as it did
+    before (documentation tools and runtime type checkers call it)."""
+    import typing
+
+    checked = 0
+    for name in dir(Robot):
+        f = getattr(Robot, name)
+        if callable(f) and getattr(f, "__annotations__", None) and getattr(f, "__module__", "").startswith("profrobot"):
+            typing.get_type_hints(f)
+            checked += 1
+    assert checked > 20
+    assert typing.get_type_hints(Robot.at)["return"] is Robot

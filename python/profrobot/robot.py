@@ -14,6 +14,7 @@ Ray, ``torch.save``) and deep-copies; see :meth:`Robot.__getstate__` for what a 
 
 from __future__ import annotations
 
+import sys
 import warnings
 from collections.abc import Sequence
 
@@ -317,3 +318,10 @@ class Robot(RobotLoading, RobotFamily, RobotPickling):
     def core_arrays(self) -> dict[str, np.ndarray]:
         """A copy of the flat arrays handed to the Rust core (also the JSON schema of ModelDesc)."""
         return {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in self._arrays.items()}
+
+
+# The mixins annotate with "Robot", which their modules import for type checkers only (this module
+# imports them): give those modules the name, so that ``typing.get_type_hints`` (documentation
+# tools, runtime type checkers) resolves their methods' annotations as it did before the split.
+for _mixin in (RobotLoading, RobotFamily, RobotPickling):
+    sys.modules[_mixin.__module__].Robot = Robot
