@@ -21,24 +21,19 @@ benches/out/fields/ (``--retrain`` to train again).
 from __future__ import annotations
 
 import json
-import os
 import time
 
 import numpy as np
 import torch
 
 import profrobot
-from profrobot.crosscheck import mujoco_labels
+from profrobot.exact.crosscheck import mujoco_labels
 from profrobot.files import atomic_path
-from profrobot.problems import colliding_poses, free_poses, hard_pairs
+from profrobot.exact.problems import colliding_poses, hard_pairs
 
-from field import OUT
+from common import OUT, eval_set, held_out_layouts, load, scores, values
 
 FAMILY = "panda_blocks_moving"
-
-
-def load() -> str:
-    return "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def trained(name: str, robot, poses: int, minutes: float, seed: int, retrain: bool) -> tuple:
@@ -47,7 +42,7 @@ def trained(name: str, robot, poses: int, minutes: float, seed: int, retrain: bo
     if path.is_dir() and not retrain:
         sdf = profrobot.PoseSDF.load(path, robot)
         return sdf, float(sdf.metrics.get("dataset_seconds", float("nan"))), float(sdf.metrics["train_seconds"]), "cached"
-    before = load()
+    before = "load average " + load()
     t = time.perf_counter()
     data = profrobot.make_dataset(robot, poses, seed=seed, progress=False)
     data_s = time.perf_counter() - t
@@ -55,42 +50,8 @@ def trained(name: str, robot, poses: int, minutes: float, seed: int, retrain: bo
     sdf.metrics["dataset_seconds"] = data_s
     sdf.save(path)
     print(f"{name}: dataset {data_s:.0f} s, training {sdf.metrics['train_seconds']:.0f} s "
-          f"({sdf.metrics['iterations']} iterations); before: {before}; after: {load()}", flush=True)
-    return sdf, data_s, float(sdf.metrics["train_seconds"]), f"{before} → {load()}"
-
-
-def held_out_layouts(family, n: int, seed: int = 10_000) -> np.ndarray:
-    """``n`` layouts from seeds no training run uses, skipping any whose blocks overlap the base."""
-    out, k = [], 0
-    while len(out) < n:
-        for d in profrobot.sample_poses(family, 4 * n, seed=seed + k)[:, family.scene_index]:
-            try:
-                family.at(d)
-            except profrobot.InputError:
-                continue
-            out.append(d)
-            if len(out) == n:
-                break
-        k += 1
-    return np.array(out)
-
-
-def eval_set(static, seed: int, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
-    q = np.concatenate([colliding_poses(static, n, seed=seed), free_poses(static, n, seed=seed + 1)])
-    return q, mujoco_labels(static, q, progress=False).collides
-
-
-@torch.no_grad()
-def scores(g: np.ndarray, y: np.ndarray) -> dict:
-    pred = g > 0
-    tpr, tnr = float(np.mean(pred[y])), float(np.mean(~pred[~y]))
-    return dict(balanced=(tpr + tnr) / 2, false_free=1 - tpr, free_called_colliding=1 - tnr)
-
-
-def values(sdf, q: np.ndarray, scene=None) -> np.ndarray:
-    with torch.no_grad():
-        x = torch.as_tensor(q, dtype=torch.float32)
-        return (sdf(x, scene=scene) if scene is not None else sdf(x)).numpy()
+          f"({sdf.metrics['iterations']} iterations); before: {before}; after: load average {load()}", flush=True)
+    return sdf, data_s, float(sdf.metrics["train_seconds"]), f"{before} → load average {load()}"
 
 
 def cost_per_pose(sdf, poses: np.ndarray, repeats: int = 15) -> float:
@@ -119,7 +80,7 @@ def scenes_bench(args) -> int:
         static = family.at(d)
         q, y = eval_set(static, seed=20_000 + i)
         row = dict(layout=i, delta=d.tolist(), colliding=int(y.sum()), n=len(y),
-                   family=scores(values(fam, q, scene=d), y), fixed=scores(values(fixed, q), y))
+                   family=scores(values(fam, q, layout=d), y), fixed=scores(values(fixed, q), y))
         if i < args.upper:
             own, *_ = trained(f"{FAMILY}_layout{i}", static, args.poses, args.upper_minutes, args.seed, args.retrain)
             row["own"] = scores(values(own, q), y)
@@ -134,7 +95,7 @@ def scenes_bench(args) -> int:
         static = family.at(d)
         cp = colliding_poses(static, 50, seed=30_000 + i)
         t = time.perf_counter()
-        r = profrobot.resolve(fam, cp, scene=d)
+        r = profrobot.resolve(fam, cp, layout=d)
         res_s += time.perf_counter() - t
         res_n += len(cp)
         res_cert += int(r.certified.sum())
@@ -142,7 +103,7 @@ def scenes_bench(args) -> int:
         if args.pairs:
             starts, goals = hard_pairs(static, args.pairs, seed=40_000 + i)
             t = time.perf_counter()
-            out = profrobot.plan_trajectory(fam, starts, goals, steps=100, scene=d)
+            out = profrobot.plan_trajectory(fam, starts, goals, steps=100, layout=d)
             traj["seconds"] += time.perf_counter() - t
             for p in out:
                 traj["n"] += 1
@@ -154,7 +115,7 @@ def scenes_bench(args) -> int:
     # evaluation cost at batch 10^4: the family field vs today's field, same run
     torch.set_num_threads(args.threads or torch.get_num_threads())
     qf = profrobot.sample_poses(family, 10_000, seed=5)
-    cost_load = load()
+    cost_load = "load average " + load()
     c_fam = cost_per_pose(fam, qf)
     c_fixed = cost_per_pose(fixed, qf[:, family.robot_index])
     c_at = cost_per_pose(fam.at(layouts[0]), qf[:, family.robot_index])

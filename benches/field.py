@@ -30,12 +30,12 @@ import torch
 
 import profrobot
 from profrobot.files import atomic_path
-from profrobot.crosscheck import mujoco_labels
+from profrobot.exact.crosscheck import mujoco_labels
 from profrobot.field import train_sdf
 from profrobot.field.metrics import field_values
-from profrobot.problems import colliding_poses
+from profrobot.exact.problems import colliding_poses
 
-OUT = Path(__file__).resolve().parent / "out"
+from common import OUT
 
 # paper Tables 1–4 (accuracy %, Eikonal loss, mean gradient norm, iterations to resolve,
 # collision rate after resolving); "—" where the paper gives none

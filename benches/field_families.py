@@ -21,9 +21,7 @@ import numpy as np
 import profrobot
 from profrobot.files import atomic_path
 
-from family_bench import eval_set, held_out_layouts, scores, values
-from field import OUT
-from field_heldout import load
+from common import OUT, eval_set, held_out_layouts, load, scores, values
 
 
 def families_bench(args) -> int:
@@ -40,7 +38,7 @@ def families_bench(args) -> int:
         per = []
         for i, d in enumerate(held_out_layouts(family, args.layouts)):
             q, y = eval_set(family.at(d), seed=20_000 + 7 * i)
-            per.append(scores(values(sdf, q, scene=d), y))
+            per.append(scores(values(sdf, q, layout=d), y))
         bal = np.array([100 * r["balanced"] for r in per])
         ff = np.array([100 * r["false_free"] for r in per])
         row = dict(scene=name, options=options, scene_joints=len(family.scene_joints), minutes=total / 60,

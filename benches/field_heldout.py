@@ -12,24 +12,18 @@ Writes benches/out/field_heldout.md and .json (``--out-name``: another name); th
 from __future__ import annotations
 
 import json
-import os
 import time
 
 import numpy as np
 
 import profrobot
-from profrobot.crosscheck import mujoco_labels
+from profrobot.exact.crosscheck import mujoco_labels
 from profrobot.field.metrics import field_values
 from profrobot.files import atomic_path
 
-from family_bench import scores
-from field import OUT
+from common import OUT, load, scores
 
 TEST_SEED = 987654
-
-
-def load() -> str:
-    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def score(sdf, robot, n: int = 20_000) -> dict:

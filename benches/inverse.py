@@ -53,9 +53,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import profrobot  # noqa: E402
-import profrobot.certification  # noqa: E402
+import profrobot.exact.certification  # noqa: E402
 from profrobot import scenes  # noqa: E402
-from profrobot.crosscheck import mujoco_labels  # noqa: E402
+from profrobot.exact.crosscheck import mujoco_labels  # noqa: E402
 from profrobot.inverse import pose_from_images  # noqa: E402
 from profrobot.render import GaussianRobot, make_views, ring_cameras  # noqa: E402
 
@@ -280,7 +280,7 @@ def t8(a):
 def video(a):
     """Actions from a 3-camera MuJoCo video of a certified-free trajectory."""
     from profrobot.inverse import actions_from_video
-    from profrobot.planning import plan_path, resample_path
+    from profrobot.exact.planning import plan_path, resample_path
 
     out = os.path.join(a.out, "video")
     os.makedirs(out, exist_ok=True)
@@ -294,7 +294,7 @@ def video(a):
     arm = np.array([t == "hinge" for t in scene.joint_types])
     rng = np.random.default_rng(a.seed)
     init = truth[0] + np.where(arm, 0.05 * rng.standard_normal(len(arm)), 0.0)
-    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.certification.check_path(scene, truth).certified),
+    res = dict(frames=a.frames, cameras=3, truth_free=bool(profrobot.exact.certification.check_path(scene, truth).certified),
                loadavg_start=os.getloadavg())
     rows = []
     for label, field in (("without field", None), ("with field", sdf)):
@@ -337,7 +337,7 @@ def gaussian_hand(hand, out):
         return GaussianRobot.load(path, hand)
     cams = sphere_cameras(8, size=96, distance=0.45, lookat=(0.15, 0.0, 0.0), jitter=0.02, seed=1,
                           elevation_range=(-89.0, -20.0))
-    views = make_views(hand, profrobot.problems.free_poses(hand, 40, 1), cams, processes=2)
+    views = make_views(hand, profrobot.exact.problems.free_poses(hand, 40, 1), cams, processes=2)
     model = GaussianRobot.from_robot(hand, 8000, seed=0)
     t = time.perf_counter()
     fit_gaussians(model, views, iterations=500, max_gaussians=16000)
@@ -348,7 +348,7 @@ def gaussian_hand(hand, out):
 
 def t9(a):
     from profrobot.inverse import pose_from_text
-    from profrobot.scorers import CLIPScorer, ImageGoalScorer
+    from profrobot.inverse.scorers import CLIPScorer, ImageGoalScorer
 
     out = os.path.join(a.out, "t9")
     os.makedirs(out, exist_ok=True)

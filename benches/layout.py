@@ -31,11 +31,12 @@ import time
 import numpy as np
 
 import profrobot
-from profrobot import problems, scenes
-from profrobot.crosscheck import mujoco_labels
-from profrobot.labels import so2_steps
-from profrobot.layouts.fit import Placer, movable_obstacles
-from profrobot.layouts.depth import DEFAULT_GEOMGROUP
+from profrobot import scenes
+from profrobot.exact import problems
+from profrobot.exact.crosscheck import mujoco_labels
+from profrobot.exact.labels import so2_steps
+from profrobot.perception.layouts.fit import Placer, movable_obstacles
+from profrobot.perception.layouts.depth import DEFAULT_GEOMGROUP
 from profrobot.render import Cameras, render_depth
 
 NOISE = (0.002, 0.005)
@@ -174,7 +175,7 @@ def main() -> None:
         cams = cameras_for(name)
         deltas = layouts(family, args.layouts, args.seed)
         robot_at = [family.at(d) for d in deltas]
-        thetas = [profrobot.problems.free_poses(r, 1, seed=args.seed + i)[0] for i, r in enumerate(robot_at)]
+        thetas = [profrobot.exact.problems.free_poses(r, 1, seed=args.seed + i)[0] for i, r in enumerate(robot_at)]
         full = np.stack([family.compose(t, d) for t, d in zip(thetas, deltas)])
         depth = render_depth(family, full, cams)
         S, H, R, T, M, worst_ratio = [], [], [], [], [], []

@@ -29,7 +29,7 @@ import torch
 
 import profrobot
 from profrobot.optim import PenaltyOptions, TangentOptions, plan_trajectory, resolve
-from profrobot.problems import colliding_poses, hard_pairs
+from profrobot.exact.problems import colliding_poses, hard_pairs
 
 from fields import OUT as FIELDS_OUT, field
 

@@ -34,7 +34,7 @@ import torch
 
 import profrobot
 from profrobot.optim import resolve
-from profrobot.problems import colliding_poses
+from profrobot.exact.problems import colliding_poses
 
 PAPER_T5_DELTA = {0.0: 0.162, -0.001: 0.165, -0.005: 0.159, -0.01: 0.173, -0.02: 0.173, -0.03: 0.172,
                   -0.04: 0.181, -0.05: 0.190, -0.1: 0.203}

@@ -8,7 +8,7 @@ state-validity checker, in one run; VAMP's published figure as the anchor.
                                [--executor ray [--address ray://host:10001] [--workers N]]
 
 A hard problem: start and goal free, the straight SO(2) interpolation colliding at the dense
-check (``profrobot.problems.hard_pairs``). Every path reported free is re-checked: each segment
+check (``profrobot.exact.problems.hard_pairs``). Every path reported free is re-checked: each segment
 re-interpolated so that no joint moves more than ``--recheck`` (0.0005 rad) between poses, with
 the exact labeller, and every such pose with MuJoCo (``mj_forward`` contacts). Markdown in
 ``benches/out/planning.md``.
@@ -43,10 +43,10 @@ import mujoco
 import numpy as np
 
 import profrobot
-from profrobot.planning import plan_path, so2_length
-from profrobot.problems import hard_pairs
-from profrobot.angles import wrap
-from profrobot.labels import so2_steps
+from profrobot.exact.planning import plan_path, so2_length
+from profrobot.exact.problems import hard_pairs
+from profrobot.robot.angles import wrap
+from profrobot.exact.labels import so2_steps
 
 OUT = Path(__file__).resolve().parent / "out"
 

@@ -6,7 +6,7 @@ The scene (``profrobot.scenes.panda_clutter``): the Panda on the floor among sev
 modelled for it, four of them meshes. MuJoCo renders depth (EGL, 320 × 240) from two calibrated
 cameras on opposite sides, different intrinsics and off-centre principal points, with the robot
 in view at a free pose. The planner's model knows only the robot and the floor; the objects
-arrive as the cloud (``profrobot.clouds.cloud_from_depth``: back-projection, the robot's own
+arrive as the cloud (``profrobot.perception.clouds.cloud_from_depth``: back-projection, the robot's own
 points removed at its pose with a 2 cm margin, the floor's at 5 mm, 1 cm conservative voxels).
 
 1. **Agreement:** our labels against MuJoCo's ``mj_collision`` on the ball-cloud scene (the same
@@ -38,11 +38,11 @@ import numpy as np
 
 import profrobot
 from profrobot import scenes
-from profrobot.clouds import cloud_from_depth, cloud_picture, self_filter
-from profrobot.crosscheck import mujoco_labels
-from profrobot.labels import so2_steps
-from profrobot.layouts.depth import DEFAULT_GEOMGROUP, backproject, expected_depth
-from profrobot.problems import hard_pairs
+from profrobot.perception.clouds import cloud_from_depth, cloud_picture, self_filter
+from profrobot.exact.crosscheck import mujoco_labels
+from profrobot.exact.labels import so2_steps
+from profrobot.perception.layouts.depth import DEFAULT_GEOMGROUP, backproject, expected_depth
+from profrobot.exact.problems import hard_pairs
 from profrobot.render import Cameras, render_depth
 
 OUT = Path(__file__).resolve().parent / "out"

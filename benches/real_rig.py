@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import profrobot  # noqa: E402
-from profrobot.problems import free_poses  # noqa: E402
+from profrobot.exact.problems import free_poses  # noqa: E402
 from profrobot.render import Cameras, GaussianRobot, fit_pose, make_views, ring_cameras  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))

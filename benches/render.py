@@ -31,7 +31,7 @@ import torch  # noqa: E402
 
 import profrobot  # noqa: E402
 from profrobot.render import GaussianRobot, Views, fit_gaussians, fit_pose, make_views, ring_cameras, sphere_cameras
-from profrobot.problems import free_poses  # noqa: E402
+from profrobot.exact.problems import free_poses  # noqa: E402
 from profrobot.render.image import mask_iou, psnr, to_uint8, write_png  # noqa: E402
 from profrobot.render import robot_visual_model  # noqa: E402
 

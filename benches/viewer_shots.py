@@ -27,7 +27,7 @@ def free_port() -> int:
 def main() -> None:
     robot = profrobot.scenes.load("panda_blocks")
     # a hard problem: the straight motion between its ends is not certified; the planner's path is
-    starts, goals = profrobot.problems.hard_pairs(robot, 1, seed=3)
+    starts, goals = profrobot.exact.problems.hard_pairs(robot, 1, seed=3)
     start, goal = starts[0], goals[0]
     planned = profrobot.plan_path(robot, start, goal)
     assert planned.certified

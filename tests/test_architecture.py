@@ -1,6 +1,8 @@
-"""The layers hold (issue 19): no import cycle anywhere in profrobot's import graph (imports inside
-functions included: a lazy import is still a dependency), no module reaching into another
-package's private names, and every public name of the facade documented in the README's API table.
+"""The layers hold: the tree is the architecture (a package per layer, at most 16 entries at the
+top of ``python/profrobot``), no import cycle anywhere in profrobot's import graph nor among the
+bench scripts (module-level and ``if TYPE_CHECKING:`` imports count: a type is a dependency; a
+lazy import inside a function does not), no module reaching into another package's private
+names, and every public name of the facade documented in the README's API table.
 
 import-linter (``lint-imports`` in ``.ci/run``, contracts in ``pyproject.toml``) checks the layers
 and private *modules*; these tests check what it cannot see: cycles through package
@@ -45,25 +47,25 @@ def _resolve(module: str, path: Path, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def _runtime_nodes(tree: ast.AST):
-    """Every node but those under ``if TYPE_CHECKING:`` (annotations only, never imported)."""
+def _module_level_nodes(tree: ast.AST):
+    """Every node executed when the module is imported, ``if TYPE_CHECKING:`` blocks included
+    (annotations are dependencies too), function bodies excluded (a lazy import runs later)."""
     stack = [tree]
     while stack:
         node = stack.pop()
         yield node
         for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and isinstance(child.test, ast.Name) and child.test.id == "TYPE_CHECKING":
-                stack.extend(child.orelse)
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
                 continue
             stack.append(child)
 
 
 def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
-    """module -> the profrobot modules it imports (anywhere in the file: at the top, inside
-    functions; not under ``if TYPE_CHECKING:``)."""
+    """module -> the profrobot modules it imports at module level (``if TYPE_CHECKING:`` blocks
+    included, function bodies not)."""
     graph: dict[str, set[str]] = {m: set() for m in modules}
     for m, p in modules.items():
-        for node in _runtime_nodes(ast.parse(p.read_text(), str(p))):
+        for node in _module_level_nodes(ast.parse(p.read_text(), str(p))):
             targets = []
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
@@ -127,6 +129,36 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_no_import_cycle_anywhere():
     graph = _imports(_modules())
     # the facade imports its parts eagerly; a part importing the facade back is a cycle
+    assert _cycles(graph) == []
+
+
+def test_the_tree_is_the_architecture():
+    """At most 16 ``.py`` files and folders at the top of the package: the layers, not their modules."""
+    top = sorted(p.name for p in PKG.iterdir()
+                 if (p.is_dir() and p.name != "__pycache__") or p.suffix == ".py")
+    assert len(top) <= 16, f"{len(top)} entries at the top of python/profrobot: {top}"
+    # every folder is a package (a layer), none is a bare directory
+    assert all((PKG / n / "__init__.py").is_file() for n in top if (PKG / n).is_dir()), top
+
+
+def test_a_type_checking_import_back_is_a_cycle():
+    """The cycle test reads ``if TYPE_CHECKING:`` imports (a mixin importing its class back for
+    its annotations is the circle it must catch) and skips imports inside functions."""
+    src = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .b import B\ndef f():\n    from .c import C\n"
+    tree = ast.parse(src)
+    found = {n.module for n in _module_level_nodes(tree) if isinstance(n, ast.ImportFrom)}
+    assert found == {"typing", "b"}
+
+
+def test_no_import_cycle_among_the_benches():
+    """The bench scripts import shared helpers from ``benches/common.py``, never each other in a circle."""
+    benches = {p.stem: p for p in (ROOT / "benches").glob("*.py")}
+    graph: dict[str, set[str]] = {b: set() for b in benches}
+    for b, p in benches.items():
+        for node in _module_level_nodes(ast.parse(p.read_text(), str(p))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            graph[b] |= {n.split(".")[0] for n in names if n.split(".")[0] in benches and n.split(".")[0] != b}
     assert _cycles(graph) == []
 
 

@@ -38,7 +38,7 @@ def test_poses_checked_in_one_pass_name_the_entry_numpy_would(panda):
     """as_poses checks finiteness and limits in one Rust pass (`first_bad_entries`); the entry
     named is numpy's row-major first, a non-finite one before any outside the limits, within
     `atol` of a limit allowed, and a continuous joint never out of limits."""
-    from profrobot.validate import as_poses
+    from profrobot.robot.gate import as_poses
     rng = np.random.default_rng(0)
     lim, k = panda.joint_limits, panda.njoint
     for _ in range(200):

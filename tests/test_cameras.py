@@ -162,8 +162,12 @@ def test_json_pickle_and_earlier_files(tmp_path):
     assert Cameras.from_dict(json.loads(json.dumps(free.to_dict()))) == free
     old = dict(lookat=[[0, 0, 0.4]], distance=[1.8], azimuth=[0.0], elevation=[-20.0], width=16, height=16, fovy=45.0)
     assert Cameras.from_dict(old) == ring_cameras(1, size=16)
-    with pytest.warns(DeprecationWarning, match="Cameras.free"):
-        assert Cameras(np.zeros((1, 3)) + [0, 0, 0.4], 1.8, 0.0, -20.0, 16, 16) == ring_cameras(1, size=16)
+    with pytest.raises(InputError, match="world_to_cam.*Cameras.free"):   # free cameras: Cameras.free only
+        Cameras(np.zeros((1, 3)) + [0, 0, 0.4], 1.8, 0.0, -20.0)
+    with pytest.raises(InputError, match="Cameras.free"):
+        Cameras(np.zeros((1, 3)) + [0, 0, 0.4], 1.8, 0.0, -20.0, 16, 16)
+    with pytest.raises(InputError, match="'lookat'.*Cameras.free"):
+        Cameras(lookat=[0, 0, 0.4], distance=1.8, azimuth=0.0, elevation=-20.0)
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(CorruptFileError, match="bad.json"):
         Cameras.load(tmp_path / "bad.json")

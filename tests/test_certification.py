@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot import certification
-from profrobot.certification import CLEARANCE, certify_poses, check_path, path_free_at
+from profrobot.exact import certification
+from profrobot.exact.certification import CLEARANCE, certify_poses, check_path, path_free_at
 
 
 def _by_definition(robot, poses):
@@ -30,8 +30,8 @@ def test_certify_poses_is_the_definition_near_contact(scene):
     free to a colliding pose bisected to its contact point, then poses stepped from it so that
     their closest pair is from -1e-5 to 1e-5 m away, many within CLEARANCE."""
     robot = profrobot.scenes.load(scene)
-    a = profrobot.problems.free_poses(robot, 24, seed=7)
-    b = profrobot.problems.colliding_poses(robot, 24, seed=7)
+    a = profrobot.exact.problems.free_poses(robot, 24, seed=7)
+    b = profrobot.exact.problems.colliding_poses(robot, 24, seed=7)
     lo, hi = np.zeros(24), np.ones(24)
     for _ in range(50):
         mid = 0.5 * (lo + hi)
@@ -54,8 +54,8 @@ def test_certify_poses_is_the_definition_near_contact(scene):
 def test_touching_is_not_certified(panda):
     """A pose the labels call free but whose closest pair is within CLEARANCE: bisect from a free
     to a colliding pose until the distance is below the clearance."""
-    free = profrobot.problems.free_poses(panda, 1, seed=0)[0]
-    hit = profrobot.problems.colliding_poses(panda, 1, seed=0)[0]
+    free = profrobot.exact.problems.free_poses(panda, 1, seed=0)[0]
+    hit = profrobot.exact.problems.colliding_poses(panda, 1, seed=0)[0]
     a, b = free, hit
     for _ in range(80):
         m = 0.5 * (a + b)
@@ -69,22 +69,20 @@ def test_touching_is_not_certified(panda):
 
 
 def test_paths_use_the_same_rule(panda):
-    s, g = profrobot.problems.hard_pairs(panda, 1, seed=0, steps=20)
+    s, g = profrobot.exact.problems.hard_pairs(panda, 1, seed=0, steps=20)
     path = profrobot.interpolate(panda, s[0], g[0], 20)
     chk = check_path(panda, path, density=5)
     np.testing.assert_array_equal(chk.dense_collides, ~_by_definition(panda, chk.dense))
     assert not chk.certified and chk.segment_collides.any()
     assert not path_free_at(panda, path, 0.01)
-    with pytest.warns(DeprecationWarning):
-        assert chk.free == chk.certified
 
 
 def test_planner_and_oracle_report_the_same_certificate(panda):
-    s, g = profrobot.problems.hard_pairs(panda, 1, seed=1, steps=20)
+    s, g = profrobot.exact.problems.hard_pairs(panda, 1, seed=1, steps=20)
     res = profrobot.plan_path(panda, s[0], g[0], max_time=20.0, seed=0)
     assert res.found
     assert res.certified == path_free_at(panda, res.path, 0.01)
-    hit = profrobot.problems.colliding_poses(panda, 4, seed=5)
+    hit = profrobot.exact.problems.colliding_poses(panda, 4, seed=5)
     near = profrobot.nearest_free(panda, hit, directions=32, refine=32)
     found = np.isfinite(near.distance)
     np.testing.assert_array_equal(near.certified[found], certify_poses(panda, near.poses[found]))

@@ -3,7 +3,7 @@
 import numpy as np
 
 from profrobot import Dataset
-from profrobot.cli import main
+from profrobot.cli.main import main
 
 
 def test_label_and_dataset_commands(tmp_path, capsys):

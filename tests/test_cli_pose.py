@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from profrobot.cli import main
+from profrobot.cli.main import main
 
 W, H = 64, 48
 
@@ -155,7 +155,7 @@ def test_bad_folders_are_refused_naming_the_file(inputs, tmp_path, capsys):
 def test_read_folder_targets_in_subfolders_with_depth_and_any_mask_format(tmp_path):
     from PIL import Image
 
-    from profrobot.inverse.cli import read_folder
+    from profrobot.cli.inverse import read_folder
     from profrobot.render.image import write_png
 
     rng = np.random.default_rng(0)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from profrobot.cli import main
+from profrobot.cli.main import main
 
 from test_feasible_answers import MIMIC_URDF
 

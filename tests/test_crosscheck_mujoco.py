@@ -9,7 +9,7 @@ from conftest import scene
 GRAZING = 1e-4  # metres
 
 
-def check_scene(name: str, n: int, seed: int):
+def check_layout(name: str, n: int, seed: int):
     robot = scene(name)
     poses = profrobot.sample_poses(robot, n, seed)
     report = profrobot.crosscheck(robot, poses)
@@ -25,13 +25,13 @@ def check_scene(name: str, n: int, seed: int):
 
 @pytest.mark.parametrize("name", profrobot.scenes.names())
 def test_labels_agree_with_mujoco(name):
-    check_scene(name, 3000, seed=11)
+    check_layout(name, 3000, seed=11)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", profrobot.scenes.names())
 def test_labels_agree_with_mujoco_large_sample(name):
-    check_scene(name, 100_000, seed=12)
+    check_layout(name, 100_000, seed=12)
 
 
 def test_self_and_scene_split_matches_mujoco_pairs(panda):

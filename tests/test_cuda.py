@@ -48,7 +48,7 @@ def test_a_tiny_training_run_on_cuda_beats_90_percent_and_matches_its_cpu_copy(p
 @cuda
 def test_resolve_with_a_cuda_field_returns_certified_poses(panda):
     sdf = train_sdf(panda, device="cuda", **TINY)
-    from profrobot.problems import colliding_poses
+    from profrobot.exact.problems import colliding_poses
 
     q = colliding_poses(panda, 40, seed=2)
     res = profrobot.resolve(sdf, q, robot=panda)

@@ -83,7 +83,7 @@ def test_split_is_seeded(dataset):
 def test_boundary_poses_sit_at_contact_with_exact_labels(panda):
     """boundary_dataset: labels are the labeller's, about half collide, the poses are within the
     limits, and they are far closer to contact than uniform poses (the point of drawing them)."""
-    from profrobot.dataset import boundary_dataset
+    from profrobot.exact.dataset import boundary_dataset
 
     near = boundary_dataset(panda, 4000, seed=3)
     assert len(near) == 4000 and 0.3 < near.collides.mean() < 0.7
@@ -101,7 +101,7 @@ def test_boundary_poses_sit_at_contact_with_exact_labels(panda):
 
 
 def test_boundary_dataset_bad_input_is_named(panda):
-    from profrobot.dataset import boundary_dataset
+    from profrobot.exact.dataset import boundary_dataset
     from profrobot.errors import InputError
 
     with pytest.raises(InputError, match="spread"):

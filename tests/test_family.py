@@ -1,4 +1,4 @@
-"""Families of scenes (profrobot.family): obstacles on scene joints δ, labelled like MuJoCo at every
+"""Families of scenes (profrobot.robot.family): obstacles on scene joints δ, labelled like MuJoCo at every
 layout, pinned into static scenes, and the field g(θ, δ) used at a layout with certification there."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import torch
 
 import profrobot
 from profrobot import InputError, RobotMismatchError
-from profrobot.crosscheck import crosscheck, mujoco_labels
-from profrobot.family import Moves
+from profrobot.exact.crosscheck import crosscheck, mujoco_labels
+from profrobot.robot.family import Moves
 from profrobot.robot import Box, Plane, Sphere
 
 ARM_XML = """
@@ -213,8 +213,8 @@ def test_regression_a_layout_within_the_clearance_of_the_base_is_refused():
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if gap(mid) < 5e-7 else (lo, mid)
     assert 0 < gap(hi) <= 1e-6
-    theta = profrobot.problems.free_poses(fam.at([0.0]), 20, seed=0)
-    assert not profrobot.certify_poses(fam, theta, scene=[hi]).any()   # the family certifies nothing here
+    theta = profrobot.exact.problems.free_poses(fam.at([0.0]), 20, seed=0)
+    assert not profrobot.certify_poses(fam, theta, layout=[hi]).any()   # the family certifies nothing here
     with pytest.raises(InputError, match="is .* m from 'link0'.*clearance"):
         fam.at([hi])
 
@@ -228,15 +228,15 @@ def test_family_field_inputs_and_layout_field(family, tiny_field):
     q = torch.as_tensor(profrobot.sample_poses(family.at(delta[0]), 64, seed=1), dtype=torch.float32)
     full = torch.as_tensor(family.compose(q.double().numpy(), delta[0]), dtype=torch.float32)
     g = sdf(full)
-    torch.testing.assert_close(sdf(q, scene=delta[0]), g)
+    torch.testing.assert_close(sdf(q, layout=delta[0]), g)
     at = sdf.at(delta[0])
     torch.testing.assert_close(at(q), g)
     assert at.njoint == 9 and at.robot.fingerprint == family.at(delta[0]).fingerprint
     # one layout per pose
-    both = sdf(q[:2], scene=delta)
-    torch.testing.assert_close(both[1], sdf(q[1:2], scene=delta[1])[0])
+    both = sdf(q[:2], layout=delta)
+    torch.testing.assert_close(both[1], sdf(q[1:2], layout=delta[1])[0])
     # the layout matters to the field
-    assert not torch.allclose(sdf(q, scene=delta[0]), sdf(q, scene=delta[1]))
+    assert not torch.allclose(sdf(q, layout=delta[0]), sdf(q, layout=delta[1]))
     # gradients reach θ only through a LayoutField
     x = q.clone().requires_grad_(True)
     at(x).sum().backward()
@@ -278,26 +278,26 @@ def test_family_field_save_load_and_mismatch(tmp_path, family, tiny_field):
 
 def test_scene_argument_errors(family, tiny_field):
     delta = np.zeros(9)
-    q = profrobot.problems.colliding_poses(family.at(delta), 3, seed=0)
-    with pytest.raises(InputError, match="pass scene="):
+    q = profrobot.exact.problems.colliding_poses(family.at(delta), 3, seed=0)
+    with pytest.raises(InputError, match="pass layout="):
         profrobot.resolve(tiny_field, q)
     with pytest.raises(InputError, match="outside the family's range"):
-        profrobot.resolve(tiny_field, q, scene=np.full(9, 0.5))
+        profrobot.resolve(tiny_field, q, layout=np.full(9, 0.5))
     plain = profrobot.scenes.load("panda_blocks")
     field = profrobot.PoseSDF(plain, hidden=(8,))
     with pytest.raises(InputError, match="not a family field"):
-        profrobot.resolve(field, q, scene=delta)
+        profrobot.resolve(field, q, layout=delta)
     with pytest.raises(InputError, match=r"theta must be a \(B, 9\)"):
-        tiny_field(torch.zeros(2, 5), scene=delta)
+        tiny_field(torch.zeros(2, 5), layout=delta)
 
 
 def test_resolve_at_a_layout_is_certified_there(family, tiny_field):
     """Whatever the field's quality, nothing certified collides at that layout (MuJoCo), and
-    scene=δ and robot=family.at(δ) are the same call."""
+    layout=δ and robot=family.at(δ) are the same call."""
     delta = layouts(family, 1, seed=13)[0]
     static = family.at(delta)
-    q = profrobot.problems.colliding_poses(static, 20, seed=1)
-    r = profrobot.resolve(tiny_field, q, scene=delta, iterations=100, refine_rounds=1)
+    q = profrobot.exact.problems.colliding_poses(static, 20, seed=1)
+    r = profrobot.resolve(tiny_field, q, layout=delta, iterations=100, refine_rounds=1)
     r2 = profrobot.resolve(tiny_field, q, robot=static, iterations=100, refine_rounds=1)
     np.testing.assert_array_equal(r.poses, r2.poses)
     assert r.certified.any()
@@ -359,20 +359,20 @@ def test_robot_obstacle_contacts_count_as_scene_contacts(family):
 
 
 def test_families_are_never_planned_as_if_obstacles_were_joints(family, tiny_field):
-    start, goal = profrobot.problems.free_poses(family.at(np.zeros(9)), 2, seed=3)
+    start, goal = profrobot.exact.problems.free_poses(family.at(np.zeros(9)), 2, seed=3)
     with pytest.raises(InputError, match="family of scenes"):
         profrobot.plan_path(family, family.compose(start, np.zeros(9)), family.compose(goal, np.zeros(9)))
     with pytest.raises(InputError, match="family of scenes"):
         profrobot.nearest_free(family, family.compose(start, np.zeros(9))[None])
-    with pytest.raises(InputError, match="pass scene="):
+    with pytest.raises(InputError, match="pass layout="):
         profrobot.plan_trajectory(None, start, goal, robot=family)
-    with pytest.raises(InputError, match="pass scene="):
+    with pytest.raises(InputError, match="pass layout="):
         profrobot.collision_penalty(tiny_field, torch.zeros(2, 18))
-    pen = profrobot.collision_penalty(tiny_field, torch.as_tensor(start[None], dtype=torch.float32), scene=np.zeros(9))
+    pen = profrobot.collision_penalty(tiny_field, torch.as_tensor(start[None], dtype=torch.float32), layout=np.zeros(9))
     assert pen.shape == (1,)
-    # the family itself with scene=δ is accepted where a labeller robot is asked for
-    q = profrobot.problems.colliding_poses(family.at(np.zeros(9)), 2, seed=4)
-    r = profrobot.resolve(tiny_field, q, robot=family, scene=np.zeros(9), iterations=5, refine_rounds=0)
+    # the family itself with layout=δ is accepted where a labeller robot is asked for
+    q = profrobot.exact.problems.colliding_poses(family.at(np.zeros(9)), 2, seed=4)
+    r = profrobot.resolve(tiny_field, q, robot=family, layout=np.zeros(9), iterations=5, refine_rounds=0)
     np.testing.assert_array_equal(r.certified, ~profrobot.label_poses(family.at(np.zeros(9)), r.poses).collides)
     with pytest.raises(InputError, match="save the family field"):
         tiny_field.at(np.zeros(9)).save("x")

@@ -16,8 +16,8 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import problems
-from profrobot.equalities import equality_residual
+from profrobot.exact import problems
+from profrobot.robot.equalities import equality_residual
 
 from conftest import scene
 
@@ -107,7 +107,7 @@ def check_answers(robot, poses, certified=None, what: str = ""):
 def mujoco_free_along(robot, path, step=0.0005):
     """MuJoCo finds no contact along ``path``'s segments replayed as the robot moves them
     (independent joints straight, dependent ones following), at ``step`` rad."""
-    d = profrobot.labels.so2_steps(robot, path)
+    d = profrobot.exact.labels.so2_steps(robot, path)
     dense = [path[:1]]
     for a, b, n in zip(path[:-1], path[1:], np.ceil(np.abs(d).max(axis=1) / step).astype(int)):
         dense.append(profrobot.interpolate(robot, a, b, max(int(n), 1) + 1)[1:])

@@ -260,7 +260,7 @@ def test_a_trained_pair_field_keeps_the_pairs_its_data_shows_colliding(panda, tm
     contact (so every colliding training pose still has one), the list is in the config and
     survives a checkpoint, and prune_pairs=False keeps every pair."""
     from profrobot.field.proxies import PairClearance
-    from profrobot.kinematics import Kinematics
+    from profrobot.kinematics.fk import Kinematics
 
     sdf = train_sdf(panda, encoder="pairs", hidden=(8,), n_poses=4000, iterations=5, batch_size=256,
                     eikonal_batch=32, progress=False, seed=2)

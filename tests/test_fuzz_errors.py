@@ -15,7 +15,7 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import problems
+from profrobot.exact import problems
 from profrobot.errors import ProfrobotError
 
 from conftest import scene
@@ -88,11 +88,11 @@ CASES = [
     ("sample_poses n float", lambda t: profrobot.sample_poses(_panda(), 2.5), r"\bn\b"),
     ("sample_poses seed -1", lambda t: profrobot.sample_poses(_panda(), 3, seed=-1), r"seed"),
     ("sample_poses equalities", lambda t: profrobot.sample_poses(_panda(), 3, equalities="sometimes"), r"equalities"),
-    ("label_poses scene on a plain robot", lambda t: profrobot.label_poses(_panda(), _mid()[None], scene=[0.1]),
+    ("label_poses scene on a plain robot", lambda t: profrobot.label_poses(_panda(), _mid()[None], layout=[0.1]),
      r"scene="),
     ("family theta without scene", lambda t: profrobot.label_poses(scene("panda_blocks_moving"), _free()),
-     r"poses.*scene="),
-    ("family scene wrong size", lambda t: profrobot.collides(scene("panda_blocks_moving"), _free(), scene=[0.0]),
+     r"poses.*layout="),
+    ("family scene wrong size", lambda t: profrobot.collides(scene("panda_blocks_moving"), _free(), layout=[0.0]),
      r"scene"),
     # obstacles
     ("with_obstacles one Sphere", lambda t: _panda().with_obstacles(profrobot.Sphere(pos=(0, 0, 1))), r"obstacles.*list"),

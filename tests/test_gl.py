@@ -83,7 +83,7 @@ def test_no_backend_is_one_clear_error(no_backend, panda, tmp_path):
 def test_cli_without_a_renderer_exits_2_with_the_message(no_backend, capsys, tmp_path):
     import torch
 
-    from profrobot.cli import main
+    from profrobot.cli.main import main
 
     code = main(["render", "-n", "1", "--cameras", "1", "--size", "8", "--iters", "1", "--gaussians", "10",
                  "--processes", "1", "--torch-threads", str(torch.get_num_threads()),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot import problems
+from profrobot.exact import problems
 
 from conftest import scene
 
@@ -169,9 +169,9 @@ def test_family_layouts():
     delta = np.zeros(len(fam.scene_index))
     layout = fam.at(delta)
     q, targets = fk_targets(layout, "hand", 10, seed=6)
-    res = profrobot.ik(fam, targets, frame="hand", scene=delta)
+    res = profrobot.ik(fam, targets, frame="hand", layout=delta)
     assert res.poses.shape == (10, len(fam.robot_index)) and res.certified.mean() >= 0.9
-    assert profrobot.certify_poses(fam, res.poses[res.certified], scene=delta).all()
+    assert profrobot.certify_poses(fam, res.poses[res.certified], layout=delta).all()
 
 
 def test_motion_to_a_pose_is_certified_and_ends_at_the_target():
@@ -180,11 +180,30 @@ def test_motion_to_a_pose_is_certified_and_ends_at_the_target():
     targets = frame_poses(robot, "hand", goals)
     for a, t in zip(starts, targets):
         m = profrobot.plan_to_pose(robot, a, t, frame="hand")
-        assert m.certified and m.path.found
-        np.testing.assert_allclose(m.path.path[0], a)
-        np.testing.assert_allclose(m.path.path[-1], m.goal)
+        assert m.certified and m.plan.found and m.outcome == "certified"
+        np.testing.assert_allclose(m.path[0], a)
+        np.testing.assert_allclose(m.path[-1], m.goal)
         assert np.linalg.norm(frame_poses(robot, "hand", m.goal[None])[0, :3, 3] - t[:3, 3]) <= 1e-4
-        assert profrobot.check_path(robot, m.path.path).certified
+        assert profrobot.check_path(robot, m.path).certified
+
+
+def test_motion_to_an_unreachable_pose_says_so_in_its_result():
+    """No candidate reaching the target is a result, not bad input; and a time budget spent before
+    the first plan still returns a PoseMotion (it returned None)."""
+    robot = scene("panda_blocks")
+    start = problems.free_poses(robot, 1, seed=3)[0]
+    far = np.eye(4)
+    far[:3, 3] = [5.0, 0.0, 0.5]   # 5 m away: out of the Panda's reach
+    m = profrobot.plan_to_pose(robot, start, far, frame="hand", candidates=2)
+    assert isinstance(m, profrobot.PoseMotion)
+    assert m.outcome == "no candidate reached" and not m.certified
+    assert m.plan is None and m.path is None and m.goal is None
+    assert m.ik is not None and not m.ik.reached.any()
+    goal = problems.free_poses(robot, 1, seed=4)
+    near = frame_poses(robot, "hand", goal)[0]
+    m = profrobot.plan_to_pose(robot, start, near, frame="hand", max_time=1e-12)
+    assert isinstance(m, profrobot.PoseMotion) and not m.certified
+    assert m.outcome in ("time ran out", "no path found", "no candidate reached")
 
 
 @pytest.mark.slow
@@ -293,7 +312,7 @@ def test_trajectory_from_images_through_a_frame_target():
 
 def test_ik_command(urdf_arm, tmp_path, capsys):
     """``profrobot ik --robot FILE --frame NAME --targets targets.npy`` writes poses and a report."""
-    from profrobot.cli import main
+    from profrobot.cli.main import main
 
     path = tmp_path / "arm.urdf"
     path.write_text(URDF_ARM)

@@ -53,7 +53,7 @@ def test_cli_commands_without_torch(argv, tmp_path):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     assert loaded_after(f"""
         import sys
-        from profrobot.cli import main
+        from profrobot.cli.main import main
         assert main({argv!r}) == 0
         """) == []
 

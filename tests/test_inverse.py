@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import problems
+from profrobot.exact import problems
 from profrobot.errors import ProfrobotError, RobotMismatchError
 from profrobot.field import PoseSDF
 from profrobot.inverse import pose_from_images
@@ -145,7 +145,7 @@ def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
 
 
 def test_family_fields_work_at_a_layout_and_certify_there(setup):
-    """A family field (obstacles on scene joints) needs the layout; given scene=δ every inverse
+    """A family field (obstacles on scene joints) needs the layout; given layout=δ every inverse
     problem certifies at exactly that layout (the front block moved 15 cm, rotated 0.5 rad)."""
     from profrobot.inverse import actions_from_video, trajectory_from_images
 
@@ -155,9 +155,9 @@ def test_family_fields_work_at_a_layout_and_certify_there(setup):
     delta = np.zeros(9)
     delta[[0, 2]] = 0.15, 0.5
     layout = family.at(delta)
-    with pytest.raises(ProfrobotError, match="pass scene="):
+    with pytest.raises(ProfrobotError, match="pass layout="):
         pose_from_images(model, t, cams, init=target, sdf=sdf, image_iterations=1)
-    r = pose_from_images(model, t, cams, init=target + 0.02, sdf=sdf, scene=delta, image_iterations=2,
+    r = pose_from_images(model, t, cams, init=target + 0.02, sdf=sdf, layout=delta, image_iterations=2,
                          field_iterations=2, refine_rounds=0)
     # certified means certified at the layout: the exact labeller with the certification margin
     # (a pose closer than CLEARANCE to contact is free to label_poses but not certified)
@@ -167,9 +167,9 @@ def test_family_fields_work_at_a_layout_and_certify_there(setup):
     np.testing.assert_array_equal(same.poses, r.poses)
     one = {k: v[0] for k, v in t.items()}
     a = problems.free_poses(layout, 1, 5)[0]
-    tr = trajectory_from_images(model, one, cams, start=a, steps=6, sdf=sdf, scene=delta, smooth_iterations=2)
+    tr = trajectory_from_images(model, one, cams, start=a, steps=6, sdf=sdf, layout=delta, smooth_iterations=2)
     np.testing.assert_array_equal(tr.waypoint_collides, ~profrobot.certify_poses(layout, tr.path))
     frames = {k: np.stack([v[0], v[0]]) for k, v in t.items()}
-    v = actions_from_video(model, frames, cams, init=a, sdf=sdf, scene=delta, iterations_per_frame=1,
+    v = actions_from_video(model, frames, cams, init=a, sdf=sdf, layout=delta, iterations_per_frame=1,
                            first_frame_iterations=1, joint_iterations=1)
     np.testing.assert_array_equal(v.waypoint_collides, ~profrobot.certify_poses(layout, v.path))

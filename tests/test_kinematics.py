@@ -31,7 +31,7 @@ def test_torch_fk_matches_mujoco(name):
     """The torch back end (profrobot.kinematics) reads the same flat arrays as the Rust core."""
     import torch
 
-    from profrobot.kinematics import Kinematics
+    from profrobot.kinematics.fk import Kinematics
 
     robot = scene(name)
     m = robot.mj_model
@@ -50,7 +50,7 @@ def test_torch_fk_matches_mujoco(name):
 def test_torch_fk_gradient_matches_finite_differences(panda):
     import torch
 
-    from profrobot.kinematics import Kinematics
+    from profrobot.kinematics.fk import Kinematics
 
     kin = Kinematics.from_robot(panda, dtype=torch.float64)
     q = torch.as_tensor(profrobot.sample_poses(panda, 3, 5), dtype=torch.float64).requires_grad_()
@@ -66,7 +66,7 @@ def test_closed_form_fk_equals_autograd_fk(name):
     ∂x_b/∂θ_j = ω × (x_b - p)) gives the poses and the joint gradients of the autograd FK."""
     import torch
 
-    from profrobot.kinematics import Kinematics
+    from profrobot.kinematics.fk import Kinematics
 
     robot = profrobot.Robot.from_menagerie(name)
     kin = Kinematics.from_robot(robot, dtype=torch.float64)

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot import problems, scenes
-from profrobot.crosscheck import mujoco_labels
-from profrobot.layouts import backproject, estimate_layout
-from profrobot.layouts.depth import cast_depth as depth_by_rays
+from profrobot import scenes
+from profrobot.exact import problems
+from profrobot.exact.crosscheck import mujoco_labels
+from profrobot.perception.layouts import backproject, estimate_layout
+from profrobot.perception.layouts.depth import cast_depth as depth_by_rays
 from profrobot.render import Cameras
 
 NOISE = (0.002, 0.005)
@@ -68,7 +69,7 @@ def layout_and_pose(family, seed):
 
 def surface_error(family, theta, true, est) -> float:
     """Largest distance (m) between an estimated obstacle's surface and the true one's (sampled)."""
-    from profrobot.layouts.fit import Placer, movable_obstacles
+    from profrobot.perception.layouts.fit import Placer, movable_obstacles
 
     m = family.mj_model
     q = m.qpos0.copy()
@@ -99,7 +100,7 @@ def test_margin_labels_agree_with_mujoco(blocks):
 
 
 def test_certified_with_margin_is_free_wherever_the_obstacles_moved_less(blocks):
-    """The guarantee (profrobot.margin): certified with margin m at δ̂ ⇒ free at every δ whose
+    """The guarantee (profrobot.robot.margin): certified with margin m at δ̂ ⇒ free at every δ whose
     obstacles moved by less than m; MuJoCo checks at layouts moved by 0.95 m (translation, and a
     yaw whose largest displacement is within it)."""
     delta, _ = layout_and_pose(blocks, 5)
@@ -211,9 +212,9 @@ def test_estimate_from_cast_depth(name, cams, seed):
     est = estimate_layout(family, depth, cameras, pose=theta, depth_noise=NOISE)
     assert est.ok, est.unsupported
     ang = np.array([family.joint_types[j] == "hinge" for j in family.scene_index])
-    err = np.abs(est.scene - delta)
+    err = np.abs(est.layout - delta)
     assert err[~ang].max() < 0.01
-    assert surface_error(family, theta, delta, est.scene) < est.margin
+    assert surface_error(family, theta, delta, est.layout) < est.margin
     assert 0.001 <= est.margin < 0.03
     safe = est.robot(family)
     q = profrobot.sample_poses(safe, 4000, seed=seed)
@@ -221,7 +222,7 @@ def test_estimate_from_cast_depth(name, cams, seed):
     assert ok.sum() > 100
     assert (np.asarray(mujoco_labels(family.at(delta), q[ok], progress=False).ncon) == 0).all()
     again = estimate_layout(family, depth, cameras, pose=theta, depth_noise=NOISE)
-    assert np.array_equal(again.scene, est.scene) and again.margin == est.margin   # deterministic
+    assert np.array_equal(again.layout, est.layout) and again.margin == est.margin   # deterministic
 
 
 @pytest.mark.gl
@@ -240,8 +241,8 @@ def test_estimate_from_mujoco_rendered_depth(renderer):
         est = estimate_layout(family, noisy(depth, seed), cameras, pose=theta, depth_noise=NOISE)
         assert est.ok
         hinge = np.array([family.joint_types[j] == "hinge" for j in family.scene_index])
-        assert np.abs(est.scene - delta)[~hinge].max() < 0.01
-        assert surface_error(family, theta, delta, est.scene) < est.margin
+        assert np.abs(est.layout - delta)[~hinge].max() < 0.01
+        assert surface_error(family, theta, delta, est.layout) < est.margin
 
 
 def test_the_users_mask_replaces_the_cast_one(blocks):
@@ -252,7 +253,7 @@ def test_the_users_mask_replaces_the_cast_one(blocks):
     robot_px = np.zeros(depth.shape, bool)
     robot_px[ref.camera[ref.kind == 0], ref.pixel[ref.kind == 0, 1], ref.pixel[ref.kind == 0, 0]] = True
     est = estimate_layout(blocks, depth, cams, pose=theta, mask=robot_px, depth_noise=NOISE)
-    assert est.ok and np.abs(est.scene - ref.scene).max() < 0.005
+    assert est.ok and np.abs(est.layout - ref.layout).max() < 0.005
     assert (est.kind == 0).sum() == robot_px.sum()
 
 
@@ -295,7 +296,7 @@ def test_an_all_missing_view_is_reported_not_fitted(blocks):
     assert not (est.camera == 1).any()
     depth[0] = 0.0
     none = estimate_layout(blocks, depth, cams, pose=theta)
-    assert none.empty_views == (0, 1) and not none.ok and np.isnan(none.scene).all()
+    assert none.empty_views == (0, 1) and not none.ok and np.isnan(none.layout).all()
     assert set(none.unsupported) == {"block_front", "block_left", "block_right"}
     assert all("no camera saw anything" in why for why in none.unsupported.values())
     with pytest.raises(profrobot.InputError, match="no layout to use: block_front"):
@@ -314,8 +315,8 @@ def test_an_obstacle_out_of_view_is_reported_never_guessed(blocks):
     est = estimate_layout(blocks, depth, cams, pose=theta, depth_noise=NOISE)
     assert set(est.unsupported) == {"block_left"}
     names = list(blocks.scene_joints)
-    assert np.isnan(est.scene[[names.index(n) for n in ("block_left_x", "block_left_y", "block_left_yaw")]]).all()
-    assert np.isfinite(est.scene[[names.index("block_front_x"), names.index("block_right_yaw")]]).all()
+    assert np.isnan(est.layout[[names.index(n) for n in ("block_left_x", "block_left_y", "block_left_yaw")]]).all()
+    assert np.isfinite(est.layout[[names.index("block_front_x"), names.index("block_right_yaw")]]).all()
 
 
 def test_estimate_pickles_saves_and_draws(blocks, tmp_path):
@@ -323,16 +324,16 @@ def test_estimate_pickles_saves_and_draws(blocks, tmp_path):
     delta, theta = layout_and_pose(blocks, 71)
     est = estimate_layout(blocks, noisy(cast_depth(blocks, theta, delta, cams), 71), cams, pose=theta)
     back = pickle.loads(pickle.dumps(est))
-    assert np.array_equal(back.scene, est.scene) and back.margin == est.margin
+    assert np.array_equal(back.layout, est.layout) and back.margin == est.margin
     doc = json.loads(est.save(tmp_path / "layout.json").read_text())
-    assert doc["margin"] == est.margin and set(doc["scene"]) == set(blocks.scene_joints)
+    assert doc["margin"] == est.margin and set(doc["layout"]) == set(blocks.scene_joints)
     png = tmp_path / "layout.png"
     est.picture(blocks, png)
     assert png.stat().st_size > 10_000
 
 
 def test_layout_command_line(blocks, tmp_path):
-    from profrobot.cli import main
+    from profrobot.cli.main import main
 
     cams = two_cameras(*BLOCK_CAMS)
     delta, theta = layout_and_pose(blocks, 81)
@@ -344,7 +345,7 @@ def test_layout_command_line(blocks, tmp_path):
                "--picture", str(pic)])
     assert rc == 0 and pic.is_file()
     doc = json.loads(out.read_text())
-    got = np.array([doc["scene"][n] for n in blocks.scene_joints])
+    got = np.array([doc["layout"][n] for n in blocks.scene_joints])
     assert np.abs(got - delta).max() < 0.05
     assert main(["layout", "--robot", "panda_blocks", "--depth", str(tmp_path / "depth.npy"), "--cameras",
                  str(tmp_path / "cams.json"), "--pose=" + ",".join(map(str, theta))]) == 2

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot.urdf import CollisionWarning, UrdfWarning
+from profrobot.robot.urdf import CollisionWarning, UrdfWarning
 
 # base_link (fixed to the world) overlaps shoulder_link (joint 1) for every angle of joint 1: the
 # shoulder's cylinder sits inside the top of the base's box. MuJoCo checks the pair (a body welded

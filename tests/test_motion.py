@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot.certification import CLEARANCE, certify_motions, check_path
+from profrobot.exact.certification import CLEARANCE, certify_motions, check_path
 from profrobot.errors import InputError
-from profrobot.labels import so2_steps
-from profrobot.planning import plan_path
+from profrobot.exact.labels import so2_steps
+from profrobot.exact.planning import plan_path
 
 from conftest import scene
 
@@ -42,7 +42,7 @@ def grazing_motions(robot, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(n, K) starts and goals: from a free pose toward a random pose, stopped just short of
     the first contact on the way (so the motions come close to contact), or whole when free."""
     rng = np.random.default_rng(seed)
-    a = profrobot.problems.free_poses(robot, n, seed=seed)
+    a = profrobot.exact.problems.free_poses(robot, n, seed=seed)
     b = profrobot.sample_poses(robot, n, seed=seed + 1)
     goals = []
     for qa, qb in zip(a, b):
@@ -139,7 +139,7 @@ def test_planner_goes_over_the_plate_with_the_continuous_certificate():
 
 def test_bad_input():
     robot = scene("ur5e_wall_box")
-    q = profrobot.problems.free_poses(robot, 2, seed=1)
+    q = profrobot.exact.problems.free_poses(robot, 2, seed=1)
     with pytest.raises(InputError, match="same shape"):
         certify_motions(robot, q, q[:1])
     bad = q.copy()

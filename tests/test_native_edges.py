@@ -11,7 +11,7 @@ import pytest
 
 import profrobot
 from profrobot import _core
-from profrobot.equalities import EqualityWarning, equality_residual
+from profrobot.robot.equalities import EqualityWarning, equality_residual
 
 from conftest import scene
 
@@ -262,7 +262,7 @@ def test_geom_sameframe_inertia_boundary_regression(tilt):
 
 def test_geom_local_frames_follow_every_sameframe_flag():
     """body · frame reproduces MuJoCo's geom_xpos/xmat for every flag used by the bundled scenes."""
-    from profrobot.robot import geom_local_frames
+    from profrobot.robot.arrays import geom_local_frames
 
     for name in ("panda_blocks", "xarm7_table"):
         robot = scene(name)
@@ -340,7 +340,7 @@ def test_bundled_gripper_couplings():
 def test_closed_linkage_warns_and_settles():
     """A closed linkage (connect equalities) warns once and offers settled sampling."""
     robot_cls = profrobot.Robot
-    import profrobot.robot as robot_module
+    import profrobot.robot.robot as robot_module
 
     robot_module._WARNED.clear()
     with pytest.warns(EqualityWarning, match="connect equality.*equalities='settle'"):

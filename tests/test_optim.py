@@ -6,12 +6,12 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import problems
+from profrobot.exact import problems
 from profrobot.field import PoseSDF
 from profrobot.optim import (PenaltyOptions, TangentOptions, check_path, collision_penalty, plan_trajectory,
                              resolve)
 from profrobot.errors import RobotMismatchError
-from profrobot.joints import LIMIT_INSET
+from profrobot.kinematics.limits import LIMIT_INSET
 
 
 class LinearField(torch.nn.Module):
@@ -401,7 +401,7 @@ def test_trained_field_resolves_and_plans(panda):
 
 def test_cli_resolve_and_plan(tmp_path, panda, capsys):
     from profrobot import gl
-    from profrobot.cli import main
+    from profrobot.cli.main import main
 
     ckpt = shifted_field(panda, -100.0).save(tmp_path / "field")
     # a field that calls everything free, without the exact search: the labeller's failures must
@@ -439,15 +439,12 @@ def test_plan_penalty_options_keep_the_ends_and_limits(panda):
     assert res.iterations == 5 and (res.path[1:-1, 0] < profrobot.interpolate(panda, a, b, 8)[1:-1, 0]).all()
     with pytest.raises(ValueError, match="gamma3"):
         plan_trajectory(LinearField(panda, w, 5.0), a, b, penalty=PenaltyOptions(gamma3=-1.0))
-    # the flat options of earlier releases still work, with a warning naming the new home
-    with pytest.warns(DeprecationWarning, match="PenaltyOptions"):
-        old = plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, midpoints=True, gamma3=1.0,
-                              init="straight")
-    np.testing.assert_array_equal(old.path, res.path)
+    with pytest.raises(TypeError, match="iterations"):   # the options live in PenaltyOptions only
+        plan_trajectory(LinearField(panda, w, 5.0), a, b, steps=8, iterations=5, init="straight")
 
 
 def test_limits_clamp_limited_wrap_continuous():
-    from profrobot.joints import Limits
+    from profrobot.kinematics.limits import Limits
 
     lim = Limits([-1.0, -np.pi, 0.0], [1.0, np.pi, 0.5], [False, True, False])
     theta = torch.tensor([[2.0, np.pi + 0.5, -0.1], [-3.0, -np.pi - 0.5, 0.7]])

@@ -32,7 +32,7 @@ def test_one_version_everywhere():
     want = cargo_version()
     assert profrobot.__version__ == want
     assert importlib.metadata.version("profrobot") == want
-    out = subprocess.run([sys.executable, "-m", "profrobot.cli", "--version"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "profrobot.cli.main", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == f"profrobot {want}"
     assert 'dynamic = ["version"]' in (ROOT / "pyproject.toml").read_text()
 

@@ -19,7 +19,8 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import Box, Mesh, Robot, Sphere, problems
+from profrobot import Box, Mesh, Robot, Sphere
+from profrobot.exact import problems
 from profrobot.errors import CorruptFileError, InputError, RobotMismatchError
 
 PROTOCOLS = (2, pickle.HIGHEST_PROTOCOL)   # torch.save's default, and the newest
@@ -373,7 +374,7 @@ def test_labelling_results(panda, panda_poses):
 
 
 def test_planning_results(panda):
-    from profrobot.certification import check_path
+    from profrobot.exact.certification import check_path
 
     start, goal = problems.free_poses(panda, 2, seed=1)
     found = profrobot.plan_path(panda, start, goal, max_time=2.0, seed=0)
@@ -407,7 +408,7 @@ def test_image_results(arm):
     from profrobot.inverse import pose_from_images, pose_from_text
     from profrobot.render import GaussianRobot, fit_pose, ring_cameras
     from profrobot.render.targets import ImageTargets
-    from profrobot.scorers import ImageGoalScorer
+    from profrobot.inverse.scorers import ImageGoalScorer
 
     torch.manual_seed(0)
     model = GaussianRobot.from_robot(arm, 300, seed=0)
@@ -435,7 +436,7 @@ def test_pickles_from_before_robot_py_was_split_still_find_their_classes(name):
     """Regression (robot.py split into robot_loading / robot_family / robot_state): a pickle
     written before names these classes in ``profrobot.robot``; they must still resolve there,
     through pickle and through the robot file's restricted unpickler, to the classes themselves."""
-    from profrobot.robotfile import _RobotUnpickler
+    from profrobot.robot.file import _RobotUnpickler
 
     data = b"\x80\x02cprofrobot.robot\n" + name.encode() + b"\n."
     cls = getattr(profrobot.robot, name)
@@ -448,7 +449,7 @@ def test_excluded_pairs_pickle_under_their_module_before_the_split():
     before robot.py was split, so that an older profrobot still loads it."""
     import pickletools
 
-    from profrobot.robot_loading import ExcludedPairs
+    from profrobot.robot.loading import ExcludedPairs
 
     edit = ExcludedPairs((("link1", "link2"),))
     data = pickle.dumps(edit, protocol=5)

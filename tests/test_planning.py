@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot.planning import plan_path, resample_path, so2_length
-from profrobot.problems import hard_pairs
+from profrobot.exact.planning import plan_path, resample_path, so2_length
+from profrobot.exact.problems import hard_pairs
 
 from conftest import scene
-from profrobot.angles import wrap
-from profrobot.labels import so2_steps
+from profrobot.robot.angles import wrap
+from profrobot.exact.labels import so2_steps
 
 
 def _dense_free(robot, path, resolution=0.01, factor=10) -> bool:
@@ -65,7 +65,7 @@ def test_same_seed_same_path_on_one_and_two_threads():
 
 def test_straight_path_is_returned_when_free():
     robot = scene("panda_blocks")
-    q = profrobot.problems.free_poses(robot, 1, seed=5)[0]
+    q = profrobot.exact.problems.free_poses(robot, 1, seed=5)[0]
     res = plan_path(robot, q, q + 1e-3 * np.sign(robot.joint_limits.mean(axis=1) - q))
     assert res.status == "direct" and len(res.path) == 2
 
@@ -96,8 +96,8 @@ def test_enclosed_goal_reports_none_found_within_max_time():
 
 def test_bad_input():
     robot = scene("ur5e_wall_box")
-    free = profrobot.problems.free_poses(robot, 2, seed=1)
-    coll = profrobot.problems.colliding_poses(robot, 1, seed=1)[0]
+    free = profrobot.exact.problems.free_poses(robot, 2, seed=1)
+    coll = profrobot.exact.problems.colliding_poses(robot, 1, seed=1)[0]
     with pytest.raises(ValueError, match="start collides"):
         plan_path(robot, coll, free[0])
     with pytest.raises(ValueError, match="goal collides"):

@@ -12,10 +12,10 @@ import pytest
 
 import profrobot
 from profrobot import scenes
-from profrobot.clouds import cloud_from_depth, cloud_picture, self_filter
-from profrobot.crosscheck import mujoco_labels
-from profrobot.layouts.depth import backproject, cast_depth, expected_depth
-from profrobot.pointcloud import PointCloud, reference_model
+from profrobot.perception.clouds import cloud_from_depth, cloud_picture, self_filter
+from profrobot.exact.crosscheck import mujoco_labels
+from profrobot.perception.layouts.depth import backproject, cast_depth, expected_depth
+from profrobot.robot.pointcloud import PointCloud, reference_model
 from profrobot.render import Cameras
 
 Q0 = np.array([0.0, -0.6, 0.0, -2.3, 0.0, 1.7, 0.785, 0.04, 0.04])
@@ -56,7 +56,7 @@ def test_distances_are_the_least_over_the_balls(cloudy):
     ours = profrobot.label_poses(cloudy, poses, distance=True).min_distance
     m = reference_model(cloudy)
     d = mujoco.MjData(m)
-    from profrobot.pointcloud import cloud_geom_ids, robot_geom_ids
+    from profrobot.robot.pointcloud import cloud_geom_ids, robot_geom_ids
     balls = cloud_geom_ids(cloudy)
     ids = robot_geom_ids(cloudy)
     robot_geoms = {int(np.flatnonzero(ids == g)[0]) for g1, g2 in cloudy.pair_geoms if -1 in (g1, g2)
@@ -86,14 +86,14 @@ def test_empty_cloud_is_free_space_and_replacing_clouds(blocks, cloudy):
 
 def test_certified_motions_and_plans_are_free_to_mujoco(cloudy):
     rng = np.random.default_rng(2)
-    free = profrobot.problems.free_poses(cloudy, 40, seed=4)
+    free = profrobot.exact.problems.free_poses(cloudy, 40, seed=4)
     a, b = free[:20], free[20:]
     cert = profrobot.certify_motions(cloudy, a, b)
     ok = np.flatnonzero(cert.certified)
     assert 0 < len(ok) < 20
     dense = np.concatenate([profrobot.interpolate(cloudy, a[i], b[i], 400) for i in ok])
     assert not mujoco_labels(cloudy, dense, progress=False).collides.any()
-    starts, goals = profrobot.problems.hard_pairs(cloudy, 4, seed=6)
+    starts, goals = profrobot.exact.problems.hard_pairs(cloudy, 4, seed=6)
     for s, g in zip(starts, goals):
         r = profrobot.plan_path(cloudy, s, g, seed=0)
         assert r.found and r.certified
@@ -103,7 +103,7 @@ def test_certified_motions_and_plans_are_free_to_mujoco(cloudy):
 
 
 def test_oracle_and_exact_resolve_leave_the_cloud(cloudy):
-    poses = profrobot.problems.colliding_poses(cloudy, 12, seed=7)
+    poses = profrobot.exact.problems.colliding_poses(cloudy, 12, seed=7)
     near = profrobot.nearest_free(cloudy, poses)
     assert np.isfinite(near.distance).sum() >= 10
     got = near.poses[near.certified]  # (a found pose may sit on the boundary; a certified one is clear)
@@ -115,7 +115,7 @@ def test_oracle_and_exact_resolve_leave_the_cloud(cloudy):
 
 def test_ik_answers_keep_clear_of_the_cloud(cloudy):
     """Hand positions among the clumps: every certified answer is free to MuJoCo's spheres."""
-    free = profrobot.problems.free_poses(cloudy, 8, seed=9)
+    free = profrobot.exact.problems.free_poses(cloudy, 8, seed=9)
     m = cloudy.mj_model
     d = mujoco.MjData(m)
     hand = m.body("hand").id

@@ -174,7 +174,7 @@ def test_map_runs_a_function_on_the_workers(ray_executor):
         assert same_array(q, profrobot.sample_poses(robot, 50, s))
     # put: a handle that arrives as the value itself, top-level in a chunk's arguments (a chunk
     # function importable on the workers: profrobot's own)
-    from profrobot.crosscheck import mujoco_labels_chunk
+    from profrobot.exact.crosscheck import mujoco_labels_chunk
 
     q = profrobot.sample_poses(robot, 40, seed=6)
     ref = ray_executor.put(q)

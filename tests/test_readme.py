@@ -40,7 +40,7 @@ def test_readme_python_blocks_run(tmp_path):
         run = [b for b in run if "Viewer(" not in b]
     script = "\n\n".join(run)
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")
-    # the README shows the current names: a deprecated one used by the tour itself is an error
+    # the tour itself raises no DeprecationWarning (of any library it calls)
     done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning:__main__", "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=1500)
     assert done.returncode == 0, done.stderr[-4000:]

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from profrobot.certification import certify_poses
+from profrobot.exact.certification import certify_poses
 from profrobot.errors import InputError
 from profrobot.field import PoseSDF
 from profrobot.inverse import pose_from_images
-from profrobot.problems import free_poses
+from profrobot.exact.problems import free_poses
 from profrobot.render import Cameras, GaussianRobot, ImageTargets, fit_gaussians, fit_pose, make_views, sphere_cameras
 from profrobot.render.distortion import distort_points
 from profrobot.render.targets import as_pinhole_targets

@@ -176,7 +176,7 @@ def test_native_local_quats_are_local_rots_of_the_normalised_quaternion():
     """``local_quats`` (any nonzero norm) draws what ``local_rots = quat_to_matrix(q)`` draws, and
     its gradient is gradcheck's through the kernel's normalisation; a zero quaternion is an
     error that names it."""
-    from profrobot.kinematics import quat_to_matrix
+    from profrobot.kinematics.fk import quat_to_matrix
     from profrobot.render.rasterize import render_native
 
     g = torch.Generator().manual_seed(3)

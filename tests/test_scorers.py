@@ -13,7 +13,7 @@ import profrobot
 from profrobot.errors import ProfrobotError
 from profrobot.inverse import pose_from_text
 from profrobot.render import GaussianRobot, ring_cameras
-from profrobot.scorers import CLIPScorer, ImageGoalScorer
+from profrobot.inverse.scorers import CLIPScorer, ImageGoalScorer
 
 transformers = pytest.importorskip("transformers")
 

@@ -22,7 +22,7 @@ import pytest
 import profrobot
 from profrobot import Box, Robot
 from profrobot.errors import InputError
-from profrobot.urdf import UrdfWarning
+from profrobot.robot.urdf import UrdfWarning
 
 N_CHECK = 5000
 

@@ -15,7 +15,7 @@ import pytest
 
 import profrobot
 from profrobot import Robot
-from profrobot.urdf import UrdfWarning
+from profrobot.robot.urdf import UrdfWarning
 
 pybullet_data = pytest.importorskip(
     "pybullet_data", reason="vendors' URDFs come from pybullet_data: pip install '.[vendor]'")

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import profrobot
-from profrobot.certification import certify_poses
+from profrobot.exact.certification import certify_poses
 
 pytest.importorskip("viser", reason="the viewer needs viser: pip install '.[viewer]'")
 from profrobot.viz import Viewer  # noqa: E402
@@ -213,7 +213,7 @@ def test_a_family_at_a_layout_with_a_cloud_and_cameras():
 
 
 def test_the_view_command_serves_a_path_and_a_field_directory(scene, tmp_path, capsys):
-    from profrobot.cli import main
+    from profrobot.cli.main import main
 
     robot, pose, joint = scene
     free = profrobot.sample_poses(robot, 200, seed=4)[certify_poses(robot, profrobot.sample_poses(robot, 200, seed=4))]

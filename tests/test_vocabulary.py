@@ -1,6 +1,5 @@
-"""One vocabulary (issue 19): old argument and attribute names still work for one release with a
-DeprecationWarning; versioned files refuse a newer version with a message naming both; a backend
-asked for by name fails loudly instead of falling back."""
+"""One vocabulary (issue 19): versioned files refuse a newer version with a message naming both; a
+backend asked for by name fails loudly instead of falling back; results share their names."""
 
 import json
 
@@ -11,30 +10,6 @@ import torch
 import profrobot
 from profrobot.errors import BackendUnavailableError, CorruptFileError, ProfrobotError
 from profrobot.field import PoseSDF
-
-
-def test_renamed_arguments_warn_and_still_work(panda):
-    torch.manual_seed(0)
-    sdf = PoseSDF(panda, hidden=(8,))
-    q = profrobot.problems.colliding_poses(panda, 2, seed=0)
-    with pytest.warns(DeprecationWarning, match="max_iters"):
-        old = profrobot.resolve(sdf, q, max_iters=2, refine=False)
-    new = profrobot.resolve(sdf, q, iterations=2, refine=False)
-    np.testing.assert_array_equal(old.poses, new.poses)
-    with pytest.raises(TypeError, match="both"):
-        profrobot.resolve(sdf, q, max_iters=2, iterations=2)
-    with pytest.warns(DeprecationWarning, match="plan_path"):
-        profrobot.plan_path(panda, *profrobot.problems.free_poses(panda, 2, seed=0), max_iterations=10, max_time=1.0)
-
-
-def test_deprecated_save_and_load_names(panda, tmp_path):
-    sdf = PoseSDF(panda, hidden=(8,))
-    with pytest.warns(DeprecationWarning):
-        profrobot.save_sdf(sdf, tmp_path / "f")
-    with pytest.warns(DeprecationWarning):
-        back = profrobot.load_sdf(tmp_path / "f", panda)
-    theta = torch.as_tensor(profrobot.sample_poses(panda, 4, seed=0), dtype=torch.float32)
-    assert torch.equal(back(theta), PoseSDF.load(tmp_path / "f", panda)(theta))
 
 
 def test_a_newer_file_is_refused_with_both_versions(panda, tmp_path):
@@ -56,8 +31,8 @@ def test_dataset_files_carry_a_version(panda, tmp_path):
     ds.save(tmp_path / "d.npz")
     with np.load(tmp_path / "d.npz") as z:
         meta = json.loads(str(z["metadata"]))
-    assert meta["format"] == "profrobot.dataset/1"
-    meta["format"] = "profrobot.dataset/2"
+    assert meta["format"] == "profrobot.exact.dataset/1"
+    meta["format"] = "profrobot.exact.dataset/2"
     with np.load(tmp_path / "d.npz") as z:
         arrays = {k: z[k] for k in z.files}
     arrays["metadata"] = np.array(json.dumps(meta))
@@ -85,9 +60,9 @@ def test_result_names_are_shared(panda):
     """``poses``/``path``, ``certified``, ``iterations``, ``seconds`` on every result."""
     torch.manual_seed(0)
     sdf = PoseSDF(panda, hidden=(8,))
-    q = profrobot.problems.colliding_poses(panda, 2, seed=0)
+    q = profrobot.exact.problems.colliding_poses(panda, 2, seed=0)
     r = profrobot.resolve(sdf, q, iterations=1, refine=False)
-    s, g = profrobot.problems.free_poses(panda, 2, seed=4)
+    s, g = profrobot.exact.problems.free_poses(panda, 2, seed=4)
     t = profrobot.plan_trajectory(None, s, g, robot=panda, steps=5)
     p = profrobot.plan_path(panda, s, g, max_time=5.0)
     for res, answer in ((r, "poses"), (t, "path"), (p, "path")):
@@ -114,15 +89,4 @@ def test_gaussian_robot_files_of_the_previous_release_load(tmp_path):
     state = {("limits" if k == "joint_limits" else k): v for k, v in model.state_dict().items()}
     twin = GaussianRobot.from_robot(arm, 200, seed=0)
     twin.load_state_dict(state)
-    with pytest.warns(DeprecationWarning):
-        assert torch.equal(twin.limits, model.joint_limits)
-
-
-def test_clearance_argument_of_earlier_releases(panda):
-    from profrobot.certification import CLEARANCE, certify_poses
-
-    q = profrobot.sample_poses(panda, 50, seed=1)
-    with pytest.warns(DeprecationWarning, match="one clearance"):
-        np.testing.assert_array_equal(certify_poses(panda, q, clearance=CLEARANCE), certify_poses(panda, q))
-    with pytest.warns(DeprecationWarning), pytest.raises(ProfrobotError, match="one clearance"):
-        certify_poses(panda, q, clearance=0.0)
+    assert torch.equal(twin.joint_limits, model.joint_limits)

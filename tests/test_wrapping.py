@@ -1,5 +1,5 @@
 """One angle wrap (issue 19): ``rust/angles.rs`` in the core (interpolation and planner alike) and
-its Python twin ``profrobot.angles.wrap`` (joints, planning helpers, path unwrapping), equal bit
+its Python twin ``profrobot.robot.angles.wrap`` (joints, planning helpers, path unwrapping), equal bit
 for bit, with pi going to -pi: a half turn moves the negative way everywhere."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import torch
 
 import profrobot
 from profrobot import _core
-from profrobot.angles import unwrap, wrap
-from profrobot.joints import Limits, _wrap
-from profrobot.planning import so2_steps
+from profrobot.robot.angles import unwrap, wrap
+from profrobot.kinematics.limits import Limits, _wrap
+from profrobot.exact.planning import so2_steps
 
 PI = math.pi
 BELOW = np.nextafter(-PI, -np.inf)  # the float just below -pi: its remainder rounds up to 2 pi

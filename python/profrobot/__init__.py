@@ -35,52 +35,53 @@ gl.import_mujoco()
 from . import scenes  # noqa: E402
 from ._core import __version__  # noqa: E402
 from .errors import RendererUnavailableError  # noqa: E402
-from .certification import CLEARANCE, MotionCertificate, PathCheck, certify_motions, certify_poses, check_path  # noqa: E402
-from .crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
-from .dataset import Dataset, make_dataset  # noqa: E402
-from .labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
-from .oracle import NearestFree, nearest_free  # noqa: E402
-from .planning import PathResult, plan_path  # noqa: E402
-from .ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
+from .exact.certification import CLEARANCE, MotionCertificate, PathCheck, certify_motions, certify_poses, check_path  # noqa: E402
+from .exact.crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
+from .exact.dataset import Dataset, make_dataset  # noqa: E402
+from .exact.labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
+from .exact.oracle import NearestFree, nearest_free  # noqa: E402
+from .exact.planning import PathResult, plan_path  # noqa: E402
+from .exact.ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
-from .pointcloud import PointCloud  # noqa: E402
-from .robotfile import load_robot, save_robot  # noqa: E402
-from . import family  # noqa: E402
-from .family import Moves  # noqa: E402
+from .robot.pointcloud import PointCloud  # noqa: E402
+from .robot.file import load_robot, save_robot  # noqa: E402
+from .robot.family import Moves  # noqa: E402
 
 # name → the module that defines it; loaded on first access
 _LAZY = {
     "PoseSDF": ".field", "train_sdf": ".field",
-    "save_sdf": ".field", "load_sdf": ".field", "export_sdf": ".field",
+    "export_sdf": ".field",
     "Kinematics": ".kinematics",
     "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
     "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors", "InputError": ".errors", "InputTypeError": ".errors",
-    "BackendUnavailableError": ".errors", "ClusterError": ".errors",
+    "BackendUnavailableError": ".errors", "ClusterError": ".errors", "MissingFileError": ".errors",
+    "WorkerError": ".errors", "ImmutableError": ".errors",
     "pose_from_images": ".inverse", "InverseResult": ".inverse", "trajectory_from_images": ".inverse",
     "pose_from_text": ".inverse", "TextResult": ".inverse", "actions_from_video": ".inverse",
-    "estimate_layout": ".layouts", "LayoutEstimate": ".layouts",
-    "cloud_from_depth": ".clouds", "CloudBuild": ".clouds",
+    "estimate_layout": ".perception", "LayoutEstimate": ".perception",
+    "cloud_from_depth": ".perception", "CloudBuild": ".perception",
 }
-_SUBPACKAGES = ("render", "field", "optim", "viz", "errors", "problems", "joints", "equalities", "executors",
-                "inverse", "scorers", "certification", "validate", "angles", "layouts", "margin", "clouds",
-                "pointcloud")
+#: the layers (the package's folders), each loaded on first attribute access
+_SUBPACKAGES = ("robot", "exact", "executors", "gl", "kinematics", "field", "render", "optim", "inverse",
+                "perception", "viz", "cli", "errors", "files")
 
 __all__ = [
-    "__version__", "scenes", "render", "field", "optim", "viz", "errors",
-    "Robot", "save_robot", "load_robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "family", "Moves",
-    "PointCloud", "pointcloud", "clouds", "cloud_from_depth", "CloudBuild",
+    "__version__", "scenes", "robot", "exact", "executors", "kinematics", "field", "render", "optim", "inverse",
+    "perception", "viz", "errors",
+    "Robot", "save_robot", "load_robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "Moves",
+    "PointCloud", "cloud_from_depth", "CloudBuild",
     "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
-    "Kinematics", "PoseSDF", "train_sdf", "save_sdf", "load_sdf", "export_sdf",
+    "Kinematics", "PoseSDF", "train_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
-    "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion", "problems", "joints", "equalities", "executors",
-    "inverse", "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
-    "scorers", "actions_from_video", "layouts", "estimate_layout", "LayoutEstimate", "margin",
-    "certification", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",
+    "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion",
+    "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
+    "actions_from_video", "estimate_layout", "LayoutEstimate",
+    "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",
     "ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError", "CorruptFileError",
-    "BackendUnavailableError", "ClusterError",
+    "MissingFileError", "BackendUnavailableError", "ClusterError", "WorkerError", "ImmutableError",
 ]
 
 

@@ -11,6 +11,8 @@
     │   └── MissingFileError            a file or directory that does not exist (also FileNotFoundError)
     ├── InputTypeError (TypeError)      an argument of the wrong type or dtype (from the Rust core)
     ├── ClusterError (RuntimeError)     a Ray cluster that cannot be reached or lost work
+    ├── WorkerError (RuntimeError)      a local worker process that died
+    ├── ImmutableError (AttributeError) an attribute of an immutable object set, or one it lacks
     ├── RendererUnavailableError        no OpenGL backend can draw (RuntimeError)
     └── BackendUnavailableError         a backend asked for by name cannot run (RuntimeError)
 
@@ -25,7 +27,7 @@ from __future__ import annotations
 from ._core import InputError, InputTypeError, ModelError, ProfrobotError
 
 __all__ = ["ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError",
-           "CorruptFileError", "MissingFileError", "ClusterError", "RendererUnavailableError", "BackendUnavailableError"]
+           "CorruptFileError", "MissingFileError", "ClusterError", "WorkerError", "ImmutableError", "RendererUnavailableError", "BackendUnavailableError"]
 
 
 class RobotMismatchError(InputError):
@@ -45,6 +47,16 @@ class MissingFileError(InputError, FileNotFoundError):
 class ClusterError(ProfrobotError, RuntimeError):
     """The Ray cluster cannot be reached, cannot start workers, or lost a chunk more times than
     ``max_retries`` allows. The message names the address and the time-out that ran out."""
+
+
+class WorkerError(ProfrobotError, RuntimeError):
+    """A local worker process (``LocalExecutor``) died; the message says how (its exit status or
+    signal, and the last lines it wrote)."""
+
+
+class ImmutableError(ProfrobotError, AttributeError):
+    """An attribute of an immutable object (``PointCloud``, ``Cameras``) was set, or read where
+    that kind of object has none. Also an ``AttributeError`` (``hasattr`` is False)."""
 
 
 class RendererUnavailableError(ProfrobotError, RuntimeError):

@@ -16,7 +16,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from .errors import CorruptFileError, RobotMismatchError
+from .errors import CorruptFileError, MissingFileError, RobotMismatchError
 
 __all__ = ["atomic_path", "atomic_dir", "check_robot", "current_umask"]
 
@@ -71,7 +71,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     try:
         yield tmp
         if not tmp.is_file():
-            raise FileNotFoundError(f"nothing was written to the temporary file {tmp}")
+            raise MissingFileError(f"nothing was written to the temporary file {tmp} (meant for {path})")
         _fsync_path(tmp)
         os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)

@@ -19,8 +19,8 @@ from typing import Any, Protocol, runtime_checkable
 
 
 from ..errors import InputTypeError
-from ..robot import Robot
-from ..validate import count
+from ..robot.robot import Robot
+from ..robot.gate import count
 
 __all__ = ["ChunkFn", "Executor", "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "progress_bar"]
 

@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Any
 
 
-from ..errors import RendererUnavailableError
+from ..errors import RendererUnavailableError, WorkerError
 from ..gl import backends
 from .base import ChunkFn, progress_bar, release_caches, robot_payload
-from ..validate import count, threads as validate_threads
+from ..robot.gate import count, threads as validate_threads
 
 __all__ = ["LocalExecutor", "close_workers", "serve"]
 
@@ -183,7 +183,7 @@ class _Process:
             why = self._died()
             if self.gl:
                 raise RendererUnavailableError(f"a MuJoCo render worker (MUJOCO_GL={self.gl!r}) died: {why}")
-            raise RuntimeError(f"a profrobot worker process died: {why}")
+            raise WorkerError(f"a profrobot worker process died: {why}")
         self.pending -= 1
         ok, value = pickle.loads(msg[1])
         if not ok:

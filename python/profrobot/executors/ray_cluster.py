@@ -46,7 +46,7 @@ from typing import Any
 
 from ..errors import ClusterError, InputError
 from .base import ChunkFn, progress_bar, robot_payload
-from ..validate import count
+from ..robot.gate import count
 
 __all__ = ["RayExecutor", "ClusterError", "RunStats"]
 
@@ -214,7 +214,7 @@ class _Run:
                     raise ClusterError(f"every Ray worker died and none was restarted (max_restarts="
                                        f"{self.ex.max_restarts}) on {self.ex.address_text}")
                 if not self.queue:
-                    raise RuntimeError("no chunk in flight")
+                    raise ClusterError(f"no chunk in flight and none queued on {self.ex.address_text}: the scheduler lost track of its work")
             t = time.monotonic()
             ready, _ = ray.wait(list(self.pending) + list(self.pings), num_returns=1, timeout=1.0)
             if not ready:

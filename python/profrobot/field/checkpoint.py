@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any, TypeVar
 
 import torch
 from safetensors import SafetensorError
@@ -17,17 +17,18 @@ from safetensors.torch import load_file, save_file
 
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
-from ..robot import Robot
-from ..robotfile import ROBOT_FILE, save_robot, stored_robot
+from ..robot.robot import Robot
+from ..robot.file import ROBOT_FILE, save_robot, stored_robot
 
-if TYPE_CHECKING:  # the class is passed in: this module must not import model.py (which imports it)
-    from .model import PoseSDF
+#: the field class read_checkpoint builds (``PoseSDF.load`` passes itself: model.py imports this
+#: module, so this module names no class of model.py; ``sdf`` arguments are PoseSDFs)
+Field = TypeVar("Field", bound=torch.nn.Module)
 
 FORMAT_VERSION = 1
 FORMAT = format_tag("PoseSDF", FORMAT_VERSION)
 
 
-def write_checkpoint(sdf: "PoseSDF", path: str | os.PathLike) -> Path:
+def write_checkpoint(sdf: Any, path: str | os.PathLike) -> Path:
     """Save ``sdf`` to the directory ``path`` (created or replaced atomically): :meth:`PoseSDF.save`."""
     path = Path(path)
     tensors = {k: v.detach().cpu().contiguous() for k, v in sdf.state_dict().items()}
@@ -42,7 +43,7 @@ def write_checkpoint(sdf: "PoseSDF", path: str | os.PathLike) -> Path:
     return path
 
 
-def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot | None = None) -> "PoseSDF":
+def read_checkpoint(cls: type[Field], path: str | os.PathLike, robot: Robot | None = None) -> Field:
     """Load a checkpoint saved by :func:`write_checkpoint` for ``robot`` as a ``cls``:
     :meth:`PoseSDF.load`. ``robot=None``: the robot stored beside the weights (``robot.pkl``;
     checkpoints written before it was stored need ``robot``).
@@ -100,7 +101,7 @@ def read_checkpoint(cls: "type[PoseSDF]", path: str | os.PathLike, robot: Robot 
     return sdf
 
 
-def family_description(sdf: "PoseSDF") -> dict | None:
+def family_description(sdf: Any) -> dict | None:
     """For a field of a family of scenes: its scene joints and their ranges (radians / metres),
     written beside the weights so that a reader knows what δ means; None otherwise."""
     if not getattr(sdf, "scene_joints", None):
@@ -113,7 +114,7 @@ def family_description(sdf: "PoseSDF") -> dict | None:
 class _Deployable(torch.nn.Module):
     """θ (B, K) → g (B,), without the Python-side checks (export traces tensors only)."""
 
-    def __init__(self, sdf: "PoseSDF"):
+    def __init__(self, sdf: Any):
         super().__init__()
         self.sdf = sdf
 
@@ -121,7 +122,7 @@ class _Deployable(torch.nn.Module):
         return self.sdf.head_g(self.sdf.encoder(theta))
 
 
-def export_sdf(sdf: "PoseSDF", path: str | os.PathLike, *, batch: int = 1024) -> int:
+def export_sdf(sdf: Any, path: str | os.PathLike, *, batch: int = 1024) -> int:
     """Export ``sdf`` with ``torch.export`` to a ``.pt2`` file (dynamic batch size); returns its
     size in bytes. Load it with ``torch.export.load(path).module()``: θ (B, K) → g (B,). The file
     carries ``profrobot.json`` (``torch.export.load(path, extra_files={"profrobot.json": ""})``):

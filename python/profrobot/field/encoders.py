@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..kinematics import Kinematics
+from ..kinematics.fk import Kinematics
 from .proxies import PairClearance
 
 
@@ -78,7 +78,7 @@ class StandardisedEncoder(nn.Module):
         F = self.out_features
         self.register_buffer("mean", torch.zeros(F))
         self.register_buffer("std", torch.ones(F))
-        from ..labels import sample_poses
+        from ..exact.labels import sample_poses
 
         with torch.no_grad():
             raw = self.raw(torch.as_tensor(sample_poses(robot, stats_poses, seed=0), dtype=torch.float32))

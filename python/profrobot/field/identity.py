@@ -13,7 +13,7 @@ import torch
 
 from ..errors import InputError, InputTypeError
 from ..files import check_robot
-from ..robot import Robot
+from ..robot.robot import Robot
 
 __all__ = ["check_field", "field_robot"]
 

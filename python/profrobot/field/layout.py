@@ -1,6 +1,6 @@
 """A family field at one layout: g(θ, δ) with δ fixed, as a field over the robot joints θ alone.
 
-``PoseSDF.at(scene)`` builds one; every torch-side entry point that takes ``scene=`` (``resolve``,
+``PoseSDF.at(layout)`` builds one; every torch-side entry point that takes ``layout=`` (``resolve``,
 ``plan_trajectory``, ``pose_from_images``, ``trajectory_from_images``, ``actions_from_video``)
 works on it unchanged: its ``robot`` is the family's scene pinned at δ (``Robot.at``), an ordinary
 static scene, so every answer is certified by the exact labeller at exactly that layout.
@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError, InputTypeError, RobotMismatchError
-from ..robot import Robot
+from ..robot.robot import Robot
 from .identity import _Shared
 
 __all__ = ["LayoutField", "field_at_layout"]
@@ -23,18 +23,18 @@ class LayoutField(nn.Module):
     """``g(θ) = field(θ, δ)`` for a fixed layout δ: the PoseSDF interface (``njoint``,
     ``joint_names``, ``joint_limits``, ``fingerprint``, ``robot``, ``prob``) over the robot joints.
 
-    Attributes: ``field`` (the family :class:`PoseSDF`), ``scene`` (D,) float64 δ, ``robot`` (the
+    Attributes: ``field`` (the family :class:`PoseSDF`), ``layout`` (D,) float64 δ, ``robot`` (the
     static Robot at δ). Gradients flow to θ only. Pickles with the family field and layout."""
 
-    def __init__(self, field, scene):  # field: a family PoseSDF
+    def __init__(self, field, layout):  # field: a family PoseSDF
         super().__init__()
         if not isinstance(field, nn.Module) or not getattr(field, "scene_joints", None):
             raise InputError("LayoutField needs a family field (a PoseSDF trained on a Robot with scene joints)")
         family = field.robot
-        delta = family.check_scene(scene)
+        delta = family.check_layout(layout)
         robot = family.at(delta)
         self.field = field
-        self.scene = delta
+        self.layout = delta
         self._robot = _Shared(robot)
         self.robot_name = field.robot_name
         self.fingerprint = robot.fingerprint
@@ -60,7 +60,7 @@ class LayoutField(nn.Module):
         if theta.ndim != 2 or theta.shape[1] != self.njoint:
             raise InputError(f"theta must have shape (B, {self.njoint}) (the robot joints of {self.robot_name!r} at "
                              f"this layout); got {tuple(theta.shape)}")
-        return self.field(self.field.scatter(theta, self.scene[None]))
+        return self.field(self.field.scatter(theta, self.layout[None]))
 
     def prob(self, theta: torch.Tensor) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""
@@ -70,42 +70,42 @@ class LayoutField(nn.Module):
         raise InputError("a LayoutField is a family field at one layout: save the family field (layout_field.field.save)")
 
     def __repr__(self) -> str:
-        return f"LayoutField({self.field!r}, scene={np.array2string(self.scene, precision=3)})"
+        return f"LayoutField({self.field!r}, layout={np.array2string(self.layout, precision=3)})"
 
 
-def field_at_layout(sdf, robot: Robot | None, scene):
+def field_at_layout(sdf, robot: Robot | None, layout):
     """The (field, robot) pair an entry point works with at a layout: ``sdf.at(scene)`` and its
     static robot for a family field; a family field without ``scene`` takes the layout of
     ``robot`` (a Robot made by ``family.at(δ)``); an ordinary field refuses ``scene``.
     ``sdf=None``: ``robot`` (a family) is pinned at ``scene``."""
     family = sdf is not None and bool(getattr(sdf, "scene_joints", None))
     if sdf is None:
-        if scene is None:
+        if layout is None:
             if getattr(robot, "is_family", False):
-                raise InputError(f"{robot.name} is a family of scenes: pass scene=δ, the layout to work at "
+                raise InputError(f"{robot.name} is a family of scenes: pass layout=δ, the layout to work at "
                                  "(else its obstacles would be moved like joints)")
             return None, robot
         if not isinstance(robot, Robot):
-            raise InputError("scene= without a field needs robot= (the family of scenes)")
-        return None, robot.at(scene)
+            raise InputError("layout= without a field needs robot= (the family of scenes)")
+        return None, robot.at(layout)
     if not family:
-        if scene is not None:
-            raise InputError(f"scene= was given but the field for {getattr(sdf, 'robot_name', '?')!r} is not a family "
+        if layout is not None:
+            raise InputError(f"layout= was given but the field for {getattr(sdf, 'robot_name', '?')!r} is not a family "
                              "field (trained on a Robot without scene joints)")
         return sdf, robot
-    if scene is None:
-        layout = getattr(robot, "layout", None)
-        if layout is None:
+    if layout is None:
+        pinned = getattr(robot, "layout", None)
+        if pinned is None:
             raise InputError(f"the field for {sdf.robot_name!r} covers a family of scenes (scene joints "
-                             f"{', '.join(sdf.scene_joints)}): pass scene=δ, the layout to work at, or "
+                             f"{', '.join(sdf.scene_joints)}): pass layout=δ, the layout to work at, or "
                              "robot=family.at(δ)")
         if getattr(robot, "family_fingerprint", None) != sdf.fingerprint:
             raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
-        scene = layout
-    at = sdf.at(scene)
+        layout = pinned
+    at = sdf.at(layout)
     if robot is not None and getattr(robot, "geometry_fingerprint", robot.fingerprint) == sdf.fingerprint:
-        # robot=family, scene=δ (a family with a safety margin keeps it at the layout)
-        return at, robot.at(at.scene) if getattr(robot, "margin", 0.0) > 0 else at.robot
+        # robot=family, layout=δ (a family with a safety margin keeps it at the layout)
+        return at, robot.at(at.layout) if getattr(robot, "margin", 0.0) > 0 else at.robot
     if robot is not None and getattr(robot, "geometry_fingerprint", robot.fingerprint) != at.fingerprint:
         raise RobotMismatchError(f"robot {robot.name!r} is not the field's family at this layout; pass the family's "
                                  "robot.at(scene), or leave robot= out")

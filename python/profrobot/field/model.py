@@ -156,11 +156,11 @@ class PoseSDF(nn.Module):
         g = pair_union(self.head(features)) if self.config["encoder"] == "pairs" else self.head(features)[:, 0]
         return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
 
-    def forward(self, theta: torch.Tensor, scene=None) -> torch.Tensor:
+    def forward(self, theta: torch.Tensor, layout=None) -> torch.Tensor:
         """g (B,) at poses θ (B, K); for a family field, θ (B, K − D) with ``scene`` δ, (D,) or one
         per pose (B, D), or θ (B, K) the full vectors (θ, δ) in MuJoCo joint order."""
-        if scene is not None:
-            theta = self.compose(theta, scene)
+        if layout is not None:
+            theta = self.compose(theta, layout)
         self.check_poses(theta)
         theta = theta.to(self.joint_limits.dtype)
         # chunks of poses (field/chunking.py): the intermediates stay in cache; the backward runs
@@ -168,20 +168,20 @@ class PoseSDF(nn.Module):
         parts = [self.head_g(self.encoder(t)) for t in cpu_chunks(theta, EVAL_CHUNK)]
         return parts[0] if len(parts) == 1 else torch.cat(parts)
 
-    def prob(self, theta: torch.Tensor, scene=None) -> torch.Tensor:
+    def prob(self, theta: torch.Tensor, layout=None) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""
-        return torch.sigmoid(self.scale * self(theta, scene))
+        return torch.sigmoid(self.scale * self(theta, layout))
 
-    def compose(self, theta: torch.Tensor, scene) -> torch.Tensor:
+    def compose(self, theta: torch.Tensor, layout) -> torch.Tensor:
         """Full pose vectors (B, K) from robot poses θ (B, K − D) and a layout δ, (D,) or (B, D),
         checked against the family's ranges (:meth:`profrobot.Robot.check_scene`); differentiable
         in θ."""
         if not self.scene_joints:
             raise InputError(f"the field for {self.robot_name!r} is not a family field (no scene joints); it takes no scene")
         if not isinstance(theta, torch.Tensor) or theta.ndim != 2 or theta.shape[1] != len(self.robot_index):
-            raise InputError(f"theta must be a (B, {len(self.robot_index)}) tensor of the robot joints when scene= "
+            raise InputError(f"theta must be a (B, {len(self.robot_index)}) tensor of the robot joints when layout= "
                              f"is given; got {tuple(theta.shape) if isinstance(theta, torch.Tensor) else type(theta).__name__}")
-        return self.scatter(theta, self.robot.check_scenes(scene, len(theta)))
+        return self.scatter(theta, self.robot.check_layouts(layout, len(theta)))
 
     def scatter(self, theta: torch.Tensor, deltas) -> torch.Tensor:
         """Full vectors (B, K): robot joints θ (B, K − D) and checked layouts ``deltas`` (1 or B, D)
@@ -191,12 +191,12 @@ class PoseSDF(nn.Module):
         full[:, self.scene_index] = torch.as_tensor(deltas, dtype=theta.dtype, device=theta.device)
         return full
 
-    def at(self, scene) -> "nn.Module":
-        """This family field at one layout δ (``scene``: (D,) or ``{scene joint: value}``): a field
+    def at(self, layout) -> "nn.Module":
+        """This family field at one layout δ (``layout``: (D,) or ``{scene joint: value}``): a field
         over the robot joints θ alone, whose ``robot`` is ``self.robot.at(scene)`` (the static
         scene the exact labeller certifies against). What ``resolve``, ``plan_trajectory`` and the
-        inverse problems use with ``scene=``."""
-        return LayoutField(self, scene)
+        inverse problems use with ``layout=``."""
+        return LayoutField(self, layout)
 
     def lipschitz_bound(self) -> torch.Tensor:
         """Product of the layers' Lipschitz bounds (1 if the MLP is unconstrained)."""

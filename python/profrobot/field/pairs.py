@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..kinematics import Kinematics
+from ..kinematics.fk import Kinematics
 from .chunking import cpu_chunks
 from .encoders import StandardisedEncoder
 from .proxies import PairClearance

@@ -24,9 +24,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..kinematics import Kinematics, quat_to_matrix
+from ..kinematics.fk import Kinematics, quat_to_matrix
 from ..errors import InputError
-from ..pointcloud import CLOUD_GEOM_ID
+from ..robot.pointcloud import CLOUD_GEOM_ID
 from .chunking import cpu_chunks
 
 # MuJoCo geom types
@@ -195,7 +195,7 @@ class PairClearance(torch.nn.Module):
         sorted: a ``keep`` for the pairs that a dataset shows colliding. Needs a PairClearance
         built without ``keep``."""
         if self.npair != self.all_npair:
-            raise ValueError("pair_hits needs the full pair list (a PairClearance built without keep)")
+            raise InputError("pair_hits needs the full pair list (a PairClearance built without keep)")
         col = self.pair_column[np.asarray(colliding_pairs)[:, 1]] if len(colliding_pairs) else np.zeros(0, np.int64)
         return np.unique(col[col >= 0])
 
@@ -226,7 +226,7 @@ class PairClearance(torch.nn.Module):
         (``frames``: :meth:`static_frames`, needed when obstacles move with scene joints)."""
         if frames is None:
             if self.scene_moved:
-                raise ValueError("static_sdf needs the frames of the moving obstacles (static_frames)")
+                raise InputError("static_sdf needs the frames of the moving obstacles (static_frames)")
             local = torch.einsum("nji,bnmj->bnmi", self.st_rot[g], p - self.st_pos[g][:, None])
         else:
             R, x = frames[0][:, g], frames[1][:, g]                                # (B, n, 3, 3), (B, n, 3)

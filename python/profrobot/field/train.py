@@ -40,8 +40,8 @@ import torch
 from tqdm.auto import tqdm
 
 from ..files import check_robot
-from ..dataset import Dataset, make_dataset
-from ..robot import Robot
+from ..exact.dataset import Dataset, make_dataset
+from ..robot.robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
 from .pairs import pair_union
@@ -310,7 +310,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
 
     if cfg.boundary_fraction > 0:
         # poses where the sign of g is hardest to get right; the held-out split stays uniform
-        from ..dataset import boundary_dataset
+        from ..exact.dataset import boundary_dataset
 
         near = boundary_dataset(robot, max(1, int(cfg.boundary_fraction * len(train))), seed=cfg.seed,
                                 spread=cfg.boundary_spread, threads=cfg.threads)
@@ -320,8 +320,8 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     # a pair no training pose has in contact gets no network (prune_pairs): it could only learn "free"
     pair_lab = None
     if model_opts.get("encoder") == "pairs" and model_opts.get("objective", "sdf") == "sdf":
-        from ..kinematics import Kinematics
-        from ..labels import label_poses
+        from ..kinematics.fk import Kinematics
+        from ..exact.labels import label_poses
         from .proxies import PairClearance
 
         if cfg.pair_weight > 0 or (cfg.prune_pairs and model_opts.get("pairs") is None):

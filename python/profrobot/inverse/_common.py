@@ -8,12 +8,12 @@ import numpy as np
 import torch
 
 from ..errors import InputError, RobotMismatchError
-from ..joints import Limits
+from ..kinematics.limits import Limits
 from ..field.identity import check_field, field_robot
-from ..certification import CLEARANCE, check_path
-from ..validate import with_margin
+from ..exact.certification import CLEARANCE, check_path
+from ..robot.gate import with_margin
 from ..optim.trajectory import TrajectoryResult, trajectory_result
-from ..robot import Robot
+from ..robot.robot import Robot
 
 
 def check_field_matches_model(sdf, model) -> None:

@@ -28,18 +28,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..deprecation import renamed_arguments
 from ..errors import InputError
-from ..joints import Limits
+from ..kinematics.limits import Limits
 from ..optim.adam import BatchedAdam
 from ..optim.resolve import certify_and_continue
-from ..validate import finite, positive
-from ..certification import certified_summary, certify_poses, failures_of
+from ..robot.gate import finite, positive
+from ..exact.certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
 from ..render.gaussians import pose_only
 from ..render.cameras import Cameras
 from ..render.targets import ImageTargets, as_pinhole_targets
-from ..certification import CLEARANCE
+from ..exact.certification import CLEARANCE
 from ._common import check_field_matches_model, labeller_robot
 from ..field.layout import field_at_layout
 
@@ -103,13 +102,12 @@ class InverseResult:
                 f"({self.rounds} refinement round{'s' * (self.rounds != 1)})")
 
 
-@renamed_arguments(iters="image_iterations", field_iters="field_iterations")
 @pose_only
 def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
                      image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
                      refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
                      background=None, coarse: dict | None = None, robot=None, seed: int = 0,
-                     refine_cameras: bool | dict = False, progress: bool = False, scene=None, margin: float = CLEARANCE) -> InverseResult:
+                     refine_cameras: bool | dict = False, progress: bool = False, layout=None, margin: float = CLEARANCE) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
 
     ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
@@ -133,7 +131,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     refine_rounds = positive("refine_rounds", refine_rounds, integer=True, allow_zero=True)
     refine_step = positive("refine_step", refine_step)
     field_lr = positive("field_lr", field_lr)
-    sdf, robot = field_at_layout(sdf, robot, scene)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     robot = labeller_robot(sdf, model, robot, "pose_from_images", required=False, margin=margin)
     init = np.asarray(init, dtype=np.float64)
     if init.ndim == 1:

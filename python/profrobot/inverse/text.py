@@ -7,20 +7,18 @@ certified by the exact labeller, and one that still collides is resolved on the 
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from ..deprecation import renamed_arguments
 from ..errors import InputError, InputTypeError
-from ..joints import Limits
-from ..validate import finite, positive
-from ..certification import certified_summary, certify_poses, failures_of
-from ..robot import Robot
+from ..kinematics.limits import Limits
+from ..robot.gate import finite, positive
+from ..exact.certification import certified_summary, certify_poses, failures_of
+from ..robot.robot import Robot
 from ..field.layout import field_at_layout
-from ..certification import CLEARANCE
+from ..exact.certification import CLEARANCE
 from ._common import labeller_robot
 
 __all__ = ["TextResult", "pose_from_text"]
@@ -50,13 +48,6 @@ class TextResult:
     iterations: int = 0
 
     @property
-    def collided_before_repair(self) -> np.ndarray:
-        """Deprecated: ``~certified_before_repair``."""
-        warnings.warn("TextResult.collided_before_repair is deprecated; use ~certified_before_repair",
-                      DeprecationWarning, stacklevel=2)
-        return ~self.certified_before_repair
-
-    @property
     def failures(self) -> np.ndarray:
         """Indices of runs whose returned pose is not certified free."""
         return failures_of(self.certified)
@@ -67,10 +58,9 @@ class TextResult:
                 f"{certified_summary(self.certified)}; {self.seconds:.1f} s")
 
 
-@renamed_arguments(steps="iterations")
 def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, iterations: int = 200,
                    lr: float = 0.01, beta: float = 10.0, l_thres: float = -0.1, background=(1.0, 1.0, 1.0),
-                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, scene=None, margin: float = CLEARANCE) -> TextResult:
+                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, layout=None, margin: float = CLEARANCE) -> TextResult:
     """Joint angles whose render from ``camera`` (a one-camera :class:`~profrobot.render.Cameras`)
     best matches ``prompt`` under ``scorer`` (:mod:`profrobot.scorers`).
 
@@ -85,7 +75,7 @@ def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, r
     t0 = time.perf_counter()
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):
         raise InputTypeError(f"scorer must have encode_text, encode_image and score; got {type(scorer).__name__}")
-    sdf, robot = field_at_layout(sdf, robot, scene)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     robot = labeller_robot(sdf, model, robot, "pose_from_text", margin=margin)
     if len(camera) != 1:
         raise InputError(f"pose_from_text renders from one camera; got {len(camera)}")

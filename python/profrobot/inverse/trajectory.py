@@ -9,35 +9,32 @@ between the same end points (exact planner, then the field's smoothing), never r
 from __future__ import annotations
 
 import time
-import warnings
 
 import numpy as np
 import torch
 
-from ..deprecation import renamed_arguments
-from ..errors import InputError, InputTypeError
-from ..joints import Limits
-from ..validate import finite, positive, poses_within_limits
-from ..certification import certify_poses, check_path
+from ..errors import InputError
+from ..kinematics.limits import Limits
+from ..robot.gate import finite, positive, poses_within_limits
+from ..exact.certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
 from ..render.gaussians import pose_only
-from ..robot import Robot
+from ..robot.robot import Robot
 from ..field.layout import field_at_layout
-from ..certification import CLEARANCE
+from ..exact.certification import CLEARANCE
 from ._common import certified_path, labeller_robot
 
 __all__ = ["trajectory_from_images"]
 
 
-@renamed_arguments(smooth_iters="smooth_iterations")
 @pose_only
-def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None, goal=None, sdf=None, steps: int = 100,
+def trajectory_from_images(model, targets: dict, cameras, *, start=None, goal=None, sdf=None, steps: int = 100,
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
                            w_depth: float = 1.0, w_mask: float = 0.5, background=None,
-                           robot: Robot | None = None, scene=None, frame: str | None = None,
+                           robot: Robot | None = None, layout=None, frame: str | None = None,
                            frame_targets: dict | None = None, margin: float = CLEARANCE) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
     pose: ``rgb`` (C, H, W, 3), ``depth`` (C, H, W) m, ``mask`` (C, H, W), from ``cameras``).
@@ -61,17 +58,9 @@ def trajectory_from_images(model, targets: dict, cameras, *old_order, start=None
     the planner between them); ``method`` gains "+frames".
     """
     t0 = time.perf_counter()
-    if isinstance(cameras, dict):   # the order of earlier releases: (model, start, targets, cameras)
-        if len(old_order) != 1 or start is not None:
-            raise InputTypeError("trajectory_from_images(model, targets, cameras, *, start=...)")
-        warnings.warn("trajectory_from_images(model, start, targets, cameras) is deprecated; use "
-                      "trajectory_from_images(model, targets, cameras, start=...)", DeprecationWarning, stacklevel=4)   # < pose_only < renamed_arguments < the caller
-        start, targets, cameras = targets, cameras, old_order[0]
-    elif old_order:
-        raise InputTypeError(f"trajectory_from_images takes 3 positional arguments; got {3 + len(old_order)}")
     if start is None:
         raise InputError("trajectory_from_images needs start= (K,), the first frame's pose")
-    sdf, robot = field_at_layout(sdf, robot, scene)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     robot = labeller_robot(sdf, model, robot, "trajectory_from_images", margin=margin)
     steps = positive("steps", steps, integer=True)
     if steps < 3:

@@ -18,31 +18,28 @@ import time
 import numpy as np
 import torch
 
-from ..deprecation import renamed_arguments
 from ..errors import InputError
-from ..joints import Limits
-from ..validate import finite, positive
-from ..certification import certify_poses, check_path
+from ..kinematics.limits import Limits
+from ..robot.gate import finite, positive
+from ..exact.certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
 from ..render.gaussians import pose_only
-from ..robot import Robot
+from ..robot.robot import Robot
 from ..field.layout import field_at_layout
-from ..certification import CLEARANCE
+from ..exact.certification import CLEARANCE
 from ._common import certified_path, labeller_robot
 
 __all__ = ["actions_from_video"]
 
 
-@renamed_arguments(steps_per_frame="iterations_per_frame", first_frame_steps="first_frame_iterations",
-                   joint_iters="joint_iterations")
 @pose_only
 def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iterations_per_frame: int = 5, lr: float = 0.01,
                        first_frame_iterations: int = 50,
                        joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
                        l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
-                       background=None, robot: Robot | None = None, batch: int = 20, scene=None,
+                       background=None, robot: Robot | None = None, batch: int = 20, layout=None,
                        frame: str | None = None, frame_targets: dict | None = None,
                        w_frame: float = 100.0, margin: float = CLEARANCE) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
@@ -60,7 +57,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     1 mrad: :func:`profrobot.ik`), fixed while the segments around it are freed, and every frame
     and segment certified (``method`` gains "+frames")."""
     t0 = time.perf_counter()
-    sdf, robot = field_at_layout(sdf, robot, scene)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     robot = labeller_robot(sdf, model, robot, "actions_from_video", margin=margin)
     if (frame is None) != (frame_targets is None):
         raise InputError("end-effector targets need both frame= (a site, body or geom) and frame_targets= "

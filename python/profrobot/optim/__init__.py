@@ -1,7 +1,7 @@
 """Collision-aware optimisation with the learned field (paper §4.2 and the supplement):
 the penalty, batched collision resolution and trajectories, all certified by the exact labeller."""
 
-from ..certification import PathCheck, certify_poses, check_path
+from ..exact.certification import PathCheck, certify_poses, check_path
 from .penalty import collision_penalty
 from .resolve import ResolveResult, certify_and_continue, resolve
 from .adam import BatchedAdam

@@ -17,9 +17,9 @@ import numpy as np
 import torch
 
 from ..errors import InputError, InputTypeError
-from ..ik import as_targets, frame_of, ik
-from ..kinematics import Kinematics, quat_to_matrix
-from ..robot import Robot
+from ..exact.ik import as_targets, frame_of, ik
+from ..kinematics.fk import Kinematics, quat_to_matrix
+from ..robot.robot import Robot
 
 __all__ = ["FrameTargets"]
 
@@ -90,12 +90,12 @@ class FrameTargets:
             out = out + LENGTH ** 2 * 0.5 * ((R - Rt) ** 2).sum()
         return out
 
-    def snap(self, path: np.ndarray, *, scene=None) -> tuple[np.ndarray, np.ndarray]:
+    def snap(self, path: np.ndarray, *, layout=None) -> tuple[np.ndarray, np.ndarray]:
         """``path`` (S, K) with each chosen row replaced by the certified IK pose nearest it that
         reaches its target; returns (path, snapped (M,) bool). A row whose target cannot be
         reached certified free is left as it is (and reported)."""
         path = np.array(path, dtype=np.float64, copy=True)
-        res = ik(self._robot, self.targets, frame=self.frame, start=path[self.index], scene=scene)
+        res = ik(self._robot, self.targets, frame=self.frame, start=path[self.index], layout=layout)
         ok = res.certified
         path[self.index[ok]] = res.poses[ok]
         return path, ok

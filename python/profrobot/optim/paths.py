@@ -21,11 +21,11 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
-from ..angles import unwrap
-from ..certification import check_path, path_free_at
-from ..joints import LIMIT_INSET, Limits
-from ..robot import Robot
-from ..validate import finite, positive
+from ..robot.angles import unwrap
+from ..exact.certification import check_path, path_free_at
+from ..kinematics.limits import LIMIT_INSET, Limits
+from ..robot.robot import Robot
+from ..robot.gate import finite, positive
 from ..errors import InputError
 from .adam import BatchedAdam
 

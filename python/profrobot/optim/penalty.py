@@ -6,11 +6,11 @@ import torch
 
 from ..field.identity import check_field
 from ..field.layout import field_at_layout
-from ..validate import finite
+from ..robot.gate import finite
 from ..errors import InputError, InputTypeError
 
 
-def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=None) -> torch.Tensor:
+def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, layout=None) -> torch.Tensor:
     """ReLU(g(θ) − l_thres) per pose: θ (..., K) radians / metres → (...,), differentiable in θ
     (and in the field's parameters). Zero once the field puts a pose ``-l_thres`` inside the free
     region; add ``β · penalty.mean()`` to a loss to keep its poses out of collision.
@@ -20,7 +20,7 @@ def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, scene=
     ``scene``, the layout δ (θ then holds the robot joints only; δ is never moved).
     """
     check_field(sdf)
-    sdf, _ = field_at_layout(sdf, None, scene)  # a family field at its layout: the penalty moves θ, never δ
+    sdf, _ = field_at_layout(sdf, None, layout)  # a family field at its layout: the penalty moves θ, never δ
     l_thres = finite("l_thres", l_thres)
     if not isinstance(theta, torch.Tensor):
         raise InputTypeError(f"theta must be a torch.Tensor; got {type(theta).__name__}")

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_path
-from ..certification import certify_poses
-from ..robot import Robot
+from ..exact.certification import certify_poses
+from ..robot.robot import Robot
 from ..errors import InputError
 
 # A view from the front-left, above the table; override with ``camera=``.
@@ -63,7 +63,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     default the camera's own size for a :class:`~profrobot.render.Cameras`, else (480, 360). The
     file is written atomically.
     """
-    from ..labels import as_poses
+    from ..exact.labels import as_poses
 
     path = as_poses(robot, path, name="path")
     out = Path(out)

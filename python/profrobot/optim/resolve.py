@@ -31,17 +31,16 @@ from typing import Literal
 import numpy as np
 import torch
 
-from ..robot import Robot
+from ..robot.robot import Robot
 from .adam import BatchedAdam
-from ..joints import LIMIT_INSET, Limits
+from ..kinematics.limits import LIMIT_INSET, Limits
 from ..field.identity import field_robot
 from ..field.layout import field_at_layout
 from ..errors import InputError
-from ..validate import finite, positive, poses_within_limits, with_margin
-from ..certification import CLEARANCE, certified_summary, certify_poses, failures_of
-from ..labels import collides
-from ..oracle import nearest_free
-from ..deprecation import renamed_arguments
+from ..robot.gate import finite, positive, poses_within_limits, with_margin
+from ..exact.certification import CLEARANCE, certified_summary, certify_poses, failures_of
+from ..exact.labels import collides
+from ..exact.oracle import nearest_free
 
 
 @dataclass
@@ -329,11 +328,11 @@ def exact_search(robot: Robot, q0: np.ndarray, bad: np.ndarray, limits: Limits, 
         certified[left[again.certified]] = True
 
 
-def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
+def _resolve_exact(poses, robot, layout, margin, start: float) -> ResolveResult:
     """:func:`resolve` with ``sdf=None``: the exact labeller's nearest-free search (its docs)."""
     if robot is None:
         raise InputError("resolve(sdf=None) searches with the exact labeller alone and needs robot= (the scene)")
-    _, robot = field_at_layout(None, robot, scene)
+    _, robot = field_at_layout(None, robot, layout)
     robot = with_margin(robot, margin)
     q0 = poses_within_limits(robot, poses)
     limits = Limits.of(robot)
@@ -348,11 +347,10 @@ def _resolve_exact(poses, robot, scene, margin, start: float) -> ResolveResult:
                          history=[dict(round="exact search", threshold=float("nan"), certified=int(certified.sum()))])
 
 
-@renamed_arguments(max_iters="iterations", refine_iters="refine_iterations")
 def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iterations: int | None = None, *,
             method: Method = "project", shrink: bool = True, robot: Robot | None = None, refine: bool = True,
             refine_rounds: int = 4, refine_step: float = 0.1, refine_iterations: int | None = None,
-            scene=None, margin: float = CLEARANCE) -> ResolveResult:
+            layout=None, margin: float = CLEARANCE) -> ResolveResult:
     """Resolve collisions of ``poses`` (B, K) (radians / metres, within joint limits) with the
     learned field ``sdf``, all poses in one batch (module docs).
 
@@ -394,8 +392,8 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     """
     start = time.perf_counter()
     if sdf is None:
-        return _resolve_exact(poses, robot, scene, margin, start)
-    sdf, robot = field_at_layout(sdf, robot, scene)
+        return _resolve_exact(poses, robot, layout, margin, start)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     robot = with_margin(field_robot(sdf, robot), margin)
     q0 = poses_within_limits(robot, poses)
     l_thres = finite("l_thres", l_thres)

@@ -23,22 +23,20 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 import numpy as np
 import torch
 
-from ..certification import CLEARANCE, PathCheck, check_path
-from ..deprecation import deprecated_alias
+from ..exact.certification import CLEARANCE, PathCheck, check_path
 from ..errors import InputError, InputTypeError
 from ..field.identity import field_robot
 from ..field.layout import field_at_layout
-from ..joints import Limits
-from ..labels import interpolate
-from ..robot import Robot
-from ..validate import finite, positive, poses_within_limits, with_margin
+from ..kinematics.limits import Limits
+from ..exact.labels import interpolate
+from ..robot.robot import Robot
+from ..robot.gate import finite, positive, poses_within_limits, with_margin
 from .paths import PenaltyOptions, TangentOptions, penalty_descent, smooth_certified, tangent_walk, unwrap_path
 
 __all__ = ["plan_trajectory", "TrajectoryResult", "trajectory_result", "PenaltyOptions", "TangentOptions"]
@@ -85,9 +83,6 @@ class TrajectoryResult:
     smoothed: bool = False
     length_before: float = float("nan")                 # the resampled planner path's length
 
-    free = deprecated_alias("certified")
-    initial_free = deprecated_alias("initial_certified")
-
     @property
     def relative_length(self) -> float:
         return self.length / self.straight_length if self.straight_length > 0 else 1.0
@@ -125,7 +120,7 @@ def trajectory_result(robot: Robot, path: np.ndarray, check: PathCheck, *, g: np
 def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, options: dict) -> list:
     """A certified planner path per problem, resampled to ``steps`` waypoints (None when the
     planner found none, or needs more waypoints than ``steps``)."""
-    from ..planning import plan_path, resample_path
+    from ..exact.planning import plan_path, resample_path
 
     out = []
     for b in range(len(s)):
@@ -135,21 +130,11 @@ def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, optio
     return out
 
 
-# The flat keyword arguments of earlier releases, each mapped to where it lives now.
-_LEGACY = {
-    "gamma1": ("penalty", "gamma1"), "gamma2": ("penalty", "gamma2"), "gamma3": ("penalty", "gamma3"),
-    "lr": ("penalty", "lr"), "iterations": ("penalty", "iterations"), "check_every": ("penalty", "check_every"),
-    "refine_step": ("penalty", "refine_step"), "midpoints": ("penalty", "midpoints"),
-    "delta": ("tangent", "delta"), "band": ("tangent", "band"), "tangent_iters": ("tangent", "iterations"),
-    "tol": ("tangent", "tol"), "goal_norm": ("tangent", "goal_norm"), "smooth_iters": ("smooth_iterations", None),
-}
-
-
 def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
                     init: Init = "auto", planner: dict | None = None, penalty: PenaltyOptions | None = None,
                     tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
-                    density: int = 10, scene=None, frame: str | None = None, frame_targets: dict | None = None,
-                    margin: float = CLEARANCE, **legacy):
+                    density: int = 10, layout=None, frame: str | None = None, frame_targets: dict | None = None,
+                    margin: float = CLEARANCE):
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
     list of B results, optimised together.
@@ -170,8 +155,8 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     Algorithm 1, :func:`~profrobot.optim.paths.tangent_walk` with ``tangent`` (a
     :class:`~profrobot.optim.TangentOptions`). ``l_thres``: the field threshold of the default
     options. ``density``: only for the older sampled certificate (``check_path(...,
-    method="sampled")``); the certificate of every result is continuous and needs none (kept for
-    the options of earlier releases). ``robot``: the labeller's robot (default: the field's own).
+    method="sampled")``, and the default ``PenaltyOptions``); the certificate of every result is
+    continuous and needs none. ``robot``: the labeller's robot (default: the field's own).
 
     End-effector terms: ``frame_targets`` ``{waypoint index: (4, 4) world transform or (3,)
     position}`` of ``frame`` (a site, body or geom) at interior waypoints (one problem, not a
@@ -181,17 +166,14 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
 
     ``margin``: metres every certified path keeps from the obstacles (:mod:`profrobot.margin`;
     an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`).
-
-    The flat options of earlier releases (``gamma1``, ``lr``, ``iterations``, ``delta``,
-    ``tangent_iters``, ``smooth_iters``, ...) still work, with a DeprecationWarning.
     """
     t0 = time.perf_counter()
     if frame_targets is not None or frame is not None:
         return _through_frame_targets(sdf, start, goal, steps, method, robot=robot, init=init, planner=planner,
                                       penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations,
-                                      l_thres=l_thres, density=density, scene=scene, frame=frame,
-                                      frame_targets=frame_targets, margin=margin, legacy=legacy, t0=t0)
-    sdf, robot = field_at_layout(sdf, robot, scene)
+                                      l_thres=l_thres, density=density, layout=layout, frame=frame,
+                                      frame_targets=frame_targets, margin=margin, t0=t0)
+    sdf, robot = field_at_layout(sdf, robot, layout)
     if sdf is None:
         if not isinstance(robot, Robot):
             raise InputError("plan_trajectory(sdf=None) plans with the exact labeller alone and needs robot=")
@@ -208,7 +190,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
         raise InputTypeError(f"planner must be a dict of plan_path options; got {type(planner).__name__}")
     l_thres = finite("l_thres", l_thres)
     density = positive("density", density, integer=True)
-    penalty, tangent, smooth_iterations = _options(legacy, penalty, tangent, smooth_iterations, l_thres, density)
+    penalty, tangent, smooth_iterations = _options(penalty, tangent, smooth_iterations, l_thres, density)
     single = np.ndim(start) == 1 and np.ndim(goal) == 1
     s = poses_within_limits(robot, start, "start")
     g = poses_within_limits(robot, goal, "goal")
@@ -273,7 +255,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
 
 
 def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, planner, penalty, tangent,
-                           smooth_iterations, l_thres, density, scene, frame, frame_targets, margin, legacy, t0):
+                           smooth_iterations, l_thres, density, layout, frame, frame_targets, margin, t0):
     """:func:`plan_trajectory` with end-effector targets at interior waypoints (its docs)."""
     from .frames import FrameTargets
 
@@ -282,7 +264,7 @@ def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, plan
                          "({waypoint index: target})")
     if np.ndim(start) != 1 or np.ndim(goal) != 1:
         raise InputError("frame_targets= plans one problem: start and goal must be single poses (K,)")
-    sdf_l, robot_l = field_at_layout(sdf, robot, scene)
+    sdf_l, robot_l = field_at_layout(sdf, robot, layout)
     robot_l = robot_l if sdf_l is None else field_robot(sdf_l, robot_l)
     robot_l = with_margin(robot_l, margin)
     steps = positive("steps", steps, integer=True)
@@ -305,7 +287,7 @@ def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, plan
             continue
         sub = plan_trajectory(sdf_l, fixed[a], fixed[b], b - a + 1, method, robot=robot_l, init=init, planner=planner,
                               penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations, l_thres=l_thres,
-                              density=density, **legacy)
+                              density=density)
         results.append(sub)
         pieces.append(sub.path[1:])
     path = np.concatenate(pieces)
@@ -325,30 +307,15 @@ def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, plan
                              length_before=float("nan"))
 
 
-def _options(legacy: dict, penalty: PenaltyOptions | None, tangent: TangentOptions | None, smooth_iterations: int,
+def _options(penalty: PenaltyOptions | None, tangent: TangentOptions | None, smooth_iterations: int,
              l_thres: float, density: int) -> tuple[PenaltyOptions, TangentOptions, int]:
     """The options of one call: explicit dataclasses, else defaults with ``l_thres`` and
-    ``density``, with any flat keyword of earlier releases mapped in (DeprecationWarning)."""
-    unknown = sorted(set(legacy) - set(_LEGACY))
-    if unknown:
-        raise InputTypeError(f"plan_trajectory() got unexpected keyword argument(s) {unknown}")
+    ``density``."""
     if penalty is not None and not isinstance(penalty, PenaltyOptions):
         raise InputTypeError(f"penalty must be a profrobot.optim.PenaltyOptions; got {type(penalty).__name__}")
     if tangent is not None and not isinstance(tangent, TangentOptions):
         raise InputTypeError(f"tangent must be a profrobot.optim.TangentOptions; got {type(tangent).__name__}")
-    fields: dict[str, dict] = {"penalty": {}, "tangent": {}}
-    for name, value in legacy.items():
-        where, field_name = _LEGACY[name]
-        new = f"smooth_iterations={value!r}" if where == "smooth_iterations" else \
-            f"{where}={'Penalty' if where == 'penalty' else 'Tangent'}Options({field_name}=...)"
-        warnings.warn(f"plan_trajectory({name}=...) is deprecated; pass {new}", DeprecationWarning, stacklevel=3)
-        if where == "smooth_iterations":
-            smooth_iterations = value
-        else:
-            fields[where][field_name] = value
-    penalty = dataclasses.replace(penalty, **fields["penalty"]) if penalty is not None else \
-        PenaltyOptions(**{"l_thres": l_thres, "density": density, **fields["penalty"]})
-    tangent = dataclasses.replace(tangent, **fields["tangent"]) if tangent is not None else \
-        TangentOptions(**{"l_thres": l_thres, **fields["tangent"]})
+    penalty = penalty if penalty is not None else PenaltyOptions(l_thres=l_thres, density=density)
+    tangent = tangent if tangent is not None else TangentOptions(l_thres=l_thres)
     smooth_iterations = positive("smooth_iterations", smooth_iterations, integer=True, allow_zero=True)
     return penalty, tangent, smooth_iterations

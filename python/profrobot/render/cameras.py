@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
 from pathlib import Path
 
 import mujoco
@@ -121,28 +120,28 @@ class Cameras:
 
     def __init__(self, *args, **kwargs):
         """``Cameras(K, world_to_cam, width, height, *, distortion=None)``: as :meth:`from_opencv`.
-        (The free-camera form of earlier releases, ``Cameras(lookat, distance, azimuth,
-        elevation, width, height, fovy)``, still works, with a DeprecationWarning.)"""
-        second = args[1] if len(args) > 1 else kwargs.get("world_to_cam", kwargs.get("distance"))
-        if "lookat" in kwargs or "distance" in kwargs or (second is not None and np.ndim(second) <= 1):
-            warnings.warn("Cameras(lookat, distance, azimuth, elevation, ...) is deprecated; use Cameras.free(...) "
-                          "(or Cameras.from_opencv(K, world_to_cam, width, height) for a calibrated camera)",
-                          DeprecationWarning, stacklevel=2)
-            c = Cameras.free(*args, **kwargs)
-            for k in self.__slots__:
-                object.__setattr__(self, k, getattr(c, k))
-            return
+        MuJoCo free cameras (``lookat``, ``distance``, ``azimuth``, ``elevation``) are
+        :meth:`Cameras.free`."""
+        free = "MuJoCo free cameras are Cameras.free(lookat, distance, azimuth, elevation, width, height, fovy)"
         names = ("K", "world_to_cam", "width", "height")
         if len(args) > 4:
-            raise InputError(f"Cameras: at most 4 positional arguments (K, world_to_cam, width, height); got {len(args)}")
+            raise InputError(f"Cameras: at most 4 positional arguments (K, world_to_cam, width, height); got {len(args)}; "
+                             f"{free}")
         given = dict(zip(names, args))
         for k, v in kwargs.items():
             if k not in (*names, "distortion") or k in given:
-                raise InputError(f"Cameras: unexpected or repeated argument {k!r}")
+                raise InputError(f"Cameras: unexpected or repeated argument {k!r}"
+                                 + (f"; {free}" if k in (*_FREE_KEYS, "fovy") else ""))
             given[k] = v
         missing = [k for k in names if k not in given]
         if missing:
             raise InputError(f"Cameras: missing {missing} (Cameras(K, world_to_cam, width, height))")
+        try:
+            ndim = np.ndim(given["world_to_cam"])
+        except (TypeError, ValueError):
+            ndim = None                                     # _init names the argument
+        if ndim is not None and ndim < 2:
+            raise InputError(f"Cameras: world_to_cam must be (4, 4) or (C, 4, 4); got {ndim} dimension(s); {free}")
         self._init(given["K"], given["world_to_cam"], given["width"], given["height"], given.get("distortion"), None,
                    "Cameras")
 

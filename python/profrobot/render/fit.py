@@ -23,11 +23,10 @@ import torch
 import torch.nn.functional as F
 
 from ..files import check_robot
-from ..kinematics import quat_to_matrix
+from ..kinematics.fk import quat_to_matrix
 from .gaussians import GaussianRobot
 from .rasterize import Backend
 from .views import Views
-from ..deprecation import renamed_arguments
 
 __all__ = ["fit_gaussians", "ssim", "image_losses"]
 
@@ -165,7 +164,6 @@ def visibility(model: GaussianRobot, views: Views, max_sets: int = 64, seed: int
     return best
 
 
-@renamed_arguments(iters="iterations")
 def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, cams_per_step: int = 4, w_ssim: float = 0.2,
                   w_depth: float = 1.0, w_mask: float = 0.5, densify_every: int = 100, densify_until: float = 0.7,
                   densify_top: float = 0.05, max_gaussians: int = 30000, min_opacity: float = 0.02,

@@ -34,12 +34,11 @@ import mujoco
 import numpy as np
 import torch
 
-from ..kinematics import Kinematics, quat_to_matrix
+from ..kinematics.fk import Kinematics, quat_to_matrix
 from ..files import atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, MissingFileError
 from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
 from ..errors import InputError
-from ..deprecation import deprecated_alias
 
 __all__ = ["GaussianRobot", "frozen", "pose_only", "sample_visual_surface"]
 
@@ -205,9 +204,6 @@ class GaussianRobot(torch.nn.Module):
     Build with :meth:`from_robot`; :meth:`render` draws poses from cameras; :meth:`save` /
     :meth:`load` keep a fitted model (safetensors + JSON, robot fingerprint checked).
     """
-
-    limits = deprecated_alias("joint_limits")
-    robot_fingerprint = deprecated_alias("fingerprint")
 
     def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
                  opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid", canonical=None,

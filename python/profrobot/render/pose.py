@@ -27,7 +27,6 @@ pose of a camera can stay off by a fraction of a degree while the robot's poses 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 from collections.abc import Callable
 
@@ -35,13 +34,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ..joints import Limits
+from ..kinematics.limits import Limits
 from .gaussians import GaussianRobot, pose_only
 from .targets import ImageTargets, as_pinhole_targets, pose_loss
 from .cameras import Cameras
-from ..deprecation import deprecated_alias, renamed_arguments
 from ..errors import InputError
-from ..validate import positive
+from ..robot.gate import positive
 
 __all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets", "ImageTargets", "rigid_motions"]
 
@@ -62,8 +60,6 @@ class PoseFit:
     iterations: int = 0
     cameras: Cameras | None = None
     camera_motion: np.ndarray | None = None
-
-    theta = deprecated_alias("poses")
 
 
 def downsample_targets(targets: dict, factor: int) -> dict:
@@ -186,13 +182,11 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
     else:
         cameras_c = cameras
         Hc, Wc = H, W
-    if "iters" in coarse:   # the name of earlier releases
-        warnings.warn("fit_pose(coarse=dict(iters=...)) is deprecated; use iterations=...", DeprecationWarning,
-                      stacklevel=5)   # _coarse_to_fine < fit_pose < pose_only < renamed_arguments < the caller
-        coarse["iterations"] = coarse.pop("iters")
-    unknown = set(coarse) - {"iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask"}
+    known = ("iterations", "lr", "restarts", "restart_sigma", "w_depth", "w_mask")
+    unknown = set(coarse) - set(known)
     if unknown:
-        raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)}")
+        raise InputError(f"fit_pose: unknown coarse-stage options {sorted(unknown)} in coarse=; "
+                         f"known: factor, {', '.join(known)}")
     kw = {k: fine[k] for k in ("lr", "w_depth", "w_mask", "extra_loss", "background", "seed", "progress")} | coarse
     c = _fit(model, downsample_targets(targets, factor), cameras_c.resized(Wc // factor, Hc // factor), init, **kw)
     f = _fit(model, fine_targets, fine_cameras, torch.as_tensor(c.poses, dtype=torch.float32), **fine)
@@ -200,7 +194,6 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
                    all_losses=c.all_losses)
 
 
-@renamed_arguments(iters="iterations")
 @pose_only
 def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iterations: int = 100, lr: float = 0.02,
              restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,

@@ -17,7 +17,6 @@ import numpy as np
 
 from ..errors import CorruptFileError, InputError, InputTypeError
 from ..executors import chunk_bounds, chunk_sizes, check_executor
-from ..deprecation import deprecated_alias
 from ..files import atomic_path, check_format, check_robot, format_tag
 from .cameras import Cameras, ring_cameras, sphere_cameras  # noqa: F401  (their home before the split)
 from .mjviews import render_depth_chunk, render_views_chunk, robot_visual_model
@@ -43,9 +42,6 @@ class Views:
     fingerprint: str = ""
     robot_name: str = ""
     metadata: dict = field(default_factory=dict)
-
-    robot_fingerprint = deprecated_alias("fingerprint")
-    meta = deprecated_alias("metadata")
 
     def __len__(self) -> int:
         return len(self.poses)

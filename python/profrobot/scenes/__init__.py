@@ -30,7 +30,7 @@ import numpy as np
 
 import math
 
-from ..family import Moves
+from ..robot.family import Moves
 from ..robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere
 from ..errors import InputError
 

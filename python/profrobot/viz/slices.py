@@ -32,7 +32,7 @@ def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarra
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ..labels import label_poses
+    from ..exact.labels import label_poses
 
     i, j = (int(k) for k in joints)
     K = robot.njoint

@@ -25,13 +25,13 @@ import time
 import mujoco
 import numpy as np
 
-from ..certification import certify_motions, certify_poses
+from ..exact.certification import certify_motions, certify_poses
 from ..errors import BackendUnavailableError, InputError, InputTypeError
-from ..ik import frame_of, ik
-from ..labels import interpolate, label_poses
-from ..margin import obstacle_bodies
-from ..robot import Robot
-from ..validate import as_poses
+from ..exact.ik import frame_of, ik
+from ..exact.labels import interpolate, label_poses
+from ..robot.margin import obstacle_bodies
+from ..robot.robot import Robot
+from ..robot.gate import as_poses
 
 __all__ = ["Viewer", "VERDICT_COLOURS", "ROBOT_COLOUR", "CONTACT_COLOUR", "OBSTACLE_COLOUR"]
 
@@ -447,7 +447,7 @@ class Viewer:
         self.server.stop()
 
     def __reduce__(self):
-        raise TypeError("a Viewer is a live server and does not pickle: pickle its robot (viewer.robot) and pose "
+        raise InputTypeError("a Viewer is a live server and does not pickle: pickle its robot (viewer.robot) and pose "
                         "(viewer.pose), and start a Viewer from them where they are unpickled")
 
     def __enter__(self) -> "Viewer":

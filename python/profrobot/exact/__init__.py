@@ -1,0 +1,11 @@
+"""The exact layer (torch-free): answers from the Rust core's labeller, never from a learned field.
+
+- :mod:`.labels`: sampling, exact labels (:func:`label_poses`), the booleans-only :func:`collides`;
+- :mod:`.certification`: poses and motions certified free (conservative advancement);
+- :mod:`.planning`: global paths (RRT-Connect on the labeller, certified continuously);
+- :mod:`.ik`: certified inverse kinematics and motions to a pose;
+- :mod:`.oracle`: the nearest free pose (the Δθ yardstick);
+- :mod:`.problems`: benchmark problems (colliding, free poses, hard pairs);
+- :mod:`.dataset`: labelled datasets on disk;
+- :mod:`.crosscheck`: the same poses through MuJoCo's ``mj_collision``.
+"""
