@@ -10,7 +10,7 @@
 
 use std::io::Write;
 
-use profrobot::collide::{label_batch, label_pose, LabelBatch, LabelOptions, Scratch};
+use profrobot::collision::collide::{label_batch, label_pose, LabelBatch, LabelOptions, Scratch};
 use profrobot::{sample_uniform, ModelDesc, RobotModel};
 
 fn main() {
@@ -35,7 +35,7 @@ fn main() {
         return;
     }
     // (as the Python entry points label: skipping the pairs proven apart)
-    profrobot::motion::prove_apart(&model);
+    profrobot::planning::motion::prove_apart(&model);
     let mut s = Scratch::new(&model);
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     // (through the batch, as users label: poses placed four at a time; `ONE=1`: one at a time)

@@ -12,8 +12,8 @@
 //! the best of R timed runs in microseconds a pose (one thread; a quiet machine, load average
 //! beside it).
 
-use profrobot::collide::{label_batch, LabelOptions};
-use profrobot::fastpath::{collides_batch, likely_pairs};
+use profrobot::collision::collide::{label_batch, LabelOptions};
+use profrobot::collision::fastpath::{collides_batch, likely_pairs};
 use profrobot::{sample_uniform, ModelDesc, RobotModel};
 
 #[inline(never)]
@@ -40,7 +40,7 @@ fn main() {
     likely_pairs(&model); // computed once per model, outside the count
     if std::env::var_os("NO_APART").is_none() {
         let t = std::time::Instant::now();
-        profrobot::motion::prove_apart(&model); // likewise
+        profrobot::planning::motion::prove_apart(&model); // likewise
         eprintln!("prove_apart: {:.3} s", t.elapsed().as_secs_f64());
     }
     // One thread: the batches run inline in a pool of one.

@@ -1,4 +1,4 @@
-//! The one error type of the core; `python.rs` maps it to `profrobot.errors`' classes
+//! The one error type of the core; `bindings/errors.rs` maps it to `profrobot.errors`' classes
 //! (`ModelError`, `InputError`: ValueErrors and ProfrobotErrors).
 
 /// Everything the core can reject. Messages name the offending item so that the Python

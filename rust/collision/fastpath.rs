@@ -1,0 +1,369 @@
+//! The booleans-only fast path: whether each pose collides, stopping at the first pair in
+//! contact, with the likeliest pairs tried first.
+//!
+//! # Same answer as `label_pose`
+//! `label_pose(..).collides()` is "some candidate pair is in contact", each pair decided by
+//! `collide::Scratch::in_contact`, a pure function of the pose; which pairs the broad phase lets
+//! through does not change it (`model/broad.rs`: a pair it drops is one the narrow phase would find
+//! apart). Here every pair is decided by the same function on the same frames, and "some pair
+//! is in contact" does not depend on the order in which pairs are tried, nor on stopping at
+//! the first that is; pairs tried early are skipped later (`Scratch::tested`), never decided
+//! twice. So the answer is `label_pose`'s, bit for bit, whatever the order.
+//!
+//! # Order
+//! 1. the pair that hit on the previous pose of this thread (nearby poses, as in a bisection
+//!    or along a path, tend to hit the same pair);
+//! 2. the model's likely pairs (`likely_pairs`): a greedy cover of the colliding poses of a
+//!    seeded sample, so that one of the first few pairs tried is in contact in most colliding
+//!    poses; each behind its own bounding-sphere test;
+//! 3. the rest, through the broad phase.
+//!
+//! Free poses cost what `label_pose` costs (every pair must be cleared); colliding poses
+//! usually stop after one or two narrow-phase tests.
+//!
+//! A pair the narrow phase cannot decide is an error here too (`collision/collide.rs`, "never free"):
+//! `collides_pose` stops at it, and `collides_batch` fails naming the pose and the pair. (A pose
+//! with another pair in contact may stop at that pair first and answer `true`, which is right
+//! whatever the undecided pair would say.)
+
+use rayon::prelude::*;
+
+use crate::collision::collide::{first_error, label_pose, LabelOptions, Scratch, Scratch4, Undecided};
+use crate::error::Result;
+use crate::joints::sample::{fill_block, BLOCK};
+use crate::model::broad::check_clearance;
+use crate::model::RobotModel;
+
+/// Poses per parallel work item (fixed, so the split never depends on the thread count).
+const CHUNK: usize = 256;
+
+/// Sample behind `likely_pairs`: poses, seed.
+const SAMPLE_POSES: usize = 512;
+const SAMPLE_SEED: u64 = 0x6c69_6b65_6c79; // "likely"
+
+/// At most this many likely pairs (each costs every free pose a sphere test); a pair joins
+/// only if it is in contact in at least `MIN_SHARE` of the sample's colliding poses that no
+/// earlier pair covers. (16 and 0.5%: within 2% of the fewest instructions per pose of the
+/// settings tried, 4 to 48 pairs and 0.5% to 2%, on every bundled scene.)
+const MAX_LIKELY: usize = 16;
+const MIN_SHARE: f64 = 0.005;
+
+/// No pair (`Scratch::last_hit` before any hit).
+const NO_PAIR: u32 = u32::MAX;
+
+/// Whether some candidate pair of pose `q` (length K) `fails` (a pure function of the placed
+/// pose and the pair; its flag, whether the four-pose broad phase's box tests kept the pair,
+/// only lets it skip a filter), trying pairs in the fast path's order (module docs) and stopping at the
+/// first that fails; `Err` for a pair `fails` cannot decide, met before any that fails.
+fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails: F) -> std::result::Result<bool, Undecided>
+where
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
+{
+    likely_pair_fails(model, q, s, &mut fails).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
+}
+
+/// `some_pair_fails`' first phase, on the last pair hit and the likely pairs: `Some` when one
+/// of them fails (or cannot be decided), `None` when the near pairs must be tried
+/// (`near_pair_fails`, on the same placed pose).
+fn likely_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> Option<std::result::Result<bool, Undecided>>
+where
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
+{
+    let pose = s.pose_stamp();
+    let last = s.last_hit;
+    let first = (last != NO_PAIR).then_some(last);
+    // (a pair proven clear at this pose's joint value fails no test: `motion::prove_apart`)
+    let apart = model.apart();
+    let proven = |k: usize| apart.is_some_and(|a| a[k].holds(q));
+    for k in first.into_iter().chain(likely_pairs(model).iter().copied()) {
+        let k = k as usize;
+        if s.tested[k] == pose {
+            continue;
+        }
+        s.tested[k] = pose;
+        if model.broad.may_touch(&s.broad, k) && !proven(k) {
+            match fails(s, k, false) {
+                Ok(false) => {}
+                hit => {
+                    if hit.is_ok() {
+                        s.last_hit = k as u32;
+                    }
+                    return Some(hit);
+                }
+            }
+        }
+    }
+    None
+}
+
+/// `some_pair_fails`' second phase: the near pairs the first did not try.
+fn near_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, fails: &mut F) -> std::result::Result<bool, Undecided>
+where
+    F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
+{
+    let pose = s.pose_stamp();
+    let apart = model.apart();
+    let proven = |k: usize| apart.is_some_and(|a| a[k].holds(q));
+    let (near, boxed) = s.take_near(model);
+    let mut hit = Ok(false);
+    for &k in &near {
+        if s.tested[k as usize] != pose && !proven(k as usize) {
+            hit = fails(s, k as usize, boxed);
+            if hit != Ok(false) {
+                if hit.is_ok() {
+                    s.last_hit = k;
+                }
+                break;
+            }
+        }
+    }
+    s.near = near;
+    hit
+}
+
+/// `per_pose` on each pose of a `(B, K)` row-major batch, in pose order, in parallel on rayon's
+/// current pool, four `Scratch`es per work item (`collide::Scratch4`). `per_pose` runs in two
+/// phases (`likely_pair_fails`, then `near_pair_fails` where the first decides nothing), so
+/// that the near pairs of four poses are found at once, and only when one of them needs them.
+/// Every pose is decided alone, so the result does not depend on the number of threads; the
+/// first undecided pose is the error, named.
+fn batch<F1, F2>(model: &RobotModel, poses: &[f64], first: F1, second: F2) -> Result<Vec<bool>>
+where
+    F1: Fn(&[f64], &mut Scratch) -> Option<std::result::Result<bool, Undecided>> + Sync,
+    F2: Fn(&[f64], &mut Scratch) -> std::result::Result<bool, Undecided> + Sync,
+{
+    model.check_poses(poses)?;
+    let k = model.njoint();
+    likely_pairs(model);
+    let chunks: Vec<Result<Vec<bool>>> = poses
+        .par_chunks(CHUNK * k)
+        .enumerate()
+        .map_init(
+            || Scratch4::new(model),
+            |s, (c, chunk)| {
+                let mut out = Vec::with_capacity(chunk.len() / k);
+                s.for_each_lazy(
+                    model,
+                    chunk,
+                    false,
+                    |_, q, s| first(q, s),
+                    |_, q, s| second(q, s),
+                    |i, r| {
+                        out.push(r.map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
+                        Ok(())
+                    },
+                )?;
+                Ok(out)
+            },
+        )
+        .collect();
+    Ok(first_error(chunks)?.concat())
+}
+
+/// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
+/// for a pair the narrow phase cannot decide, met before any pair in contact.
+pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    s.place(model, q, false);
+    some_pair_fails(model, q, s, in_contact(model))
+}
+
+/// The pair test of `collides`: in contact (the flag: the pair passed the four-pose box tests,
+/// `Scratch::in_contact_after`).
+fn in_contact(model: &RobotModel) -> impl FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k, boxed| s.in_contact_after(model, k, boxed)
+}
+
+/// The pair test of `certified`: not clear at `clearance`.
+fn not_clear(model: &RobotModel, clearance: f64) -> impl FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided> + '_ {
+    move |s, k, _| s.clear_of(model, k, clearance).map(|clear| !clear)
+}
+
+/// Whether each pose of a `(B, K)` row-major batch collides, in pose order, in parallel on
+/// rayon's current pool. Every pose is decided alone, so the result does not depend on the
+/// number of threads.
+pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
+    batch(
+        model,
+        poses,
+        |q, s| likely_pair_fails(model, q, s, &mut in_contact(model)),
+        |q, s| near_pair_fails(model, q, s, &mut in_contact(model)),
+    )
+}
+
+/// Whether pose `q` (length K) is certified free: no candidate pair in contact and every
+/// candidate pair more than `clearance` (in (0, `MAX_CLEARANCE`]) metres apart, i.e.
+/// `!collides && min_distance > clearance` of `label_pose` with distances, decided pair by pair
+/// (`Scratch::clear_of`) and stopping at the first pair that is not clear, in `collides_pose`'s
+/// order. A pair the broad phase drops is more than `MAX_CLEARANCE` beyond its margin
+/// (`model/broad.rs`), so clear. `Err` for a pair the narrow phase cannot decide, met before any pair
+/// that is not clear.
+pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    s.place(model, q, false);
+    some_pair_fails(model, q, s, not_clear(model, clearance)).map(|fails| !fails)
+}
+
+/// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres
+/// (`certified_pose`), in pose order, in parallel on rayon's current pool; independent of the
+/// number of threads.
+/// A pose the robot cannot take (outside a limit, off a coupling: `RobotModel::feasible`) is
+/// never certified.
+pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Result<Vec<bool>> {
+    check_clearance(clearance)?;
+    // (in `batch`'s terms: a pose "fails" when it is not certified)
+    let fails = batch(
+        model,
+        poses,
+        |q, s| if model.feasible(q) { likely_pair_fails(model, q, s, &mut not_clear(model, clearance)) } else { Some(Ok(true)) },
+        |q, s| near_pair_fails(model, q, s, &mut not_clear(model, clearance)),
+    )?;
+    Ok(fails.into_iter().map(|fails| !fails).collect())
+}
+
+/// The model's likely pairs, computed on first use (on the calling thread, without rayon:
+/// a worker that waits here can never be asked to run this initialisation itself).
+pub fn likely_pairs(model: &RobotModel) -> &[u32] {
+    model.likely_pairs.get_or_init(|| greedy_cover(model))
+}
+
+/// A greedy cover of the colliding poses of a seeded uniform sample: repeatedly the pair in
+/// contact in the most colliding poses that no earlier pair covers (ties: the lower index).
+/// Empty when the model has no sampling ranges (an unlimited slide joint). A sample pose the
+/// narrow phase cannot decide is left out: the cover only orders pairs, it labels nothing (the
+/// caller's own call on such a pose fails).
+fn greedy_cover(model: &RobotModel) -> Vec<u32> {
+    let Ok(ranges) = model.sampling_ranges() else {
+        return Vec::new();
+    };
+    let k = ranges.len();
+    if k == 0 || model.pairs.is_empty() {
+        return Vec::new();
+    }
+    let mut poses = vec![0.0; SAMPLE_POSES * k];
+    for (c, block) in poses.chunks_mut(BLOCK * k).enumerate() {
+        fill_block(&ranges, SAMPLE_SEED, c, block);
+    }
+    let mut scratch = Scratch::new(model);
+    let opts = LabelOptions { pairs: true, distance: false };
+    // Per pair, the colliding sample poses it is in contact in.
+    let mut poses_of: Vec<Vec<u32>> = vec![Vec::new(); model.pairs.len()];
+    let mut hits = Vec::new();
+    let mut colliding = 0usize;
+    for (i, q) in poses.chunks_exact(k).enumerate() {
+        hits.clear();
+        if label_pose(model, q, &mut scratch, opts, &mut hits).is_ok_and(|l| l.collides()) {
+            colliding += 1;
+            for &p in &hits {
+                poses_of[p as usize].push(i as u32);
+            }
+        }
+    }
+    let min_gain = ((colliding as f64 * MIN_SHARE).ceil() as usize).max(1);
+    let mut covered = vec![false; SAMPLE_POSES];
+    let mut order = Vec::new();
+    while order.len() < MAX_LIKELY {
+        let gain = |p: &[u32]| p.iter().filter(|&&i| !covered[i as usize]).count();
+        let Some((best, n)) = poses_of.iter().enumerate().map(|(p, of)| (p, gain(of))).rev().max_by_key(|&(_, n)| n) else {
+            break;
+        };
+        if n < min_gain {
+            break;
+        }
+        for &i in &poses_of[best] {
+            covered[i as usize] = true;
+        }
+        order.push(best as u32);
+    }
+    order
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collision::collide::label_batch;
+    use crate::joints::sample::sample_uniform;
+    use crate::model::desc::ModelDesc;
+
+    #[test]
+    fn fast_path_agrees_with_the_labels_on_any_thread_count() {
+        let mut desc = ModelDesc::example_pendulum();
+        desc.body_pos[1][2] = 0.45; // the bob reaches 0.05 below the floor when hanging
+        let model = RobotModel::new(desc).unwrap();
+        let poses = sample_uniform(&model.sampling_ranges().unwrap(), 5000, 2).unwrap();
+        let labels = label_batch(&model, &poses, LabelOptions::default()).unwrap();
+        let want: Vec<bool> = labels.labels.iter().map(|l| l.collides()).collect();
+        assert!(want.iter().any(|&c| c) && want.iter().any(|&c| !c));
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            assert_eq!(pool.install(|| collides_batch(&model, &poses).unwrap()), want);
+        }
+        assert_eq!(likely_pairs(&model), &[0]);
+    }
+
+    /// Certification agrees with the labels' "not colliding and min_distance > clearance" on a
+    /// pendulum whose bob passes 0.05 m below the floor, at poses spread over the circle and
+    /// packed around the two poses where the bob just touches it (distances from -2e-6 to 2e-6
+    /// m, so several fall within the clearance), for clearances 1e-9, 1e-7 and 1e-6, and with
+    /// no margin, a positive one, and a negative one (regression: the broad phase used to drop
+    /// a pair with a negative margin that was within the clearance, which the labels measure).
+    #[test]
+    fn certification_agrees_with_the_labelled_distances() {
+        for margins in [[0.0, 0.0], [0.01, 0.005], [-0.01, 0.0]] {
+            let mut desc = ModelDesc::example_pendulum();
+            desc.body_pos[1][2] = 0.45;
+            desc.geom_margin = margins.to_vec();
+            let model = RobotModel::new(desc).unwrap();
+            let mut poses = sample_uniform(&model.sampling_ranges().unwrap(), 4000, 3).unwrap();
+            let opts = LabelOptions { pairs: false, distance: true };
+            let labels = label_batch(&model, &poses, opts).unwrap();
+            let dist = |q: f64| label_batch(&model, &[q], opts).unwrap().labels[0].min_distance;
+            // the touching angles: bisect each sign change of the distance along the sample,
+            // then pack poses around each
+            let touch: Vec<f64> = {
+                let mut by_angle: Vec<(f64, f64)> = poses.iter().zip(&labels.labels).map(|(&q, l)| (q, l.min_distance)).collect();
+                by_angle.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let brackets: Vec<(f64, f64)> =
+                    by_angle.windows(2).filter(|w| (w[0].1 > 0.0) != (w[1].1 > 0.0)).map(|w| (w[0].0, w[1].0)).collect();
+                brackets
+                    .into_iter()
+                    .map(|(mut lo, mut hi)| {
+                        let free_lo = dist(lo) > 0.0;
+                        for _ in 0..60 {
+                            let mid = 0.5 * (lo + hi);
+                            if (dist(mid) > 0.0) == free_lo {
+                                lo = mid
+                            } else {
+                                hi = mid
+                            }
+                        }
+                        lo
+                    })
+                    .collect()
+            };
+            assert!(!touch.is_empty());
+            for &t in &touch {
+                poses.extend((-200..=200).map(|i| t + i as f64 * 1e-8));
+            }
+            let labels = label_batch(&model, &poses, opts).unwrap();
+            for clearance in [1e-9, 1e-7, 1e-6] {
+                let want: Vec<bool> = labels.labels.iter().map(|l| !l.collides() && l.min_distance > clearance).collect();
+                let near = labels.labels.iter().filter(|l| l.min_distance.abs() <= 2e-6).count();
+                assert!(near >= 4, "{near} poses within 2e-6 m of contact");
+                for threads in [1, 2] {
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                    let got = pool.install(|| certified_batch(&model, &poses, clearance).unwrap());
+                    assert_eq!(got, want, "margins {margins:?}, clearance {clearance}");
+                }
+            }
+            assert!(certified_batch(&model, &poses, 1e-5).is_err());
+            assert!(certified_batch(&model, &poses, 0.0).is_err());
+            assert!(certified_batch(&model, &poses, f64::NAN).is_err());
+        }
+    }
+
+    #[test]
+    fn bad_poses_are_errors_not_panics() {
+        let model = RobotModel::new(ModelDesc::example_pendulum()).unwrap();
+        assert!(collides_batch(&model, &[]).is_err());
+        assert!(collides_batch(&model, &[f64::INFINITY]).is_err());
+    }
+}

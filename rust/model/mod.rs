@@ -1,0 +1,458 @@
+//! The validated robot: a [`ModelDesc`] checked once and turned into the flat, derived arrays
+//! the hot paths index into (joint frames, shapes, candidate pairs, broad-phase spheres).
+//!
+//! The folder holds the robot as the labeller sees it, below collision: the description
+//! ([`desc`]), the geoms on their bodies ([`geom`]), the candidate pairs ([`pairs`]) and their
+//! broad-phase spheres (`broad`, `sphere_pairs`), derived once here, and forward kinematics
+//! ([`kinematics`], with `trig` and `lanes`).
+
+pub(crate) mod broad;
+pub mod desc;
+pub mod geom;
+pub mod kinematics;
+pub(crate) mod lanes;
+pub mod pairs;
+mod sphere_pairs;
+mod trig;
+
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+
+use std::sync::Arc;
+
+use crate::error::{invalid_input, invalid_model, Result};
+use crate::geometry::cloud::Cloud;
+use crate::geometry::shapes::{GeomShape, GeomType};
+use crate::joints::couplings::{feasible, Couplings};
+use crate::model::broad::Broad;
+/// (Also reachable here, where it lived before `model/desc.rs`.)
+pub use crate::model::desc::ModelDesc;
+use crate::model::desc::{JOINT_HINGE, JOINT_SLIDE};
+use crate::model::geom::Geom;
+use crate::model::pairs::{candidate_pairs, CandidatePair};
+
+/// One joint, ready for forward kinematics.
+#[derive(Clone, Debug)]
+pub struct Joint {
+    pub hinge: bool,
+    pub body: usize,
+    pub anchor: Vector3<f64>,
+    pub axis: Unit<Vector3<f64>>,
+    pub qpos0: f64,
+}
+
+/// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.
+#[derive(Debug)]
+pub struct RobotModel {
+    pub(crate) body_parent: Vec<usize>,
+    pub(crate) body_local: Vec<Isometry3<f64>>,
+    /// Joints of body `b` are `joints[body_joints[b].0 .. body_joints[b].1]`.
+    pub(crate) body_joints: Vec<(usize, usize)>,
+    pub(crate) joints: Vec<Joint>,
+    pub(crate) limits: Vec<[f64; 2]>,
+    pub(crate) limited: Vec<bool>,
+    /// The joint equalities, in dependency order.
+    pub(crate) couplings: Couplings,
+    pub(crate) geoms: Vec<Geom>,
+    pub(crate) pairs: Vec<CandidatePair>,
+    /// Bounding spheres by body pair and by pair, for the per-pose broad phase.
+    pub(crate) broad: Broad,
+    /// The pairs the booleans-only fast path tries first, likeliest first: derived from a
+    /// seeded sample on first use by `collision/fastpath.rs` (a heuristic: no answer depends on it).
+    pub(crate) likely_pairs: std::sync::OnceLock<Vec<u32>>,
+    /// Per candidate pair and joint, the pair's lever, and the pairs' joint chains
+    /// (`motion::Levers`), on first use.
+    pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>)>,
+    /// Per candidate pair whose distance one joint alone changes: that joint and the spans of
+    /// its values over which the pair is proven clear (`planning/spans.rs`); `u32::MAX` and none for
+    /// the other pairs. On first use by `planning/motion.rs`.
+    pub(crate) joint_spans: std::sync::OnceLock<Vec<(u32, Vec<[f64; 2]>)>>,
+    /// Per candidate pair: a box of one or two joints' values over which the pair is proven
+    /// clear (a one-joint pair's widest of `joint_spans`, or a two-joint pair's whole sampling
+    /// box; `Apart::NONE` for the others), so that labelling, the fast paths and motion
+    /// certificates skip the pair in any pose (or motion) inside it (`Apart::holds`). Set by
+    /// `motion::prove_apart`; unset, nothing is skipped.
+    pub(crate) apart: std::sync::OnceLock<Vec<Apart>>,
+    /// The broad phase's four-pose lists without the pairs `apart` proves clear over the whole
+    /// sampling box, and that box: for four poses inside it (`collide::Scratch4`). Set with
+    /// `apart`, where the sampling box exists.
+    pub(crate) pruned4: std::sync::OnceLock<Pruned4>,
+}
+
+/// `RobotModel::pruned4`.
+#[derive(Debug)]
+pub(crate) struct Pruned4 {
+    pub lists: crate::model::broad::Lists4,
+    /// Per joint, the sampling range (`RobotModel::sampling_ranges`).
+    pub ranges: Vec<[f64; 2]>,
+}
+
+impl Pruned4 {
+    /// Whether pose `q` (length K) lies inside the sampling box.
+    #[inline]
+    pub(crate) fn inside(&self, q: &[f64]) -> bool {
+        q.iter().zip(&self.ranges).all(|(&v, r)| r[0] <= v && v <= r[1])
+    }
+}
+
+/// A candidate pair proven clear while `lo[i] <= q[joints[i]] <= hi[i]` for both entries
+/// (`RobotModel::apart`); an entry with joint `u32::MAX` holds for every pose (a pair one joint
+/// alone moves uses one entry).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Apart {
+    pub joints: [u32; 2],
+    pub lo: [f64; 2],
+    pub hi: [f64; 2],
+}
+
+impl Apart {
+    /// For a pair with no proof.
+    pub(crate) const NONE: Apart = Apart { joints: [u32::MAX; 2], lo: [f64::NAN; 2], hi: [f64::NAN; 2] };
+
+    /// Whether this proves anything.
+    #[cfg(test)]
+    pub(crate) fn some(&self) -> bool {
+        self.joints[0] != u32::MAX
+    }
+
+    /// Whether pose `q` (length K) is inside the proven box: the pair is then clear in it.
+    #[inline]
+    pub(crate) fn holds(&self, q: &[f64]) -> bool {
+        self.covers(q, q)
+    }
+
+    /// Whether the box holds every pose with each joint `j` in `[lo[j], hi[j]]` (a motion's
+    /// sweep, `motion::certify_motion`).
+    #[inline]
+    pub(crate) fn covers(&self, lo: &[f64], hi: &[f64]) -> bool {
+        // (NONE's joints are never read: its comparisons with NaN fail first)
+        let inside = |i: usize| {
+            let j = self.joints[i];
+            j == u32::MAX || (self.lo[i] <= lo[j as usize] && hi[j as usize] <= self.hi[i])
+        };
+        self.lo[0] <= self.hi[0] && inside(0) && inside(1)
+    }
+}
+
+fn check_len(name: &str, got: usize, want: usize) -> Result<()> {
+    if got != want {
+        return invalid_model(format!("{name} has {got} entries, expected {want}"));
+    }
+    Ok(())
+}
+
+fn finite(name: &str, values: &[f64]) -> Result<()> {
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return invalid_model(format!("{name} holds a non-finite value at flat index {i}"));
+    }
+    Ok(())
+}
+
+fn quat(q: [f64; 4]) -> Result<UnitQuaternion<f64>> {
+    let q = nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]);
+    let norm = q.norm();
+    if norm.is_nan() || norm <= 1e-12 {
+        return invalid_model("zero quaternion");
+    }
+    Ok(UnitQuaternion::from_quaternion(q))
+}
+
+fn iso(pos: [f64; 3], q: [f64; 4]) -> Result<Isometry3<f64>> {
+    Ok(Isometry3::from_parts(Translation3::new(pos[0], pos[1], pos[2]), quat(q)?))
+}
+
+impl RobotModel {
+    /// Validates `desc` and derives everything the labeller needs (shapes, candidate pairs).
+    ///
+    /// A point cloud (`desc.cloud`) becomes one more geom, after the MuJoCo geoms: on the world
+    /// body, MuJoCo id -1, its balls in the world frame (`geometry/cloud.rs`); an empty cloud adds nothing.
+    pub fn new(desc: ModelDesc) -> Result<Self> {
+        Self::build(desc, None)
+    }
+
+    /// This model with `desc`'s point cloud instead of its own: `desc` must be the description
+    /// this model was built from, its cloud aside. The MuJoCo geoms' shapes (their hulls) are
+    /// shared, not built again, so a new cloud costs its tree and the candidate pairs.
+    pub fn with_cloud(&self, desc: ModelDesc) -> Result<Self> {
+        Self::build(desc, Some(self))
+    }
+
+    fn build(mut desc: ModelDesc, reuse: Option<&RobotModel>) -> Result<Self> {
+        let nbody = desc.body_parent.len();
+        if nbody == 0 {
+            return invalid_model("no bodies (body 0 must be the world)");
+        }
+        check_len("body_weld", desc.body_weld.len(), nbody)?;
+        check_len("body_pos", desc.body_pos.len(), nbody)?;
+        check_len("body_quat", desc.body_quat.len(), nbody)?;
+        finite("body_pos", desc.body_pos.as_flattened())?;
+        finite("body_quat", desc.body_quat.as_flattened())?;
+        let mut body_parent = Vec::with_capacity(nbody);
+        for (b, &p) in desc.body_parent.iter().enumerate() {
+            let ok = if b == 0 { p == 0 } else { p >= 0 && (p as usize) < b };
+            if !ok {
+                return invalid_model(format!("body {b} has parent {p}; parents must precede children"));
+            }
+            body_parent.push(p as usize);
+        }
+        for (b, &w) in desc.body_weld.iter().enumerate() {
+            if w < 0 || w as usize > b {
+                return invalid_model(format!("body {b} has weld id {w}"));
+            }
+        }
+        let body_local = (0..nbody).map(|b| iso(desc.body_pos[b], desc.body_quat[b])).collect::<Result<Vec<_>>>()?;
+
+        // Joints.
+        let njnt = desc.jnt_type.len();
+        check_len("jnt_body", desc.jnt_body.len(), njnt)?;
+        check_len("jnt_pos", desc.jnt_pos.len(), njnt)?;
+        check_len("jnt_axis", desc.jnt_axis.len(), njnt)?;
+        check_len("jnt_qpos0", desc.jnt_qpos0.len(), njnt)?;
+        check_len("jnt_range", desc.jnt_range.len(), njnt)?;
+        check_len("jnt_limited", desc.jnt_limited.len(), njnt)?;
+        finite("jnt_pos", desc.jnt_pos.as_flattened())?;
+        finite("jnt_axis", desc.jnt_axis.as_flattened())?;
+        finite("jnt_qpos0", &desc.jnt_qpos0)?;
+        let mut joints = Vec::with_capacity(njnt);
+        // Bodies without joints keep the empty range (0, 0).
+        let mut body_joints = vec![(0usize, 0usize); nbody];
+        let mut last_body = 0usize;
+        for j in 0..njnt {
+            let hinge = match desc.jnt_type[j] {
+                JOINT_HINGE => true,
+                JOINT_SLIDE => false,
+                0 => return invalid_model(format!("joint {j} is a free joint; only hinge and slide joints are supported")),
+                1 => return invalid_model(format!("joint {j} is a ball joint; only hinge and slide joints are supported")),
+                t => return invalid_model(format!("joint {j} has unknown type {t}")),
+            };
+            let b = desc.jnt_body[j];
+            if b <= 0 || b as usize >= nbody {
+                return invalid_model(format!("joint {j} sits on body {b}"));
+            }
+            let b = b as usize;
+            if b < last_body {
+                return invalid_model("joints are not grouped by body in body order");
+            }
+            if b != last_body {
+                body_joints[b].0 = j;
+            }
+            body_joints[b].1 = j + 1;
+            last_body = b;
+            let a = Vector3::from(desc.jnt_axis[j]);
+            let norm = a.norm();
+            if norm.is_nan() || norm <= 1e-12 {
+                return invalid_model(format!("joint {j} has a zero axis"));
+            }
+            let [lo, hi] = desc.jnt_range[j];
+            if desc.jnt_limited[j] && !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return invalid_model(format!("joint {j} has an invalid range [{lo}, {hi}]"));
+            }
+            joints.push(Joint {
+                hinge,
+                body: b,
+                anchor: Vector3::from(desc.jnt_pos[j]),
+                axis: Unit::new_normalize(a),
+                qpos0: desc.jnt_qpos0[j],
+            });
+        }
+        // Which bodies belong to the robot: those whose root (child of the world) carries a
+        // joint somewhere in its subtree. Everything else is static scene.
+        let root_of: Vec<usize> = {
+            let mut r = vec![0usize; nbody];
+            for b in 1..nbody {
+                r[b] = if body_parent[b] == 0 { b } else { r[body_parent[b]] };
+            }
+            r
+        };
+        if !desc.jnt_scene.is_empty() {
+            check_len("jnt_scene", desc.jnt_scene.len(), njnt)?;
+        }
+        let mut root_moves = vec![false; nbody];
+        for (j, jnt) in joints.iter().enumerate() {
+            // scene joints move obstacles, not the robot
+            if !desc.jnt_scene.get(j).copied().unwrap_or(false) {
+                root_moves[root_of[jnt.body]] = true;
+            }
+        }
+        let on_robot = |b: usize| b != 0 && root_moves[root_of[b]];
+
+        // Geoms.
+        let ngeom = desc.geom_type.len();
+        check_len("geom_id", desc.geom_id.len(), ngeom)?;
+        check_len("geom_body", desc.geom_body.len(), ngeom)?;
+        check_len("geom_pos", desc.geom_pos.len(), ngeom)?;
+        check_len("geom_quat", desc.geom_quat.len(), ngeom)?;
+        check_len("geom_size", desc.geom_size.len(), ngeom)?;
+        check_len("geom_contype", desc.geom_contype.len(), ngeom)?;
+        check_len("geom_conaffinity", desc.geom_conaffinity.len(), ngeom)?;
+        check_len("geom_margin", desc.geom_margin.len(), ngeom)?;
+        check_len("geom_mesh", desc.geom_mesh.len(), ngeom)?;
+        check_len("mesh_vert_num", desc.mesh_vert_num.len(), desc.mesh_vert_adr.len())?;
+        finite("geom_pos", desc.geom_pos.as_flattened())?;
+        finite("geom_quat", desc.geom_quat.as_flattened())?;
+        finite("geom_size", desc.geom_size.as_flattened())?;
+        finite("geom_margin", &desc.geom_margin)?;
+        finite("mesh_vert", desc.mesh_vert.as_flattened())?;
+        let mut geoms = Vec::with_capacity(ngeom + 1);
+        // (the caller's promise, checked where cheap: the same MuJoCo geoms)
+        let reuse = reuse.filter(|m| {
+            m.geoms.iter().filter(|g| g.mujoco_id >= 0).count() == ngeom
+                && m.geoms.iter().zip(&desc.geom_id).all(|(g, &id)| g.mujoco_id == id)
+        });
+        for g in 0..ngeom {
+            let b = desc.geom_body[g];
+            if b < 0 || b as usize >= nbody {
+                return invalid_model(format!("geom {} sits on body {b}", desc.geom_id[g]));
+            }
+            if let Some(old) = reuse {
+                let o = &old.geoms[g];
+                geoms.push(Geom {
+                    mujoco_id: o.mujoco_id,
+                    body: o.body,
+                    local: o.local,
+                    shape: Arc::clone(&o.shape),
+                    on_robot: on_robot(b as usize),
+                });
+                continue;
+            }
+            let gtype = GeomType::from_mujoco(desc.geom_type[g], desc.geom_id[g])?;
+            let hull_points: Vec<Point3<f64>> = if gtype == GeomType::Mesh {
+                let m = desc.geom_mesh[g];
+                if m < 0 || m as usize >= desc.mesh_vert_adr.len() {
+                    return invalid_model(format!("mesh geom {} names mesh {m}", desc.geom_id[g]));
+                }
+                let adr = desc.mesh_vert_adr[m as usize] as usize;
+                let num = desc.mesh_vert_num[m as usize] as usize;
+                let Some(verts) = desc.mesh_vert.get(adr..adr + num) else {
+                    return invalid_model(format!("mesh {m} vertex range {adr}..{} is out of bounds", adr + num));
+                };
+                verts.iter().map(|v| Point3::from(*v)).collect()
+            } else {
+                Vec::new()
+            };
+            let (shape, axis_fix) = GeomShape::new(gtype, desc.geom_size[g], &hull_points, desc.geom_id[g])?;
+            geoms.push(Geom {
+                mujoco_id: desc.geom_id[g],
+                body: b as usize,
+                local: iso(desc.geom_pos[g], desc.geom_quat[g])? * axis_fix,
+                shape: Arc::new(shape),
+                on_robot: on_robot(b as usize),
+            });
+        }
+        if let Some(cloud) = desc.cloud.take() {
+            if !cloud.margin.is_finite() {
+                return invalid_model(format!("the point cloud's margin is {}", cloud.margin));
+            }
+            let built = Arc::new(Cloud::new(&cloud.points, &cloud.radius)?);
+            if let Some(shape) = GeomShape::cloud(built) {
+                // One more geom for `candidate_pairs`' filters: on the world, MuJoCo id -1.
+                desc.geom_id.push(-1);
+                desc.geom_body.push(0);
+                desc.geom_contype.push(cloud.contype);
+                desc.geom_conaffinity.push(cloud.conaffinity);
+                desc.geom_margin.push(cloud.margin);
+                geoms.push(Geom { mujoco_id: -1, body: 0, local: Isometry3::identity(), shape: Arc::new(shape), on_robot: false });
+            }
+        }
+        if desc.pair_margin.len() != desc.pair_geom.len() {
+            return invalid_model("pair_margin and pair_geom differ in length");
+        }
+        let couplings = Couplings::new(&desc.couplings, njnt)?;
+        let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
+        let broad = Broad::new(nbody, &geoms, &pairs);
+        Ok(Self {
+            body_parent,
+            body_local,
+            body_joints,
+            joints,
+            limits: desc.jnt_range.clone(),
+            limited: desc.jnt_limited.clone(),
+            couplings,
+            geoms,
+            pairs,
+            broad,
+            likely_pairs: std::sync::OnceLock::new(),
+            lever_rows: std::sync::OnceLock::new(),
+            joint_spans: std::sync::OnceLock::new(),
+            apart: std::sync::OnceLock::new(),
+            pruned4: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// The pairs' spans of `motion::prove_apart`, once it has run (else None: no pair is
+    /// skipped).
+    #[inline]
+    pub(crate) fn apart(&self) -> Option<&[Apart]> {
+        self.apart.get().map(Vec::as_slice)
+    }
+
+    /// Number of joints, i.e. the length K of a pose vector.
+    pub fn njoint(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Number of bodies, the world included.
+    pub fn nbody(&self) -> usize {
+        self.body_parent.len()
+    }
+
+    /// The collidable geoms in `ModelDesc` order.
+    pub fn geoms(&self) -> &[Geom] {
+        &self.geoms
+    }
+
+    /// The geom pairs every pose is tested on (after MuJoCo's filters).
+    pub fn pairs(&self) -> &[CandidatePair] {
+        &self.pairs
+    }
+
+    /// Joint ranges `(K, 2)`; unlimited hinges report `[-pi, pi]` (one full turn).
+    pub fn sampling_ranges(&self) -> Result<Vec<[f64; 2]>> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(j, jnt)| {
+                if self.limited[j] {
+                    Ok(self.limits[j])
+                } else if jnt.hinge {
+                    Ok([-std::f64::consts::PI, std::f64::consts::PI])
+                } else {
+                    invalid_model(format!("slide joint {j} is unlimited: no range to sample from"))
+                }
+            })
+            .collect()
+    }
+
+    /// The joint equalities (`joints/couplings.rs`).
+    pub fn couplings(&self) -> &Couplings {
+        &self.couplings
+    }
+
+    /// Whether pose `q` (K,) is one the mechanism can take: within the limits and on the
+    /// couplings, to `couplings::FEASIBLE_TOL`.
+    pub fn feasible(&self, q: &[f64]) -> bool {
+        feasible(q, &self.limits, &self.limited, &self.couplings)
+    }
+
+    /// Whether each joint is a continuous (unlimited) hinge, which wraps around.
+    pub fn continuous(&self) -> Vec<bool> {
+        self.joints.iter().zip(&self.limited).map(|(j, &l)| j.hinge && !l).collect()
+    }
+
+    /// Checks that `poses` is a non-empty, finite `(B, K)` row-major buffer for this model;
+    /// returns B.
+    pub fn check_poses(&self, poses: &[f64]) -> Result<usize> {
+        let k = self.njoint();
+        if k == 0 {
+            return invalid_input("the model has no joints");
+        }
+        if poses.is_empty() || poses.len() % k != 0 {
+            return invalid_input(format!("poses must be a non-empty (B, {k}) array; got {} values", poses.len()));
+        }
+        // (64 entries at a time without an early exit, which vectorises; then the entry)
+        if let Some(c) = poses.chunks(64).position(|c| c.iter().fold(false, |bad, v| bad | !v.is_finite())) {
+            let i = 64 * c + poses[64 * c..].iter().position(|v| !v.is_finite()).expect("the chunk holds one");
+            return invalid_input(format!("pose {} joint {} is not finite ({})", i / k, i % k, poses[i]));
+        }
+        Ok(poses.len() / k)
+    }
+}

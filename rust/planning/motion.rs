@@ -1,0 +1,1137 @@
+//! Straight motions in joint space, certified continuously: conservative advancement.
+//!
+//! A motion is `q(t) = a + t·Δ`, `t ∈ [0, 1]`, with `Δ` the short arc on continuous hinges (the
+//! SO(2) interpolation `joints/interpolate.rs` replays, states wrapped by `angles::wrap`). It is
+//! *certified* when every candidate pair keeps a signed distance above `need = max(margin,
+//! clearance)` at **every** `t`, not only at samples. The proof, pair by pair:
+//!
+//! 1. **How fast a pair can close** ([`Levers`]). Let `c` be the deepest common ancestor body
+//!    of the pair's two bodies. The pair's distance depends only on the joints strictly below
+//!    `c` (those at or above move both geoms rigidly together). A point `x` of a geom moves, in
+//!    `c`'s frame, at `|ẋ| ≤ Σ_j |q̇_j|·R_j`: for a hinge, `|ω_j × (x − p_j)| ≤ |x − p_j| ≤ R_j`
+//!    with `R_j` an upper bound on the distance from the joint's anchor `p_j` to any point of the
+//!    geom in every configuration (from the chain's fixed offsets, `joint_reach`); for a slide,
+//!    `R_j = 1`. Along the motion `|q̇_j| = |Δ_j|`, so the pair's distance changes at most at rate
+//!    `M = Σ_j (R_j(g₁) + R_j(g₂))·|Δ_j|` per unit of `t` (distance between two sets is
+//!    1-Lipschitz in the motion of each).
+//!    Tighter near a placed state (`Rate`): a hinge's speed is the distance from its axis
+//!    *line*, read off the placed frames, and that distance can only grow at the speed the
+//!    joints below it give, so the distance falls by at most `min(M·τ, a·τ + b·τ²/2)` within
+//!    `τ` of the state.
+//! 2. **What a state proves.** If the pair's distance at `t₀` is `d > need`, it stays above
+//!    `need` for `|t − t₀| < τ` while the fall bound stays under `d − need`: the state's
+//!    *radius* for the pair.
+//! 3. **What an interval proves.** `[t₀, t₁]` is proven for the pair when `r(t₀) + r(t₁) ≥ t₁ −
+//!    t₀`. Intervals that are not are halved at their midpoint, which is placed and measured for
+//!    the pairs still open there only, level by level (so a collision anywhere on the motion is
+//!    met early, as by the sampled check's coarse-to-fine order).
+//!
+//! Distances are lower bounds, the cheapest that closes the interval: the pair's bounding
+//! spheres (`model/broad.rs`), enough wherever the pair is far; else a separation along an axis from
+//! the two shapes' exact support points (`collide::Scratch::pair_lower_bound`: the pair's axis
+//! from the previous state or the line between the geoms, and GJK's where that cannot decide
+//! or nearly closes the interval; the support point for a plane), reduced by
+//! `broad::DISTANCE_SLACK` for rounding. A state where some pair is not shown above `need` ends the
+//! motion: [`Motion::Blocked`] (in contact, within the clearance, or, rarely, a pair GJK found no
+//! separating axis for). The halving stops when an open interval moves no joint more than
+//! [`MIN_STEP`]: a motion that grazes a pair within ~`M·MIN_STEP` of `need` may be
+//! [`Motion::Unproven`] though free; nothing unproven is ever called free.
+//!
+//! The levers take every slide within its limits: a motion with a limited slide outside them
+//! is unproven, as is one whose pair depends on an unlimited slide that moves (an infinite
+//! lever), and one with a joint beyond [`MAX_JOINT`].
+//!
+//! Every verdict, and the states placed, are a function of the motion alone (the separating
+//! axes a pair remembers from state to state are forgotten at the start of each motion), so
+//! they are the same on any thread.
+
+use std::f64::consts::PI;
+
+use crate::collision::collide::{first_error, Scratch, Undecided};
+use crate::error::{Error, Result};
+use crate::joints::angles::wrap;
+use crate::joints::couplings::{Couplings, FEASIBLE_TOL};
+use crate::model::broad::{check_clearance, slack_above, DISTANCE_SLACK};
+use crate::model::{Apart, RobotModel};
+use crate::planning::spans::{clear_spans, covers, has_cloud, span_need};
+
+/// Radians / metres: the smallest joint move of an interval the certificate halves further.
+pub const MIN_STEP: f64 = 1e-7;
+/// Most states one motion may place before it is called unproven.
+pub const MAX_STATES: usize = 1 << 16;
+/// Radians / metres: a motion with a joint beyond this, at either end, is unproven (too far to
+/// place meaningfully in floating point).
+pub const MAX_JOINT: f64 = 1e6;
+
+/// The verdict on one motion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Motion {
+    /// Every pair stays above its `need` at every state of the motion.
+    Certified,
+    /// The placed state at `t` has a pair not shown above its `need` (module docs).
+    Blocked(f64),
+    /// Neither proven nor refuted within [`MIN_STEP`] / [`MAX_STATES`].
+    Unproven,
+}
+
+/// The joint space: bounds per joint and which joints wrap (continuous hinges).
+#[derive(Clone, Debug)]
+pub(crate) struct Space {
+    pub lo: Vec<f64>,
+    pub hi: Vec<f64>,
+    pub wraps: Vec<bool>,
+    /// The joint equalities: every placed state is projected onto them (`along`).
+    pub couplings: Couplings,
+}
+
+impl Space {
+    /// The model's sampling ranges (`RobotModel::sampling_ranges`) and continuous hinges.
+    pub fn of(model: &RobotModel) -> Result<Space> {
+        let ranges = model.sampling_ranges()?;
+        Ok(Space {
+            lo: ranges.iter().map(|r| r[0]).collect(),
+            hi: ranges.iter().map(|r| r[1]).collect(),
+            wraps: model.continuous(),
+            couplings: model.couplings.clone(),
+        })
+    }
+
+    /// `b − a`, the short arc on wrapping joints.
+    pub fn delta(&self, a: &[f64], b: &[f64], out: &mut [f64]) {
+        for k in 0..a.len() {
+            let d = b[k] - a[k];
+            out[k] = if self.wraps[k] { wrap(d) } else { d };
+        }
+    }
+
+    pub fn distance(&self, a: &[f64], b: &[f64]) -> f64 {
+        let mut s = 0.0;
+        for k in 0..a.len() {
+            let d = b[k] - a[k];
+            let d = if self.wraps[k] { wrap(d) } else { d };
+            s += d * d;
+        }
+        s.sqrt()
+    }
+
+    /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π), then the dependent joints
+    /// recomputed from the couplings (the state the robot is in: `joints/couplings.rs`, "Motions").
+    pub fn along(&self, a: &[f64], d: &[f64], t: f64, out: &mut [f64]) {
+        for k in 0..a.len() {
+            let v = a[k] + t * d[k];
+            out[k] = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
+        }
+        self.couplings.apply(out);
+    }
+}
+
+/// Per candidate pair and joint: how fast (metres per radian, or per metre of a slide) the pair's
+/// distance can change when that joint alone moves (module docs, step 1); 0 for joints at or
+/// above the pair's common ancestor. Computed once per model (`RobotModel::lever_rows`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Levers<'m> {
+    k: usize,
+    /// Pair-major `(npairs, K)`.
+    rows: &'m [f64],
+    /// `npairs + 1` offsets, then every pair's chain (`chain`).
+    chains: &'m [u32],
+    /// Where the chains start in `chains`: `npairs + 1` (kept, not divided out of `rows` on
+    /// every call: an integer division costs tens of cycles, and `chain` runs per pair per state).
+    base: usize,
+}
+
+impl<'m> Levers<'m> {
+    pub(crate) fn of(model: &'m RobotModel) -> Levers<'m> {
+        let (rows, chains) = model.lever_rows.get_or_init(|| lever_rows(model));
+        Levers { k: model.njoint(), rows, chains, base: model.pairs.len() + 1 }
+    }
+
+    /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
+    /// |Δ_i|·R_i` over each branch's hinges, `i` the joints below `j` on its branch.
+    fn quad(&self, p: usize, abs_delta: &[f64]) -> f64 {
+        let mut b = 0.0;
+        let mut suffix = [0.0f64; 2];
+        for &e in self.chain(p).iter().rev() {
+            let (j, side) = (entry_joint(e), (e & SIDE) as usize);
+            let d = abs_delta[j];
+            if d == 0.0 {
+                continue;
+            }
+            if e & TIGHT != 0 {
+                b += d * suffix[side];
+            }
+            suffix[side] += d * self.rows[p * self.k + j];
+        }
+        b
+    }
+
+    /// Pair `p`'s chain: its moving joints, each `joint << 2 | TIGHT if tight | side` (side 0:
+    /// the first geom's branch), each branch from the common ancestor down to its geom.
+    #[inline]
+    fn chain(&self, p: usize) -> &'m [u32] {
+        let n = self.base;
+        &self.chains[n + self.chains[p] as usize..n + self.chains[p + 1] as usize]
+    }
+
+    /// The one joint pair `p`'s distance depends on, when there is just one (`planning/spans.rs`).
+    #[inline]
+    fn sole_joint(&self, p: usize) -> Option<usize> {
+        match self.chain(p) {
+            [e] => Some(entry_joint(*e)),
+            _ => None,
+        }
+    }
+
+    /// Per candidate pair, the joint and the spans of `planning/spans.rs` (`RobotModel::joint_spans`),
+    /// swept on first use (on the calling thread, as `fastpath::likely_pairs`).
+    fn spans(&self, model: &'m RobotModel) -> &'m [(u32, Vec<[f64; 2]>)] {
+        model.joint_spans.get_or_init(|| {
+            let mut s = Scratch::new(model);
+            (0..model.pairs.len())
+                .map(|p| match self.sole_joint(p) {
+                    Some(j) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j], &mut s)),
+                    None => (u32::MAX, Vec::new()),
+                })
+                .collect()
+        })
+    }
+
+    /// The pair's rate `M` (metres per unit of `t`) for joint moves `|Δ|`; an infinite lever
+    /// counts only for a joint that moves. (Over the chain: the row is 0 elsewhere.)
+    #[inline]
+    fn rate(&self, pair: usize, abs_delta: &[f64]) -> f64 {
+        let row = &self.rows[pair * self.k..(pair + 1) * self.k];
+        self.chain(pair).iter().map(|&e| entry_joint(e)).filter(|&j| abs_delta[j] != 0.0).map(|j| row[j] * abs_delta[j]).sum()
+    }
+}
+
+/// The `(npairs, K)` lever table of `Levers`, and the pairs' chains.
+fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
+    {
+        let k = model.njoint();
+        let mut rows = vec![0.0; model.pairs.len() * k];
+        let mut offsets = vec![0u32];
+        let mut entries = Vec::new();
+        let ancestors = |mut b: usize| {
+            let mut out = vec![b];
+            while b != 0 {
+                b = model.body_parent[b];
+                out.push(b);
+            }
+            out
+        };
+        for (p, pair) in model.pairs.iter().enumerate() {
+            let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
+            let (up1, up2) = (ancestors(b1), ancestors(b2));
+            let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
+            for (side, (g, up)) in [(pair.g1, &up1), (pair.g2, &up2)].into_iter().enumerate() {
+                let below: Vec<usize> = up.iter().copied().take_while(|&b| b != common).collect();
+                for &b in below.iter().rev() {
+                    let (j0, j1) = model.body_joints[b];
+                    for j in j0..j1 {
+                        rows[p * k + j] += joint_reach(model, j, g, up);
+                        entries.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32);
+                    }
+                }
+            }
+            offsets.push(entries.len() as u32);
+        }
+        offsets.extend(entries);
+        (rows, offsets)
+    }
+}
+
+/// A chain entry's bits: the geom's side (0: the first geom's branch), and whether the joint is
+/// `tight`; the joint is the rest (`entry_joint`).
+const SIDE: u32 = 1;
+const TIGHT: u32 = 2;
+
+#[inline]
+fn entry_joint(e: u32) -> usize {
+    (e >> 2) as usize
+}
+
+/// Whether joint `j`'s world axis and anchor can be read off its body's placed frame: a hinge
+/// that is the last joint of its body (a later joint on the same body would move them).
+#[inline]
+fn tight(model: &RobotModel, j: usize) -> bool {
+    let jnt = &model.joints[j];
+    jnt.hinge && j + 1 == model.body_joints[jnt.body].1
+}
+
+/// How fast a pair's distance can shrink, per unit of `t`, `τ` away from a placed state: at most
+/// `chain` (the configuration-free levers), and at most `a + b·τ`, where `a = Σ_j |Δ_j|·ℓ_j`
+/// takes for each hinge that allows it (`tight`) the placed distance from its axis line to the
+/// geom's bounding sphere (`ℓ_j = |(c − p_j) × ω_j| + r`, the lever now), and `b` bounds how
+/// fast those distances grow: each is a distance in joint `j`'s own frame, changed only by the
+/// joints below it at their chain levers (`Levers::quad`). So the distance falls by at most
+/// `drop(τ) = min(chain·τ, a·τ + b·τ²/2)` within `τ` of the state.
+#[derive(Clone, Copy, Debug)]
+struct Rate {
+    chain: f64,
+    a: f64,
+    b: f64,
+}
+
+impl Rate {
+    fn of_chain(chain: f64) -> Rate {
+        Rate { chain, a: chain, b: 0.0 }
+    }
+
+    #[inline]
+    fn drop(&self, tau: f64) -> f64 {
+        let tau = tau.max(0.0);
+        (self.chain * tau).min(self.a * tau + 0.5 * self.b * tau * tau)
+    }
+
+    /// The largest `τ` with `drop(τ) <= slack` (slack > 0), in either form.
+    #[inline]
+    fn reach(&self, slack: f64) -> f64 {
+        if self.chain <= 0.0 {
+            return f64::INFINITY;
+        }
+        let linear = slack / self.chain;
+        if self.b == 0.0 && self.a == self.chain {
+            // (the chain rate alone: the quadratic form is `2s / (c + sqrt(c²))`, which is `s / c`
+            // bit for bit for a rate and slack in the normal range, the square root of a rounded
+            // square being exact; below ~1e-154 or above ~1e307, where the square or `2s` leaves
+            // the range, the quadratic form read past `s / c`, and `s / c` is the right answer)
+            return linear;
+        }
+        let quadratic = 2.0 * slack / (self.a + (self.a * self.a + 2.0 * self.b * slack).sqrt());
+        if quadratic.is_nan() {
+            linear
+        } else {
+            linear.max(quadratic)
+        }
+    }
+}
+
+/// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
+/// joint `j`'s belong to the state placed with stamp `at[j]` (0: none). And each tight joint's
+/// reach to each geom's sphere, `reach[j · ngeom + g]`, of the state `reach_at[..]` (0: none):
+/// a function of the joint and the geom alone, shared by every pair of the geom (a Panda's 272
+/// pairs over 26 geoms: most of `local_rate`'s terms are repeats within a state).
+struct Axes {
+    anchor: Vec<nalgebra::Vector3<f64>>,
+    axis: Vec<nalgebra::Vector3<f64>>,
+    at: Vec<u32>,
+    ngeom: usize,
+    reach: Vec<f64>,
+    reach_at: Vec<u32>,
+}
+
+impl Axes {
+    fn new(k: usize, ngeom: usize) -> Self {
+        Axes {
+            anchor: vec![Default::default(); k],
+            axis: vec![Default::default(); k],
+            at: vec![0; k],
+            ngeom,
+            reach: vec![0.0; k * ngeom],
+            reach_at: vec![0; k * ngeom],
+        }
+    }
+
+    /// Forgets every state's values (a new motion).
+    fn forget(&mut self) {
+        self.at.fill(0);
+        self.reach_at.fill(0);
+    }
+}
+
+/// The state-local `a` of pair `p` (`Rate`) in the state placed in `s`.
+fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
+    let state = s.pose_stamp();
+    let pair = &model.pairs[p];
+    let mut a = 0.0;
+    for &e in levers.chain(p) {
+        let j = entry_joint(e);
+        let d = abs_delta[j];
+        if d == 0.0 {
+            continue;
+        }
+        let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
+        let lever = levers.rows[p * levers.k + j];
+        a += d * if e & TIGHT != 0 {
+            let at = j * axes.ngeom + g;
+            if axes.reach_at[at] != state {
+                if axes.at[j] != state {
+                    let jnt = &model.joints[j];
+                    let x = s.body(jnt.body);
+                    axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
+                    axes.axis[j] = x.rotation * jnt.axis.into_inner();
+                    axes.at[j] = state;
+                }
+                let c = model.broad.sphere_centre(&s.broad, g);
+                // (1e-9 relative: rounding of the placed frames and of the cross product)
+                axes.reach[at] = ((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9);
+                axes.reach_at[at] = state;
+            }
+            axes.reach[at].min(lever)
+        } else {
+            lever
+        };
+    }
+    a
+}
+
+/// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
+/// for an unlimited slide).
+fn slide_reach(model: &RobotModel, j: usize) -> f64 {
+    if model.limited[j] {
+        let [lo, hi] = model.limits[j];
+        let q0 = model.joints[j].qpos0;
+        (lo - q0).abs().max((hi - q0).abs())
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Joint `j`'s lever on geom `g` (a geom below it; `up` is `g`'s body and its ancestors, from
+/// `g`'s body up to the world): 1 for a slide; for a hinge, an upper bound on the distance from
+/// its anchor to any point of the geom in any configuration.
+///
+/// The walk keeps a point `π` fixed in the current frame and a bound `cost ≥ |p_j − π|` (world):
+/// each later hinge (anchor `α`, fixed while it turns) adds `|π − α|` and moves `π` to `α`; each
+/// later slide adds its largest displacement; a body's fixed offset maps `π` into the child's
+/// coordinates exactly. At the geom: `|π − centre| + radius`, its bounding sphere.
+fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize]) -> f64 {
+    let jnt = &model.joints[j];
+    if !jnt.hinge {
+        return 1.0;
+    }
+    let mut pi = jnt.anchor;
+    let mut cost = 0.0;
+    let later = |b: usize, from: usize, pi: &mut nalgebra::Vector3<f64>, cost: &mut f64| {
+        for i in from..model.body_joints[b].1 {
+            let ji = &model.joints[i];
+            if ji.hinge {
+                *cost += (*pi - ji.anchor).norm();
+                *pi = ji.anchor;
+            } else {
+                *cost += slide_reach(model, i);
+            }
+        }
+    };
+    later(jnt.body, j + 1, &mut pi, &mut cost);
+    // Bodies from the joint's body down to the geom's: `up` reversed, after the joint's body.
+    let at = up.iter().position(|&b| b == jnt.body).expect("the joint is above the geom");
+    for &b in up[..at].iter().rev() {
+        pi = model.body_local[b].inverse_transform_point(&pi.into()).coords;
+        later(b, model.body_joints[b].0, &mut pi, &mut cost);
+    }
+    let geom = &model.geoms[g];
+    let centre = (geom.local * nalgebra::Point3::from(geom.shape.obb_center)).coords;
+    // (1e-9 relative: rounding of the offsets, far below any distance's own slack)
+    (cost + (pi - centre).norm() + geom.shape.radius) * (1.0 + 1e-9)
+}
+
+/// One open pair on an interval: its rate and its radii at the two ends.
+#[derive(Clone, Copy, Debug)]
+struct Open {
+    pair: u32,
+    r0: f64,
+    r1: f64,
+}
+
+/// Per-thread buffers of the certificate.
+pub struct MotionScratch {
+    pub(crate) scratch: Scratch,
+    abs_delta: Vec<f64>,
+    /// Per joint, the interval it sweeps along the motion.
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    rates: Vec<f64>,
+    quads: Vec<f64>,
+    axes: Axes,
+    q: Vec<f64>,
+    radius1: Vec<f64>,
+    open: Vec<Open>,
+    next: Vec<Open>,
+    mid: Vec<(Open, f64)>,
+    /// States placed by the last call.
+    pub states: usize,
+}
+
+impl MotionScratch {
+    pub fn new(model: &RobotModel) -> Self {
+        MotionScratch {
+            scratch: Scratch::new(model),
+            abs_delta: vec![0.0; model.njoint()],
+            lo: vec![0.0; model.njoint()],
+            hi: vec![0.0; model.njoint()],
+            rates: vec![0.0; model.pairs.len()],
+            quads: vec![0.0; model.pairs.len()],
+            axes: Axes::new(model.njoint(), model.geoms.len()),
+            q: vec![0.0; model.njoint()],
+            radius1: vec![0.0; model.pairs.len()],
+            open: Vec::new(),
+            next: Vec::new(),
+            mid: Vec::new(),
+            states: 0,
+        }
+    }
+}
+
+/// Why a measured pair ends the motion.
+enum Stop {
+    Blocked,
+    Undecided(Undecided),
+}
+
+/// What `radius` needs besides the pair and the placed state: the model and the motion.
+struct At<'a, 'm> {
+    model: &'m RobotModel,
+    levers: Levers<'m>,
+    abs_delta: &'a [f64],
+    axes: &'a mut Axes,
+}
+
+/// The radius (in `t`) of pair `k` (chain rate `chain`, growth `quad`) in the placed state, for
+/// an interval end whose neighbours need `cover_min` and `cover_max` (in `t`) of it: the
+/// bounding spheres' radius when it gives `cover_max`, at the chain rate or the state-local one
+/// (`Rate`), or when a closer measurement could not plausibly give even `cover_min` (then the
+/// caller halves the interval, cheaper than measuring); else the separation-axis or GJK bound
+/// (`Scratch::pair_lower_bound`). `Err(Blocked)` when the pair is not shown above its need.
+/// (Which bound is taken is a matter of cost only: each is a lower bound.)
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn radius(
+    at: &mut At,
+    s: &mut Scratch,
+    k: usize,
+    chain: f64,
+    quad: &mut f64,
+    need: f64,
+    cover_min: f64,
+    cover_max: f64,
+) -> std::result::Result<f64, Stop> {
+    let model = at.model;
+    let (gap, reach) = model.broad.sphere_gap(&s.broad, k, &model.geoms);
+    let gap = gap - need;
+    let mut rate = Rate::of_chain(chain);
+    if gap > 0.0 && gap >= rate.drop(cover_max) {
+        return Ok(rate.reach(gap));
+    }
+    if chain > 0.0 {
+        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
+        // (the growth of the rate, computed for the pair on its first use in the motion)
+        if quad.is_nan() {
+            *quad = at.levers.quad(k, at.abs_delta);
+        }
+        rate.b = *quad;
+    }
+    if gap > 0.0 && (gap >= rate.drop(cover_max) || gap + reach < rate.drop(cover_min)) {
+        return Ok(rate.reach(gap));
+    }
+    let want = need + rate.drop(cover_max);
+    let d = s
+        .pair_lower_bound(
+            model,
+            k,
+            want * (1.0 + DISTANCE_SLACK) + DISTANCE_SLACK,
+            need * (1.0 + 2.0 * DISTANCE_SLACK) + 2.0 * DISTANCE_SLACK,
+        )
+        .map_err(Stop::Undecided)?;
+    let slack = slack_above(d, need);
+    if slack.is_nan() || slack <= 0.0 {
+        return Err(Stop::Blocked);
+    }
+    Ok(rate.reach(slack.max(gap)))
+}
+
+/// Whether the motion `a → a + Δ` is certified (module docs) with every pair above
+/// `max(margin, clearance)` metres; `Err` for a pair the narrow phase cannot measure.
+/// `space` wraps and clamps the states as the planner's do.
+pub(crate) fn certify_motion(
+    model: &RobotModel,
+    levers: Levers,
+    space: &Space,
+    a: &[f64],
+    delta: &[f64],
+    clearance: f64,
+    ms: &mut MotionScratch,
+) -> std::result::Result<Motion, Undecided> {
+    let k = a.len();
+    ms.states = 0;
+    // A motion too large to place (a joint beyond ±`MAX_JOINT`) proves nothing.
+    if (0..k).any(|j| !(a[j].abs() <= MAX_JOINT && (a[j] + delta[j]).abs() <= MAX_JOINT)) {
+        return Ok(Motion::Unproven);
+    }
+    // Each joint's speed (`|Δ|`, per unit of `t`) and the interval it sweeps; the couplings'
+    // dependent joints follow their independent ones (`Couplings::speeds`).
+    for j in 0..k {
+        ms.abs_delta[j] = delta[j].abs();
+        let (x0, x1) = (a[j], a[j] + delta[j]);
+        let whole_turn = space.wraps[j] && !((-PI..PI).contains(&x0) && (-PI..PI).contains(&x1));
+        (ms.lo[j], ms.hi[j]) = if whole_turn { (-PI, PI) } else { (x0.min(x1), x0.max(x1)) };
+    }
+    space.couplings.speeds(&mut ms.lo, &mut ms.hi, &mut ms.abs_delta);
+    let span = ms.abs_delta.iter().fold(0.0f64, |m, &d| m.max(d));
+    // Only a motion the robot can make is certified: both ends on their couplings, and every
+    // limited joint within its limits all along (a joint's swept interval inside them; the
+    // levers also bound each slide's displacement by its limits, `slide_reach`).
+    let q = &mut ms.q;
+    for j in 0..k {
+        q[j] = if space.wraps[j] { wrap(a[j] + delta[j]) } else { a[j] + delta[j] };
+    }
+    let coupled = space.couplings.residual(a) <= FEASIBLE_TOL && space.couplings.residual(q) <= FEASIBLE_TOL;
+    let inside = (0..k)
+        .all(|j| !model.limited[j] || (model.limits[j][0] - FEASIBLE_TOL <= ms.lo[j] && ms.hi[j] <= model.limits[j][1] + FEASIBLE_TOL));
+    if !(coupled && inside) {
+        return Ok(Motion::Unproven);
+    }
+    let npairs = model.pairs.len();
+    for p in 0..npairs {
+        ms.rates[p] = levers.rate(p, &ms.abs_delta);
+        ms.quads[p] = f64::NAN;
+    }
+    // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
+    ms.axes.forget();
+    ms.scratch.forget_axes();
+    let spans = levers.spans(model);
+    let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
+    let need = |p: usize| model.pairs[p].margin.max(clearance);
+    // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
+    // inside one of its spans (`planning/spans.rs`), proven at a need at least the motion's.
+    // A pair two joints move, likewise, when both joints' sweeps stay inside its proven box
+    // (`prove_apart`; run here once per model, so that verdicts do not depend on whether
+    // something else ran it first).
+    prove_apart(model);
+    let apart = model.apart().unwrap_or(&[]);
+    let boxed = |p: usize| apart.get(p).is_some_and(|a| a.joints[1] != u32::MAX && a.covers(&ms.lo, &ms.hi));
+    let spanned = |p: usize| {
+        let (j, sp) = &spans[p];
+        need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed(p))
+    };
+    let stop = |e: Stop, t: f64| match e {
+        Stop::Blocked => Ok(Motion::Blocked(t)),
+        Stop::Undecided(u) => Err(u),
+    };
+    // The end first (a planner's new state often collides), by spheres wherever they are
+    // apart; then the start, exact where the spheres do not close the motion; then the end
+    // again, exact, for the pairs still open that it measured by spheres only.
+    space.along(a, delta, 1.0, q);
+    ms.scratch.place(model, q, false);
+    ms.states += 1;
+    for p in 0..npairs {
+        if spanned(p) {
+            ms.radius1[p] = f64::INFINITY;
+            continue;
+        }
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 0.0, 0.0) {
+            Ok(r) => ms.radius1[p] = r,
+            Err(e) => return stop(e, 1.0),
+        }
+    }
+    space.along(a, delta, 0.0, q);
+    ms.scratch.place(model, q, false);
+    ms.states += 1;
+    ms.open.clear();
+    ms.next.clear();
+    for p in 0..npairs {
+        let r1 = ms.radius1[p];
+        if r1 >= 1.0 {
+            continue;
+        }
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
+            Ok(r0) if r0 + r1 >= 1.0 => {}
+            Ok(r0) => ms.next.push(Open { pair: p as u32, r0, r1 }),
+            Err(e) => return stop(e, 0.0),
+        }
+    }
+    if !ms.next.is_empty() {
+        space.along(a, delta, 1.0, q);
+        // (only what the open pairs read: `Scratch::place_pairs`)
+        ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
+        ms.states += 1;
+        for o in &ms.next {
+            let p = o.pair as usize;
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - o.r0, 1.0 - o.r0) {
+                Ok(r1) if o.r0 + r1 >= 1.0 => {}
+                Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
+                Err(e) => return stop(e, 1.0),
+            }
+        }
+    }
+    // Breadth first: intervals of one level, each with its open pairs (contiguous in `open`).
+    let mut level: Vec<(f64, usize, usize)> = if ms.open.is_empty() { Vec::new() } else { vec![(0.0, 0, ms.open.len())] };
+    let mut width = 1.0f64;
+    let mut verdict = Ok(Motion::Certified);
+    'levels: while !level.is_empty() {
+        if width * span < MIN_STEP {
+            verdict = Ok(Motion::Unproven);
+            break;
+        }
+        let half = width * 0.5;
+        ms.next.clear();
+        let mut next_level = Vec::with_capacity(level.len() * 2);
+        for &(t0, start, end) in &level {
+            if ms.states >= MAX_STATES {
+                verdict = Ok(Motion::Unproven);
+                break 'levels;
+            }
+            let tm = t0 + half;
+            space.along(a, delta, tm, q);
+            ms.scratch.place_pairs(model, q, ms.open[start..end].iter().map(|o| o.pair as usize));
+            ms.states += 1;
+            ms.mid.clear();
+            for o in &ms.open[start..end] {
+                let p = o.pair as usize;
+                // What the midpoint must give to close one half, and both.
+                let (c0, c1) = (half - o.r0, half - o.r1);
+                match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), c0.min(c1), c0.max(c1)) {
+                    Ok(rm) => ms.mid.push((*o, rm)),
+                    Err(e) => {
+                        verdict = stop(e, tm);
+                        break 'levels;
+                    }
+                }
+            }
+            let s = ms.next.len();
+            // (a NaN radius leaves the half open)
+            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (o.r0 + rm).is_nan() || o.r0 + rm < half).map(|&(o, rm)| Open { r1: rm, ..o }));
+            if ms.next.len() > s {
+                next_level.push((t0, s, ms.next.len()));
+            }
+            let s = ms.next.len();
+            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (rm + o.r1).is_nan() || rm + o.r1 < half).map(|&(o, rm)| Open { r0: rm, ..o }));
+            if ms.next.len() > s {
+                next_level.push((tm, s, ms.next.len()));
+            }
+        }
+        std::mem::swap(&mut ms.open, &mut ms.next);
+        level = next_level;
+        width = half;
+    }
+    verdict
+}
+
+/// Motions per parallel work item (fixed, so the split never depends on the thread count).
+const CHUNK: usize = 16;
+
+/// The verdict on each motion `starts[i] → goals[i]` (`(B, K)` row-major each; continuous
+/// hinges along the short arc, other joints straight and unclamped) with every pair above
+/// `max(margin, clearance)` metres, `clearance` in `(0, MAX_CLEARANCE]`, and the states each
+/// placed; in motion order, in parallel on rayon's current pool. Every motion is decided
+/// alone, so the result does not depend on the number of threads.
+pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
+    use rayon::prelude::*;
+
+    check_clearance(clearance)?;
+    let b = model.check_poses(starts)?;
+    if goals.len() != starts.len() {
+        return Err(Error::InvalidInput(format!("starts and goals differ in shape: {} and {} values", starts.len(), goals.len())));
+    }
+    model.check_poses(goals)?;
+    let k = model.njoint();
+    let wraps = model.continuous();
+    let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
+    let levers = Levers::of(model);
+    let idx: Vec<usize> = (0..b).collect();
+    let parts: Vec<Result<Vec<(Motion, usize)>>> = idx
+        .par_chunks(CHUNK)
+        .map_init(
+            || (MotionScratch::new(model), vec![0.0; k]),
+            |(ms, d), chunk| {
+                chunk
+                    .iter()
+                    .map(|&i| {
+                        let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
+                        space.delta(a, g, d);
+                        let m = certify_motion(model, levers, &space, a, d, clearance, ms)
+                            .map_err(|e| e.error(model, format!("motion {i}")))?;
+                        Ok((m, ms.states))
+                    })
+                    .collect()
+            },
+        )
+        .collect();
+    Ok(first_error(parts)?.concat())
+}
+
+/// The model's spans (`planning/spans.rs`), per candidate pair.
+pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
+    Levers::of(model).spans(model)
+}
+
+/// Proves pairs clear over boxes of joint values, once per model (`RobotModel::apart`): from
+/// then on the labeller and the fast paths skip a pair in every pose inside its box.
+///
+/// - A pair one joint alone moves: its widest span of `planning/spans.rs`.
+/// - A pair two joints move (a Panda's link 5 against its link 7 and its hand): the box of both
+///   joints' sampling ranges, by branch and bound ([`box_clear`]), when it can be proven whole
+///   within [`BOX_CELLS`] cells. (Three joints were tried: 1-2 % fewer instructions per pose for
+///   5 to 10 times the 0.02-0.05 s this takes on a bundled model.)
+///
+/// Exact: a span or a box proves the pair more than `max(margin, MAX_CLEARANCE)` apart at every
+/// pose inside it, so the pair is neither in contact nor within any clearance a certificate
+/// asks (`broad::MAX_CLEARANCE`), and its tests would have said so. Labels, `collides` and
+/// certificates are the same with the proofs as without (`tests`), only cheaper: on a Panda the
+/// link 0 / link 1 pair reaches the narrow phase in every pose, and never touches. (One
+/// difference: a pair parry cannot decide, `collide::Undecided`, is decided clear inside its
+/// box once the proofs exist; the Python entry points, `plan_path` and `certify_motions` always
+/// make them first.)
+///
+/// Sequential and a function of the model alone (a fresh scratch, pairs in order): 0.02-0.05 s on
+/// each bundled model.
+pub fn prove_apart(model: &RobotModel) {
+    model.apart.get_or_init(|| {
+        let levers = Levers::of(model);
+        let ranges = model.sampling_ranges().ok();
+        let mut s = Scratch::new(model);
+        joint_spans(model)
+            .iter()
+            .enumerate()
+            .map(|(p, (j, spans))| {
+                if *j != u32::MAX {
+                    return match spans.iter().max_by(|a, b| (a[1] - a[0]).total_cmp(&(b[1] - b[0]))) {
+                        Some(&[lo, hi]) => Apart { joints: [*j, u32::MAX], lo: [lo, f64::NAN], hi: [hi, f64::NAN] },
+                        None => Apart::NONE,
+                    };
+                }
+                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
+                joints.sort_unstable();
+                joints.dedup();
+                match (&ranges, joints.as_slice()) {
+                    (Some(r), &[a, b])
+                        if box_clear(model, &mut s, p, [a, b], r, [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]]) =>
+                    {
+                        Apart { joints: [a as u32, b as u32], lo: [r[a][0], r[b][0]], hi: [r[a][1], r[b][1]] }
+                    }
+                    _ => Apart::NONE,
+                }
+            })
+            .collect()
+    });
+    // The pairs proven clear over the whole sampling box leave the four-pose broad phase's lists
+    // for poses inside that box, where `Apart::holds` would skip them anyway.
+    if let (Some(apart), Ok(ranges)) = (model.apart(), model.sampling_ranges()) {
+        model.pruned4.get_or_init(|| {
+            let (lo, hi): (Vec<f64>, Vec<f64>) = ranges.iter().map(|r| (r[0], r[1])).unzip();
+            let lists = crate::model::broad::Lists4::without(&model.broad, |k| apart[k as usize].covers(&lo, &hi));
+            crate::model::Pruned4 { lists, ranges }
+        });
+    }
+}
+
+/// Most cells [`box_clear`] places for one pair before it gives up.
+pub(crate) const BOX_CELLS: usize = 16_384;
+
+/// Whether candidate pair `p`, whose distance depends on joints `joints` alone, is proven above
+/// its span need (`spans::span_need`) at every pose with those joints in their ranges of `all`
+/// (the model's sampling ranges), their levers
+/// `levers` (`Levers`). Branch and bound: a cell with centre `c` and half-widths `h` is proven
+/// when the pair's lower bound at `c` exceeds the need by `Σ_i h_i·R_i`, the most its distance
+/// can fall within the cell (module docs, step 1); else it is halved across its longer side (in
+/// `h_i·R_i`), or the whole box fails where a centre (or a point of a coarse grid, tried first)
+/// is not above the need, past [`BOX_CELLS`] cells, or where the narrow phase cannot bound the
+/// pair. The other joints stay
+/// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
+/// order, the pair's remembered axis forgotten first).
+fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], all: &[[f64; 2]], levers: [f64; 2]) -> bool {
+    let ranges = joints.map(|j| all[j]);
+    if !levers.iter().all(|r| r.is_finite() && *r > 0.0)
+        || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite())
+        || has_cloud(model, p)
+    {
+        return false;
+    }
+    let need = span_need(model, p);
+    let mut q: Vec<f64> = all.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
+    s.forget_axes();
+    // How far the pair is proven above its need with the two joints at `at`.
+    let mut slack_at = |s: &mut Scratch, at: [f64; 2]| {
+        (q[joints[0]], q[joints[1]]) = (at[0], at[1]);
+        s.place_pairs(model, &q, std::iter::once(p));
+        s.pair_lower_bound(model, p, f64::INFINITY, f64::INFINITY).map(|d| slack_above(d, need))
+    };
+    // A pair that comes within its need somewhere on a coarse grid cannot be proven: found
+    // with GRID² cells, not after most of the budget.
+    const GRID: usize = 8;
+    let grid = |i: usize, a: usize| ranges[i][0] + (a as f64 + 0.5) / GRID as f64 * (ranges[i][1] - ranges[i][0]);
+    for a in 0..GRID {
+        for b in 0..GRID {
+            match slack_at(s, [grid(0, a), grid(1, b)]) {
+                Ok(slack) if slack > 0.0 => {}
+                _ => return false,
+            }
+        }
+    }
+    let mut cells = vec![ranges];
+    let mut placed = 0usize;
+    while let Some(cell) = cells.pop() {
+        placed += 1;
+        if placed > BOX_CELLS {
+            return false;
+        }
+        let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
+        let Ok(slack) = slack_at(s, [cell[0][0] + h[0], cell[1][0] + h[1]]) else {
+            return false;
+        };
+        // (the fall bound rounded up a little: it is a sum of products)
+        let fall = (h[0] * levers[0] + h[1] * levers[1]) * (1.0 + 1e-12);
+        if slack >= fall {
+            continue;
+        }
+        if slack <= 0.0 {
+            return false;
+        }
+        let i = if h[0] * levers[0] >= h[1] * levers[1] { 0 } else { 1 };
+        let mid = cell[i][0] + h[i];
+        let (mut lo, mut hi) = (cell, cell);
+        lo[i][1] = mid;
+        hi[i][0] = mid;
+        cells.push(hi);
+        cells.push(lo);
+    }
+    true
+}
+
+/// Pair `p`'s lever for joint `j` (0 for a joint at or above its common ancestor).
+#[cfg(test)]
+pub(crate) fn lever_of(model: &RobotModel, p: usize, j: usize) -> f64 {
+    Levers::of(model).rows[p * model.njoint() + j]
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::model::desc::{ModelDesc, JOINT_HINGE, JOINT_SLIDE};
+    use rand::{Rng, SeedableRng};
+
+    /// A three-link arm over a floor beside a box: hinges about skew axes with off-origin
+    /// anchors, and a body with a hinge then a slide (so its hinge is not `tight`). (Also
+    /// `ik/mod.rs`'s test arm.)
+    pub(crate) fn arm() -> RobotModel {
+        let mut d = ModelDesc::example_pendulum();
+        d.body_parent = vec![0, 0, 1, 2];
+        d.body_weld = vec![0, 1, 2, 3];
+        d.body_pos = vec![[0.0; 3], [0.0, 0.0, 0.3], [0.2, 0.0, 0.1], [0.3, 0.05, 0.0]];
+        d.body_quat = vec![[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.9, 0.1, 0.3, 0.0], [1.0, 0.0, 0.0, 0.0]];
+        d.jnt_type = vec![JOINT_HINGE, JOINT_HINGE, JOINT_SLIDE, JOINT_HINGE];
+        d.jnt_body = vec![1, 2, 2, 3];
+        d.jnt_pos = vec![[0.0; 3], [0.05, 0.0, 0.0], [0.0; 3], [0.0, 0.02, 0.01]];
+        d.jnt_axis = vec![[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]];
+        d.jnt_qpos0 = vec![0.0; 4];
+        d.jnt_range = vec![[-3.0, 3.0], [-2.0, 2.0], [-0.1, 0.1], [-2.5, 2.5]];
+        d.jnt_limited = vec![true; 4];
+        d.geom_id = vec![0, 1, 2, 3, 4];
+        d.geom_type = vec![0, 6, 3, 6, 6];
+        d.geom_body = vec![0, 0, 1, 2, 3];
+        d.geom_pos = vec![[0.0; 3], [0.45, 0.0, 0.25], [0.0, 0.0, 0.05], [0.1, 0.0, 0.0], [0.1, 0.0, 0.02]];
+        d.geom_quat = vec![[1.0, 0.0, 0.0, 0.0]; 5];
+        d.geom_size = vec![[1.0, 1.0, 0.1], [0.05, 0.08, 0.05], [0.04, 0.1, 0.0], [0.12, 0.03, 0.02], [0.1, 0.02, 0.03]];
+        d.geom_contype = vec![1; 5];
+        d.geom_conaffinity = vec![1; 5];
+        d.geom_margin = vec![0.0, 0.0, 0.0, 0.01, 0.0];
+        d.geom_mesh = vec![-1; 5];
+        RobotModel::new(d).unwrap()
+    }
+
+    /// The pair's distance, clipped at 0 (GJK's separation; ~1e-8 relative).
+    fn distance(model: &RobotModel, s: &mut Scratch, q: &[f64], k: usize) -> f64 {
+        s.place(model, q, false);
+        s.forget_axes();
+        s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY).unwrap().max(0.0)
+    }
+
+    /// Every proof of `prove_apart` holds where it says: at random poses inside each pair's span
+    /// or box, every other joint anywhere in its range, the pair is clear of `MAX_CLEARANCE`
+    /// by the exact narrow phase (`clear_of`); on arms with boxes over two hinges, the Panda's
+    /// fingers (two slides), and the Shadow Hand's fingers.
+    #[test]
+    fn proofs_of_prove_apart_hold_inside_their_boxes() {
+        use crate::model::broad::MAX_CLEARANCE;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            prove_apart(&model);
+            let ranges = model.sampling_ranges().unwrap();
+            let mut s = Scratch::new(&model);
+            let (mut ones, mut twos) = (0, 0);
+            for (k, a) in model.apart().unwrap().iter().enumerate() {
+                if a.lo[0] > a.hi[0] || a.lo[0].is_nan() {
+                    continue;
+                }
+                let two = a.joints[1] != u32::MAX;
+                (ones, twos) = if two { (ones, twos + 1) } else { (ones + 1, twos) };
+                for _ in 0..200 {
+                    let mut q: Vec<f64> = ranges.iter().map(|r| rng.random_range(r[0]..=r[1])).collect();
+                    for i in 0..if two { 2 } else { 1 } {
+                        q[a.joints[i] as usize] = rng.random_range(a.lo[i]..=a.hi[i]);
+                    }
+                    assert!(a.holds(&q));
+                    s.place(&model, &q, false);
+                    assert!(s.clear_of(&model, k, MAX_CLEARANCE).unwrap(), "{scene}: pair {k} not clear at {q:?}");
+                }
+            }
+            // (the Shadow Hand's one-joint pairs are its phalanges, parent and child: never
+            // candidates)
+            assert!(twos > 0 && (ones > 0 || scene == "shadow_hand"), "{scene}: {ones} spans and {twos} boxes");
+        }
+    }
+
+    /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
+    /// counts, colliding pairs), `collides` and certificates are those of the same model without
+    /// the proofs, on poses within the limits and on poses up to 1 rad beyond them (outside the
+    /// spans and boxes, where nothing is skipped); and the proofs do skip pairs, over one joint
+    /// and over two (the Panda's link 0 / link 1 pair, which reaches the narrow phase in every
+    /// pose, over its hinge's whole range).
+    #[test]
+    fn pairs_proven_apart_are_skipped_without_changing_any_answer() {
+        use crate::collision::collide::{label_batch, LabelOptions};
+        use crate::collision::fastpath::{certified_batch, collides_batch};
+        for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let (plain, proven) = (RobotModel::new(desc.clone()).unwrap(), RobotModel::new(desc).unwrap());
+            prove_apart(&proven);
+            let apart = proven.apart().unwrap();
+            assert!(plain.apart().is_none());
+            let skipped = apart.iter().filter(|a| a.some()).count();
+            assert!(skipped > 0, "{scene}: no pair proven apart");
+            // (and boxes of two joints among them, where one joint's spans are not enough)
+            assert!(apart.iter().any(|a| a.joints[1] != u32::MAX), "{scene}: no pair proven over two joints");
+            let ranges = plain.sampling_ranges().unwrap();
+            let wide: Vec<[f64; 2]> = ranges.iter().map(|r| [r[0] - 1.0, r[1] + 1.0]).collect();
+            for (what, ranges) in [("within limits", &ranges), ("beyond them", &wide)] {
+                let poses = crate::joints::sample::sample_uniform(ranges, 3000, 9).unwrap();
+                let opts = LabelOptions { pairs: true, distance: false };
+                let (a, b) = (label_batch(&plain, &poses, opts).unwrap(), label_batch(&proven, &poses, opts).unwrap());
+                assert_eq!(a.colliding_pairs, b.colliding_pairs, "{scene}, {what}");
+                for (x, y) in a.labels.iter().zip(&b.labels) {
+                    assert_eq!(
+                        (x.self_collides, x.scene_collides, x.n_pairs),
+                        (y.self_collides, y.scene_collides, y.n_pairs),
+                        "{scene}, {what}"
+                    );
+                }
+                assert_eq!(collides_batch(&plain, &poses).unwrap(), collides_batch(&proven, &poses).unwrap(), "{scene}, {what}");
+                assert_eq!(
+                    certified_batch(&plain, &poses, 1e-6).unwrap(),
+                    certified_batch(&proven, &poses, 1e-6).unwrap(),
+                    "{scene}, {what}"
+                );
+            }
+        }
+        // the Panda's link 0 / link 1 pair (bodies 1 and 2, one hinge between them): proven over
+        // the hinge's whole range
+        let path = format!("{}/benches/data/panda_blocks.json", env!("CARGO_MANIFEST_DIR"));
+        let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+        prove_apart(&model);
+        let k = (0..model.pairs.len())
+            .find(|&k| {
+                let p = &model.pairs[k];
+                (model.geoms[p.g1].body, model.geoms[p.g2].body) == (1, 2)
+            })
+            .unwrap();
+        let a = model.apart().unwrap()[k];
+        let r = model.sampling_ranges().unwrap()[a.joints[0] as usize];
+        let r = [r, [f64::NAN; 2]];
+        assert_eq!((a.joints[0], a.lo[0], a.hi[0], a.joints[1]), (0, r[0][0], r[0][1], u32::MAX));
+    }
+
+    /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
+    /// changes by more than `Rate::drop(τ)`, at the chain rate or the state-local one.
+    #[test]
+    fn no_pair_closes_faster_than_its_rate() {
+        let model = arm();
+        assert!(model.pairs.len() >= 6, "{}", model.pairs.len());
+        let levers = Levers::of(&model);
+        let space = Space::of(&model).unwrap();
+        let mut s = Scratch::new(&model);
+        let mut axes = Axes::new(4, model.geoms.len());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (mut tight_wins, mut checks) = (0, 0);
+        for _ in 0..400 {
+            let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let b: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let mut delta = vec![0.0; 4];
+            space.delta(&a, &b, &mut delta);
+            let abs: Vec<f64> = delta.iter().map(|d| d.abs()).collect();
+            let t0 = rng.random_range(0.0..1.0);
+            let mut q0 = vec![0.0; 4];
+            space.along(&a, &delta, t0, &mut q0);
+            for k in 0..model.pairs.len() {
+                let d0 = distance(&model, &mut s, &q0, k);
+                let chain = levers.rate(k, &abs);
+                let local = local_rate(&model, levers, &abs, &s, &mut axes, k);
+                let rate = Rate { chain, a: local.min(chain), b: levers.quad(k, &abs) };
+                tight_wins += (local < 0.9 * chain) as usize;
+                for tau in [1e-3, 1e-2, 0.05, 0.2] {
+                    for sign in [-1.0, 1.0] {
+                        let t = t0 + sign * tau;
+                        if !(0.0..=1.0).contains(&t) {
+                            continue;
+                        }
+                        let mut q = vec![0.0; 4];
+                        space.along(&a, &delta, t, &mut q);
+                        let d = distance(&model, &mut s, &q, k);
+                        checks += 1;
+                        let allowed = rate.drop(tau) * (1.0 + 1e-6) + 1e-9;
+                        assert!((d - d0).abs() <= allowed, "pair {k}: |{d} - {d0}| > {allowed} over {tau} ({rate:?})");
+                        assert!(rate.reach((d0 - 1e-9).max(1e-12)) <= f64::INFINITY);
+                    }
+                }
+            }
+        }
+        assert!(checks > 5000 && tight_wins > 100, "{checks} {tight_wins}");
+    }
+
+    /// Certified motions are clear at every state of a fine sampling; a motion through the box
+    /// is blocked at a state that is not; the verdict is the same from a used scratch.
+    #[test]
+    fn certified_motions_are_clear_between_samples_and_verdicts_do_not_depend_on_history() {
+        let model = arm();
+        let space = Space::of(&model).unwrap();
+        let levers = Levers::of(&model);
+        let mut ms = MotionScratch::new(&model);
+        let mut fresh = MotionScratch::new(&model);
+        let mut s = Scratch::new(&model);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let (mut certified, mut blocked) = (0, 0);
+        for _ in 0..300 {
+            let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+            let mut delta: Vec<f64> = (0..4).map(|_| rng.random_range(-0.6..0.6)).collect();
+            delta[2] *= 0.1;
+            let mut b = vec![0.0; 4];
+            space.along(&a, &delta, 1.0, &mut b);
+            space.delta(&a, &b, &mut delta);
+            let v = certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut ms).unwrap();
+            assert_eq!(v, certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut fresh).unwrap());
+            let mut q = vec![0.0; 4];
+            match v {
+                Motion::Certified => {
+                    certified += 1;
+                    for i in 0..=400 {
+                        space.along(&a, &delta, i as f64 / 400.0, &mut q);
+                        assert!(crate::collision::fastpath::certified_pose(&model, &q, 1e-6, &mut s).unwrap(), "state {i}");
+                    }
+                }
+                Motion::Blocked(t) => {
+                    blocked += 1;
+                    space.along(&a, &delta, t, &mut q);
+                    assert!(
+                        !crate::collision::fastpath::certified_pose(&model, &q, 1e-6 * (1.0 + 1e-6), &mut s).unwrap() || {
+                            // within GJK's tolerance of the clearance or margin
+                            let l = crate::collision::collide::label_pose(
+                                &model,
+                                &q,
+                                &mut s,
+                                crate::collision::collide::LabelOptions { pairs: false, distance: true },
+                                &mut Vec::new(),
+                            )
+                            .unwrap();
+                            l.min_distance <= 0.01 + 1e-7
+                        }
+                    );
+                }
+                Motion::Unproven => {}
+            }
+        }
+        assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+    }
+}
