@@ -159,10 +159,10 @@ def test_bad_layouts_are_refused_by_name(family):
         family.at(d[:3])
     bad = d.copy()
     bad[4] = np.nan
-    with pytest.raises(InputError, match=r"scene\[4\] \(block_left_y\) is nan"):
+    with pytest.raises(InputError, match=r"layout\[4\] \(block_left_y\) is nan"):
         family.at(bad)
     bad[4] = 0.4
-    with pytest.raises(InputError, match=r"scene\[4\] \(block_left_y\) = 0.4 is outside the family's range"):
+    with pytest.raises(InputError, match=r"layout\[4\] \(block_left_y\) = 0.4 is outside the family's range"):
         family.at(bad)
     with pytest.raises(InputError, match="missing"):
         family.at({"block_front_x": 0.0})
@@ -388,7 +388,7 @@ def test_compose_takes_dicts_tensors_and_one_layout_per_pose(family):
         family.compose(theta, np.zeros((2, 9)))
     bad = np.zeros((3, 9))
     bad[2, 1] = 1.0
-    with pytest.raises(InputError, match=r"scene\[2\]\[1\] \(block_front_y\)"):
+    with pytest.raises(InputError, match=r"layout\[2\]\[1\] \(block_front_y\)"):
         family.compose(theta, bad)
     box = profrobot.Box((0, 0, 0), (1, 0, 0, 0), "b", (1, 1, 1, 1), (0.1, 0.2, 0.3))   # positional, as before
     assert box.half_size == (0.1, 0.2, 0.3) and box.moves is None

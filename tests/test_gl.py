@@ -85,7 +85,7 @@ def test_cli_without_a_renderer_exits_2_with_the_message(no_backend, capsys, tmp
 
     from profrobot.cli.main import main
 
-    code = main(["render", "-n", "1", "--cameras", "1", "--size", "8", "--iters", "1", "--gaussians", "10",
+    code = main(["render", "-n", "1", "--cameras", "1", "--size", "8", "--iterations", "1", "--gaussians", "10",
                  "--processes", "1", "--torch-threads", str(torch.get_num_threads()),
                  "--out", str(tmp_path / "g.safetensors")])
     assert code == 2

@@ -430,38 +430,25 @@ def test_image_results(arm):
     copies(pose_from_text(model, "bent", scorer, camera=cam, init=[0.0, 0.6], iterations=3, robot=arm))  # TextResult
 
 
-@pytest.mark.parametrize("name", ["Robot", "ExcludedPairs", "_SpecSource", "_Mjcf", "_Urdf", "Obstacle", "Box", "Sphere",
-                                  "Capsule", "Cylinder", "Plane", "Mesh"])
-def test_pickles_from_before_robot_py_was_split_still_find_their_classes(name):
-    """Regression (robot.py split into robot_loading / robot_family / robot_state): a pickle
-    written before names these classes in ``profrobot.robot``; they must still resolve there,
-    through pickle and through the robot file's restricted unpickler, to the classes themselves."""
+@pytest.mark.parametrize("name", ["_Mjcf", "_SpecSource", "RobotLoading"])
+def test_a_robot_file_from_before_0_1_0_is_refused_naming_the_version(name, tmp_path):
+    """Before 0.1.0 a pickle named these classes in ``profrobot.robot``'s old module; a robot file
+    that does is refused with a ProfrobotError saying it was written before 0.1.0 (no shims)."""
     from profrobot.robot.file import _RobotUnpickler
 
     data = b"\x80\x02cprofrobot.robot\n" + name.encode() + b"\n."
-    cls = getattr(profrobot.robot, name)
-    assert isinstance(cls, type) and pickle.loads(data) is cls
-    assert _RobotUnpickler(io.BytesIO(data), "old.pkl").load() is cls
-
-
-def test_excluded_pairs_pickle_under_their_module_before_the_split():
-    """A robot pickled here names its ``<exclude>`` edits ``profrobot.robot.ExcludedPairs``, as
-    before robot.py was split, so that an older profrobot still loads it."""
-    import pickletools
-
-    from profrobot.robot.loading import ExcludedPairs
-
-    edit = ExcludedPairs((("link1", "link2"),))
-    data = pickle.dumps(edit, protocol=5)
-    strings = [arg for op, arg, _ in pickletools.genops(data) if op.name in ("SHORT_BINUNICODE", "BINUNICODE")]
-    assert strings[:2] == ["profrobot.robot", "ExcludedPairs"]
-    assert pickle.loads(data) == edit
+    with pytest.raises(CorruptFileError, match=r"written by a profrobot before 0\.1\.0"):
+        _RobotUnpickler(io.BytesIO(data), "old.pkl").load()
+    old = tmp_path / "old.pkl"
+    old.write_bytes(data)
+    with pytest.raises(CorruptFileError, match=r"before 0\.1\.0"):
+        profrobot.load_robot(old)
 
 
 def test_every_robot_methods_annotations_resolve():
-    """Regression (robot.py's split): the mixins' annotations name ``Robot``, which their modules
-    import for type checkers only; ``typing.get_type_hints`` must resolve every method's, as it did
-    before (documentation tools and runtime type checkers call it)."""
+    """``Robot``'s methods are its own (composition: they call functions of robot/loading.py,
+    layouts.py and state.py); ``typing.get_type_hints`` resolves every one's annotations
+    (documentation tools and runtime type checkers call it)."""
     import typing
 
     checked = 0

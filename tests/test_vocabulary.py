@@ -31,8 +31,8 @@ def test_dataset_files_carry_a_version(panda, tmp_path):
     ds.save(tmp_path / "d.npz")
     with np.load(tmp_path / "d.npz") as z:
         meta = json.loads(str(z["metadata"]))
-    assert meta["format"] == "profrobot.exact.dataset/1"
-    meta["format"] = "profrobot.exact.dataset/2"
+    assert meta["format"] == "profrobot.dataset/1"
+    meta["format"] = "profrobot.dataset/2"
     with np.load(tmp_path / "d.npz") as z:
         arrays = {k: z[k] for k in z.files}
     arrays["metadata"] = np.array(json.dumps(meta))

@@ -41,7 +41,7 @@ def cmd_layout(args) -> int:
     est = estimate_layout(family, depth, cameras, pose=numbers(args.pose, "pose"), mask=mask,
                           depth_noise=(args.noise_a, args.noise_b), calibration=args.calibration)
     print(est.summary())
-    for name, value in zip(est.scene_joints, est.scene):
+    for name, value in zip(est.scene_joints, est.layout):
         print(f"  {name} = {value:.6g}")
     print(f"pass margin={est.margin:.4g} (metres) to certification, planning and resolve; "
           f"--layout {','.join(f'{v:.6g}' for v in est.layout)}")

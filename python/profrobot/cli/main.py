@@ -202,7 +202,7 @@ def cmd_render(args) -> int:
     train = make_views(robot, sample_poses(robot, args.n, args.seed), train_cams, processes=args.processes)
     test = make_views(robot, sample_poses(robot, 4, args.seed + 1), test_cams, processes=args.processes)
     model = GaussianRobot.from_robot(robot, args.gaussians, seed=args.seed)
-    fit_gaussians(model, train, iterations=args.iters, seed=args.seed, backend=args.backend)
+    fit_gaussians(model, train, iterations=args.iterations, seed=args.seed, backend=args.backend)
     model.save(args.out)
     with torch.no_grad():
         out = model.render_views(torch.tensor(test.poses, dtype=torch.float32), test_cams,
@@ -327,9 +327,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--method", choices=("project", "adam"), default="project",
                     help="the field step: project (the nearest pose to first order) or adam (the paper's)")
     sp.add_argument("--lr", type=float, default=None, help="Adam's step size (--method adam; default 0.01)")
-    sp.add_argument("--iterations", "--max-iters", dest="iterations", type=int, default=None,
-                    help="field steps per pose at most (default 5 for project, 1000 for adam; --max-iters: the "
-                         "name of earlier releases)")
+    sp.add_argument("--iterations", dest="iterations", type=int, default=None,
+                    help="field steps per pose at most (default 5 for project, 1000 for adam)")
     sp.add_argument("--no-shrink", dest="no_shrink", action="store_true",
                     help="keep the field's answer (its margin) instead of the first certified pose on its ray")
     sp.add_argument("--no-refine", dest="no_refine", action="store_true",
@@ -358,8 +357,7 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--cameras", type=int, default=8, help="training cameras per pose")
     sp.add_argument("--size", type=int, default=128, help="image size (pixels)")
     sp.add_argument("--gaussians", type=int, default=10_000, help="Gaussians on the robot's surface")
-    sp.add_argument("--iterations", "--iters", dest="iters", type=int, default=600,
-                    help="appearance-fit steps (--iters: the name of earlier releases)")
+    sp.add_argument("--iterations", dest="iterations", type=int, default=600, help="appearance-fit steps")
     sp.add_argument("--distance", type=float, default=1.5, help="camera distance (metres)")
     sp.add_argument("--lookat", default="0,0,0.45", help="x,y,z the cameras look at (metres)")
     sp.add_argument("--processes", type=int, default=2, help="MuJoCo rendering processes")

@@ -61,7 +61,14 @@ class _RobotUnpickler(pickle.Unpickler):
         if module == "builtins" and name == "getattr":
             return _state_getattr
         if module == "profrobot" or module.startswith("profrobot."):
-            obj = super().find_class(module, name)
+            try:
+                obj = super().find_class(module, name)
+            except (ImportError, AttributeError):
+                from .._core import __version__
+
+                raise CorruptFileError(f"{self.where}: it names {module}.{name}, which profrobot {__version__} does "
+                                       "not have: written by a profrobot before 0.1.0, whose modules were laid out "
+                                       "otherwise; build the robot again and save it") from None
             if isinstance(obj, type) and getattr(obj, "__module__", "").startswith("profrobot"):
                 return obj
         raise CorruptFileError(f"{self.where}: it names {module}.{name}, which a robot file may not (only "

@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from typing import Any
+
 import numpy as np
 
 from ...files import atomic_path
@@ -21,7 +23,6 @@ from ...robot.robot import Robot
 from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, movable_obstacles
 from .depth import DEFAULT_GEOMGROUP
-from .estimate import LayoutEstimate
 
 
 __all__ = ["layout_picture"]
@@ -30,7 +31,7 @@ _COLOURS = np.array([[0.12, 0.47, 0.71], [1.0, 0.5, 0.05], [0.17, 0.63, 0.17], [
                      [0.55, 0.34, 0.29], [0.89, 0.47, 0.76], [0.74, 0.74, 0.13], [0.09, 0.75, 0.81]])
 
 
-def _fitted_surfaces(est: LayoutEstimate, family: Robot) -> list[tuple[str, np.ndarray]]:
+def _fitted_surfaces(est: Any, family: Robot) -> list[tuple[str, np.ndarray]]:
     """(name, world surface points (P, 3)) of every estimated obstacle."""
     m = family.mj_model
     qpos = m.qpos0.copy()
@@ -46,7 +47,7 @@ def _fitted_surfaces(est: LayoutEstimate, family: Robot) -> list[tuple[str, np.n
     return out
 
 
-def layout_picture(est: LayoutEstimate, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
+def layout_picture(est: Any, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
     """The figure (module docs); saved as a PNG when ``path`` is given. Returns the Figure."""
     import matplotlib
 

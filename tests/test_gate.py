@@ -1,0 +1,97 @@
+"""The one gate (profrobot.robot.gate): every exact entry point that takes a robot takes the same
+``layout=`` and ``margin=`` keywords and means the same by them; a family at a layout works in each
+and answers as the family pinned there (``robot.at(layout)``); a family without a layout, where one
+scene is needed, is refused with one message."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot.exact import problems
+
+ENTRY_POINTS = [profrobot.label_poses, profrobot.collides, profrobot.sample_poses, profrobot.interpolate,
+                profrobot.certify_poses, profrobot.certify_motions, profrobot.check_path, profrobot.plan_path,
+                profrobot.nearest_free, profrobot.ik, profrobot.plan_to_pose]
+
+
+@pytest.mark.parametrize("fn", ENTRY_POINTS, ids=lambda f: f.__name__)
+def test_every_entry_point_takes_layout_and_margin_by_keyword(fn):
+    params = inspect.signature(fn).parameters
+    for name in ("layout", "margin"):
+        assert name in params and params[name].kind is inspect.Parameter.KEYWORD_ONLY, (fn.__name__, name)
+    assert params["layout"].default is None
+    assert params["margin"].default == profrobot.CLEARANCE
+
+
+@pytest.fixture(scope="module")
+def family():
+    return profrobot.scenes.load("panda_blocks_moving")
+
+
+@pytest.fixture(scope="module")
+def at(family):
+    return np.zeros(len(family.scene_joints))
+
+
+def test_a_family_at_a_layout_answers_as_the_family_pinned_there(family, at):
+    pinned = family.at(at)
+    theta = profrobot.sample_poses(family, 200, seed=1, layout=at)
+    assert theta.shape == (200, len(family.robot_index))
+    np.testing.assert_array_equal(theta, profrobot.sample_poses(pinned, 200, seed=1))
+    np.testing.assert_array_equal(profrobot.collides(family, theta, layout=at), profrobot.collides(pinned, theta))
+    np.testing.assert_array_equal(profrobot.label_poses(family, theta, layout=at).collides,
+                                  profrobot.label_poses(pinned, theta).collides)
+    np.testing.assert_array_equal(profrobot.certify_poses(family, theta, layout=at),
+                                  profrobot.certify_poses(pinned, theta))
+    a, b = problems.free_poses(pinned, 2, seed=3)
+    np.testing.assert_array_equal(profrobot.interpolate(family, a, b, 5, layout=at), profrobot.interpolate(pinned, a, b, 5))
+    assert profrobot.certify_motions(family, a[None], b[None], layout=at).certified[0] == \
+        profrobot.certify_motions(pinned, a[None], b[None]).certified[0]
+    res = profrobot.plan_path(family, a, b, layout=at, seed=2, max_time=20)
+    assert res.found and res.certified
+    assert profrobot.check_path(family, res.path, layout=at).certified
+    hit = problems.colliding_poses(pinned, 2, seed=4)
+    near = profrobot.nearest_free(family, hit, layout=at, seed=0)
+    np.testing.assert_array_equal(near.poses, profrobot.nearest_free(pinned, hit, seed=0).poses)
+
+
+def test_a_family_without_a_layout_is_refused_with_one_message(family):
+    a, b = problems.free_poses(family.at(np.zeros(len(family.scene_joints))), 2, seed=5)
+    message = r"is a family of scenes .*: pass layout=δ, the layout to work at, or pin it first, robot.at\(δ\)"
+    with pytest.raises(profrobot.InputError, match=message):
+        profrobot.plan_path(family, a, b)
+    with pytest.raises(profrobot.InputError, match=message):
+        profrobot.nearest_free(family, a)
+    with pytest.raises(profrobot.InputError, match=message):
+        profrobot.plan_to_pose(family, a, np.array([0.4, 0.0, 0.4]), frame="hand")
+
+
+def test_a_layout_for_a_robot_that_is_no_family_is_refused_everywhere():
+    robot = profrobot.scenes.load("panda_blocks")
+    q = profrobot.sample_poses(robot, 2, seed=0)
+    for call in (lambda: profrobot.collides(robot, q, layout=[0.0]),
+                 lambda: profrobot.plan_path(robot, q[0], q[1], layout=[0.0]),
+                 lambda: profrobot.sample_poses(robot, 2, layout=[0.0])):
+        with pytest.raises(profrobot.InputError, match="layout= is a layout of a family of scenes"):
+            call()
+
+
+def test_margin_means_the_same_everywhere():
+    """The labeller, the fast path and the certificate agree at every margin, and a larger margin
+    puts more free poses in contact (none of them leaves contact)."""
+    robot = profrobot.scenes.load("panda_blocks")
+    q = problems.free_poses(robot, 400, seed=6)
+    before = np.zeros(len(q), dtype=bool)
+    for m in (0.02, 0.05):
+        labels = profrobot.label_poses(robot, q, margin=m)
+        np.testing.assert_array_equal(labels.collides, profrobot.collides(robot, q, margin=m))
+        assert not (profrobot.certify_poses(robot, q, margin=m) & labels.collides).any()
+        assert (labels.collides >= before).all()
+        before = labels.collides
+    assert before.any()
+    with pytest.raises(profrobot.InputError, match="margin"):
+        profrobot.collides(robot, q, margin=-1.0)
