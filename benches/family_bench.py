@@ -103,7 +103,7 @@ def scenes_bench(args) -> int:
         if args.pairs:
             starts, goals = hard_pairs(static, args.pairs, seed=40_000 + i)
             t = time.perf_counter()
-            out = profrobot.plan_trajectory(fam, starts, goals, steps=100, layout=d)
+            out = profrobot.plan_trajectories(fam, starts, goals, steps=100, layout=d)
             traj["seconds"] += time.perf_counter() - t
             for p in out:
                 traj["n"] += 1

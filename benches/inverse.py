@@ -251,14 +251,14 @@ def t8(a):
             kw = dict(robot=scene) if field is None else dict(sdf=field, l_thres=thr, beta=5.0)
             r = trajectory_from_images(model, tg, cams, start=starts[i], goal=goals[i], steps=a.steps, lr=0.05, w_pull=10.0,
                                        background=views.background, **kw)
-            bad_frames += int(r.waypoint_collides.any())
+            bad_frames += int(r.waypoint_uncertified.any())
             bad_any += int(not r.certified)
             if i == 0:
                 from profrobot.optim.pictures import render_trajectory
 
                 render_trajectory(scene, r.path, os.path.join(out, f"t8_{label.split(',')[0].split(' ')[0]}"
                                                                    f"{'' if thr is None else thr}.gif"),
-                                  collides=r.waypoint_collides, camera=PANDA_VIEW, size=(320, 240))
+                                  collides=r.waypoint_uncertified, camera=PANDA_VIEW, size=(320, 240))
         row = dict(setting=label, trajectories=a.instances, with_colliding_frame_pct=100 * bad_frames / a.instances,
                    with_colliding_frame_or_segment_pct=100 * bad_any / a.instances,
                    seconds_per_trajectory=(time.perf_counter() - t0) / a.instances)
@@ -305,14 +305,14 @@ def video(a):
                                background=views.background, **kw)
         err = np.abs(r.path - truth)[:, arm]
         row = dict(setting=label, median_joint_err_rad=float(np.median(err)), p90_joint_err_rad=float(np.percentile(err, 90)),
-                   colliding_frames=int(r.waypoint_collides.sum()), colliding_segments=int(r.segment_collides.sum()),
+                   colliding_frames=int(r.waypoint_uncertified.sum()), uncertified_segments=int(r.segment_uncertified.sum()),
                    free=bool(r.certified), seconds_per_frame=(time.perf_counter() - t0) / a.frames)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if field is not None:
             from profrobot.optim.pictures import render_trajectory
 
-            render_trajectory(scene, r.path, os.path.join(out, "recovered.gif"), collides=r.waypoint_collides,
+            render_trajectory(scene, r.path, os.path.join(out, "recovered.gif"), collides=r.waypoint_uncertified,
                               camera=PANDA_VIEW, size=(320, 240))
     res["rows"], res["loadavg_end"] = rows, os.getloadavg()
     json.dump(res, open(os.path.join(out, "video.json"), "w"), indent=1)

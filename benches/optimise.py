@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 import profrobot
-from profrobot.optim import PenaltyOptions, TangentOptions, plan_trajectory, resolve
+from profrobot.optim import PenaltyOptions, TangentOptions, plan_trajectories, resolve
 from profrobot.exact.problems import colliding_poses, hard_pairs
 
 from fields import OUT as FIELDS_OUT, field
@@ -91,7 +91,7 @@ def bench_trajectories(scene: str, n: int, methods) -> dict:
     out = {"pairs": len(starts), "field": sdf.metrics}
     for name, kw in methods.items():
         t = time.perf_counter()
-        res = plan_trajectory(sdf, starts, goals, steps=100, robot=robot, **kw)
+        res = plan_trajectories(sdf, starts, goals, steps=100, robot=robot, **kw)
         wall = time.perf_counter() - t
         free = np.array([r.certified for r in res])
         # independent re-check: any path reported free must be free under the exact labeller
@@ -112,7 +112,7 @@ def bench_gif() -> dict:
     starts, goals = hard_pairs(robot, 30, seed=300)
     # of the problems solved, the one whose straight path hits the wall or box (not only the
     # floor or itself) the most: the clearest demonstration
-    results = plan_trajectory(sdf, starts, goals, steps=100, robot=robot,
+    results = plan_trajectories(sdf, starts, goals, steps=100, robot=robot,
                               penalty=PenaltyOptions(lr=0.05, iterations=200, check_every=5))
     hits = [profrobot.label_poses(robot, profrobot.interpolate(robot, a, b, 100)).scene_collides.sum()
             for a, b in zip(starts, goals)]

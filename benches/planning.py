@@ -231,7 +231,7 @@ def run_scene(scene: str, n: int, resolution: float, max_time: float, with_field
     if with_field:
         sdf = field_for(scene, recipe)
         t = time.perf_counter()
-        res = profrobot.plan_trajectory(sdf, starts, goals, steps=100, init="planner",
+        res = profrobot.plan_trajectories(sdf, starts, goals, steps=100, init="planner",
                                         planner=dict(resolution=resolution, max_time=max_time))
         wall = (time.perf_counter() - t) / n
         field_rows = []

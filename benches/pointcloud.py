@@ -131,7 +131,7 @@ def main() -> None:
 
     # -- 1b. the self-filter -----------------------------------------------------------------------
     dp = backproject(depth, cams)
-    own, near_static = self_filter(base, Q0, dp.points, 0.02, static=0.005)
+    own, near_static = self_filter(base, Q0, dp.points, padding=0.02, static=0.005)
     removed = own | near_static
     flat = np.concatenate([np.flatnonzero(depth[c].ravel() > 0) + c * depth[c].size for c in range(len(cams))])
     robot_pix = robot_pixels(true, depth, cams)[flat]

@@ -72,8 +72,8 @@ def test_paths_use_the_same_rule(panda):
     s, g = profrobot.exact.problems.hard_pairs(panda, 1, seed=0, steps=20)
     path = profrobot.interpolate(panda, s[0], g[0], 20)
     chk = check_path(panda, path, density=5)
-    np.testing.assert_array_equal(chk.dense_collides, ~_by_definition(panda, chk.dense))
-    assert not chk.certified and chk.segment_collides.any()
+    np.testing.assert_array_equal(chk.dense_uncertified, ~_by_definition(panda, chk.dense))
+    assert not chk.certified and chk.segment_uncertified.any()
     assert not path_free_at(panda, path, 0.01)
 
 

@@ -211,7 +211,7 @@ def test_certification_refuses_what_the_robot_cannot_take(robot):
         assert m.unproven[0], why
         for method in ("continuous", "sampled"):
             check = profrobot.check_path(robot, np.stack([q[1], bad[0]]), method=method)
-            assert not check.certified and check.waypoint_collides[1], (why, method)
+            assert not check.certified and check.waypoint_uncertified[1], (why, method)
     # and the core itself, called directly, refuses them too
     assert not robot.core.certified(np.ascontiguousarray(off), profrobot.CLEARANCE).any()
     if robot.couplings:   # nearest_free puts an off-coupling input on the coupling; plan_path refuses one

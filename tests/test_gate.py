@@ -15,11 +15,17 @@ from profrobot.exact import problems
 
 ENTRY_POINTS = [profrobot.label_poses, profrobot.collides, profrobot.sample_poses, profrobot.interpolate,
                 profrobot.certify_poses, profrobot.certify_motions, profrobot.check_path, profrobot.plan_path,
-                profrobot.nearest_free, profrobot.ik, profrobot.plan_to_pose]
+                profrobot.nearest_free, profrobot.ik, profrobot.plan_to_pose, profrobot.crosscheck,
+                profrobot.mujoco_labels, profrobot.make_dataset, problems.colliding_poses, problems.free_poses,
+                problems.hard_pairs]
+#: the torch side's entry points (a field first; the robot is ``robot=``): the same two keywords
+FIELD_ENTRY_POINTS = ["resolve", "plan_trajectory", "pose_from_images", "trajectory_from_images", "pose_from_text",
+                      "actions_from_video"]
 
 
-@pytest.mark.parametrize("fn", ENTRY_POINTS, ids=lambda f: f.__name__)
+@pytest.mark.parametrize("fn", ENTRY_POINTS + FIELD_ENTRY_POINTS, ids=lambda f: getattr(f, "__name__", f))
 def test_every_entry_point_takes_layout_and_margin_by_keyword(fn):
+    fn = getattr(profrobot, fn) if isinstance(fn, str) else fn
     params = inspect.signature(fn).parameters
     for name in ("layout", "margin"):
         assert name in params and params[name].kind is inspect.Parameter.KEYWORD_ONLY, (fn.__name__, name)
@@ -57,6 +63,11 @@ def test_a_family_at_a_layout_answers_as_the_family_pinned_there(family, at):
     hit = problems.colliding_poses(pinned, 2, seed=4)
     near = profrobot.nearest_free(family, hit, layout=at, seed=0)
     np.testing.assert_array_equal(near.poses, profrobot.nearest_free(pinned, hit, seed=0).poses)
+    np.testing.assert_array_equal(problems.colliding_poses(family, 2, seed=4, layout=at), hit)
+    np.testing.assert_array_equal(profrobot.make_dataset(family, 20, seed=1, layout=at, progress=False).poses,
+                                  profrobot.make_dataset(pinned, 20, seed=1, progress=False).poses)
+    report = profrobot.crosscheck(family, theta[:50], layout=at, progress=False)
+    assert report.summary() == profrobot.crosscheck(pinned, theta[:50], progress=False).summary()
 
 
 def test_a_family_without_a_layout_is_refused_with_one_message(family):

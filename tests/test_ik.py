@@ -283,7 +283,7 @@ def test_actions_from_video_with_end_effector_targets_on_operation_frames():
     assert r.method.endswith("+frames")
     got = frame_poses(robot, "hand", r.path[ops])
     assert np.linalg.norm(got[:, :3, 3] - grasp[:, :3, 3], axis=1).max() <= 5e-3
-    assert r.certified and not r.waypoint_collides.any() and not r.segment_collides.any()
+    assert r.certified and not r.waypoint_uncertified.any() and not r.segment_uncertified.any()
     assert not profrobot.mujoco_labels(robot, r.path).collides.any()
 
 
@@ -307,7 +307,7 @@ def test_trajectory_from_images_through_a_frame_target():
     assert r.method.endswith("+frames")
     got = frame_poses(robot, "hand", r.path[9:10])[0]
     assert np.linalg.norm(got[:3, 3] - target[:3, 3]) <= 1e-4
-    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    assert r.certified == (not r.waypoint_uncertified.any() and not r.segment_uncertified.any())
 
 
 def test_ik_command(urdf_arm, tmp_path, capsys):

@@ -107,10 +107,10 @@ def test_trajectory_from_images_frames_and_certificate(panda, setup):
     r = trajectory_from_images(model, t, cams, start=a, goal=b, steps=12, robot=panda)
     assert r.path.shape == (12, panda.njoint) and np.allclose(r.path[0], a) and r.method == "images"
     assert np.linalg.norm(r.path[-1] - b) < np.linalg.norm(a - b)            # moved towards the goal
-    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    assert r.certified == (not r.waypoint_uncertified.any() and not r.segment_uncertified.any())
     f = trajectory_from_images(model, t, cams, start=a, goal=b, steps=12, sdf=_field(panda, -100.0), smooth_iterations=5)
     assert f.certified or f.method != "images+planner"
-    assert f.certified == (not f.waypoint_collides.any() and not f.segment_collides.any())
+    assert f.certified == (not f.waypoint_uncertified.any() and not f.segment_uncertified.any())
     with pytest.raises(ProfrobotError, match="robot="):
         trajectory_from_images(model, t, cams, start=a, steps=5)
     with pytest.raises(ProfrobotError, match="steps"):
@@ -132,12 +132,12 @@ def test_actions_from_video_tracks_a_free_trajectory(panda, setup):
     r = actions_from_video(model, f, cams, init=path[0] + 0.01, iterations_per_frame=4, joint_iterations=3, robot=panda)
     assert r.path.shape == (4, panda.njoint) and r.method == "video"
     assert np.median(np.abs(r.path - path)[:, :7]) < 0.03
-    assert r.certified == (not r.waypoint_collides.any() and not r.segment_collides.any())
+    assert r.certified == (not r.waypoint_uncertified.any() and not r.segment_uncertified.any())
     rf = actions_from_video(model, f, cams, init=path[0] + 0.01, iterations_per_frame=4, joint_iterations=3,
                             sdf=_field(panda, -100.0))
     # the field's stage adds joint_iterations more steps (its penalty is 0 here): only image refinement
     assert rf.method == "video+field" and np.abs(rf.path - r.path).max() < 0.02
-    assert rf.certified == (not rf.waypoint_collides.any() and not rf.segment_collides.any())
+    assert rf.certified == (not rf.waypoint_uncertified.any() and not rf.segment_uncertified.any())
     with pytest.raises(ProfrobotError, match="2 frames"):
         actions_from_video(model, {k: v[:1] for k, v in f.items()}, cams, init=path[0], robot=panda)
     with pytest.raises(ProfrobotError, match="init"):
@@ -168,8 +168,8 @@ def test_family_fields_work_at_a_layout_and_certify_there(setup):
     one = {k: v[0] for k, v in t.items()}
     a = problems.free_poses(layout, 1, 5)[0]
     tr = trajectory_from_images(model, one, cams, start=a, steps=6, sdf=sdf, layout=delta, smooth_iterations=2)
-    np.testing.assert_array_equal(tr.waypoint_collides, ~profrobot.certify_poses(layout, tr.path))
+    np.testing.assert_array_equal(tr.waypoint_uncertified, ~profrobot.certify_poses(layout, tr.path))
     frames = {k: np.stack([v[0], v[0]]) for k, v in t.items()}
     v = actions_from_video(model, frames, cams, init=a, sdf=sdf, layout=delta, iterations_per_frame=1,
                            first_frame_iterations=1, joint_iterations=1)
-    np.testing.assert_array_equal(v.waypoint_collides, ~profrobot.certify_poses(layout, v.path))
+    np.testing.assert_array_equal(v.waypoint_uncertified, ~profrobot.certify_poses(layout, v.path))

@@ -8,7 +8,8 @@ import torch
 import profrobot
 from profrobot.exact import problems
 from profrobot.field import PoseSDF
-from profrobot.optim import (PenaltyOptions, TangentOptions, check_path, collision_penalty, plan_trajectory,
+from profrobot.optim import (PenaltyOptions, TangentOptions, check_path, collision_penalty, plan_trajectories,
+                             plan_trajectory,
                              resolve)
 from profrobot.errors import RobotMismatchError
 from profrobot.kinematics.limits import LIMIT_INSET
@@ -287,17 +288,17 @@ def _hard_pair(robot, seed=5):
 def test_check_path_finds_collisions_between_free_waypoints(panda):
     a, b = _hard_pair(panda)
     chk = check_path(panda, np.stack([a, b]), density=50, method="sampled")
-    assert not chk.waypoint_collides.any() and chk.segment_collides.all() and not chk.certified
+    assert not chk.waypoint_uncertified.any() and chk.segment_uncertified.all() and not chk.certified
     assert len(chk.dense) == 51
     cont = check_path(panda, np.stack([a, b]))  # the continuous certificate refuses it too
-    assert cont.method == "continuous" and cont.segment_collides.all() and not cont.certified
+    assert cont.method == "continuous" and cont.segment_uncertified.all() and not cont.certified
     path = profrobot.interpolate(panda, a, b, 30)
     full = check_path(panda, path, density=4, method="sampled")
-    assert not full.certified and full.colliding_segments.size > 0
-    hit = np.flatnonzero(full.dense_collides)
-    assert set(np.minimum(hit // 4, 28)) <= set(full.colliding_segments)
+    assert not full.certified and full.uncertified_segments.size > 0
+    hit = np.flatnonzero(full.dense_uncertified)
+    assert set(np.minimum(hit // 4, 28)) <= set(full.uncertified_segments)
     # every segment a sample finds colliding is refused continuously (the proof covers the samples)
-    assert set(full.colliding_segments) <= set(check_path(panda, path).colliding_segments)
+    assert set(full.uncertified_segments) <= set(check_path(panda, path).uncertified_segments)
 
 
 def test_plan_reports_collisions_the_field_misses(panda):
@@ -307,7 +308,7 @@ def test_plan_reports_collisions_the_field_misses(panda):
     for method in ("penalty", "tangent"):
         res = plan_trajectory(shifted_field(panda, -100.0), a, b, steps=20, method=method, init="straight",
                               penalty=PenaltyOptions(iterations=10), tangent=TangentOptions(iterations=500, delta=0.05))
-        assert not res.certified and res.colliding_segments.size > 0
+        assert not res.certified and res.uncertified_segments.size > 0
         np.testing.assert_array_equal(res.path[0], a)
         np.testing.assert_array_equal(res.path[-1], b)
         assert res.path.shape == (20, panda.njoint)
@@ -321,7 +322,7 @@ def test_plan_penalty_moves_waypoints_along_the_field_gradient(panda):
     starts, goals = np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
     w = np.zeros(panda.njoint); w[0] = 1.0
     field = LinearField(panda, w, 5.0)
-    res = plan_trajectory(field, starts, goals, steps=10, penalty=PenaltyOptions(iterations=20, check_every=1000),
+    res = plan_trajectories(field, starts, goals, steps=10, penalty=PenaltyOptions(iterations=20, check_every=1000),
                           init="straight")
     assert len(res) == 2
     for r, a, b in zip(res, starts, goals):
@@ -351,8 +352,10 @@ def test_plan_bad_input(panda):
     q = profrobot.sample_poses(panda, 2, seed=0)
     with pytest.raises(ValueError, match="method"):
         plan_trajectory(sdf, q[0], q[1], method="rrt")
-    with pytest.raises(ValueError, match="same shape"):
+    with pytest.raises(ValueError, match="plans one problem"):
         plan_trajectory(sdf, q[0], q)
+    with pytest.raises(ValueError, match=r"takes \(B, K\)"):
+        plan_trajectories(sdf, q[0], q[1])
     with pytest.raises(ValueError, match="shape"):
         plan_trajectory(sdf, q[0, :-1], q[1, :-1])
     with pytest.raises(ValueError, match="steps"):

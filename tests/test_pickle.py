@@ -442,7 +442,7 @@ def test_a_robot_file_from_before_0_1_0_is_refused_naming_the_version(name, tmp_
     old = tmp_path / "old.pkl"
     old.write_bytes(data)
     with pytest.raises(CorruptFileError, match=r"before 0\.1\.0"):
-        profrobot.load_robot(old)
+        profrobot.Robot.load(old)
 
 
 def test_every_robot_methods_annotations_resolve():

@@ -125,11 +125,11 @@ def test_bad_input():
 def test_plan_trajectory_falls_back_to_the_planner_and_smooths_without_losing_certification():
     robot = scene("ur5e_wall_box")
     starts, goals = hard_pairs(robot, 3, seed=13)
-    exact = profrobot.plan_trajectory(None, starts, goals, robot=robot, steps=60)
+    exact = profrobot.plan_trajectories(None, starts, goals, robot=robot, steps=60)
     assert all(r.certified and r.init == "planner" and r.method == "planner" for r in exact)
     sdf = profrobot.train_sdf(robot, hidden=(64, 64), n_poses=20_000, iterations=60, batch_size=1024,
                               progress=False, seed=0)
-    smoothed = profrobot.plan_trajectory(sdf, starts, goals, steps=60, smooth_iterations=60, penalty=profrobot.optim.PenaltyOptions(check_every=10))
+    smoothed = profrobot.plan_trajectories(sdf, starts, goals, steps=60, smooth_iterations=60, penalty=profrobot.optim.PenaltyOptions(check_every=10))
     for r, e in zip(smoothed, exact):
         assert r.certified and r.init == "planner" and r.planner.found
         assert r.length <= r.length_before + 1e-9          # the shortest certified iterate, never longer

@@ -190,7 +190,7 @@ def test_depth_to_cloud_removes_the_robot_and_covers_the_objects(tmp_path):
     mujoco.mj_kinematics(m, d)
     robot_bodies = {b for b in range(m.nbody) if b != 0 and m.body_rootid[b] == m.body_rootid[m.jnt_bodyid[0]]}
     dp = backproject(depth, cams)
-    own, static = self_filter(base, Q0, dp.points, 0.02, static=0.005)
+    own, static = self_filter(base, Q0, dp.points, padding=0.02, static=0.005)
     seen = []
     for c in range(len(cams)):
         _, gid = expected_depth(m, d, cams, c)
@@ -214,7 +214,7 @@ def test_depth_to_cloud_removes_the_robot_and_covers_the_objects(tmp_path):
 
 
 def test_self_filter_refuses_bad_input(blocks):
-    with pytest.raises(profrobot.InputError, match="margin"):
-        self_filter(blocks, Q0, np.zeros((3, 3)), -0.1)
+    with pytest.raises(profrobot.InputError, match="padding"):
+        self_filter(blocks, Q0, np.zeros((3, 3)), padding=-0.1)
     with pytest.raises(profrobot.InputError, match="not finite"):
         self_filter(blocks, Q0, np.full((3, 3), np.nan))

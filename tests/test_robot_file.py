@@ -1,7 +1,7 @@
 """A field directory stores its robot (issue 37): ``PoseSDF.load(path)`` with no robot, for a
 URDF cell with obstacles and a point cloud that no bundled name can rebuild; the fingerprint
 check kept when a robot is passed; old directories without the robot say what to pass; and
-:func:`profrobot.load_robot` runs none of a tampered file's code."""
+:meth:`profrobot.Robot.load` runs none of a tampered file's code."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import profrobot
-from profrobot import PointCloud, PoseSDF, Robot, Sphere, load_robot, save_robot
+from profrobot import PointCloud, PoseSDF, Robot, Sphere
 from profrobot.errors import CorruptFileError, MissingFileError, RobotMismatchError
 
 from test_cli_robots import ARM_URDF
@@ -72,20 +72,20 @@ def test_a_directory_written_before_fields_stored_their_robot(cell, tmp_path):
 
 
 def test_save_and_load_robot_round_trip_and_refuse_what_is_not_a_robot(cell, tmp_path):
-    path = save_robot(cell, tmp_path / "cell.pkl")
-    back = load_robot(path)
+    path = cell.save(tmp_path / "cell.pkl")
+    back = Robot.load(path)
     assert back.fingerprint == cell.fingerprint and back.joint_names == cell.joint_names
     assert oct(path.stat().st_mode & 0o777) == oct(0o666 & ~_umask())
     with pytest.raises(MissingFileError, match="no robot file"):
-        load_robot(tmp_path / "none.pkl")
+        Robot.load(tmp_path / "none.pkl")
     (tmp_path / "cut.pkl").write_bytes(path.read_bytes()[:1000])
     with pytest.raises(CorruptFileError, match="not a robot file"):
-        load_robot(tmp_path / "cut.pkl")
+        Robot.load(tmp_path / "cut.pkl")
     (tmp_path / "list.pkl").write_bytes(pickle.dumps([1, 2]))
     with pytest.raises(CorruptFileError, match="holds a list"):
-        load_robot(tmp_path / "list.pkl")
-    with pytest.raises(profrobot.errors.InputTypeError, match="needs a profrobot.Robot"):
-        save_robot("panda", tmp_path / "x.pkl")
+        Robot.load(tmp_path / "list.pkl")
+    with pytest.raises(profrobot.errors.InputTypeError, match="path must be a file path"):
+        Robot.load(123)
 
 
 class _Payload:
@@ -109,15 +109,15 @@ def test_a_tampered_robot_file_runs_none_of_its_code(tmp_path):
     marker = tmp_path / "pwned"
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps(_Payload(str(marker))))
     with pytest.raises(CorruptFileError, match="io.open"):
-        load_robot(tmp_path / "evil.pkl")
+        Robot.load(tmp_path / "evil.pkl")
     assert not marker.exists()
     (tmp_path / "evil2.pkl").write_bytes(pickle.dumps(_ViaGetattr()))
     with pytest.raises(CorruptFileError, match="RobotModel._from_state only"):
-        load_robot(tmp_path / "evil2.pkl")
+        Robot.load(tmp_path / "evil2.pkl")
     # a name reached through a profrobot module is not a profrobot class
     (tmp_path / "evil3.pkl").write_bytes(b"\x80\x02cprofrobot.robot.robot\nnp\n.")
     with pytest.raises(CorruptFileError, match="profrobot.robot.robot.np"):
-        load_robot(tmp_path / "evil3.pkl")
+        Robot.load(tmp_path / "evil3.pkl")
     # a field directory holding such a file fails the same way, naming it
     field = tmp_path / "field"
     PoseSDF(profrobot.scenes.load("ur5e_wall_box"), hidden=(8,)).save(field)

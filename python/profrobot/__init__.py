@@ -44,7 +44,6 @@ from .exact.planning import PathResult, plan_path  # noqa: E402
 from .exact.ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from .robot.pointcloud import PointCloud  # noqa: E402
-from .robot.file import load_robot, save_robot  # noqa: E402
 from .robot.family import Moves  # noqa: E402
 
 # name → the module that defines it; loaded on first access
@@ -53,7 +52,7 @@ _LAZY = {
     "export_sdf": ".field",
     "Kinematics": ".kinematics",
     "collision_penalty": ".optim", "resolve": ".optim", "ResolveResult": ".optim",
-    "plan_trajectory": ".optim", "TrajectoryResult": ".optim",
+    "plan_trajectory": ".optim", "plan_trajectories": ".optim", "TrajectoryResult": ".optim",
     "ProfrobotError": ".errors", "ModelError": ".errors", "RobotMismatchError": ".errors",
     "CorruptFileError": ".errors", "InputError": ".errors", "InputTypeError": ".errors",
     "BackendUnavailableError": ".errors", "ClusterError": ".errors", "MissingFileError": ".errors",
@@ -70,12 +69,12 @@ _SUBPACKAGES = ("robot", "exact", "executors", "gl", "kinematics", "field", "ren
 __all__ = [
     "__version__", "scenes", "robot", "exact", "executors", "kinematics", "field", "render", "optim", "inverse",
     "perception", "viz", "errors",
-    "Robot", "save_robot", "load_robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "Moves",
+    "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "Moves",
     "PointCloud", "cloud_from_depth", "CloudBuild",
     "label_poses", "collides", "sample_poses", "interpolate", "Labels", "make_dataset", "Dataset",
     "crosscheck", "mujoco_labels", "CrosscheckReport", "RendererUnavailableError",
     "Kinematics", "PoseSDF", "train_sdf", "export_sdf",
-    "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "TrajectoryResult",
+    "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "plan_trajectories", "TrajectoryResult",
     "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion",
     "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "actions_from_video", "estimate_layout", "LayoutEstimate",

@@ -16,7 +16,7 @@ function (``rust/angles.rs``; ``profrobot.angles.wrap`` is its Python twin): val
 """
 
 from collections.abc import Callable, Sequence
-from typing import Literal, final
+from typing import Literal, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -25,6 +25,17 @@ __all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "Mode
            "__version__"]
 
 __version__: str
+
+class _PlannedPath(TypedDict):
+    """What :meth:`RobotModel.plan_path` returns (a plain dict at run time)."""
+
+    path: npt.NDArray[np.float64]
+    status: Literal["direct", "connected", "time_out", "iteration_limit"]
+    checks: int
+    iterations: int
+    tree_sizes: tuple[int, int]
+    raw_waypoints: int
+    seconds: float
 
 class ProfrobotError(Exception):
     """Root of every error profrobot raises on purpose (profrobot.errors lists the family)."""
@@ -125,7 +136,7 @@ class RobotModel:
     def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
                   max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
                   shortcut_rounds: int = 200, verify: int = 10, continuous: bool = True, clearance: float = 1e-6,
-                  threads: int | None = None) -> dict[str, object]:
+                  threads: int | None = None) -> _PlannedPath:
         """A free path from ``start`` to ``goal`` (K,) (both free and within limits): the straight
         SO(2) path if free, else RRT-Connect then shortcutting. ``continuous``: every edge proven
         free at every pose, every pair above ``max(margin, clearance)`` (``certify_motions``;

@@ -8,7 +8,6 @@ import sys
 import time
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from .. import scenes
 from .._core import __version__
@@ -16,7 +15,8 @@ from ..exact.crosscheck import crosscheck
 from ..exact.dataset import Dataset, make_dataset
 from ..errors import InputError, ProfrobotError
 from ..exact.labels import Labels, label_poses, sample_poses
-from .robots import DefaultsFormatter, add_robot_arguments, numbers, robot_of
+from ..executors.progress import progress_bar
+from .robots import DefaultsFormatter, add_robot_arguments, negative_values, numbers, pose_arg, robot_of
 
 _CHUNK = 50_000
 
@@ -58,8 +58,10 @@ def _inverse(name: str):
 
 def _label_with_progress(robot, poses, threads) -> Labels:
     parts = []
-    for start in tqdm(range(0, len(poses), _CHUNK), desc=f"label {robot.name}", unit="chunk", disable=None):
-        parts.append(label_poses(robot, poses[start:start + _CHUNK], threads=threads))
+    with progress_bar(len(poses), desc=f"label {robot.name}", unit="pose") as bar:
+        for start in range(0, len(poses), _CHUNK):
+            parts.append(label_poses(robot, poses[start:start + _CHUNK], threads=threads))
+            bar.update(len(parts[-1]))
     return Labels(*(np.concatenate([getattr(p, k) for p in parts])
                     for k in ("collides", "self_collides", "scene_collides", "n_pairs")))
 
@@ -154,7 +156,7 @@ def cmd_ik(args) -> int:
         targets = np.load(args.targets, allow_pickle=False)
     except (OSError, ValueError) as e:
         raise InputError(f"--targets {args.targets}: not a readable .npy array ({e})") from None
-    start = numbers(args.start, "start") if args.start else None
+    start = pose_arg(args.start, "start", robot) if args.start else None
     res = ik(robot, targets, frame=args.frame, start=start, seeds=args.seeds, seed=args.seed, threads=args.threads)
     print(res.summary())
     for i in res.failures[:10]:
@@ -335,22 +337,33 @@ def main(argv: list[str] | None = None) -> int:
                     help="do not retry poses the exact labeller still finds colliding")
     sp.add_argument("--out", help="save poses, certified, iterations, delta to this .npz")
     sp.set_defaults(fn=_optim("cmd_resolve"))
-    sp = sub.add_parser("plan", help="a collision-aware trajectory between two poses")
-    common(sp, threads=False, scene_default=None)
-    sp.add_argument("--field", required=True, help="PoseSDF checkpoint directory")
+    sp = sub.add_parser("plan", help="a certified motion between two poses, or to a pose of a frame (no field "
+                                     "needed; with --field, the field's trajectory)")
+    common(sp, threads=False, scene_default="panda_blocks")
+    sp.add_argument("--field", default=None, help="PoseSDF checkpoint directory: plan the field's trajectory "
+                                                  "(default: none, the exact planner alone)")
     layout(sp)
-    sp.add_argument("--start", help="comma-separated start pose (default: a random hard problem)")
-    sp.add_argument("--goal", help="comma-separated goal pose")
+    sp.add_argument("--start", help="start pose: comma-separated (radians / metres), or a .npy / .npz file the "
+                                    "commands write (ik's poses, plan's path), FILE:i for row i "
+                                    "(default: a random hard problem)")
+    sp.add_argument("--goal", help="goal pose, as --start")
+    sp.add_argument("--frame", help="with --target: the site, body or geom to bring to the target")
+    sp.add_argument("--target", metavar="X,Y,Z[,QW,QX,QY,QZ]",
+                    help="plan to a pose of --frame (metres; with a unit quaternion, its orientation too): IK "
+                         "candidates, each certified, then the exact planner")
+    sp.add_argument("--max-time", dest="max_time", type=float, default=10.0,
+                    help="seconds the exact planner may take")
     sp.add_argument("--steps", type=int, default=100, help="waypoints of the trajectory")
     sp.add_argument("--method", choices=("penalty", "tangent"), default="penalty",
                     help="penalty: Adam on the path's field penalty; tangent: the paper's Algorithm 1")
     sp.add_argument("--init", choices=("auto", "straight", "planner"), default="auto",
                     help="auto: the straight path if free, else the exact planner then field smoothing")
-    sp.add_argument("--iterations", type=int, default=500, help="Adam steps (tangent: 6x as many walk steps)")
+    sp.add_argument("--iterations", type=int, default=500, help="with --field: Adam steps (tangent: 6x as many "
+                                                                "walk steps)")
     sp.add_argument("--out", help="save the path and its check to this .npz")
     sp.add_argument("--gif", help="render the path with MuJoCo to this .gif (in a worker process: EGL or OSMesa "
                                   "headless)")
-    sp.add_argument("--plot", help="joint curves and g along the path to this image")
+    sp.add_argument("--plot", help="with --field: joint curves and g along the path to this image")
     sp.set_defaults(fn=_optim("cmd_plan"))
     sp = sub.add_parser("render", help="fit a Gaussian-splat robot to MuJoCo renders (robot only)")
     common(sp, 40)
@@ -398,8 +411,8 @@ def main(argv: list[str] | None = None) -> int:
     sp.add_argument("--frame", required=True, help="the site, body or geom to place (e.g. the gripper's site)")
     sp.add_argument("--targets", required=True, help=".npy file: (N, 4, 4) world transforms or (N, 3) positions, "
                                                      "metres")
-    sp.add_argument("--start", help="comma-separated joint pose the answers stay near (default: the middle of "
-                                    "the limits)")
+    sp.add_argument("--start", help="joint pose the answers stay near: comma-separated, or a .npy / .npz file "
+                                    "(FILE:i for row i) (default: the middle of the limits)")
     sp.add_argument("--seeds", type=int, default=128, help="seeds per target at most")
     sp.add_argument("--out", help="save poses, certified, reached, outcome and errors to this .npz (atomic)")
     sp.set_defaults(fn=cmd_ik)
@@ -436,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     sp = sub.add_parser("scenes", help="list the bundled scenes and families of scenes")
     sp.set_defaults(fn=lambda a: print("\n".join(scenes.names() + scenes.family_names())) or 0)
 
-    args = p.parse_args(argv)
+    args = p.parse_args(negative_values(sys.argv[1:] if argv is None else list(argv)))
     try:
         return args.fn(args)
     except KeyboardInterrupt:

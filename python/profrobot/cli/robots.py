@@ -1,6 +1,6 @@
 """A robot named on the command line: a bundled scene or family (``--scene NAME``), or a file
 (``--robot FILE``: MJCF ``.xml``, URDF ``.urdf`` with meshes through ``--package-dir``, or a
-robot file ``.pkl`` from :func:`profrobot.save_robot`). A command given ``--field DIR`` and
+robot file ``.pkl`` from ``robot.save``). A command given ``--field DIR`` and
 neither takes the robot the field directory stores. Every command takes these (base layer: no
 torch)."""
 
@@ -12,16 +12,17 @@ from pathlib import Path
 from .. import scenes
 from ..errors import InputError
 from ..robot.robot import Robot
-from ..robot.file import load_robot, stored_robot
+from ..robot.file import ROBOT_FILE
 
-__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_robot", "numbers", "DefaultsFormatter"]
+__all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_robot", "numbers", "pose_arg", "layout_of",
+           "negative_values", "DefaultsFormatter"]
 
 DEFAULT_SCENE = "panda_blocks"
 
 
 def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
     """An MJCF (.xml), URDF (.urdf, or a ``<robot>`` root; meshes by ``package://`` through
-    ``package_dirs``) or :func:`profrobot.save_robot` (.pkl) file, e.g. the robot in its cell
+    ``package_dirs``) or ``robot.save`` (.pkl) file, e.g. the robot in its cell
     that a field was trained for."""
     p = Path(path)
     if not p.is_file():
@@ -33,8 +34,8 @@ def robot_file(path: str, package_dirs: list[str] | None = None) -> Robot:
         return Robot.from_urdf(p, package_dirs=package_dirs)
     if package_dirs:
         raise InputError("--package-dir is for URDF robots (--robot FILE.urdf)")
-    if p.suffix.lower() == ".pkl":   # profrobot.save_robot's file: the robot in its cell
-        return load_robot(p)
+    if p.suffix.lower() == ".pkl":   # robot.save's file: the robot in its cell
+        return Robot.load(p)
     return Robot.from_mjcf(p)
 
 
@@ -46,7 +47,7 @@ def add_robot_arguments(sp: argparse.ArgumentParser, *, scene_default: str | Non
                          f"(default: {scene_default or 'the one the field was trained for'}, unless --robot)")
     sp.add_argument("--robot", default=None, metavar="FILE",
                     help="the robot (and its cell) as a file instead: MJCF .xml, URDF .urdf, or "
-                         "profrobot.save_robot's .pkl")
+                         "a robot.save .pkl")
     sp.add_argument("--package-dir", dest="package_dir", action="append", default=None, metavar="DIR",
                     help="where a URDF's package:// meshes live (a package's folder or a folder of packages; "
                          "repeatable)")
@@ -86,9 +87,8 @@ def field_robot(field: str | Path) -> Robot:
     field = Path(field)
     if not field.is_dir():
         raise MissingFileError(f"--field {field}: no such checkpoint directory (profrobot train --out)")
-    robot = stored_robot(field)
-    if robot is not None:
-        return robot
+    if (field / ROBOT_FILE).is_file():
+        return Robot.load(field / ROBOT_FILE)
     cfg = field / "config.json"
     if not cfg.is_file():
         raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")
@@ -98,7 +98,7 @@ def field_robot(field: str | Path) -> Robot:
         raise CorruptFileError(f"--field {field}: unreadable config.json ({e})") from None
     if name not in scenes.names() + scenes.family_names():
         raise InputError(f"--field {field}: it stores no robot (written before fields stored theirs) and its robot "
-                         f"{name!r} is not a bundled scene; pass --robot FILE (the MJCF, URDF or save_robot file it "
+                         f"{name!r} is not a bundled scene; pass --robot FILE (the MJCF, URDF or robot.save file it "
                          "was trained for) or --scene NAME")
     return scenes.load(name)
 
@@ -111,6 +111,75 @@ def numbers(text: str, option: str):
         return np.array([float(v) for v in text.replace(" ", "").split(",") if v != ""])
     except ValueError:
         raise InputError(f"--{option} must be comma-separated numbers (radians / metres); got {text!r}") from None
+
+
+def pose_arg(text: str, option: str, robot: Robot):
+    """``--option``'s one joint pose (radians / metres) as a float64 array: comma-separated
+    numbers, or a file the commands write: a ``.npy`` array, or an ``.npz`` with ``poses`` (``ik``,
+    ``resolve``) or ``path`` (``plan``); ``FILE:i`` picks row ``i`` (default: 0; for a path,
+    ``:-1`` is its end)."""
+    import numpy as np
+
+    from ..errors import CorruptFileError, MissingFileError
+
+    name, _, row = text.rpartition(":") if text.rpartition(":")[2].lstrip("-").isdigit() else (text, "", "0")
+    if not name.lower().endswith((".npy", ".npz")):
+        return numbers(text, option)
+    if not Path(name).is_file():
+        raise MissingFileError(f"--{option} {name}: no such file")
+    try:
+        data = np.load(name, allow_pickle=False)
+        if name.lower().endswith(".npz"):
+            key = next((k for k in ("poses", "path") if k in data.files), None)
+            if key is None:
+                raise CorruptFileError(f"--{option} {name}: holds {sorted(data.files)}, no 'poses' or 'path'")
+            data = data[key]
+    except (OSError, ValueError) as e:
+        raise CorruptFileError(f"--{option} {name}: not a readable .npy / .npz array ({e})") from None
+    arr = np.asarray(data, dtype=np.float64)
+    if arr.ndim == 2:
+        i = int(row)
+        if not -len(arr) <= i < len(arr):
+            raise InputError(f"--{option} {text}: row {i} of {len(arr)}")
+        arr = arr[i]
+    if arr.ndim != 1:
+        raise InputError(f"--{option} {text}: a pose is (K,) or a row of (N, K); got shape {arr.shape}")
+    return arr
+
+
+def layout_of(args: argparse.Namespace, robot: Robot):
+    """``--layout`` for a family of scenes (its scene joints at 0 by default), None for a robot
+    with no scene joints (which refuses ``--layout``)."""
+    import numpy as np
+
+    text = getattr(args, "layout", None)
+    if not robot.is_family:
+        if text is not None:
+            raise InputError(f"--layout is for a family of scenes; {robot.name} has no scene joints")
+        return None
+    if text is None:
+        return np.zeros(len(robot.scene_index))
+    delta = numbers(text, "layout")
+    if len(delta) != len(robot.scene_index):
+        raise InputError(f"--layout needs {len(robot.scene_index)} values, one per scene joint "
+                         f"({', '.join(robot.scene_joints)}); got {len(delta)}")
+    return delta
+
+
+def negative_values(argv: list[str]) -> list[str]:
+    """``--start -0.5,1.2`` as ``--start=-0.5,1.2``: argparse reads a value that starts with ``-``
+    and is not one plain number as an option, so a pose or layout with a negative first value
+    failed with "expected one argument"."""
+    import re
+
+    number_list = re.compile(r"^-\d*\.?\d+(?:[eE][-+]?\d+)?(?:,\s*-?\d*\.?\d+(?:[eE][-+]?\d+)?)*,?$")
+    out: list[str] = []
+    for a in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and number_list.match(a):
+            out[-1] = f"{out[-1]}={a}"
+        else:
+            out.append(a)
+    return out
 
 
 class DefaultsFormatter(argparse.HelpFormatter):

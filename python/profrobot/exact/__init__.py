@@ -9,3 +9,9 @@
 - :mod:`.dataset`: labelled datasets on disk;
 - :mod:`.crosscheck`: the same poses through MuJoCo's ``mj_collision``.
 """
+
+from __future__ import annotations
+
+from . import certification, crosscheck, dataset, ik, labels, oracle, planning, problems
+
+__all__ = ["labels", "certification", "planning", "ik", "oracle", "problems", "dataset", "crosscheck"]

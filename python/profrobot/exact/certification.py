@@ -38,7 +38,7 @@ distance the labels report. The verdict is that of labelling every pose with dis
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, overload
 
 import numpy as np
 
@@ -123,26 +123,26 @@ class PathCheck:
     Attributes:
         certified: the whole path is certified free: every waypoint, and every segment (proven
             continuously, or every dense sample with ``method="sampled"``).
-        waypoint_collides: (S,) bool, waypoint i is not certified free.
-        segment_collides: (S−1,) bool, segment i (waypoints i and i+1, its end points included)
+        waypoint_uncertified: (S,) bool, waypoint i is not certified free.
+        segment_uncertified: (S−1,) bool, segment i (waypoints i and i+1, its end points included)
             is not certified free somewhere (or, continuously, not proven free).
         dense: the poses checked one by one, radians / metres: ((S−1)·density + 1, K) sampled;
             the S waypoints with the continuous certificate (which proves the segments between).
-        dense_collides: (D,) bool.
+        dense_uncertified: (D,) bool.
         method: ``"continuous"`` or ``"sampled"``.
     """
 
     certified: bool
-    waypoint_collides: np.ndarray
-    segment_collides: np.ndarray
+    waypoint_uncertified: np.ndarray
+    segment_uncertified: np.ndarray
     dense: np.ndarray
-    dense_collides: np.ndarray
+    dense_uncertified: np.ndarray
     method: str = "sampled"
 
     @property
-    def colliding_segments(self) -> np.ndarray:
+    def uncertified_segments(self) -> np.ndarray:
         """Indices i of segments [i, i+1] that are not certified free somewhere."""
-        return np.flatnonzero(self.segment_collides)
+        return np.flatnonzero(self.segment_uncertified)
 
 
 def check_path(robot: Robot, path, density: int = 10, *, layout=None, margin: float = CLEARANCE,
@@ -166,14 +166,14 @@ def check_path(robot: Robot, path, density: int = 10, *, layout=None, margin: fl
         hit = ~certify_poses(robot, path)
         seg_hit = ~certify_motions(robot, path[:-1], path[1:]).certified | hit[:-1] | hit[1:]
         # (every waypoint ends a segment, so a failing waypoint fails a segment too)
-        return PathCheck(certified=not seg_hit.any(), waypoint_collides=hit,
-                         segment_collides=seg_hit, dense=path, dense_collides=hit, method="continuous")
+        return PathCheck(certified=not seg_hit.any(), waypoint_uncertified=hit,
+                         segment_uncertified=seg_hit, dense=path, dense_uncertified=hit, method="continuous")
     S, K = path.shape
     ok = robot.feasible(path)
     if not ok.all():  # off its couplings or outside its limits: nothing to sample, nothing certified
         bad = ~ok
-        return PathCheck(certified=False, waypoint_collides=bad, segment_collides=bad[:-1] | bad[1:], dense=path,
-                         dense_collides=bad, method="sampled")
+        return PathCheck(certified=False, waypoint_uncertified=bad, segment_uncertified=bad[:-1] | bad[1:], dense=path,
+                         dense_uncertified=bad, method="sampled")
     # (S−1, density+1, K): each segment with both its end points, so every segment is whole
     seg = interpolate(robot, path[:-1], path[1:], int(density) + 1)
     dense = np.concatenate([seg[:, :-1].reshape(-1, K), path[-1:]], axis=0)
@@ -184,8 +184,8 @@ def check_path(robot: Robot, path, density: int = 10, *, layout=None, margin: fl
     seg_hit[np.minimum(idx[hit] // density, S - 2)] = True
     ends = idx[hit][(idx[hit] % density == 0) & (idx[hit] > 0)] // density - 1
     seg_hit[ends[ends >= 0]] = True
-    return PathCheck(certified=not hit.any(), waypoint_collides=hit[::density], segment_collides=seg_hit,
-                     dense=dense, dense_collides=hit, method="sampled")
+    return PathCheck(certified=not hit.any(), waypoint_uncertified=hit[::density], segment_uncertified=seg_hit,
+                     dense=dense, dense_uncertified=hit, method="sampled")
 
 
 def path_free_at(robot: Robot, path, resolution: float, *, margin: float = CLEARANCE) -> bool:
@@ -214,6 +214,12 @@ def certified_summary(certified) -> str:
     return f"{c.mean():.1%} certified free ({n} failure{'s' * (n != 1)})"
 
 
+@overload
+def failures_of(certified: None) -> None: ...
+@overload
+def failures_of(certified: np.ndarray) -> np.ndarray: ...
+@overload
+def failures_of(certified: np.ndarray | None) -> np.ndarray | None: ...
 def failures_of(certified) -> np.ndarray | None:
     """Indices where a (B,) verdict is not certified free; None when nothing was checked."""
     return None if certified is None else np.flatnonzero(~np.asarray(certified, dtype=bool))

@@ -14,6 +14,7 @@ import numpy as np
 
 from .labels import Labels, as_poses, label_poses
 from ..robot.pointcloud import CLOUD_GEOM_ID, cloud_geom_ids, reference_model, robot_geom_ids
+from ..robot.gate import CLEARANCE, robot_at
 from ..robot.robot import Robot
 
 
@@ -48,17 +49,20 @@ def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
     return ncon, pairs
 
 
-def mujoco_labels(robot: Robot, poses, *, progress: bool = True, executor=None, chunk: int = 2000) -> MujocoLabels:
+def mujoco_labels(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, progress: bool = True,
+                  executor=None, chunk: int = 2000) -> MujocoLabels:
     """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded), in
     chunks of ``chunk`` poses (:func:`mujoco_labels_chunk`).
 
     ``executor``: ``None`` (here) or an executor (:mod:`profrobot.executors`): a
     :class:`~profrobot.executors.LocalExecutor` with ``processes > 1`` or a
     :class:`~profrobot.executors.RayExecutor` labels the chunks in parallel (the same labels:
-    every pose is labelled on its own).
+    every pose is labelled on its own). ``layout``, ``margin``: as everywhere
+    (:mod:`profrobot.robot.gate`): a family's θ at its layout, MuJoCo's margins widened.
     """
     from ..executors import check_executor, chunk_bounds, chunk_sizes
 
+    robot = robot_at(robot, layout=layout, margin=margin, family=True)
     q = as_poses(robot, poses)
     executor = check_executor(executor)
     bounds = chunk_bounds(len(q), chunk)
@@ -124,8 +128,8 @@ class CrosscheckReport:
         return "\n".join(lines)
 
 
-def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: bool = True, executor=None,
-               chunk: int = 2000) -> CrosscheckReport:
+def crosscheck(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, threads: int | None = None,
+               progress: bool = True, executor=None, chunk: int = 2000) -> CrosscheckReport:
     """Labels ``poses`` with both our labeller and MuJoCo and compares them pose by pose.
 
     Every disagreement comes with MuJoCo's signed distance (``mj_geomDistance``) of the geom
@@ -133,12 +137,15 @@ def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: boo
 
     ``executor``: ``None`` (here) or an executor (:mod:`profrobot.executors`): MuJoCo's labels
     (the slow, single-threaded side) are then computed by its workers, ``chunk`` poses per task;
-    the report is identical to the local one.
+    the report is identical to the local one. ``layout``, ``margin``: as everywhere
+    (:mod:`profrobot.robot.gate`), for both labellers.
     """
+    robot = robot_at(robot, layout=layout, margin=margin, family=True)
     q = as_poses(robot, poses)
     ours = label_poses(robot, q, pairs=True, threads=threads)
     ref = mujoco_labels(robot, q, progress=progress, executor=executor, chunk=chunk)
     ours_pairs: list[set] = [set() for _ in range(len(q))]
+    assert ours.colliding_pairs is not None   # asked for (pairs=True)
     for p, k in ours.colliding_pairs:
         g1, g2 = robot.pair_geoms[k]
         ours_pairs[p].add((int(min(g1, g2)), int(max(g1, g2))))
@@ -147,7 +154,11 @@ def crosscheck(robot: Robot, poses, *, threads: int | None = None, progress: boo
     np.add.at(confusion, (ours.collides.astype(int), ref.collides.astype(int)), 1)
     disagreements = []
     differ = np.flatnonzero(ours.collides != ref.collides)
-    ours_dist = label_poses(robot, q[differ], distance=True).min_distance if len(differ) else []
+    ours_dist = np.zeros(0)
+    if len(differ):
+        dist = label_poses(robot, q[differ], distance=True).min_distance
+        assert dist is not None   # asked for (distance=True)
+        ours_dist = dist
     for i, d_ours in zip(differ, ours_dist):
         diff = sorted(ours_pairs[i] ^ ref.pairs[i])
         dists = [mujoco_pair_distance(robot, q[i], a, b) for a, b in diff]

@@ -11,7 +11,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from .. import _core
 from ..robot import gate
@@ -20,6 +19,8 @@ from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileEr
 from ..files import atomic_path, check_format, check_robot, format_tag
 from ..robot.angles import wrap
 from .labels import check_threads, label_poses, sample_poses
+from ..executors.progress import progress_bar
+from ..robot.gate import CLEARANCE
 from ..robot.robot import Robot
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
@@ -61,12 +62,12 @@ class Dataset:
     def concat(self, other: "Dataset") -> "Dataset":
         """These poses followed by ``other``'s, with their labels; this dataset's metadata."""
         return Dataset(np.concatenate([self.poses, other.poses]),
-                       *(np.concatenate([getattr(self, k), getattr(other, k)]) for k in _LABELS),
+                       **{k: np.concatenate([getattr(self, k), getattr(other, k)]) for k in _LABELS},
                        metadata=dict(self.metadata))
 
     def take(self, idx) -> "Dataset":
         """The poses at ``idx`` (indices or a boolean mask) with their labels and this metadata."""
-        return Dataset(self.poses[idx], *(getattr(self, k)[idx] for k in _LABELS), metadata=dict(self.metadata))
+        return Dataset(self.poses[idx], **{k: getattr(self, k)[idx] for k in _LABELS}, metadata=dict(self.metadata))
 
     def save(self, path: str | os.PathLike) -> Path:
         """Writes one ``.npz`` atomically: a temporary file in the same folder, fsynced, then
@@ -134,9 +135,10 @@ def sample_round(robot: Robot, seed: int, r: int, batch: int, threads: int | Non
     return (q, *(getattr(lab, k) for k in _LABELS))
 
 
-def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *,
-                 batch: int = 100_000, max_samples: int | None = None, progress: bool = True,
-                 threads: int | None = None, equalities: EqualityMode = "auto", executor=None) -> Dataset:
+def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *, layout=None,
+                 margin: float = CLEARANCE, batch: int = 100_000, max_samples: int | None = None,
+                 progress: bool = True, threads: int | None = None, equalities: EqualityMode = "auto",
+                 executor=None) -> Dataset:
     """``n`` poses with exact labels, resampled so that ``collided_fraction`` of them collide.
 
     Uniform poses are drawn in seeded rounds of ``batch`` and labelled; colliding and free poses
@@ -150,12 +152,12 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     workers draw and label the rounds (:func:`sample_round`, a pure function of ``seed`` and the
     round's index) while the quotas are filled here, in round order: the same dataset as the
     local run, whatever the number of workers (``threads`` is then the executor's ``threads``
-    when it sets them).
+    when it sets them). ``layout``, ``margin``: as everywhere (:mod:`profrobot.robot.gate`): a
+    family's θ labelled at its layout, poses within ``margin`` of an obstacle labelled colliding.
     """
     from ..executors import check_executor
 
-    if not isinstance(robot, Robot):
-        raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
+    robot = gate.robot_at(robot, layout=layout, margin=margin, family=True)
     n = gate.count("n", n)
     gate.memory("n", n, robot.njoint + 4)   # the poses and their labels
     collided_fraction = gate.finite("collided_fraction", collided_fraction)
@@ -185,7 +187,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     stream = executor.ordered(sample_round, lambda r: (int(seed), r, int(batch), round_threads, equalities),
                               max_rounds, rounds_needed, robot=robot)
     rounds: Iterator[tuple[np.ndarray, ...]] = (value for _, value in stream)
-    bar = tqdm(total=n, desc=f"dataset {robot.name}", unit="pose", disable=None if progress else True)
+    bar = progress_bar(n, desc=f"dataset {robot.name}", unit="pose", progress=progress)
     try:
         while have[True] < want[True] or have[False] < want[False]:
             if drawn >= max_samples:
@@ -214,7 +216,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
                     seed=int(seed), equalities=equalities, collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
                     uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
                     core_version=_core.__version__)
-    return Dataset(poses, *labels, metadata=metadata)
+    return Dataset(poses, **dict(zip(_LABELS, labels)), metadata=metadata)
 
 
 def boundary_dataset(robot: Robot, n: int, seed: int = 0, *, spread: float = 0.02, bisections: int = 12,
@@ -280,4 +282,4 @@ def boundary_dataset(robot: Robot, n: int, seed: int = 0, *, spread: float = 0.0
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
                     seed=int(seed), boundary=dict(spread=float(spread), bisections=int(bisections)),
                     library_version=_core.__version__, core_version=_core.__version__)
-    return Dataset(poses, *(getattr(lab, k) for k in _LABELS), metadata=metadata)
+    return Dataset(poses, **{k: getattr(lab, k) for k in _LABELS}, metadata=metadata)

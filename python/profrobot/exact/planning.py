@@ -125,6 +125,7 @@ def plan_path(robot: Robot, start, goal, *, layout=None, margin: float = CLEARAN
     for name, q in (("start", s), ("goal", g)):
         lab = label_poses(robot, q, pairs=True)
         if lab.collides[0]:
+            assert lab.colliding_pairs is not None   # asked for: pairs=True
             (k,) = lab.colliding_pairs[:1, 1]
             within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
             raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
@@ -142,7 +143,7 @@ def plan_path(robot: Robot, start, goal, *, layout=None, margin: float = CLEARAN
     path = np.asarray(out["path"]).reshape(-1, robot.njoint)
     return PathResult(path=path, found=found, status=status,
                       checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
-                      tree_sizes=tuple(int(t) for t in out["tree_sizes"]), raw_waypoints=int(out["raw_waypoints"]),
+                      tree_sizes=(int(out["tree_sizes"][0]), int(out["tree_sizes"][1])), raw_waypoints=int(out["raw_waypoints"]),
                       reason=reason, certified=found and (check_path(robot, path).certified if check == "continuous"
                                                           else path_free_at(robot, path, float(resolution))))
 

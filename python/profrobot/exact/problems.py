@@ -11,6 +11,7 @@ import numpy as np
 from .dataset import make_dataset
 from ..robot import gate
 from .labels import check_threads, interpolate, label_poses
+from ..robot.gate import CLEARANCE
 from ..robot.robot import Robot
 from .certification import certify_poses
 from ..errors import InputError
@@ -19,7 +20,9 @@ from ..robot.angles import wrap
 __all__ = ["colliding_poses", "free_poses", "hard_pairs"]
 
 
-def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, threads: int | None) -> np.ndarray:
+def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, threads: int | None, layout,
+           margin: float) -> np.ndarray:
+    robot = gate.robot_at(robot, layout=layout, margin=margin, family=True)
     n = gate.count("n", n)
     # rounds sized for a rare class (Panda-blocks: ~12 % of uniform poses collide)
     batch = min(100_000, max(1024, 16 * n))
@@ -28,18 +31,18 @@ def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, 
     return ds.poses
 
 
-def colliding_poses(robot: Robot, n: int, seed: int = 0, *, max_samples: int | None = None,
-                    threads: int | None = None) -> np.ndarray:
+def colliding_poses(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE,
+                    max_samples: int | None = None, threads: int | None = None) -> np.ndarray:
     """(n, K) float64 uniform poses that the exact labeller finds colliding, seeded. Raises
     ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
-    return _poses(robot, n, True, seed, max_samples, threads)
+    return _poses(robot, n, True, seed, max_samples, threads, layout, margin)
 
 
-def free_poses(robot: Robot, n: int, seed: int = 0, *, max_samples: int | None = None,
-               threads: int | None = None) -> np.ndarray:
+def free_poses(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE,
+               max_samples: int | None = None, threads: int | None = None) -> np.ndarray:
     """(n, K) float64 uniform poses that the exact labeller finds free, seeded. Raises
     ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
-    return _poses(robot, n, False, seed, max_samples, threads)
+    return _poses(robot, n, False, seed, max_samples, threads, layout, margin)
 
 
 def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk: int, step: float,
@@ -70,9 +73,9 @@ def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk
     return q
 
 
-def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density: int = 10,
-               max_pairs: int | None = None, reachable: bool = True, walk: int = 150, walk_step: float = 0.3,
-               threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def hard_pairs(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE, steps: int = 100,
+               density: int = 10, max_pairs: int | None = None, reachable: bool = True, walk: int = 150,
+               walk_step: float = 0.3, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both certified free, on
     their joint couplings, and a sample of the straight SO(2) interpolation between them (``steps``
     waypoints, ``density`` times finer samples between them) not certified: a straight path
@@ -85,7 +88,9 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, steps: int = 100, density
     (``walk`` moves of ``walk_step`` radians, every segment checked), so a path exists. Uniform
     pairs (``reachable=False``) can lie in different components of free space, with no path at
     all: a ±2π shoulder joint, say, on the other side of the floor, which a limited joint cannot
-    wrap around; no planner can solve those."""
+    wrap around; no planner can solve those. ``layout``, ``margin``: as everywhere
+    (:mod:`profrobot.robot.gate`)."""
+    robot = gate.robot_at(robot, layout=layout, margin=margin, family=True)
     n = gate.count("n", n)
     steps = gate.count("steps", steps)
     density = gate.count("density", density)

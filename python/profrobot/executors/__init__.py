@@ -19,10 +19,11 @@ from __future__ import annotations
 from ..errors import ClusterError, InputTypeError
 from .base import ChunkFn, Executor, chunk_bounds, chunk_sizes, on_release, release_caches
 from .local import LocalExecutor, close_workers
+from .progress import progress_bar
 from .ray_cluster import RayExecutor, RunStats
 
 __all__ = ["Executor", "ChunkFn", "LocalExecutor", "RayExecutor", "ClusterError", "RunStats", "check_executor",
-           "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "close_workers"]
+           "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "close_workers", "progress_bar"]
 
 
 def check_executor(executor, *, processes: int = 1) -> Executor:

@@ -22,7 +22,7 @@ from ..errors import InputTypeError
 from ..robot.robot import Robot
 from ..robot.gate import count
 
-__all__ = ["ChunkFn", "Executor", "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "progress_bar"]
+__all__ = ["ChunkFn", "Executor", "chunk_bounds", "chunk_sizes", "on_release", "release_caches"]
 
 ChunkFn = Callable[..., Any]
 """``fn(robot, *args) -> result``: module-level (importable by the workers) and pure."""
@@ -50,7 +50,8 @@ class Executor(Protocol):
     caller asked).
     """
 
-    threads: int | None
+    @property
+    def threads(self) -> int | None: ...
 
     def put(self, value: Any) -> Any:
         """A handle to ``value``, stored once, to pass as a top-level chunk argument: the chunk
@@ -90,13 +91,6 @@ def release_caches() -> None:
     """Call every function registered with :func:`on_release`, in this process."""
     for fn in list(_RELEASE):
         fn()
-
-
-def progress_bar(total: int, desc: str, unit: str, progress: bool):
-    """The tqdm bar every executor shows for a map."""
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, disable=None if progress else True)
 
 
 _PAYLOADS: "weakref.WeakKeyDictionary[Any, tuple[str, bytes]]" = weakref.WeakKeyDictionary()

@@ -33,7 +33,8 @@ from typing import Any
 
 from ..errors import RendererUnavailableError, WorkerError
 from ..gl import backends
-from .base import ChunkFn, progress_bar, release_caches, robot_payload
+from .base import ChunkFn, release_caches, robot_payload
+from .progress import progress_bar
 from ..robot.gate import count, threads as validate_threads
 
 __all__ = ["LocalExecutor", "close_workers", "serve"]
@@ -207,7 +208,8 @@ class _Process:
 
     def close(self) -> None:
         with contextlib.suppress(OSError):
-            self.p.stdin.close()
+            if self.p.stdin is not None:   # a pipe (stdin=PIPE)
+                self.p.stdin.close()
         try:
             self.p.wait(timeout=10)
         except subprocess.TimeoutExpired:
@@ -222,7 +224,8 @@ class _Process:
     def _cleanup(self) -> None:
         for f in (self.p.stdin, self.p.stdout, self.err):
             with contextlib.suppress(OSError, ValueError):
-                f.close()
+                if f is not None:      # pipes (stdin=PIPE, stdout=PIPE)
+                    f.close()
 
 
 _IDLE: list[_Process] = []
@@ -310,7 +313,7 @@ class LocalExecutor:
         sizes = list(sizes) if sizes is not None else [1] * len(chunks)
         out: list = [None] * len(chunks)
         stream = self._stream(fn, robot, chunks.__getitem__, len(chunks), lambda: len(chunks), self._backend(fn))
-        with progress_bar(sum(sizes), desc, unit, progress) as bar:
+        with progress_bar(sum(sizes), desc=desc, unit=unit, progress=progress) as bar:
             for i, value in stream:
                 out[i] = value
                 bar.update(sizes[i])

@@ -45,7 +45,8 @@ from typing import Any
 
 
 from ..errors import ClusterError, InputError
-from .base import ChunkFn, progress_bar, robot_payload
+from .base import ChunkFn, robot_payload
+from .progress import progress_bar
 from ..robot.gate import count
 
 __all__ = ["RayExecutor", "ClusterError", "RunStats"]
@@ -329,7 +330,7 @@ class RayExecutor:
         self.per_actor = int(per_actor)
         self.runtime_env = runtime_env
         self.last_run: RunStats | None = None
-        self._ray = None
+        self._ray: Any = None   # the ray module, once connected (imported lazily: an optional dependency)
         self._started_ray = False
         self._pools: dict[str, _Pool] = {}
 
@@ -416,7 +417,7 @@ class RayExecutor:
         run = self._run(robot, fn)
         for i, args in enumerate(chunks):
             run.submit(i, *args)
-        with progress_bar(sum(sizes), desc, unit, progress) as bar:
+        with progress_bar(sum(sizes), desc=desc, unit=unit, progress=progress) as bar:
             try:
                 for _ in range(len(chunks)):
                     i, value = run.next()

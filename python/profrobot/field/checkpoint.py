@@ -1,6 +1,6 @@
 """Checkpoints: a directory with ``model.safetensors`` (weights and buffers), ``config.json``
 (architecture, robot fingerprint, metrics) and ``robot.pkl``, the robot it was trained for, in its
-cell (:func:`profrobot.robotfile.save_robot`: read back by a restricted unpickler that builds
+cell (``Robot.save``: read back by a restricted unpickler that builds
 profrobot's classes and numpy arrays only), so that ``PoseSDF.load(path)`` and every command
 given ``--field`` need nothing else. Export for deployment with ``torch.export``."""
 
@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, TypeVar
+from collections.abc import Mapping
+from typing import Any, Protocol, TypeVar
 
 import torch
 from safetensors import SafetensorError
@@ -18,11 +19,24 @@ from safetensors.torch import load_file, save_file
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from ..robot.robot import Robot
-from ..robot.file import ROBOT_FILE, save_robot, stored_robot
+from ..robot.file import ROBOT_FILE
+
+
+class _Checkpointable(Protocol):
+    """What :func:`read_checkpoint` needs of the field class it builds (a PoseSDF)."""
+
+    metrics: dict
+
+    def __init__(self, robot: Robot, **model: Any) -> None: ...
+
+    def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = ..., assign: bool = ...) -> Any: ...
+
+    def eval(self) -> Any: ...
+
 
 #: the field class read_checkpoint builds (``PoseSDF.load`` passes itself: model.py imports this
 #: module, so this module names no class of model.py; ``sdf`` arguments are PoseSDFs)
-Field = TypeVar("Field", bound=torch.nn.Module)
+Field = TypeVar("Field", bound=_Checkpointable)
 
 FORMAT_VERSION = 1
 FORMAT = format_tag("PoseSDF", FORMAT_VERSION)
@@ -39,7 +53,7 @@ def write_checkpoint(sdf: Any, path: str | os.PathLike) -> Path:
     with atomic_dir(path) as d:
         save_file(tensors, str(d / "model.safetensors"), metadata={"format": FORMAT})
         (d / "config.json").write_text(json.dumps(config, indent=2))
-        save_robot(sdf.robot, d / ROBOT_FILE)
+        sdf.robot.save(d / ROBOT_FILE)
     return path
 
 
@@ -70,7 +84,7 @@ def read_checkpoint(cls: type[Field], path: str | os.PathLike, robot: Robot | No
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
     stored = robot is None
     if stored:
-        robot = stored_robot(path)
+        robot = Robot.load(path / ROBOT_FILE) if (path / ROBOT_FILE).is_file() else None
         if robot is None:
             raise MissingFileError(f"checkpoint {path} stores no robot (written before fields stored theirs): pass the "
                                    f"profrobot.Robot it was trained for, {config.get('robot')!r}: PoseSDF.load(path, robot)")

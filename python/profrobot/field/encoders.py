@@ -25,6 +25,8 @@ class HierarchicalEncoder(nn.Module):
     """Tree-structured linear map over the joints (paper §3): output (B, K·feature_size)."""
 
     learnable = True
+    parent: torch.Tensor     # buffers (register_buffer)
+    is_root: torch.Tensor
 
     def __init__(self, parents: list[int], feature_size: int = 8):
         super().__init__()
@@ -73,6 +75,9 @@ class StandardisedEncoder(nn.Module):
     encoder; saved with checkpoints all the same)."""
 
     learnable = False
+    out_features: int        # set by the subclass before _fit_standardisation
+    mean: torch.Tensor       # buffers (register_buffer)
+    std: torch.Tensor
 
     def _fit_standardisation(self, robot, stats_poses: int) -> None:
         F = self.out_features
@@ -100,6 +105,8 @@ class KinematicEncoder(StandardisedEncoder):
     """
 
     learnable = False
+    hinge: torch.Tensor      # buffers (register_buffer)
+    bodies: torch.Tensor
 
     def __init__(self, robot, *, spheres_per_body: int = 4, clearance_clip: float = 0.3,
                  stats_poses: int = 4096):

@@ -8,6 +8,8 @@ static scene, so every answer is certified by the exact labeller at exactly that
 
 from __future__ import annotations
 
+from typing import Any, Protocol
+
 import numpy as np
 import torch
 from torch import nn
@@ -19,6 +21,26 @@ from .identity import _Shared
 __all__ = ["LayoutField", "field_at_layout"]
 
 
+class _FamilyField(Protocol):
+    """What a LayoutField uses of its family :class:`~profrobot.PoseSDF` (model.py imports this
+    module, so it names no class of model.py)."""
+
+    robot_name: str
+    metrics: dict
+    joint_limits: torch.Tensor
+    robot_index: torch.Tensor | None
+
+    @property
+    def robot(self) -> Any: ...
+
+    @property
+    def scale(self) -> torch.Tensor: ...
+
+    def scatter(self, theta: torch.Tensor, deltas) -> torch.Tensor: ...
+
+    def __call__(self, theta: torch.Tensor) -> torch.Tensor: ...
+
+
 class LayoutField(nn.Module):
     """``g(θ) = field(θ, δ)`` for a fixed layout δ: the PoseSDF interface (``njoint``,
     ``joint_names``, ``joint_limits``, ``fingerprint``, ``robot``, ``prob``) over the robot joints.
@@ -26,7 +48,7 @@ class LayoutField(nn.Module):
     Attributes: ``field`` (the family :class:`PoseSDF`), ``layout`` (D,) float64 δ, ``robot`` (the
     static Robot at δ). Gradients flow to θ only. Pickles with the family field and layout."""
 
-    def __init__(self, field, layout):  # field: a family PoseSDF
+    def __init__(self, field: _FamilyField, layout):  # field: a family PoseSDF
         super().__init__()
         if not isinstance(field, nn.Module) or not getattr(field, "scene_joints", None):
             raise InputError("LayoutField needs a family field (a PoseSDF trained on a Robot with scene joints)")
@@ -81,7 +103,7 @@ def field_at_layout(sdf, robot: Robot | None, layout):
     family = sdf is not None and bool(getattr(sdf, "scene_joints", None))
     if sdf is None:
         if layout is None:
-            if getattr(robot, "is_family", False):
+            if robot is not None and getattr(robot, "is_family", False):
                 raise InputError(f"{robot.name} is a family of scenes: pass layout=δ, the layout to work at "
                                  "(else its obstacles would be moved like joints)")
             return None, robot
@@ -95,7 +117,7 @@ def field_at_layout(sdf, robot: Robot | None, layout):
         return sdf, robot
     if layout is None:
         pinned = getattr(robot, "layout", None)
-        if pinned is None:
+        if robot is None or pinned is None:
             raise InputError(f"the field for {sdf.robot_name!r} covers a family of scenes (scene joints "
                              f"{', '.join(sdf.scene_joints)}): pass layout=δ, the layout to work at, or "
                              "robot=family.at(δ)")

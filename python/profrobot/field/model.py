@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 import torch
 from torch import nn
@@ -72,6 +72,17 @@ class PoseSDF(nn.Module):
     :meth:`save`'s (safetensors, nothing unpickled).
     """
 
+    # buffers (register_buffer); robot_index and scene_index are None for an ordinary field
+    joint_limits: torch.Tensor
+    robot_index: torch.Tensor | None
+    scene_index: torch.Tensor | None
+    ndf_threshold: torch.Tensor
+    encoder: HierarchicalEncoder | FlatEncoder | KinematicEncoder | PairEncoder
+    head: nn.Sequential | PairHead
+    # attached by train_sdf
+    history: list[dict]
+    snapshots: list[dict]
+
     def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
                  hidden: tuple[int, ...] = (512, 512, 512, 512), learn_scale: bool = True,
                  init_scale: float = 10.0, lipschitz: bool = False, objective: Objective = "sdf",
@@ -85,7 +96,7 @@ class PoseSDF(nn.Module):
             raise InputError(f"hidden must be a non-empty list of positive widths; got {hidden!r}")
         if pairs is not None and encoder != "pairs":
             raise InputError(f"pairs= selects the pair networks of encoder='pairs'; got encoder={encoder!r}")
-        self.config = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
+        self.config: dict[str, Any] = dict(encoder=encoder, feature_size=int(feature_size), hidden=[int(h) for h in hidden],
                            learn_scale=bool(learn_scale), init_scale=float(init_scale), lipschitz=bool(lipschitz),
                            objective=objective, spheres_per_body=int(spheres_per_body))
         self._robot = _Shared(robot)
@@ -113,7 +124,7 @@ class PoseSDF(nn.Module):
                 self.config["pairs"] = self.encoder.clearance.kept
         else:
             self.encoder = KinematicEncoder(robot, spheres_per_body=spheres_per_body)
-        if encoder == "pairs":   # one MLP per body pair, g their union (field/pairs.py)
+        if isinstance(self.encoder, PairEncoder):   # one MLP per body pair, g their union (field/pairs.py)
             if lipschitz:
                 raise InputError("lipschitz=True is for the single-MLP encoders, not encoder='pairs'")
             self.head = PairHead(self.encoder.npair, tuple(self.config["hidden"]))
@@ -178,6 +189,7 @@ class PoseSDF(nn.Module):
         in θ."""
         if not self.scene_joints:
             raise InputError(f"the field for {self.robot_name!r} is not a family field (no scene joints); it takes no scene")
+        assert self.robot_index is not None   # a family field has its column indices
         if not isinstance(theta, torch.Tensor) or theta.ndim != 2 or theta.shape[1] != len(self.robot_index):
             raise InputError(f"theta must be a (B, {len(self.robot_index)}) tensor of the robot joints when layout= "
                              f"is given; got {tuple(theta.shape) if isinstance(theta, torch.Tensor) else type(theta).__name__}")
@@ -201,7 +213,7 @@ class PoseSDF(nn.Module):
     def lipschitz_bound(self) -> torch.Tensor:
         """Product of the layers' Lipschitz bounds (1 if the MLP is unconstrained)."""
         out = torch.ones((), device=self.s_raw.device)
-        for m in self.head:
+        for m in (self.head if isinstance(self.head, nn.Sequential) else ()):   # a PairHead has no Lipschitz layers
             if isinstance(m, LipschitzLinear):
                 out = out * m.bound()
         return out

@@ -36,6 +36,7 @@ PLANE, SPHERE, CAPSULE, CYLINDER, BOX, MESH = 0, 2, 3, 5, 6, 7
 def _surface_points(kind: int, size: np.ndarray, hull: np.ndarray | None) -> np.ndarray:
     """A point set (P, 3) whose convex hull is the geom (geom frame), for sphere fitting."""
     if kind == MESH:
+        assert hull is not None, "a mesh geom has a mesh"
         return hull
     if kind == BOX:
         return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
@@ -72,6 +73,22 @@ class PairClearance(torch.nn.Module):
     Built from a :class:`profrobot.Robot`; shares its :class:`~profrobot.kinematics.Kinematics`.
     ``names`` lists the pairs ("link3|link5", "hand|block_1", …).
     """
+
+    # buffers (register_buffer); st_body, st_lrot, st_lpos only when scene_moved
+    body_ids: torch.Tensor
+    sph_centre: torch.Tensor
+    sph_radius: torch.Tensor
+    st_rot: torch.Tensor
+    st_pos: torch.Tensor
+    st_size: torch.Tensor
+    st_off: torch.Tensor
+    st_body: torch.Tensor
+    st_lrot: torch.Tensor
+    st_lpos: torch.Tensor
+    bb_a: torch.Tensor
+    bb_b: torch.Tensor
+    bs_a: torch.Tensor
+    bs_g: torch.Tensor
 
     def __init__(self, robot, kinematics: Kinematics, spheres_per_body: int = 4, keep=None):
         super().__init__()
@@ -130,7 +147,9 @@ class PairClearance(torch.nn.Module):
                 off, size, kind = (v.max(0) + v.min(0)) / 2, (v.max(0) - v.min(0)) / 2, BOX
             elif kind not in (PLANE, SPHERE, CAPSULE, CYLINDER, BOX):
                 raise InputError(f"{robot.name}: no clearance proxy for static geom type {kind}")
-            st_kind.append(kind), st_size.append(size), st_off.append(off)
+            st_kind.append(kind)
+            st_size.append(size)
+            st_off.append(off)
         self.register_buffer("st_rot", f(np.array(st_rot).reshape(-1, 3, 3)), persistent=False)
         self.register_buffer("st_pos", f(np.array(st_pos).reshape(-1, 3)), persistent=False)
         self.register_buffer("st_size", f(np.array(st_size).reshape(-1, 3)), persistent=False)
@@ -145,7 +164,8 @@ class PairClearance(torch.nn.Module):
         static_slot = {int(i): s for s, i in enumerate(st_idx)}
 
         # candidate geom pairs → distinct (body, body) and (body, static geom) pairs
-        bb, bs = set(), set()
+        bb_seen: set[tuple[int, int]] = set()
+        bs_seen: set[tuple[int, int]] = set()
         keys: list = []                              # each labeller pair's key, None without a proxy
         for g1, g2 in np.asarray(robot.pair_geoms):
             keys.append(None)
@@ -158,15 +178,15 @@ class PairClearance(torch.nn.Module):
                 continue
             if moving[b]:
                 keys[-1] = ("bb", tuple(sorted((slot[int(gbody[a])], slot[int(gbody[b])]))))
-                bb.add(keys[-1][1])
+                bb_seen.add(keys[-1][1])
             else:
                 keys[-1] = ("bs", (slot[int(gbody[a])], static_slot[int(b)]))
-                bs.add(keys[-1][1])
-        bb, bs = sorted(bb), sorted(bs)
+                bs_seen.add(keys[-1][1])
+        bb, bs = sorted(bb_seen), sorted(bs_seen)
         #: every candidate pair's count before ``keep`` (``keep`` indexes that list: bb, then bs)
         self.all_npair = len(bb) + len(bs)
         #: the kept pairs' indices in the full list (``keep``, sorted), or None: all
-        self.kept = None
+        self.kept: list[int] | None = None
         if keep is not None:
             keep = self.kept = _check_keep(keep, self.all_npair)
             bb, bs = [bb[i] for i in keep if i < len(bb)], [bs[i - len(bb)] for i in keep if i >= len(bb)]

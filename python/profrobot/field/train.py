@@ -44,7 +44,7 @@ from ..exact.dataset import Dataset, make_dataset
 from ..robot.robot import Robot
 from .metrics import evaluate
 from .model import PoseSDF
-from .pairs import pair_union
+from .pairs import PairEncoder, pair_union
 from ..errors import BackendUnavailableError, InputError, InputTypeError
 
 Schedule = Literal["cosine", "paper", "constant"]
@@ -327,6 +327,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
         if cfg.pair_weight > 0 or (cfg.prune_pairs and model_opts.get("pairs") is None):
             pair_lab = label_poses(robot, train.poses, pairs=True, threads=cfg.threads).colliding_pairs
         if cfg.prune_pairs and model_opts.get("pairs") is None:
+            assert pair_lab is not None   # labelled just above, with pairs=True
             hit = PairClearance(robot, Kinematics.from_robot(robot)).pair_hits(pair_lab)
             if len(hit):
                 model_opts = {**model_opts, "pairs": hit.tolist()}
@@ -354,7 +355,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     # (10x cheaper than the FK's double backward; the same loss, see eikonal_from_features).
     # Capped at 256 MB; the Hessian term (StEik) still needs the FK itself.
     pool = jac = None
-    eik_cols = sdf.robot_index if sdf.scene_joints else torch.arange(sdf.njoint)
+    eik_cols = sdf.robot_index if sdf.robot_index is not None else torch.arange(sdf.njoint)   # a family: θ only
     if (features is not None and cfg.eikonal_pool > 0 and cfg.eikonal_weight > 0 and cfg.steik_weight == 0
             and cfg.eikonal_batch > 0):
         per_pose = 4 * features.shape[1] * len(eik_cols)
@@ -365,6 +366,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     pos_weight = None if cfg.collision_weight == 1.0 else torch.tensor(float(cfg.collision_weight), device=dev)
     pair_y = None
     if pair_lab is not None and cfg.pair_weight > 0 and features is not None:
+        assert isinstance(sdf.encoder, PairEncoder)   # pair labels are made for encoder="pairs" only
         pair_y = torch.as_tensor(sdf.encoder.pair_labels(pair_lab, len(train)), device=dev)
     params = [p for p in sdf.parameters() if p.requires_grad]
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -399,6 +401,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             idx = torch.as_tensor(order[cursor:cursor + bs], device=dev)
             cursor += bs
             if pair_y is not None:
+                assert features is not None   # pair labels are used with stored features only
                 z = sdf.head(features[idx].float())                          # (B, P) pair logits
                 g = pair_union(z)
             else:
@@ -416,6 +419,7 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
             loss = data_loss
             eik = steik = torch.zeros((), device=dev)
             if jac is not None:
+                assert features is not None and pool is not None   # the Jacobians' pool is of stored features
                 pick = torch.as_tensor(rng.integers(0, len(pool), cfg.eikonal_batch), device=dev)
                 # a pair field: each pair's own slope (pair_eikonal_from_features); else g's
                 term = pair_eikonal_from_features if sdf.config["encoder"] == "pairs" and not ndf else eikonal_from_features

@@ -26,6 +26,7 @@ import importlib
 import os
 import sys
 import threading
+from typing import Any
 
 from ..errors import RendererUnavailableError
 from .backends import select_backend
@@ -47,7 +48,7 @@ def _gl_context_module():
         from mujoco.rendering.classic import gl_context as glc
     except ImportError:       # an older mujoco layout
         try:
-            from mujoco import gl_context as glc  # type: ignore[no-redef]
+            from mujoco import gl_context as glc
         except ImportError:
             return None
     return glc
@@ -85,7 +86,8 @@ def _load_for(gl: str) -> None:
         raise RendererUnavailableError(f"MuJoCo's OpenGL backend {gl!r} failed to load: {type(e).__name__}: {e}; "
                                        f"{INSTALL_HINT}") from e
     ctx = vars(glc).get("GLContext")
-    for mod in (mujoco, sys.modules.get("mujoco.gl_context")):
+    mods: tuple[Any, ...] = (mujoco, sys.modules.get("mujoco.gl_context"))   # modules: attributes set at run time
+    for mod in mods:
         if mod is not None and ctx is not None:
             mod.GLContext = ctx
 

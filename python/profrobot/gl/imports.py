@@ -6,6 +6,7 @@ import importlib
 import os
 import sys
 import threading
+from typing import Any
 
 from ..errors import RendererUnavailableError
 from .hints import GL_OFF, INSTALL_HINT, plain_reason
@@ -52,7 +53,8 @@ def _defer_gl(mujoco) -> None:
                     raise RendererUnavailableError(
                         f"MuJoCo's OpenGL backend (MUJOCO_GL={gl!r}) failed to load: {why}; {INSTALL_HINT}") from e
             ctx = vars(glc).get("GLContext")
-            for mod in (mujoco, sys.modules.get("mujoco.gl_context")):
+            mods: tuple[Any, ...] = (mujoco, sys.modules.get("mujoco.gl_context"))   # modules: attributes set at run time
+            for mod in mods:
                 if mod is not None and ctx is not None:
                     mod.GLContext = ctx
             return ctx

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Literal, overload
 
 import numpy as np
 import torch
@@ -30,6 +31,10 @@ def check_field_matches_model(sdf, model) -> None:
                                  f"{model.robot_name!r} have different joint limits: not the same arm")
 
 
+@overload
+def labeller_robot(sdf, model, robot, who: str, *, required: Literal[True] = True, margin: float = CLEARANCE) -> Robot: ...
+@overload
+def labeller_robot(sdf, model, robot, who: str, *, required: bool, margin: float = CLEARANCE) -> Robot | None: ...
 def labeller_robot(sdf, model, robot, who: str, *, required: bool = True, margin: float = CLEARANCE) -> Robot | None:
     """The scene the exact labeller certifies against: the field's (checked against ``model``'s
     joints and ``robot`` if given), else ``robot``, which ``who`` needs when ``required``; with

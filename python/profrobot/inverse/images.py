@@ -200,6 +200,8 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
         before = certified.copy()
         history.append(dict(round=0, certified=int(certified.sum())))
     if sdf is not None:
+        assert robot is not None and certified is not None   # a field brings its robot (labeller_robot)
+
         def again(bad: np.ndarray, threshold: float) -> np.ndarray:
             thresholds[bad] = threshold
             opt.reset(torch.as_tensor(bad, device=dev))

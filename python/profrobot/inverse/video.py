@@ -76,7 +76,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
     tg = ImageTargets.from_images(frames, cameras, T, device=dev, background=background, w_depth=w_depth,
                                   w_mask=w_mask, who="actions_from_video")
     ft = None
-    if frame_targets is not None:
+    if frame is not None and frame_targets is not None:   # both or neither (checked above)
         from ..optim.frames import FrameTargets
 
         ft = FrameTargets(robot, frame, frame_targets, T, "frame_targets")
@@ -154,8 +154,8 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                     path[b] = ref + lim.diff(r.poses[i:i + 1], ref[None])[0]
         chk = check_path(robot, lim.numpy(path), density)
         if not chk.certified:                                          # colliding segments between free frames
-            free = ~chk.waypoint_collides | anchor
-            for seg in np.flatnonzero(chk.segment_collides):
+            free = ~chk.waypoint_uncertified | anchor
+            for seg in np.flatnonzero(chk.segment_uncertified):
                 a = seg
                 while a > 0 and not free[a]:
                     a -= 1

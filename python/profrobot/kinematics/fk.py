@@ -109,6 +109,9 @@ class Kinematics(torch.nn.Module):
     Matches MuJoCo's ``xpos``/``xmat`` (tested to 1e-5 in float32, 1e-10 in float64).
     """
 
+    qpos0: torch.Tensor      # buffers (register_buffer; the per-level ones are in :attr:`levels`)
+    _unsort: torch.Tensor
+
     def __init__(self, arrays: dict, *, dtype: torch.dtype = torch.float32):
         super().__init__()
         parent = np.asarray(arrays["body_parent"], dtype=np.int64)
@@ -119,7 +122,7 @@ class Kinematics(torch.nn.Module):
         depth = np.zeros(nbody, dtype=np.int64)
         for b in range(1, nbody):  # MuJoCo orders parents before children
             depth[b] = depth[parent[b]] + 1
-        joints_of = [[] for _ in range(nbody)]
+        joints_of: list[list[int]] = [[] for _ in range(nbody)]
         for j, b in enumerate(jnt_body):
             joints_of[b].append(j)
 
@@ -143,7 +146,7 @@ class Kinematics(torch.nn.Module):
             for c in range(nbody):
                 a = c
                 while a > 0 and a != b:
-                    a = parent[a]
+                    a = int(parent[a])
                 sub[j, c] = float(a == b and (c == b or c > 0))
         self._np["subtree"] = sub
         slot_in_level = np.zeros(nbody, dtype=np.int64)
@@ -153,8 +156,8 @@ class Kinematics(torch.nn.Module):
             slot_in_level[bodies] = np.arange(len(bodies))
             nslot = max((len(joints_of[b]) for b in bodies), default=0)
             jtab = -np.ones((nslot, len(bodies)), dtype=np.int64)
-            for i, b in enumerate(bodies):
-                jtab[: len(joints_of[b]), i] = joints_of[b]
+            for i, body in enumerate(bodies):
+                jtab[: len(joints_of[body]), i] = joints_of[body]
             jid = np.maximum(jtab, 0)
             jtype = np.asarray(arrays["jnt_type"])[jid]
             has = jtab >= 0

@@ -80,7 +80,8 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     else:
         camera = {**DEFAULT_CAMERA, **(camera or {})}
         size = (480, 360) if size is None else size
-    frames = trajectory_frames(robot, path, collides, tuple(int(s) for s in size), camera)
+    width, height = (int(s) for s in size)
+    frames = trajectory_frames(robot, path, collides, (width, height), camera)
     with atomic_path(out) as tmp:
         if suffix == ".gif":
             frames[0].save(tmp, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
@@ -96,7 +97,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
 def plot_trajectory(result, out: str | os.PathLike, *, joint_names=None, l_thres: float | None = -0.1,
                     straight=None) -> Path:
     """Joint curves (top) and g along the path (bottom) of a TrajectoryResult (or an object with
-    ``path`` (S, K), ``g`` (S,), ``waypoint_collides`` (S,)), saved atomically as an image.
+    ``path`` (S, K), ``g`` (S,), ``waypoint_uncertified`` (S,)), saved atomically as an image.
     ``straight``: optionally the g values (S,) of the straight interpolation, drawn dashed."""
     import matplotlib
 
@@ -119,7 +120,7 @@ def plot_trajectory(result, out: str | os.PathLike, *, joint_names=None, l_thres
     if l_thres is not None:
         ax2.axhline(l_thres, color="tab:blue", lw=0.8, label=f"l_thres = {l_thres}")
     ax2.axhline(0, color="tab:red", lw=0.8)
-    hit = np.flatnonzero(np.asarray(result.waypoint_collides))
+    hit = np.flatnonzero(np.asarray(result.waypoint_uncertified))
     if len(hit):
         ax2.scatter(hit, g[hit], color="tab:red", zorder=3, label="colliding (exact)")
     ax2.set_xlabel("waypoint")

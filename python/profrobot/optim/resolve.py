@@ -26,7 +26,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -302,6 +302,7 @@ def exact_search(robot: Robot, q0: np.ndarray, bad: np.ndarray, limits: Limits, 
     near = nearest_free(robot, limits.numpy(q0[bad]), directions=directions, refine=refine)
     hit = np.isfinite(near.distance)
     if hit.any():
+        assert near.certified is not None   # nearest_free certifies every pose it finds
         found = near.certified[hit]
         out[bad[hit][found]] = limits.numpy(near.poses[hit][found])
         certified[bad[hit][found]] = True
@@ -465,7 +466,7 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     if len(todo):
         descend(torch.as_tensor(todo, device=theta.device), iterations)
         certified[todo] = answer(todo)
-    history = [dict(round=0, threshold=l_thres, certified=int(certified.sum()))]
+    history: list[dict[str, Any]] = [dict(round=0, threshold=l_thres, certified=int(certified.sum()))]
 
     def again(bad: np.ndarray, threshold: float) -> np.ndarray:
         rows_t = torch.as_tensor(bad, device=theta.device)

@@ -39,7 +39,7 @@ from ..robot.robot import Robot
 from ..robot.gate import finite, positive, poses_within_limits, with_margin
 from .paths import PenaltyOptions, TangentOptions, penalty_descent, smooth_certified, tangent_walk, unwrap_path
 
-__all__ = ["plan_trajectory", "TrajectoryResult", "trajectory_result", "PenaltyOptions", "TangentOptions"]
+__all__ = ["plan_trajectory", "plan_trajectories", "TrajectoryResult", "trajectory_result", "PenaltyOptions", "TangentOptions"]
 
 Method = Literal["penalty", "tangent"]
 Init = Literal["auto", "straight", "planner"]
@@ -56,7 +56,7 @@ class TrajectoryResult:
         certified: the whole path is certified free (:func:`profrobot.certification.check_path`,
             continuous: every waypoint certified and every segment proven free at every pose, the
             dependent joints of joint equalities following their independent ones).
-        waypoint_collides: (S,) bool; segment_collides: (S−1,) bool (segment i: waypoints i, i+1).
+        waypoint_uncertified: (S,) bool; segment_uncertified: (S−1,) bool (segment i: waypoints i, i+1).
         g: (S,) float32, the field along the path (NaN without a field).
         method: what produced the path ("penalty", "tangent", "planner", "planner+smooth",
             "images", "images+field", "images+planner", "video", "video+field").
@@ -68,8 +68,8 @@ class TrajectoryResult:
 
     path: np.ndarray
     certified: bool
-    waypoint_collides: np.ndarray
-    segment_collides: np.ndarray
+    waypoint_uncertified: np.ndarray
+    segment_uncertified: np.ndarray
     g: np.ndarray
     method: str
     iterations: int
@@ -89,15 +89,15 @@ class TrajectoryResult:
 
     @property
     def colliding_waypoints(self) -> np.ndarray:
-        return np.flatnonzero(self.waypoint_collides)
+        return np.flatnonzero(self.waypoint_uncertified)
 
     @property
-    def colliding_segments(self) -> np.ndarray:
-        return np.flatnonzero(self.segment_collides)
+    def uncertified_segments(self) -> np.ndarray:
+        return np.flatnonzero(self.segment_uncertified)
 
     def summary(self) -> str:
-        where = "" if self.certified else (f": {len(self.colliding_segments)} colliding segment(s), "
-                                           f"first at {self.colliding_segments[:1].tolist()}")
+        where = "" if self.certified else (f": {len(self.uncertified_segments)} colliding segment(s), "
+                                           f"first at {self.uncertified_segments[:1].tolist()}")
         return (f"{self.method} path of {len(self.path)} waypoints, "
                 f"{'certified free' if self.certified else 'NOT certified'}{where}; "
                 f"length {self.relative_length:.2f}× the straight interpolation, {self.iterations} iterations")
@@ -111,8 +111,8 @@ def trajectory_result(robot: Robot, path: np.ndarray, check: PathCheck, *, g: np
     lim = Limits.of(robot)
     if straight_length is None:
         straight_length = float(np.linalg.norm(lim.diff(path[-1], path[0])))
-    return TrajectoryResult(path=path, certified=check.certified, waypoint_collides=check.waypoint_collides,
-                            segment_collides=check.segment_collides, g=g, method=method, iterations=int(iterations),
+    return TrajectoryResult(path=path, certified=check.certified, waypoint_uncertified=check.waypoint_uncertified,
+                            segment_uncertified=check.segment_uncertified, g=g, method=method, iterations=int(iterations),
                             length=float(np.linalg.norm(lim.diff(path[1:], path[:-1]), axis=1).sum()),
                             straight_length=float(straight_length), seconds=float(seconds), check=check, **extra)
 
@@ -130,14 +130,29 @@ def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, optio
     return out
 
 
+def plan_trajectories(sdf, starts, goals, steps: int = 100, method: Method = "penalty", *,
+                      robot: Robot | None = None, layout=None, margin: float = CLEARANCE, init: Init = "auto",
+                      planner: dict | None = None, penalty: PenaltyOptions | None = None,
+                      tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
+                      density: int = 10) -> list[TrajectoryResult]:
+    """B problems optimised together: ``starts`` and ``goals`` (B, K) → B :class:`TrajectoryResult`,
+    in order; every option as :func:`plan_trajectory` (``frame_targets`` plans one problem only)."""
+    if np.ndim(starts) != 2 or np.ndim(goals) != 2:
+        raise InputError(f"plan_trajectories takes (B, K) starts and goals; got shapes {np.shape(starts)} and "
+                         f"{np.shape(goals)} (plan_trajectory plans one problem)")
+    return _plan(sdf, starts, goals, steps, method, robot=robot, init=init, planner=planner, penalty=penalty,
+                 tangent=tangent, smooth_iterations=smooth_iterations, l_thres=l_thres, density=density,
+                 layout=layout, margin=margin)
+
+
 def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
-                    init: Init = "auto", planner: dict | None = None, penalty: PenaltyOptions | None = None,
-                    tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
-                    density: int = 10, layout=None, frame: str | None = None, frame_targets: dict | None = None,
-                    margin: float = CLEARANCE):
+                    layout=None, margin: float = CLEARANCE, init: Init = "auto", planner: dict | None = None,
+                    penalty: PenaltyOptions | None = None, tangent: TangentOptions | None = None,
+                    smooth_iterations: int = 300, l_thres: float = -0.1, density: int = 10,
+                    frame: str | None = None, frame_targets: dict | None = None) -> TrajectoryResult:
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
-    limits), with ``steps`` waypoints including both ends. Batches: (B, K) start and goal give a
-    list of B results, optimised together.
+    limits), with ``steps`` waypoints including both ends: one :class:`TrajectoryResult`. B
+    problems optimised together: :func:`plan_trajectories`.
 
     ``init``: ``"straight"`` optimises the straight SO(2) interpolation with ``method``;
     ``"planner"`` starts every problem from :func:`profrobot.plan_path` (``planner``: its
@@ -167,12 +182,24 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     ``margin``: metres every certified path keeps from the obstacles (:mod:`profrobot.margin`;
     an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`).
     """
-    t0 = time.perf_counter()
+    if np.ndim(start) != 1 or np.ndim(goal) != 1:
+        raise InputError(f"plan_trajectory plans one problem: start and goal (K,); got shapes {np.shape(start)} and "
+                         f"{np.shape(goal)} (plan_trajectories plans B problems together)")
     if frame_targets is not None or frame is not None:
         return _through_frame_targets(sdf, start, goal, steps, method, robot=robot, init=init, planner=planner,
                                       penalty=penalty, tangent=tangent, smooth_iterations=smooth_iterations,
                                       l_thres=l_thres, density=density, layout=layout, frame=frame,
-                                      frame_targets=frame_targets, margin=margin, t0=t0)
+                                      frame_targets=frame_targets, margin=margin, t0=time.perf_counter())
+    return _plan(sdf, start, goal, steps, method, robot=robot, init=init, planner=planner, penalty=penalty,
+                 tangent=tangent, smooth_iterations=smooth_iterations, l_thres=l_thres, density=density,
+                 layout=layout, margin=margin)[0]
+
+
+def _plan(sdf, start, goal, steps: int, method: Method, *, robot: Robot | None, init: Init, planner: dict | None,
+          penalty: PenaltyOptions | None, tangent: TangentOptions | None, smooth_iterations: int, l_thres: float,
+          density: int, layout, margin: float) -> list[TrajectoryResult]:
+    """The problems of :func:`plan_trajectory` (one) and :func:`plan_trajectories` (B), together."""
+    t0 = time.perf_counter()
     sdf, robot = field_at_layout(sdf, robot, layout)
     if sdf is None:
         if not isinstance(robot, Robot):
@@ -191,7 +218,6 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     l_thres = finite("l_thres", l_thres)
     density = positive("density", density, integer=True)
     penalty, tangent, smooth_iterations = _options(penalty, tangent, smooth_iterations, l_thres, density)
-    single = np.ndim(start) == 1 and np.ndim(goal) == 1
     s = poses_within_limits(robot, start, "start")
     g = poses_within_limits(robot, goal, "goal")
     if s.shape != g.shape:
@@ -221,13 +247,13 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     planner_rows = np.flatnonzero(use_planner)
     if len(planner_rows):
         found = []
-        for b, (res, path) in zip(planner_rows, _planner_paths(robot, s[planner_rows], g[planner_rows], steps,
-                                                               dict(planner or {}))):
-            plans[int(b)] = res
+        for row, (res, path) in zip(planner_rows, _planner_paths(robot, s[planner_rows], g[planner_rows], steps,
+                                                                 dict(planner or {}))):
+            plans[int(row)] = res
             if path is not None:
-                paths[b] = path
-                before[int(b)] = float(np.linalg.norm(limits.diff(path[1:], path[:-1]), axis=1).sum())
-                found.append(int(b))
+                paths[row] = path
+                before[int(row)] = float(np.linalg.norm(limits.diff(path[1:], path[:-1]), axis=1).sum())
+                found.append(int(row))
         if found and sdf is not None and smooth_iterations > 0:
             rows = np.asarray(found)
             opts = dict(planner or {})
@@ -251,7 +277,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
             straight_length=float(np.linalg.norm(limits.diff(g[b], s[b]))),
             initial_certified=bool(initial_certified[b]), init="planner" if use_planner[b] else "straight",
             planner=plans.get(b), smoothed=bool(smoothed[b]), length_before=before.get(b, float("nan"))))
-    return results[0] if single else results
+    return results
 
 
 def _through_frame_targets(sdf, start, goal, steps, method, *, robot, init, planner, penalty, tangent,

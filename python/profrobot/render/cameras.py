@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -100,8 +101,12 @@ class Cameras:
 
     __slots__ = ("_K", "_T", "width", "height", "_dist", "_free")
 
+    _K: np.ndarray
+    _T: np.ndarray
     width: int
     height: int
+    _dist: np.ndarray | None
+    _free: dict[str, Any] | None  # lookat, distance, azimuth, elevation: arrays; fovy: float
 
     @property
     def K(self) -> np.ndarray:

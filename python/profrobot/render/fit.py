@@ -208,6 +208,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
         opt.zero_grad()
         terms["total"].backward()
         with torch.no_grad():
+            assert model.means.grad is not None   # the loss reads every mean
             gn = model.means.grad.norm(dim=-1)
             grad_acc += gn
             seen += (gn > 0).float()
@@ -226,7 +227,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
             grad_acc, seen, contrib = zeros(), zeros(), zeros()
             history.append(dict(step=it + 1, event="densify", **info))
         if (it + 1) % log_every == 0 or it + 1 == iterations:
-            rec = {k: float(v.detach()) for k, v in terms.items()}
+            rec: dict[str, object] = {k: float(v.detach()) for k, v in terms.items()}
             rec.update(step=it + 1, n=model.n, seconds=time.perf_counter() - t0)
             history.append(rec)
             bar.set_postfix(loss=f"{rec['total']:.4f}", n=model.n)

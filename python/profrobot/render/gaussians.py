@@ -107,7 +107,8 @@ def _visible_geoms(m: mujoco.MjModel) -> list[int]:
     """Robot geoms MuJoCo draws by default (groups 0-2, alpha > 0, not on the world body) that
     have a surface to sample: meshes and the primitives (URDF links are often boxes, cylinders and
     spheres); planes, height fields and SDFs are skipped with a warning."""
-    out, skipped = [], []
+    out: list[int] = []
+    skipped: list[int] = []
     for g in range(m.ngeom):
         rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
         if m.geom_bodyid[g] == 0 or m.geom_group[g] > 2 or rgba[3] <= 0:
@@ -136,9 +137,9 @@ def _primitive_mesh(kind: int, size: np.ndarray, n: int = 24) -> tuple[np.ndarra
         scale = np.ones(3)
     elif kind == int(_G.mjGEOM_CAPSULE):
         r, h = size[0], size[1]
-        a = t[: n // 2 + 1]   # lower hemisphere, then the upper one
-        prof = np.concatenate([np.stack([r * np.sin(a), -h - r * np.cos(a)], 1),
-                               np.stack([r * np.sin(a[::-1]), h + r * np.cos(a[::-1])], 1)])
+        lat = t[: n // 2 + 1]   # lower hemisphere, then the upper one
+        prof = np.concatenate([np.stack([r * np.sin(lat), -h - r * np.cos(lat)], 1),
+                               np.stack([r * np.sin(lat[::-1]), h + r * np.cos(lat[::-1])], 1)])
         scale = np.ones(3)
     else:   # sphere, ellipsoid: the unit sphere, scaled
         prof = np.stack([np.sin(t), -np.cos(t)], 1)
@@ -205,6 +206,11 @@ class GaussianRobot(torch.nn.Module):
     :meth:`load` keep a fitted model (safetensors + JSON, robot fingerprint checked).
     """
 
+    body: torch.Tensor           # buffers (register_buffer)
+    joint_limits: torch.Tensor
+    continuous: torch.Tensor
+    canonical: torch.Tensor
+
     def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
                  opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid", canonical=None,
                  hidden: int = 64):
@@ -233,14 +239,15 @@ class GaussianRobot(torch.nn.Module):
         self.register_buffer("continuous", torch.as_tensor(np.asarray(robot.continuous, dtype=bool)).clone(),
                              persistent=False)
         self.register_buffer("canonical", torch.as_tensor(can, dtype=torch.float32).reshape(1, -1))
-        self.skin_mlp = None
+        self.skin_mlp: torch.nn.Sequential | None = None
         if skinning == "lbs":
             # Dr. Robot: an MLP (GELU) from the canonical position to logits over the frames
             nb = self.kin.nbody
+            last = torch.nn.Linear(hidden, nb)
             self.skin_mlp = torch.nn.Sequential(torch.nn.Linear(3, hidden), torch.nn.GELU(), torch.nn.Linear(hidden, hidden),
-                                                torch.nn.GELU(), torch.nn.Linear(hidden, nb))
-            torch.nn.init.zeros_(self.skin_mlp[-1].weight)
-            torch.nn.init.zeros_(self.skin_mlp[-1].bias)
+                                                torch.nn.GELU(), last)
+            torch.nn.init.zeros_(last.weight)
+            torch.nn.init.zeros_(last.bias)
 
     # ---- construction ------------------------------------------------------------------------
     @classmethod

@@ -56,7 +56,7 @@ class PoseFit:
     loss: np.ndarray
     history: np.ndarray
     start: np.ndarray
-    all_losses: np.ndarray = field(default=None)
+    all_losses: np.ndarray | None = field(default=None)
     iterations: int = 0
     cameras: Cameras | None = None
     camera_motion: np.ndarray | None = None
@@ -253,10 +253,10 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
         return fit
     tg = ImageTargets.from_images(targets, cameras, init.shape[0], device=model.means.device, background=background,
                                   w_depth=w_depth, w_mask=w_mask, who="fit_pose")
-    theta, motion = _refine(model, tg, torch.as_tensor(fit.poses, dtype=torch.float32), refine, extra_loss, progress)
-    if not bool(torch.isfinite(theta).all()) or not bool(torch.isfinite(motion).all()):
+    theta, motion_t = _refine(model, tg, torch.as_tensor(fit.poses, dtype=torch.float32), refine, extra_loss, progress)
+    if not bool(torch.isfinite(theta).all()) or not bool(torch.isfinite(motion_t).all()):
         raise FloatingPointError("fit_pose: the camera refinement diverged; lower its rates (refine_cameras=dict(...))")
-    motion = motion.cpu().double().numpy()
+    motion = motion_t.cpu().double().numpy()
     refined = given.moved(motion)
     with torch.no_grad():
         loss = tg.losses(model, theta, viewmats=torch.as_tensor(motion, dtype=torch.float32,

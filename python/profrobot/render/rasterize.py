@@ -394,6 +394,7 @@ def render_native(views, width, height, *, background=None, cutoff: Cutoff = "so
         rgb, acc, dsum, contrib, npairs = _Render.apply(spec, *named.values())
     if finish:
         return RenderOut(rgb, dsum, acc, int(npairs), contrib)
+    assert cam_bg is not None   # finished in the kernel when there is no background
     depth = torch.where(acc > 1e-6, dsum / acc.clamp_min(1e-6), torch.zeros_like(acc))
     rgb = rgb + (1 - acc)[..., None] * cam_bg.to(rgb.dtype).reshape(-1, 1, 1, 3)
     return RenderOut(rgb, depth, acc, int(npairs), contrib)

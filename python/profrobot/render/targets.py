@@ -35,6 +35,11 @@ from .distortion import undistort_images, undistort_map
 __all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
 
 
+def _np(t: torch.Tensor) -> np.ndarray:
+    """A CPU tensor's values as a contiguous numpy array (no copy when already contiguous)."""
+    return t.detach().contiguous().numpy()
+
+
 class _ImageLoss(torch.autograd.Function):
     """:func:`pose_loss` on CPU tensors in one native pass each way (``rust/images.rs``; the
     same formula, term for term): forward(rgb [N, H, W, 3], alpha [N, H, W], depth [N, H, W],
@@ -50,9 +55,8 @@ class _ImageLoss(torch.autograd.Function):
         ctx.weights = dict(w_depth=float(w_depth), w_mask=float(w_mask))
         # the targets too: an edit between forward and backward is then caught, not silently used
         ctx.save_for_backward(rgb, alpha, depth, rgb_t, depth_t, mask_t, valid)
-        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
-        loss = _core.image_loss(np_(rgb), np_(alpha), np_(depth), np_(rgb_t), np_(depth_t), np_(mask_t),
-                                valid=np_(valid), **ctx.weights)
+        loss = _core.image_loss(_np(rgb), _np(alpha), _np(depth), _np(rgb_t), _np(depth_t), _np(mask_t),
+                                valid=None if valid is None else _np(valid), **ctx.weights)
         return torch.from_numpy(loss)
 
     @staticmethod
@@ -61,10 +65,9 @@ class _ImageLoss(torch.autograd.Function):
         from .. import _core
 
         rgb, alpha, depth, rgb_t, depth_t, mask_t, valid = ctx.saved_tensors
-        np_ = lambda t: None if t is None else t.detach().contiguous().numpy()
-        g_rgb, g_alpha, g_depth = _core.image_loss_backward(np_(g_loss.to(rgb.dtype)), np_(rgb), np_(alpha), np_(depth),
-                                                            np_(rgb_t), np_(depth_t), np_(mask_t), valid=np_(valid),
-                                                            **ctx.weights)
+        g_rgb, g_alpha, g_depth = _core.image_loss_backward(_np(g_loss.to(rgb.dtype)), _np(rgb), _np(alpha), _np(depth),
+                                                            _np(rgb_t), _np(depth_t), _np(mask_t),
+                                                            valid=None if valid is None else _np(valid), **ctx.weights)
         return (torch.from_numpy(g_rgb), torch.from_numpy(g_alpha), torch.from_numpy(g_depth),
                 None, None, None, None, None, None)
 
@@ -189,6 +192,7 @@ def as_pinhole_targets(targets: dict, cameras: Cameras, B: int, who: str = "targ
         cameras = cameras.undistorted()
     has_depth = depth is not None and bool(targets.get("has_depth", True))
     if mask is None:
+        assert depth is not None   # a mask or a depth (checked above)
         mask = depth > 0
     if depth is None:
         depth = np.zeros(mask.shape, np.float32)

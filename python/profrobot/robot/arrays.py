@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -62,7 +63,8 @@ def geom_local_frames(m: mujoco.MjModel, gids) -> tuple[np.ndarray, np.ndarray]:
     pos, quat = [], []
     for g in np.asarray(gids, dtype=int):
         b = int(m.geom_bodyid[g])
-        inertial = _frame(m.body_ipos[b], m.body_iquat[b], m.body_sameframe[b], (None, None))
+        ipos, iquat = m.body_ipos[b], m.body_iquat[b]
+        inertial = _frame(ipos, iquat, m.body_sameframe[b], (ipos, iquat))   # flags 0, 1, 3: the frame is its own inertial
         p, q = _frame(m.geom_pos[g], m.geom_quat[g], m.geom_sameframe[g], inertial)
         pos.append(p)
         quat.append(q)
@@ -82,8 +84,9 @@ def hull_vertices(m: mujoco.MjModel, mesh: int) -> np.ndarray:
     return np.ascontiguousarray(verts, dtype=np.float64)
 
 
-def model_arrays(m: mujoco.MjModel) -> dict[str, np.ndarray]:
-    """The flat arrays (ModelDesc) the Rust core labels with, from a compiled model."""
+def model_arrays(m: mujoco.MjModel) -> dict[str, Any]:
+    """The flat arrays (ModelDesc) the Rust core labels with, from a compiled model (numpy arrays,
+    and the ``filter_parent`` and ``contact_enabled`` flags as bools)."""
     f64 = lambda a, cols=None: np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1, cols) if cols
                                                     else np.asarray(a, dtype=np.float64))
     i32 = lambda a: np.ascontiguousarray(a, dtype=np.int32)

@@ -98,6 +98,11 @@ class Tendon:
 def _name(m: mujoco.MjModel, obj, i: int, prefix: str) -> str | None:
     if i < 0:
         return None
+    return _id_name(m, obj, i, prefix)
+
+
+def _id_name(m: mujoco.MjModel, obj, i: int, prefix: str) -> str:
+    """The name of object ``i`` (>= 0), or ``prefix`` and its index when it has none."""
     return mujoco.mj_id2name(m, obj, i) or f"{prefix}{i}"
 
 
@@ -109,7 +114,7 @@ def read_equalities(m: mujoco.MjModel) -> list[Equality]:
         n1 = _name(m, obj, int(m.eq_obj1id[i]), kind) if obj is not None else str(int(m.eq_obj1id[i]))
         n2 = _name(m, obj, int(m.eq_obj2id[i]), kind) if obj is not None else str(int(m.eq_obj2id[i]))
         poly = tuple(float(c) for c in m.eq_data[i, :5]) if kind in ("joint", "tendon") else (0.0,) * 5
-        out.append(Equality(kind, _name(m, mujoco.mjtObj.mjOBJ_EQUALITY, i, "equality"), n1, n2, poly,
+        out.append(Equality(kind, _id_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, i, "equality"), n1, n2, poly,
                             bool(m.eq_active0[i])))
     return out
 
@@ -120,10 +125,10 @@ def read_tendons(m: mujoco.MjModel) -> list[Tendon]:
         adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
         types = m.wrap_type[adr:adr + num]
         fixed = bool(np.all(types == mujoco.mjtWrap.mjWRAP_JOINT))
-        joints = tuple(_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.wrap_objid[w]), "joint")
+        joints = tuple(_id_name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.wrap_objid[w]), "joint")   # a joint wrap names its joint
                        for w in range(adr, adr + num) if m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT)
         coef = tuple(float(m.wrap_prm[w]) for w in range(adr, adr + num) if m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT)
-        out.append(Tendon(_name(m, mujoco.mjtObj.mjOBJ_TENDON, t, "tendon"), fixed, joints, coef,
+        out.append(Tendon(_id_name(m, mujoco.mjtObj.mjOBJ_TENDON, t, "tendon"), fixed, joints, coef,
                           bool(m.tendon_limited[t]), (float(m.tendon_range[t, 0]), float(m.tendon_range[t, 1]))))
     return out
 
@@ -158,13 +163,14 @@ class JointCouplings:
             y0 = float(m.qpos0[m.jnt_qposadr[j1]])
             x0 = float(m.qpos0[m.jnt_qposadr[j2]]) if j2 >= 0 else 0.0
             rows.append((j1, j2, np.asarray(e.polycoef), y0, x0, e.name))
-        deps = {}
+        deps: dict[int, tuple] = {}
         for r in rows:
             if r[0] in deps:
                 raise InputError(f"joint {joint_names[r[0]]!r} is the dependent joint of two joint equalities "
                                  f"({deps[r[0]][5]!r} and {r[5]!r}); sampling cannot satisfy both")
             deps[r[0]] = r
-        order, state = [], {}
+        order: list[tuple] = []
+        state: dict[int, str] = {}
 
         def visit(j, path):
             if state.get(j) == "done" or j not in deps:

@@ -1,4 +1,5 @@
-"""A robot in a file: :func:`save_robot` and :func:`load_robot` (base layer: no torch).
+"""A robot in a file: ``robot.save(path)`` and ``Robot.load(path)`` call :func:`write` and
+:func:`read` (base layer: no torch; the class is passed in, so this module imports no ``Robot``).
 
 A :class:`~profrobot.Robot`'s pickle already carries everything that built it (the MJCF or URDF
 text, every mesh's bytes, the obstacles, clouds, margins and collision matrix added since:
@@ -19,11 +20,12 @@ import os
 import pickle
 from pathlib import Path
 
+from typing import Any
+
 from ..errors import CorruptFileError, InputTypeError, MissingFileError
 from ..files import atomic_path
-from .robot import Robot
 
-__all__ = ["save_robot", "load_robot", "stored_robot", "ROBOT_FILE"]
+__all__ = ["write", "read", "ROBOT_FILE"]
 
 ROBOT_FILE = "robot.pkl"   # the name a field directory stores its robot under
 
@@ -75,12 +77,9 @@ class _RobotUnpickler(pickle.Unpickler):
                                "profrobot's classes and numpy arrays): not a file save_robot wrote, or tampered with")
 
 
-def save_robot(robot: Robot, path: str | os.PathLike) -> Path:
-    """Write ``robot`` to ``path`` atomically (its pickle, protocol 5: the MJCF or URDF text, the
-    meshes' bytes, obstacles, cloud, margin, collision matrix; a Panda cell is about 6 MB);
-    :func:`load_robot` reads it back with the same fingerprint."""
-    if not isinstance(robot, Robot):
-        raise InputTypeError(f"save_robot needs a profrobot.Robot; got {type(robot).__name__}")
+def write(robot: Any, path: str | os.PathLike) -> Path:
+    """``robot.save(path)``: its pickle (protocol 5: the MJCF or URDF text, the meshes' bytes,
+    obstacles, cloud, margin, collision matrix; a Panda cell is about 6 MB), written atomically."""
     path = Path(path)
     data = pickle.dumps(robot, protocol=5)
     with atomic_path(path) as tmp:
@@ -88,13 +87,16 @@ def save_robot(robot: Robot, path: str | os.PathLike) -> Path:
     return path
 
 
-def load_robot(path: str | os.PathLike) -> Robot:
-    """The robot :func:`save_robot` wrote to ``path`` (or a field directory's ``robot.pkl``).
+def read(path: str | os.PathLike, cls: type) -> Any:
+    """``Robot.load(path)``: the ``cls`` a robot file at ``path`` holds (or a field directory's
+    ``robot.pkl``).
 
     Raises :class:`~profrobot.errors.MissingFileError` for no file and
     :class:`~profrobot.errors.CorruptFileError` for one that is not a robot, is truncated, was
     written by another format, or names anything but profrobot's classes and numpy arrays (it is
     refused before anything it names is called: module docs)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputTypeError(f"path must be a file path; got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(f"no robot file at {str(path)!r}")
@@ -104,14 +106,7 @@ def load_robot(path: str | os.PathLike) -> Robot:
     except CorruptFileError:
         raise
     except Exception as e:   # truncated, not a pickle, a state the classes refuse
-        raise CorruptFileError(f"{path}: not a robot file save_robot wrote ({type(e).__name__}: {e})") from None
-    if not isinstance(robot, Robot):
+        raise CorruptFileError(f"{path}: not a robot file robot.save wrote ({type(e).__name__}: {e})") from None
+    if not isinstance(robot, cls):
         raise CorruptFileError(f"{path}: holds a {type(robot).__name__}, not a profrobot.Robot")
     return robot
-
-
-def stored_robot(folder: str | os.PathLike) -> Robot | None:
-    """The robot a field checkpoint directory stores (``folder/robot.pkl``), or None where it
-    stores none (directories written before fields stored their robot)."""
-    file = Path(folder) / ROBOT_FILE
-    return load_robot(file) if file.is_file() else None

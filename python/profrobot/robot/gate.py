@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from numbers import Integral, Real
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -38,7 +39,11 @@ def _is_number(value) -> bool:
     return isinstance(value, Real) and not isinstance(value, bool)
 
 
-def positive(name: str, value, *, integer: bool = False, allow_zero: bool = False) -> float | int:
+@overload
+def positive(name: str, value: Any, *, integer: Literal[True], allow_zero: bool = False) -> int: ...
+@overload
+def positive(name: str, value: Any, *, integer: Literal[False] = False, allow_zero: bool = False) -> float: ...
+def positive(name: str, value: Any, *, integer: bool = False, allow_zero: bool = False) -> float | int:
     """``value`` > 0 (>= 0 with ``allow_zero``), finite, an integer with ``integer``."""
     bad = not _is_number(value)
     if integer and not bad:
@@ -97,7 +102,7 @@ def memory(name: str, *dims: int, itemsize: int = 8) -> None:
 
 def seed(value, name: str = "seed") -> int:
     """A seed for the Rust samplers: an integer in [0, 2**64)."""
-    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= value < 2**64:
+    if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= int(value) < 2**64:
         raise InputError(f"{name} must be an integer in [0, 2**64); got {value!r}")
     return int(value)
 

@@ -11,6 +11,7 @@ The file-based constructors (Menagerie, MJCF, URDF) record the robot's source
 from __future__ import annotations
 
 import os
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, replace
@@ -79,9 +80,33 @@ def from_mjcf(cls, path: str | os.PathLike, *, srdf: str | os.PathLike | None = 
         spec = mujoco.MjSpec.from_file(path)
     except Exception as e:  # mujoco raises ValueError with the parser's message
         raise InputError(f"could not read MJCF {path!r}: {e}") from e
-    robot = cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
+    try:
+        robot = cls.from_spec(spec, name=os.path.splitext(os.path.basename(path))[0])
+    except InputError as e:
+        missing = re.search(r"Error opening file '([^']+)'", str(e))
+        if missing is None:
+            raise
+        raise MissingFileError(_where_looked(spec, path, missing.group(1))) from e
     robot._source = _SpecSource(os.path.abspath(path))  # a pickle carries the files themselves (exact)
     return _with_collision_matrix(robot, path, srdf, collision_matrix)
+
+
+def _where_looked(spec: mujoco.MjSpec, path: str, name: str) -> str:
+    """A file an MJCF names that MuJoCo could not open, with where it looked: MuJoCo resolves a
+    mesh or texture file against the MJCF's folder joined with ``<compiler meshdir=…>`` (or
+    ``texturedir``)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    places = []
+    for attr, what in (("meshdir", "meshdir"), ("texturedir", "texturedir")):
+        sub = getattr(spec, attr, "") or ""
+        places.append((os.path.normpath(os.path.join(folder, sub, name)), f"the MJCF's folder + {what}={sub!r}"))
+    seen, lines = set(), []
+    for where, why in places:
+        if where not in seen:
+            seen.add(where)
+            lines.append(f"{where} ({why})")
+    return (f"{path}: MuJoCo could not open {name!r}, which the MJCF names; it looked at " + "; ".join(lines) +
+            ". Fix the file name, <compiler meshdir=...> or copy the assets there")
 
 
 def _with_collision_matrix(self, source: str, srdf, collision_matrix: str | None) -> Any:

@@ -64,6 +64,9 @@ class PointCloud:
     """
 
     __slots__ = ("points", "radius", "_fingerprint")
+    points: np.ndarray
+    radius: np.ndarray
+    _fingerprint: str | None
 
     def __init__(self, points, radius=0.005):
         try:
@@ -113,11 +116,13 @@ class PointCloud:
     @property
     def fingerprint(self) -> str:
         """sha256 of the balls (exact bytes), 32 hex digits."""
-        if self._fingerprint is None:
+        fingerprint = self._fingerprint
+        if fingerprint is None:
             h = hashlib.sha256(np.ascontiguousarray(self.points).tobytes())
             h.update(np.ascontiguousarray(self.radius).tobytes())
-            object.__setattr__(self, "_fingerprint", h.hexdigest()[:32])
-        return self._fingerprint
+            fingerprint = h.hexdigest()[:32]
+            object.__setattr__(self, "_fingerprint", fingerprint)
+        return fingerprint
 
     def __add__(self, other: "PointCloud") -> "PointCloud":
         """The union of two clouds (this one's balls first)."""

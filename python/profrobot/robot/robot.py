@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Sequence
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -26,6 +27,7 @@ from .equalities import EqualityWarning, JointCouplings, read_equalities, read_t
 from ..errors import InputError, InputTypeError
 from . import layouts as _layouts
 from . import loading as _loading
+from . import file as _file
 from . import state as _state
 from .arrays import BALL, FREE, GEOM_NAMES, HINGE, SLIDE, label_fingerprint, model_arrays, object_name
 from .margin import ObstacleMargin
@@ -254,6 +256,22 @@ class Robot:
         (so a field trained on this robot still guides it); its :attr:`fingerprint` differs
         (its labels do)."""
         return _layouts.with_margin(self, margin)
+
+    # ---- robot files (robot/file.py) -------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write this robot to ``path`` atomically, in one file: its MJCF or URDF text, the meshes'
+        bytes, obstacles, cloud, margin and collision matrix (its pickle; a Panda cell is about
+        6 MB). :meth:`load` reads it back with the same fingerprint."""
+        return _file.write(self, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Robot":
+        """The robot :meth:`save` wrote to ``path`` (or a field directory's ``robot.pkl``), read
+        by a restricted unpickler: profrobot's classes and numpy arrays only, so a tampered file
+        runs none of its code (:mod:`profrobot.robot.file`). Raises
+        :class:`~profrobot.errors.MissingFileError` for no file and
+        :class:`~profrobot.errors.CorruptFileError` for anything but a robot file."""
+        return _file.read(path, cls)
 
     # ---- pickles and copies (robot/state.py) ---------------------------------------------------
     def __getstate__(self) -> dict:

@@ -89,8 +89,7 @@ def _read_mjcf(path: str) -> _Mjcf:
             continue
         seen.add(p)
         for el in ET.parse(p).getroot().iter():
-            if el.tag == "include" and el.get("file"):
-                name = el.get("file")
+            if el.tag == "include" and (name := el.get("file")):
                 full = next((c for c in (os.path.join(folder, name), os.path.join(os.path.dirname(p), name))
                              if os.path.isfile(c)), os.path.join(folder, name))
                 include[name] = _read(full)
@@ -160,6 +159,7 @@ class _SpecSource:
 
     def spec(self) -> mujoco.MjSpec:
         root = self.loaded().root
+        assert isinstance(root, _Mjcf)   # loaded() reads the source
         spec = root.spec()
         for ob in self.obstacles:
             ob.add_to(spec)

@@ -136,14 +136,14 @@ class UrdfFiles:
 def _package_candidates(pkg: str, package_dirs, urdf_folder: str) -> list[tuple[str, str]]:
     """(folder, where it came from) that may hold package ``pkg``, in the order they are tried."""
     out: list[tuple[str, str]] = []
-    dirs: list[str] = []
+    dirs: list[str | os.PathLike] = []
     if isinstance(package_dirs, dict):
         if pkg in package_dirs:
             out.append((os.path.abspath(os.fspath(package_dirs[pkg])), "package_dirs"))
     elif package_dirs is not None:
         dirs = [package_dirs] if isinstance(package_dirs, (str, os.PathLike)) else list(package_dirs)
 
-    def under(d: str, why: str) -> None:
+    def under(d: str | os.PathLike, why: str) -> None:
         d = os.path.abspath(os.fspath(d))
         out.append((os.path.join(d, pkg), why))
         if os.path.basename(os.path.normpath(d)) == pkg:
@@ -201,14 +201,14 @@ def _resolve(uri: str, urdf_path: str, package_dirs, meshdir: str = "", strip: b
         return (full, "") if os.path.isfile(full) else (None, f"no such file: {full}")
     if scheme:
         return None, f"{scheme}:// URIs are not read (only package://, model://, file:// and paths); download the mesh and name its path"
-    tried = []
+    tried_paths: list[str] = []
     for name in ([os.path.basename(uri)] if strip else []) + [uri]:
         for base in ([os.path.join(folder, meshdir)] if meshdir else []) + [folder]:
             full = os.path.normpath(name if os.path.isabs(name) else os.path.join(base, name))
             if os.path.isfile(full):
                 return full, ""
-            tried.append(full)
-    return None, f"no such file: {' or '.join(dict.fromkeys(tried))} (relative to the URDF's folder)"
+            tried_paths.append(full)
+    return None, f"no such file: {' or '.join(dict.fromkeys(tried_paths))} (relative to the URDF's folder)"
 
 
 def _float(el: ET.Element, key: str) -> float | None:
@@ -221,7 +221,7 @@ def _float(el: ET.Element, key: str) -> float | None:
         return None
 
 
-def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
+def read_urdf(path: str | os.PathLike, package_dirs=None) -> UrdfFiles:
     """The URDF at ``path`` with its meshes resolved (see the module docs); raises
     :class:`InputError` naming the file and what to pass for what it cannot take."""
     path = os.path.abspath(os.fspath(path))
@@ -247,8 +247,8 @@ def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
     if comp is None:
         comp = ET.SubElement(mj, "compiler")
     discard = comp.get("discardvisual", "true").strip().lower() != "false"
-    for key, value in (("fusestatic", "false"), ("boundmass", "1e-6"), ("boundinertia", "1e-10")):
-        comp.attrib.setdefault(key, value)
+    for option, value in (("fusestatic", "false"), ("boundmass", "1e-6"), ("boundinertia", "1e-10")):
+        comp.attrib.setdefault(option, value)
     balance = comp.attrib.setdefault("balanceinertia", "true").strip().lower() == "true"
     inertias = fix_inertias(root, balance)
     meshdir = comp.attrib.pop("meshdir", "")
@@ -271,9 +271,9 @@ def read_urdf(path: str, package_dirs=None) -> UrdfFiles:
         elif jtype == "revolute" and (lo is None or hi is None or lo > hi):
             notes.append(f"revolute joint {jname!r} has no valid <limit lower= upper=>: taken as continuous")
         mim = j.find("mimic")
-        if mim is not None and mim.get("joint"):
+        if mim is not None and (mimicked := mim.get("joint")):
             mult, off = _float(mim, "multiplier"), _float(mim, "offset")
-            mimics.append((jname, mim.get("joint"), 1.0 if mult is None else mult, 0.0 if off is None else off))
+            mimics.append((jname, mimicked, 1.0 if mult is None else mult, 0.0 if off is None else off))
     if unsupported:
         raise InputError(f"{path}: profrobot labels fixed-base robots, and these joints are not hinges or slides with "
                          f"a range: {', '.join(unsupported)}. Make the joint type=\"fixed\" (the robot at its base's "

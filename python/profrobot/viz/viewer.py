@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import Protocol
 
 import mujoco
 import numpy as np
 
 from ..exact.certification import certify_motions, certify_poses
 from ..errors import BackendUnavailableError, InputError, InputTypeError
-from ..exact.ik import frame_of, ik
+from ..exact.ik import IKResult, frame_of, ik
 from ..exact.labels import interpolate, label_poses
 from ..robot.margin import obstacle_bodies
 from ..robot.robot import Robot
@@ -40,6 +41,14 @@ ROBOT_COLOUR = (255, 120, 0)
 CONTACT_COLOUR = (215, 0, 0)
 OBSTACLE_COLOUR = (140, 145, 160)
 _PLANE_HALF = 2.0   # metres: an infinite plane is drawn this far out
+
+
+class _GeomHandle(Protocol):
+    """What the viewer sets on a geom's viser mesh handle."""
+
+    position: np.ndarray
+    wxyz: np.ndarray
+    color: tuple[int, int, int]
 
 
 def _quat(mat: np.ndarray) -> np.ndarray:
@@ -170,13 +179,13 @@ class Viewer:
         self.server.scene.set_up_direction("+z")
         self.server.gui.configure_theme(show_share_button=False)
         self.server.gui.main_panel.dock_right()   # the panel beside the view, not over it
-        self._geoms: dict[int, object] = {}
+        self._geoms: dict[int, _GeomHandle] = {}
         self._is_robot: dict[int, bool] = {}
         self._paths: dict[str, dict] = {}
         self._playing = threading.Event()
         self._closed = False
         self.verdict = ""
-        self.last_ik = None
+        self.last_ik: IKResult | None = None
         self._add_geoms()
         if robot.cloud is not None:
             self.show_cloud(robot.cloud)
@@ -238,6 +247,7 @@ class Viewer:
         with self._lock:
             labels = label_poses(self.robot, pose[None], pairs=True)
             certified = bool(certify_poses(self.robot, pose[None])[0])
+            assert labels.colliding_pairs is not None   # asked for: pairs=True
             pairs = np.asarray(self.robot.pair_geoms)[labels.colliding_pairs[:, 1]] if labels.collides[0] else []
             touching = {int(g) for pair in pairs for g in pair}
             self._place(pose)

@@ -5,7 +5,7 @@
    ``Rᵀ (z · ((u − cx)/fx, (v − cy)/fy, 1) − t)``; distorted cameras have their depth undistorted
    first (OpenCV's model, nearest sampling). Each point's radius is the sensor's resolution there:
    one pixel's footprint ``z / min(fx, fy)`` (or ``radius=`` metres).
-2. **The self-filter** (``rust/filter.rs``): points within ``margin`` metres of the robot's geoms at
+2. **The self-filter** (``rust/collision/filter.rs``): points within ``padding`` metres of the robot's geoms at
    its known ``pose`` are the robot's own and are removed (MoveIt's ``robot_self_filter`` padding,
    computed exactly against the collision geoms); with ``static=`` metres, points that close to the
    modelled static scene (floor, table, modelled obstacles) are removed too: the model already has
@@ -55,15 +55,15 @@ class CloudBuild:
                 + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in s.items()))
 
 
-def self_filter(robot: Robot, pose, points, margin: float = 0.02, *, static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def self_filter(robot: Robot, pose, points, *, padding: float = 0.02, static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(robot, static)``: two (N,) bool masks over ``points`` (N, 3, world metres): within
-    ``margin`` metres of the robot's collision geoms at ``pose`` (K,), and, with ``static``
+    ``padding`` metres of the robot's collision geoms at ``pose`` (K,), and, with ``static``
     metres, that close to the model's other geoms (floor, table, modelled obstacles; the point
     cloud excepted) and not the robot's. Exact against the geoms (``rust/filter.rs``)."""
     q = gate.as_poses(robot, pose, name="pose")
     if len(q) != 1:
         raise InputError(f"pose must be one pose of {robot.njoint} joints; got {len(q)}")
-    m = gate.positive("margin", margin, allow_zero=True)
+    m = gate.positive("padding", padding, allow_zero=True)
     s = None if static is None else gate.positive("static", static, allow_zero=True)
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     kind = robot.core.points_near(q, p, m, s)
@@ -71,14 +71,14 @@ def self_filter(robot: Robot, pose, points, margin: float = 0.02, *, static: flo
 
 
 def cloud_from_depth(robot: Robot, depth, cameras: Cameras, *, pose, radius: float | None = None,
-                     voxel: float | None = 0.01, margin: float = 0.02, static: float | None = 0.005,
+                     voxel: float | None = 0.01, padding: float = 0.02, static: float | None = 0.005,
                      max_depth: float | None = None) -> CloudBuild:
     """The point-cloud obstacle of calibrated depth images (module docs): ``depth`` (C, H, W)
     metres along each camera's z axis (0 / NaN: no reading) from ``cameras``, the robot at ``pose``
     (K,) in them.
 
     ``radius``: metres per point (default: each pixel's footprint ``z / f``); ``voxel``: the
-    downsampling cube in metres (None: none); ``margin``: the self-filter's padding around the
+    downsampling cube in metres (None: none); ``padding``: the self-filter's padding around the
     robot's geoms, metres; ``static``: that around the modelled static scene (None keeps those
     points); ``max_depth``: readings farther than this (metres) are dropped. Returns a
     :class:`CloudBuild` (``.cloud`` is the :class:`~profrobot.PointCloud`)."""
@@ -95,7 +95,7 @@ def cloud_from_depth(robot: Robot, depth, cameras: Cameras, *, pose, radius: flo
         keep = z <= max_depth
         pts, z, cam = pts[keep], z[keep], cam[keep]
     t1 = time.perf_counter()
-    own, near_static = self_filter(robot, pose, pts, margin, static=static)
+    own, near_static = self_filter(robot, pose, pts, padding=padding, static=static)
     keep = ~(own | near_static)
     t2 = time.perf_counter()
     if radius is None:

@@ -67,7 +67,7 @@ def cloud_picture(robot: Robot, path: str | os.PathLike | None = None, *, waypoi
         ax.set_title(name)
     axes[0].legend(loc="upper right", fontsize=7, markerscale=4)
     n = len(P)
-    fig.suptitle(title or f"{robot.name}: {n} balls" + (f", radius {cloud.radius.min() * 1e3:.1f}–{cloud.radius.max() * 1e3:.1f} mm" if n else ""))
+    fig.suptitle(title or f"{robot.name}: {n} balls" + (f", radius {cloud.radius.min() * 1e3:.1f}–{cloud.radius.max() * 1e3:.1f} mm" if cloud is not None and n else ""))
     fig.tight_layout()
     if path is not None:
         with atomic_path(Path(path)) as tmp:

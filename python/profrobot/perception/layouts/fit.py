@@ -141,7 +141,7 @@ def distances(placer: Placer, ob: Obstacle, delta_j: np.ndarray, P: np.ndarray, 
     g = np.zeros((len(P), 3)) if grad else None
     for s, (x, R) in zip(ob.solids, frames):
         q = (P - x) @ R                              # local: Rᵀ (p − x)
-        if grad:
+        if g is not None:                            # grad
             d, gl = s.sdf_grad(q)
             better = d < r
             r = np.where(better, d, r)

@@ -90,6 +90,7 @@ class Solid:
             return _box(q, self.size)
         if self.kind == "cylinder":
             return _cylinder(q, self.size)
+        assert self.planes is not None and self.edges is not None   # a mesh: its hull
         inside = q @ self.planes[:, :3].T - self.planes[:, 3]      # (N, F)
         s = inside.max(axis=1)
         out = s > 0
@@ -137,6 +138,7 @@ class Solid:
             a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
             ring = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1) * r / np.cos(np.pi / 16)
             return np.concatenate([ring + [0, 0, -h], ring + [0, 0, h]])
+        assert self.vertices is not None   # a mesh: its hull
         return self.vertices
 
     def radius(self) -> float:
