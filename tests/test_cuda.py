@@ -142,7 +142,7 @@ def _sym(g: torch.Tensor) -> torch.Tensor:
 @cuda
 def test_pose_loss_on_cuda_equals_the_native_cpu_pass():
     """pose_loss on CUDA tensors runs in torch; on CPU tensors in one native pass
-    (``rust/images.rs``): the same losses and gradients."""
+    (``rust/bindings/images.rs``): the same losses and gradients."""
     from profrobot.render.rasterize import RenderOut
     from profrobot.render.targets import pose_loss
 

@@ -1,4 +1,4 @@
-"""The images finished and compared natively (``rust/images.rs``): the background and expected
+"""The images finished and compared natively (``rust/bindings/images.rs``): the background and expected
 depth inside the renderer's autograd node, and ``pose_loss`` in one pass each way, against the
 torch formulas they replace (values and gradients), ``gradcheck`` in float64, and bad input
 named."""

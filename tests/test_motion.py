@@ -1,4 +1,4 @@
-"""The continuous certificate of motions (rust/motion.rs, profrobot.certify_motions): what it
+"""The continuous certificate of motions (rust/planning/motion.rs, profrobot.certify_motions): what it
 proves holds under MuJoCo on a fine re-interpolation, on every bundled scene; a thin obstacle
 that a sampled check steps over is refused; the planner uses it."""
 

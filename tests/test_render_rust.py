@@ -1,5 +1,5 @@
-"""The native renderer (``backend="rust"``: ``rust/render.rs`` projection and SH colour,
-``rust/splat.rs`` tile rasterizer) against the torch reference:
+"""The native renderer (``backend="rust"``: ``rust/bindings/render.rs`` projection and SH colour,
+``rust/render/splat.rs`` tile rasterizer) against the torch reference:
 same images and pose gradients on the Panda, ``torch.autograd.gradcheck`` for every Gaussian
 parameter, bit-identical results across thread counts, and every bad input a Python exception."""
 

@@ -1,4 +1,4 @@
-"""One angle wrap (issue 19): ``rust/angles.rs`` in the core (interpolation and planner alike) and
+"""One angle wrap (issue 19): ``rust/joints/angles.rs`` in the core (interpolation and planner alike) and
 its Python twin ``profrobot.robot.angles.wrap`` (joints, planning helpers, path unwrapping), equal bit
 for bit, with pi going to -pi: a half turn moves the negative way everywhere."""
 

@@ -1,8 +1,8 @@
 """profrobot: collision-aware robot pose optimisation.
 
 The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.label`` (Rust,
-``rust/collide.rs``); booleans only, faster: :func:`collides` → ``Robot.core.collides``
-(``rust/fastpath.rs``).
+``rust/collision/collide.rs``); booleans only, faster: :func:`collides` → ``Robot.core.collides``
+(``rust/collision/fastpath.rs``).
 
 >>> import profrobot
 >>> robot = profrobot.scenes.load("panda_blocks")

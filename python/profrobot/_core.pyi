@@ -10,7 +10,7 @@ decide is never labelled (neither free nor colliding): the labelling, oracle and
 raise :class:`ModelError` naming the pose and the pair (MuJoCo geom ids).
 
 Angles: continuous hinges wrap into [-pi, pi) and shortest arcs are ``wrap(b - a)`` by one
-function (``rust/angles.rs``; ``profrobot.angles.wrap`` is its Python twin): values already in
+function (``rust/joints/angles.rs``; ``profrobot.robot.angles.wrap`` is its Python twin): values already in
 [-pi, pi) are unchanged, pi goes to -pi, so a half turn moves the negative way in
 :func:`interpolate` and in :meth:`RobotModel.plan_path` alike.
 """
@@ -153,7 +153,7 @@ class RobotModel:
     def with_cloud(self, points: npt.NDArray[np.float64] | None, radius: npt.NDArray[np.float64] | None,
                    margin: float = 0.0, contype: int = 1, conaffinity: int = 1) -> RobotModel:
         """This model with the point cloud ``points`` (N, 3) world metres of radii ``radius`` (N,)
-        metres instead of its own (both None: no cloud; ``rust/cloud.rs``): one more geom, MuJoCo
+        metres instead of its own (both None: no cloud; ``rust/geometry/cloud.rs``): one more geom, MuJoCo
         id -1 in :meth:`pairs`, its balls with geom ``margin`` and MuJoCo's contact filter. The
         MuJoCo geoms' shapes are shared, not built again. InputError for NaN points or negative
         radii, naming the entry."""
@@ -161,7 +161,7 @@ class RobotModel:
                     static_margin: float | None = None) -> npt.NDArray[np.uint8]:
         """(N,) per point of ``points`` (N, 3, world metres) at ``pose`` (1, K): 1 within
         ``margin`` metres of a robot geom, else 2 within ``static_margin`` of another geom (the
-        point cloud excepted; None: not tested), else 0 (``rust/filter.rs``: exact)."""
+        point cloud excepted; None: not tested), else 0 (``rust/collision/filter.rs``: exact)."""
 
 def interpolate(start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], steps: int,
                 continuous: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
@@ -199,7 +199,7 @@ def render_forward(opacities: _Float, viewmats: _Float, Ks: _Float, views: npt.N
                    colors: _Float | None = None,
                    sh: _Float | None = None, cutoff: Literal["soft", "hard"] = "soft", threads: int | None = None
                    ) -> tuple[_Float, _Float, _Float, _Float, int, RenderState]:
-    """The Gaussian renderer after forward kinematics (``rust/render.rs``, ``rust/splat.rs``):
+    """The Gaussian renderer after forward kinematics (``rust/bindings/render.rs``, ``rust/render/splat.rs``):
     EWA projection, colour, tile rasterization; float32 when the inputs are float32, float64
     when they are float64 (every float input the same dtype).
 
@@ -237,7 +237,7 @@ def render_backward(state: RenderState, grad_rgb: _Float, grad_alpha: _Float, gr
 
 def finish_images(rgb: _Float, alpha: _Float, dsum: _Float, *, background: _Float | None = None,
                   threads: int | None = None) -> None:
-    """Finishes :func:`render_forward`'s images in place (``rust/images.rs``): ``rgb`` (V, H, W,
+    """Finishes :func:`render_forward`'s images in place (``rust/bindings/images.rs``): ``rgb`` (V, H, W,
     3) gets ``(1 - alpha) background`` added (``background`` (3,) or (V, 3); None: black),
     ``dsum`` (V, H, W) becomes the expected depth ``dsum / alpha`` (0 where ``alpha <= 1e-6``).
     ``rgb`` and ``dsum`` must be writeable and C-contiguous, every array one float dtype."""

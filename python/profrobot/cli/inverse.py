@@ -27,15 +27,21 @@ not (the files are written all the same), 2 on bad input.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError, RobotMismatchError
 from ..files import atomic_path, format_tag
 from .robots import numbers, robot_of
+
+if TYPE_CHECKING:   # the torch side loads in the command that needs it
+    from ..render.cameras import Cameras
+    from ..render.gaussians import GaussianRobot
 
 __all__ = ["cmd_pose", "read_folder", "read_image", "read_mask", "write_fit_picture", "IMAGE_SUFFIXES", "POSE_FORMAT"]
 
@@ -198,7 +204,7 @@ def _resize(img: np.ndarray, w: int, h: int, nearest: bool) -> np.ndarray:
     return np.asarray(Image.fromarray(img).resize((w, h), Image.Resampling.NEAREST if nearest else Image.Resampling.BILINEAR))
 
 
-def write_fit_picture(path: Path, model, targets: dict, cameras, poses: np.ndarray) -> Path:
+def write_fit_picture(path: Path, model: GaussianRobot, targets: dict, cameras: Cameras, poses: np.ndarray) -> Path:
     """fit.png (:func:`profrobot.render.image.fit_picture`): every target's views, undistorted as
     the fit saw them, the model drawn at ``poses`` (B, K) from the same pinhole cameras, and the
     overlay; panels scaled to at most 480 pixels on a side."""
@@ -227,7 +233,7 @@ def _number(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def cmd_pose(args) -> int:
+def cmd_pose(args: argparse.Namespace) -> int:
     """``profrobot pose``: read the folder, fit with :func:`profrobot.pose_from_images` and the
     field, certify with the exact labeller, write ``poses.json`` and ``fit.png`` (module docs)."""
     from ..field import PoseSDF
@@ -258,6 +264,7 @@ def cmd_pose(args) -> int:
                            image_iterations=args.iterations, field_iterations=args.field_iterations, lr=args.lr,
                            coarse=coarse, refine_cameras=bool(args.refine_cameras), seed=args.seed, progress=True)
     print(res.summary())
+    assert res.certified is not None   # a field was given: every answer is certified
     out = Path(args.out)
     doc = dict(format=POSE_FORMAT, robot=robot.name, robot_fingerprint=robot.fingerprint,
                joint_names=list(robot.joint_names), certified=bool(res.certified.all()),

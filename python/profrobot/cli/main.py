@@ -249,7 +249,7 @@ def cmd_view(args) -> int:
             from ..field import PoseSDF
 
             sdf = PoseSDF.load(args.field, robot)
-            viewer.show_field_slice(sdf.at(layout) if robot.is_family else sdf)
+            viewer.show_field_slice(sdf.at(layout) if layout is not None else sdf)   # a layout: a family
         deadline = None if args.seconds is None else time.monotonic() + args.seconds
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.1 if deadline is not None else 1.0)

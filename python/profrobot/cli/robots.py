@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import scenes
 from ..errors import InputError
 from ..robot.robot import Robot
 from ..robot.file import ROBOT_FILE
+
+if TYPE_CHECKING:   # the functions below import numpy themselves
+    import numpy as np
 
 __all__ = ["robot_file", "add_robot_arguments", "robot_of", "field_robot", "numbers", "pose_arg", "layout_of",
            "negative_values", "DefaultsFormatter"]
@@ -103,7 +107,7 @@ def field_robot(field: str | Path) -> Robot:
     return scenes.load(name)
 
 
-def numbers(text: str, option: str):
+def numbers(text: str, option: str) -> np.ndarray:
     """``--option``'s comma-separated numbers (radians / metres) as a float64 array (K,)."""
     import numpy as np
 
@@ -113,7 +117,7 @@ def numbers(text: str, option: str):
         raise InputError(f"--{option} must be comma-separated numbers (radians / metres); got {text!r}") from None
 
 
-def pose_arg(text: str, option: str, robot: Robot):
+def pose_arg(text: str, option: str, robot: Robot) -> np.ndarray:
     """``--option``'s one joint pose (radians / metres) as a float64 array: comma-separated
     numbers, or a file the commands write: a ``.npy`` array, or an ``.npz`` with ``poses`` (``ik``,
     ``resolve``) or ``path`` (``plan``); ``FILE:i`` picks row ``i`` (default: 0; for a path,
@@ -147,7 +151,7 @@ def pose_arg(text: str, option: str, robot: Robot):
     return arr
 
 
-def layout_of(args: argparse.Namespace, robot: Robot):
+def layout_of(args: argparse.Namespace, robot: Robot) -> np.ndarray | None:
     """``--layout`` for a family of scenes (its scene joints at 0 by default), None for a robot
     with no scene joints (which refuses ``--layout``)."""
     import numpy as np

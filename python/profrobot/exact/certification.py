@@ -1,6 +1,6 @@
 """What "certified" means, once, for every pose and path profrobot returns as safe.
 
-**Definition.** A pose is *certified free* when the exact labeller (``rust/collide.rs``: MuJoCo's
+**Definition.** A pose is *certified free* when the exact labeller (``rust/collision/collide.rs``: MuJoCo's
 collision rules, exact shapes) finds no candidate geom pair in contact **and** every candidate
 pair more than :data:`CLEARANCE` metres apart. A path is certified free when every waypoint is
 and every segment is *proven* so: at every pose of the segment's SO(2) interpolation, not only
@@ -9,7 +9,7 @@ certificate, :func:`certify_motions`; ``check_path(..., method="sampled")`` keep
 check of a dense re-interpolation). Nothing else in profrobot says "certified": not the learned
 field (never on its word alone), not the plain labels.
 
-**The continuous certificate** (``rust/motion.rs``, conservative advancement). For each pair, an
+**The continuous certificate** (``rust/planning/motion.rs``, conservative advancement). For each pair, an
 upper bound on how fast its distance can shrink along the segment comes from the kinematic
 chain (every joint below the pair's common ancestor times its lever: the largest distance from
 its axis's anchor to the geom, over all configurations); a pose whose pair is ``d`` apart proves
@@ -27,7 +27,7 @@ The plain labels (:func:`profrobot.label_poses`, :func:`profrobot.collides`) sta
 verdict (contact at distance ≤ margin); certification is that verdict plus the clearance.
 
 How it is computed, cheaply and exactly: the Rust fast path (``RobotModel.certified``,
-``rust/fastpath.rs``) decides each candidate pair "not in contact and more than CLEARANCE
+``rust/collision/fastpath.rs``) decides each candidate pair "not in contact and more than CLEARANCE
 apart", likeliest pairs first, and stops at the first pair that is not; box and sphere tests
 inflated by the clearance clear most pairs without a distance, and the rest get the exact signed
 distance the labels report. The verdict is that of labelling every pose with distances
@@ -41,10 +41,11 @@ from dataclasses import dataclass
 from typing import Literal, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from .labels import as_poses, check_threads, interpolate, so2_steps
-from ..robot.gate import with_layout, with_margin
+from ..robot.gate import Layout, with_layout, with_margin
 from ..robot.margin import CLEARANCE as _MARGIN_CLEARANCE
 from ..robot.robot import Robot
 
@@ -52,19 +53,20 @@ __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate",
            "PathCheck", "certified_summary", "failures_of"]
 
 #: metres: the least distance every candidate pair keeps in a certified pose (module docs; the
-#: value lives in :mod:`profrobot.margin`, beside the margins it is the floor of: a margin at most
+#: value lives in :mod:`profrobot.robot.margin`, beside the margins it is the floor of: a margin at most
 #: this is no margin, and a layout within it of the robot's base is refused, ``Robot.at``)
 CLEARANCE = _MARGIN_CLEARANCE
 
 
-def certify_poses(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, threads: int | None = None) -> np.ndarray:
+def certify_poses(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+                  threads: int | None = None) -> np.ndarray:
     """(B,) bool: True where pose ``poses[i]`` ((B, K) or (K,), radians / metres; a family's θ
     with ``layout=δ``) is certified free (module docs: no contact, every candidate pair more than
     :data:`CLEARANCE` apart). A pose the robot cannot take (a limited joint outside its limits,
     a joint equality not met, to 1e-9: :meth:`Robot.feasible`) is never certified.
 
-    ``margin``: metres every robot–obstacle pair must keep (:mod:`profrobot.margin`: pass an
-    estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`, and a pose certified
+    ``margin``: metres every robot–obstacle pair must keep (:mod:`profrobot.robot.margin`: pass an
+    estimated layout's :attr:`~profrobot.perception.layouts.LayoutEstimate.margin`, and a pose certified
     at the estimate is free at the true layout while the estimate's error stays below it)."""
     robot = with_margin(robot, margin)
     q = as_poses(robot, with_layout(robot, poses, layout))
@@ -94,8 +96,8 @@ class MotionCertificate:
     states: np.ndarray
 
 
-def certify_motions(robot: Robot, starts, goals, *, layout=None, margin: float = CLEARANCE,
-                    threads: int | None = None) -> MotionCertificate:
+def certify_motions(robot: Robot, starts: npt.ArrayLike, goals: npt.ArrayLike, *, layout: Layout | None = None,
+                    margin: float = CLEARANCE, threads: int | None = None) -> MotionCertificate:
     """The continuous certificate (module docs) of each straight motion ``starts[i] → goals[i]``
     ((B, K) or (K,) each, radians / metres; a family's θ with ``layout=δ``): continuous hinges
     along the short arc, the motion :func:`profrobot.interpolate` replays; other joints
@@ -145,8 +147,8 @@ class PathCheck:
         return np.flatnonzero(self.segment_uncertified)
 
 
-def check_path(robot: Robot, path, density: int = 10, *, layout=None, margin: float = CLEARANCE,
-               method: Literal["continuous", "sampled"] = "continuous") -> PathCheck:
+def check_path(robot: Robot, path: npt.ArrayLike, density: int = 10, *, layout: Layout | None = None,
+               margin: float = CLEARANCE, method: Literal["continuous", "sampled"] = "continuous") -> PathCheck:
     """Certifies ``path`` (S, K) waypoints (a family's θ with ``layout=δ``) and the SO(2) segments
     between them: continuously (every pose of every segment proven, module docs), or with
     ``method="sampled"`` at the ``density − 1`` interpolated poses between each consecutive pair
@@ -188,7 +190,7 @@ def check_path(robot: Robot, path, density: int = 10, *, layout=None, margin: fl
                      dense=dense, dense_uncertified=hit, method="sampled")
 
 
-def path_free_at(robot: Robot, path, resolution: float, *, margin: float = CLEARANCE) -> bool:
+def path_free_at(robot: Robot, path: npt.ArrayLike, resolution: float, *, margin: float = CLEARANCE) -> bool:
     """Whether ``path`` (S, K) is certified free when re-interpolated (SO(2)) so that no joint
     moves more than ``resolution`` (rad / m) between two checked poses: the planner's own
     guarantee (:func:`profrobot.plan_path`), independent of how far apart the waypoints are.
@@ -205,7 +207,7 @@ def path_free_at(robot: Robot, path, resolution: float, *, margin: float = CLEAR
     return bool(certify_poses(robot, np.concatenate([path[:1], poses])).all())
 
 
-def certified_summary(certified) -> str:
+def certified_summary(certified: npt.ArrayLike | None) -> str:
     """"87.5% certified free (1 failure)" for a (B,) bool verdict, "not checked" for None."""
     if certified is None:
         return "not checked (no scene to certify against: pass robot= or a field)"
@@ -220,6 +222,6 @@ def failures_of(certified: None) -> None: ...
 def failures_of(certified: np.ndarray) -> np.ndarray: ...
 @overload
 def failures_of(certified: np.ndarray | None) -> np.ndarray | None: ...
-def failures_of(certified) -> np.ndarray | None:
+def failures_of(certified: npt.ArrayLike | None) -> np.ndarray | None:
     """Indices where a (B,) verdict is not certified free; None when nothing was checked."""
     return None if certified is None else np.flatnonzero(~np.asarray(certified, dtype=bool))

@@ -1,7 +1,7 @@
 """The MuJoCo reference labeller, and the side-by-side check of ours against it.
 
 MuJoCo decides: a pose collides when ``mj_kinematics`` + ``mj_collision`` leave ``ncon > 0``. A
-robot with a point cloud is checked against its :func:`~profrobot.pointcloud.reference_model`: the
+robot with a point cloud is checked against its :func:`~profrobot.robot.pointcloud.reference_model`: the
 same balls as MuJoCo sphere geoms, every one of them reported as the cloud's id (-1) in pairs.
 """
 
@@ -11,10 +11,12 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from .labels import Labels, as_poses, label_poses
 from ..robot.pointcloud import CLOUD_GEOM_ID, cloud_geom_ids, reference_model, robot_geom_ids
-from ..robot.gate import CLEARANCE, robot_at
+from ..executors.base import Executor
+from ..robot.gate import CLEARANCE, Layout, robot_at
 from ..robot.robot import Robot
 
 
@@ -49,8 +51,8 @@ def mujoco_labels_chunk(robot: Robot, poses: np.ndarray, start: int,
     return ncon, pairs
 
 
-def mujoco_labels(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, progress: bool = True,
-                  executor=None, chunk: int = 2000) -> MujocoLabels:
+def mujoco_labels(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+                  progress: bool = True, executor: Executor | None = None, chunk: int = 2000) -> MujocoLabels:
     """Labels ``poses`` (B, K) one by one with MuJoCo (the reference, single-threaded), in
     chunks of ``chunk`` poses (:func:`mujoco_labels_chunk`).
 
@@ -128,8 +130,9 @@ class CrosscheckReport:
         return "\n".join(lines)
 
 
-def crosscheck(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, threads: int | None = None,
-               progress: bool = True, executor=None, chunk: int = 2000) -> CrosscheckReport:
+def crosscheck(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+               threads: int | None = None, progress: bool = True, executor: Executor | None = None,
+               chunk: int = 2000) -> CrosscheckReport:
     """Labels ``poses`` with both our labeller and MuJoCo and compares them pose by pose.
 
     Every disagreement comes with MuJoCo's signed distance (``mj_geomDistance``) of the geom

@@ -7,10 +7,11 @@ import json
 import os
 import zipfile
 from pathlib import Path
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import _core
 from ..robot import gate
@@ -20,7 +21,8 @@ from ..files import atomic_path, check_format, check_robot, format_tag
 from ..robot.angles import wrap
 from .labels import check_threads, label_poses, sample_poses
 from ..executors.progress import progress_bar
-from ..robot.gate import CLEARANCE
+from ..executors.base import Executor
+from ..robot.gate import CLEARANCE, Layout
 from ..robot.robot import Robot
 
 _LABELS = ("collides", "self_collides", "scene_collides", "n_pairs")
@@ -65,7 +67,7 @@ class Dataset:
                        **{k: np.concatenate([getattr(self, k), getattr(other, k)]) for k in _LABELS},
                        metadata=dict(self.metadata))
 
-    def take(self, idx) -> "Dataset":
+    def take(self, idx: slice | Sequence[int] | npt.NDArray[np.integer] | npt.NDArray[np.bool_]) -> "Dataset":
         """The poses at ``idx`` (indices or a boolean mask) with their labels and this metadata."""
         return Dataset(self.poses[idx], **{k: getattr(self, k)[idx] for k in _LABELS}, metadata=dict(self.metadata))
 
@@ -135,10 +137,10 @@ def sample_round(robot: Robot, seed: int, r: int, batch: int, threads: int | Non
     return (q, *(getattr(lab, k) for k in _LABELS))
 
 
-def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *, layout=None,
+def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int = 0, *, layout: Layout | None = None,
                  margin: float = CLEARANCE, batch: int = 100_000, max_samples: int | None = None,
                  progress: bool = True, threads: int | None = None, equalities: EqualityMode = "auto",
-                 executor=None) -> Dataset:
+                 executor: Executor | None = None) -> Dataset:
     """``n`` poses with exact labels, resampled so that ``collided_fraction`` of them collide.
 
     Uniform poses are drawn in seeded rounds of ``batch`` and labelled; colliding and free poses

@@ -3,7 +3,7 @@
 :func:`ik` puts a frame of the robot (a MuJoCo site, body or geom) at target poses: the Rust
 core's Levenberg–Marquardt on the SE(3) error with the closed-form Jacobian, several seeds per
 target (the start first), joint limits, couplings and continuous joints kept, every returned pose
-certified by the exact labeller (``rust/ik.rs`` has the method). :func:`plan_to_pose` plans a
+certified by the exact labeller (``rust/ik/mod.rs`` has the method). :func:`plan_to_pose` plans a
 certified path from a joint pose to a frame pose. Base layer: no torch.
 """
 
@@ -14,13 +14,15 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from .certification import CLEARANCE
 from ..errors import InputError, InputTypeError
 from .planning import PathResult, plan_path
 from ..robot.robot import Robot
 from .labels import sample_poses
-from ..robot.gate import as_poses, count, positive, robot_at, seed as check_seed, threads as check_threads, with_layout, with_margin
+from ..robot.gate import (Layout, as_poses, count, positive, robot_at, seed as check_seed, threads as check_threads,
+                          with_layout, with_margin)
 
 __all__ = ["IKResult", "ik", "frame_of", "plan_to_pose", "PoseMotion", "as_targets"]
 
@@ -103,7 +105,7 @@ def frame_of(robot: Robot, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
                      f"bodies: {', '.join(bodies[1:])}")
 
 
-def as_targets(targets, name: str = "targets") -> tuple[np.ndarray, np.ndarray | None]:
+def as_targets(targets: npt.ArrayLike, name: str = "targets") -> tuple[np.ndarray, np.ndarray | None]:
     """``(positions (N, 3), quaternions (N, 4) or None)`` from world transforms (N, 4, 4) / (4, 4)
     or positions (N, 3) / (3,), metres; a rotation that is not orthonormal (to 1e-6) with
     determinant +1, a last row other than (0, 0, 0, 1), or a non-finite entry is refused by name."""
@@ -167,9 +169,10 @@ def _starts(robot: Robot, start, n: int, layout) -> np.ndarray:
     return np.ascontiguousarray(q)
 
 
-def ik(robot: Robot, targets, *, frame: str, start=None, layout=None, position_tolerance: float = 1e-4,
-       rotation_tolerance: float = 1e-3, seeds: int = 128, iterations: int = 60, seed: int = 0,
-       escape: bool = True, margin: float = CLEARANCE, threads: int | None = None) -> IKResult:
+def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike | None = None,
+       layout: Layout | None = None, position_tolerance: float = 1e-4, rotation_tolerance: float = 1e-3,
+       seeds: int = 128, iterations: int = 60, seed: int = 0, escape: bool = True, margin: float = CLEARANCE,
+       threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
@@ -178,13 +181,13 @@ def ik(robot: Robot, targets, *, frame: str, start=None, layout=None, position_t
     ``scene``: a family's layout δ (``start`` then θ, and so are the answers). A target is
     *reached* within ``position_tolerance`` metres and ``rotation_tolerance`` radians (the
     solver iterates to a hundredth of them); a reached pose is certified by the exact labeller
-    (no contact, every pair more than :data:`~profrobot.certification.CLEARANCE` apart, within
+    (no contact, every pair more than :data:`~profrobot.exact.certification.CLEARANCE` apart, within
     limits and on its couplings). Up to ``seeds`` seeds per target (the start, three
     perturbations of it, then uniform draws from ``seed``); among certified solutions the one
     nearest the start is returned. Unreachable targets come back not reached, with their best
     error and ``reasons``; nothing is certified that does not reach its target. A seed that
     reaches the target in contact first tries to move out (``escape``): the pairs nearer than
-    5 mm enter as linearised distance rows beside the target's (``rust/ik.rs``), and the pose it
+    5 mm enter as linearised distance rows beside the target's (``rust/ik/mod.rs``), and the pose it
     ends in is certified like any other. Same ``seed``, same answers, for any thread count.
     ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.robot.gate`)."""
     robot = with_margin(robot, margin)
@@ -243,9 +246,9 @@ class PoseMotion:
         return None if self.plan is None else self.plan.path
 
 
-def plan_to_pose(robot: Robot, start, target, *, frame: str, layout=None, margin: float = CLEARANCE,
-                 candidates: int = 8, max_time: float = 10.0, seed: int = 0, threads: int | None = None,
-                 **plan_options) -> PoseMotion:
+def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, frame: str, layout: Layout | None = None,
+                 margin: float = CLEARANCE, candidates: int = 8, max_time: float = 10.0, seed: int = 0,
+                 threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
 

@@ -9,13 +9,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..robot.angles import wrap
 from ..robot.equalities import EQUALITY_MODES, EqualityMode, settle
 from ..robot.robot import Robot
 from ..errors import InputError
-from ..robot.gate import (CLEARANCE, as_poses, count, memory, robot_at, seed as check_seed, threads as check_threads,
-                          with_layout, with_margin)
+from ..robot.gate import (CLEARANCE, Layout, as_poses, count, memory, robot_at, seed as check_seed,
+                          threads as check_threads, with_layout, with_margin)
 
 
 @dataclass
@@ -50,8 +51,9 @@ class Labels:
                 f"{self.n_pairs[self.collides].mean() if self.collides.any() else 0:.2f} pairs per colliding pose")
 
 
-def label_poses(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, pairs: bool = False,
-                distance: bool = False, check_limits: bool = True, threads: int | None = None) -> Labels:
+def label_poses(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+                pairs: bool = False, distance: bool = False, check_limits: bool = True,
+                threads: int | None = None) -> Labels:
     """Exact collision labels of ``poses`` (B, K) (radians / metres, MuJoCo joint order).
 
     Runs the Rust labeller in parallel (all cores unless ``threads``) with the GIL released;
@@ -68,8 +70,8 @@ def label_poses(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, 
     return Labels(**out)
 
 
-def collides(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, check_limits: bool = True,
-             threads: int | None = None) -> np.ndarray:
+def collides(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+             check_limits: bool = True, threads: int | None = None) -> np.ndarray:
     """Whether each of ``poses`` (B, K) (radians / metres, MuJoCo joint order) collides: (B,) bool.
 
     Exactly ``label_poses(robot, poses).collides``, faster: the Rust fast path stops at the first
@@ -82,11 +84,11 @@ def collides(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, che
     return robot.core.collides(q, threads=check_threads(threads))
 
 
-def sample_poses(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE,
+def sample_poses(robot: Robot, n: int, seed: int = 0, *, layout: Layout | None = None, margin: float = CLEARANCE,
                  threads: int | None = None, equalities: EqualityMode = "auto") -> np.ndarray:
     """``n`` poses (n, K) drawn uniformly within the joint limits (continuous hinges: [-pi, pi]).
 
-    ``equalities`` (see :mod:`profrobot.equalities`): ``"auto"`` computes every joint that a
+    ``equalities`` (see :mod:`profrobot.robot.equalities`): ``"auto"`` computes every joint that a
     MuJoCo joint equality makes dependent from its independent joint (exact; a pose whose
     dependent joint lands outside its limits is redrawn: every pose is one the robot can take,
     :meth:`Robot.feasible`); ``"settle"``
@@ -160,7 +162,8 @@ def _settled(robot: Robot, poses: np.ndarray, n: int, seed: int, threads: int | 
     return np.concatenate(kept)
 
 
-def interpolate(robot: Robot, start, goal, steps: int, *, layout=None, margin: float = CLEARANCE) -> np.ndarray:
+def interpolate(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, steps: int, *, layout: Layout | None = None,
+                margin: float = CLEARANCE) -> np.ndarray:
     """Poses along SO(2)^K from ``start`` to ``goal``: (steps, K) for single poses, or
     (B, steps, K) for (B, K) batches. Continuous joints take the shortest arc; limited joints go
     straight (ends must be within limits); the dependent joints of joint equalities follow their
@@ -185,7 +188,7 @@ def interpolate(robot: Robot, start, goal, steps: int, *, layout=None, margin: f
 
 def so2_steps(robot: Robot, path) -> np.ndarray:
     """(M−1, K) joint moves between consecutive waypoints of ``path`` (M, K) (radians / metres):
-    continuous hinges along the short arc (:func:`profrobot.angles.wrap`), as :func:`interpolate`
+    continuous hinges along the short arc (:func:`profrobot.robot.angles.wrap`), as :func:`interpolate`
     moves them."""
     d = np.diff(np.asarray(path, dtype=np.float64), axis=0)
     d[:, robot.continuous] = wrap(d[:, robot.continuous])

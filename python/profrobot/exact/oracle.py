@@ -1,5 +1,5 @@
 """The Δθ oracle: for each colliding pose, the smallest joint-space move to a free pose that
-the exact labeller can find (rays, marching and bisection, in Rust: ``rust/oracle.rs``).
+the exact labeller can find (rays, marching and bisection, in Rust: ``rust/planning/oracle.rs``).
 
 The yardstick for collision resolution: ``resolve(...).delta / nearest_free(...).distance``
 says how much farther than necessary the optimiser moved each pose.
@@ -10,11 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .certification import CLEARANCE, certify_poses
 from ..errors import InputError
 from ..robot import gate
-from ..robot.gate import as_poses
+from ..robot.gate import Layout, as_poses
 from ..robot.robot import Robot
 
 
@@ -30,7 +31,7 @@ class NearestFree:
         poses: (B, K) float64, the free poses (exactly free per :func:`label_poses`), within the
             joint limits; continuous joints are not wrapped. NaN rows where none was found.
         checks: (B,) int64, poses labelled for each search.
-        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`:
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.exact.certification`:
             the search stops on the labeller's boundary, so a pose it finds may still be within
             the certification's clearance of contact); False where none was found.
     """
@@ -44,9 +45,9 @@ class NearestFree:
         return len(self.distance)
 
 
-def nearest_free(robot: Robot, poses, *, layout=None, margin: float = CLEARANCE, directions: int = 256,
-                 refine: int = 1024, step: float = 0.02, tolerance: float = 1e-4, max_distance: float | None = None,
-                 seed: int = 0, threads: int | None = None) -> NearestFree:
+def nearest_free(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,
+                 directions: int = 256, refine: int = 1024, step: float = 0.02, tolerance: float = 1e-4,
+                 max_distance: float | None = None, seed: int = 0, threads: int | None = None) -> NearestFree:
     """The nearest free pose the exact labeller finds for each of ``poses`` (B, K).
 
     From each colliding pose ``q``: ``directions`` seeded random unit directions ``u`` in joint

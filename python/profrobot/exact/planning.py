@@ -5,7 +5,7 @@ it tries the straight SO(2) path, then grows two trees (RRT-Connect), then short
 (a pair of waypoints found blocked is not tried again until the path changes).
 
 Every edge is **certified continuously** (``check="continuous"``, the default;
-:mod:`profrobot.certification`): every pose of the edge, not only samples, is proven to keep
+:mod:`profrobot.exact.certification`): every pose of the edge, not only samples, is proven to keep
 every candidate pair more than ``max(margin, CLEARANCE)`` apart, by conservative advancement on
 the exact labeller's shapes. With ``check="sampled"`` edges are checked densely instead (no joint
 moves more than ``resolution`` between two labelled poses) and the answer is verified ``verify``
@@ -21,11 +21,13 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from .labels import as_poses, check_threads, label_poses, so2_steps
 from ..robot.robot import Robot
 from .certification import CLEARANCE, check_path, path_free_at
 from ..robot import gate
+from ..robot.gate import Layout
 from ..errors import InputError
 
 PlanStatus = Literal["direct", "connected", "time_out", "iteration_limit"]
@@ -40,7 +42,7 @@ class PathResult:
             in [-pi, pi)); (0, K) when none was found.
         found: whether ``path`` joins start and goal (the planner's own verdict: every edge
             certified continuously, or labelled at ``resolution`` with ``check="sampled"``).
-        certified: the path is certified free (:mod:`profrobot.certification`, checked again
+        certified: the path is certified free (:mod:`profrobot.exact.certification`, checked again
             after planning: continuously, or every pose re-interpolated at ``resolution`` with
             ``check="sampled"``); False when nothing was found.
         status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
@@ -78,10 +80,10 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
     return float(np.linalg.norm(so2_steps(robot, path), axis=1).sum())
 
 
-def plan_path(robot: Robot, start, goal, *, layout=None, margin: float = CLEARANCE, resolution: float = 0.01,
-              max_time: float = 10.0, seed: int = 0, range: float = 0.0, iterations: int = 200_000,
-              shortcut_rounds: int = 200, verify: int = 10, check: Literal["continuous", "sampled"] = "continuous",
-              threads: int | None = None) -> PathResult:
+def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout: Layout | None = None,
+              margin: float = CLEARANCE, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
+              range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
+              check: Literal["continuous", "sampled"] = "continuous", threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
     Args:
@@ -100,8 +102,8 @@ def plan_path(robot: Robot, start, goal, *, layout=None, margin: float = CLEARAN
             off.
         check: ``"continuous"`` (every edge proven free at every pose, module docs) or
             ``"sampled"`` (every edge labelled at ``resolution``).
-        margin: metres the path keeps from every obstacle (:mod:`profrobot.margin`; an estimated
-            layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`): the start and goal must
+        margin: metres the path keeps from every obstacle (:mod:`profrobot.robot.margin`; an estimated
+            layout's :attr:`~profrobot.perception.layouts.LayoutEstimate.margin`): the start and goal must
             keep it too.
         layout: a family's layout δ: the path is planned over its θ with the obstacles pinned
             there (``robot.at(layout)``; :mod:`profrobot.robot.gate`).

@@ -11,7 +11,7 @@ import numpy as np
 from .dataset import make_dataset
 from ..robot import gate
 from .labels import check_threads, interpolate, label_poses
-from ..robot.gate import CLEARANCE
+from ..robot.gate import CLEARANCE, Layout
 from ..robot.robot import Robot
 from .certification import certify_poses
 from ..errors import InputError
@@ -31,14 +31,14 @@ def _poses(robot: Robot, n, collides: bool, seed: int, max_samples: int | None, 
     return ds.poses
 
 
-def colliding_poses(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE,
+def colliding_poses(robot: Robot, n: int, seed: int = 0, *, layout: Layout | None = None, margin: float = CLEARANCE,
                     max_samples: int | None = None, threads: int | None = None) -> np.ndarray:
     """(n, K) float64 uniform poses that the exact labeller finds colliding, seeded. Raises
     ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
     return _poses(robot, n, True, seed, max_samples, threads, layout, margin)
 
 
-def free_poses(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE,
+def free_poses(robot: Robot, n: int, seed: int = 0, *, layout: Layout | None = None, margin: float = CLEARANCE,
                max_samples: int | None = None, threads: int | None = None) -> np.ndarray:
     """(n, K) float64 uniform poses that the exact labeller finds free, seeded. Raises
     ValueError if fewer than ``n`` turn up within ``max_samples`` draws (default ``200 * n``)."""
@@ -73,9 +73,9 @@ def _free_walks(robot: Robot, starts: np.ndarray, rng: np.random.Generator, walk
     return q
 
 
-def hard_pairs(robot: Robot, n: int, seed: int = 0, *, layout=None, margin: float = CLEARANCE, steps: int = 100,
-               density: int = 10, max_pairs: int | None = None, reachable: bool = True, walk: int = 150,
-               walk_step: float = 0.3, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def hard_pairs(robot: Robot, n: int, seed: int = 0, *, layout: Layout | None = None, margin: float = CLEARANCE,
+               steps: int = 100, density: int = 10, max_pairs: int | None = None, reachable: bool = True,
+               walk: int = 150, walk_step: float = 0.3, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``n`` start/goal pairs ``(starts, goals)``, each (n, K) float64: both certified free, on
     their joint couplings, and a sample of the straight SO(2) interpolation between them (``steps``
     waypoints, ``density`` times finer samples between them) not certified: a straight path

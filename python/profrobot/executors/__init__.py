@@ -26,7 +26,7 @@ __all__ = ["Executor", "ChunkFn", "LocalExecutor", "RayExecutor", "ClusterError"
            "chunk_bounds", "chunk_sizes", "on_release", "release_caches", "close_workers", "progress_bar"]
 
 
-def check_executor(executor, *, processes: int = 1) -> Executor:
+def check_executor(executor: Executor | None, *, processes: int = 1) -> Executor:
     """``executor`` if it follows the :class:`Executor` protocol (a :class:`LocalExecutor`, a
     :class:`RayExecutor`, or your own); ``None``: ``LocalExecutor(processes)``."""
     if executor is None:

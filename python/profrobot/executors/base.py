@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import pickle
 import weakref
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 
@@ -58,13 +58,13 @@ class Executor(Protocol):
         function receives ``value`` itself (large inputs travel once, not once per chunk)."""
         ...
 
-    def map(self, fn: ChunkFn, chunks: Sequence[tuple], *, robot, sizes: Sequence[int] | None = None,
+    def map(self, fn: ChunkFn, chunks: Sequence[tuple], *, robot: Robot, sizes: Sequence[int] | None = None,
             desc: str = "chunks", unit: str = "chunk", progress: bool = True) -> list:
         """``[fn(robot, *args) for args in chunks]``, computed anywhere, returned in order."""
         ...
 
     def ordered(self, fn: ChunkFn, args_of: Callable[[int], tuple], limit: int, demand: Callable[[], int], *,
-                robot) -> Iterator[tuple[int, Any]]:
+                robot: Robot) -> Generator[tuple[int, Any], None, None]:
         """``(i, fn(robot, *args_of(i)))`` for ``i = 0, 1, ...`` (< ``limit``), yielded in order;
         at most ``demand()`` chunks (asked after each is consumed: the caller's estimate of how
         many more it needs) computed ahead. Closing the generator cancels the rest."""

@@ -26,7 +26,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from typing import Any
 from ..errors import RendererUnavailableError, WorkerError
 from ..gl import backends
 from .base import ChunkFn, release_caches, robot_payload
+from ..robot.robot import Robot
 from .progress import progress_bar
 from ..robot.gate import count, threads as validate_threads
 
@@ -306,7 +307,7 @@ class LocalExecutor:
         """Whether ``fn`` runs in this process (it does not draw, and ``processes == 1``)."""
         return self.processes == 1 and not backends.needs_gl(fn)
 
-    def map(self, fn: ChunkFn, chunks: Sequence[tuple], *, robot, sizes: Sequence[int] | None = None,
+    def map(self, fn: ChunkFn, chunks: Sequence[tuple], *, robot: Robot, sizes: Sequence[int] | None = None,
             desc: str = "chunks", unit: str = "chunk", progress: bool = True) -> list:
         """``[fn(robot, *args) for args in chunks]`` (a non-tuple item is one argument), in order."""
         chunks = [tuple(c) if isinstance(c, tuple) else (c,) for c in chunks]
@@ -320,7 +321,7 @@ class LocalExecutor:
         return out
 
     def ordered(self, fn: ChunkFn, args_of: Callable[[int], tuple], limit: int, demand: Callable[[], int], *,
-                robot) -> Iterator[tuple[int, Any]]:
+                robot: Robot) -> Generator[tuple[int, Any], None, None]:
         """``(i, fn(robot, *args_of(i)))`` for ``i < limit``, in order; in this process each is
         computed when asked for, in workers at most ``min(demand(), processes)`` ahead."""
         return self._stream(fn, robot, args_of, limit, demand, self._backend(fn))
@@ -331,7 +332,7 @@ class LocalExecutor:
         return backends.backend() if backends.needs_gl(fn) else None
 
     def _stream(self, fn: ChunkFn, robot, args_of: Callable[[int], tuple], limit: int, demand: Callable[[], int],
-                gl: str | None) -> Iterator[tuple[int, Any]]:
+                gl: str | None) -> Generator[tuple[int, Any], None, None]:
         if self.in_process(fn):
             for i in range(limit):
                 yield i, fn(robot, *(a.value if isinstance(a, _Stored) else a for a in args_of(i)))

@@ -9,6 +9,7 @@ a newline: ``train panda_blocks:  41%| 1230/3000 [02:31<03:37, 8.1it/s]``.
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterable
 from typing import Any, TextIO
 
 __all__ = ["progress_bar", "LOG_INTERVAL"]
@@ -34,15 +35,15 @@ class _Lines:
 
 
 def progress_bar(total: int | None = None, *, desc: str, unit: str = "it", progress: bool = True,
-                 leave: bool = True, stream: TextIO | None = None) -> Any:
-    """A tqdm progress bar of ``total`` steps: drawn on a terminal, lines in a log, nothing when
-    ``progress`` is false. ``stream``: where it writes (default ``sys.stderr``)."""
+                 leave: bool = True, stream: TextIO | None = None, iterable: Iterable[Any] | None = None) -> Any:
+    """A tqdm progress bar of ``total`` steps (or over ``iterable``): drawn on a terminal, lines in
+    a log, nothing when ``progress`` is false. ``stream``: where it writes (default ``sys.stderr``)."""
     from tqdm.auto import tqdm
 
     out = sys.stderr if stream is None else stream
     if not progress:
-        return tqdm(total=total, desc=desc, unit=unit, disable=True)
+        return tqdm(iterable, total=total, desc=desc, unit=unit, disable=True)
     if getattr(out, "isatty", lambda: False)():
-        return tqdm(total=total, desc=desc, unit=unit, leave=leave, file=out)
-    return tqdm(total=total, desc=desc, unit=unit, file=_Lines(out), mininterval=LOG_INTERVAL, ascii=True,
+        return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, file=out)
+    return tqdm(iterable, total=total, desc=desc, unit=unit, file=_Lines(out), mininterval=LOG_INTERVAL, ascii=True,
                 dynamic_ncols=False, ncols=100)

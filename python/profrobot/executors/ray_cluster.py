@@ -39,13 +39,15 @@ import pickle
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+import types
+from collections.abc import Callable, Generator, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 
 from ..errors import ClusterError, InputError
 from .base import ChunkFn, robot_payload
+from ..robot.robot import Robot
 from .progress import progress_bar
 from ..robot.gate import count
 
@@ -342,7 +344,7 @@ class RayExecutor:
         return "a local cluster" if self.address is None else repr(self.address)
 
     # ---- connection ---------------------------------------------------------------------------
-    def connect(self):
+    def connect(self) -> types.ModuleType:
         """Join (or start) the cluster; idempotent. Returns the ``ray`` module."""
         if self._ray is not None and self._ray.is_initialized():
             return self._ray
@@ -386,12 +388,12 @@ class RayExecutor:
         self._pools[key] = pool
         return pool
 
-    def worker_pids(self, robot) -> list[int]:
+    def worker_pids(self, robot: Robot) -> list[int]:
         """The process ids of the actors that hold ``robot`` (started if need be)."""
         pool = self._pool(robot)
         return self._ray.get([a.pid.remote() for a in pool.actors], timeout=self.start_timeout)
 
-    def put(self, value):
+    def put(self, value: Any) -> Any:
         """``value`` in the object store, once (an ObjectRef to pass as a chunk argument)."""
         return self.connect().put(value)
 
@@ -403,7 +405,7 @@ class RayExecutor:
         :meth:`worker_pids`), is placed: a hook for tests and subclasses."""
 
     # ---- the executor protocol ------------------------------------------------------------------
-    def map(self, fn: ChunkFn, chunks: Iterable, *, robot, sizes: Sequence[int] | None = None,
+    def map(self, fn: ChunkFn, chunks: Iterable, *, robot: Robot, sizes: Sequence[int] | None = None,
             desc: str = "chunks", unit: str = "chunk", progress: bool = True) -> list:
         """``[fn(robot, *args) for args in chunks]`` (a non-tuple item is one argument) on the
         robot's actors, results in order. ``fn`` travels once through the object store
@@ -429,7 +431,7 @@ class RayExecutor:
         return out
 
     def ordered(self, fn: ChunkFn, args_of: Callable[[int], tuple], limit: int, demand: Callable[[], int], *,
-                robot) -> Iterator[tuple[int, Any]]:
+                robot: Robot) -> Generator[tuple[int, Any], None, None]:
         """Chunks ``0, 1, 2, ...`` (< ``limit``) yielded in index order, ``args_of(i)`` their
         arguments. At most ``demand()`` chunks (asked after each one is consumed: the caller's
         estimate of how many more it needs) are in flight or buffered beyond those consumed;

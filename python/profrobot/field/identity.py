@@ -8,6 +8,7 @@ everywhere (:class:`~profrobot.errors.RobotMismatchError`).
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Protocol
 
 import torch
 
@@ -15,7 +16,24 @@ from ..errors import InputError, InputTypeError
 from ..files import check_robot
 from ..robot.robot import Robot
 
-__all__ = ["check_field", "field_robot"]
+__all__ = ["Field", "check_field", "field_robot"]
+
+
+class Field(Protocol):
+    """A collision field as the torch side takes it (``sdf=``): g(θ) (B,) at poses θ (B, K), g < 0
+    free. :class:`~profrobot.PoseSDF` and :class:`~profrobot.field.layout.LayoutField` (a family
+    field at one layout) follow it, as does any module with their interface (:func:`check_field`)."""
+
+    @property
+    def njoint(self) -> int: ...
+
+    @property
+    def joint_limits(self) -> torch.Tensor: ...
+
+    @property
+    def fingerprint(self) -> str: ...
+
+    def __call__(self, theta: torch.Tensor) -> torch.Tensor: ...
 
 
 class _Shared:
@@ -37,7 +55,7 @@ class _Shared:
         return (_Shared, (self.value,))
 
 
-def check_field(sdf) -> None:
+def check_field(sdf: Field) -> None:
     """``sdf`` must be a torch module with the PoseSDF interface (njoint, joint_limits, fingerprint)."""
     if not isinstance(sdf, torch.nn.Module) or not all(hasattr(sdf, a) for a in ("njoint", "joint_limits", "fingerprint")):
         raise InputTypeError(f"expected a profrobot.PoseSDF (or a module with its interface); got {type(sdf).__name__}")
@@ -50,7 +68,7 @@ def _bundled(name: str) -> Robot:
     return scenes.load(name)
 
 
-def field_robot(sdf, robot: Robot | None) -> Robot:
+def field_robot(sdf: Field, robot: Robot | None) -> Robot:
     """The robot the exact labeller certifies against: ``robot`` if given (it must be the one the
     field was trained for), else the field's own robot (``sdf.robot``, set by ``train_sdf`` and
     ``PoseSDF.load``), else the bundled scene named by ``sdf.robot_name``."""

@@ -8,15 +8,19 @@ static scene, so every answer is certified by the exact labeller at exactly that
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+import os
+from typing import Any, NoReturn, Protocol, cast, overload
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from torch import nn
 
 from ..errors import InputError, InputTypeError, RobotMismatchError
+from ..robot.gate import Layout
+from ..robot.gate import robot_at
 from ..robot.robot import Robot
-from .identity import _Shared
+from .identity import Field, _Shared
 
 __all__ = ["LayoutField", "field_at_layout"]
 
@@ -36,9 +40,20 @@ class _FamilyField(Protocol):
     @property
     def scale(self) -> torch.Tensor: ...
 
-    def scatter(self, theta: torch.Tensor, deltas) -> torch.Tensor: ...
+    def scatter(self, theta: torch.Tensor, deltas: npt.ArrayLike) -> torch.Tensor: ...
 
     def __call__(self, theta: torch.Tensor) -> torch.Tensor: ...
+
+
+class _Family(Protocol):
+    """What :func:`field_at_layout` uses of a family field (a :class:`~profrobot.PoseSDF` with scene
+    joints; model.py imports this module)."""
+
+    robot_name: str
+    fingerprint: str
+    scene_joints: list[str]
+
+    def at(self, layout: Layout) -> "LayoutField": ...
 
 
 class LayoutField(nn.Module):
@@ -48,7 +63,9 @@ class LayoutField(nn.Module):
     Attributes: ``field`` (the family :class:`PoseSDF`), ``layout`` (D,) float64 δ, ``robot`` (the
     static Robot at δ). Gradients flow to θ only. Pickles with the family field and layout."""
 
-    def __init__(self, field: _FamilyField, layout):  # field: a family PoseSDF
+    joint_limits: torch.Tensor   # a buffer (register_buffer)
+
+    def __init__(self, field: _FamilyField, layout: Layout):  # field: a family PoseSDF
         super().__init__()
         if not isinstance(field, nn.Module) or not getattr(field, "scene_joints", None):
             raise InputError("LayoutField needs a family field (a PoseSDF trained on a Robot with scene joints)")
@@ -88,43 +105,49 @@ class LayoutField(nn.Module):
         """Collision probability sigmoid(s·g(θ)), (B,)."""
         return torch.sigmoid(self.scale * self(theta))
 
-    def save(self, path):
+    def save(self, path: str | os.PathLike[str]) -> NoReturn:
         raise InputError("a LayoutField is a family field at one layout: save the family field (layout_field.field.save)")
 
     def __repr__(self) -> str:
         return f"LayoutField({self.field!r}, layout={np.array2string(self.layout, precision=3)})"
 
 
-def field_at_layout(sdf, robot: Robot | None, layout):
-    """The (field, robot) pair an entry point works with at a layout: ``sdf.at(scene)`` and its
-    static robot for a family field; a family field without ``scene`` takes the layout of
-    ``robot`` (a Robot made by ``family.at(δ)``); an ordinary field refuses ``scene``.
-    ``sdf=None``: ``robot`` (a family) is pinned at ``scene``."""
+@overload
+def field_at_layout(sdf: Field, robot: Robot | None, layout: Layout | None) -> tuple[Field, Robot | None]: ...
+@overload
+def field_at_layout(sdf: None, robot: Robot | None, layout: Layout | None) -> tuple[None, Robot | None]: ...
+@overload
+def field_at_layout(sdf: Field | None, robot: Robot | None,
+                    layout: Layout | None) -> tuple[Field | None, Robot | None]: ...
+def field_at_layout(sdf: Field | None, robot: Robot | None, layout: Layout | None) -> tuple[Field | None, Robot | None]:
+    """The (field, robot) pair an entry point works with at a layout: ``sdf.at(layout)`` and its
+    static robot for a family field; a family field without ``layout`` takes the layout of
+    ``robot`` (a Robot made by ``family.at(δ)``); an ordinary field refuses ``layout``.
+    ``sdf=None``: the robot as the gate gives it (:func:`profrobot.robot.gate.robot_at`: a family
+    pinned at ``layout``, one refused without one)."""
     family = sdf is not None and bool(getattr(sdf, "scene_joints", None))
     if sdf is None:
-        if layout is None:
-            if robot is not None and getattr(robot, "is_family", False):
-                raise InputError(f"{robot.name} is a family of scenes: pass layout=δ, the layout to work at "
-                                 "(else its obstacles would be moved like joints)")
-            return None, robot
-        if not isinstance(robot, Robot):
-            raise InputError("layout= without a field needs robot= (the family of scenes)")
-        return None, robot.at(layout)
+        if robot is None:
+            if layout is not None:
+                raise InputError("layout= without a field needs robot= (the family of scenes)")
+            return None, None
+        return None, robot_at(robot, layout=layout)
     if not family:
         if layout is not None:
             raise InputError(f"layout= was given but the field for {getattr(sdf, 'robot_name', '?')!r} is not a family "
                              "field (trained on a Robot without scene joints)")
         return sdf, robot
+    fam = cast(_Family, sdf)   # a family field: a PoseSDF with scene joints
     if layout is None:
         pinned = getattr(robot, "layout", None)
         if robot is None or pinned is None:
-            raise InputError(f"the field for {sdf.robot_name!r} covers a family of scenes (scene joints "
-                             f"{', '.join(sdf.scene_joints)}): pass layout=δ, the layout to work at, or "
+            raise InputError(f"the field for {fam.robot_name!r} covers a family of scenes (scene joints "
+                             f"{', '.join(fam.scene_joints)}): pass layout=δ, the layout to work at, or "
                              "robot=family.at(δ)")
         if getattr(robot, "family_fingerprint", None) != sdf.fingerprint:
             raise RobotMismatchError(f"robot {robot.name!r} is a layout of another family than the field's")
         layout = pinned
-    at = sdf.at(layout)
+    at = fam.at(layout)
     if robot is not None and getattr(robot, "geometry_fingerprint", robot.fingerprint) == sdf.fingerprint:
         # robot=family, layout=δ (a family with a safety margin keeps it at the layout)
         return at, robot.at(at.layout) if getattr(robot, "margin", 0.0) > 0 else at.robot

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+import numpy.typing as npt
 import torch
 from torch import nn
 
@@ -17,6 +19,8 @@ from .pairs import PairEncoder, PairHead, pair_union
 from .identity import _Shared
 from .layout import LayoutField
 from ..errors import InputError, InputTypeError
+from ..robot.gate import Layout
+from ..robot.robot import Robot
 
 #: poses per chunk when a CPU batch is larger (:meth:`PoseSDF.forward`)
 EVAL_CHUNK = 4096
@@ -83,10 +87,10 @@ class PoseSDF(nn.Module):
     history: list[dict]
     snapshots: list[dict]
 
-    def __init__(self, robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
+    def __init__(self, robot: Robot, *, encoder: Encoder = "kinematic", feature_size: int = 8,
                  hidden: tuple[int, ...] = (512, 512, 512, 512), learn_scale: bool = True,
                  init_scale: float = 10.0, lipschitz: bool = False, objective: Objective = "sdf",
-                 spheres_per_body: int = 4, pairs=None):
+                 spheres_per_body: int = 4, pairs: Iterable[int] | None = None):
         super().__init__()
         if encoder not in ENCODERS:
             raise InputError(f"encoder must be one of {ENCODERS}; got {encoder!r}")
@@ -105,7 +109,7 @@ class PoseSDF(nn.Module):
         self.joint_names = list(robot.joint_names)
         self.njoint = robot.njoint
         self.register_buffer("joint_limits", torch.as_tensor(robot.joint_limits, dtype=torch.float32))
-        # a family of scenes (profrobot.family): g(θ, δ), the scene joints δ inputs like any joint
+        # a family of scenes (profrobot.robot.family): g(θ, δ), the scene joints δ inputs like any joint
         self.scene_joints = list(getattr(robot, "scene_joints", ()))
         # (D,) and (K − D,) column indices; None for an ordinary field (an empty buffer breaks
         # torch.export's packaging: "numel: integer multiplication overflow")
@@ -167,7 +171,7 @@ class PoseSDF(nn.Module):
         g = pair_union(self.head(features)) if self.config["encoder"] == "pairs" else self.head(features)[:, 0]
         return g - self.ndf_threshold if self.config["objective"] == "ndf" else g
 
-    def forward(self, theta: torch.Tensor, layout=None) -> torch.Tensor:
+    def forward(self, theta: torch.Tensor, layout: Layout | None = None) -> torch.Tensor:
         """g (B,) at poses θ (B, K); for a family field, θ (B, K − D) with ``scene`` δ, (D,) or one
         per pose (B, D), or θ (B, K) the full vectors (θ, δ) in MuJoCo joint order."""
         if layout is not None:
@@ -179,11 +183,11 @@ class PoseSDF(nn.Module):
         parts = [self.head_g(self.encoder(t)) for t in cpu_chunks(theta, EVAL_CHUNK)]
         return parts[0] if len(parts) == 1 else torch.cat(parts)
 
-    def prob(self, theta: torch.Tensor, layout=None) -> torch.Tensor:
+    def prob(self, theta: torch.Tensor, layout: Layout | None = None) -> torch.Tensor:
         """Collision probability sigmoid(s·g(θ)), (B,)."""
         return torch.sigmoid(self.scale * self(theta, layout))
 
-    def compose(self, theta: torch.Tensor, layout) -> torch.Tensor:
+    def compose(self, theta: torch.Tensor, layout: Layout) -> torch.Tensor:
         """Full pose vectors (B, K) from robot poses θ (B, K − D) and a layout δ, (D,) or (B, D),
         checked against the family's ranges (:meth:`profrobot.Robot.check_scene`); differentiable
         in θ."""
@@ -195,7 +199,7 @@ class PoseSDF(nn.Module):
                              f"is given; got {tuple(theta.shape) if isinstance(theta, torch.Tensor) else type(theta).__name__}")
         return self.scatter(theta, self.robot.check_layouts(layout, len(theta)))
 
-    def scatter(self, theta: torch.Tensor, deltas) -> torch.Tensor:
+    def scatter(self, theta: torch.Tensor, deltas: npt.ArrayLike) -> torch.Tensor:
         """Full vectors (B, K): robot joints θ (B, K − D) and checked layouts ``deltas`` (1 or B, D)
         put in their columns; differentiable in θ."""
         full = theta.new_empty(len(theta), self.njoint)
@@ -203,7 +207,7 @@ class PoseSDF(nn.Module):
         full[:, self.scene_index] = torch.as_tensor(deltas, dtype=theta.dtype, device=theta.device)
         return full
 
-    def at(self, layout) -> "nn.Module":
+    def at(self, layout: Layout) -> LayoutField:
         """This family field at one layout δ (``layout``: (D,) or ``{scene joint: value}``): a field
         over the robot joints θ alone, whose ``robot`` is ``self.robot.at(scene)`` (the static
         scene the exact labeller certifies against). What ``resolve``, ``plan_trajectory`` and the
@@ -219,7 +223,7 @@ class PoseSDF(nn.Module):
         return out
 
     @property
-    def robot(self):
+    def robot(self) -> Robot:
         """The :class:`profrobot.Robot` this field was built for (certification labels with it)."""
         return self._robot.value
 
@@ -231,11 +235,11 @@ class PoseSDF(nn.Module):
         return write_checkpoint(self, path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, robot=None) -> "PoseSDF":
+    def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "PoseSDF":
         """A field saved by :meth:`save`. ``robot``: the :class:`~profrobot.Robot` it was trained
         for (its fingerprint is checked), or None for the robot the directory stores
         (``robot.pkl``: the robot in its cell, obstacles, URDF meshes and all; read by a restricted
-        unpickler, :mod:`profrobot.robotfile`). Raises :class:`~profrobot.errors.RobotMismatchError`
+        unpickler, :mod:`profrobot.robot.file`). Raises :class:`~profrobot.errors.RobotMismatchError`
         for another robot and :class:`~profrobot.errors.CorruptFileError` for missing, corrupt or
         newer files."""
         return read_checkpoint(cls, path, robot)

@@ -8,7 +8,7 @@ Collision depends on where the links are, not on the angles as such. So for each
   ``c``, radius ``r`` covering its cluster);
 - a static geom (welded to the world) keeps an exact signed distance function ``sdf(p)``
   (plane, sphere, capsule, cylinder, box; a mesh by its bounding box in its own frame);
-- so does an obstacle of a family of scenes (:mod:`profrobot.family`: a body moved by scene
+- so does an obstacle of a family of scenes (:mod:`profrobot.robot.family`: a body moved by scene
   joints δ only), its SDF evaluated in the frame the FK gives it at δ: a moving obstacle is a
   moving body, and the clearance features see exactly where it is;
 - body–body:    ``min_ij ‖c_i − c_j‖ − r_i − r_j``;

@@ -37,8 +37,8 @@ from typing import Literal, get_args
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from ..executors.progress import progress_bar
 from ..files import check_robot
 from ..exact.dataset import Dataset, make_dataset
 from ..robot.robot import Robot
@@ -255,7 +255,7 @@ def _stored_features(sdf: PoseSDF, theta: torch.Tensor, budget: float, progress:
                       "lower n_poses)", stacklevel=3)
     out = torch.empty(keep, F, dtype=dtype, device=theta.device)
     with torch.no_grad():
-        for i in tqdm(range(0, keep, 2048), desc="features", disable=None if progress else True, leave=False):
+        for i in progress_bar(iterable=range(0, keep, 2048), desc="features", progress=progress, leave=False):
             out[i:i + 2048] = sdf.encoder(theta[i:min(i + 2048, keep)])
     return out, keep
 
@@ -379,8 +379,8 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     start = time.perf_counter()
     # a time budget with "unlimited" iterations: no iteration total (its ETA would read in years)
     total = None if cfg.time_budget and cfg.iterations >= 10**7 else cfg.iterations
-    bar = tqdm(total=total, desc=f"train {robot.name}" + (f" ({cfg.time_budget / 60:g} min)" if cfg.time_budget else ""),
-               unit="it", disable=None if progress else True)
+    bar = progress_bar(total, desc=f"train {robot.name}" + (f" ({cfg.time_budget / 60:g} min)" if cfg.time_budget else ""),
+                       unit="it", progress=progress)
     it = 0
     try:
         for it in range(cfg.iterations):

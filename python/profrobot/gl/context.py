@@ -26,12 +26,15 @@ import importlib
 import os
 import sys
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import RendererUnavailableError
 from .backends import select_backend
 from .hints import INSTALL_HINT
 from .imports import import_mujoco
+
+if TYPE_CHECKING:   # MuJoCo's own types (no profrobot module); at run time mujoco loads through import_mujoco
+    import mujoco
 
 __all__ = ["renderer", "loaded_backend"]
 
@@ -92,7 +95,7 @@ def _load_for(gl: str) -> None:
             mod.GLContext = ctx
 
 
-def renderer(model, height: int, width: int):
+def renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
     """A ``mujoco.Renderer(model, height, width)`` (pixels) on the backend that renders here.
 
     Raises :class:`RendererUnavailableError` (never aborts) where no backend renders, naming what

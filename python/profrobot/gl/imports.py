@@ -6,6 +6,7 @@ import importlib
 import os
 import sys
 import threading
+import types
 from typing import Any
 
 from ..errors import RendererUnavailableError
@@ -14,7 +15,7 @@ from .hints import GL_OFF, INSTALL_HINT, plain_reason
 __all__ = ["import_mujoco"]
 
 
-def import_mujoco():
+def import_mujoco() -> types.ModuleType:
     """``import mujoco`` with MuJoCo's GL disabled, unless it is imported already; the GL stack
     loads (for the user's ``MUJOCO_GL``) on first use of ``mujoco.Renderer``/``GLContext``."""
     if "mujoco" in sys.modules:

@@ -7,6 +7,8 @@ import importlib.abc
 import importlib.machinery
 import os
 import sys
+import types
+from collections.abc import Sequence
 
 __all__ = ["llvm_mapped", "install_triton_guard", "TritonDeepbind"]
 
@@ -39,7 +41,8 @@ class _DeepbindLoader(importlib.abc.Loader):
 class TritonDeepbind(importlib.abc.MetaPathFinder):
     """Loads ``triton._C.*`` extension modules with ``RTLD_DEEPBIND`` while a libLLVM is mapped."""
 
-    def find_spec(self, fullname, path, target=None):
+    def find_spec(self, fullname: str, path: Sequence[str] | None,
+                  target: types.ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
         if not fullname.startswith("triton._C."):
             return None
         spec = importlib.machinery.PathFinder.find_spec(fullname, path, target)

@@ -7,7 +7,7 @@ certificate.
   frame and dense segment certified;
 - :func:`actions_from_video` (supplement): a joint trajectory from multi-view video;
 - :func:`pose_from_text` (Table 9): a pose whose render matches a prompt under a scorer
-  (:mod:`profrobot.scorers`).
+  (:mod:`profrobot.inverse.scorers`).
 """
 
 from .images import InverseResult, pose_from_images

@@ -10,14 +10,15 @@ import torch
 
 from ..errors import InputError, RobotMismatchError
 from ..kinematics.limits import Limits
-from ..field.identity import check_field, field_robot
+from ..field.identity import Field, check_field, field_robot
 from ..exact.certification import CLEARANCE, check_path
 from ..robot.gate import with_margin
 from ..optim.trajectory import TrajectoryResult, trajectory_result
+from ..render.gaussians import GaussianRobot
 from ..robot.robot import Robot
 
 
-def check_field_matches_model(sdf, model) -> None:
+def check_field_matches_model(sdf: Field, model: GaussianRobot) -> None:
     """The field and the Gaussian robot must move the same joints: same count and limits
     (the field's scene may add obstacles the images do not show; the joints are the robot's)."""
     check_field(sdf)
@@ -38,7 +39,7 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool, margin: float
 def labeller_robot(sdf, model, robot, who: str, *, required: bool = True, margin: float = CLEARANCE) -> Robot | None:
     """The scene the exact labeller certifies against: the field's (checked against ``model``'s
     joints and ``robot`` if given), else ``robot``, which ``who`` needs when ``required``; with
-    a safety margin of ``margin`` metres around its obstacles (:mod:`profrobot.margin`)."""
+    a safety margin of ``margin`` metres around its obstacles (:mod:`profrobot.robot.margin`)."""
     if sdf is not None:
         check_field_matches_model(sdf, model)
         return with_margin(field_robot(sdf, robot), margin)
@@ -50,7 +51,7 @@ def labeller_robot(sdf, model, robot, who: str, *, required: bool = True, margin
 def certified_path(robot: Robot, sdf, path: np.ndarray, density: int, method: str, iterations: int,
                    t0: float) -> TrajectoryResult:
     """``path`` (S, K) wrapped into the limits and put on the robot's joint couplings, certified
-    continuously (:func:`~profrobot.certification.check_path`: every waypoint, and every segment
+    continuously (:func:`~profrobot.exact.certification.check_path`: every waypoint, and every segment
     proven free at every pose; ``density`` is the sampled check's, unused by it), with the field
     along it (NaN without one)."""
     path = Limits.of(robot).numpy(path)

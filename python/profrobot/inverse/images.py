@@ -26,16 +26,19 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..errors import InputError
 from ..kinematics.limits import Limits
 from ..optim.adam import BatchedAdam
 from ..optim.resolve import certify_and_continue
-from ..robot.gate import finite, positive
+from ..field.identity import Field
+from ..robot.gate import Layout, finite, positive
+from ..robot.robot import Robot
 from ..exact.certification import certified_summary, certify_poses, failures_of
 from ..render.pose import fit_pose
-from ..render.gaussians import pose_only
+from ..render.gaussians import GaussianRobot, pose_only
 from ..render.cameras import Cameras
 from ..render.targets import ImageTargets, as_pinhole_targets
 from ..exact.certification import CLEARANCE
@@ -52,7 +55,7 @@ class InverseResult:
     Attributes:
         poses: (B, K) float64 returned poses (radians / metres, within the joint limits).
         image_loss: (B,) the image loss at the returned poses (mean over the C views).
-        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`,
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.exact.certification`,
             against the field's scene; the baseline is certified too, not corrected), or None
             when there was no scene to check against (no field and no ``robot=``): never True
             for a pose that was not checked.
@@ -103,11 +106,13 @@ class InverseResult:
 
 
 @pose_only
-def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: float = 10.0, l_thres: float = -0.1,
-                     image_iterations: int = 100, lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005,
-                     refine_rounds: int = 4, refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
-                     background=None, coarse: dict | None = None, robot=None, seed: int = 0,
-                     refine_cameras: bool | dict = False, progress: bool = False, layout=None, margin: float = CLEARANCE) -> InverseResult:
+def pose_from_images(model: GaussianRobot, targets: dict, cameras: Cameras, *, init: npt.ArrayLike,
+                     sdf: Field | None = None, beta: float = 10.0, l_thres: float = -0.1, image_iterations: int = 100,
+                     lr: float = 0.02, field_iterations: int = 300, field_lr: float = 0.005, refine_rounds: int = 4,
+                     refine_step: float = 0.05, w_depth: float = 1.0, w_mask: float = 0.5,
+                     background: npt.ArrayLike | None = None, coarse: dict | None = None, robot: Robot | None = None,
+                     seed: int = 0, refine_cameras: bool | dict = False, progress: bool = False,
+                     layout: Layout | None = None, margin: float = CLEARANCE) -> InverseResult:
     """Joint angles from multi-view images whose answers do not collide (module docs).
 
     ``model``: a :class:`~profrobot.render.GaussianRobot`; ``targets``: dict of ``rgb``
@@ -122,7 +127,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     ``summary()`` says "not checked". ``refine_cameras``: refine the cameras' poses with the image
     phase (:func:`~profrobot.render.fit_pose`); the field phase then uses the refined cameras,
     returned as ``result.cameras``. ``progress``: progress bars for the image phase. ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
+    (:mod:`profrobot.robot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.robot.margin`).
     """
     t0 = time.perf_counter()
     beta, l_thres = finite("beta", beta), finite("l_thres", l_thres)
@@ -149,6 +154,7 @@ def pose_from_images(model, targets: dict, cameras, *, init, sdf=None, beta: flo
     theta_img = fit.poses
     refined = None
     if fit.cameras is not None:     # the field phase sees the images through the refined cameras
+        assert fit.camera_motion is not None                      # refined cameras come with their motion
         cameras, refined = fit.cameras, given.moved(fit.camera_motion)
     tg = ImageTargets.from_images(targets, cameras, B, device=dev, background=background, w_depth=w_depth,
                                   w_mask=w_mask, who="pose_from_images")

@@ -16,9 +16,11 @@ A scorer has ``encode_text(prompt) -> Tensor (D,)``, a differentiable
 
 from __future__ import annotations
 
-from typing import Literal, Protocol, runtime_checkable
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 import torch
 import torch.nn.functional as F
 
@@ -40,6 +42,21 @@ class Scorer(Protocol):
     def score(self, image_features: torch.Tensor, goal: torch.Tensor) -> torch.Tensor: ...
 
 
+class ClipModel(Protocol):
+    """What :class:`CLIPScorer` uses of a ``transformers.CLIPModel`` (an optional dependency, not
+    imported here): its parameters and its image and text feature heads."""
+
+    def eval(self) -> Any: ...
+
+    def parameters(self) -> Iterator[torch.nn.Parameter]: ...
+
+    @property
+    def get_image_features(self) -> Callable[..., Any]: ...
+
+    @property
+    def get_text_features(self) -> Callable[..., Any]: ...
+
+
 def _features(out) -> torch.Tensor:
     """transformers < 5 returns the projected features; 5.x a ModelOutput holding them as
     ``pooler_output``."""
@@ -57,8 +74,9 @@ class CLIPScorer:
     """A frozen CLIP model as a differentiable scorer (module docs). Build with
     :meth:`from_pretrained`, or from a ``transformers.CLIPModel`` and its tokenizer."""
 
-    def __init__(self, model, tokenizer, *, mode: Literal["dot", "cosine"] = "dot", size: int = 224,
-                 mean=CLIP_MEAN, std=CLIP_STD):
+    def __init__(self, model: ClipModel, tokenizer: Callable[..., Mapping[str, Any]], *,
+                 mode: Literal["dot", "cosine"] = "dot", size: int = 224, mean: Sequence[float] = CLIP_MEAN,
+                 std: Sequence[float] = CLIP_STD):
         if mode not in ("dot", "cosine"):
             raise InputError(f"mode must be 'dot' (the paper) or 'cosine'; got {mode!r}")
         self.model = model.eval()
@@ -121,7 +139,7 @@ class ImageGoalScorer:
     """Score = −mean ((image − goal)²) at ``size`` x ``size`` (module docs). ``goal``: (H, W, 3)
     uint8 or [0, 1] image; ``encode_text`` ignores its prompt and returns the goal's features."""
 
-    def __init__(self, goal, *, size: int = 64):
+    def __init__(self, goal: npt.ArrayLike, *, size: int = 64):
         g = np.asarray(goal)
         if g.ndim != 3 or g.shape[-1] != 3:
             raise InputError(f"goal must be an (H, W, 3) image; got shape {g.shape}")

@@ -10,16 +10,21 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..errors import InputError, InputTypeError
 from ..kinematics.limits import Limits
-from ..robot.gate import finite, positive
+from ..field.identity import Field
+from ..render.cameras import Cameras
+from ..render.gaussians import GaussianRobot
+from ..robot.gate import Layout, finite, positive
 from ..exact.certification import certified_summary, certify_poses, failures_of
 from ..robot.robot import Robot
 from ..field.layout import field_at_layout
 from ..exact.certification import CLEARANCE
 from ._common import labeller_robot
+from .scorers import Scorer
 
 __all__ = ["TextResult", "pose_from_text"]
 
@@ -31,7 +36,7 @@ class TextResult:
     Attributes:
         poses: (R, K) returned poses; score: (R,) the scorer's value at them (CLIP: raw dot
         product); score_before_repair: (R,) at the end of the optimisation; certified: (R,) the
-        returned pose is certified free (:mod:`profrobot.certification`); certified_before_repair:
+        returned pose is certified free (:mod:`profrobot.exact.certification`); certified_before_repair:
         (R,) the optimised pose was (the others were then resolved on the field); g: (R,) the field at the
         returned pose (NaN without one); history: (iterations, R) score per step;
         iterations: Adam steps per run; seconds.
@@ -58,19 +63,21 @@ class TextResult:
                 f"{certified_summary(self.certified)}; {self.seconds:.1f} s")
 
 
-def pose_from_text(model, prompt: str, scorer, *, camera, sdf=None, init=None, runs: int = 1, iterations: int = 200,
-                   lr: float = 0.01, beta: float = 10.0, l_thres: float = -0.1, background=(1.0, 1.0, 1.0),
-                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, layout=None, margin: float = CLEARANCE) -> TextResult:
+def pose_from_text(model: GaussianRobot, prompt: str, scorer: Scorer, *, camera: Cameras, sdf: Field | None = None,
+                   init: npt.ArrayLike | None = None, runs: int = 1, iterations: int = 200, lr: float = 0.01,
+                   beta: float = 10.0, l_thres: float = -0.1, background: npt.ArrayLike = (1.0, 1.0, 1.0),
+                   noise: float = 0.0, seed: int = 0, robot: Robot | None = None, layout: Layout | None = None,
+                   margin: float = CLEARANCE) -> TextResult:
     """Joint angles whose render from ``camera`` (a one-camera :class:`~profrobot.render.Cameras`)
-    best matches ``prompt`` under ``scorer`` (:mod:`profrobot.scorers`).
+    best matches ``prompt`` under ``scorer`` (:mod:`profrobot.inverse.scorers`).
 
     ``init`` (K,) start (default: the zero pose, clipped into the limits, as the paper's hand);
     ``runs`` starts optimised as one batch, perturbed by ``noise`` radians (seeded). Adam
     (``lr``, ``iterations`` steps) on −score + ``beta`` ReLU(g − l_thres) (the latter with ``sdf``).
     Then every pose is labelled by the exact labeller (``robot``: default the field's; without a
     field required to label); with a field, colliding poses are resolved and re-certified.
-    ``scene``: for a field of a family of scenes (:mod:`profrobot.family`), the layout δ to work
-    at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
+    ``scene``: for a field of a family of scenes (:mod:`profrobot.robot.family`), the layout δ to work
+    at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.robot.margin`).
     """
     t0 = time.perf_counter()
     if not hasattr(scorer, "encode_image") or not hasattr(scorer, "encode_text") or not hasattr(scorer, "score"):

@@ -11,16 +11,19 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..errors import InputError
 from ..kinematics.limits import Limits
-from ..robot.gate import finite, positive, poses_within_limits
+from ..field.identity import Field
+from ..render.cameras import Cameras
+from ..robot.gate import Layout, finite, positive, poses_within_limits
 from ..exact.certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult, plan_trajectory
 from ..render.targets import ImageTargets
-from ..render.gaussians import pose_only
+from ..render.gaussians import GaussianRobot, pose_only
 from ..robot.robot import Robot
 from ..field.layout import field_at_layout
 from ..exact.certification import CLEARANCE
@@ -30,11 +33,12 @@ __all__ = ["trajectory_from_images"]
 
 
 @pose_only
-def trajectory_from_images(model, targets: dict, cameras, *, start=None, goal=None, sdf=None, steps: int = 100,
+def trajectory_from_images(model: GaussianRobot, targets: dict, cameras: Cameras, *, start: npt.ArrayLike | None = None,
+                           goal: npt.ArrayLike | None = None, sdf: Field | None = None, steps: int = 100,
                            lr: float = 0.05, w_pull: float = 10.0, beta: float = 5.0, l_thres: float = -0.1,
                            smooth_iterations: int = 1000, smooth_lr: float = 0.1, density: int = 10,
-                           w_depth: float = 1.0, w_mask: float = 0.5, background=None,
-                           robot: Robot | None = None, layout=None, frame: str | None = None,
+                           w_depth: float = 1.0, w_mask: float = 0.5, background: npt.ArrayLike | None = None,
+                           robot: Robot | None = None, layout: Layout | None = None, frame: str | None = None,
                            frame_targets: dict | None = None, margin: float = CLEARANCE) -> TrajectoryResult:
     """A ``steps``-frame trajectory from ``start`` (K,) towards the pose seen in ``targets`` (one
     pose: ``rgb`` (C, H, W, 3), ``depth`` (C, H, W) m, ``mask`` (C, H, W), from ``cameras``).
@@ -49,7 +53,7 @@ def trajectory_from_images(model, targets: dict, cameras, *, start=None, goal=No
     the planner between the same ends. ``robot``: the labeller's scene (default: the field's;
     required without a field). Returns a :class:`~profrobot.TrajectoryResult` whose ``method``
     says which of these produced the path. ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
+    (:mod:`profrobot.robot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.robot.margin`).
 
     End-effector terms: ``frame_targets`` ``{frame index: (4, 4) world transform or (3,)
     position}`` of ``frame`` (a site, body or geom): each such frame becomes the certified IK

@@ -16,16 +16,19 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..errors import InputError
 from ..kinematics.limits import Limits
-from ..robot.gate import finite, positive
+from ..field.identity import Field
+from ..render.cameras import Cameras
+from ..robot.gate import Layout, finite, positive
 from ..exact.certification import certify_poses, check_path
 from ..optim.paths import PenaltyOptions, penalty_descent, unwrap_path
 from ..optim.trajectory import TrajectoryResult
 from ..render.targets import ImageTargets
-from ..render.gaussians import pose_only
+from ..render.gaussians import GaussianRobot, pose_only
 from ..robot.robot import Robot
 from ..field.layout import field_at_layout
 from ..exact.certification import CLEARANCE
@@ -35,19 +38,20 @@ __all__ = ["actions_from_video"]
 
 
 @pose_only
-def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iterations_per_frame: int = 5, lr: float = 0.01,
-                       first_frame_iterations: int = 50,
-                       joint_iterations: int = 50, joint_lr: float = 0.002, w_tv: float = 0.001, beta: float = 10.0,
-                       l_thres: float = -0.1, density: int = 10, w_depth: float = 1.0, w_mask: float = 0.5,
-                       background=None, robot: Robot | None = None, batch: int = 20, layout=None,
-                       frame: str | None = None, frame_targets: dict | None = None,
-                       w_frame: float = 100.0, margin: float = CLEARANCE) -> TrajectoryResult:
+def actions_from_video(model: GaussianRobot, frames: dict, cameras: Cameras, *, init: npt.ArrayLike,
+                       sdf: Field | None = None, iterations_per_frame: int = 5, lr: float = 0.01,
+                       first_frame_iterations: int = 50, joint_iterations: int = 50, joint_lr: float = 0.002,
+                       w_tv: float = 0.001, beta: float = 10.0, l_thres: float = -0.1, density: int = 10,
+                       w_depth: float = 1.0, w_mask: float = 0.5, background: npt.ArrayLike | None = None,
+                       robot: Robot | None = None, batch: int = 20, layout: Layout | None = None,
+                       frame: str | None = None, frame_targets: dict | None = None, w_frame: float = 100.0,
+                       margin: float = CLEARANCE) -> TrajectoryResult:
     """A (T, K) joint trajectory from ``frames`` (``rgb`` (T, C, H, W, 3), ``depth`` (T, C, H, W)
     m, ``mask`` (T, C, H, W)) seen by ``cameras`` (C). ``init`` (K,): the first frame's start.
     ``batch``: frames rendered per forward pass in the joint stages (memory). Returns a
     :class:`~profrobot.TrajectoryResult` (``path`` (T, K), ``certified`` by the continuous check,
     ``method`` "video" or "video+field"). ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.margin`).
+    (:mod:`profrobot.robot.family`), the layout δ to work at; answers are certified at exactly that layout. ``margin``: metres every certified answer keeps from the obstacles (:mod:`profrobot.robot.margin`).
 
     End-effector terms (the paper's real-robot recipe): ``frame_targets`` ``{frame index: (4, 4)
     world transform or (3,) position}`` of ``frame`` (a site, body or geom) mark *operation*
@@ -115,6 +119,7 @@ def actions_from_video(model, frames: dict, cameras, *, init, sdf=None, iteratio
                 idx = list(range(s, min(T, s + batch)))
                 loss = img_loss(th[s:s + batch], idx).sum()
                 if with_field:
+                    assert sdf is not None                        # with_field: a field was given
                     g = sdf(th[s:s + batch].to(sdf.joint_limits.device)).to(dev)
                     loss = loss + beta * torch.relu(g - l_thres).sum()
                 if ft is not None:                                # operation frames: the end effector's pose

@@ -1,7 +1,7 @@
 """Differentiable forward kinematics in torch, over the same flat body tree as the Rust core.
 
 One robot description, two back ends: :class:`Kinematics` reads ``Robot.core_arrays()`` (the
-arrays ``rust/kinematics.rs`` walks) and reproduces MuJoCo's ``mj_kinematics``:
+arrays ``rust/model/kinematics.rs`` walks) and reproduces MuJoCo's ``mj_kinematics``:
 
 - body ``b`` with parent ``p``:  ``R_b = R_p R_loc``,  ``x_b = x_p + R_p t_loc``;
 - then each joint of ``b`` in order, with ``a = q - qpos0``:
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from ..errors import InputError
+from ..robot.robot import Robot
 
 __all__ = ["Kinematics", "BodyPoses", "quat_to_matrix", "axis_angle_matrix"]
 
@@ -257,6 +258,6 @@ class Kinematics(torch.nn.Module):
         return R, x, axis_w, anchor_w
 
     @classmethod
-    def from_robot(cls, robot, *, dtype: torch.dtype = torch.float32) -> "Kinematics":
+    def from_robot(cls, robot: Robot, *, dtype: torch.dtype = torch.float32) -> "Kinematics":
         """FK for ``robot`` (a :class:`profrobot.Robot`)."""
         return cls(robot.core_arrays(), dtype=dtype)

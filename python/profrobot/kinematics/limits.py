@@ -3,7 +3,7 @@ and pose fitting (``profrobot.render.pose``).
 
 Limited joints (hinges with a range, slides) are clamped to their range; continuous hinges
 (no range) are wrapped to [-pi, pi): clamping them at ±pi would block a turn through pi. The
-wrap is :func:`profrobot.angles.wrap` (the Rust core's, bit for bit) on numpy arrays and its
+wrap is :func:`profrobot.robot.angles.wrap` (the Rust core's, bit for bit) on numpy arrays and its
 torch twin :func:`_wrap` (the same formula) on tensors: pi goes to -pi.
 """
 
@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..robot.angles import wrap
@@ -21,7 +22,7 @@ __all__ = ["Limits"]
 
 
 def _wrap(x: torch.Tensor, half: float = math.pi) -> torch.Tensor:
-    """x wrapped into [-half, half): :func:`profrobot.angles.wrap`'s formula, written for tensors
+    """x wrapped into [-half, half): :func:`profrobot.robot.angles.wrap`'s formula, written for tensors
     (gradient 1). With ``half = pi`` on float64 it equals ``angles.wrap`` bit for bit (values in
     range unchanged, pi to -pi, fmod with Rust's ``rem_euclid`` correction);
     ``tests/test_wrapping.py`` checks it. In float32 the same steps round in float32."""
@@ -47,7 +48,8 @@ class Limits:
     or a :class:`~profrobot.render.GaussianRobot`; ``like`` picks the device and dtype.
     """
 
-    def __init__(self, lower, upper, continuous, like: torch.Tensor | None = None):
+    def __init__(self, lower: npt.ArrayLike, upper: npt.ArrayLike, continuous: npt.ArrayLike,
+                 like: torch.Tensor | None = None):
         dtype = like.dtype if like is not None else torch.float32
         device = like.device if like is not None else None
         self.lim_np = np.stack([np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)], axis=1)
@@ -61,18 +63,19 @@ class Limits:
         self.upper = torch.as_tensor(self.lim_np[:, 1], dtype=dtype, device=device)
         self.continuous = torch.as_tensor(self.cont_np, device=device)
         self.span = (self.upper - self.lower).clamp_min(1e-9)
-        #: the robot's joint equalities (:class:`profrobot.equalities.JointCouplings`) when known:
+        #: the robot's joint equalities (:class:`profrobot.robot.equalities.JointCouplings`) when known:
         #: :meth:`numpy` puts returned poses on them
         self.couplings = None
 
     @classmethod
-    def of(cls, obj, like: torch.Tensor | None = None) -> "Limits":
+    def of(cls, obj: object, like: torch.Tensor | None = None) -> "Limits":
         """Limits of a Robot (``joint_limits``, ``continuous``), of a PoseSDF through the robot
         it was trained for (``sdf.robot``), or of any object with ``joint_limits``/``limits``
         and ``continuous``."""
         src = obj
-        if not hasattr(src, "continuous") and getattr(obj, "robot", None) is not None:
-            src = obj.robot
+        robot = None if hasattr(src, "continuous") else getattr(obj, "robot", None)
+        if robot is not None:
+            src = robot
         cont = getattr(src, "continuous", None)
         lim = getattr(src, "limits_f64", None)          # a GaussianRobot's float64 copy
         if lim is None:

@@ -12,6 +12,8 @@ counter, updated only on the rows being stepped, is exactly B separate Adams.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 
 __all__ = ["BatchedAdam"]
@@ -23,7 +25,8 @@ class BatchedAdam:
     ``step(x, rows, grad)`` updates ``x[rows]`` in place from ``grad`` (len(rows), ...) and
     advances only those rows' counters; ``reset(rows)`` restarts those rows."""
 
-    def __init__(self, shape, lr: float, like: torch.Tensor, betas=(0.9, 0.999), eps: float = 1e-8):
+    def __init__(self, shape: Sequence[int], lr: float, like: torch.Tensor, betas: tuple[float, float] = (0.9, 0.999),
+                 eps: float = 1e-8):
         self.lr, (self.b1, self.b2), self.eps = lr, betas, eps
         self.m = like.new_zeros(shape)
         self.v = like.new_zeros(shape)

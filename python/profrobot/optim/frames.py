@@ -19,6 +19,7 @@ import torch
 from ..errors import InputError, InputTypeError
 from ..exact.ik import as_targets, frame_of, ik
 from ..kinematics.fk import Kinematics, quat_to_matrix
+from ..robot.gate import Layout
 from ..robot.robot import Robot
 
 __all__ = ["FrameTargets"]
@@ -90,7 +91,7 @@ class FrameTargets:
             out = out + LENGTH ** 2 * 0.5 * ((R - Rt) ** 2).sum()
         return out
 
-    def snap(self, path: np.ndarray, *, layout=None) -> tuple[np.ndarray, np.ndarray]:
+    def snap(self, path: np.ndarray, *, layout: Layout | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``path`` (S, K) with each chosen row replaced by the certified IK pose nearest it that
         reaches its target; returns (path, snapped (M,) bool). A row whose target cannot be
         reached certified free is left as it is (and reported)."""

@@ -4,7 +4,7 @@ pass around):
 
 - :func:`penalty_descent` (:class:`PenaltyOptions`): Adam on the interior waypoints of
   γ1·mean ReLU(g − l_thres) + γ2·TV (+ γ3·energy), each problem stopping once the exact labeller
-  certifies its whole path (:func:`profrobot.certification.check_path`);
+  certifies its whole path (:func:`profrobot.exact.certification.check_path`);
 - :func:`smooth_certified` (the same options): shortens already-certified paths, keeping the
   shortest iterate that is still certified, so certification is never lost;
 - :func:`tangent_walk` (:class:`TangentOptions`): the paper's Algorithm 1.
@@ -24,6 +24,7 @@ import torch
 from ..robot.angles import unwrap
 from ..exact.certification import check_path, path_free_at
 from ..kinematics.limits import LIMIT_INSET, Limits
+from ..field.identity import Field
 from ..robot.robot import Robot
 from ..robot.gate import finite, positive
 from ..errors import InputError
@@ -110,7 +111,7 @@ class TangentOptions:
 
 def unwrap_path(path: np.ndarray, continuous: np.ndarray) -> np.ndarray:
     """(..., S, K) with continuous joints (``continuous`` (K,) bool) unwrapped along the steps
-    axis (:func:`profrobot.angles.unwrap`), so that consecutive waypoints differ by the short arc,
+    axis (:func:`profrobot.robot.angles.unwrap`), so that consecutive waypoints differ by the short arc,
     as :func:`profrobot.interpolate` moves them, and paths are continuous."""
     out = np.array(path, dtype=np.float64, copy=True)
     cont = np.asarray(continuous, dtype=bool)
@@ -119,7 +120,7 @@ def unwrap_path(path: np.ndarray, continuous: np.ndarray) -> np.ndarray:
     return out
 
 
-def penalty_descent(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptions | None = None) -> np.ndarray:
+def penalty_descent(sdf: Field, robot: Robot, paths: np.ndarray, options: PenaltyOptions | None = None) -> np.ndarray:
     """Optimises ``paths`` (B, S, K) unwrapped, in place, on their interior waypoints; a problem
     stops once the exact labeller certifies its whole path (continuously). A problem whose
     waypoints all meet the threshold while the labeller still finds a collision has its threshold
@@ -177,7 +178,7 @@ def penalty_descent(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOption
     return steps
 
 
-def smooth_certified(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptions | None = None,
+def smooth_certified(sdf: Field, robot: Robot, paths: np.ndarray, options: PenaltyOptions | None = None,
                      verify_resolution: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
     """Shortens ``paths`` (B, S, K), unwrapped and certified, with the field.
 
@@ -229,7 +230,7 @@ def smooth_certified(sdf, robot: Robot, paths: np.ndarray, options: PenaltyOptio
     return best, best_at
 
 
-def tangent_walk(sdf, robot: Robot, starts: np.ndarray, goals: np.ndarray, steps: int,
+def tangent_walk(sdf: Field, robot: Robot, starts: np.ndarray, goals: np.ndarray, steps: int,
                  options: TangentOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Algorithm 1, batched over B problems: θ ← θ − δ·D, D the L1 goal gradient G (per-joint
     steps clipped so that no joint overshoots the goal), projected onto the tangent plane of ∇g

@@ -4,19 +4,20 @@ from __future__ import annotations
 
 import torch
 
-from ..field.identity import check_field
+from ..field.identity import Field, check_field
 from ..field.layout import field_at_layout
-from ..robot.gate import finite
+from ..robot.gate import Layout, finite
 from ..errors import InputError, InputTypeError
 
 
-def collision_penalty(sdf, theta: torch.Tensor, l_thres: float = -0.1, *, layout=None) -> torch.Tensor:
+def collision_penalty(sdf: Field, theta: torch.Tensor, l_thres: float = -0.1, *,
+                      layout: Layout | None = None) -> torch.Tensor:
     """ReLU(g(θ) − l_thres) per pose: θ (..., K) radians / metres → (...,), differentiable in θ
     (and in the field's parameters). Zero once the field puts a pose ``-l_thres`` inside the free
     region; add ``β · penalty.mean()`` to a loss to keep its poses out of collision.
 
     Raises TypeError for a non-tensor or non-float θ, ValueError for a last dimension that is not
-    the field's joint count or for NaN/inf poses. A family field (:mod:`profrobot.family`) needs
+    the field's joint count or for NaN/inf poses. A family field (:mod:`profrobot.robot.family`) needs
     ``scene``, the layout δ (θ then holds the robot joints only; δ is never moved).
     """
     check_field(sdf)

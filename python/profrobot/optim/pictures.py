@@ -57,7 +57,7 @@ def render_trajectory(robot: Robot, path, out: str | os.PathLike, *, collides=No
     """Render ``path`` (S, K) with MuJoCo to ``out`` (.gif, or .mp4 with imageio installed).
 
     ``collides`` (S,) bool marks frames with a red border (default: the poses that are
-    not certified free, :mod:`profrobot.certification`). ``camera``: a dict of lookat, distance,
+    not certified free, :mod:`profrobot.exact.certification`). ``camera``: a dict of lookat, distance,
     azimuth, elevation (a free camera; missing keys from the default view), or a one-camera
     :class:`profrobot.render.Cameras` (e.g. the rig's, ``cams[2]``). ``size`` (width, height):
     default the camera's own size for a :class:`~profrobot.render.Cameras`, else (480, 360). The

@@ -29,15 +29,16 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..robot.robot import Robot
 from .adam import BatchedAdam
 from ..kinematics.limits import LIMIT_INSET, Limits
-from ..field.identity import field_robot
+from ..field.identity import Field, field_robot
 from ..field.layout import field_at_layout
 from ..errors import InputError
-from ..robot.gate import finite, positive, poses_within_limits, with_margin
+from ..robot.gate import Layout, finite, positive, poses_within_limits, with_margin
 from ..exact.certification import CLEARANCE, certified_summary, certify_poses, failures_of
 from ..exact.labels import collides
 from ..exact.oracle import nearest_free
@@ -52,7 +53,7 @@ class ResolveResult:
         iterations: (B,) int, field steps each pose took (projection or Adam steps; 0: it already met
             the threshold, or with ``method="project"`` was certified free as given).
         delta: (B,) float64, ‖θ_out − θ_in‖₂ in radians (continuous joints the short way round).
-        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.certification`).
+        certified: (B,) bool, the returned pose is certified free (:mod:`profrobot.exact.certification`).
         g: (B,) float32, the field at the field step's answer (before the exact labeller cuts the
             move: ``shrink``); at the input for poses returned as given.
         reached: (B,) bool, the field step's answer met its (final) field threshold (True for
@@ -348,10 +349,11 @@ def _resolve_exact(poses, robot, layout, margin, start: float) -> ResolveResult:
                          history=[dict(round="exact search", threshold=float("nan"), certified=int(certified.sum()))])
 
 
-def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iterations: int | None = None, *,
-            method: Method = "project", shrink: bool = True, robot: Robot | None = None, refine: bool = True,
-            refine_rounds: int = 4, refine_step: float = 0.1, refine_iterations: int | None = None,
-            layout=None, margin: float = CLEARANCE) -> ResolveResult:
+def resolve(sdf: Field | None, poses: npt.ArrayLike, l_thres: float = -0.1, lr: float | None = None,
+            iterations: int | None = None, *, method: Method = "project", shrink: bool = True,
+            robot: Robot | None = None, refine: bool = True, refine_rounds: int = 4, refine_step: float = 0.1,
+            refine_iterations: int | None = None, layout: Layout | None = None,
+            margin: float = CLEARANCE) -> ResolveResult:
     """Resolve collisions of ``poses`` (B, K) (radians / metres, within joint limits) with the
     learned field ``sdf``, all poses in one batch (module docs).
 
@@ -360,13 +362,13 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     field calls it free, ``iterations`` (default 5) steps at most. ``method="adam"``: the paper's protocol, Adam (``lr``,
     default 0.01) on g, each pose frozen as soon as g ≤ ``l_thres``, at most ``iterations``
     (default 1000) steps; continuous hinges wrapped, limited joints clamped after each step.
-    Either way the field's steps keep a joint they move :data:`~profrobot.joints.LIMIT_INSET`
+    Either way the field's steps keep a joint they move :data:`~profrobot.kinematics.limits.LIMIT_INSET`
     inside its limits (the labeller's search may end on a limit, where it certifies the pose).
 
     Every answer is certified by the exact labeller (``certified``). ``shrink`` (default): each
     move is cut to the first certified pose on its ray (module docs), so a pose certified as
     given comes back unchanged and a returned pose may lie as close as
-    :data:`~profrobot.certification.CLEARANCE` to contact (``shrink=False`` keeps the field's
+    :data:`~profrobot.exact.certification.CLEARANCE` to contact (``shrink=False`` keeps the field's
     margin: the field's answer as it is). ``refine`` (default): poses still not certified get,
     with ``method="project"``, the exact labeller's nearest-free search from the input
     (:func:`profrobot.nearest_free`, 32 rays, 64 refinements, seeded by each pose's place among
@@ -375,9 +377,9 @@ def resolve(sdf, poses, l_thres: float = -0.1, lr: float | None = None, iteratio
     ``refine_iterations`` steps (default ``iterations``). Poses left colliding are reported in
     ``result.failures``, never hidden. ``robot``: the labeller's robot (default: the bundled
     scene the field was trained on). ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that
+    (:mod:`profrobot.robot.family`), the layout δ to work at; answers are certified at exactly that
     layout. ``margin``: metres every certified answer keeps from the obstacles
-    (:mod:`profrobot.margin`; an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`
+    (:mod:`profrobot.robot.margin`; an estimated layout's :attr:`~profrobot.perception.layouts.LayoutEstimate.margin`
     makes answers certified at the estimate free at the true layout).
 
     ``sdf=None`` (``robot=`` required): no field, the exact labeller alone. Each pose not certified

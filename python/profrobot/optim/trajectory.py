@@ -16,7 +16,7 @@ certified path, the certified planner path itself is returned, never a colliding
 ``sdf=None`` runs the exact planner alone.
 
 Every result is verified by the exact labeller at the waypoints and on a dense re-interpolation
-between them (:func:`~profrobot.certification.check_path`).
+between them (:func:`~profrobot.exact.certification.check_path`).
 """
 
 from __future__ import annotations
@@ -27,16 +27,17 @@ from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..exact.certification import CLEARANCE, PathCheck, check_path
 from ..errors import InputError, InputTypeError
-from ..field.identity import field_robot
+from ..field.identity import Field, field_robot
 from ..field.layout import field_at_layout
 from ..kinematics.limits import Limits
 from ..exact.labels import interpolate
 from ..robot.robot import Robot
-from ..robot.gate import finite, positive, poses_within_limits, with_margin
+from ..robot.gate import Layout, finite, positive, poses_within_limits, with_margin
 from .paths import PenaltyOptions, TangentOptions, penalty_descent, smooth_certified, tangent_walk, unwrap_path
 
 __all__ = ["plan_trajectory", "plan_trajectories", "TrajectoryResult", "trajectory_result", "PenaltyOptions", "TangentOptions"]
@@ -53,7 +54,7 @@ class TrajectoryResult:
 
     Attributes:
         path: (S, K) float64 waypoints, radians / metres, ``path[0]`` = start, ``path[-1]`` = goal.
-        certified: the whole path is certified free (:func:`profrobot.certification.check_path`,
+        certified: the whole path is certified free (:func:`profrobot.exact.certification.check_path`,
             continuous: every waypoint certified and every segment proven free at every pose, the
             dependent joints of joint equalities following their independent ones).
         waypoint_uncertified: (S,) bool; segment_uncertified: (S−1,) bool (segment i: waypoints i, i+1).
@@ -130,11 +131,11 @@ def _planner_paths(robot: Robot, s: np.ndarray, g: np.ndarray, steps: int, optio
     return out
 
 
-def plan_trajectories(sdf, starts, goals, steps: int = 100, method: Method = "penalty", *,
-                      robot: Robot | None = None, layout=None, margin: float = CLEARANCE, init: Init = "auto",
-                      planner: dict | None = None, penalty: PenaltyOptions | None = None,
-                      tangent: TangentOptions | None = None, smooth_iterations: int = 300, l_thres: float = -0.1,
-                      density: int = 10) -> list[TrajectoryResult]:
+def plan_trajectories(sdf: Field | None, starts: npt.ArrayLike, goals: npt.ArrayLike, steps: int = 100,
+                      method: Method = "penalty", *, robot: Robot | None = None, layout: Layout | None = None,
+                      margin: float = CLEARANCE, init: Init = "auto", planner: dict | None = None,
+                      penalty: PenaltyOptions | None = None, tangent: TangentOptions | None = None,
+                      smooth_iterations: int = 300, l_thres: float = -0.1, density: int = 10) -> list[TrajectoryResult]:
     """B problems optimised together: ``starts`` and ``goals`` (B, K) → B :class:`TrajectoryResult`,
     in order; every option as :func:`plan_trajectory` (``frame_targets`` plans one problem only)."""
     if np.ndim(starts) != 2 or np.ndim(goals) != 2:
@@ -145,11 +146,12 @@ def plan_trajectories(sdf, starts, goals, steps: int = 100, method: Method = "pe
                  layout=layout, margin=margin)
 
 
-def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalty", *, robot: Robot | None = None,
-                    layout=None, margin: float = CLEARANCE, init: Init = "auto", planner: dict | None = None,
+def plan_trajectory(sdf: Field | None, start: npt.ArrayLike, goal: npt.ArrayLike, steps: int = 100,
+                    method: Method = "penalty", *, robot: Robot | None = None, layout: Layout | None = None,
+                    margin: float = CLEARANCE, init: Init = "auto", planner: dict | None = None,
                     penalty: PenaltyOptions | None = None, tangent: TangentOptions | None = None,
-                    smooth_iterations: int = 300, l_thres: float = -0.1, density: int = 10,
-                    frame: str | None = None, frame_targets: dict | None = None) -> TrajectoryResult:
+                    smooth_iterations: int = 300, l_thres: float = -0.1, density: int = 10, frame: str | None = None,
+                    frame_targets: dict | None = None) -> TrajectoryResult:
     """A collision-aware path from ``start`` to ``goal`` (K,) (radians / metres, within the joint
     limits), with ``steps`` waypoints including both ends: one :class:`TrajectoryResult`. B
     problems optimised together: :func:`plan_trajectories`.
@@ -162,7 +164,7 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     ``"auto"`` (default) does ``"straight"`` where the straight path is certified at the dense
     check and ``"planner"`` where it is not. ``sdf=None`` (``robot`` required): exact planning and
     shortcutting only. ``scene``: for a field of a family of scenes
-    (:mod:`profrobot.family`), the layout δ to work at; answers are certified at exactly that layout.
+    (:mod:`profrobot.robot.family`), the layout δ to work at; answers are certified at exactly that layout.
 
     ``method="penalty"``: :func:`~profrobot.optim.paths.penalty_descent` with ``penalty``
     (a :class:`~profrobot.optim.PenaltyOptions`; default: ``PenaltyOptions(l_thres=l_thres,
@@ -179,8 +181,8 @@ def plan_trajectory(sdf, start, goal, steps: int = 100, method: Method = "penalt
     straight path's waypoint there that puts the frame on its target (0.1 mm, 1 mrad); the path
     between consecutive fixed waypoints is planned as above, and the whole path certified.
 
-    ``margin``: metres every certified path keeps from the obstacles (:mod:`profrobot.margin`;
-    an estimated layout's :attr:`~profrobot.layouts.LayoutEstimate.margin`).
+    ``margin``: metres every certified path keeps from the obstacles (:mod:`profrobot.robot.margin`;
+    an estimated layout's :attr:`~profrobot.perception.layouts.LayoutEstimate.margin`).
     """
     if np.ndim(start) != 1 or np.ndim(goal) != 1:
         raise InputError(f"plan_trajectory plans one problem: start and goal (K,); got shapes {np.shape(start)} and "

@@ -8,7 +8,7 @@ skinning, projection, SH colour and tile rasterization; gsplat on CUDA; a pure-P
 - :mod:`.mjviews`: MuJoCo's offscreen renderer and the chunk functions that draw in workers;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
 - :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
-  ``rust`` (``rust/render.rs``, ``rust/splat.rs``), ``torch``, ``gsplat``;
+  ``rust`` (``rust/bindings/render.rs``, ``rust/render/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
 - :mod:`.targets`: target images (photos with masks, depth optional, any resolution) validated once and
   the image loss (:class:`ImageTargets`);

@@ -30,14 +30,17 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CorruptFileError, InputError
 from ..files import atomic_path
+from ..robot.robot import Robot
 from .distortion import check_K, check_distortion, check_image_size
 
 __all__ = ["Cameras", "ring_cameras", "sphere_cameras", "free_camera"]
@@ -185,7 +188,8 @@ class Cameras:
 
     # ---- constructors ---------------------------------------------------------------------------
     @classmethod
-    def from_opencv(cls, K, world_to_cam, width: int, height: int, *, distortion=None) -> "Cameras":
+    def from_opencv(cls, K: npt.ArrayLike, world_to_cam: npt.ArrayLike, width: int, height: int, *,
+                    distortion: npt.ArrayLike | None = None) -> "Cameras":
         """Cameras from an OpenCV calibration: ``K`` (3, 3) shared or (C, 3, 3), ``world_to_cam``
         (4, 4) or (C, 4, 4) (x right, y down, z forward; metres), the calibrated image size in
         pixels, and optionally ``distortion`` ``(k1, k2, p1, p2[, k3])`` shared or (C, 5)
@@ -195,8 +199,8 @@ class Cameras:
         return c
 
     @classmethod
-    def free(cls, lookat, distance, azimuth, elevation, width: int = 128, height: int = 128,
-             fovy: float = 45.0) -> "Cameras":
+    def free(cls, lookat: npt.ArrayLike, distance: npt.ArrayLike, azimuth: npt.ArrayLike, elevation: npt.ArrayLike,
+             width: int = 128, height: int = 128, fovy: float = 45.0) -> "Cameras":
         """C MuJoCo free cameras: ``lookat`` (C, 3) metres, ``distance`` (C,) metres, ``azimuth``
         and ``elevation`` (C,) degrees (negative elevation looks down), one vertical ``fovy``
         (degrees), ``width`` x ``height`` pixels. MuJoCo draws them with its own ``MjvCamera``."""
@@ -222,8 +226,8 @@ class Cameras:
         return c
 
     @classmethod
-    def look_at(cls, eye, target, up=(0.0, 0.0, 1.0), *, width: int = 128, height: int = 128, fovy: float = 45.0,
-                K=None) -> "Cameras":
+    def look_at(cls, eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 0.0, 1.0), *,
+                width: int = 128, height: int = 128, fovy: float = 45.0, K: npt.ArrayLike | None = None) -> "Cameras":
         """Cameras at ``eye`` (C, 3) looking at ``target`` (C, 3) (metres), image ``up`` (3,) or
         (C, 3) (the camera's -y is the part of ``up`` orthogonal to the view direction); ``K``
         (3, 3) or (C, 3, 3), else square pixels with vertical field of view ``fovy`` (degrees)."""
@@ -247,7 +251,8 @@ class Cameras:
         return c
 
     @classmethod
-    def from_gl(cls, pos, forward, up, frustum: tuple, width: int, height: int) -> "Cameras":
+    def from_gl(cls, pos: npt.ArrayLike, forward: npt.ArrayLike, up: npt.ArrayLike, frustum: tuple, width: int,
+                height: int) -> "Cameras":
         """The inverse of :meth:`gl_frustum`: a camera from a MuJoCo GL camera (``pos``, ``forward``,
         ``up`` (3,), ``frustum`` = (center, halfwidth, bottom, top, near), as ``mjr_render`` uses them)."""
         center, half, bottom, top, near = (float(x) for x in frustum)
@@ -262,7 +267,8 @@ class Cameras:
         return cls.from_opencv(K, T, width, height)
 
     @classmethod
-    def from_mujoco(cls, model, names, qpos=None, *, width: int | None = None, height: int | None = None) -> "Cameras":
+    def from_mujoco(cls, model: Robot | mujoco.MjModel, names: str | Iterable[str], qpos: npt.ArrayLike | None = None,
+                    *, width: int | None = None, height: int | None = None) -> "Cameras":
         """Named MJCF cameras (fixed, or mounted on a body and then taken at ``qpos``) exactly as
         MuJoCo draws them at ``width`` x ``height`` (default: the cameras' ``resolution``).
 
@@ -371,7 +377,7 @@ class Cameras:
         R = self.world_to_cam[:, :3, :3]
         return self.centres(), R[:, 2].copy(), -R[:, 1]
 
-    def project(self, points) -> np.ndarray:
+    def project(self, points: npt.ArrayLike) -> np.ndarray:
         """Pixels (C, P, 2) of world points (P, 3) (metres) in each camera (no distortion)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         q = np.einsum("cij,pj->cpi", self.world_to_cam[:, :3, :3], p) + self.world_to_cam[:, None, :3, 3]
@@ -412,7 +418,7 @@ class Cameras:
             return self
         return Cameras.from_opencv(self.K, self.world_to_cam, self.width, self.height)
 
-    def moved(self, delta) -> "Cameras":
+    def moved(self, delta: npt.ArrayLike) -> "Cameras":
         """These cameras with ``world_to_cam`` replaced by ``delta @ world_to_cam`` (``delta``
         (C, 4, 4) rigid, camera frame): e.g. a refined calibration."""
         d = _array(delta, "delta", (4, 4), "Cameras.moved")
@@ -493,7 +499,7 @@ class Cameras:
 
 
 def ring_cameras(n: int = 4, *, distance: float = 1.8, elevation: float | list = -20.0, azimuth0: float = 0.0,
-                 lookat=(0.0, 0.0, 0.4), size: int = 128, fovy: float = 45.0) -> Cameras:
+                 lookat: npt.ArrayLike = (0.0, 0.0, 0.4), size: int = 128, fovy: float = 45.0) -> Cameras:
     """``n`` free cameras evenly spaced in azimuth around ``lookat`` (one ring per elevation given)."""
     els = np.atleast_1d(np.asarray(elevation, dtype=float))
     az = (azimuth0 + 360.0 * np.arange(n) / n)
@@ -503,8 +509,9 @@ def ring_cameras(n: int = 4, *, distance: float = 1.8, elevation: float | list =
                         size, size, fovy)
 
 
-def sphere_cameras(n: int, *, distance: float = 1.8, elevation_range=(-60.0, 30.0), lookat=(0.0, 0.0, 0.4),
-                   size: int = 128, fovy: float = 45.0, seed: int = 0, jitter: float = 0.0) -> Cameras:
+def sphere_cameras(n: int, *, distance: float = 1.8, elevation_range: tuple[float, float] = (-60.0, 30.0),
+                   lookat: npt.ArrayLike = (0.0, 0.0, 0.4), size: int = 128, fovy: float = 45.0, seed: int = 0,
+                   jitter: float = 0.0) -> Cameras:
     """``n`` free cameras on a sphere cap (Fibonacci spiral in azimuth and uniform in sin(elevation)),
     looking at ``lookat``; ``jitter`` (metres) shifts each lookat randomly, as Dr. Robot does."""
     rng = np.random.default_rng(seed)
@@ -516,7 +523,7 @@ def sphere_cameras(n: int, *, distance: float = 1.8, elevation_range=(-60.0, 30.
     return Cameras.free(la, np.full(n, distance), az, el, size, size, fovy)
 
 
-def free_camera(lookat, distance, azimuth, elevation) -> mujoco.MjvCamera:
+def free_camera(lookat: npt.ArrayLike, distance: float, azimuth: float, elevation: float) -> mujoco.MjvCamera:
     """A MuJoCo free camera (metres, degrees)."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE

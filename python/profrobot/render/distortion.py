@@ -45,6 +45,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
@@ -54,7 +55,7 @@ _NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"
 _KINDS = ("rgb", "mask", "depth")
 
 
-def check_distortion(dist, C: int, who: str = "cameras") -> np.ndarray | None:
+def check_distortion(dist: npt.ArrayLike | None, C: int, who: str = "cameras") -> np.ndarray | None:
     """Distortion coefficients of ``C`` cameras as a new (C, 5) float64 array ``(k1, k2, p1, p2,
     k3)`` (unitless), or None when ``dist`` is None or all zeros (pinhole cameras).
 
@@ -106,7 +107,7 @@ def _one_dist(dist, who: str) -> np.ndarray:
     return np.zeros(5) if d is None else d[0]
 
 
-def check_image_size(width, height, who: str) -> tuple[int, int]:
+def check_image_size(width: int, height: int, who: str) -> tuple[int, int]:
     """``(width, height)`` as positive integers (pixels), else :class:`InputError` naming ``who``."""
     try:
         w, h = int(width), int(height)
@@ -117,7 +118,7 @@ def check_image_size(width, height, who: str) -> tuple[int, int]:
     return w, h
 
 
-def check_K(K, shape: tuple, who: str) -> np.ndarray:
+def check_K(K: npt.ArrayLike, shape: tuple, who: str) -> np.ndarray:
     """``K`` as float64 of ``shape`` (…, 3, 3), each [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0."""
     try:
         k = np.asarray(K, dtype=np.float64)
@@ -206,7 +207,8 @@ def _nearest(m: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
     return iv * W + iu, inside
 
 
-def undistort_images(images, K, dist, *, kind: Literal["rgb", "mask", "depth"]) -> np.ndarray:
+def undistort_images(images: np.ndarray, K: npt.ArrayLike, dist: npt.ArrayLike | None, *,
+                     kind: Literal["rgb", "mask", "depth"]) -> np.ndarray:
     """Images taken by C distorted cameras resampled to the pinhole cameras with the same ``K``.
 
     ``images``: (..., C, H, W, 3) for ``kind="rgb"`` (any integer or float dtype: integers are

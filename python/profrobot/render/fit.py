@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from ..files import check_robot
 from ..kinematics.fk import quat_to_matrix
 from .gaussians import GaussianRobot
-from .rasterize import Backend
+from .rasterize import Backend, RenderOut
 from .views import Views
 
 __all__ = ["fit_gaussians", "ssim", "image_losses"]
@@ -50,8 +50,8 @@ def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return s.mean()
 
 
-def image_losses(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_ssim: float = 0.2,
-                 w_depth: float = 1.0, w_mask: float = 0.5) -> dict[str, torch.Tensor]:
+def image_losses(out: RenderOut, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *,
+                 w_ssim: float = 0.2, w_depth: float = 1.0, w_mask: float = 0.5) -> dict[str, torch.Tensor]:
     """The fitting loss terms for a render ``out`` (RenderOut) against targets rgb (C, H, W, 3)
     in [0, 1], depth (C, H, W) metres, mask (C, H, W) bool. Returns the terms and ``total``."""
     l1 = (out.rgb - rgb_t).abs().mean()
@@ -176,7 +176,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
     ``min_contrib`` in any training view (initialised on meshes inside the robot's shell, they
     only leak dark blotches through it). ``backend``: the rasterizer (see
     :func:`profrobot.render.rasterize`; "auto" is the Rust kernel on a CPU, gsplat on CUDA)."""
-    from tqdm.auto import tqdm
+    from ..executors.progress import progress_bar
 
     check_robot(views.fingerprint or None, model, "the views", made_for=views.robot_name, missing_ok=True, geometry=True)
     rng = np.random.default_rng(seed)
@@ -195,7 +195,7 @@ def fit_gaussians(model: GaussianRobot, views: Views, *, iterations: int = 500, 
     zeros = lambda: torch.zeros(model.n, device=dev)
     grad_acc, seen, contrib = zeros(), zeros(), zeros()
     t0 = time.perf_counter()
-    bar = tqdm(range(iterations), desc="fit Gaussians", disable=None if progress else True)
+    bar = progress_bar(iterable=range(iterations), desc="fit Gaussians", progress=progress)
     for it in bar:
         p = int(rng.integers(len(views)))
         cs = rng.choice(len(cams), size=min(cams_per_step, len(cams)), replace=False)

@@ -28,10 +28,12 @@ import math
 import os
 from pathlib import Path
 import warnings
-from typing import Literal, get_args
+from collections.abc import Callable, Iterator
+from typing import Any, Literal, ParamSpec, TypeVar, get_args
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..kinematics.fk import Kinematics, quat_to_matrix
@@ -39,12 +41,18 @@ from ..files import atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, MissingFileError
 from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
 from ..errors import InputError
+from ..robot.robot import Robot
+from .cameras import Cameras
 
 __all__ = ["GaussianRobot", "frozen", "pose_only", "sample_visual_surface"]
 
+_M = TypeVar("_M", bound=torch.nn.Module)
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
 
 @contextlib.contextmanager
-def frozen(module: torch.nn.Module):
+def frozen(module: _M) -> Iterator[_M]:
     """``module``'s parameters out of autograd for the block, their ``requires_grad`` restored
     after (also on an exception). A pose loop differentiates w.r.t. the joints only: frozen, the
     model's gradients are neither built in torch (the opacity's sigmoid, the scales' exp) nor
@@ -63,10 +71,10 @@ def frozen(module: torch.nn.Module):
             p.requires_grad_(f)
 
 
-def pose_only(fn):
+def pose_only(fn: Callable[_P, _R]) -> Callable[_P, _R]:
     """Runs ``fn(model, ...)`` (the model first, or as ``model=``) with the model :func:`frozen`."""
     @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
+    def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> _R:
         model = args[0] if args else kwargs.get("model")
         if not isinstance(model, torch.nn.Module):
             return fn(*args, **kwargs)                  # fn's own error for a missing or bad model
@@ -153,7 +161,8 @@ def _primitive_mesh(kind: int, size: np.ndarray, n: int = 24) -> tuple[np.ndarra
     return v, f
 
 
-def sample_visual_surface(m: mujoco.MjModel, n: int, seed: int = 0):
+def sample_visual_surface(m: mujoco.MjModel, n: int,
+                          seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """``n`` points on the robot's visible geoms (meshes, and primitives tessellated by
     :func:`_primitive_mesh`), by area. Returns body (n,) int, points (n, 3) and normals (n, 3)
     in the body frame, rgb (n, 3) in [0, 1], and the area per point (m^2)."""
@@ -211,9 +220,9 @@ class GaussianRobot(torch.nn.Module):
     continuous: torch.Tensor
     canonical: torch.Tensor
 
-    def __init__(self, robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
-                 opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid", canonical=None,
-                 hidden: int = 64):
+    def __init__(self, robot: Robot, body: np.ndarray, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
+                 opacity_logits: np.ndarray, sh: np.ndarray, *, skinning: Skinning = "rigid",
+                 canonical: npt.ArrayLike | None = None, hidden: int = 64):
         super().__init__()
         if skinning not in get_args(Skinning):
             raise InputError(f"skinning must be 'rigid' or 'lbs'; got {skinning!r}")
@@ -251,8 +260,8 @@ class GaussianRobot(torch.nn.Module):
 
     # ---- construction ------------------------------------------------------------------------
     @classmethod
-    def from_robot(cls, robot, n: int = 8000, *, sh_degree: int = 1, skinning: Skinning = "rigid", opacity: float = 0.9,
-                   thickness: float = 0.2, seed: int = 0) -> "GaussianRobot":
+    def from_robot(cls, robot: Robot, n: int = 8000, *, sh_degree: int = 1, skinning: Skinning = "rigid",
+                   opacity: float = 0.9, thickness: float = 0.2, seed: int = 0) -> "GaussianRobot":
         """``n`` Gaussians on the robot's visual meshes. Each is a disc of standard deviation half
         the spacing of the samples (``sqrt(area / n)``) in the tangent plane, ``thickness`` times
         that along the normal. ``sh_degree`` 0, 1 or 2."""
@@ -306,7 +315,7 @@ class GaussianRobot(torch.nn.Module):
         mu_c = fk0.transform(self.body, self.means)[0]
         return torch.softmax(self.skin_mlp(mu_c) + 8.0 * onehot, dim=-1)
 
-    def world(self, theta) -> tuple[torch.Tensor, torch.Tensor]:
+    def world(self, theta: npt.ArrayLike) -> tuple[torch.Tensor, torch.Tensor]:
         """World means (B, N, 3) metres and the linear maps A (B, N, 3, 3) from each Gaussian's
         own frame to the world (covariance ``A S^2 A^T``)."""
         return self._world(self._check_theta(theta))
@@ -345,8 +354,9 @@ class GaussianRobot(torch.nn.Module):
         return (A * s2[:, None, :]) @ A.transpose(-1, -2)
 
     # ---- rendering -----------------------------------------------------------------------------
-    def render(self, theta, viewmats, Ks, width: int, height: int, *, background=None, cutoff: Cutoff = "soft",
-               backend: Backend = "auto", threads: int | None = None) -> RenderOut:
+    def render(self, theta: npt.ArrayLike, viewmats: npt.ArrayLike, Ks: npt.ArrayLike, width: int, height: int, *,
+               background: npt.ArrayLike | None = None, cutoff: Cutoff = "soft", backend: Backend = "auto",
+               threads: int | None = None) -> RenderOut:
         """Draw B poses ``theta`` (B, K) from C cameras (``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3)
         OpenCV, see :mod:`profrobot.render.cameras`). Outputs are (B*C, H, W, ...) pose-major.
         ``backend``, ``cutoff``, ``threads``: see :func:`profrobot.render.rasterize`."""
@@ -355,8 +365,8 @@ class GaussianRobot(torch.nn.Module):
         return self.render_unchecked(self._check_theta(theta), viewmats, Ks, width, height, background=background,
                             cutoff=cutoff, backend=backend, threads=threads, check=True)
 
-    def render_unchecked(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int,
-                         height: int, *, background=None, cutoff: Cutoff = "soft", backend: Backend = "auto",
+    def render_unchecked(self, theta: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
+                         *, background: npt.ArrayLike | None = None, cutoff: Cutoff = "soft", backend: Backend = "auto",
                          threads: int | None = None, check: bool = False) -> RenderOut:
         """:meth:`render` for inner loops whose inputs were validated once, at entry (``theta``
         (B, K), ``viewmats`` (C, 4, 4), ``Ks`` (C, 3, 3) tensors on the model's device, e.g. from
@@ -369,8 +379,8 @@ class GaussianRobot(torch.nn.Module):
             # (in each Gaussian's body frame) fused with rasterization, forward and backward;
             # the kernel checks its inputs (NaN/inf, shapes) whatever ``check`` says
             views = [(b, c) for b in range(B) for c in range(C)]
-            common = dict(opacities=op, sh=self.sh, viewmats=viewmats, Ks=Ks, background=background, cutoff=cutoff,
-                          threads=threads)
+            common: dict[str, Any] = dict(opacities=op, sh=self.sh, viewmats=viewmats, Ks=Ks, background=background,
+                                          cutoff=cutoff, threads=threads)
             if self.skin_mlp is None:
                 fk = self.kin.fast(theta)                  # FK with its backward in closed form
                 return render_native(views, width, height, body_rot=fk.rot, body_pos=fk.pos, body=self.body,
@@ -398,7 +408,7 @@ class GaussianRobot(torch.nn.Module):
                     Ks.repeat(B, 1, 1), width, height, background=background, cutoff=cutoff, backend=backend,
                     threads=threads)
 
-    def render_views(self, theta, cameras, **kw) -> RenderOut:
+    def render_views(self, theta: npt.ArrayLike, cameras: Cameras, **kw) -> RenderOut:
         """:meth:`render` with a :class:`profrobot.render.Cameras`."""
         return self.render(theta, cameras.world_to_cam, cameras.K, cameras.width, cameras.height, **kw)
 
@@ -409,7 +419,8 @@ class GaussianRobot(torch.nn.Module):
             setattr(self, name, torch.nn.Parameter(getattr(self, name).detach()[mask].clone()))
         self.body = self.body[mask]
 
-    def append(self, body, means, quats, log_scales, opacity_logits, sh) -> None:
+    def append(self, body: torch.Tensor, means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
+               opacity_logits: torch.Tensor, sh: torch.Tensor) -> None:
         """Add Gaussians (tensors shaped like the parameters)."""
         for name, v in (("means", means), ("quats", quats), ("log_scales", log_scales),
                         ("opacity_logits", opacity_logits), ("sh", sh)):
@@ -438,7 +449,7 @@ class GaussianRobot(torch.nn.Module):
         return Path(path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, robot) -> "GaussianRobot":
+    def load(cls, path: str | os.PathLike, robot: Robot) -> "GaussianRobot":
         """A model saved by :meth:`save`, for ``robot`` (refused if it was fitted to another)."""
         from safetensors import safe_open
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import zlib
 
 import numpy as np
+import numpy.typing as npt
 
 from ..files import atomic_path
 from ..errors import InputError
@@ -62,7 +63,7 @@ _RENDER_TINT = np.array([0, 255, 0], np.float64)      # the render's silhouette 
 _MASK_EDGE = np.array([255, 0, 255], np.uint8)        # the target mask's outline: magenta
 
 
-def _as_rgb8(img: np.ndarray, name: str) -> np.ndarray:
+def _as_rgb8(img: npt.ArrayLike, name: str) -> np.ndarray:
     a = np.asarray(img)
     if a.dtype == np.uint8:
         return a
@@ -78,7 +79,8 @@ def _edge(m: np.ndarray) -> np.ndarray:
     return m & ~inner
 
 
-def fit_mosaic(target, render, alpha, *, mask=None, gap: int = 2) -> np.ndarray:
+def fit_mosaic(target: npt.ArrayLike, render: npt.ArrayLike, alpha: npt.ArrayLike, *, mask: npt.ArrayLike | None = None,
+               gap: int = 2) -> np.ndarray:
     """The picture of a fit as an (V·H + (V-1)·gap, 3·W + 2·gap, 3) uint8 array: one row per
     view, ``target | render | overlay``, white gaps of ``gap`` pixels.
 
@@ -117,7 +119,8 @@ def fit_mosaic(target, render, alpha, *, mask=None, gap: int = 2) -> np.ndarray:
     return out
 
 
-def fit_picture(path: str | os.PathLike, target, render, alpha, *, mask=None, gap: int = 2) -> Path:
+def fit_picture(path: str | os.PathLike, target: npt.ArrayLike, render: npt.ArrayLike, alpha: npt.ArrayLike, *,
+                mask: npt.ArrayLike | None = None, gap: int = 2) -> Path:
     """Write :func:`fit_mosaic` (one row per view: target | render | overlay) as a PNG to
     ``path``, atomically; returns the path."""
     write_png(path, fit_mosaic(target, render, alpha, mask=mask, gap=gap))

@@ -11,20 +11,24 @@ from __future__ import annotations
 
 import copy
 import json
+from collections.abc import Mapping
+from typing import Any
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ..executors.base import on_release
 from ..gl import renderer as gl_renderer, uses_gl
 from ..errors import InputError
+from ..robot.robot import Robot
 from .cameras import Cameras, free_camera
 
 __all__ = ["robot_visual_model", "MjViews", "MjFrames", "render_views_chunk", "render_depth_chunk", "render_frames_chunk",
            "update_scene", "set_gl_camera", "release_renderers"]
 
 
-def robot_visual_model(robot) -> mujoco.MjModel:
+def robot_visual_model(robot: Robot) -> mujoco.MjModel:
     """A copy of the robot's model in which only the robot is drawn: world-body geoms (floor,
     obstacles) get alpha 0, which MuJoCo's scene builder skips."""
     m = copy.deepcopy(robot.mj_model)
@@ -61,7 +65,7 @@ class MjViews:
             self._r = gl_renderer(self.m, self.cams.height, self.cams.width)
         return self._r
 
-    def render(self, qpos: np.ndarray):
+    def render(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One pose (K,) over all C cameras → rgb (C,H,W,3) uint8, depth (C,H,W) metres (0 off the
         robot), mask (C,H,W) bool."""
         m, d, cams = self.m, self.d, self.cams
@@ -87,13 +91,13 @@ class MjViews:
         depth[~mask] = 0.0
         return rgb, depth, mask
 
-    def gl_camera(self, c: int):
+    def gl_camera(self, c: int) -> mujoco.MjvGLCamera:
         """MuJoCo's own (averaged) GL camera for camera ``c``: for checking :class:`Cameras`."""
         scn = mujoco.MjvScene(self.m, maxgeom=max(1, self.m.ngeom))
         update_scene(self.m, self.d, scn, self.cams, c)
         return mujoco.mjv_averageCamera(scn.camera[0], scn.camera[1])
 
-    def close(self):
+    def close(self) -> None:
         if self._r is not None:
             self._r.close()
             self._r = None
@@ -138,7 +142,8 @@ class MjFrames:
     lookat, distance, azimuth, elevation, or a one-camera :class:`Cameras` (drawn at ``size``
     through :meth:`Cameras.resized`)."""
 
-    def __init__(self, model: mujoco.MjModel, qpos_adr, size: tuple[int, int], camera):
+    def __init__(self, model: mujoco.MjModel, qpos_adr: npt.ArrayLike, size: tuple[int, int],
+                 camera: Cameras | Mapping[str, Any]):
         width, height = size
         if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
             model = copy.deepcopy(model)
@@ -165,7 +170,7 @@ class MjFrames:
             out.append(self.r.render())
         return np.stack(out)
 
-    def close(self):
+    def close(self) -> None:
         self.r.close()
 
 
@@ -179,7 +184,8 @@ _FRAMES: tuple[object, tuple, MjFrames] | None = None      # (robot, (size, came
 
 
 @uses_gl
-def render_views_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, stop: int):
+def render_views_chunk(robot: Robot, cameras: Cameras, qpos: np.ndarray, start: int,
+                       stop: int) -> tuple[np.ndarray, ...]:
     """Rows ``start:stop`` of ``qpos`` (P, nq: full MuJoCo qpos) rendered from ``cameras`` →
     ``(rgb, depth, mask)``, each stacked over the chunk's poses (see :meth:`MjViews.render`)."""
     global _VIEWS
@@ -194,7 +200,7 @@ def render_views_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, st
 
 
 @uses_gl
-def render_depth_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, stop: int) -> np.ndarray:
+def render_depth_chunk(robot: Robot, cameras: Cameras, qpos: np.ndarray, start: int, stop: int) -> np.ndarray:
     """Rows ``start:stop`` of ``qpos`` (P, nq) drawn with the whole scene (robot and obstacles)
     from ``cameras`` → depth (S, C, H, W) float32, metres along each camera's z axis, 0 where no
     geom is seen: what a depth camera in the scene would measure, noise-free."""
@@ -209,7 +215,8 @@ def render_depth_chunk(robot, cameras: Cameras, qpos: np.ndarray, start: int, st
 
 
 @uses_gl
-def render_frames_chunk(robot, poses: np.ndarray, size: tuple[int, int], camera) -> np.ndarray:
+def render_frames_chunk(robot: Robot, poses: np.ndarray, size: tuple[int, int],
+                        camera: Cameras | Mapping[str, Any]) -> np.ndarray:
     """``poses`` (S, K) drawn with the whole scene from one camera (a free camera's dict or a
     one-camera :class:`Cameras`, see :class:`MjFrames`) → (S, H, W, 3) uint8."""
     global _FRAMES

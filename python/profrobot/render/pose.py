@@ -11,7 +11,7 @@ depths ``D*`` (metres) and robot masks ``M*``:
 (:mod:`profrobot.render.targets`: pixels outside the mask, a photo's background, never pull).
 Adam on joints normalised to [-1, 1] over their
 limits (Dr. Robot: lr 0.02), projected back into joint space after each step (limited joints
-clamped, continuous hinges wrapped: :class:`profrobot.joints.Limits`), learning rate decayed
+clamped, continuous hinges wrapped: :class:`profrobot.kinematics.limits.Limits`), learning rate decayed
 ten-fold (cosine); restarts perturb the start and keep the best final loss. Inputs are
 validated once, at entry: the loop itself makes no host syncs.
 
@@ -29,16 +29,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import torch
-from tqdm.auto import tqdm
 
 from ..kinematics.limits import Limits
 from .gaussians import GaussianRobot, pose_only
 from .targets import ImageTargets, as_pinhole_targets, pose_loss
 from .cameras import Cameras
 from ..errors import InputError
+from ..executors.progress import progress_bar
 from ..robot.gate import positive
 
 __all__ = ["fit_pose", "PoseFit", "pose_loss", "downsample_targets", "ImageTargets", "rigid_motions"]
@@ -150,7 +152,7 @@ def _refine(model, tg: ImageTargets, theta0: torch.Tensor, opts: dict, extra_los
     opt = torch.optim.Adam([dict(params=[u], lr=rates[0]), dict(params=[w], lr=rates[1]),
                             dict(params=[tau], lr=rates[2])], eps=1e-8)
     n = opts["iterations"]
-    for it in tqdm(range(n), desc="fit pose + cameras", unit="step", disable=None if progress else True, leave=False):
+    for it in progress_bar(iterable=range(n), desc="fit pose + cameras", unit="step", progress=progress, leave=False):
         for group, lr in zip(opt.param_groups, rates):
             group["lr"] = _cosine(lr, it, n)
         theta = limits.denormalise(u)
@@ -195,9 +197,9 @@ def _coarse_to_fine(model, targets, cameras, init, coarse, **fine) -> PoseFit:
 
 
 @pose_only
-def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, iterations: int = 100, lr: float = 0.02,
-             restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
-             extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background=None,
+def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init: npt.ArrayLike, *, iterations: int = 100,
+             lr: float = 0.02, restarts: int = 0, restart_sigma: float = 0.3, w_depth: float = 1.0, w_mask: float = 0.5,
+             extra_loss: Callable[[torch.Tensor], torch.Tensor] | None = None, background: npt.ArrayLike | None = None,
              seed: int = 0, coarse: dict | None = None, refine_cameras: bool | dict = False,
              progress: bool = False) -> PoseFit:
     """Recover joint angles from multi-view images.
@@ -240,8 +242,9 @@ def fit_pose(model: GaussianRobot, targets: dict, cameras: Cameras, init, *, ite
     refine = _refine_options(refine_cameras)
     given = cameras
     targets, cameras = as_pinhole_targets(targets, cameras, init.shape[0], "fit_pose")
-    kw = dict(iterations=iterations, lr=lr, restarts=restarts, restart_sigma=restart_sigma, w_depth=w_depth,
-              w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed, progress=progress)
+    kw: dict[str, Any] = dict(iterations=iterations, lr=lr, restarts=restarts, restart_sigma=restart_sigma,
+                              w_depth=w_depth, w_mask=w_mask, extra_loss=extra_loss, background=background, seed=seed,
+                              progress=progress)
     if coarse is not None:
         # the restarts are chosen in the cheap coarse stage; the fine stage starts from its best
         coarse = {"restarts": restarts, "restart_sigma": restart_sigma} | dict(coarse)
@@ -294,8 +297,8 @@ def _fit(model: GaussianRobot, targets: dict, cameras: Cameras, init: torch.Tens
     opt = torch.optim.Adam([u], lr=lr, eps=1e-8)
     tr = tg.take(torch.arange(B, device=dev).repeat_interleave(R))  # (B·R) targets: one per start
     hist = []
-    bar = tqdm(range(iterations), desc=f"fit pose {cameras.width}x{cameras.height}", unit="step", disable=None if progress else True,
-               leave=False)
+    bar = progress_bar(iterable=range(iterations), desc=f"fit pose {cameras.width}x{cameras.height}", unit="step",
+                       progress=progress, leave=False)
     for it in bar:
         opt.param_groups[0]["lr"] = _cosine(lr, it, iterations)       # to lr/10
         theta = limits.denormalise(u)

@@ -17,7 +17,7 @@ where alpha >= 1/255, then the alpha and transmittance tests of 3DGS: alpha >= 1
 stops once T would fall below 1e-4), and only those pairs are differentiated.
 
 Backends: ``"rust"`` (the CPU default) runs steps 1–4 and their backward in the Rust core
-(``rust/render.rs``: projection and SH colour, ``rust/splat.rs``: a tile rasterizer with
+(``rust/bindings/render.rs``: projection and SH colour, ``rust/render/splat.rs``: a tile rasterizer with
 per-tile depth-sorted lists, the same compositing rules, every composited pair recorded for its
 exact backward), in float32 for float32 tensors, float64 otherwise, as one
 ``torch.autograd.Function`` (:class:`_Render`) whose gradients reach the 3D means and
@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from ..errors import BackendUnavailableError, InputError, InputTypeError
 
@@ -284,7 +285,7 @@ def _rasterize_torch(means, covs, opacities, colors, viewmats, Ks, width, height
 
 
 class _Render(torch.autograd.Function):
-    """The native renderer (``rust/render.rs``) as one autograd node: EWA projection, colour
+    """The native renderer (``rust/bindings/render.rs``) as one autograd node: EWA projection, colour
     (SH or given), tile rasterization, and the fused backward of all three.
 
     forward(spec, *tensors): ``spec = (names, views, width, height, cutoff, threads, finish,
@@ -498,8 +499,10 @@ def native_backend(backend: Backend, device) -> bool:
     return backend == "rust" or (backend == "auto" and not _gsplat_available(device))
 
 
-def rasterize(means, covs, opacities, colors, viewmats, Ks, width: int, height: int, *, background=None,
-              cutoff: Cutoff = "soft", backend: Backend = "auto", threads: int | None = None) -> RenderOut:
+def rasterize(means: torch.Tensor, covs: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
+              viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, *,
+              background: npt.ArrayLike | None = None, cutoff: Cutoff = "soft", backend: Backend = "auto",
+              threads: int | None = None) -> RenderOut:
     """Render Gaussians from C cameras.
 
     means (N, 3) or (C, N, 3) world metres; covs (N, 3, 3) or (C, N, 3, 3) world covariances

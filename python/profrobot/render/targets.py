@@ -26,10 +26,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from ..errors import InputError
 from .cameras import Cameras
+from .gaussians import GaussianRobot
+from .rasterize import RenderOut
 from .distortion import undistort_images, undistort_map
 
 __all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
@@ -41,7 +44,7 @@ def _np(t: torch.Tensor) -> np.ndarray:
 
 
 class _ImageLoss(torch.autograd.Function):
-    """:func:`pose_loss` on CPU tensors in one native pass each way (``rust/images.rs``; the
+    """:func:`pose_loss` on CPU tensors in one native pass each way (``rust/bindings/images.rs``; the
     same formula, term for term): forward(rgb [N, H, W, 3], alpha [N, H, W], depth [N, H, W],
     rgb_t, depth_t, mask_t, valid, w_depth, w_mask) -> [N]; gradients reach rgb, alpha and
     depth."""
@@ -91,13 +94,13 @@ def _native_loss(out, rgb_t, depth_t, mask_t, valid, w_depth, w_mask) -> bool:
             and all(t.dtype == torch.bool for t in ts[2:]))
 
 
-def pose_loss(out, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
+def pose_loss(out: RenderOut, rgb_t: torch.Tensor, depth_t: torch.Tensor, mask_t: torch.Tensor, *, w_depth: float = 1.0,
               w_mask: float = 0.5, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Per-image loss (N,) of renders ``out`` (a :class:`~profrobot.render.RenderOut` of N images)
     against targets ``rgb_t`` (N, H, W, 3) in [0, 1], ``depth_t`` (N, H, W) metres, ``mask_t``
     (N, H, W) bool (module docs); ``valid`` (N, H, W) bool: pixels the photo saw (after
     undistortion, a lens may leave corners unseen), the only ones the silhouette term counts.
-    On the CPU one native pass each way (``rust/images.rs``), elsewhere torch; the same
+    On the CPU one native pass each way (``rust/bindings/images.rs``), elsewhere torch; the same
     formula."""
     if _native_loss(out, rgb_t, depth_t, mask_t, valid, w_depth, w_mask):
         return _ImageLoss.apply(out.rgb, out.alpha, out.depth, rgb_t, depth_t, mask_t, valid, w_depth, w_mask)
@@ -229,8 +232,9 @@ class ImageTargets:
     valid: torch.Tensor | None = None
 
     @classmethod
-    def from_images(cls, targets: dict, cameras, B: int, *, device=None, background=None, w_depth: float = 1.0,
-                    w_mask: float = 0.5, who: str = "targets") -> "ImageTargets":
+    def from_images(cls, targets: dict, cameras: Cameras, B: int, *, device: torch.device | str | None = None,
+                    background: npt.ArrayLike | None = None, w_depth: float = 1.0, w_mask: float = 0.5,
+                    who: str = "targets") -> "ImageTargets":
         """``targets``: dict of ``rgb`` (B, C, H, W, 3) uint8 or [0, 1], and ``mask`` (B, C, H, W)
         bool and/or ``depth`` (B, C, H, W) metres, optionally ``weights`` (C,) or (B, C) (the
         leading B may be left out when B == 1; :func:`as_pinhole_targets`); ``cameras``: the C
@@ -263,7 +267,7 @@ class ImageTargets:
         """B, the number of targets."""
         return self.rgb.shape[0] // self.cameras
 
-    def take(self, rows) -> "ImageTargets":
+    def take(self, rows: npt.ArrayLike) -> "ImageTargets":
         """The targets ``rows`` (R,) (repeats allowed, e.g. one per restart), gathered once."""
         C = self.cameras
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.rgb.device).reshape(-1)
@@ -276,14 +280,15 @@ class ImageTargets:
         """(B·C,) per-view weights (ones unless given)."""
         return self.weights if self.weights is not None else torch.ones(self.rgb.shape[0], device=self.rgb.device)
 
-    def render(self, model, theta: torch.Tensor, viewmats: torch.Tensor | None = None):
+    def render(self, model: GaussianRobot, theta: torch.Tensor, viewmats: torch.Tensor | None = None) -> RenderOut:
         """``model`` (a :class:`~profrobot.render.GaussianRobot`) drawn at ``theta`` (R, K) from
         these cameras (or from ``viewmats`` (C, 4, 4), e.g. refined ones, differentiably): a
         RenderOut of R·C images, pose-major."""
         return model.render_unchecked(theta, self.viewmats if viewmats is None else viewmats, self.Ks, self.width,
                                       self.height, background=self.background)
 
-    def losses(self, model, theta: torch.Tensor, rows=None, viewmats: torch.Tensor | None = None) -> torch.Tensor:
+    def losses(self, model: GaussianRobot, theta: torch.Tensor, rows: npt.ArrayLike | None = None,
+               viewmats: torch.Tensor | None = None) -> torch.Tensor:
         """(R,) image loss of poses ``theta`` (R, K) against targets ``rows`` (R,) (default: all
         B, in order), each the weighted mean over the C views; ``viewmats`` as in :meth:`render`."""
         tg = self if rows is None else self.take(rows)

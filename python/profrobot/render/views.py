@@ -14,11 +14,13 @@ from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CorruptFileError, InputError, InputTypeError
-from ..executors import chunk_bounds, chunk_sizes, check_executor
+from ..executors import Executor, chunk_bounds, chunk_sizes, check_executor
 from ..files import atomic_path, check_format, check_robot, format_tag
 from .cameras import Cameras, ring_cameras, sphere_cameras  # noqa: F401  (their home before the split)
+from ..robot.robot import Robot
 from .mjviews import render_depth_chunk, render_views_chunk, robot_visual_model
 
 __all__ = ["Views", "make_views", "render_depth", "robot_visual_model"]
@@ -69,7 +71,7 @@ class Views:
         return Path(path)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, robot=None) -> "Views":
+    def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "Views":
         """Load a view set saved by :meth:`save`; with ``robot``, refuse one rendered from another
         robot. A newer or foreign file raises :class:`~profrobot.errors.CorruptFileError`."""
         try:
@@ -89,8 +91,8 @@ class Views:
         return v
 
 
-def make_views(robot, poses, cameras: Cameras, size: int | None = None, *, processes: int = 1,
-               progress: bool = True, chunk: int = 8, executor=None) -> Views:
+def make_views(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, size: int | None = None, *, processes: int = 1,
+               progress: bool = True, chunk: int = 8, executor: Executor | None = None) -> Views:
     """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo, offscreen. Only the
     robot is drawn (world-body geoms are hidden); the background is MuJoCo's clear colour (black).
 
@@ -138,8 +140,8 @@ def _render_chunks(fn, robot, poses: np.ndarray, cameras: Cameras, executor, pro
                         desc=desc, unit="pose", progress=progress)
 
 
-def render_depth(robot, poses, cameras: Cameras, *, processes: int = 1, progress: bool = False, chunk: int = 8,
-                 executor=None) -> np.ndarray:
+def render_depth(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, *, processes: int = 1, progress: bool = False,
+                 chunk: int = 8, executor: Executor | None = None) -> np.ndarray:
     """Depth images (P, C, H, W) float32 of the whole scene (robot and obstacles; a family's at
     each pose's scene joints) at ``poses`` (P, K) from ``cameras``: metres along each camera's z
     axis, 0 where no geom is seen. Rendered by MuJoCo like :func:`make_views` (same executors,

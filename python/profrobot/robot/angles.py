@@ -1,6 +1,6 @@
 """The one angle wrap of the Python side: continuous hinges (SO(2)) are wrapped, and shortest-arc
 differences taken, by :func:`wrap`, the twin of the Rust core's ``angles::wrap``
-(``rust/angles.rs``) that :func:`profrobot.interpolate` and :func:`profrobot.plan_path` use.
+(``rust/joints/angles.rs``) that :func:`profrobot.interpolate` and :func:`profrobot.plan_path` use.
 The two agree bit for bit (``tests/test_wrapping.py``).
 
 Semantics (radians, float64):
@@ -15,7 +15,7 @@ Semantics (radians, float64):
 - NaN and infinities give NaN.
 
 numpy only (a base-layer module: no torch, no profrobot import). The torch twin used by
-:class:`profrobot.joints.Limits` is the same formula (``joints._wrap``).
+:class:`profrobot.kinematics.limits.Limits` is the same formula (``joints._wrap``).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["wrap", "unwrap"]
 
@@ -30,7 +31,7 @@ PI = math.pi  # the same double as Rust's std::f64::consts::PI
 TAU = 2 * math.pi  # exact: Rust's TAU
 
 
-def wrap(x):
+def wrap(x: npt.ArrayLike) -> float | np.ndarray:
     """``x`` (a float or an array of any shape) wrapped into ``[-pi, pi)`` (see the module docs);
     a float for a Python or numpy scalar, a float64 array otherwise."""
     a = np.asarray(x, dtype=np.float64)
@@ -42,7 +43,7 @@ def wrap(x):
     return float(out) if out.ndim == 0 else out
 
 
-def unwrap(path, axis: int = -2) -> np.ndarray:
+def unwrap(path: npt.ArrayLike, axis: int = -2) -> np.ndarray:
     """Angles along ``axis`` of ``path`` made continuous: each step becomes its shortest arc,
     ``wrap(step)`` (``numpy.unwrap`` with this module's ``wrap``, so a step of exactly half a turn
     moves the negative way, as :func:`profrobot.interpolate` moves it, where ``numpy.unwrap``

@@ -211,7 +211,7 @@ class JointCouplings:
         return all(not np.any(a[2:]) for _, _, a, _, _, _ in self.rows)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The couplings for the Rust core (``rust/couplings.rs``): ``eq_dep`` (E,) uint32,
+        """The couplings for the Rust core (``rust/joints/couplings.rs``): ``eq_dep`` (E,) uint32,
         ``eq_indep`` (E,) int32 (-1: locked), ``eq_coef`` (E, 5), ``eq_origin`` (E, 2) float64."""
         rows = self.rows
         return dict(eq_dep=np.array([r[0] for r in rows], dtype=np.uint32),

@@ -18,15 +18,22 @@ This module edits ``mujoco.MjSpec`` objects only; :class:`profrobot.Robot` uses 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
-__all__ = ["Moves", "SCENE_JOINTS_TEXT"]
+__all__ = ["Moves", "SCENE_JOINTS_TEXT", "Layout"]
+
+#: a family's layout δ as the entry points take it (``layout=``): an array (D,) in
+#: ``robot.scene_joints`` order (radians / metres), one per pose (B, D) where an entry point says
+#: so, or ``{scene joint: value}``; exported as :data:`profrobot.robot.gate.Layout`
+Layout: TypeAlias = "npt.ArrayLike | Mapping[str, float]"
 
 #: the name of the MJCF custom text that lists a family's scene joints (space-separated)
 SCENE_JOINTS_TEXT = "profrobot:scene_joints"

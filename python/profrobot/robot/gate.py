@@ -25,14 +25,16 @@ from numbers import Integral, Real
 from typing import Any, Literal, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from .._core import first_bad_entries
 from ..errors import InputError, InputTypeError
+from .family import Layout
 from .margin import CLEARANCE
 from .robot import Robot
 
 __all__ = ["robot_at", "with_layout", "as_poses", "poses_within_limits", "positive", "finite", "count", "seed",
-           "threads", "memory", "available_bytes", "with_margin", "CLEARANCE"]
+           "threads", "memory", "available_bytes", "with_margin", "CLEARANCE", "Layout"]
 
 
 def _is_number(value) -> bool:
@@ -54,14 +56,14 @@ def positive(name: str, value: Any, *, integer: bool = False, allow_zero: bool =
     return int(value) if integer else float(value)
 
 
-def finite(name: str, value) -> float:
+def finite(name: str, value: Any) -> float:
     """Any finite real number."""
     if not _is_number(value) or not math.isfinite(value):
         raise InputError(f"{name} must be a finite number; got {value!r}")
     return float(value)
 
 
-def count(name: str, value, low: int = 1, why: str = "") -> int:
+def count(name: str, value: Any, low: int = 1, why: str = "") -> int:
     """An integer (not a bool, not a float) >= ``low``; ``why`` is added to the message."""
     if isinstance(value, bool) or not isinstance(value, Integral) or value < low:
         what = "a positive integer" if low == 1 else f"an integer >= {low}"
@@ -100,14 +102,14 @@ def memory(name: str, *dims: int, itemsize: int = 8) -> None:
                          f"{need / 1e9:.3g} GB, and {have / 1e9:.3g} GB of memory is available")
 
 
-def seed(value, name: str = "seed") -> int:
+def seed(value: Any, name: str = "seed") -> int:
     """A seed for the Rust samplers: an integer in [0, 2**64)."""
     if isinstance(value, bool) or not isinstance(value, Integral) or not 0 <= int(value) < 2**64:
         raise InputError(f"{name} must be an integer in [0, 2**64); got {value!r}")
     return int(value)
 
 
-def threads(value) -> int | None:
+def threads(value: Any) -> int | None:
     """None (every core) or a positive thread count."""
     if value is None:
         return None
@@ -116,7 +118,7 @@ def threads(value) -> int | None:
     return int(value)
 
 
-def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool = False,
+def as_poses(robot: "Robot", poses: npt.ArrayLike, *, name: str = "poses", check_limits: bool = False,
              atol: float = 1e-9) -> np.ndarray:
     """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
 
@@ -164,7 +166,7 @@ def as_poses(robot: "Robot", poses, *, name: str = "poses", check_limits: bool =
     return arr
 
 
-def _robot(robot) -> Robot:
+def _robot(robot: object) -> Robot:
     if not isinstance(robot, Robot):
         raise InputTypeError(f"robot must be a profrobot.Robot; got {type(robot).__name__}")
     return robot
@@ -176,7 +178,8 @@ def _family_needs_layout(robot: Robot) -> InputError:
                       f"{', '.join(robot.scene_joints)}): pass layout=δ, the layout to work at, or pin it first, robot.at(δ)")
 
 
-def robot_at(robot, *, layout=None, margin: float = CLEARANCE, family: bool = False) -> Robot:
+def robot_at(robot: Robot, *, layout: Layout | None = None, margin: float = CLEARANCE,
+             family: bool = False) -> Robot:
     """The robot an entry point answers on: ``robot`` checked, a family pinned at ``layout``
     (``robot.at(layout)``: the poses are then its θ), ``margin`` metres kept from every obstacle.
 
@@ -193,7 +196,8 @@ def robot_at(robot, *, layout=None, margin: float = CLEARANCE, family: bool = Fa
     return robot.with_margin(margin)
 
 
-def with_layout(robot: Robot, poses, layout, name: str = "poses"):
+def with_layout(robot: Robot, poses: npt.ArrayLike, layout: Layout | None,
+                name: str = "poses") -> npt.ArrayLike:
     """The labeller's full pose vectors: ``poses`` as given, or, with ``layout=δ`` (a family's
     layout, (D,), a dict, or one per pose (B, D)), robot poses θ (B, K − D) composed with it
     (:meth:`Robot.compose`). A family's θ without ``layout`` is refused naming both ways."""
@@ -218,12 +222,12 @@ def with_layout(robot: Robot, poses, layout, name: str = "poses"):
     return poses
 
 
-def poses_within_limits(robot: "Robot", poses, name: str = "poses") -> np.ndarray:
+def poses_within_limits(robot: "Robot", poses: npt.ArrayLike, name: str = "poses") -> np.ndarray:
     """:func:`as_poses` with the joint limits checked to 1e-6 (float32 round trips from torch)."""
     return as_poses(robot, poses, name=name, check_limits=True, atol=1e-6)
 
 
-def with_margin(robot, margin) -> Robot:
+def with_margin(robot: Robot, margin: float) -> Robot:
     """``robot`` with a safety margin of ``margin`` metres around its obstacles
     (:meth:`Robot.with_margin`, :mod:`profrobot.robot.margin`): what every entry point labels and
     certifies on. ``margin`` at most ``CLEARANCE`` is ``robot`` itself."""

@@ -3,7 +3,7 @@ URDF file (with a MoveIt SRDF or an automatic collision matrix), an ``MjSpec`` o
 ``MjModel``; and the collision report that says which pairs were disabled and why.
 
 The file-based constructors (Menagerie, MJCF, URDF) record the robot's source
-(:mod:`profrobot.sources`: the files' bytes), so that a pickle rebuilds its editable spec exactly;
+(:mod:`profrobot.robot.sources`: the files' bytes), so that a pickle rebuilds its editable spec exactly;
 ``from_spec`` keeps the spec itself (its pickle carries the compiled model too) and
 ``from_model`` none (obstacles cannot be added to it). Base layer: no torch.
 """

@@ -7,7 +7,7 @@ pair as in contact when its signed distance is below its margin, so on that robo
 
 - a pose is *certified* only if every robot–obstacle pair is at least ``margin`` apart (and every
   pair more than :data:`CLEARANCE`), and a motion only if that holds at every
-  state of it (the continuous certificate of :mod:`profrobot.certification`);
+  state of it (the continuous certificate of :mod:`profrobot.exact.certification`);
 - self pairs (robot–robot) keep their own margins: the margin is about where the obstacles are,
   and the robot's own geometry is known.
 
@@ -20,7 +20,7 @@ solid: ``e ≤ |t| + 2 r sin(|φ|/2)``), then for any robot geom ``G``
 
 so a pose or motion certified with ``margin`` is free at the true layout. **What it assumes:** the
 error bound ``e < margin`` holds for every obstacle (an estimate's :attr:`margin
-<profrobot.layouts.LayoutEstimate.margin>` is a bound with high probability under its noise
+<profrobot.perception.layouts.LayoutEstimate.margin>` is a bound with high probability under its noise
 model, not a certainty), the obstacles are the shapes the model says, and what the model does not
 contain (clutter nobody modelled) is not covered at all.
 
@@ -32,6 +32,7 @@ bodies of a family's scene joints (pinned or not). The robot's fixed base is rob
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import mujoco
@@ -41,7 +42,7 @@ from ..errors import InputError
 from .family import spec_scene_joints
 
 #: metres: the least distance every candidate pair keeps in a certified pose (what it means:
-#: :mod:`profrobot.certification`, which re-exports it, as :mod:`profrobot.robot` does).
+#: :mod:`profrobot.exact.certification`, which re-exports it, as :mod:`profrobot.robot` does).
 CLEARANCE = 1e-6
 
 __all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN", "CLEARANCE"]
@@ -50,7 +51,7 @@ __all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN", "C
 MAX_MARGIN = 0.25
 
 
-def check_margin(margin, who: str = "margin") -> float:
+def check_margin(margin: float, who: str = "margin") -> float:
     """``margin`` as a float in [0, :data:`MAX_MARGIN`] metres, else :class:`InputError` naming it."""
     try:
         m = float(margin)
@@ -64,7 +65,7 @@ def check_margin(margin, who: str = "margin") -> float:
     return m
 
 
-def obstacle_bodies(m: mujoco.MjModel, scene_joints) -> np.ndarray:
+def obstacle_bodies(m: mujoco.MjModel, scene_joints: Iterable[str]) -> np.ndarray:
     """(nbody,) bool: the model's obstacle bodies. A body is the robot's when a robot joint (any
     joint not in ``scene_joints``) moves it (on itself or an ancestor) or sits below it (its
     fixed base); every other body, the world body included, holds obstacles."""

@@ -1,5 +1,5 @@
 """Obstacles for a robot's scene: geoms added to its ``mujoco.MjSpec`` (then recompiled), fixed to
-the world or moving on scene joints (:class:`~profrobot.family.Moves`). Positions in metres,
+the world or moving on scene joints (:class:`~profrobot.robot.family.Moves`). Positions in metres,
 quaternions (w, x, y, z)."""
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ __all__ = ["Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh"]
 class Obstacle(abc.ABC):
     """A geom of the scene. Positions in metres, quaternions (w, x, y, z).
 
-    Fixed to the world, unless ``moves`` (:class:`~profrobot.family.Moves`) says how it moves
+    Fixed to the world, unless ``moves`` (:class:`~profrobot.robot.family.Moves`) says how it moves
     within a family of scenes: then it sits on scene joints named after it (``name`` required),
-    see :mod:`profrobot.family`."""
+    see :mod:`profrobot.robot.family`."""
 
     pos: Sequence[float]
     quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)

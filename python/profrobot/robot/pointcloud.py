@@ -3,7 +3,7 @@
 A :class:`PointCloud` is the union of balls (centre, radius) fixed in the world frame: points in
 metres, each with the sensor's resolution as its radius. :meth:`profrobot.Robot.with_points` (or a
 ``PointCloud`` in :meth:`~profrobot.Robot.with_obstacles`) makes it an obstacle of the scene, labelled
-exactly in the Rust core (``rust/cloud.rs``: the balls in a tree, each robot geom's exact signed
+exactly in the Rust core (``rust/geometry/cloud.rs``: the balls in a tree, each robot geom's exact signed
 distance to them), so :func:`~profrobot.label_poses`, :func:`~profrobot.collides`,
 :func:`~profrobot.certify_poses`, :func:`~profrobot.certify_motions`, :func:`~profrobot.plan_path`,
 :func:`~profrobot.nearest_free` and ``resolve(sdf=None)`` all see it. A robot–ball pair is in
@@ -16,7 +16,7 @@ The MuJoCo reference places the same balls as sphere geoms on the world body
 
 What a cloud covers: what the sensor saw. A path certified against it keeps clear of every ball,
 so of every surface point the cameras saw (within the balls' radii); space no camera saw is free
-to it. From depth images: :func:`profrobot.clouds.cloud_from_depth` (back-projection, the robot's
+to it. From depth images: :func:`profrobot.perception.clouds.cloud_from_depth` (back-projection, the robot's
 own points removed, conservative voxel downsampling).
 """
 
@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import hashlib
 import math
+from typing import Protocol
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from .. import _core
 from ..errors import ImmutableError, InputError, InputTypeError
@@ -35,6 +37,22 @@ __all__ = ["PointCloud", "reference_model", "cloud_geom_ids", "robot_geom_ids", 
 
 #: the MuJoCo geom id a point cloud has in ``Robot.pair_geoms`` (it is not one MuJoCo geom)
 CLOUD_GEOM_ID = -1
+
+
+class CloudScene(Protocol):
+    """What :func:`reference_model` and its id maps read of a :class:`~profrobot.Robot` (this
+    module sits below ``Robot``, which builds on it)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def margin(self) -> float: ...
+    @property
+    def cloud(self) -> "PointCloud | None": ...
+    @property
+    def mj_model(self) -> mujoco.MjModel: ...
+    @property
+    def spec(self) -> mujoco.MjSpec | None: ...
 
 
 def _radius_value(radius, n: int) -> np.ndarray:
@@ -68,7 +86,7 @@ class PointCloud:
     radius: np.ndarray
     _fingerprint: str | None
 
-    def __init__(self, points, radius=0.005):
+    def __init__(self, points: npt.ArrayLike, radius: npt.ArrayLike = 0.005):
         try:
             p = np.array(points, dtype=np.float64)
         except (TypeError, ValueError):
@@ -135,7 +153,7 @@ class PointCloud:
         (metres) their centre lies in, each group replaced by one ball about its mean centre that
         reaches every ball of the group (radius ``max |c_i − mean| + r_i``), so every removed ball
         lies inside a kept one: a pose free of the result is free of this cloud. Groups keep the
-        order of their first ball (deterministic). ``rust/cloud.rs``."""
+        order of their first ball (deterministic). ``rust/geometry/cloud.rs``."""
         v = float(voxel) if isinstance(voxel, (int, float)) and not isinstance(voxel, bool) else float("nan")
         if not (math.isfinite(v) and v > 0):
             raise InputError(f"voxel must be a positive number of metres; got {voxel!r}")
@@ -145,7 +163,7 @@ class PointCloud:
         return PointCloud(p, r)
 
     def core_arrays(self, margin: float = 0.0) -> dict:
-        """The ``cloud_*`` entries of a robot's core arrays (``rust/desc.rs``: ``CloudDesc``): the
+        """The ``cloud_*`` entries of a robot's core arrays (``rust/model/desc.rs``: ``CloudDesc``): the
         balls, their geom ``margin`` and MuJoCo's default contact filter (contype = conaffinity = 1)."""
         return dict(cloud_points=np.ascontiguousarray(self.points), cloud_radius=np.ascontiguousarray(self.radius),
                     cloud_margin=float(margin), cloud_contype=1, cloud_conaffinity=1)
@@ -161,7 +179,7 @@ class PointCloud:
                           rgba=[0.9, 0.5, 0.1, 1.0])
 
 
-def reference_model(robot) -> mujoco.MjModel:
+def reference_model(robot: CloudScene) -> mujoco.MjModel:
     """The MuJoCo model the labels of ``robot`` are checked against: its own, plus its point
     cloud's balls as sphere geoms (:meth:`PointCloud.add_to`) when it has one. Compiled once per
     robot (kept off its pickles); the geoms ``profrobot_cloud_<i>`` are what :func:`cloud_geom_ids` names."""
@@ -193,14 +211,15 @@ def reference_model(robot) -> mujoco.MjModel:
     return model
 
 
-def cloud_geom_ids(robot) -> np.ndarray:
+def cloud_geom_ids(robot: CloudScene) -> np.ndarray:
     """The MuJoCo geom ids of the cloud's balls in :func:`reference_model` (empty without a cloud)."""
-    if getattr(robot, "cloud", None) is None or not len(robot.cloud):
+    cloud = getattr(robot, "cloud", None)
+    if cloud is None or not len(cloud):
         return np.zeros(0, dtype=np.int64)
     return np.flatnonzero(robot_geom_ids(robot) == CLOUD_GEOM_ID)
 
 
-def robot_geom_ids(robot) -> np.ndarray:
+def robot_geom_ids(robot: CloudScene) -> np.ndarray:
     """Per geom of :func:`reference_model`: its id in ``robot.mj_model``, :data:`CLOUD_GEOM_ID` for
     a ball of the cloud (the identity without a cloud)."""
     model = reference_model(robot)

@@ -2,12 +2,12 @@
 arrays the Rust core (`profrobot._core.RobotModel`) labels with.
 
 One description feeds every back end: the arrays are copied from MuJoCo's *compiled* model
-(``mjModel``, :mod:`profrobot.model_arrays`), never re-parsed from XML, so bodies, hulls and
+(``mjModel``, :mod:`profrobot.robot.arrays`), never re-parsed from XML, so bodies, hulls and
 filters are MuJoCo's own.
 
 :class:`Robot` is built here from its seams: its constructors and collision report
-(:mod:`profrobot.robot_loading`), scene joints, layouts and margins (:mod:`profrobot.robot_family`),
-pickling and copies (:mod:`profrobot.robot_state`); what stays here is the scene itself, its
+(:mod:`profrobot.robot.loading`), scene joints, layouts and margins (:mod:`profrobot.robot.layouts`),
+pickling and copies (:mod:`profrobot.robot.state`); what stays here is the scene itself, its
 obstacles and point cloud, and its joints. A Robot pickles (multiprocessing, DataLoader workers,
 Ray, ``torch.save``) and deep-copies; see :meth:`Robot.__getstate__` for what a pickle carries.
 """
@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from .. import _core
+from .family import Layout
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 from ..errors import InputError, InputTypeError
 from . import layouts as _layouts
@@ -48,7 +50,7 @@ class Robot:
     slides in metres); free and ball joints are rejected. Static obstacles are the world-body
     geoms of the model (and those added with :meth:`with_obstacles`).
 
-    A *family of scenes* (:mod:`profrobot.family`) also has scene joints, the joints that move
+    A *family of scenes* (:mod:`profrobot.robot.family`) also has scene joints, the joints that move
     obstacles (``scene_joints``; ``scene_index`` / ``robot_index`` split the pose vector into δ and
     θ): built by ``with_obstacles`` with ``moves=``, :meth:`with_scene_joints`, or an MJCF that
     names them. :meth:`at` pins a layout δ into an ordinary static scene.
@@ -64,7 +66,7 @@ class Robot:
     #: ``srdf=`` / ``collision_matrix="auto"``), applied as MuJoCo ``<exclude>``s: (body1, body2, reason)
     disabled_pairs: tuple = ()
     _collision_notes: str = ""
-    #: the joints that move obstacles (a family of scenes, :mod:`profrobot.family`); () otherwise
+    #: the joints that move obstacles (a family of scenes, :mod:`profrobot.robot.family`); () otherwise
     scene_joints: tuple = ()
     #: for a layout made by :meth:`at`: the family's scene-joint values (D,) and fingerprint
     layout: np.ndarray | None = None
@@ -72,7 +74,7 @@ class Robot:
     #: metres: the safety margin every obstacle geom has at least (:meth:`with_margin`); 0 for the
     #: model's own margins
     margin: float = 0.0
-    #: the point-cloud obstacle (:meth:`with_points`, :mod:`profrobot.pointcloud`), or None
+    #: the point-cloud obstacle (:meth:`with_points`, :mod:`profrobot.robot.pointcloud`), or None
     cloud: PointCloud | None = None
 
     def __init__(self, model: mujoco.MjModel, *, name: str = "robot", spec: mujoco.MjSpec | None = None):
@@ -139,7 +141,7 @@ class Robot:
         ``<robot>`` root) goes to :meth:`from_urdf` with these options.
 
         Collisions as :meth:`from_urdf`: the model's own pairs by default, with a
-        :class:`profrobot.urdf.CollisionWarning` naming the body pairs that collide in >= 99 % of
+        :class:`profrobot.robot.urdf.CollisionWarning` naming the body pairs that collide in >= 99 % of
         2000 seeded uniform poses (a base overlapping the shoulder makes every pose "collide");
         ``srdf=`` disables a MoveIt SRDF's ``<disable_collisions>`` pairs, ``collision_matrix=
         "auto"`` the always-colliding pairs and the adjacent ones that ever touch (never a pair
@@ -149,7 +151,9 @@ class Robot:
         return _loading.from_mjcf(cls, path, srdf=srdf, collision_matrix=collision_matrix)
 
     @classmethod
-    def from_urdf(cls, path: str | os.PathLike, *, package_dirs=None, srdf: str | os.PathLike | None = None,
+    def from_urdf(cls, path: str | os.PathLike, *,
+                  package_dirs: Mapping[str, str | os.PathLike[str]] | str | os.PathLike[str]
+                  | Iterable[str | os.PathLike[str]] | None = None, srdf: str | os.PathLike | None = None,
                   collision_matrix: str | None = None, name: str | None = None) -> "Robot":
         """A URDF file, compiled by MuJoCo's URDF compiler with its meshes resolved.
 
@@ -171,7 +175,7 @@ class Robot:
 
         Collisions: by default the pairs are MuJoCo's (labels agree with MuJoCo's compile of the
         file), and link pairs that collide in >= 99 % of 2000 seeded uniform poses are warned
-        about (:class:`profrobot.urdf.UrdfWarning`), typically a base link overlapping link 1 (a
+        about (:class:`profrobot.robot.urdf.UrdfWarning`), typically a base link overlapping link 1 (a
         link welded to the world is not filtered against its child). ``srdf=``: a MoveIt SRDF
         whose ``<disable_collisions>`` pairs are disabled. ``collision_matrix="auto"``: disable
         the pairs that collide in >= 99 % of those poses and the adjacent pairs (one moving joint
@@ -200,12 +204,12 @@ class Robot:
     def with_scene_joints(self, names: Sequence[str], *, name: str | None = None) -> "Robot":
         """A family of scenes from this model: its joints ``names`` (each with a finite range) become
         scene joints δ, the ones that move obstacles; the rest stay the robot's θ. Scene bodies get
-        ``<exclude>``s against the world and each other (see :mod:`profrobot.family`)."""
+        ``<exclude>``s against the world and each other (see :mod:`profrobot.robot.family`)."""
         return _layouts.with_scene_joints(self, names, name=name)
 
     @property
     def is_family(self) -> bool:
-        """Whether some joints are scene joints (a family of scenes, :mod:`profrobot.family`)."""
+        """Whether some joints are scene joints (a family of scenes, :mod:`profrobot.robot.family`)."""
         return _layouts.is_family(self)
 
     @property
@@ -219,23 +223,23 @@ class Robot:
         ordinary scene)."""
         return _layouts.robot_index(self)
 
-    def check_layout(self, layout, *, name: str = "layout") -> np.ndarray:
+    def check_layout(self, layout: Layout, *, name: str = "layout") -> np.ndarray:
         """A layout δ as a float64 array (D,): one value per scene joint (radians / metres, in
         ``scene_joints`` order), finite and within the family's ranges, else :class:`InputError`
         naming the entry. A dict ``{joint name: value}`` must name every scene joint."""
         return _layouts.check_layout(self, layout, name=name)
 
-    def compose(self, theta, layout) -> np.ndarray:
+    def compose(self, theta: npt.ArrayLike, layout: Layout) -> np.ndarray:
         """Full pose vectors (N, K) from robot poses θ (N, K − D) and a layout δ (D,) or one per
         pose (N, D): the labeller's view of a family."""
         return _layouts.compose(self, theta, layout)
 
-    def check_layouts(self, layout, n: int) -> np.ndarray:
+    def check_layouts(self, layout: Layout, n: int) -> np.ndarray:
         """The layouts of ``n`` poses, each checked by :meth:`check_scene`: (1, D) for one layout
         (D,) or dict shared by all, (n, D) for one layout per pose (rows named ``layout[i]``)."""
         return _layouts.check_layouts(self, layout, n)
 
-    def at(self, layout, *, name: str | None = None) -> "Robot":
+    def at(self, layout: Layout, *, name: str | None = None) -> "Robot":
         """The family's scene at layout δ (``layout``: (D,) or ``{scene joint: value}``): an ordinary
         Robot whose scene bodies are pinned there (static obstacles), its pose vector θ the
         robot joints. ``robot.layout`` keeps δ and ``robot.family_fingerprint`` the family's.
@@ -246,7 +250,7 @@ class Robot:
 
     def with_margin(self, margin: float) -> "Robot":
         """This scene with a safety margin of ``margin`` metres around every obstacle
-        (:mod:`profrobot.margin`: what it guarantees and assumes): a robot–obstacle pair is in
+        (:mod:`profrobot.robot.margin`: what it guarantees and assumes): a robot–obstacle pair is in
         contact, for the labeller and MuJoCo alike, when it is less than ``margin`` apart, so a
         pose or motion certified on the result keeps ``margin`` from every obstacle. Self pairs
         are unchanged. ``margin`` at most :data:`CLEARANCE` (the certification's own clearance)
@@ -317,7 +321,7 @@ class Robot:
     def with_obstacles(self, obstacles: Sequence[Obstacle], *, name: str | None = None) -> "Robot":
         """A new Robot: this scene plus ``obstacles`` (Box, Sphere, Capsule, Cylinder, Plane, Mesh),
         fixed to the world, or movable within ranges (``moves=Moves(...)``: the result is a family
-        of scenes, see :mod:`profrobot.family`). The original is left unchanged."""
+        of scenes, see :mod:`profrobot.robot.family`). The original is left unchanged."""
         if isinstance(obstacles, Obstacle):
             raise InputTypeError(f"obstacles must be a list of obstacles; got one {type(obstacles).__name__}: "
                                  f"pass [{type(obstacles).__name__}(...)]")
@@ -369,15 +373,15 @@ class Robot:
             robot = robot.with_points(self.cloud)
         return robot
 
-    # ---- point clouds (profrobot.pointcloud) ---------------------------------------------------
-    def with_points(self, points, radius=None) -> "Robot":
+    # ---- point clouds (profrobot.robot.pointcloud) ---------------------------------------------------
+    def with_points(self, points: PointCloud | npt.ArrayLike | None, radius: npt.ArrayLike | None = None) -> "Robot":
         """This scene with the point-cloud obstacle ``points``: a :class:`~profrobot.PointCloud`, or
         an (N, 3) array of world points in metres with ``radius`` (metres: one number, the sensor's
         resolution, or one per point; default 0.005). It **replaces** this robot's cloud, if any
         (``with_obstacles([cloud])`` adds to it); ``None`` or an empty cloud removes it.
 
         Cheap enough to call per camera frame: the MuJoCo model and the geoms' hulls are shared,
-        only the cloud's tree and the candidate pairs are built (``rust/cloud.rs``). The balls get
+        only the cloud's tree and the candidate pairs are built (``rust/geometry/cloud.rs``). The balls get
         this robot's :attr:`margin`. The result keeps :attr:`geometry_fingerprint` (a field trained
         on the modelled scene still guides it; every answer is certified against the cloud too) and
         ``layout``; its :attr:`fingerprint` covers the cloud."""
@@ -424,7 +428,7 @@ class Robot:
         """(K, 2) joint ranges in radians / metres; continuous hinges report [-pi, pi]."""
         return self.core.sampling_ranges()
 
-    def project(self, poses) -> np.ndarray:
+    def project(self, poses: npt.ArrayLike) -> np.ndarray:
         """A copy of ``poses`` ((B, K) or (K,), radians / metres) with every dependent joint of a
         joint equality (the Panda's second finger, a URDF mimic joint, a polynomial coupling)
         recomputed from its independent joint: the pose the mechanism is in."""
@@ -436,7 +440,7 @@ class Robot:
         self.couplings.apply(q2)
         return q2[0] if one else q2
 
-    def feasible(self, poses, atol: float = 1e-9) -> np.ndarray:
+    def feasible(self, poses: npt.ArrayLike, atol: float = 1e-9) -> np.ndarray:
         """(B,) bool: whether each pose ((B, K) or (K,)) is one the robot can take: every limited
         joint within its limits and every joint equality met, both to ``atol`` (rad / m). The
         core's certification refuses any other pose."""

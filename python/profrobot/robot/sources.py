@@ -118,7 +118,7 @@ def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
 
 @dataclass(frozen=True, eq=False)
 class _Urdf(_Mjcf):
-    """A URDF as bytes (:func:`profrobot.urdf.read_urdf`: mesh filenames replaced by asset names,
+    """A URDF as bytes (:func:`profrobot.robot.urdf.read_urdf`: mesh filenames replaced by asset names,
     the meshes carried) and what :meth:`Robot.from_urdf` adds to its spec: a joint equality for
     each ``<mimic>`` that MuJoCo's URDF reader did not make one of (MuJoCo 4 makes them all), and
     the ``<exclude>``s of disabled link pairs. Exact: the same bytes and edits give the same model."""

@@ -11,10 +11,10 @@ with ``mujoco.MjSpec``. ``load(name)`` returns a :class:`profrobot.Robot`.
 | panda_shelf     | Panda + hand       | floor, two-shelf rack, a mesh wedge            | mesh obstacle      |
 
 The point-cloud bench's true scene (not in ``names()``: its objects are what a depth camera
-sees, :mod:`profrobot.pointcloud`), ``panda_clutter()``: the Panda on the floor among seven objects,
+sees, :mod:`profrobot.robot.pointcloud`), ``panda_clutter()``: the Panda on the floor among seven objects,
 four of them meshes (a crate, a rock, a wedge, an overhead beam), a ball, a can and a post.
 
-Families of scenes (:mod:`profrobot.family`: obstacles on scene joints δ), ``family_names()``:
+Families of scenes (:mod:`profrobot.robot.family`: obstacles on scene joints δ), ``family_names()``:
 
 | name                | robot        | movable obstacles                                                  |
 |---------------------|--------------|--------------------------------------------------------------------|
@@ -171,7 +171,7 @@ def names() -> list[str]:
 
 
 def family_names() -> list[str]:
-    """Every bundled family of scenes (obstacles on scene joints, :mod:`profrobot.family`)."""
+    """Every bundled family of scenes (obstacles on scene joints, :mod:`profrobot.robot.family`)."""
     return list(_FAMILIES)
 
 

@@ -4,15 +4,27 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
 
 from ..files import atomic_path
 from ..errors import InputError
+from ..robot.robot import Robot
+
+if TYPE_CHECKING:   # matplotlib (no profrobot module) loads when a figure is drawn
+    from matplotlib.figure import Figure
 
 
-def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
+class SlicedField(Protocol):
+    """What :func:`sdf_slice` evaluates: a collision field, g (B,) at poses θ (B, K) (a
+    :class:`~profrobot.PoseSDF`, or a family field at a layout; this layer sits below the field's)."""
+
+    def __call__(self, theta: torch.Tensor) -> torch.Tensor: ...
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, **kwargs) -> Path:
     """Save a matplotlib figure atomically (temporary file in the same folder, then rename)."""
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -20,8 +32,8 @@ def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
     return path
 
 
-def sdf_slice(sdf, robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarray | None = None,
-              resolution: int = 120, path: str | os.PathLike | None = None):
+def sdf_slice(sdf: SlicedField, robot: Robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarray | None = None,
+              resolution: int = 120, path: str | os.PathLike | None = None) -> Figure:
     """g over joints ``joints`` (indices; the others fixed at ``base_pose``, default the middle of
     their ranges), as a heat map with g = 0 drawn, and the exact labeller's colliding region
     outlined over it (the paper's supplementary figure). Returns the matplotlib Figure; saves a PNG

@@ -19,12 +19,16 @@ on exit. ``profrobot view`` is the command line.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
-from typing import Protocol
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol, cast
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ..exact.certification import certify_motions, certify_poses
 from ..errors import BackendUnavailableError, InputError, InputTypeError
@@ -32,7 +36,14 @@ from ..exact.ik import IKResult, frame_of, ik
 from ..exact.labels import interpolate, label_poses
 from ..robot.margin import obstacle_bodies
 from ..robot.robot import Robot
-from ..robot.gate import as_poses
+from ..robot.gate import Layout, as_poses
+from ..robot.pointcloud import PointCloud
+
+if TYPE_CHECKING:   # viser (an optional extra) loads with the first Viewer; the slice with torch
+    import viser
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .slices import SlicedField
 
 __all__ = ["Viewer", "VERDICT_COLOURS", "ROBOT_COLOUR", "CONTACT_COLOUR", "OBSTACLE_COLOUR"]
 
@@ -49,6 +60,24 @@ class _GeomHandle(Protocol):
     position: np.ndarray
     wxyz: np.ndarray
     color: tuple[int, int, int]
+
+
+class CameraSet(Protocol):
+    """Calibrated cameras as :meth:`Viewer.show_cameras` draws them: a
+    :class:`profrobot.render.Cameras`, or anything with its ``K`` (C, 3, 3), ``world_to_cam``
+    (C, 4, 4) OpenCV, ``width`` and ``height`` (pixels)."""
+
+    @property
+    def K(self) -> npt.ArrayLike: ...
+
+    @property
+    def world_to_cam(self) -> npt.ArrayLike: ...
+
+    @property
+    def width(self) -> int: ...
+
+    @property
+    def height(self) -> int: ...
 
 
 def _quat(mat: np.ndarray) -> np.ndarray:
@@ -92,7 +121,7 @@ def geom_triangles(m: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] |
 def robot_bodies(robot: Robot) -> np.ndarray:
     """(nbody,) bool: bodies of the robot (moved by its joints, or carrying a body that is),
     not of the world or of the scene (a family's scene joints move obstacles, not the robot):
-    the complement of :func:`profrobot.margin.obstacle_bodies`."""
+    the complement of :func:`profrobot.robot.margin.obstacle_bodies`."""
     return ~obstacle_bodies(robot.mj_model, robot.scene_joints)
 
 
@@ -153,8 +182,9 @@ class Viewer:
     ``sliders``/``gizmo``: the panel's joint sliders and the target gizmo.
     """
 
-    def __init__(self, robot: Robot, pose=None, *, layout=None, frame: str | None = None, host: str = "127.0.0.1",
-                 port: int = 8080, sliders: bool = True, gizmo: bool = True, verbose: bool = False):
+    def __init__(self, robot: Robot, pose: npt.ArrayLike | None = None, *, layout: Layout | None = None,
+                 frame: str | None = None, host: str = "127.0.0.1", port: int = 8080, sliders: bool = True,
+                 gizmo: bool = True, verbose: bool = False):
         try:
             import viser
         except ImportError as e:
@@ -230,7 +260,7 @@ class Viewer:
         d.qpos[self.robot.qpos_adr] = pose
         mujoco.mj_kinematics(m, d)
 
-    def frame_pose(self, pose) -> tuple[np.ndarray, np.ndarray]:
+    def frame_pose(self, pose: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """World position (3,) metres and quaternion (w, x, y, z) of :attr:`frame` at ``pose``."""
         with self._lock:
             self._place(np.asarray(pose, dtype=np.float64))
@@ -241,7 +271,7 @@ class Viewer:
             mujoco.mju_mulQuat(q, self._d.xquat[body], lquat)
             return pos.copy(), q
 
-    def set_pose(self, pose) -> str:
+    def set_pose(self, pose: npt.ArrayLike) -> str:
         """Show the robot at ``pose`` (K,) and the exact verdict; returns the verdict's text."""
         pose = as_poses(self.robot, pose, name="pose").reshape(-1)
         with self._lock:
@@ -289,7 +319,7 @@ class Viewer:
         pose = self.robot.couplings.apply(pose[None])[0]   # dependent joints follow their independent ones
         self.set_pose(pose)
 
-    def follow(self, position, wxyz=None):
+    def follow(self, position: npt.ArrayLike, wxyz: npt.ArrayLike | None = None) -> IKResult:
         """Move :attr:`frame` to ``position`` (3,) metres (and orientation ``wxyz``): the nearest
         certified :func:`~profrobot.ik` answer from the current pose, shown; the
         :class:`~profrobot.IKResult` is returned (and kept as ``last_ik``). An unreachable
@@ -311,7 +341,7 @@ class Viewer:
         return res
 
     # ---- what else is shown ----------------------------------------------------------------------
-    def show_cloud(self, cloud, name: str = "cloud"):
+    def show_cloud(self, cloud: PointCloud, name: str = "cloud") -> viser.PointCloudHandle:
         """A :class:`~profrobot.PointCloud` (default: the robot's), coloured by height."""
         pts = np.asarray(cloud.points, dtype=np.float32)
         z = pts[:, 2] if len(pts) else np.zeros(0)
@@ -320,7 +350,8 @@ class Viewer:
         size = 2 * float(np.median(cloud.radius)) if len(pts) else 0.01
         return self.server.scene.add_point_cloud(f"/{name}", pts, colours, point_size=max(size, 0.004))
 
-    def show_cameras(self, cameras, images=None, name: str = "cameras", scale: float = 0.15) -> list:
+    def show_cameras(self, cameras: CameraSet, images: np.ndarray | Sequence[npt.ArrayLike] | None = None,
+                     name: str = "cameras", scale: float = 0.15) -> list:
         """Camera frusta of calibrated ``cameras`` (:class:`profrobot.render.Cameras`, or
         anything with ``K`` (C, 3, 3), ``world_to_cam`` (C, 4, 4) OpenCV, ``width``, ``height``),
         with ``images`` (C, H, W, 3) uint8 on them where given."""
@@ -335,7 +366,7 @@ class Viewer:
                 image=img, wxyz=_quat(c2w[:3, :3]), position=c2w[:3, 3]))
         return out
 
-    def show_path(self, path, *, name: str = "path", steps: int = 12, fps: float = 20.0) -> dict:
+    def show_path(self, path: npt.ArrayLike, *, name: str = "path", steps: int = 12, fps: float = 20.0) -> dict:
         """Waypoints ``path`` (S, K): each segment certified by :func:`~profrobot.certify_motions`
         and the frame's trace drawn coloured by its verdict (:data:`VERDICT_COLOURS`); a slider
         and a play button animate the robot along it (``steps`` poses per segment). Returns
@@ -378,14 +409,15 @@ class Viewer:
 
         threading.Thread(target=run, daemon=True).start()
 
-    def show_field_slice(self, sdf, joints: tuple[int, int] = (1, 3), resolution: int = 60):
+    def show_field_slice(self, sdf: SlicedField, joints: tuple[int, int] = (1, 3),
+                         resolution: int = 60) -> viser.GuiImageHandle:
         """The field's slice over two joints (:func:`profrobot.viz.sdf_slice`, at the current
         pose), with the exact boundary over it, as an image in the panel (needs torch)."""
         from .slices import sdf_slice
 
         fig = sdf_slice(sdf, self.robot, joints=joints, base_pose=self.pose, resolution=resolution)
         fig.canvas.draw()
-        img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        img = np.asarray(cast("FigureCanvasAgg", fig.canvas).buffer_rgba())[..., :3].copy()   # sdf_slice draws with Agg
         import matplotlib.pyplot as plt
 
         plt.close(fig)
@@ -393,7 +425,7 @@ class Viewer:
             return self.server.gui.add_image(img, label=f"g over {self.robot.joint_names[joints[0]]}, "
                                                         f"{self.robot.joint_names[joints[1]]}")
 
-    def look(self, position, look_at, fov: float = 50.0) -> None:
+    def look(self, position: Iterable[float], look_at: Iterable[float], fov: float = 50.0) -> None:
         """Point the browser's camera: from ``position`` (3,) at ``look_at`` (3,), metres, with
         a vertical field of view of ``fov`` degrees (pages open there, and "Reset View" returns
         there; pages already open are moved too). World +z is up."""
@@ -403,8 +435,8 @@ class Viewer:
             client.camera.position, client.camera.look_at = cam.position, cam.look_at
             client.camera.fov = cam.fov
 
-    def screenshot(self, path, *, width: int = 960, height: int = 640, browser: str | None = None,
-                   timeout: float = 60.0):
+    def screenshot(self, path: str | os.PathLike[str], *, width: int = 960, height: int = 640,
+                   browser: str | None = None, timeout: float = 60.0) -> Path:
         """Save the 3-D view as a browser draws it to the PNG ``path``, from a headless
         Chromium (playwright, the system browser ``browser``, default ``chromium`` on PATH;
         nothing is downloaded). Waits until the robot is on the page. Returns the path."""

@@ -6,7 +6,7 @@
 - :mod:`.picture`: the cloud, the robot and a planned path, from above and from a camera.
 
 Use the cloud with :meth:`profrobot.Robot.with_points`; the labeller, certification and planning
-then keep clear of it exactly (:mod:`profrobot.pointcloud`).
+then keep clear of it exactly (:mod:`profrobot.robot.pointcloud`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Depth images to a point-cloud obstacle: back-projection, the self-filter, downsampling.
 
-1. **Back-projection** (:func:`profrobot.layouts.backproject`): each valid pixel ``(u, v)`` of depth
+1. **Back-projection** (:func:`profrobot.perception.layouts.backproject`): each valid pixel ``(u, v)`` of depth
    ``z`` (metres along the camera's z axis; 0 / NaN missing) becomes the world point
    ``Rᵀ (z · ((u − cx)/fx, (v − cy)/fy, 1) − t)``; distorted cameras have their depth undistorted
    first (OpenCV's model, nearest sampling). Each point's radius is the sensor's resolution there:
@@ -10,7 +10,7 @@
    computed exactly against the collision geoms); with ``static=`` metres, points that close to the
    modelled static scene (floor, table, modelled obstacles) are removed too: the model already has
    them.
-3. **Conservative voxel downsampling** (``rust/cloud.rs``): the balls grouped by ``voxel``-metre
+3. **Conservative voxel downsampling** (``rust/geometry/cloud.rs``): the balls grouped by ``voxel``-metre
    cubes, each group replaced by one ball about its mean that reaches every ball of the group: every
    removed point lies inside a kept ball, so a pose free of the result is free of every point.
 
@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from ...robot import gate
 from ...errors import InputError
@@ -55,11 +56,12 @@ class CloudBuild:
                 + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in s.items()))
 
 
-def self_filter(robot: Robot, pose, points, *, padding: float = 0.02, static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def self_filter(robot: Robot, pose: npt.ArrayLike, points: npt.ArrayLike, *, padding: float = 0.02,
+                static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(robot, static)``: two (N,) bool masks over ``points`` (N, 3, world metres): within
     ``padding`` metres of the robot's collision geoms at ``pose`` (K,), and, with ``static``
     metres, that close to the model's other geoms (floor, table, modelled obstacles; the point
-    cloud excepted) and not the robot's. Exact against the geoms (``rust/filter.rs``)."""
+    cloud excepted) and not the robot's. Exact against the geoms (``rust/collision/filter.rs``)."""
     q = gate.as_poses(robot, pose, name="pose")
     if len(q) != 1:
         raise InputError(f"pose must be one pose of {robot.njoint} joints; got {len(q)}")
@@ -70,9 +72,9 @@ def self_filter(robot: Robot, pose, points, *, padding: float = 0.02, static: fl
     return kind == 1, kind == 2
 
 
-def cloud_from_depth(robot: Robot, depth, cameras: Cameras, *, pose, radius: float | None = None,
-                     voxel: float | None = 0.01, padding: float = 0.02, static: float | None = 0.005,
-                     max_depth: float | None = None) -> CloudBuild:
+def cloud_from_depth(robot: Robot, depth: npt.ArrayLike, cameras: Cameras, *, pose: npt.ArrayLike,
+                     radius: float | None = None, voxel: float | None = 0.01, padding: float = 0.02,
+                     static: float | None = 0.005, max_depth: float | None = None) -> CloudBuild:
     """The point-cloud obstacle of calibrated depth images (module docs): ``depth`` (C, H, W)
     metres along each camera's z axis (0 / NaN: no reading) from ``cameras``, the robot at ``pose``
     (K,) in them.

@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from ...files import atomic_path
 from ...exact.labels import interpolate
 from ...robot.robot import Robot
+
+if TYPE_CHECKING:   # matplotlib (no profrobot module) loads when a figure is drawn
+    from matplotlib.figure import Figure
 
 __all__ = ["cloud_picture"]
 
@@ -31,7 +36,8 @@ def _links(robot: Robot, xpos: np.ndarray) -> list[np.ndarray]:
     return [np.stack([xpos[int(parent[b])], xpos[b]]) for b in range(1, len(parent)) if moving[b] and parent[b] > 0]
 
 
-def cloud_picture(robot: Robot, path: str | os.PathLike | None = None, *, waypoints=None, title: str | None = None):
+def cloud_picture(robot: Robot, path: str | os.PathLike | None = None, *, waypoints: npt.ArrayLike | None = None,
+                  title: str | None = None) -> Figure:
     """The figure (module docs) of ``robot`` (with its :attr:`~profrobot.Robot.cloud`) and, when
     given, ``waypoints`` (T, K), a path (:class:`~profrobot.PathResult`'s ``path``); saved as a PNG
     when ``path`` is given (atomically). Returns the Figure."""

@@ -9,7 +9,7 @@ safely.
   suggested safety ``margin``);
 - :mod:`.picture`: the points, the robot's removed points and the fitted obstacles.
 
-Use an estimate with ``margin=estimate.margin`` (:mod:`profrobot.margin`), or
+Use an estimate with ``margin=estimate.margin`` (:mod:`profrobot.robot.margin`), or
 ``estimate.robot(family)``.
 """
 

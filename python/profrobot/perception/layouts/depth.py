@@ -19,10 +19,12 @@ robot's pixels are found at its known pose (its rendered mask) and how the model
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ...errors import InputError, InputTypeError
 from ...render.cameras import Cameras
@@ -49,7 +51,7 @@ class DepthPoints:
         return len(self.points)
 
 
-def check_depth(depth, cameras: Cameras, who: str = "depth") -> np.ndarray:
+def check_depth(depth: npt.ArrayLike, cameras: Cameras, who: str = "depth") -> np.ndarray:
     """``depth`` as a new float64 (C, H, W) array for ``cameras`` with NaN for missing pixels (0 or
     NaN given). Refused (:class:`InputError`, naming the entry): a shape other than the
     cameras' (C, H, W), negative or infinite depth, non-numbers."""
@@ -98,7 +100,7 @@ def pixel_rays(cameras: Cameras, c: int) -> tuple[np.ndarray, np.ndarray, np.nda
     return cameras.centres()[c], np.ascontiguousarray(dirs), length
 
 
-def backproject(depth, cameras: Cameras) -> DepthPoints:
+def backproject(depth: npt.ArrayLike, cameras: Cameras) -> DepthPoints:
     """World points of every valid pixel of ``depth`` (C, H, W) metres (0 / NaN missing) seen by
     ``cameras`` (distortion undone first; module docs)."""
     d, cams = undistorted(check_depth(depth, cameras), cameras)
@@ -116,7 +118,7 @@ def backproject(depth, cameras: Cameras) -> DepthPoints:
 
 
 def expected_depth(model: mujoco.MjModel, data: mujoco.MjData, cameras: Cameras, c: int,
-                   geomgroup=DEFAULT_GEOMGROUP) -> tuple[np.ndarray, np.ndarray]:
+                   geomgroup: Sequence[int] | np.ndarray = DEFAULT_GEOMGROUP) -> tuple[np.ndarray, np.ndarray]:
     """What camera ``c`` would see of ``model`` at ``data``'s kinematics (call ``mj_kinematics``
     first): the depth (H·W,) metres along the camera's z axis of each pixel's first geom (inf
     where the ray meets none) and that geom's id (-1), by ``mj_multiRay`` over the geoms in
@@ -131,7 +133,8 @@ def expected_depth(model: mujoco.MjModel, data: mujoco.MjData, cameras: Cameras,
     return z, geomid
 
 
-def cast_depth(model: mujoco.MjModel, qpos, cameras: Cameras, geomgroup=DEFAULT_GEOMGROUP) -> np.ndarray:
+def cast_depth(model: mujoco.MjModel, qpos: npt.ArrayLike, cameras: Cameras,
+               geomgroup: Sequence[int] | np.ndarray = DEFAULT_GEOMGROUP) -> np.ndarray:
     """Depth images (C, H, W) metres of ``model`` at ``qpos`` (its full ``nq`` vector) from
     ``cameras``, by MuJoCo's ray caster (:func:`expected_depth`, each pixel centre's ray; no
     OpenGL): 0 where a ray meets nothing. A renderer-free stand-in for a depth camera (pinhole)."""

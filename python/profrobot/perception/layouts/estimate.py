@@ -30,10 +30,10 @@ The steps, each in its module:
    metres, which depth alone cannot see), at least 1 mm. It bounds how far any point of any
    obstacle is from where the estimate puts it, under the noise model; it was measured, not
    proven: ``benches/layout_results.md`` gives the largest error / margin seen. An obstacle whose
-   margin would exceed :data:`~profrobot.margin.MAX_MARGIN` is unsupported too.
+   margin would exceed :data:`~profrobot.robot.margin.MAX_MARGIN` is unsupported too.
 
 Pass ``margin=estimate.margin`` to certification, planning, ``resolve`` and the inverse problems
-(:mod:`profrobot.margin`: what it guarantees, what it assumes), or use :meth:`LayoutEstimate.robot`.
+(:mod:`profrobot.robot.margin`: what it guarantees, what it assumes), or use :meth:`LayoutEstimate.robot`.
 """
 
 from __future__ import annotations
@@ -43,11 +43,14 @@ import json
 import math
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+import numpy.typing as npt
 
 from ...errors import InputError, InputTypeError
 from ...files import atomic_path
@@ -59,6 +62,9 @@ from ...robot.gate import positive
 from .depth import DEFAULT_GEOMGROUP, check_depth, expected_depth, pixel_rays, undistorted
 from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, covariance, displacement_sigma, distances, fit_obstacle, movable_obstacles, reach_box, refine
+
+if TYPE_CHECKING:   # matplotlib (no profrobot module) loads when a figure is drawn
+    from matplotlib.figure import Figure
 
 __all__ = ["estimate_layout", "LayoutEstimate", "ROBOT", "STATIC", "OBSTACLE", "UNEXPLAINED"]
 
@@ -154,9 +160,9 @@ class LayoutEstimate:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
         return path
 
-    def picture(self, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
+    def picture(self, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0) -> Figure:
         """The depth points, the robot's removed points and the fitted obstacles, from camera
-        ``camera``'s view and from above (:func:`profrobot.layouts.picture.layout_picture`)."""
+        ``camera``'s view and from above (:func:`profrobot.perception.layouts.picture.layout_picture`)."""
         from .picture import layout_picture
 
         return layout_picture(self, family, path, camera=camera)
@@ -215,9 +221,10 @@ def _voxels(P: np.ndarray, voxel: float) -> np.ndarray:
     return out / counts[:, None]
 
 
-def estimate_layout(family: Robot, depth, cameras: Cameras, *, pose, mask=None, depth_noise=(0.002, 0.005),
+def estimate_layout(family: Robot, depth: npt.ArrayLike, cameras: Cameras, *, pose: npt.ArrayLike,
+                    mask: npt.ArrayLike | None = None, depth_noise: tuple[float, float] = (0.002, 0.005),
                     voxel: float = 0.01, min_support: int = 30, confidence: float = 5.0, calibration: float = 0.0,
-                    geomgroup=DEFAULT_GEOMGROUP) -> LayoutEstimate:
+                    geomgroup: Sequence[int] | np.ndarray = DEFAULT_GEOMGROUP) -> LayoutEstimate:
     """The layout δ of ``family`` (a Robot with scene joints) seen in ``depth`` (module docs).
 
     Args:

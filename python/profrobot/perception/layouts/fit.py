@@ -25,11 +25,14 @@ Everything is deterministic (no random draws).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from ...errors import InputError
+from ...robot.robot import Robot
 from .shapes import solid_of
 
 __all__ = ["Obstacle", "Placer", "movable_obstacles", "fit_obstacle", "refine", "gm_loss"]
@@ -55,7 +58,7 @@ class Obstacle:
         return [s.extreme_points() for s in self.solids]
 
 
-def movable_obstacles(family, geomgroup) -> list[Obstacle]:
+def movable_obstacles(family: Robot, geomgroup: Sequence[int] | np.ndarray) -> list[Obstacle]:
     """The family's movable obstacles: each top scene body (moved by scene joints, none of its
     ancestors is) with the joints of its subtree and the geoms drawn in ``geomgroup``."""
     m = family.mj_model
@@ -108,7 +111,8 @@ class Placer:
         self.d = mujoco.MjData(m)
         self.d.qpos[:] = qpos
 
-    def frames(self, ob: Obstacle, delta_j: np.ndarray):
+    def frames(self, ob: Obstacle,
+               delta_j: np.ndarray) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
         """Geom frames [(x (3,), R (3, 3))] of ``ob``'s solids and the body's origin (3,), at ``delta_j``."""
         d = self.d
         d.qpos[ob.qpos_adr] = delta_j
@@ -116,7 +120,7 @@ class Placer:
         return ([(d.geom_xpos[s.geom].copy(), d.geom_xmat[s.geom].reshape(3, 3).copy()) for s in ob.solids],
                 d.xpos[ob.body].copy(), d.xmat[ob.body].reshape(3, 3).copy())
 
-    def rates(self, ob: Obstacle, delta_j: np.ndarray):
+    def rates(self, ob: Obstacle, delta_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The body's origin ``x`` (3,) and, per joint k, its linear ``v`` (D_j, 3) and angular
         ``w`` (D_j, 3) velocity per unit rate (finite differences)."""
         _, x0, R0 = self.frames(ob, delta_j)
@@ -165,7 +169,8 @@ def gm_loss(r: np.ndarray, s: float) -> float:
     return float((r2 / (r2 + s * s)).sum())
 
 
-def refine(placer: Placer, ob: Obstacle, delta_j: np.ndarray, P: np.ndarray, scales, iterations: int = 12):
+def refine(placer: Placer, ob: Obstacle, delta_j: np.ndarray, P: np.ndarray, scales: Sequence[float],
+           iterations: int = 12) -> tuple[np.ndarray, float]:
     """Iteratively reweighted, damped Gauss–Newton on the Geman–McClure loss at each scale of
     ``scales`` in turn, within the obstacle's ranges. Returns (δ_j, final loss)."""
     lo, hi = ob.ranges[:, 0], ob.ranges[:, 1]
@@ -208,8 +213,8 @@ def grid_starts(ob: Obstacle, slide_step: float = 0.06, hinge_step: float = 0.3)
     return np.array(list(itertools.product(*axes)), dtype=np.float64)
 
 
-def fit_obstacle(placer: Placer, ob: Obstacle, P: np.ndarray, scales, keep: int = 16, distinct: int = 8,
-                 finish: int = 3):
+def fit_obstacle(placer: Placer, ob: Obstacle, P: np.ndarray, scales: Sequence[float], keep: int = 16,
+                 distinct: int = 8, finish: int = 3) -> tuple[np.ndarray, float]:
     """The best of the grid starts, each scored at the coarsest scale: the ``keep`` best, and
     ``distinct`` more that are no grid neighbours of a better one (other basins: the coarse score
     often ranks several cells around one wrong basin first), get 4 Gauss–Newton steps at that
@@ -235,6 +240,9 @@ def fit_obstacle(placer: Placer, ob: Obstacle, P: np.ndarray, scales, keep: int 
         d, c = refine(placer, ob, short[i][0], P, scales)
         if c < best_cost - 1e-12:
             best, best_cost = d, c
+    if best is None:   # every start's loss was not finite: the points cannot place this obstacle
+        raise InputError(f"the depth points given for obstacle {ob.name!r} place it nowhere (no start of the fit "
+                         "reaches a finite loss)")
     return best, best_cost
 
 

@@ -1,4 +1,4 @@
-"""What a depth pixel was taken for (:attr:`profrobot.layouts.LayoutEstimate.kind`)."""
+"""What a depth pixel was taken for (:attr:`profrobot.perception.layouts.LayoutEstimate.kind`)."""
 
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from ...robot.robot import Robot
 from .kinds import OBSTACLE, ROBOT, STATIC, UNEXPLAINED
 from .fit import Placer, movable_obstacles
 from .depth import DEFAULT_GEOMGROUP
+
+if TYPE_CHECKING:   # matplotlib (no profrobot module) loads when a figure is drawn
+    from matplotlib.figure import Figure
 
 
 __all__ = ["layout_picture"]
@@ -47,7 +50,7 @@ def _fitted_surfaces(est: Any, family: Robot) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def layout_picture(est: Any, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0):
+def layout_picture(est: Any, family: Robot, path: str | os.PathLike | None = None, *, camera: int = 0) -> Figure:
     """The figure (module docs); saved as a PNG when ``path`` is given. Returns the Figure."""
     import matplotlib
 
