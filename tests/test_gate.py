@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import inspect
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -66,6 +67,19 @@ def test_a_family_at_a_layout_answers_as_the_family_pinned_there(family, at):
     np.testing.assert_array_equal(problems.colliding_poses(family, 2, seed=4, layout=at), hit)
     np.testing.assert_array_equal(profrobot.make_dataset(family, 20, seed=1, layout=at, progress=False).poses,
                                   profrobot.make_dataset(pinned, 20, seed=1, progress=False).poses)
+    s2, g2 = problems.hard_pairs(family, 1, seed=6, layout=at)
+    s1, g1 = problems.hard_pairs(pinned, 1, seed=6)
+    np.testing.assert_array_equal(s2, s1)
+    np.testing.assert_array_equal(g2, g1)
+    m = pinned.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[pinned.qpos_adr] = b
+    mujoco.mj_kinematics(m, d)
+    target = d.body("hand").xpos.copy()
+    motion = profrobot.plan_to_pose(family, a, target, frame="hand", layout=at)
+    assert motion.certified and motion.outcome == "certified"
+    np.testing.assert_array_equal(motion.goal, profrobot.plan_to_pose(pinned, a, target, frame="hand").goal)
+    assert profrobot.check_path(pinned, motion.path).certified
     report = profrobot.crosscheck(family, theta[:50], layout=at, progress=False)
     assert report.summary() == profrobot.crosscheck(pinned, theta[:50], progress=False).summary()
 
