@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from .. import _core
+from .._core import __version__ as core_version
 from ..robot import gate
 from ..robot.equalities import EqualityMode
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
@@ -217,7 +217,7 @@ def make_dataset(robot: Robot, n: int, collided_fraction: float = 0.5, seed: int
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
                     seed=int(seed), equalities=equalities, collided_fraction=float(collided_fraction), samples_drawn=int(drawn),
                     uniform_collision_rate=seen_colliding / drawn, library_version=__version__,
-                    core_version=_core.__version__)
+                    core_version=core_version)
     return Dataset(poses, **dict(zip(_LABELS, labels)), metadata=metadata)
 
 
@@ -283,5 +283,5 @@ def boundary_dataset(robot: Robot, n: int, seed: int = 0, *, spread: float = 0.0
     lab = label_poses(robot, poses, threads=threads)
     metadata = dict(robot=robot.name, robot_fingerprint=robot.fingerprint, joint_names=robot.joint_names,
                     seed=int(seed), boundary=dict(spread=float(spread), bisections=int(bisections)),
-                    library_version=_core.__version__, core_version=_core.__version__)
+                    library_version=core_version, core_version=core_version)
     return Dataset(poses, **{k: getattr(lab, k) for k in _LABELS}, metadata=metadata)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from .._core import interpolate as interpolate_so2
 from ..robot.angles import wrap
 from ..robot.equalities import EQUALITY_MODES, EqualityMode, settle
 from ..robot.robot import Robot
@@ -178,9 +179,7 @@ def interpolate(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, steps: 
         raise InputError(f"start and goal must have the same shape; got {s.shape} and {g.shape}")
     steps = count("steps", steps, 2, why="both end points included")
     memory("steps", len(s), steps, robot.njoint)
-    from .. import _core
-
-    path = _core.interpolate(s, g, int(steps), np.ascontiguousarray(robot.continuous))
+    path = interpolate_so2(s, g, int(steps), np.ascontiguousarray(robot.continuous))
     if robot.couplings:   # the robot moves its independent joints; the dependent ones follow
         robot.couplings.apply(path.reshape(-1, robot.njoint))
     return path[0] if single else path

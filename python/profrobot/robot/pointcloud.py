@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from .. import _core
+from .._core import voxel_downsample
 from ..errors import ImmutableError, InputError, InputTypeError
 
 __all__ = ["PointCloud", "reference_model", "cloud_geom_ids", "robot_geom_ids", "CLOUD_GEOM_ID"]
@@ -159,7 +159,7 @@ class PointCloud:
             raise InputError(f"voxel must be a positive number of metres; got {voxel!r}")
         if not len(self):
             return self
-        p, r = _core.voxel_downsample(np.ascontiguousarray(self.points), np.ascontiguousarray(self.radius), v)
+        p, r = voxel_downsample(np.ascontiguousarray(self.points), np.ascontiguousarray(self.radius), v)
         return PointCloud(p, r)
 
     def core_arrays(self, margin: float = 0.0) -> dict:

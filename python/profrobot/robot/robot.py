@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
-from .. import _core
+from .._core import RobotModel
 from .family import Layout
 from .equalities import EqualityWarning, JointCouplings, read_equalities, read_tendons, unenforced_summary
 from ..errors import InputError, InputTypeError
@@ -116,7 +116,7 @@ class Robot:
         self.scene_joints = _layouts.read_scene_joints(self, m)
         if self.scene_joints:  # the labeller counts robot–obstacle contacts as scene contacts
             self._arrays["jnt_scene"] = np.array([n in self.scene_joints for n in self.joint_names])
-        self.core = _core.RobotModel(self._arrays)
+        self.core = RobotModel(self._arrays)
         self.pair_geoms, self.pair_is_self, self.pair_margin = self.core.pairs()
         self.fingerprint = label_fingerprint(self.joint_names, self._arrays, self.scene_joints)
         #: the fingerprint of the robot before any safety margin (:meth:`with_margin`): the geometry
