@@ -6,6 +6,7 @@ scene is needed, is refused with one message."""
 from __future__ import annotations
 
 import inspect
+import typing
 
 import mujoco
 import numpy as np
@@ -32,6 +33,10 @@ def test_every_entry_point_takes_layout_and_margin_by_keyword(fn):
         assert name in params and params[name].kind is inspect.Parameter.KEYWORD_ONLY, (fn.__name__, name)
     assert params["layout"].default is None
     assert params["margin"].default == profrobot.CLEARANCE
+    # the annotations resolve at run time (documentation tools and runtime checkers call this):
+    # the Layout alias is a real type, not a string
+    hints = typing.get_type_hints(fn)
+    assert type(None) in typing.get_args(hints["layout"]) and dict[str, float] != hints["layout"]
 
 
 @pytest.fixture(scope="module")

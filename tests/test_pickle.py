@@ -437,7 +437,7 @@ def test_a_robot_file_from_before_0_1_0_is_refused_naming_the_version(name, tmp_
     from profrobot.robot.file import _RobotUnpickler
 
     data = b"\x80\x02cprofrobot.robot\n" + name.encode() + b"\n."
-    with pytest.raises(CorruptFileError, match=r"written by a profrobot before 0\.1\.0"):
+    with pytest.raises(CorruptFileError, match=r"written by another profrobot \(one before 0\.1\.0"):
         _RobotUnpickler(io.BytesIO(data), "old.pkl").load()
     old = tmp_path / "old.pkl"
     old.write_bytes(data)

@@ -135,16 +135,17 @@ def _plan_to_pose(args, robot, start, target) -> int:
     from ..exact.ik import plan_to_pose
 
     motion = plan_to_pose(robot, start, target, frame=args.frame, max_time=args.max_time, seed=args.seed)
-    reached = "" if motion.path is None or motion.goal is None else (
-        f" ({len(motion.path)} waypoints, goal {np.array2string(motion.goal, precision=4, separator=',')})")
+    path = motion.path if motion.certified else None   # a motion is written only when it is certified
+    reached = "" if path is None or motion.goal is None else (
+        f" ({len(path)} waypoints, goal {np.array2string(motion.goal, precision=4, separator=',')})")
     print(f"motion to {args.frame}: {motion.outcome}{reached}")
     if motion.outcome == "no candidate reached" and motion.ik is not None:
         print(f"  why: {motion.ik.reasons[0]}")
-    if args.out and motion.path is not None:
-        _save_npz(args.out, path=motion.path, certified=motion.certified, goal=motion.goal)
+    if args.out and path is not None:
+        _save_npz(args.out, path=path, certified=True, goal=motion.goal)
         print(f"saved {args.out}")
-    if args.gif and motion.path is not None:
+    if args.gif and path is not None:
         from ..optim.pictures import render_trajectory
 
-        print(f"saved {render_trajectory(robot, motion.path, args.gif, size=(320, 240))}")
+        print(f"saved {render_trajectory(robot, path, args.gif, size=(320, 240))}")
     return 0 if motion.certified else 1

@@ -122,11 +122,15 @@ def pose_arg(text: str, option: str, robot: Robot) -> np.ndarray:
     numbers, or a file the commands write: a ``.npy`` array, or an ``.npz`` with ``poses`` (``ik``,
     ``resolve``) or ``path`` (``plan``); ``FILE:i`` picks row ``i`` (default: 0; for a path,
     ``:-1`` is its end)."""
+    import re
+    import zipfile
+
     import numpy as np
 
     from ..errors import CorruptFileError, MissingFileError
 
-    name, _, row = text.rpartition(":") if text.rpartition(":")[2].lstrip("-").isdigit() else (text, "", "0")
+    picked = re.fullmatch(r"(.*\.np[yz]):(-?\d+)", text, flags=re.IGNORECASE)
+    name, row = (picked.group(1), int(picked.group(2))) if picked else (text, None)
     if not name.lower().endswith((".npy", ".npz")):
         return numbers(text, option)
     if not Path(name).is_file():
@@ -138,14 +142,16 @@ def pose_arg(text: str, option: str, robot: Robot) -> np.ndarray:
             if key is None:
                 raise CorruptFileError(f"--{option} {name}: holds {sorted(data.files)}, no 'poses' or 'path'")
             data = data[key]
-    except (OSError, ValueError) as e:
-        raise CorruptFileError(f"--{option} {name}: not a readable .npy / .npz array ({e})") from None
-    arr = np.asarray(data, dtype=np.float64)
+        arr = np.asarray(data, dtype=np.float64)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as e:
+        raise CorruptFileError(f"--{option} {name}: not a readable .npy / .npz array of numbers ({e})") from None
     if arr.ndim == 2:
-        i = int(row)
+        i = 0 if row is None else row
         if not -len(arr) <= i < len(arr):
             raise InputError(f"--{option} {text}: row {i} of {len(arr)}")
         arr = arr[i]
+    elif row is not None:
+        raise InputError(f"--{option} {text}: :{row} picks a row, but {name} holds one pose, shape {arr.shape}")
     if arr.ndim != 1:
         raise InputError(f"--{option} {text}: a pose is (K,) or a row of (N, K); got shape {arr.shape}")
     return arr

@@ -22,7 +22,7 @@ from .planning import PathResult, plan_path
 from ..robot.robot import Robot
 from .labels import sample_poses
 from ..robot.gate import (Layout, as_poses, count, positive, robot_at, seed as check_seed, threads as check_threads,
-                          with_layout, with_margin)
+                          with_layout)
 
 __all__ = ["IKResult", "ik", "frame_of", "plan_to_pose", "PoseMotion", "as_targets"]
 
@@ -151,17 +151,15 @@ def as_targets(targets: npt.ArrayLike, name: str = "targets") -> tuple[np.ndarra
     return np.ascontiguousarray(t[:, :3, 3]), q
 
 
-def _starts(robot: Robot, start, n: int, layout) -> np.ndarray:
-    """(n, K) full starts: ``start`` (K,) or (n, K) (a family's θ with ``scene``), or the middle of
-    the joint limits (on the couplings)."""
+def _starts(robot: Robot, start: npt.ArrayLike | None, n: int) -> np.ndarray:
+    """(n, K) starts: ``start`` (K,) or (n, K), or the middle of the joint limits (on the
+    couplings). A family reaching here has no layout: its starts are full poses over θ and δ,
+    and the middle of its ranges is no layout it was given (refused by the gate's message)."""
     if start is None:
-        base = robot.project(robot.joint_limits.mean(1))
         if robot.is_family:
-            if layout is None:
-                robot_at(robot)   # refuses a family without a layout, with the gate's one message
-            base[robot.scene_index] = robot.check_layout(layout)
-        return np.repeat(base[None], n, axis=0)
-    q = as_poses(robot, with_layout(robot, start, layout, "start"), name="start")
+            robot_at(robot)   # refuses a family without a layout, with the gate's one message
+        return np.repeat(robot.project(robot.joint_limits.mean(1))[None], n, axis=0)
+    q = as_poses(robot, with_layout(robot, start, None, "start"), name="start")
     if len(q) == 1:
         q = np.repeat(q, n, axis=0)
     if len(q) != n:
@@ -178,7 +176,8 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
     metres. ``start``: (K,) or (N, K) joint poses the answers should stay near (default: the
     middle of the joint limits); joints that do not move the frame keep their start values.
-    ``scene``: a family's layout δ (``start`` then θ, and so are the answers). A target is
+    ``layout``: a family's layout δ, where it is pinned (``start`` then θ, and so are the
+    answers; without one a family's starts and answers are full poses). A target is
     *reached* within ``position_tolerance`` metres and ``rotation_tolerance`` radians (the
     solver iterates to a hundredth of them); a reached pose is certified by the exact labeller
     (no contact, every pair more than :data:`~profrobot.exact.certification.CLEARANCE` apart, within
@@ -190,7 +189,7 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     5 mm enter as linearised distance rows beside the target's (``rust/ik/mod.rs``), and the pose it
     ends in is certified like any other. Same ``seed``, same answers, for any thread count.
     ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.robot.gate`)."""
-    robot = with_margin(robot, margin)
+    robot = robot_at(robot, layout=layout, margin=margin, family=True)
     t0 = time.perf_counter()
     pos, quat = as_targets(targets)
     body, lpos, lquat = frame_of(robot, frame)
@@ -198,13 +197,11 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     rotation_tolerance = positive("rotation_tolerance", rotation_tolerance)
     seeds = count("seeds", seeds)
     iterations = count("iterations", iterations)
-    starts = _starts(robot, start, len(pos), layout)
+    starts = _starts(robot, start, len(pos))
     out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
                         tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100, clearance=CLEARANCE,
                         seed=check_seed(seed), escape=bool(escape), threads=check_threads(threads))
     poses = out["poses"]
-    if robot.is_family:
-        poses = poses[:, robot.robot_index]
     pe, re = out["position_error"], out["rotation_error"]
     reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
     certified = out["outcome"] == 0

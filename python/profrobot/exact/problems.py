@@ -89,8 +89,9 @@ def hard_pairs(robot: Robot, n: int, seed: int = 0, *, layout: Layout | None = N
     pairs (``reachable=False``) can lie in different components of free space, with no path at
     all: a ±2π shoulder joint, say, on the other side of the floor, which a limited joint cannot
     wrap around; no planner can solve those. ``layout``, ``margin``: as everywhere
-    (:mod:`profrobot.robot.gate`)."""
-    robot = gate.robot_at(robot, layout=layout, margin=margin, family=True)
+    (:mod:`profrobot.robot.gate`); a family needs its layout (a pair whose walk moved the
+    obstacles would be no planning problem)."""
+    robot = gate.robot_at(robot, layout=layout, margin=margin)
     n = gate.count("n", n)
     steps = gate.count("steps", steps)
     density = gate.count("density", density)

@@ -38,12 +38,16 @@ def progress_bar(total: int | None = None, *, desc: str, unit: str = "it", progr
                  leave: bool = True, stream: TextIO | None = None, iterable: Iterable[Any] | None = None) -> Any:
     """A tqdm progress bar of ``total`` steps (or over ``iterable``): drawn on a terminal, lines in
     a log, nothing when ``progress`` is false. ``stream``: where it writes (default ``sys.stderr``)."""
+    from tqdm import tqdm as plain
     from tqdm.auto import tqdm
 
     out = sys.stderr if stream is None else stream
     if not progress:
-        return tqdm(iterable, total=total, desc=desc, unit=unit, disable=True)
+        return plain(iterable, total=total, desc=desc, unit=unit, disable=True)
+    if stream is None and "ipykernel" in sys.modules:   # a notebook: tqdm's own widget
+        return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave)
     if getattr(out, "isatty", lambda: False)():
-        return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, file=out)
-    return tqdm(iterable, total=total, desc=desc, unit=unit, file=_Lines(out), mininterval=LOG_INTERVAL, ascii=True,
-                dynamic_ncols=False, ncols=100)
+        return plain(iterable, total=total, desc=desc, unit=unit, leave=leave, file=out)
+    # a log: a line at most every LOG_INTERVAL seconds (the monitor thread too), and the last one
+    return plain(iterable, total=total, desc=desc, unit=unit, file=_Lines(out), mininterval=LOG_INTERVAL,
+                 maxinterval=LOG_INTERVAL, ascii=True, dynamic_ncols=False, ncols=100)

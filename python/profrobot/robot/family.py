@@ -33,7 +33,7 @@ __all__ = ["Moves", "SCENE_JOINTS_TEXT", "Layout"]
 #: a family's layout δ as the entry points take it (``layout=``): an array (D,) in
 #: ``robot.scene_joints`` order (radians / metres), one per pose (B, D) where an entry point says
 #: so, or ``{scene joint: value}``; exported as :data:`profrobot.robot.gate.Layout`
-Layout: TypeAlias = "npt.ArrayLike | Mapping[str, float]"
+Layout: TypeAlias = npt.ArrayLike | Mapping[str, float]
 
 #: the name of the MJCF custom text that lists a family's scene joints (space-separated)
 SCENE_JOINTS_TEXT = "profrobot:scene_joints"

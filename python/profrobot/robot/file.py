@@ -69,8 +69,9 @@ class _RobotUnpickler(pickle.Unpickler):
                 from .._core import __version__
 
                 raise CorruptFileError(f"{self.where}: it names {module}.{name}, which profrobot {__version__} does "
-                                       "not have: written by a profrobot before 0.1.0, whose modules were laid out "
-                                       "otherwise; build the robot again and save it") from None
+                                       "not have: written by another profrobot (one before 0.1.0, whose modules "
+                                       "were laid out otherwise, or a newer one); build the robot again and save "
+                                       "it") from None
             if isinstance(obj, type) and getattr(obj, "__module__", "").startswith("profrobot"):
                 return obj
         raise CorruptFileError(f"{self.where}: it names {module}.{name}, which a robot file may not (only "

@@ -7,7 +7,7 @@ guarantees: :mod:`profrobot.robot.margin`. Base layer: no torch.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import mujoco
@@ -107,7 +107,7 @@ def check_layout(self, layout, *, name: str = "layout") -> np.ndarray:
     if not self.scene_joints:
         raise InputError(f"{self.name} is not a family of scenes (it has no scene joints), so it takes no {name}")
     D = len(self.scene_joints)
-    if isinstance(layout, dict):
+    if isinstance(layout, Mapping):
         unknown = sorted(set(layout) - set(self.scene_joints))
         missing = [n for n in self.scene_joints if n not in layout]
         if unknown or missing:
@@ -152,11 +152,11 @@ def check_layouts(self, layout, n: int) -> np.ndarray:
     """:meth:`Robot.check_scenes` (see there)."""
     if hasattr(layout, "detach"):  # a torch tensor
         layout = layout.detach().cpu().numpy()
-    if isinstance(layout, dict) or np.ndim(layout) != 2:
+    if isinstance(layout, Mapping) or np.ndim(layout) != 2:
         return self.check_layout(layout)[None]
     rows = np.asarray(layout, dtype=np.float64)
     if len(rows) != n:
-        raise InputError(f"scene must be (D,) or one layout per pose ({n}, D); got shape {rows.shape}")
+        raise InputError(f"layout must be (D,) or one layout per pose ({n}, D); got shape {rows.shape}")
     return np.stack([self.check_layout(d, name=f"layout[{i}]") for i, d in enumerate(rows)])
 
 

@@ -92,21 +92,13 @@ def from_mjcf(cls, path: str | os.PathLike, *, srdf: str | os.PathLike | None = 
 
 
 def _where_looked(spec: mujoco.MjSpec, path: str, name: str) -> str:
-    """A file an MJCF names that MuJoCo could not open, with where it looked: MuJoCo resolves a
-    mesh or texture file against the MJCF's folder joined with ``<compiler meshdir=…>`` (or
-    ``texturedir``)."""
-    folder = os.path.dirname(os.path.abspath(path))
-    places = []
-    for attr, what in (("meshdir", "meshdir"), ("texturedir", "texturedir")):
-        sub = getattr(spec, attr, "") or ""
-        places.append((os.path.normpath(os.path.join(folder, sub, name)), f"the MJCF's folder + {what}={sub!r}"))
-    seen, lines = set(), []
-    for where, why in places:
-        if where not in seen:
-            seen.add(where)
-            lines.append(f"{where} ({why})")
-    return (f"{path}: MuJoCo could not open {name!r}, which the MJCF names; it looked at " + "; ".join(lines) +
-            ". Fix the file name, <compiler meshdir=...> or copy the assets there")
+    """A file an MJCF names that MuJoCo could not open, with where it looked. MuJoCo's message
+    names the file as it tried it, ``<compiler meshdir=…>`` (or ``texturedir``) already joined,
+    relative to the MJCF's folder."""
+    where = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)), name))
+    dirs = ", ".join(f"{attr}={getattr(spec, attr, '') or ''!r}" for attr in ("meshdir", "texturedir"))
+    return (f"{path}: MuJoCo could not open {name!r}, which the MJCF names; it looked at {where} (the MJCF's "
+            f"folder, {dirs}). Fix the file name, <compiler meshdir=...> or copy the assets there")
 
 
 def _with_collision_matrix(self, source: str, srdf, collision_matrix: str | None) -> Any:
@@ -130,7 +122,7 @@ def _with_collision_matrix(self, source: str, srdf, collision_matrix: str | None
                       f"{urdf.pct(urdf.ALWAYS)} of {n} uniform poses): {listed}, so nearly every pose labels as "
                       "colliding. Pass collision_matrix='auto' (or srdf=, MoveIt <disable_collisions>) to "
                       "Robot.from_mjcf to disable such pairs; robot.collision_report() has the details.",
-                      urdf.CollisionWarning, stacklevel=3)
+                      urdf.CollisionWarning, stacklevel=4)   # < _with_collision_matrix < from_mjcf < Robot.from_mjcf < the caller
     if disabled or left:
         robot.disabled_pairs = tuple(disabled)
         lines = [f"{robot.name}: from MJCF {source}"]
@@ -162,7 +154,7 @@ def from_urdf(cls, path: str | os.PathLike, *, package_dirs=None, srdf: str | os
     files = urdf.read_urdf(path, package_dirs)
     name = name or files.name
     for note in files.notes:
-        warnings.warn(f"{name} ({files.path}): {note}", urdf.UrdfWarning, stacklevel=2)
+        warnings.warn(f"{name} ({files.path}): {note}", urdf.UrdfWarning, stacklevel=3)
     root = _Urdf(files.xml, {}, _zip(files.assets), files.folder, True, mimics=files.mimics)
     robot = _from_urdf_root(cls, root, files, name)
     disabled: list[urdf.DisabledPair] = []
@@ -189,7 +181,7 @@ def from_urdf(cls, path: str | os.PathLike, *, package_dirs=None, srdf: str | os
                       f"{urdf.pct(urdf.ALWAYS)} of {n} uniform poses): {listed}. These are MuJoCo's labels for this "
                       "URDF (a link welded to the world is not filtered against its child); pass srdf= (MoveIt "
                       "<disable_collisions>) or collision_matrix='auto' to disable such pairs; "
-                      f"robot.collision_report() has the details.{world}", urdf.UrdfWarning, stacklevel=2)
+                      f"robot.collision_report() has the details.{world}", urdf.UrdfWarning, stacklevel=3)
     robot.disabled_pairs = tuple(disabled)
     robot._collision_notes = _urdf_report(robot, files, rates, n, left, before)
     return robot
