@@ -16,7 +16,8 @@ from ..exact.dataset import Dataset, make_dataset
 from ..errors import InputError, ProfrobotError
 from ..exact.labels import Labels, label_poses, sample_poses
 from ..executors.progress import progress_bar
-from .robots import DefaultsFormatter, add_robot_arguments, negative_values, numbers, pose_arg, robot_of
+from .robots import (DefaultsFormatter, add_robot_arguments, layout_of, negative_values, numbers, pose_arg,
+                     robot_of)
 
 _CHUNK = 50_000
 
@@ -229,11 +230,7 @@ def cmd_view(args) -> int:
     from ..viz import Viewer
 
     robot = robot_of(args, field=args.field)
-    layout = None
-    if robot.is_family:
-        layout = (np.zeros(len(robot.scene_index)) if args.layout is None else numbers(args.layout, "layout"))
-    elif args.layout is not None:
-        raise InputError(f"--layout is for a family of scenes; {robot.name} has no scene joints")
+    layout = layout_of(args, robot)
     pose = None if args.pose is None else numbers(args.pose, "pose")
     viewer = Viewer(robot, pose, layout=layout, frame=args.frame, host=args.host, port=args.port)
     try:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from .. import scenes
 from ..errors import InputError
 from ..robot.robot import Robot
-from ..robot.file import ROBOT_FILE
+from ..robot.file import stored as stored_robot
 
 if TYPE_CHECKING:   # the functions below import numpy themselves
     import numpy as np
@@ -91,8 +91,9 @@ def field_robot(field: str | Path) -> Robot:
     field = Path(field)
     if not field.is_dir():
         raise MissingFileError(f"--field {field}: no such checkpoint directory (profrobot train --out)")
-    if (field / ROBOT_FILE).is_file():
-        return Robot.load(field / ROBOT_FILE)
+    robot = stored_robot(field, Robot)
+    if robot is not None:
+        return robot
     cfg = field / "config.json"
     if not cfg.is_file():
         raise CorruptFileError(f"--field {field}: not a PoseSDF checkpoint (no config.json; profrobot train --out)")

@@ -19,7 +19,7 @@ from safetensors.torch import load_file, save_file
 from ..files import atomic_dir, atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, InputError, InputTypeError, MissingFileError
 from ..robot.robot import Robot
-from ..robot.file import ROBOT_FILE
+from ..robot.file import ROBOT_FILE, stored as stored_robot
 
 
 class _Checkpointable(Protocol):
@@ -84,7 +84,7 @@ def read_checkpoint(cls: type[Field], path: str | os.PathLike, robot: Robot | No
         raise CorruptFileError(f"{cfg_path} is not a {FORMAT} config: it has no model section")
     stored = robot is None
     if stored:
-        robot = Robot.load(path / ROBOT_FILE) if (path / ROBOT_FILE).is_file() else None
+        robot = stored_robot(path, Robot)
         if robot is None:
             raise MissingFileError(f"checkpoint {path} stores no robot (written before fields stored theirs): pass the "
                                    f"profrobot.Robot it was trained for, {config.get('robot')!r}: PoseSDF.load(path, robot)")

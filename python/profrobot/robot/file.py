@@ -25,7 +25,7 @@ from typing import Any
 from ..errors import CorruptFileError, InputTypeError, MissingFileError
 from ..files import atomic_path
 
-__all__ = ["write", "read", "ROBOT_FILE"]
+__all__ = ["write", "read", "stored", "ROBOT_FILE"]
 
 ROBOT_FILE = "robot.pkl"   # the name a field directory stores its robot under
 
@@ -111,3 +111,10 @@ def read(path: str | os.PathLike, cls: type) -> Any:
     if not isinstance(robot, cls):
         raise CorruptFileError(f"{path}: holds a {type(robot).__name__}, not a profrobot.Robot")
     return robot
+
+
+def stored(folder: str | os.PathLike, cls: type) -> Any:
+    """The ``cls`` a field checkpoint directory stores (``folder/robot.pkl``, read as :func:`read`
+    does), or None where it stores none (directories written before fields stored their robot)."""
+    file = Path(folder) / ROBOT_FILE
+    return read(file, cls) if file.is_file() else None

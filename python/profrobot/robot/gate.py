@@ -174,6 +174,11 @@ def _robot(robot: object) -> Robot:
     return robot
 
 
+def _no_family(robot: Robot) -> InputError:
+    """The one message for a layout given to a robot with no scene joints."""
+    return InputError(f"layout= is a layout of a family of scenes; {robot.name} has no scene joints")
+
+
 def _family_needs_layout(robot: Robot) -> InputError:
     """The one message for a family where one scene is needed."""
     return InputError(f"{robot.name} is a family of scenes ({len(robot.scene_joints)} scene joints: "
@@ -191,7 +196,7 @@ def robot_at(robot: Robot, *, layout: Layout | None = None, margin: float = CLEA
     robot = _robot(robot)
     if layout is not None:
         if not robot.is_family:
-            raise InputError(f"layout= is a layout of a family of scenes; {robot.name} has no scene joints")
+            raise _no_family(robot)
         robot = robot.at(layout)
     elif robot.is_family and not family:
         raise _family_needs_layout(robot)
@@ -206,7 +211,7 @@ def with_layout(robot: Robot, poses: npt.ArrayLike, layout: Layout | None,
     robot = _robot(robot)
     if layout is not None:
         if not robot.is_family:
-            raise InputError(f"layout= is a layout of a family of scenes; {robot.name} has no scene joints")
+            raise _no_family(robot)
         if hasattr(poses, "detach") and hasattr(poses, "cpu"):
             poses = poses.detach().cpu().numpy()
         theta = np.asarray(poses)
