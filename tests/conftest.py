@@ -42,7 +42,7 @@ def pytest_report_header(config):
 
 def pytest_addoption(parser):
     parser.addoption("--slow", action="store_true", default=False,
-                     help="also run the slow end-to-end tier (tests marked slow: the README's tour, the real-rig "
+                     help="also run the slow end-to-end tier (tests marked slow: the docs' slow pages, the real-rig "
                           "fits, large cross-checks); .ci/run runs it")
 
 

@@ -2,7 +2,7 @@
 top of ``python/profrobot``), no import cycle anywhere in profrobot's import graph nor among the
 bench scripts (module-level and ``if TYPE_CHECKING:`` imports count: a type is a dependency; a
 lazy import inside a function does not), no module reaching into another package's private
-names, and every public name of the facade documented in the README's API table.
+names. (Every public name is documented: tests/test_docs.py.)
 
 import-linter (``lint-imports`` in ``.ci/run``, contracts in ``pyproject.toml``) checks the layers
 and private *modules*; these tests check what it cannot see: cycles through package
@@ -15,9 +15,7 @@ import ast
 import re
 from pathlib import Path
 
-import pytest
 
-import profrobot
 
 ROOT = Path(__file__).resolve().parents[1]      # the checkout (the package may be installed elsewhere)
 PKG = ROOT / "python" / "profrobot"
@@ -218,28 +216,3 @@ def _private_name_uses(modules: dict[str, Path]) -> list[str]:
 
 def test_no_module_reaches_into_another_packages_private_names():
     assert _private_name_uses(_modules()) == []
-
-
-def test_readme_api_table_matches_the_facade():
-    """Every name of ``profrobot.__all__`` (but modules) has a row in the README's API table,
-    and every row names something the facade exports."""
-    text = (ROOT / "README.md").read_text()
-    start = text.index("## The public API")
-    table = text[start:text.index("\n## ", start + 5)]
-    rows = re.findall(r"^\| `([A-Za-z_][\w.]*)`", table, flags=re.M)
-    named = {r.split(".")[-1] for r in rows if not r.startswith(("render.", "optim.", "field.", "executors.", "viz."))}
-    names = {n for n in profrobot.__all__ if not isinstance(getattr(profrobot, n), type(profrobot))}
-    assert names - named == set(), f"in __all__ but not in the README's API table: {sorted(names - named)}"
-    assert named - names == set(), f"in the README's API table but not in __all__: {sorted(named - names)}"
-
-
-@pytest.mark.parametrize("sub", ["render", "optim", "field", "executors", "viz"])
-def test_readme_api_table_rows_of_subpackages_exist(sub):
-    import importlib
-
-    text = (ROOT / "README.md").read_text()
-    start = text.index("## The public API")
-    table = text[start:text.index("\n## ", start + 5)]
-    mod = importlib.import_module(f"profrobot.{sub}")
-    for name in re.findall(rf"^\| `{sub}\.(\w+)`", table, flags=re.M):
-        assert name in mod.__all__, f"README's API table names profrobot.{sub}.{name}, which is not in its __all__"

@@ -71,7 +71,7 @@ def _random_gaussians(n: int, seed: int):
 def test_rasterize_cuda_tensors_agree_with_the_cpu_kernel():
     """backend="torch" on the GPU and the Rust kernel ("auto" without gsplat copies CUDA tensors
     to the CPU and back): the same image and the same gradients, to float32 rounding."""
-    from profrobot.render.rasterize import rasterize
+    from profrobot.render.rasterizer import rasterize
 
     means, covs, opac, cols = _random_gaussians(200, seed=0)
     view = torch.eye(4)[None]
@@ -96,7 +96,7 @@ def test_gsplat_draws_the_hard_cutoff_reference_pixel_for_pixel():
     3DGS's hard cutoff, on two cameras of a 64 x 48 image. Regression: gsplat evaluates pixel j at
     j + 0.5 in its K and ours at j; without the half-pixel shift of the principal point every
     image moved by half a pixel."""
-    from profrobot.render.rasterize import rasterize
+    from profrobot.render.rasterizer import rasterize
 
     means, covs, opac, cols = _random_gaussians(300, seed=3)
     turn = torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])          # the second camera rolled 90°
@@ -143,7 +143,7 @@ def _sym(g: torch.Tensor) -> torch.Tensor:
 def test_pose_loss_on_cuda_equals_the_native_cpu_pass():
     """pose_loss on CUDA tensors runs in torch; on CPU tensors in one native pass
     (``rust/bindings/images.rs``): the same losses and gradients."""
-    from profrobot.render.rasterize import RenderOut
+    from profrobot.render.rasterizer import RenderOut
     from profrobot.render.targets import pose_loss
 
     g = torch.Generator().manual_seed(0)

@@ -125,3 +125,132 @@ def test_margin_means_the_same_everywhere():
     assert before.any()
     with pytest.raises(profrobot.InputError, match="margin"):
         profrobot.collides(robot, q, margin=-1.0)
+
+
+# ---- the table: every public function that takes a robot -----------------------------------------
+
+#: Where a gate keyword means nothing, the reason (the closing note's and the docs' table is made
+#: from this and the signatures). Every other public function that takes a robot takes both.
+NOT_APPLICABLE: dict[str, dict[str, str]] = {
+    "make_views": {"margin": "the renderer draws the robot as modelled; a margin widens obstacles for exact answers"},
+    "render_depth": {"margin": "the renderer draws the scene as modelled"},
+    "cloud_from_depth": {"margin": "padding= is the self-filter's; a margin is given to the answers about the cloud"},
+    "estimate_layout": {"layout": "the layout is what it estimates (a family is required)",
+                        "margin": "it suggests one (LayoutEstimate.margin)"},
+    "train_sdf": {"layout": "the field learns what its dataset holds: make_dataset(..., layout=) and pass that",
+                  "margin": "likewise: make_dataset(..., margin=)"},
+    "robot_visual_model": {"layout": "a model, no poses", "margin": "a model, no poses"},
+    "Kinematics.from_robot": {"layout": "FK of every joint the robot has (a family's θ and δ)",
+                              "margin": "FK only"},
+    "GaussianRobot.from_robot": {"layout": "the robot's bodies only", "margin": "rendering"},
+    "LayoutEstimate.robot": {"layout": "the estimate's own layout", "margin": "the estimate's own margin"},
+    "LayoutEstimate.picture": {"layout": "the estimate's own layout", "margin": "a picture"},
+    "RayExecutor.worker_pids": {"layout": "no poses", "margin": "no poses"},
+}
+#: an executor runs chunk functions on the robot an entry point has already passed through the gate
+NOT_APPLICABLE.update({f"{e}.{m}": {"layout": "given to the entry point that fills the executor",
+                                    "margin": "given to the entry point that fills the executor"}
+                       for e in ("Executor", "LocalExecutor", "RayExecutor") for m in ("map", "ordered")})
+#: loaders: ``robot=`` is the robot the file must have been written for (its fingerprint is checked)
+LOADERS = {"Dataset.load", "PoseSDF.load", "GaussianRobot.load", "Views.load"}
+
+
+def _public_functions_taking_a_robot():
+    import importlib
+    import pkgutil
+
+    packages = ["profrobot"] + [m.name for m in pkgutil.iter_modules(profrobot.__path__, "profrobot.") if m.ispkg]
+    found = {}
+    for package in packages:
+        if package == "profrobot.cli":
+            continue   # the command line's own helpers take parsed arguments
+        mod = importlib.import_module(package)
+        for name in getattr(mod, "__all__", []):
+            obj = getattr(mod, name)
+            members = [(name, obj)] if inspect.isfunction(obj) else \
+                [(f"{name}.{k}", getattr(v, "__func__", v)) for k, v in vars(obj).items()
+                 if not k.startswith("_") and (inspect.isfunction(v) or isinstance(v, (classmethod, staticmethod)))] \
+                if inspect.isclass(obj) else []
+            for label, fn in members:
+                params = inspect.signature(fn).parameters
+                if {"robot", "family"} & set(params):
+                    found[label] = params
+    return found
+
+
+def test_the_table_of_every_public_function_that_takes_a_robot():
+    found = _public_functions_taking_a_robot()
+    assert len(found) >= 30, sorted(found)   # the 25 entry points and the rest: the table is not empty
+    for label, params in found.items():
+        if label in LOADERS:
+            continue
+        for keyword in ("layout", "margin"):
+            if keyword in NOT_APPLICABLE.get(label, {}):
+                assert keyword not in params, f"{label} takes {keyword}=: drop it from NOT_APPLICABLE"
+                continue
+            assert keyword in params, f"{label} takes a robot but no {keyword}= (the gate's keyword)"
+            assert params[keyword].kind is inspect.Parameter.KEYWORD_ONLY, (label, keyword)
+            assert params[keyword].default == (None if keyword == "layout" else profrobot.CLEARANCE), (label, keyword)
+    assert not set(NOT_APPLICABLE) - set(found), f"not public or takes no robot: {set(NOT_APPLICABLE) - set(found)}"
+    # the architecture page's table is this one (regenerate it from these signatures when it moves)
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "architecture.md").read_text()
+    for label, params in found.items():
+        row = next((line for line in page.splitlines() if line.startswith(f"| `{label}` |")), None)
+        assert row is not None, f"{label} has no row in docs/architecture.md's table of the gate"
+        cells = [c.strip() for c in row.split("|")[2:4]]
+        if label not in LOADERS:
+            assert cells == ["✓" if k in params else "—" for k in ("layout", "margin")], (label, cells)
+
+
+def test_a_family_at_a_layout_in_the_cloud_and_the_slice(family, at):
+    """cloud_from_depth's self-filter and sdf_slice's outline: a family at a layout is the family
+    pinned there, and the field is asked at the full poses."""
+    from profrobot.perception.clouds.depth import self_filter
+    from profrobot.render import Cameras
+    from profrobot.viz import sdf_slice
+
+    pinned = family.at(at)
+    theta = problems.free_poses(pinned, 1, seed=2)[0]
+    cams = Cameras.look_at([[1.6, 0.2, 1.0]], [[0.3, 0.0, 0.4]], fovy=50.0, width=40, height=30)
+    depth = np.full((1, 30, 40), 1.5)
+    a = profrobot.cloud_from_depth(family, depth, cams, pose=theta, layout=at, voxel=None)
+    b = profrobot.cloud_from_depth(pinned, depth, cams, pose=theta, voxel=None)
+    np.testing.assert_array_equal(a.cloud.points, b.cloud.points)
+    assert (a.robot_points, a.static_points) == (b.robot_points, b.static_points)
+    pts = np.random.default_rng(0).uniform(-0.2, 0.8, (2000, 3))
+    full = family.compose(theta[None], at)[0]
+    for x, y in zip(self_filter(family, theta, pts, layout=at, static=0.01), self_filter(family, full, pts, static=0.01)):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(profrobot.InputError, match="layout= is a layout of a family"):
+        profrobot.cloud_from_depth(pinned, depth, cams, pose=theta, layout=at)
+
+    import torch
+
+    asked = []
+
+    def field(q: torch.Tensor) -> torch.Tensor:   # any θ → g; records what the slice asks
+        asked.append(q.numpy().copy())
+        return q[:, 0] - float(q[:, 0].mean())
+
+    fig = sdf_slice(field, family, joints=(0, 1), resolution=12, layout=at)
+    assert asked[0].shape == (144, family.njoint)
+    np.testing.assert_allclose(asked[0][:, family.scene_index], np.broadcast_to(at, (144, len(at))), atol=1e-6)
+    title = fig.axes[0].get_title()
+    fig2 = sdf_slice(field, pinned, joints=(0, 1), resolution=12)
+    assert title.replace(family.name, "") .split("\n")[1] == fig2.axes[0].get_title().split("\n")[1]
+
+
+def test_render_a_family_at_a_layout(renderer, family, at):
+    from profrobot.render import Cameras, make_views, render_depth
+
+    theta = problems.free_poses(family.at(at), 2, seed=8)
+    full = family.compose(theta, at)
+    cams = Cameras.look_at([[1.6, 0.2, 1.0]], [[0.3, 0.0, 0.4]], width=32, height=24)
+    np.testing.assert_array_equal(render_depth(family, theta, cams, layout=at), render_depth(family, full, cams))
+    views = make_views(family, theta, cams, layout=at, progress=False)
+    np.testing.assert_array_equal(views.poses, full)
+    np.testing.assert_array_equal(views.depth, make_views(family, full, cams, progress=False).depth)
+    with pytest.raises(profrobot.InputError, match="pass its layout too, layout=δ"):
+        render_depth(family, theta, cams)

@@ -10,7 +10,7 @@ import torch
 from profrobot import _core
 from profrobot.errors import InputError, InputTypeError
 from profrobot.render import GaussianRobot, ring_cameras
-from profrobot.render.rasterize import RenderOut
+from profrobot.render.rasterizer import RenderOut
 from profrobot.render.targets import _ImageLoss, _pose_loss_torch, pose_loss
 
 
@@ -126,7 +126,7 @@ def test_a_large_rigid_batch_drawn_in_groups_equals_one_call(small_panda, monkey
     group): the same image bits as one call, and the same gradients to float64 rounding."""
     import importlib
 
-    R = importlib.import_module("profrobot.render.rasterize")      # the module (the package exports a function of its name)
+    R = importlib.import_module("profrobot.render.rasterizer")
 
     cams = ring_cameras(3, size=16, distance=1.5, lookat=(0.0, 0.0, 0.45))
     g = torch.Generator().manual_seed(4)

@@ -90,12 +90,14 @@ def test_every_public_name_resolves_and_dir_is_complete():
 
 
 def test_render_rasterize_is_the_function_whatever_was_imported_first():
+    """The function ``render.rasterize`` lives in the module ``render.rasterizer``: no submodule
+    shares a name its package exports."""
     assert loaded_after("""
-        import profrobot.render.rasterize
+        import profrobot.render.rasterizer
         from profrobot.render import rasterize
         import profrobot.render
         assert callable(rasterize) and rasterize is profrobot.render.rasterize, rasterize
-        from profrobot.render.rasterize import RenderOut
+        from profrobot.render.rasterizer import RenderOut
         assert profrobot.render.RenderOut is RenderOut
         """)  # torch, of course: the rasteriser is torch
 

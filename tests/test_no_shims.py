@@ -1,6 +1,6 @@
 """No deprecation shims: profrobot has never been released under other names, so old argument
 names, aliases, argument orders and keyword dicts are not kept; the current names are the only
-ones (README, "The public API")."""
+ones (the API reference, docs/reference/)."""
 
 from __future__ import annotations
 

@@ -170,7 +170,7 @@ def test_projection_is_the_exact_box_halfspace_projection():
     problems where the half-space cuts the box, misses θ₀, or already holds it."""
     from scipy.optimize import minimize
 
-    from profrobot.optim.resolve import project_box_halfspace
+    from profrobot.optim.resolution import project_box_halfspace
 
     rng = np.random.default_rng(0)
     n, K = 40, 7

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from profrobot.render import GaussianRobot, rasterize, ring_cameras
-from profrobot.render.rasterize import ALPHA_MIN, LOWPASS
+from profrobot.render.rasterizer import ALPHA_MIN, LOWPASS
 
 
 def _cam(W=16, H=12, f=20.0):

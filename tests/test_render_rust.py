@@ -128,7 +128,7 @@ def test_gradcheck_native_renderer_every_input(cutoff):
     """Acceptance 1 (gradcheck in f64): the fused native forward and backward (projection, SH
     colour in each Gaussian's frame, rasterization) w.r.t. means, covariances, opacities, SH
     coefficients, frames, world-to-camera matrices and intrinsics, two cameras."""
-    from profrobot.render.rasterize import render_native
+    from profrobot.render.rasterizer import render_native
 
     ins = _sh_scene()
     views = [(0, 0), (0, 1)]
@@ -147,7 +147,7 @@ def test_gradcheck_native_rigid_skinning():
     """The rigid mode (Gaussians on bodies: ``μ = R_b m + x_b``, ``Σ = R_b Q S² Qᵀ R_bᵀ``, SH in
     the body frame) against gradcheck w.r.t. body rotations and positions of two poses, local
     means, rotations and scales; four views (2 poses x 2 cameras)."""
-    from profrobot.render.rasterize import render_native
+    from profrobot.render.rasterizer import render_native
 
     g = torch.Generator().manual_seed(7)
     means, _, op, sh, _, vm, K = _sh_scene(6, 5)
@@ -177,7 +177,7 @@ def test_native_local_quats_are_local_rots_of_the_normalised_quaternion():
     its gradient is gradcheck's through the kernel's normalisation; a zero quaternion is an
     error that names it."""
     from profrobot.kinematics.fk import quat_to_matrix
-    from profrobot.render.rasterize import render_native
+    from profrobot.render.rasterizer import render_native
 
     g = torch.Generator().manual_seed(3)
     means, _, op, sh, _, vm, K = _sh_scene(6, 5)

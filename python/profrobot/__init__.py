@@ -4,6 +4,7 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 ``rust/collision/collide.rs``); booleans only, faster: :func:`collides` → ``Robot.core.collides``
 (``rust/collision/fastpath.rs``).
 
+```pycon
 >>> import profrobot
 >>> robot = profrobot.scenes.load("panda_blocks")
 >>> poses = profrobot.sample_poses(robot, 1000, seed=0)          # (1000, 9), radians / metres
@@ -13,6 +14,7 @@ The facade. Where a pose becomes a label: :func:`label_poses` → ``Robot.core.l
 >>> report = profrobot.crosscheck(robot, poses)                  # MuJoCo on the same poses
 >>> sdf = profrobot.train_sdf(robot)                             # the learned collision field
 >>> g = sdf(torch.as_tensor(poses, dtype=torch.float32))         # (1000,), g > 0: colliding
+```
 
 ``import profrobot`` loads neither torch, MuJoCo's OpenGL stack nor matplotlib: labelling,
 datasets and the cross-check need none of them. The torch side (``PoseSDF``, ``train_sdf``,
@@ -23,6 +25,7 @@ attribute access (PEP 562).
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 # Before anything imports mujoco or torch: mujoco without its GL stack (a MUJOCO_GL whose library
 # is missing cannot break the import; rendering happens in worker processes), and triton's LLVM
@@ -45,6 +48,16 @@ from .exact.ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from .robot.pointcloud import PointCloud  # noqa: E402
 from .robot.family import Moves  # noqa: E402
+
+if TYPE_CHECKING:  # what the lazy names are, for type checkers and the API reference (not loaded here)
+    from .errors import (BackendUnavailableError, ClusterError, CorruptFileError, ImmutableError, InputError,
+                         InputTypeError, MissingFileError, ModelError, ProfrobotError, RobotMismatchError, WorkerError)
+    from .field import PoseSDF, export_sdf, train_sdf
+    from .inverse import (InverseResult, TextResult, actions_from_video, pose_from_images, pose_from_text,
+                          trajectory_from_images)
+    from .kinematics import Kinematics
+    from .optim import ResolveResult, TrajectoryResult, collision_penalty, plan_trajectories, plan_trajectory, resolve
+    from .perception import CloudBuild, LayoutEstimate, cloud_from_depth, estimate_layout
 
 # name → the module that defines it; loaded on first access
 _LAZY = {

@@ -25,6 +25,7 @@ __all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "Mode
            "__version__"]
 
 __version__: str
+"""The package's version (one source: ``Cargo.toml``)."""
 
 class _PlannedPath(TypedDict):
     """What :meth:`RobotModel.plan_path` returns (a plain dict at run time)."""

@@ -33,7 +33,7 @@ def _save_npz(out: str, /, **arrays) -> None:
 
 def cmd_resolve(args) -> int:
     from ..exact.problems import colliding_poses
-    from ..optim.resolve import resolve
+    from ..optim.resolution import resolve
 
     robot, sdf = _field(args)
     if args.poses:

@@ -56,6 +56,7 @@ __all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate",
 #: value lives in :mod:`profrobot.robot.margin`, beside the margins it is the floor of: a margin at most
 #: this is no margin, and a layout within it of the robot's base is refused, ``Robot.at``)
 CLEARANCE = _MARGIN_CLEARANCE
+"""Metres: the least distance every candidate pair keeps in a certified pose (1e-6 m); a ``margin`` at most this is no margin."""
 
 
 def certify_poses(robot: Robot, poses: npt.ArrayLike, *, layout: Layout | None = None, margin: float = CLEARANCE,

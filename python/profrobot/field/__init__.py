@@ -2,10 +2,10 @@
 checkpoints and export."""
 
 from .checkpoint import export_sdf
-from .identity import check_field, field_robot
+from .identity import check_field
 from .metrics import evaluate, format_metrics
 from .model import PoseSDF
 from .train import PRESETS, TrainConfig, train_sdf
 
 __all__ = ["PoseSDF", "train_sdf", "TrainConfig", "PRESETS", "evaluate", "format_metrics", "export_sdf",
-           "check_field", "field_robot"]
+           "check_field"]

@@ -63,9 +63,9 @@ def check_field(sdf: Field) -> None:
 
 @lru_cache(maxsize=8)
 def _bundled(name: str) -> Robot:
-    from .. import scenes
+    from ..scenes import load
 
-    return scenes.load(name)
+    return load(name)
 
 
 def field_robot(sdf: Field, robot: Robot | None) -> Robot:
@@ -76,10 +76,10 @@ def field_robot(sdf: Field, robot: Robot | None) -> Robot:
     if robot is None:
         robot = getattr(sdf, "robot", None)
     if robot is None:
-        from .. import scenes
+        from ..scenes import family_names, names
 
         name = getattr(sdf, "robot_name", None)
-        if name not in scenes.names() + scenes.family_names():
+        if name not in names() + family_names():
             raise InputError(f"the field's robot {name!r} is not a bundled scene; pass robot= so that "
                              "results can be certified by the exact labeller")
         robot = _bundled(name)

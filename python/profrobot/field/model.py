@@ -189,7 +189,7 @@ class PoseSDF(nn.Module):
 
     def compose(self, theta: torch.Tensor, layout: Layout) -> torch.Tensor:
         """Full pose vectors (B, K) from robot poses θ (B, K − D) and a layout δ, (D,) or (B, D),
-        checked against the family's ranges (:meth:`profrobot.Robot.check_scene`); differentiable
+        checked against the family's ranges (:meth:`profrobot.Robot.check_layout`); differentiable
         in θ."""
         if not self.scene_joints:
             raise InputError(f"the field for {self.robot_name!r} is not a family field (no scene joints); it takes no scene")

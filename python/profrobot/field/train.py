@@ -91,6 +91,7 @@ PRESETS: dict[str, dict] = {
     "paper": dict(encoder="hierarchical", hidden=(512, 512, 512, 512), n_poses=10_000_000, batch_size=100_000, iterations=10_000,
                   schedule="paper", eikonal_batch=0),
 }
+"""The named recipes of :func:`train_sdf` (``preset=``): model and training options, each overridable by keyword."""
 
 
 #: the fewest held-out poses train_sdf reports metrics from
@@ -292,12 +293,12 @@ def train_sdf(data: Robot | Dataset, *, robot: Robot | None = None, preset: Pres
     elif isinstance(data, Dataset):
         dataset = data
         if robot is None:
-            from .. import scenes
+            from ..scenes import family_names, load, names
 
             name = data.metadata.get("robot")
-            if name not in scenes.names() + scenes.family_names():
+            if name not in names() + family_names():
                 raise InputError("pass robot= with a Dataset whose robot is not a bundled scene")
-            robot = scenes.load(name)
+            robot = load(name)
         check_robot(data.metadata, robot, "the dataset", missing_ok=True)
     else:
         raise InputTypeError(f"train_sdf needs a profrobot.Robot or Dataset; got {type(data).__name__}")

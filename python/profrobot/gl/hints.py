@@ -7,6 +7,7 @@ __all__ = ["INSTALL_HINT", "GL_OFF", "plain_reason"]
 INSTALL_HINT = ("install OSMesa for CPU rendering (Debian/Ubuntu: `apt-get install libosmesa6`) or an EGL "
                 "driver (Mesa: `apt-get install libegl1 libgl1-mesa-dri`, or the NVIDIA driver), or set "
                 "MUJOCO_GL to a backend that works here (egl, osmesa, glfw with a display)")
+"""What to install (or set) where no MuJoCo GL backend works: the end of every such message."""
 
 # MUJOCO_GL values that turn MuJoCo's rendering off
 GL_OFF = ("disable", "disabled", "off", "false", "0")

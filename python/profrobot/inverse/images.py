@@ -32,7 +32,7 @@ import torch
 from ..errors import InputError
 from ..kinematics.limits import Limits
 from ..optim.adam import BatchedAdam
-from ..optim.resolve import certify_and_continue
+from ..optim.resolution import certify_and_continue
 from ..field.identity import Field
 from ..robot.gate import Layout, finite, positive
 from ..robot.robot import Robot

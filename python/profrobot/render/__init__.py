@@ -7,7 +7,7 @@ skinning, projection, SH colour and tile rasterization; gsplat on CUDA; a pure-P
 - :mod:`.views`: multi-view data (RGB, metric depth, robot mask; :class:`Views`, :func:`make_views`);
 - :mod:`.mjviews`: MuJoCo's offscreen renderer and the chunk functions that draw in workers;
 - :mod:`.gaussians`: :class:`GaussianRobot`, Gaussians attached to the bodies, moved by FK;
-- :mod:`.rasterize`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
+- :mod:`.rasterizer`: EWA splatting with front-to-back compositing (RGB, depth, alpha); backends
   ``rust`` (``rust/bindings/render.rs``, ``rust/render/splat.rs``), ``torch``, ``gsplat``;
 - :mod:`.fit`: appearance/geometry fit to MuJoCo renders (L1 + SSIM + depth, densification);
 - :mod:`.targets`: target images (photos with masks, depth optional, any resolution) validated once and
@@ -21,14 +21,20 @@ on first use of its names.
 from __future__ import annotations
 
 import importlib
-import sys
-import types
+from typing import TYPE_CHECKING
 
 from .cameras import Cameras, ring_cameras, sphere_cameras
 from .mjviews import robot_visual_model
 from .views import Views, make_views, render_depth
 
-_LAZY = {"GaussianRobot": ".gaussians", "frozen": ".gaussians", "rasterize": ".rasterize", "RenderOut": ".rasterize",
+if TYPE_CHECKING:  # the torch side's names, for type checkers and the API reference (loaded on first use)
+    from .fit import fit_gaussians
+    from .gaussians import GaussianRobot, frozen
+    from .pose import PoseFit, fit_pose
+    from .rasterizer import RenderOut, rasterize
+    from .targets import ImageTargets, pose_loss
+
+_LAZY = {"GaussianRobot": ".gaussians", "frozen": ".gaussians", "rasterize": ".rasterizer", "RenderOut": ".rasterizer",
          "fit_gaussians": ".fit", "fit_pose": ".pose", "PoseFit": ".pose", "ImageTargets": ".targets",
          "pose_loss": ".targets"}
 
@@ -42,22 +48,6 @@ def __getattr__(name: str):
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-class _Package(types.ModuleType):
-    """``render.rasterize`` is the function, as when this package imported it eagerly, even after
-    the import system binds the submodule of the same name here."""
-
-    @property
-    def rasterize(self):
-        return importlib.import_module(".rasterize", __name__).rasterize
-
-    @rasterize.setter
-    def rasterize(self, value):
-        pass
-
-
-sys.modules[__name__].__class__ = _Package
 
 
 def __dir__() -> list[str]:

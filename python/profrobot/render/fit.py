@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from ..files import check_robot
 from ..kinematics.fk import quat_to_matrix
 from .gaussians import GaussianRobot
-from .rasterize import Backend, RenderOut
+from .rasterizer import Backend, RenderOut
 from .views import Views
 
 __all__ = ["fit_gaussians", "ssim", "image_losses"]

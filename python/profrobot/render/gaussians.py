@@ -39,7 +39,7 @@ import torch
 from ..kinematics.fk import Kinematics, quat_to_matrix
 from ..files import atomic_path, check_format, check_robot, format_tag
 from ..errors import CorruptFileError, MissingFileError
-from .rasterize import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
+from .rasterizer import Backend, Cutoff, RenderOut, native_backend, rasterize, rasterize_unchecked, render_native
 from ..errors import InputError
 from ..robot.robot import Robot
 from .cameras import Cameras

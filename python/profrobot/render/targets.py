@@ -32,7 +32,7 @@ import torch
 from ..errors import InputError
 from .cameras import Cameras
 from .gaussians import GaussianRobot
-from .rasterize import RenderOut
+from .rasterizer import RenderOut
 from .distortion import undistort_images, undistort_map
 
 __all__ = ["pose_loss", "ImageTargets", "as_pinhole_targets"]
@@ -51,24 +51,24 @@ class _ImageLoss(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, rgb, alpha, depth, rgb_t, depth_t, mask_t, valid, w_depth, w_mask):
-        from .. import _core
+        from .._core import image_loss
 
         dt = rgb.dtype
         rgb_t, depth_t = rgb_t.to(dt), depth_t.to(dt)
         ctx.weights = dict(w_depth=float(w_depth), w_mask=float(w_mask))
         # the targets too: an edit between forward and backward is then caught, not silently used
         ctx.save_for_backward(rgb, alpha, depth, rgb_t, depth_t, mask_t, valid)
-        loss = _core.image_loss(_np(rgb), _np(alpha), _np(depth), _np(rgb_t), _np(depth_t), _np(mask_t),
+        loss = image_loss(_np(rgb), _np(alpha), _np(depth), _np(rgb_t), _np(depth_t), _np(mask_t),
                                 valid=None if valid is None else _np(valid), **ctx.weights)
         return torch.from_numpy(loss)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, g_loss):
-        from .. import _core
+        from .._core import image_loss_backward
 
         rgb, alpha, depth, rgb_t, depth_t, mask_t, valid = ctx.saved_tensors
-        g_rgb, g_alpha, g_depth = _core.image_loss_backward(_np(g_loss.to(rgb.dtype)), _np(rgb), _np(alpha), _np(depth),
+        g_rgb, g_alpha, g_depth = image_loss_backward(_np(g_loss.to(rgb.dtype)), _np(rgb), _np(alpha), _np(depth),
                                                             _np(rgb_t), _np(depth_t), _np(mask_t),
                                                             valid=None if valid is None else _np(valid), **ctx.weights)
         return (torch.from_numpy(g_rgb), torch.from_numpy(g_alpha), torch.from_numpy(g_depth),

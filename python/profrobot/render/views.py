@@ -20,10 +20,12 @@ from ..errors import CorruptFileError, InputError, InputTypeError
 from ..executors import Executor, chunk_bounds, chunk_sizes, check_executor
 from ..files import atomic_path, check_format, check_robot, format_tag
 from .cameras import Cameras, ring_cameras, sphere_cameras  # noqa: F401  (their home before the split)
+from ..robot.family import Layout
+from ..robot.gate import with_layout
 from ..robot.robot import Robot
-from .mjviews import render_depth_chunk, render_views_chunk, robot_visual_model
+from .mjviews import render_depth_chunk, render_views_chunk
 
-__all__ = ["Views", "make_views", "render_depth", "robot_visual_model"]
+__all__ = ["Views", "make_views", "render_depth"]
 
 
 FORMAT_VERSION = 1  # compressed .npz: a JSON header (format, robot, cameras, meta), poses, rgb, depth, packed mask
@@ -91,8 +93,9 @@ class Views:
         return v
 
 
-def make_views(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, size: int | None = None, *, processes: int = 1,
-               progress: bool = True, chunk: int = 8, executor: Executor | None = None) -> Views:
+def make_views(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, size: int | None = None, *,
+               layout: Layout | None = None, processes: int = 1, progress: bool = True, chunk: int = 8,
+               executor: Executor | None = None) -> Views:
     """Render ``poses`` (P, K) of ``robot`` from ``cameras`` with MuJoCo, offscreen. Only the
     robot is drawn (world-body geoms are hidden); the background is MuJoCo's clear colour (black).
 
@@ -106,9 +109,12 @@ def make_views(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, size: int |
     the robot and one MuJoCo renderer, its backend chosen on its node as above); the views are
     byte-identical to the local ones (``processes`` is then ignored).
 
-    ``size``: if given, the cameras are re-rendered at ``size`` x ``size``.
+    ``size``: if given, the cameras are re-rendered at ``size`` x ``size``. ``layout``: a family's
+    layout δ (:mod:`profrobot.robot.gate`); ``poses`` are then its θ (P, K − D), and the views hold
+    the full poses. No ``margin``: a margin widens obstacles for the exact answers, and the renderer
+    draws the robot as modelled.
     """
-    poses = _check_poses(robot, poses, cameras)
+    poses = _check_poses(robot, with_layout(robot, poses, layout), cameras)
     if size is not None:
         cameras = cameras.resized(size)
     parts = _render_chunks(render_views_chunk, robot, poses, cameras, executor, processes, chunk, "MuJoCo views",
@@ -140,13 +146,16 @@ def _render_chunks(fn, robot, poses: np.ndarray, cameras: Cameras, executor, pro
                         desc=desc, unit="pose", progress=progress)
 
 
-def render_depth(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, *, processes: int = 1, progress: bool = False,
-                 chunk: int = 8, executor: Executor | None = None) -> np.ndarray:
+def render_depth(robot: Robot, poses: npt.ArrayLike, cameras: Cameras, *, layout: Layout | None = None,
+                 processes: int = 1, progress: bool = False, chunk: int = 8,
+                 executor: Executor | None = None) -> np.ndarray:
     """Depth images (P, C, H, W) float32 of the whole scene (robot and obstacles; a family's at
     each pose's scene joints) at ``poses`` (P, K) from ``cameras``: metres along each camera's z
     axis, 0 where no geom is seen. Rendered by MuJoCo like :func:`make_views` (same executors,
-    same GL choice), pinhole only (lens distortion: render ``cameras.undistorted()``)."""
-    poses = _check_poses(robot, poses, cameras)
+    same GL choice), pinhole only (lens distortion: render ``cameras.undistorted()``). ``layout``:
+    a family's layout δ, one for all poses or (P, D), ``poses`` then θ (:mod:`profrobot.robot.gate`);
+    no ``margin``, as in :func:`make_views`."""
+    poses = _check_poses(robot, with_layout(robot, poses, layout), cameras)
     return np.concatenate(_render_chunks(render_depth_chunk, robot, poses, cameras, executor, processes, chunk,
                                          "MuJoCo depth", progress))
 

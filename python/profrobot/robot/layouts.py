@@ -103,7 +103,7 @@ def robot_index(self) -> np.ndarray:
 
 
 def check_layout(self, layout, *, name: str = "layout") -> np.ndarray:
-    """:meth:`Robot.check_scene` (see there)."""
+    """:meth:`Robot.check_layout` (see there)."""
     if not self.scene_joints:
         raise InputError(f"{self.name} is not a family of scenes (it has no scene joints), so it takes no {name}")
     D = len(self.scene_joints)

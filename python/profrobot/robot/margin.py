@@ -44,6 +44,7 @@ from .family import spec_scene_joints
 #: metres: the least distance every candidate pair keeps in a certified pose (what it means:
 #: :mod:`profrobot.exact.certification`, which re-exports it, as :mod:`profrobot.robot` does).
 CLEARANCE = 1e-6
+"""Metres: the least distance every candidate pair keeps in a certified pose."""
 
 __all__ = ["ObstacleMargin", "check_margin", "obstacle_bodies", "MAX_MARGIN", "CLEARANCE"]
 

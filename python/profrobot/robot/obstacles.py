@@ -100,6 +100,8 @@ class Box(Obstacle):
 
 @dataclass(frozen=True)
 class Sphere(Obstacle):
+    """A ball of ``radius`` metres centred at ``pos``."""
+
     radius: float = 0.1
 
     def _geom_args(self, spec):

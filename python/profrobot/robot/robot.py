@@ -235,7 +235,7 @@ class Robot:
         return _layouts.compose(self, theta, layout)
 
     def check_layouts(self, layout: Layout, n: int) -> np.ndarray:
-        """The layouts of ``n`` poses, each checked by :meth:`check_scene`: (1, D) for one layout
+        """The layouts of ``n`` poses, each checked by :meth:`check_layout`: (1, D) for one layout
         (D,) or dict shared by all, (n, D) for one layout per pose (rows named ``layout[i]``)."""
         return _layouts.check_layouts(self, layout, n)
 

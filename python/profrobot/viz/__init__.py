@@ -6,6 +6,11 @@ unless a field slice is shown, and ``import profrobot.viz`` loads neither."""
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # for type checkers and the API reference (loaded on first use)
+    from .slices import save_figure, sdf_slice
+    from .viewer import VERDICT_COLOURS, Viewer
 
 __all__ = ["sdf_slice", "save_figure", "Viewer", "VERDICT_COLOURS"]
 

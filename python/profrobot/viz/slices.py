@@ -11,6 +11,9 @@ import torch
 
 from ..files import atomic_path
 from ..errors import InputError
+from ..robot.family import Layout
+from ..robot.gate import robot_at
+from ..robot.margin import CLEARANCE
 from ..robot.robot import Robot
 
 if TYPE_CHECKING:   # matplotlib (no profrobot module) loads when a figure is drawn
@@ -33,11 +36,17 @@ def save_figure(fig: Figure, path: str | os.PathLike, **kwargs) -> Path:
 
 
 def sdf_slice(sdf: SlicedField, robot: Robot, joints: tuple[int, int] = (1, 3), base_pose: np.ndarray | None = None,
-              resolution: int = 120, path: str | os.PathLike | None = None) -> Figure:
+              resolution: int = 120, path: str | os.PathLike | None = None, *, layout: Layout | None = None,
+              margin: float = CLEARANCE) -> Figure:
     """g over joints ``joints`` (indices; the others fixed at ``base_pose``, default the middle of
     their ranges), as a heat map with g = 0 drawn, and the exact labeller's colliding region
     outlined over it (the paper's supplementary figure). Returns the matplotlib Figure; saves a PNG
     when ``path`` is given.
+
+    ``layout``: a family's layout δ (:mod:`profrobot.robot.gate`): the slice is then over its θ
+    (``joints`` index θ, ``base_pose`` (K − D,)) and the field is asked at ``robot.compose(θ, δ)``;
+    a family without one is sliced over its full poses. ``margin``: metres the exact outline keeps
+    from every obstacle (a field trained at a margin is compared with the labels at that margin).
     """
     import matplotlib
 
@@ -46,11 +55,12 @@ def sdf_slice(sdf: SlicedField, robot: Robot, joints: tuple[int, int] = (1, 3), 
 
     from ..exact.labels import label_poses
 
+    exact_robot = robot_at(robot, layout=layout, margin=margin, family=True)
     i, j = (int(k) for k in joints)
-    K = robot.njoint
+    K = exact_robot.njoint
     if not (0 <= i < K and 0 <= j < K and i != j):
         raise InputError(f"joints must be two distinct indices in [0, {K}); got {joints}")
-    lim = robot.joint_limits
+    lim = exact_robot.joint_limits
     base = lim.mean(1) if base_pose is None else np.asarray(base_pose, dtype=np.float64).reshape(K)
     a = np.linspace(lim[i, 0], lim[i, 1], resolution)
     b = np.linspace(lim[j, 0], lim[j, 1], resolution)
@@ -58,16 +68,17 @@ def sdf_slice(sdf: SlicedField, robot: Robot, joints: tuple[int, int] = (1, 3), 
     poses = np.repeat(base[None], A.size, axis=0)
     poses[:, i], poses[:, j] = A.ravel(), Bg.ravel()
     with torch.no_grad():
-        g = sdf(torch.as_tensor(poses, dtype=torch.float32)).numpy().reshape(A.shape)
-    exact = label_poses(robot, poses).collides.reshape(A.shape)
+        full = poses if layout is None else robot.compose(poses, layout)
+        g = sdf(torch.as_tensor(full, dtype=torch.float32)).numpy().reshape(A.shape)
+    exact = label_poses(exact_robot, poses).collides.reshape(A.shape)
     fig, ax = plt.subplots(figsize=(6, 5))
     vmax = float(np.abs(g).max()) or 1.0
     im = ax.pcolormesh(A, Bg, g, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
     ax.contour(A, Bg, g, levels=[0.0], colors="k", linewidths=1.5)
     ax.contour(A, Bg, exact.astype(float), levels=[0.5], colors="yellow", linewidths=1.5, linestyles="--")
     fig.colorbar(im, ax=ax, label="g(θ)  (> 0: colliding)")
-    names = robot.joint_names
-    unit = lambda k: "m" if robot.joint_types[k] == "slide" else "rad"
+    names = exact_robot.joint_names
+    unit = lambda k: "m" if exact_robot.joint_types[k] == "slide" else "rad"
     ax.set_xlabel(f"{names[i]} ({unit(i)})")
     ax.set_ylabel(f"{names[j]} ({unit(j)})")
     agree = float(np.mean((g > 0) == exact))

@@ -48,6 +48,7 @@ if TYPE_CHECKING:   # viser (an optional extra) loads with the first Viewer; the
 __all__ = ["Viewer", "VERDICT_COLOURS", "ROBOT_COLOUR", "CONTACT_COLOUR", "OBSTACLE_COLOUR"]
 
 VERDICT_COLOURS = {"certified": (30, 160, 60), "blocked": (215, 30, 30), "unproven": (235, 165, 0)}
+"""RGB (0-255) of a path segment in the viewer by its certificate's verdict."""
 ROBOT_COLOUR = (255, 120, 0)
 CONTACT_COLOUR = (215, 0, 0)
 OBSTACLE_COLOUR = (140, 145, 160)

@@ -31,6 +31,7 @@ from ...errors import InputError
 from ..layouts.depth import backproject
 from ...robot.pointcloud import PointCloud
 from ...render.cameras import Cameras
+from ...robot.family import Layout
 from ...robot.robot import Robot
 
 __all__ = ["cloud_from_depth", "CloudBuild", "self_filter"]
@@ -56,12 +57,14 @@ class CloudBuild:
                 + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in s.items()))
 
 
-def self_filter(robot: Robot, pose: npt.ArrayLike, points: npt.ArrayLike, *, padding: float = 0.02,
-                static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def self_filter(robot: Robot, pose: npt.ArrayLike, points: npt.ArrayLike, *, layout: Layout | None = None,
+                padding: float = 0.02, static: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(robot, static)``: two (N,) bool masks over ``points`` (N, 3, world metres): within
     ``padding`` metres of the robot's collision geoms at ``pose`` (K,), and, with ``static``
     metres, that close to the model's other geoms (floor, table, modelled obstacles; the point
-    cloud excepted) and not the robot's. Exact against the geoms (``rust/collision/filter.rs``)."""
+    cloud excepted) and not the robot's. Exact against the geoms (``rust/collision/filter.rs``).
+    ``layout``: a family's layout δ, ``pose`` then its θ (:mod:`profrobot.robot.gate`)."""
+    robot = gate.robot_at(robot, layout=layout, family=True)
     q = gate.as_poses(robot, pose, name="pose")
     if len(q) != 1:
         raise InputError(f"pose must be one pose of {robot.njoint} joints; got {len(q)}")
@@ -73,12 +76,16 @@ def self_filter(robot: Robot, pose: npt.ArrayLike, points: npt.ArrayLike, *, pad
 
 
 def cloud_from_depth(robot: Robot, depth: npt.ArrayLike, cameras: Cameras, *, pose: npt.ArrayLike,
-                     radius: float | None = None, voxel: float | None = 0.01, padding: float = 0.02,
+                     layout: Layout | None = None, radius: float | None = None, voxel: float | None = 0.01, padding: float = 0.02,
                      static: float | None = 0.005, max_depth: float | None = None) -> CloudBuild:
     """The point-cloud obstacle of calibrated depth images (module docs): ``depth`` (C, H, W)
     metres along each camera's z axis (0 / NaN: no reading) from ``cameras``, the robot at ``pose``
     (K,) in them.
 
+    ``layout``: a family's layout δ (:mod:`profrobot.robot.gate`): ``pose`` is then its θ and the
+    static scene the family's at δ; a family without one takes a full ``pose`` (θ and δ). No
+    ``margin``: ``padding`` is how far around the robot a point counts as its own; a margin for the
+    answers about the cloud is given where they are asked (``label_poses(..., margin=)``).
     ``radius``: metres per point (default: each pixel's footprint ``z / f``); ``voxel``: the
     downsampling cube in metres (None: none); ``padding``: the self-filter's padding around the
     robot's geoms, metres; ``static``: that around the modelled static scene (None keeps those
@@ -97,7 +104,7 @@ def cloud_from_depth(robot: Robot, depth: npt.ArrayLike, cameras: Cameras, *, po
         keep = z <= max_depth
         pts, z, cam = pts[keep], z[keep], cam[keep]
     t1 = time.perf_counter()
-    own, near_static = self_filter(robot, pose, pts, padding=padding, static=static)
+    own, near_static = self_filter(robot, pose, pts, layout=layout, padding=padding, static=static)
     keep = ~(own | near_static)
     t2 = time.perf_counter()
     if radius is None:

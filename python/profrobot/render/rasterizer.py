@@ -308,14 +308,14 @@ class _Render(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, spec, *tensors):
-        from .. import _core
+        from .._core import finish_images, render_forward
 
         names, views, width, height, cutoff, threads, finish, background = spec
         floats = [t for k, t in zip(names, tensors) if k != "body"]
         dt = torch.float32 if all(t.dtype == torch.float32 for t in floats) else torch.float64
         arrays = {k: t.detach().to(device="cpu", dtype=torch.int64 if k == "body" else dt).contiguous().numpy()
                   for k, t in zip(names, tensors)}
-        rgb, alpha, dsum, contrib, npairs, state = _core.render_forward(
+        rgb, alpha, dsum, contrib, npairs, state = render_forward(
             arrays.pop("opacities"), arrays.pop("viewmats"), arrays.pop("Ks"), views, width, height, cutoff=cutoff,
             threads=threads, **arrays)
         bg = None
@@ -323,7 +323,7 @@ class _Render(torch.autograd.Function):
             # background and expected depth in one pass over the frame (dsum becomes the depth)
             # (a copy: the caller's background may change before the backward)
             bg = None if background is None else background.detach().to(device="cpu", dtype=dt).numpy().copy()
-            _core.finish_images(rgb, alpha, dsum, background=bg, threads=threads)
+            finish_images(rgb, alpha, dsum, background=bg, threads=threads)
         ctx.state, ctx.threads, ctx.compute_dtype, ctx.names, ctx.finish, ctx.background = (
             state, threads, dt, names, finish, bg)
         ctx.meta = [(t.dtype, t.device) for t in tensors]
@@ -343,7 +343,7 @@ class _Render(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, g_rgb, g_alpha, g_dsum, _g_contrib, _g_npairs):
-        from .. import _core
+        from .._core import finish_images_backward, render_backward
 
         V, H, W = ctx.out_shape
         dt = ctx.compute_dtype
@@ -360,11 +360,11 @@ class _Render(torch.autograd.Function):
         g_rgb, g_alpha, g_dsum = arr(g_rgb, (V, H, W, 3)), arr(g_alpha, (V, H, W)), arr(g_dsum, (V, H, W))
         if ctx.finish:      # back through the background and the expected depth
             alpha, depth = ctx.finished or [t.detach().numpy() for t in ctx.saved_tensors]
-            g_alpha, g_dsum = _core.finish_images_backward(g_rgb, g_alpha, g_dsum, alpha, depth,
+            g_alpha, g_dsum = finish_images_backward(g_rgb, g_alpha, g_dsum, alpha, depth,
                                                            background=ctx.background, threads=ctx.threads)
         # only the gradients autograd asks for (a pose fit's model and cameras are constants)
         needs = [k for k, need in zip(ctx.names, ctx.needs_input_grad[1:]) if need]
-        grads = _core.render_backward(ctx.state, g_rgb, g_alpha, g_dsum, needs=needs, threads=ctx.threads)
+        grads = render_backward(ctx.state, g_rgb, g_alpha, g_dsum, needs=needs, threads=ctx.threads)
         out = [None if k not in grads else torch.from_numpy(grads[k]).to(device=dev, dtype=t)
                for k, (t, dev) in zip(ctx.names, ctx.meta)]
         return (None, *out)
