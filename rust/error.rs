@@ -17,6 +17,10 @@ pub enum Error {
     /// exactly, so Python sees a `ModelError`.
     #[error("cannot label exactly: {0}")]
     Undecided(String),
+    /// The call was stopped before it finished (`cancel::request`, Ctrl-C in Python): nothing
+    /// it computed is returned.
+    #[error("interrupted")]
+    Interrupted,
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

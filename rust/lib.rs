@@ -14,7 +14,7 @@
 //!
 //! # Layout
 //!
-//! The crate root keeps three crate-wide leaves (`error`, `budget`, `threads`); every other
+//! The crate root keeps four crate-wide leaves (`error`, `budget`, `threads`, `cancel`); every other
 //! module sits in a folder by concern (`folder/mod.rs`). The table below has one row per module,
 //! lowest layer first: the leaves, then each folder followed by its modules. A top-level row (a
 //! leaf or a folder) lists the top-level modules its code uses, all in earlier rows (lower
@@ -29,7 +29,7 @@
 //! model
 //! geometry
 //! joints
-//! budget, threads
+//! budget, threads, cancel
 //! error
 //! ```
 //!
@@ -42,6 +42,7 @@
 //! | [`error`] | the one error type | | |
 //! | [`budget`] | sizes checked against the memory available before they are allocated | `error` | |
 //! | [`threads`] | one rayon pool per thread count, fork-safe | `error` | |
+//! | [`cancel`] | the flag long loops read between items: a call stopped part-way (Ctrl-C) | `error` | |
 //! | [`joints`] | joint space: poses and what holds of them before any geometry | `error`, `budget` | |
 //! | [`joints::angles`] | the one angle wrap (SO(2), shortest arcs) | | |
 //! | [`joints::couplings`] | joint equalities: dependent joints, feasible poses, coupled motions | | |
@@ -62,24 +63,25 @@
 //! | `model::trig` | sin and cos of hinge half angles: libm's (msun), one pose or four lanes, bit for bit | | |
 //! | `model::lanes` | four poses at once: nalgebra's quaternion and matrix arithmetic lane for lane, bit for bit | | |
 //! | [`model::kinematics`] | forward kinematics, one pose or a batch | | |
-//! | [`collision`] | collision queries of one pose over the candidate pairs | `error`, `joints`, `geometry`, `model` | `planning` |
+//! | [`collision`] | collision queries of one pose over the candidate pairs | `error`, `cancel`, `joints`, `geometry`, `model` | `planning` |
 //! | [`collision::collide`] | labelling: narrow phase and batches | | |
 //! | `collision::sat` | remembered separating axes, tried before GJK | | |
 //! | `collision::capsules` | two capsules in closed form, as MuJoCo measures them | | |
 //! | [`collision::fastpath`] | the booleans-only fast path: first pair in contact, likeliest first | | |
 //! | [`collision::filter`] | a sensor's points within a margin of the model at a pose (the self-filter) | | |
-//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `joints`, `geometry`, `model`, `collision` | |
+//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `cancel`, `joints`, `geometry`, `model`, `collision` | |
 //! | `planning::spans` | pairs one joint alone moves, certified once over that joint's values | | |
 //! | [`planning::motion`] | straight joint-space motions certified continuously (conservative advancement) | | |
 //! | [`planning::oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) | | |
 //! | [`planning::plan`] | global paths: RRT-Connect on the exact labeller, shortcutting | | |
-//! | [`ik`] | inverse kinematics: Levenberg–Marquardt on the SE(3) error, seeds, certified answers | `error`, `joints`, `model`, `collision` | `planning` |
+//! | [`ik`] | inverse kinematics: Levenberg–Marquardt on the SE(3) error, seeds, certified answers | `error`, `cancel`, `joints`, `model`, `collision` | `planning` |
 //! | [`render`] | the renderer after FK: EWA projection, SH colour, rasterization, fused backward | `error`, `budget` | `threads` |
 //! | [`render::real`] | `f32`/`f64`: the float types the renderer computes in | | |
 //! | [`render::splat`] | Gaussian-splat tile rasterizer: forward compositing and its exact backward | | |
 //! | [`render::images`] | rendered images finished (background, expected depth) and compared (the image loss), with gradients | | |
-//! | `bindings` | the pyo3 module `profrobot._core` (feature `python`), the only code that knows Python | `error`, `threads`, `joints`, `geometry`, `model`, `collision`, `planning`, `ik`, `render` | |
+//! | `bindings` | the pyo3 module `profrobot._core` (feature `python`), the only code that knows Python | `error`, `threads`, `cancel`, `joints`, `geometry`, `model`, `collision`, `planning`, `ik`, `render` | |
 //! | `bindings::errors` | the Python error classes, and the core's errors mapped onto them | | |
+//! | `bindings::interrupt` | long calls run off the calling thread, which watches for Ctrl-C meanwhile | | |
 //! | `bindings::arrays` | numpy arguments read in any memory layout | | |
 //! | `bindings::model` | `RobotModel`: built from MuJoCo's arrays, pickled, and all its methods | | |
 //! | `bindings::joints` | `interpolate`, `first_bad_entries` | | |
@@ -88,6 +90,7 @@
 //! | `bindings::images` | `finish_images`, `image_loss` and their backwards | | |
 
 pub mod budget;
+pub mod cancel;
 pub mod error;
 pub mod threads;
 

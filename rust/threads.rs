@@ -79,12 +79,18 @@ impl PoolCache {
 /// assert!(profrobot::with_threads(Some(0), || ()).is_err());
 /// ```
 pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    Ok(pool(threads)?.install(f))
+}
+
+/// This process's pool of `threads` workers (`None`: [`default_threads`]), built on first use;
+/// `Some(0)` is an error. [`with_threads`] runs a closure on it.
+pub fn pool(threads: Option<usize>) -> Result<Arc<ThreadPool>> {
     let n = match threads {
         None => default_threads(),
         Some(0) => return invalid_input("threads must be at least 1"),
         Some(n) => n,
     };
-    Ok(POOLS.get(std::process::id(), n)?.install(f))
+    POOLS.get(std::process::id(), n)
 }
 
 #[cfg(test)]

@@ -113,15 +113,18 @@ class RobotModel:
     def ik(self, targets_pos: npt.NDArray[np.float64], targets_quat: npt.NDArray[np.float64] | None,
            starts: npt.NDArray[np.float64], body: int, local_pos: Sequence[float], local_quat: Sequence[float], *,
            seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,
-           clearance: float = 1e-6, seed: int = 0, escape: bool = True,
+           accept_pos: float = 1e-6, accept_rot: float = 1e-6, clearance: float = 1e-6, seed: int = 0,
+           escape: bool = True, held: Sequence[bool] | None = None, free_axis: Sequence[float] | None = None,
            threads: int | None = None) -> dict[str, npt.NDArray]:
         """Inverse kinematics of the frame at ``local_pos``, ``local_quat`` (w, x, y, z) in body
         ``body``: for each of N targets (``targets_pos`` (N, 3) metres, ``targets_quat`` (N, 4) or
         None for position only), Levenberg–Marquardt on the SE(3) error from ``seeds`` seeds (the
         start of ``starts`` (N, K), three perturbations, then uniform), limits, couplings and
-        continuous joints kept; a pose within ``tol_pos`` / ``tol_rot`` is certified at
-        ``clearance`` (``escape``: a seed that reaches it in contact first tries the linearised
-        distance rows). Keys: poses (N, K), outcome (N,) uint8 (0 certified, 1 unreachable, 2
+        continuous joints kept; each seed iterates to ``tol_pos`` / ``tol_rot``, and a pose within
+        ``accept_pos`` / ``accept_rot`` reaches the target and is certified at ``clearance``
+        (``escape``: a seed that reaches it in contact first tries the linearised distance rows).
+        ``held`` (K,): joints kept at their start values (with a family's scene joints).
+        ``free_axis`` (3,): an axis of the frame (its own coordinates) whose rotation is free. Keys: poses (N, K), outcome (N,) uint8 (0 certified, 1 unreachable, 2
         reached only in collision), reached (N,) bool, position_error, rotation_error (N,)
         float64, iterations, seeds (N,) int64. Same seed, same answer, for any thread count."""
     def nearest_free(self, poses: npt.NDArray[np.float64], *, directions: int = 256, step: float = 0.02,
@@ -137,13 +140,14 @@ class RobotModel:
     def plan_path(self, start: npt.NDArray[np.float64], goal: npt.NDArray[np.float64], *, resolution: float = 0.01,
                   max_time: float = 10.0, seed: int = 0, range: float = 0.0, max_iterations: int = 200_000,
                   shortcut_rounds: int = 200, verify: int = 10, continuous: bool = True, clearance: float = 1e-6,
-                  threads: int | None = None) -> _PlannedPath:
+                  held: Sequence[bool] | None = None, threads: int | None = None) -> _PlannedPath:
         """A free path from ``start`` to ``goal`` (K,) (both free and within limits): the straight
         SO(2) path if free, else RRT-Connect then shortcutting. ``continuous``: every edge proven
         free at every pose, every pair above ``max(margin, clearance)`` (``certify_motions``;
         start and goal must be that clear); else every edge checked so that no joint moves more
         than ``resolution`` between labelled poses, the answer then verified ``verify`` times
-        finer (failing segments re-planned at that resolution; 1: off). ``checks``: poses placed
+        finer (failing segments re-planned at that resolution; 1: off). ``held`` (K,): joints no
+        state of the search moves (start and goal must agree on them). ``checks``: poses placed
         (continuous) or labelled. Keys: path (M, K) float64 (0 rows
         when none was found), status ('direct' | 'connected' | 'time_out' | 'iteration_limit'),
         checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Continuous hinges of the path

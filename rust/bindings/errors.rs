@@ -69,5 +69,7 @@ pub(super) fn to_py(e: Error) -> PyErr {
         // exactly; never a label.
         Error::InvalidModel(_) | Error::Undecided(_) => model_error(e.to_string()),
         Error::InvalidInput(_) => input_error(e.to_string()),
+        // a loop stopped by a stop another call asked for (`bindings::interrupt`): Ctrl-C
+        Error::Interrupted => pyo3::exceptions::PyKeyboardInterrupt::new_err("interrupted"),
     }
 }

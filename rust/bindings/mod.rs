@@ -5,6 +5,7 @@ mod arrays;
 mod clouds;
 mod errors;
 mod images;
+mod interrupt;
 mod joints;
 mod model;
 mod render;

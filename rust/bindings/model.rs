@@ -2,7 +2,7 @@
 //! certificates, motions, plans, inverse kinematics, sampling). pyo3 takes one `#[pymethods]` block
 //! per class, so every method is here.
 
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
@@ -11,6 +11,7 @@ use pyo3::types::{PyBytes, PyDict, PyType};
 use super::arrays::{pose_array, rows_of};
 use super::clouds::{point_rows, radius_vec};
 use super::errors::{input_error, model_error, to_py, type_error};
+use super::interrupt;
 
 use crate::collision::collide::{label_batch, LabelOptions};
 use crate::collision::fastpath::{certified_batch, collides_batch};
@@ -278,17 +279,12 @@ impl PyRobotModel {
         let q = rows_of(&poses);
         let q: &[f64] = &q;
         let opts = LabelOptions { pairs, distance };
-        let batch = py
-            .detach(|| {
-                with_threads(threads, || {
-                    // (checked first, so that bad input costs no proofs)
-                    model.check_poses(q)?;
-                    prove_apart(model);
-                    label_batch(model, q, opts)
-                })
-            })
-            .map_err(to_py)?
-            .map_err(to_py)?;
+        let batch = interrupt::run(py, threads, || {
+            // (checked first, so that bad input costs no proofs)
+            model.check_poses(q)?;
+            prove_apart(model);
+            label_batch(model, q, opts)
+        })?;
         let labels = &batch.labels;
         let out = PyDict::new(py);
         out.set_item("collides", PyArray1::from_iter(py, labels.iter().map(|l| l.collides())))?;
@@ -313,16 +309,11 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = py
-            .detach(|| {
-                with_threads(threads, || {
-                    model.check_poses(q)?;
-                    prove_apart(model);
-                    collides_batch(model, q)
-                })
-            })
-            .map_err(to_py)?
-            .map_err(to_py)?;
+        let out = interrupt::run(py, threads, || {
+            model.check_poses(q)?;
+            prove_apart(model);
+            collides_batch(model, q)
+        })?;
         Ok(PyArray1::from_vec(py, out))
     }
 
@@ -340,17 +331,12 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = py
-            .detach(|| {
-                with_threads(threads, || {
-                    model.check_poses(q)?;
-                    crate::model::broad::check_clearance(clearance)?;
-                    prove_apart(model);
-                    certified_batch(model, q, clearance)
-                })
-            })
-            .map_err(to_py)?
-            .map_err(to_py)?;
+        let out = interrupt::run(py, threads, || {
+            model.check_poses(q)?;
+            crate::model::broad::check_clearance(clearance)?;
+            prove_apart(model);
+            certified_batch(model, q, clearance)
+        })?;
         Ok(PyArray1::from_vec(py, out))
     }
 
@@ -370,7 +356,7 @@ impl PyRobotModel {
         let (a, b) = (pose_array(starts, k, "starts")?, pose_array(goals, k, "goals")?);
         let (a, b) = (rows_of(&a), rows_of(&b));
         let (a, b): (&[f64], &[f64]) = (&a, &b);
-        let r = py.detach(|| with_threads(threads, || certify_motions(model, a, b, clearance))).map_err(to_py)?.map_err(to_py)?;
+        let r = interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?;
         let verdict: Vec<u8> = r
             .iter()
             .map(|(m, _)| match m {
@@ -416,7 +402,7 @@ impl PyRobotModel {
         let q: &[f64] = &q;
         let max_distance = max_distance.unwrap_or(f64::INFINITY);
         let opts = OracleOptions { directions, step, tolerance, refine, max_distance, seed };
-        let r = py.detach(|| with_threads(threads, || nearest_free(model, q, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let r = interrupt::run(py, threads, || nearest_free(model, q, &opts))?;
         let b = r.distance.len();
         let out = PyDict::new(py);
         out.set_item("distance", PyArray1::from_vec(py, r.distance))?;
@@ -426,7 +412,7 @@ impl PyRobotModel {
     }
 
     /// A free path from `start` to `goal` (see `_core.pyi` and `planning/plan.rs`).
-    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, verify=10, continuous=true, clearance=1e-6, threads=None))]
+    #[pyo3(signature = (start, goal, *, resolution=0.01, max_time=10.0, seed=0, range=0.0, max_iterations=200_000, shortcut_rounds=200, verify=10, continuous=true, clearance=1e-6, held=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn plan_path<'py>(
         &self,
@@ -442,6 +428,7 @@ impl PyRobotModel {
         verify: usize,
         continuous: bool,
         clearance: f64,
+        held: Option<Vec<bool>>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let pose = |obj: &Bound<'py, PyAny>, what: &str| -> PyResult<Vec<f64>> {
@@ -450,9 +437,10 @@ impl PyRobotModel {
             Ok(a.as_array().to_vec())
         };
         let (s, g) = (pose(start, "start")?, pose(goal, "goal")?);
-        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify, continuous, clearance };
+        let held = held.unwrap_or_default();
+        let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify, continuous, clearance, held };
         let model = &self.model;
-        let r = py.detach(|| with_threads(threads, || plan_path(model, &s, &g, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let r = interrupt::run(py, threads, || plan_path(model, &s, &g, &opts))?;
         let k = model.njoint();
         let m = r.path.len() / k.max(1);
         let out = PyDict::new(py);
@@ -475,7 +463,7 @@ impl PyRobotModel {
     /// Inverse kinematics of a frame (see `_core.pyi` and `ik/mod.rs`): `targets_pos` `(N, 3)`,
     /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
     /// is body `body` offset by `local_pos`, `local_quat`.
-    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, clearance=1e-6, seed=0, escape=true, threads=None))]
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, accept_pos=1e-6, accept_rot=1e-6, clearance=1e-6, seed=0, escape=true, held=None, free_axis=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn ik<'py>(
         &self,
@@ -490,13 +478,32 @@ impl PyRobotModel {
         iterations: usize,
         tol_pos: f64,
         tol_rot: f64,
+        accept_pos: f64,
+        accept_rot: f64,
         clearance: f64,
         seed: u64,
         escape: bool,
+        held: Option<Vec<bool>>,
+        free_axis: Option<[f64; 3]>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let model = &self.model;
         let k = model.njoint();
+        let free_axis = match free_axis.map(Vector3::from) {
+            Some(a) if !(a.norm() > 1e-9 && a.iter().all(|v| v.is_finite())) => {
+                return Err(input_error(format!("free_axis must be a nonzero finite 3-vector; got {:?}", a.as_slice())));
+            }
+            a => a.map(|a| a.normalize()),
+        };
+        // joints held at their start values: a family's scene joints always, and those asked for
+        let mut scene = self.desc.jnt_scene.clone();
+        scene.resize(k, false); // (empty for a robot with no scene joints)
+        if let Some(h) = held {
+            if h.len() != k {
+                return Err(input_error(format!("held has {} entries for {k} joints", h.len())));
+            }
+            scene.iter_mut().zip(&h).for_each(|(s, &h)| *s |= h);
+        }
         let pos = pose_array(targets_pos, 3, "targets_pos")?;
         let n = pos.shape()[0];
         let pos = rows_of(&pos);
@@ -521,9 +528,10 @@ impl PyRobotModel {
             .map(|i| IkTarget { pos: [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], rot: quat.as_ref().map(|q| unit(&q[4 * i..4 * i + 4])) })
             .collect();
         let local = Isometry3::from_parts(Translation3::from(local_pos), unit(&local_quat));
-        let opts = IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, clearance, seed, escape };
-        let scene = &self.desc.jnt_scene;
-        let r = py.detach(|| with_threads(threads, || ik(model, &targets, starts, scene, &opts))).map_err(to_py)?.map_err(to_py)?;
+        let opts =
+            IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, accept_pos, accept_rot, free_axis, clearance, seed, escape };
+        let scene: &[bool] = &scene;
+        let r = interrupt::run(py, threads, || ik(model, &targets, starts, scene, &opts))?;
         let out = PyDict::new(py);
         out.set_item("poses", PyArray1::from_iter(py, r.iter().flat_map(|a| a.pose.iter().copied())).reshape([n, k])?)?;
         out.set_item(

@@ -1101,6 +1101,7 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
         .map_init(
             || (Scratch4::new(model), Vec::new()),
             |(scratch, hits), (c, chunk)| {
+                crate::cancel::check()?;
                 let mut labels = Vec::with_capacity(chunk.len() / k);
                 let mut pairs = Vec::new();
                 scratch.for_each(model, chunk, opts.distance, |i, q, s| {

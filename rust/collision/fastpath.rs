@@ -141,6 +141,7 @@ where
         .map_init(
             || Scratch4::new(model),
             |s, (c, chunk)| {
+                crate::cancel::check()?;
                 let mut out = Vec::with_capacity(chunk.len() / k);
                 s.for_each_lazy(
                     model,

@@ -31,7 +31,7 @@
 //! (within tolerance) or in a pose that collides: such targets come back with their best pose,
 //! error and reason.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -60,9 +60,20 @@ pub struct IkOptions {
     pub seeds: usize,
     /// LM iterations per seed, at most.
     pub iterations: usize,
-    /// Reached: position error ≤ `tol_pos` metres and rotation error ≤ `tol_rot` radians.
+    /// A seed iterates until its position error ≤ `tol_pos` metres and rotation error ≤
+    /// `tol_rot` radians (the solver's own target, tighter than the acceptance).
     pub tol_pos: f64,
     pub tol_rot: f64,
+    /// Reached: position error ≤ `accept_pos` metres and rotation error ≤ `accept_rot` radians
+    /// (the caller's tolerances). A seed that stalls between `tol_*` and `accept_*` reaches the
+    /// target, so that the outcome never contradicts the errors it reports.
+    pub accept_pos: f64,
+    pub accept_rot: f64,
+    /// An axis of the frame (unit, in the frame's own coordinates) left free: the target's
+    /// rotation then fixes only where that axis points (a symmetric part grasped at any angle
+    /// about it, a 5-DoF arm's approach axis); the rotation error is the angle between the
+    /// frame's axis and the target's.
+    pub free_axis: Option<Vector3<f64>>,
     /// The certificate's clearance (metres).
     pub clearance: f64,
     pub seed: u64,
@@ -72,7 +83,20 @@ pub struct IkOptions {
 
 impl IkOptions {
     pub fn new(body: usize, local: Isometry3<f64>) -> Self {
-        IkOptions { body, local, seeds: 128, iterations: 60, tol_pos: 1e-6, tol_rot: 1e-6, clearance: 1e-6, seed: 0, escape: true }
+        IkOptions {
+            body,
+            local,
+            seeds: 128,
+            iterations: 60,
+            tol_pos: 1e-6,
+            tol_rot: 1e-6,
+            accept_pos: 1e-6,
+            accept_rot: 1e-6,
+            free_axis: None,
+            clearance: 1e-6,
+            seed: 0,
+            escape: true,
+        }
     }
 }
 
@@ -162,11 +186,46 @@ fn error(opts: &IkOptions, target: &IkTarget, w: &Work, e: &mut [f64; 6]) -> (f6
     e[..3].copy_from_slice(dp.as_slice());
     let mut rot_err = 0.0;
     if let Some(r) = target.rot {
-        let v = (r * frame.rotation.inverse()).scaled_axis();
+        let v = match opts.free_axis {
+            None => (r * frame.rotation.inverse()).scaled_axis(),
+            Some(a) => swing(&(frame.rotation * a), &(r * a)),
+        };
         e[3..].copy_from_slice(v.as_slice());
         rot_err = v.norm();
     }
     (dp.norm(), rot_err)
+}
+
+/// The rotation vector (axis × angle, radians) of the shortest rotation taking unit vector `u`
+/// onto unit vector `t`: perpendicular to both, so it has no part about `t`.
+fn swing(u: &Vector3<f64>, t: &Vector3<f64>) -> Vector3<f64> {
+    let c = u.cross(t);
+    let (s, d) = (c.norm(), u.dot(t));
+    if s > 1e-15 {
+        return c * (s.atan2(d) / s);
+    }
+    if d > 0.0 {
+        return Vector3::zeros();
+    }
+    // opposite: half a turn about any axis perpendicular to u
+    let other = if u.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    u.cross(&other).normalize() * std::f64::consts::PI
+}
+
+/// The frame's Jacobian rows (`rows`: 3, position; 6, and rotation) over every joint, with a free
+/// axis's rotation about the target's axis taken out of the rotation rows (`(I − t tᵀ) J_ω`):
+/// turning about it costs nothing.
+fn frame_jacobian(model: &RobotModel, w: &Work, opts: &IkOptions, target: &IkTarget, rows: usize, jac: &mut DMatrix<f64>) {
+    let p = (w.frames[opts.body] * opts.local).translation.vector;
+    point_jacobian(model, w, opts.body, &p, rows, jac);
+    if let (Some(a), Some(r), 6) = (opts.free_axis, target.rot, rows) {
+        let t = r * a;
+        let proj = Matrix3::identity() - t * t.transpose();
+        for c in 0..jac.ncols() {
+            let col = proj * Vector3::new(jac[(3, c)], jac[(4, c)], jac[(5, c)]);
+            (jac[(3, c)], jac[(4, c)], jac[(5, c)]) = (col.x, col.y, col.z);
+        }
+    }
 }
 
 /// `‖e‖_W²`.
@@ -256,8 +315,7 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
         }
         iters += 1;
         // the geometric Jacobian of the frame point over every joint that moves it, then dq/dv
-        let p = (w.frames[opts.body] * opts.local).translation.vector;
-        point_jacobian(model, w, opts.body, &p, rows, &mut jac);
+        frame_jacobian(model, w, opts, target, rows, &mut jac);
         chain.update(model, &w.q);
         let dq = DMatrix::from_row_slice(model.njoint(), nv, &chain.dq);
         let jv = &jac * dq; // (rows, nv)
@@ -361,8 +419,7 @@ fn escape(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTa
         iters += 1;
         let mut e = [0.0; 6];
         error(opts, target, w, &mut e);
-        let p = (w.frames[opts.body] * opts.local).translation.vector;
-        point_jacobian(model, w, opts.body, &p, rows_t, &mut jac);
+        frame_jacobian(model, w, opts, target, rows_t, &mut jac);
         chain.update(model, &w.q);
         let dq = DMatrix::from_row_slice(k, nv, &chain.dq);
         let jv = &jac * &dq;
@@ -471,7 +528,13 @@ pub fn ik(model: &RobotModel, targets: &[IkTarget], starts: &[f64], scene: &[boo
                 (w, Chain { vars: chain.vars.clone(), dq: chain.dq.clone() })
             },
             |(w, chain), items| {
-                items.iter().map(|&i| one(model, chain, opts, &ranges, &targets[i], &starts[i * k..(i + 1) * k], i, w)).collect()
+                items
+                    .iter()
+                    .map(|&i| {
+                        crate::cancel::check()?;
+                        one(model, chain, opts, &ranges, &targets[i], &starts[i * k..(i + 1) * k], i, w)
+                    })
+                    .collect()
             },
         )
         .collect();
@@ -525,7 +588,8 @@ fn one(
             model.couplings.apply(&mut w.q);
         }
         tried += 1;
-        let (reached, pe, re, it) = solve(model, chain, opts, target, w);
+        let (converged, pe, re, it) = solve(model, chain, opts, target, w);
+        let reached = converged || (pe <= opts.accept_pos && re <= opts.accept_rot);
         iterations += it;
         let c = pe * pe + LENGTH * LENGTH * re * re;
         if reached {
@@ -543,7 +607,7 @@ fn one(
                 place(model, w);
                 let mut e = [0.0; 6];
                 let (pe2, re2) = error(opts, target, w, &mut e);
-                if pe2 <= opts.tol_pos && re2 <= opts.tol_rot && certify(w)? {
+                if pe2 <= opts.accept_pos && re2 <= opts.accept_rot && certify(w)? {
                     (free, pe, re) = (true, pe2, re2);
                 } else {
                     w.q.copy_from_slice(&keep);

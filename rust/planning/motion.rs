@@ -738,6 +738,7 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
                 chunk
                     .iter()
                     .map(|&i| {
+                        crate::cancel::check()?;
                         let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
                         space.delta(a, g, d);
                         let m = certify_motion(model, levers, &space, a, d, clearance, ms)

@@ -120,8 +120,17 @@ pub fn nearest_free(model: &RobotModel, poses: &[f64], opts: &OracleOptions) -> 
         owned.chunks_exact_mut(k).for_each(|q| model.couplings().apply(q));
         Cow::Owned(owned)
     };
-    let found: Vec<Result<(f64, Vec<f64>, u64)>> =
-        coupled.par_chunks(k).enumerate().map_init(|| Scratch::new(model), |s, (i, q0)| search.pose(q0, i as u64, s)).collect();
+    let found: Vec<Result<(f64, Vec<f64>, u64)>> = coupled
+        .par_chunks(k)
+        .enumerate()
+        .map_init(
+            || Scratch::new(model),
+            |s, (i, q0)| {
+                crate::cancel::check()?;
+                search.pose(q0, i as u64, s)
+            },
+        )
+        .collect();
     let found = first_error(found)?;
     let mut out = NearestFree { distance: Vec::with_capacity(b), poses: Vec::with_capacity(b * k), checks: Vec::with_capacity(b) };
     for (d, q, c) in found {

@@ -59,6 +59,9 @@ pub struct PlanOptions {
     pub continuous: bool,
     /// Metres, in (0, `MAX_CLEARANCE`]: the distance every pair keeps on a continuous edge.
     pub clearance: f64,
+    /// Joints held where they are (empty: none): the start and goal must agree on them, and no
+    /// state of the search moves them (a gripper's jaw the task does not open).
+    pub held: Vec<bool>,
 }
 
 impl Default for PlanOptions {
@@ -73,6 +76,7 @@ impl Default for PlanOptions {
             verify: 10,
             continuous: true,
             clearance: MAX_CLEARANCE,
+            held: Vec::new(),
         }
     }
 }
@@ -390,6 +394,19 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     }
     let start: Vec<f64> = start.iter().zip(&checker.space.wraps).map(|(&v, &w)| if w { wrap(v) } else { v }).collect();
     let goal: Vec<f64> = goal.iter().zip(&checker.space.wraps).map(|(&v, &w)| if w { wrap(v) } else { v }).collect();
+    if !opts.held.is_empty() {
+        if opts.held.len() != k {
+            return invalid_input(format!("held has {} entries for {k} joints", opts.held.len()));
+        }
+        for j in (0..k).filter(|&j| opts.held[j]) {
+            if start[j] != goal[j] {
+                return invalid_input(format!("joint {j} is held but start ({}) and goal ({}) differ in it", start[j], goal[j]));
+            }
+            // the sampler draws lo + (hi - lo) u: a held joint's every state is its start value
+            checker.space.lo[j] = start[j];
+            checker.space.hi[j] = start[j];
+        }
+    }
     let finish = |path: Vec<f64>, status, checks, iterations, tree_sizes, raw| PlanResult {
         path,
         status,
@@ -399,7 +416,9 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         raw_waypoints: raw,
         seconds: clock.elapsed().as_secs_f64(),
     };
-    let deadline = |c: &Instant| c.elapsed().as_secs_f64() > opts.max_time;
+    // a stop asked for (Ctrl-C, `cancel`) ends the search as the time budget would; the binding
+    // that asked raises instead of returning what was found
+    let deadline = |c: &Instant| c.elapsed().as_secs_f64() > opts.max_time || crate::cancel::requested();
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let (path, status, iterations, sizes, raw) = if checker.edge_free(&start, &goal)? {
         (vec![start.clone(), goal.clone()], PlanStatus::Direct, 0, [1, 1], 2)

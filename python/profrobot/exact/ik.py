@@ -10,6 +10,7 @@ certified path from a joint pose to a frame pose. Base layer: no torch.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -21,10 +22,11 @@ from ..errors import InputError, InputTypeError
 from .planning import PathResult, plan_path
 from ..robot.robot import Robot
 from .labels import sample_poses
-from ..robot.gate import (Layout, as_poses, count, positive, robot_at, seed as check_seed, threads as check_threads,
-                          with_layout)
+from ..robot.gate import (Layout, as_poses, count, joint_mask, positive, robot_at, seed as check_seed,
+                          threads as check_threads, with_layout)
 
 __all__ = ["IKResult", "ik", "frame_of", "plan_to_pose", "PoseMotion", "as_targets"]
+
 
 _REASONS = {0: "certified", 1: "unreachable: no seed came within the tolerances (the best error is reported)",
             2: "reached only in collision: every pose that reaches it collides or comes within the clearance"}
@@ -170,6 +172,7 @@ def _starts(robot: Robot, start: npt.ArrayLike | None, n: int) -> np.ndarray:
 def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike | None = None,
        layout: Layout | None = None, position_tolerance: float = 1e-4, rotation_tolerance: float = 1e-3,
        seeds: int = 128, iterations: int = 60, seed: int = 0, escape: bool = True, margin: float = CLEARANCE,
+       locked: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None, tool: npt.ArrayLike | None = None,
        threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
@@ -188,26 +191,96 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     reaches the target in contact first tries to move out (``escape``): the pairs nearer than
     5 mm enter as linearised distance rows beside the target's (``rust/ik/mod.rs``), and the pose it
     ends in is certified like any other. Same ``seed``, same answers, for any thread count.
-    ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.robot.gate`)."""
+    ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.robot.gate`).
+    ``locked``: names of joints that keep their ``start`` values exactly (a gripper's jaw, a
+    joint the task must not move); the rest solve for the target. ``free_axis``: an axis of the
+    frame (``"x"``, ``"y"``, ``"z"`` or a (3,) vector in its own coordinates) whose rotation is
+    free: the target fixes where it points, not the angle about it (a symmetric part grasped at
+    any angle about the tool axis; the rotation error is then the angle between the two axes).
+    ``tool``: a (4, 4) transform or (3,) offset (metres) of the tool in the frame's coordinates;
+    the targets are then the tool's poses (the model is not edited).
+
+    ``reached`` and ``outcome`` never disagree: a target is reached when a seed's errors are
+    within the tolerances (whether it stopped there or at the hundredth the solver aims for), and
+    only then is it certified or reported "reached only in collision"."""
     robot = robot_at(robot, layout=layout, margin=margin, family=True)
+    held = joint_mask(robot, locked, "locked")
     t0 = time.perf_counter()
     pos, quat = as_targets(targets)
     body, lpos, lquat = frame_of(robot, frame)
+    lpos, lquat = with_tool(lpos, lquat, tool)
+    axis = free_axis_of(free_axis)
+    if axis is not None and quat is None:
+        raise InputError("free_axis needs orientation targets ((N, 4, 4) transforms): position-only targets leave "
+                         "every axis free already")
     position_tolerance = positive("position_tolerance", position_tolerance)
     rotation_tolerance = positive("rotation_tolerance", rotation_tolerance)
     seeds = count("seeds", seeds)
     iterations = count("iterations", iterations)
     starts = _starts(robot, start, len(pos))
     out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
-                        tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100, clearance=CLEARANCE,
-                        seed=check_seed(seed), escape=bool(escape), threads=check_threads(threads))
+                        tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100,
+                        accept_pos=position_tolerance, accept_rot=rotation_tolerance, clearance=CLEARANCE,
+                        seed=check_seed(seed), escape=bool(escape), held=held, free_axis=axis,
+                        threads=check_threads(threads))
     poses = out["poses"]
     pe, re = out["position_error"], out["rotation_error"]
     reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
     certified = out["outcome"] == 0
+    # one verdict: reached exactly where the outcome is not "unreachable" (rust/ik/mod.rs accepts a
+    # seed at the tolerances, not only at the hundredth it iterates to; tests/test_ik_options.py)
     return IKResult(poses=poses, reached=reached, certified=certified, position_error=pe, rotation_error=re,
                     iterations=out["iterations"], seeds=out["seeds"], outcome=out["outcome"],
                     seconds=time.perf_counter() - t0)
+
+
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def free_axis_of(free_axis: str | npt.ArrayLike | None) -> list[float] | None:
+    """A free axis of the frame: ``"x"``, ``"y"``, ``"z"`` or a nonzero (3,) vector in the frame's
+    own coordinates, as a unit list; None for none. Anything else is refused naming it."""
+    if free_axis is None:
+        return None
+    if isinstance(free_axis, str):
+        if free_axis not in _AXES:
+            raise InputError(f"free_axis must be 'x', 'y', 'z' or a (3,) vector in the frame's coordinates; got {free_axis!r}")
+        return list(_AXES[free_axis])
+    try:
+        a = np.asarray(free_axis, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputTypeError(f"free_axis must be 'x', 'y', 'z' or a (3,) vector; got {type(free_axis).__name__}") from None
+    if a.shape != (3,) or not np.isfinite(a).all() or np.linalg.norm(a) < 1e-9:
+        raise InputError(f"free_axis must be a nonzero finite (3,) vector in the frame's coordinates; got {a.tolist()}")
+    return (a / np.linalg.norm(a)).tolist()
+
+
+def with_tool(lpos: np.ndarray, lquat: np.ndarray, tool: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+    """The frame ``(lpos, lquat)`` (in its body) moved by ``tool``: a (4, 4) transform or a (3,)
+    offset (metres) in the frame's own coordinates (a tool centre point, a gripper's fingertip
+    point), so that the targets are the tool's poses. None leaves the frame as it is."""
+    if tool is None:
+        return lpos, lquat
+    t = np.asarray(tool, dtype=np.float64)
+    if t.shape == (3,):
+        offset, t = t, np.eye(4)
+        t[:3, 3] = offset
+    pos, quat = as_targets(t, "tool")
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, lquat)
+    q = np.zeros(4)
+    mujoco.mju_mulQuat(q, lquat, quat[0] if quat is not None else np.array([1.0, 0.0, 0.0, 0.0]))
+    return lpos + rot.reshape(3, 3) @ pos[0], q
+
+def frame_moved_by(robot: Robot, frame: str) -> np.ndarray:
+    """(K,) bool: the joints that move ``frame`` (those on the bodies from the world to its body)."""
+    body, _, _ = frame_of(robot, frame)
+    m = robot.mj_model
+    chain = set()
+    while body > 0:
+        chain.add(int(body))
+        body = int(m.body_parentid[body])
+    return np.array([int(m.jnt_bodyid[m.joint(n).id]) in chain for n in robot.joint_names])
 
 
 @dataclass
@@ -245,7 +318,8 @@ class PoseMotion:
 
 def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, frame: str, layout: Layout | None = None,
                  margin: float = CLEARANCE, candidates: int = 8, max_time: float = 10.0, seed: int = 0,
-                 threads: int | None = None, **plan_options) -> PoseMotion:
+                 locked: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
+                 tool: npt.ArrayLike | None = None, threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
 
@@ -267,7 +341,11 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
     candidates = count("candidates", candidates)
     max_time = positive("max_time", max_time)
     tgt = pos if quat is None else np.asarray(target, dtype=np.float64).reshape(1, 4, 4)
+    joint_mask(robot, locked, "locked")   # refused here, before any candidate is computed
     others = sample_poses(robot, max(candidates - 1, 1), seed=check_seed(seed))
+    # another branch of the arm, not another jaw: what does not move the frame stays at the start
+    still = ~frame_moved_by(robot, frame)
+    others[:, still] = q0[0, still]
     goals: list[tuple[np.ndarray, IKResult]] = []
     made = 0
     last_ik = None
@@ -277,7 +355,8 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
         nonlocal made, last_ik
         while len(goals) <= c and made < candidates:
             near = q0[0] if made == 0 else others[made - 1]
-            sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, threads=threads)
+            sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, locked=locked, free_axis=free_axis,
+                     tool=tool, threads=threads)
             made += 1
             last_ik = sol
             if sol.certified[0] and not any(np.abs(sol.poses[0] - g).max() < 1e-6 for g, _ in goals):
@@ -298,7 +377,8 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
             if left <= 0:
                 return last if last is not None else PoseMotion(None, None, last_ik, c, "time ran out")
             budget = left / max(len(goals) - c, 1) if share == 1.0 else min(share * max_time, left)
-            res = plan_path(robot, q0[0], goal, seed=int(seed) + c, max_time=budget, threads=threads, **plan_options)
+            res = plan_path(robot, q0[0], goal, seed=int(seed) + c, max_time=budget, locked=locked, threads=threads,
+                            **plan_options)
             found = bool(res.found and res.certified)
             last = PoseMotion(plan=res, goal=goal, ik=sol, candidates=c + 1,
                               outcome="certified" if found else "no path found")

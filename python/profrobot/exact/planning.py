@@ -18,6 +18,7 @@ checked. Same seed, same path, whatever the thread count.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -83,7 +84,8 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
 def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout: Layout | None = None,
               margin: float = CLEARANCE, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
               range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
-              check: Literal["continuous", "sampled"] = "continuous", threads: int | None = None) -> PathResult:
+              check: Literal["continuous", "sampled"] = "continuous", locked: Sequence[str] = (),
+              threads: int | None = None) -> PathResult:
     """A collision-free path from ``start`` to ``goal`` (each (K,), free and within limits).
 
     Args:
@@ -107,6 +109,8 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
             keep it too.
         layout: a family's layout δ: the path is planned over its θ with the obstacles pinned
             there (``robot.at(layout)``; :mod:`profrobot.robot.gate`).
+        locked: names of joints no waypoint moves (a gripper's jaw while the arm moves): start
+            and goal must agree on them.
 
     Raises ValueError naming the problem for a colliding or out-of-limits start or goal (and,
     with the continuous certificate, a start or goal within ``CLEARANCE`` of contact, which no
@@ -121,6 +125,11 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
                          f"{np.shape(start)} and {np.shape(goal)}")
     resolution, max_time = gate.positive("resolution", resolution), gate.positive("max_time", max_time)
     seed = gate.seed(seed)
+    held = gate.joint_mask(robot, locked, "locked")
+    if held is not None:
+        moved = [n for j, n in enumerate(robot.joint_names) if held[j] and s[0, j] != g[0, j]]
+        if moved:
+            raise InputError(f"locked joints must keep one value: start and goal differ in {', '.join(moved)}")
     verify = gate.count("verify", verify, why="1: no verification")
     if check not in ("continuous", "sampled"):
         raise InputError(f"check must be 'continuous' or 'sampled'; got {check!r}")
@@ -134,7 +143,8 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
                                range=float(range), max_iterations=int(iterations),
                                shortcut_rounds=int(shortcut_rounds), verify=int(verify),
-                               continuous=check == "continuous", clearance=CLEARANCE, threads=check_threads(threads))
+                               continuous=check == "continuous", clearance=CLEARANCE, held=held,
+                               threads=check_threads(threads))
     status = out["status"]
     found = status in ("direct", "connected")
     reason = "" if found else {

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from numbers import Integral, Real
+from collections.abc import Sequence
 from typing import Any, Literal, overload
 
 import numpy as np
@@ -33,7 +34,7 @@ from .family import Layout
 from .margin import CLEARANCE
 from .robot import Robot
 
-__all__ = ["robot_at", "with_layout", "as_poses", "poses_within_limits", "positive", "finite", "count", "seed",
+__all__ = ["robot_at", "with_layout", "as_poses", "poses_within_limits", "joint_mask", "positive", "finite", "count", "seed",
            "threads", "memory", "available_bytes", "with_margin", "CLEARANCE", "Layout"]
 
 
@@ -227,6 +228,29 @@ def with_layout(robot: Robot, poses: npt.ArrayLike, layout: Layout | None,
                              f"layout too, layout=δ ({d} scene joints: {', '.join(robot.scene_joints)}), or full "
                              f"poses robot.compose(θ, δ) of shape (B, {k})")
     return poses
+
+
+def joint_mask(robot: Robot, names: Sequence[str], name: str) -> list[bool] | None:
+    """(K,) True on the joints of ``robot`` named in ``names`` (``locked=``: joints an entry point
+    keeps where they are), None for none. An unknown or repeated name, or one string instead of a
+    list of names, is refused naming ``name``."""
+    if isinstance(names, str):
+        raise InputTypeError(f"{name} must be a list of joint names; got the string {names!r} (write [{names!r}])")
+    try:
+        given = list(names)
+    except TypeError:
+        raise InputTypeError(f"{name} must be a list of joint names; got {type(names).__name__}") from None
+    if not given:
+        return None
+    mask = [False] * robot.njoint
+    for n in given:
+        if not isinstance(n, str) or n not in robot.joint_names:
+            raise InputError(f"{name}: {n!r} is not a joint of {robot.name} (joints: {', '.join(robot.joint_names)})")
+        j = robot.joint_names.index(n)
+        if mask[j]:
+            raise InputError(f"{name}: {n!r} is named twice")
+        mask[j] = True
+    return mask
 
 
 def poses_within_limits(robot: "Robot", poses: npt.ArrayLike, name: str = "poses") -> np.ndarray:

@@ -95,6 +95,15 @@ class Robot:
                              "Remove free-floating objects and ball joints from the scene.")
         if m.njnt == 0:
             raise InputError(f"{name}: the model has no joints, so there is no pose to label")
+        # MuJoCo's autolimits reads a range whose two ends are equal as no range at all: the joint
+        # would move freely where its author meant it held (0 0 is MuJoCo's "no range" itself)
+        pinned = [j for j in range(m.njnt) if not m.jnt_limited[j] and m.jnt_range[j, 0] == m.jnt_range[j, 1] != 0]
+        if pinned:
+            desc = ", ".join(f"{object_name(m, mujoco.mjtObj.mjOBJ_JOINT, j, 'joint')!r} [{m.jnt_range[j, 0]:g}, "
+                             f"{m.jnt_range[j, 1]:g}]" for j in pinned)
+            raise InputError(f"{name}: joint range with equal ends: {desc}. MuJoCo reads such a range as none (the "
+                             "joint would move without limit); give the joint a range lo < hi, or remove it (a fixed "
+                             "body), and hold joints where they are with ik(..., locked=[...]) / plan_path(..., locked=[...])")
 
         self.joint_names: list[str] = [object_name(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(m.njnt)]
         self.joint_types: list[str] = ["hinge" if t == HINGE else "slide" for t in m.jnt_type]

@@ -1,0 +1,55 @@
+//! Long calls that stop on Ctrl-C. Python runs its signal handlers only on the main thread and
+//! only between bytecodes, so a native call that holds the calling thread for a minute hears
+//! Ctrl-C only when it returns. Here the work runs on the rayon pool instead, and the calling
+//! thread waits for it, checking for signals every [`POLL`]; on one it asks the loops to stop
+//! (`crate::cancel`), waits for them (one item of work), and raises the signal's exception
+//! (`KeyboardInterrupt`), returning nothing the work computed.
+
+use std::sync::mpsc::{sync_channel, RecvTimeoutError};
+use std::time::Duration;
+
+use pyo3::prelude::*;
+
+use super::errors::to_py;
+use crate::cancel;
+use crate::error::Result;
+use crate::threads::pool;
+
+/// How often the waiting thread checks for signals.
+const POLL: Duration = Duration::from_millis(20);
+
+/// `work()` on the pool of `threads` workers, the GIL released, stopping on Ctrl-C (module docs).
+/// What `py.detach(|| with_threads(threads, work))` was, with the core's errors mapped to Python's.
+pub(super) fn run<T: Send>(py: Python<'_>, threads: Option<usize>, work: impl FnOnce() -> Result<T> + Send) -> PyResult<T> {
+    let pool = pool(threads).map_err(to_py)?;
+    let mut out: Option<Result<T>> = None;
+    let mut signal: Option<PyErr> = None;
+    py.detach(|| {
+        let (done, finished) = sync_channel::<()>(1);
+        let slot = &mut out;
+        pool.in_place_scope(|s| {
+            s.spawn(move |_| {
+                *slot = Some(work());
+                let _ = done.send(());
+            });
+            loop {
+                match finished.recv_timeout(POLL) {
+                    Ok(()) | Err(RecvTimeoutError::Disconnected) => break,
+                    Err(RecvTimeoutError::Timeout) if signal.is_none() => {
+                        if let Err(e) = Python::attach(|py| py.check_signals()) {
+                            cancel::request();
+                            signal = Some(e);
+                        }
+                    }
+                    Err(RecvTimeoutError::Timeout) => {}
+                }
+            }
+        });
+    });
+    if let Some(e) = signal {
+        cancel::clear();
+        return Err(e);
+    }
+    // the job always runs (in_place_scope waits for it); a panic in it propagated above
+    out.expect("the interruptible job ran").map_err(to_py)
+}
