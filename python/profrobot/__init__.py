@@ -38,7 +38,8 @@ gl.import_mujoco()
 from . import scenes  # noqa: E402
 from ._core import __version__  # noqa: E402
 from .errors import RendererUnavailableError  # noqa: E402
-from .exact.certification import CLEARANCE, MotionCertificate, PathCheck, certify_motions, certify_poses, check_path  # noqa: E402
+from .exact.certification import (CLEARANCE, FirstContact, MotionCertificate, PathCheck, certify_motions,  # noqa: E402
+                                  certify_poses, check_path, first_contact)
 from .exact.crosscheck import CrosscheckReport, crosscheck, mujoco_labels  # noqa: E402
 from .exact.dataset import Dataset, make_dataset  # noqa: E402
 from .exact.labels import Labels, collides, interpolate, label_poses, sample_poses  # noqa: E402
@@ -91,7 +92,8 @@ __all__ = [
     "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion",
     "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "actions_from_video", "estimate_layout", "LayoutEstimate",
-    "certify_poses", "certify_motions", "MotionCertificate", "check_path", "PathCheck", "CLEARANCE",
+    "certify_poses", "certify_motions", "MotionCertificate", "first_contact", "FirstContact", "check_path", "PathCheck",
+    "CLEARANCE",
     "ProfrobotError", "InputError", "InputTypeError", "ModelError", "RobotMismatchError", "CorruptFileError",
     "MissingFileError", "BackendUnavailableError", "ClusterError", "WorkerError", "ImmutableError",
 ]

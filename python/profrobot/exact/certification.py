@@ -44,12 +44,13 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
-from .labels import as_poses, check_threads, interpolate, so2_steps
+from .labels import as_poses, check_threads, interpolate, label_poses, so2_steps
 from ..robot.gate import Layout, with_layout, with_margin
 from ..robot.margin import CLEARANCE as _MARGIN_CLEARANCE
 from ..robot.robot import Robot
 
-__all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "check_path", "path_free_at",
+__all__ = ["CLEARANCE", "certify_poses", "certify_motions", "MotionCertificate", "first_contact", "FirstContact",
+           "check_path", "path_free_at",
            "PathCheck", "certified_summary", "failures_of"]
 
 #: metres: the least distance every candidate pair keeps in a certified pose (module docs; the
@@ -117,6 +118,103 @@ def certify_motions(robot: Robot, starts: npt.ArrayLike, goals: npt.ArrayLike, *
     v = out["verdict"]
     return MotionCertificate(certified=v == 0, blocked=v == 1, unproven=v == 2, blocked_at=out["blocked_at"],
                              states=out["states"])
+
+
+@dataclass
+class FirstContact:
+    """Where a straight motion first stops being free (:func:`first_contact`).
+
+    Attributes:
+        certified: the whole motion is proven free (then there is no contact: ``t`` is NaN).
+        t: the motion parameter in [0, 1] of the first pose not certified free (in contact, or
+            within ``max(margin, CLEARANCE)`` of it; or where no proof reaches further, within
+            the certificate's resolution of that), to ``tolerance``; NaN when ``certified``.
+        free_until: every pose of the motion up to this parameter is proven free (``t`` −
+            ``free_until`` ≤ ``tolerance``; 1.0 when ``certified``).
+        pose: (K,) the pose at ``t`` (None when ``certified``); ``before``: (K,) the pose at
+            ``free_until``, proven free.
+        pairs: the geom pairs in contact at ``pose`` (none when it is only within the clearance).
+        certificates: straight motions certified on the way (the search's cost).
+    """
+
+    certified: bool
+    t: float
+    free_until: float
+    pose: np.ndarray | None
+    before: np.ndarray
+    pairs: list[tuple[str, str]]
+    certificates: int
+
+
+def first_contact(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout: Layout | None = None,
+                  margin: float = CLEARANCE, tolerance: float = 1e-6, threads: int | None = None) -> FirstContact:
+    """The first pose of the straight motion ``start → goal`` ((K,) each; the motion
+    :func:`certify_motions` proves and :func:`profrobot.interpolate` replays) that is not certified
+    free: where a closing gripper first touches the part, where an approach first meets the table.
+
+    ``MotionCertificate.blocked_at`` is *a* pose where the proof failed, not the first one. Here
+    the continuous certificate bisects: the motion is proven free on ``[0, free_until]`` and the
+    pose at ``t`` is not certified free (a pair in contact or within ``max(margin, CLEARANCE)``),
+    with ``t − free_until ≤ tolerance``. Every step keeps both facts, so the answer is exact to
+    ``tolerance``, not sampled. A start that is not free itself gives ``t = 0``."""
+    robot = with_margin(robot, margin)
+    a = as_poses(robot, with_layout(robot, start, layout, "start"), name="start", check_limits=True)
+    b = as_poses(robot, with_layout(robot, goal, layout, "goal"), name="goal", check_limits=True)
+    if len(a) != 1 or len(b) != 1:
+        raise InputError(f"start and goal must each be one pose (K,); got {np.shape(start)} and {np.shape(goal)}")
+    if not (isinstance(tolerance, (int, float)) and not isinstance(tolerance, bool) and 0 < tolerance < 1):
+        raise InputError(f"tolerance must be a number in (0, 1) (of the motion parameter); got {tolerance!r}")
+    a, b = a[0], b[0]
+    step = so2_steps(robot, np.stack([a, b]))[0]
+
+    def at(t: float) -> np.ndarray:
+        """The motion's pose at ``t``: the independent joints straight (continuous ones on the
+        short arc), the dependent ones on their couplings."""
+        return robot.project(a + t * step)
+
+    threads = check_threads(threads)
+    count = [0]
+
+    def proven(t0: float, t1: float) -> MotionCertificate:
+        count[0] += 1
+        return certify_motions(robot, at(t0), at(t1), threads=threads)
+
+    def clear(t: float) -> bool:
+        return bool(certify_poses(robot, at(t)[None], threads=threads)[0])
+
+    whole = proven(0.0, 1.0)
+    if whole.certified[0]:
+        return FirstContact(True, float("nan"), 1.0, None, b, [], count[0])
+    # invariant: [0, lo] proven free; the pose at hi not certified free (or, where the proof
+    # cannot go on, within the certificate's resolution of that)
+    lo, hi = 0.0, 1.0
+    if not clear(0.0):
+        hi = 0.0
+    elif whole.blocked[0] and not clear(float(whole.blocked_at[0])):
+        hi = float(whole.blocked_at[0])
+    while hi - lo > tolerance:
+        mid = 0.5 * (lo + hi)
+        if not clear(mid):
+            hi = mid
+            continue
+        reach = mid   # the pose at mid is free: prove [lo, reach], halving the reach until it is
+        while True:
+            c = proven(lo, reach)
+            if c.certified[0]:
+                lo = reach
+                break
+            tb = lo + float(c.blocked_at[0]) * (reach - lo) if c.blocked[0] else float("nan")
+            if c.blocked[0] and not clear(tb):
+                hi = tb
+                break
+            reach = 0.5 * (lo + reach)
+            if reach - lo <= 0.25 * tolerance:   # no proof goes further: the certificate's resolution
+                hi = reach
+                break
+    q = at(hi)
+    lab = label_poses(robot, q[None], pairs=True, check_limits=False)
+    names = [] if lab.colliding_pairs is None else [robot.pair_names(int(k)) for k in lab.colliding_pairs[:, 1]]
+    return FirstContact(False, hi, lo, q, at(lo), names, count[0])
 
 
 @dataclass
