@@ -152,7 +152,7 @@ NOT_APPLICABLE.update({f"{e}.{m}": {"layout": "given to the entry point that fil
                                     "margin": "given to the entry point that fills the executor"}
                        for e in ("Executor", "LocalExecutor", "RayExecutor") for m in ("map", "ordered")})
 #: loaders: ``robot=`` is the robot the file must have been written for (its fingerprint is checked)
-LOADERS = {"Dataset.load", "PoseSDF.load", "GaussianRobot.load", "Views.load"}
+LOADERS = {"Dataset.load", "PoseSDF.load", "GaussianRobot.load", "Views.load", "TimedPath.load"}
 
 
 def _public_functions_taking_a_robot():

@@ -101,10 +101,13 @@ class RobotModel:
         more than ``clearance`` metres apart (``0 < clearance <= 1e-6``), i.e.
         ``~label(poses, distance=True)["collides"] & (min_distance > clearance)``, by the fast
         path (pair by pair, stopping at the first pair that is not clear)."""
-    def certify_motions(self, starts: npt.NDArray[np.float64], goals: npt.NDArray[np.float64], clearance: float,
+    def certify_motions(self, starts: npt.NDArray[np.float64], goals: npt.NDArray[np.float64], clearance: float, *,
+                        via: npt.NDArray[np.float64] | None = None,
                         threads: int | None = None) -> dict[str, npt.NDArray]:
         """The continuous certificate of each straight motion ``starts[i] -> goals[i]`` ((B, K)
-        float64 each; continuous hinges along the short arc, other joints straight): every pose
+        float64 each; continuous hinges along the short arc, other joints straight), or with
+        ``via`` ((B, K)) of each quadratic Bézier ``starts[i] -> via[i] -> goals[i]`` (a
+        parabolic blend at the corner ``via[i]``, ``planning/motion.rs`` ``Bezier``): every pose
         of the motion proven to keep every candidate pair above ``max(margin, clearance)``
         (``0 < clearance <= 1e-6``) by conservative advancement. Keys: verdict (B,) uint8 (0
         certified, 1 blocked: a placed pose not shown clear, 2 unproven within 1e-7 rad /

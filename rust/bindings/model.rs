@@ -24,7 +24,7 @@ use crate::model::kinematics::forward_kinematics;
 use crate::model::pairs::PairKind;
 use crate::model::RobotModel;
 use crate::planning::motion::prove_apart;
-use crate::planning::motion::{certify_motions, Motion};
+use crate::planning::motion::{certify_blends, certify_motions, Motion};
 use crate::planning::oracle::{nearest_free, OracleOptions};
 use crate::planning::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::threads::with_threads;
@@ -340,15 +340,16 @@ impl PyRobotModel {
         Ok(PyArray1::from_vec(py, out))
     }
 
-    /// The continuous certificate of each straight motion `starts[i] -> goals[i]` (see
-    /// `_core.pyi` and `planning/motion.rs`).
-    #[pyo3(signature = (starts, goals, clearance, threads=None))]
+    /// The continuous certificate of each straight motion `starts[i] -> goals[i]`, or of each
+    /// blend `starts[i] -> via[i] -> goals[i]` (see `_core.pyi` and `planning/motion.rs`).
+    #[pyo3(signature = (starts, goals, clearance, *, via=None, threads=None))]
     fn certify_motions<'py>(
         &self,
         py: Python<'py>,
         starts: &Bound<'py, PyAny>,
         goals: &Bound<'py, PyAny>,
         clearance: f64,
+        via: Option<&Bound<'py, PyAny>>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let model = &self.model;
@@ -356,7 +357,15 @@ impl PyRobotModel {
         let (a, b) = (pose_array(starts, k, "starts")?, pose_array(goals, k, "goals")?);
         let (a, b) = (rows_of(&a), rows_of(&b));
         let (a, b): (&[f64], &[f64]) = (&a, &b);
-        let r = interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?;
+        let r = match via {
+            None => interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?,
+            Some(via) => {
+                let v = pose_array(via, k, "via")?;
+                let v = rows_of(&v);
+                let v: &[f64] = &v;
+                interrupt::run(py, threads, || certify_blends(model, a, v, b, clearance))?
+            }
+        };
         let verdict: Vec<u8> = r
             .iter()
             .map(|(m, _)| match m {

@@ -117,11 +117,78 @@ impl Space {
     /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π), then the dependent joints
     /// recomputed from the couplings (the state the robot is in: `joints/couplings.rs`, "Motions").
     pub fn along(&self, a: &[f64], d: &[f64], t: f64, out: &mut [f64]) {
-        for k in 0..a.len() {
-            let v = a[k] + t * d[k];
-            out[k] = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
+        self.place(&Line { a, delta: d }, t, out);
+    }
+
+    /// The curve's state at `t` into `out`, by `along`'s rules.
+    #[inline]
+    pub fn place<C: Curve>(&self, c: &C, t: f64, out: &mut [f64]) {
+        for (k, o) in out.iter_mut().enumerate() {
+            let v = c.at(k, t);
+            *o = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
         }
         self.couplings.apply(out);
+    }
+}
+
+/// A motion `q(t)`, `t ∈ [0, 1]`, in unwrapped joint coordinates, as the certificate reads it:
+/// each state, and per joint a bound on its speed and points whose interval holds every value it
+/// takes. The proof (module docs) needs only these: a pair's distance falls at most at
+/// `Σ_j R_j·max_t |q̇_j(t)|`, whatever the shape of the curve.
+pub(crate) trait Curve {
+    /// Joint `j` at `t`, unwrapped.
+    fn at(&self, j: usize, t: f64) -> f64;
+    /// Joint `j`'s largest speed `max_t |q̇_j(t)|`, and its start, end and a third point whose
+    /// interval holds `q_j(t)` for every `t`.
+    fn hull(&self, j: usize) -> (f64, [f64; 3]);
+}
+
+/// The straight motion `a + t·Δ`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Line<'a> {
+    pub a: &'a [f64],
+    pub delta: &'a [f64],
+}
+
+impl Curve for Line<'_> {
+    #[inline]
+    fn at(&self, j: usize, t: f64) -> f64 {
+        self.a[j] + t * self.delta[j]
+    }
+
+    #[inline]
+    fn hull(&self, j: usize) -> (f64, [f64; 3]) {
+        let (x0, x1) = (self.a[j], self.a[j] + self.delta[j]);
+        (self.delta[j].abs(), [x0, x1, x1])
+    }
+}
+
+/// The quadratic Bézier `p₀ → p₁ → p₂` (`d₁ = p₁ − p₀`, `d₂ = p₂ − p₁`, short arcs):
+/// `q(t) = p₀ + 2t·d₁ + t²·(d₂ − d₁)`. A trajectory's parabolic blend at a corner `p₁`
+/// (constant acceleration from the velocity along `d₁` to the one along `d₂`) is one. Its speed
+/// `2·((1 − t)·d₁ + t·d₂)` is largest at an end, `2·max(|d₁|, |d₂|)`, and it stays in the hull of
+/// its control points.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Bezier<'a> {
+    pub p0: &'a [f64],
+    pub d1: &'a [f64],
+    pub d2: &'a [f64],
+}
+
+impl Curve for Bezier<'_> {
+    #[inline]
+    fn at(&self, j: usize, t: f64) -> f64 {
+        if t == 1.0 {
+            // (the end bit for bit: where the next straight piece starts)
+            return self.p0[j] + self.d1[j] + self.d2[j];
+        }
+        self.p0[j] + 2.0 * t * self.d1[j] + t * t * (self.d2[j] - self.d1[j])
+    }
+
+    #[inline]
+    fn hull(&self, j: usize) -> (f64, [f64; 3]) {
+        let (x0, x1) = (self.p0[j], self.p0[j] + self.d1[j]);
+        (2.0 * self.d1[j].abs().max(self.d2[j].abs()), [x0, x1 + self.d2[j], x1])
     }
 }
 
@@ -553,19 +620,32 @@ pub(crate) fn certify_motion(
     clearance: f64,
     ms: &mut MotionScratch,
 ) -> std::result::Result<Motion, Undecided> {
-    let k = a.len();
+    certify_curve(model, levers, space, &Line { a, delta }, clearance, ms)
+}
+
+/// Whether the motion `curve` is certified, as `certify_motion` (the speeds and swept intervals
+/// are the curve's, `Curve::hull`; a blend's proof is a straight motion's).
+pub(crate) fn certify_curve<C: Curve>(
+    model: &RobotModel,
+    levers: Levers,
+    space: &Space,
+    curve: &C,
+    clearance: f64,
+    ms: &mut MotionScratch,
+) -> std::result::Result<Motion, Undecided> {
+    let k = model.njoint();
     ms.states = 0;
-    // A motion too large to place (a joint beyond ±`MAX_JOINT`) proves nothing.
-    if (0..k).any(|j| !(a[j].abs() <= MAX_JOINT && (a[j] + delta[j]).abs() <= MAX_JOINT)) {
-        return Ok(Motion::Unproven);
-    }
-    // Each joint's speed (`|Δ|`, per unit of `t`) and the interval it sweeps; the couplings'
-    // dependent joints follow their independent ones (`Couplings::speeds`).
+    // Each joint's speed (per unit of `t`) and the interval it sweeps; the couplings' dependent
+    // joints follow their independent ones (`Couplings::speeds`). A motion too large to place
+    // (a joint beyond ±`MAX_JOINT`) proves nothing.
     for j in 0..k {
-        ms.abs_delta[j] = delta[j].abs();
-        let (x0, x1) = (a[j], a[j] + delta[j]);
-        let whole_turn = space.wraps[j] && !((-PI..PI).contains(&x0) && (-PI..PI).contains(&x1));
-        (ms.lo[j], ms.hi[j]) = if whole_turn { (-PI, PI) } else { (x0.min(x1), x0.max(x1)) };
+        let (speed, h) = curve.hull(j);
+        if !h.iter().all(|x| x.abs() <= MAX_JOINT) {
+            return Ok(Motion::Unproven);
+        }
+        ms.abs_delta[j] = speed;
+        let whole_turn = space.wraps[j] && !h.iter().all(|x| (-PI..PI).contains(x));
+        (ms.lo[j], ms.hi[j]) = if whole_turn { (-PI, PI) } else { (h[0].min(h[1]).min(h[2]), h[0].max(h[1]).max(h[2])) };
     }
     space.couplings.speeds(&mut ms.lo, &mut ms.hi, &mut ms.abs_delta);
     let span = ms.abs_delta.iter().fold(0.0f64, |m, &d| m.max(d));
@@ -573,10 +653,15 @@ pub(crate) fn certify_motion(
     // limited joint within its limits all along (a joint's swept interval inside them; the
     // levers also bound each slide's displacement by its limits, `slide_reach`).
     let q = &mut ms.q;
-    for j in 0..k {
-        q[j] = if space.wraps[j] { wrap(a[j] + delta[j]) } else { a[j] + delta[j] };
+    for (j, x) in q.iter_mut().enumerate() {
+        *x = curve.hull(j).1[0];
     }
-    let coupled = space.couplings.residual(a) <= FEASIBLE_TOL && space.couplings.residual(q) <= FEASIBLE_TOL;
+    let coupled_start = space.couplings.residual(q) <= FEASIBLE_TOL;
+    for (j, x) in q.iter_mut().enumerate() {
+        let x1 = curve.hull(j).1[1];
+        *x = if space.wraps[j] { wrap(x1) } else { x1 };
+    }
+    let coupled = coupled_start && space.couplings.residual(q) <= FEASIBLE_TOL;
     let inside = (0..k)
         .all(|j| !model.limited[j] || (model.limits[j][0] - FEASIBLE_TOL <= ms.lo[j] && ms.hi[j] <= model.limits[j][1] + FEASIBLE_TOL));
     if !(coupled && inside) {
@@ -612,7 +697,7 @@ pub(crate) fn certify_motion(
     // The end first (a planner's new state often collides), by spheres wherever they are
     // apart; then the start, exact where the spheres do not close the motion; then the end
     // again, exact, for the pairs still open that it measured by spheres only.
-    space.along(a, delta, 1.0, q);
+    space.place(curve, 1.0, q);
     ms.scratch.place(model, q, false);
     ms.states += 1;
     for p in 0..npairs {
@@ -625,7 +710,7 @@ pub(crate) fn certify_motion(
             Err(e) => return stop(e, 1.0),
         }
     }
-    space.along(a, delta, 0.0, q);
+    space.place(curve, 0.0, q);
     ms.scratch.place(model, q, false);
     ms.states += 1;
     ms.open.clear();
@@ -642,7 +727,7 @@ pub(crate) fn certify_motion(
         }
     }
     if !ms.next.is_empty() {
-        space.along(a, delta, 1.0, q);
+        space.place(curve, 1.0, q);
         // (only what the open pairs read: `Scratch::place_pairs`)
         ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
         ms.states += 1;
@@ -673,7 +758,7 @@ pub(crate) fn certify_motion(
                 break 'levels;
             }
             let tm = t0 + half;
-            space.along(a, delta, tm, q);
+            space.place(curve, tm, q);
             ms.scratch.place_pairs(model, q, ms.open[start..end].iter().map(|o| o.pair as usize));
             ms.states += 1;
             ms.mid.clear();
@@ -717,32 +802,54 @@ const CHUNK: usize = 16;
 /// placed; in motion order, in parallel on rayon's current pool. Every motion is decided
 /// alone, so the result does not depend on the number of threads.
 pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
+    certify_each(model, &[starts, goals], clearance, |space, ms, d, i, k| {
+        let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
+        space.delta(a, g, &mut d[..k]);
+        certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
+    })
+}
+
+/// The verdict on each quadratic Bézier `starts[i] → vias[i] → goals[i]` (`Bezier`: a parabolic
+/// blend at the corner `vias[i]`; short arcs on continuous hinges), as `certify_motions`.
+pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
+    certify_each(model, &[starts, vias, goals], clearance, |space, ms, d, i, k| {
+        let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
+        let (d1, d2) = d.split_at_mut(k);
+        space.delta(a, v, d1);
+        space.delta(v, g, d2);
+        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
+    })
+}
+
+/// `one(space, scratch, buffer of 2K, i, K)` for each motion `i` of `(B, K)` arrays of the same shape.
+fn certify_each<F>(model: &RobotModel, arrays: &[&[f64]], clearance: f64, one: F) -> Result<Vec<(Motion, usize)>>
+where
+    F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
+{
     use rayon::prelude::*;
 
     check_clearance(clearance)?;
-    let b = model.check_poses(starts)?;
-    if goals.len() != starts.len() {
-        return Err(Error::InvalidInput(format!("starts and goals differ in shape: {} and {} values", starts.len(), goals.len())));
+    let b = model.check_poses(arrays[0])?;
+    for a in &arrays[1..] {
+        if a.len() != arrays[0].len() {
+            return Err(Error::InvalidInput(format!("the motions' arrays differ in shape: {} and {} values", arrays[0].len(), a.len())));
+        }
+        model.check_poses(a)?;
     }
-    model.check_poses(goals)?;
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
-    let levers = Levers::of(model);
     let idx: Vec<usize> = (0..b).collect();
     let parts: Vec<Result<Vec<(Motion, usize)>>> = idx
         .par_chunks(CHUNK)
         .map_init(
-            || (MotionScratch::new(model), vec![0.0; k]),
+            || (MotionScratch::new(model), vec![0.0; 2 * k]),
             |(ms, d), chunk| {
                 chunk
                     .iter()
                     .map(|&i| {
                         crate::cancel::check()?;
-                        let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
-                        space.delta(a, g, d);
-                        let m = certify_motion(model, levers, &space, a, d, clearance, ms)
-                            .map_err(|e| e.error(model, format!("motion {i}")))?;
+                        let m = one(&space, ms, d, i, k).map_err(|e| e.error(model, format!("motion {i}")))?;
                         Ok((m, ms.states))
                     })
                     .collect()
@@ -1134,5 +1241,51 @@ pub(crate) mod tests {
             }
         }
         assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+    }
+
+    #[test]
+    fn certified_blends_are_clear_between_samples() {
+        let model = arm();
+        let space = Space::of(&model).unwrap();
+        let levers = Levers::of(&model);
+        let mut ms = MotionScratch::new(&model);
+        let mut s = Scratch::new(&model);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        let (mut certified, mut blocked) = (0, 0);
+        let mut q = vec![0.0; 4];
+        for _ in 0..300 {
+            let p0: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j] * 0.8..space.hi[j] * 0.8)).collect();
+            let mut d1: Vec<f64> = (0..4).map(|_| rng.random_range(-0.4..0.4)).collect();
+            let mut d2: Vec<f64> = (0..4).map(|_| rng.random_range(-0.4..0.4)).collect();
+            d1[2] *= 0.1;
+            d2[2] *= 0.1;
+            let curve = Bezier { p0: &p0, d1: &d1, d2: &d2 };
+            let v = certify_curve(&model, levers, &space, &curve, 1e-6, &mut ms).unwrap();
+            match v {
+                Motion::Certified => {
+                    certified += 1;
+                    for i in 0..=400 {
+                        space.place(&curve, i as f64 / 400.0, &mut q);
+                        assert!(crate::collision::fastpath::certified_pose(&model, &q, 1e-6, &mut s).unwrap(), "state {i}");
+                    }
+                }
+                Motion::Blocked(t) => {
+                    blocked += 1;
+                    space.place(&curve, t, &mut q);
+                    assert!((0.0..=1.0).contains(&t));
+                }
+                Motion::Unproven => {}
+            }
+        }
+        assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+        // A straight Bézier (`d₁ = d₂`) is the straight motion of twice its length: the same verdict.
+        for _ in 0..100 {
+            let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j] * 0.8..space.hi[j] * 0.8)).collect();
+            let d: Vec<f64> = (0..4).map(|_| rng.random_range(-0.2..0.2)).collect();
+            let twice: Vec<f64> = d.iter().map(|x| 2.0 * x).collect();
+            let line = certify_motion(&model, levers, &space, &a, &twice, 1e-6, &mut ms).unwrap();
+            let blend = certify_curve(&model, levers, &space, &Bezier { p0: &a, d1: &d, d2: &d }, 1e-6, &mut ms).unwrap();
+            assert_eq!(line == Motion::Certified, blend == Motion::Certified);
+        }
     }
 }

@@ -98,8 +98,9 @@ class MotionCertificate:
     states: np.ndarray
 
 
-def certify_motions(robot: Robot, starts: npt.ArrayLike, goals: npt.ArrayLike, *, layout: Layout | None = None,
-                    margin: float = CLEARANCE, threads: int | None = None) -> MotionCertificate:
+def certify_motions(robot: Robot, starts: npt.ArrayLike, goals: npt.ArrayLike, *, via: npt.ArrayLike | None = None,
+                    layout: Layout | None = None, margin: float = CLEARANCE,
+                    threads: int | None = None) -> MotionCertificate:
     """The continuous certificate (module docs) of each straight motion ``starts[i] → goals[i]``
     ((B, K) or (K,) each, radians / metres; a family's θ with ``layout=δ``): continuous hinges
     along the short arc, the motion :func:`profrobot.interpolate` replays; other joints
@@ -107,17 +108,30 @@ def certify_motions(robot: Robot, starts: npt.ArrayLike, goals: npt.ArrayLike, *
     nonlinear coupling that is a curve, and the curve is what is proven). Same answer for any
     thread count. A motion the robot cannot make (an end off its couplings, a limited joint
     outside its limits anywhere along it) is unproven, never certified. ``margin``: as for
-    :func:`certify_poses`, at every pose of every motion."""
+    :func:`certify_poses`, at every pose of every motion.
+
+    ``via`` ((B, K), the shape of ``starts``): each motion is instead the quadratic Bézier
+    ``q(t) = s + 2t·(v − s) + t²·(g − 2v + s)`` from ``starts[i]`` bent towards ``via[i]`` to
+    ``goals[i]`` (short arcs on continuous hinges): the parabolic blend a timed path takes at
+    the corner ``via[i]`` (:func:`profrobot.time_path`). The same proof holds (each joint's speed
+    is at most ``2·max(|v − s|, |g − v|)`` and it stays between its three control values), so a
+    blend is proven as a straight motion is, never assumed from its chords."""
     robot = with_margin(robot, margin)
     a = as_poses(robot, with_layout(robot, starts, layout, "starts"), name="starts")
     b = as_poses(robot, with_layout(robot, goals, layout, "goals"), name="goals")
     if a.shape != b.shape:
         raise InputError(f"starts and goals must have the same shape; got {a.shape} and {b.shape}")
-    out = robot.core.certify_motions(np.ascontiguousarray(a), np.ascontiguousarray(b), CLEARANCE,
+    v = None
+    if via is not None:
+        v = as_poses(robot, with_layout(robot, via, layout, "via"), name="via")
+        if v.shape != a.shape:
+            raise InputError(f"via must have the shape of starts; got {v.shape} and {a.shape}")
+        v = np.ascontiguousarray(v)
+    out = robot.core.certify_motions(np.ascontiguousarray(a), np.ascontiguousarray(b), CLEARANCE, via=v,
                                      threads=check_threads(threads))
-    v = out["verdict"]
-    return MotionCertificate(certified=v == 0, blocked=v == 1, unproven=v == 2, blocked_at=out["blocked_at"],
-                             states=out["states"])
+    verdict = out["verdict"]
+    return MotionCertificate(certified=verdict == 0, blocked=verdict == 1, unproven=verdict == 2,
+                             blocked_at=out["blocked_at"], states=out["states"])
 
 
 @dataclass

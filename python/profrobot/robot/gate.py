@@ -66,6 +66,27 @@ def finite(name: str, value: Any) -> float:
     return float(value)
 
 
+def per_joint(robot: "Robot", name: str, value: Any, unit: str) -> np.ndarray:
+    """(K,) positive finite limits, one per joint of ``robot`` (a number: every joint), in
+    ``unit``; refused by name when missing, negative, zero, NaN or of another length."""
+    if value is None:
+        raise InputError(f"{name} is required ({unit}, a number or one per joint: {robot.name} carries none)")
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number or {robot.njoint} numbers ({unit}); got {value!r}") from None
+    if v.ndim == 0:
+        v = np.full(robot.njoint, float(v))
+    if v.shape != (robot.njoint,):
+        raise InputError(f"{name} must be a number or {robot.njoint} numbers ({unit}), one per joint of "
+                         f"{robot.name}; got shape {v.shape}")
+    bad = ~(np.isfinite(v) & (v > 0))
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise InputError(f"{name}[{j}] ({robot.joint_names[j]}) must be positive and finite ({unit}); got {v[j]!r}")
+    return v
+
+
 def count(name: str, value: Any, low: int = 1, why: str = "") -> int:
     """An integer (not a bool, not a float) >= ``low``; ``why`` is added to the message."""
     if isinstance(value, bool) or not isinstance(value, Integral) or value < low:

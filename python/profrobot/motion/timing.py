@@ -1,0 +1,306 @@
+"""Timed paths: a waypoint path in time, within each joint's velocity and acceleration limits,
+its geometry certified.
+
+:func:`time_path` turns a path ((M, K) waypoints, as :func:`profrobot.plan_path` returns) into a
+:class:`TimedPath`: positions, velocities and accelerations at any time, at a controller's rate.
+The path's straight segments are crossed at constant velocity and each corner is rounded by a
+**parabolic blend** (constant acceleration), so the robot does not stop at every waypoint; a
+blend leaves the path, so each one is **proven free** by the continuous certificate
+(:func:`profrobot.certify_motions` with ``via=``), and one that is not becomes a stop.
+
+**The math.** Per run of waypoints ``W_0 … W_n`` between two stops (at rest at both ends),
+``D_i = W_{i+1} − W_i`` (short arcs on continuous hinges), joint limits ``v_j`` (rad/s or m/s)
+and ``a_j`` (rad/s² or m/s²):
+
+1. Segment ``i`` is crossed at the constant velocity ``V_i = D_i / T_i``, with
+   ``T_i ≥ max_j |D_ij| / v_j`` (no joint above its velocity limit).
+2. At waypoint ``i`` the velocity changes from ``V_{i−1}`` to ``V_i`` (``V_{−1} = V_n = 0``)
+   at constant acceleration ``A_i = (V_i − V_{i−1}) / τ_i`` over
+   ``τ_i = max_j |V_ij − V_{i−1,j}| / a_j``, centred on the waypoint's time ``t_i``:
+   ``q(t_i − τ_i/2 + s) = W_i − V_{i−1}·τ_i/2 + V_{i−1}·s + A_i·s²/2``, ``s ∈ [0, τ_i]``.
+   That is the quadratic Bézier ``W_i − V_{i−1}τ_i/2 → W_i → W_i + V_iτ_i/2``; at a run's
+   ends it is a straight start or stop along the segment.
+3. A segment must hold half of each blend: ``τ_i/2 + τ_{i+1}/2 ≤ T_i``. A segment where they
+   do not fit is slowed (``T_i ← T_i·√(need / T_i)``, the exact answer for a lone segment)
+   until they do; after 200 rounds a run still infeasible stops at every waypoint (each
+   segment alone needs ``T_i = max(max_j |D_ij|/v_j, √(max_j |D_ij|/a_j))``).
+
+So velocity is piecewise linear between the ``V_i`` and acceleration piecewise constant, each
+within its limit by construction (checked again by the tests at 1 kHz). The cruise parts lie on
+the path's segments; the segments and every blend are certified continuously (``margin``
+metres from every obstacle, :data:`~profrobot.CLEARANCE` at least); a blend that is not proven
+becomes a stop at its waypoint (the robot reaches it at rest, along the segments, and the run
+on either side is timed again), until every blend left is proven. ``certified`` then holds for
+the whole timed motion exactly when it holds for the path. Not jerk-limited: acceleration
+steps at the ends of each blend.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import CorruptFileError, InputError, MissingFileError
+from ..exact.certification import CLEARANCE, certify_motions
+from ..exact.labels import as_poses, check_threads, so2_steps
+from ..files import atomic_path, check_format, check_robot, format_tag
+from ..robot import gate
+from ..robot.gate import Layout
+from ..robot.robot import Robot
+
+__all__ = ["TimedPath", "time_path"]
+
+_FORMAT = "profrobot-timed-path"
+_VERSION = 1
+_ROUNDS = 200
+
+
+@dataclass
+class TimedPath:
+    """A path in time (:func:`time_path`): pieces of constant acceleration.
+
+    Piece ``p`` holds from ``starts[p]`` (s) to the next start (or ``duration``):
+    ``q(t) = q0[p] + v0[p]·τ + acc[p]·τ²/2`` with ``τ = t − starts[p]``, in unwrapped joint
+    coordinates (continuous hinges are wrapped into [-π, π) by :meth:`sample`).
+
+    Attributes:
+        duration: seconds from the first waypoint, at rest, to the last, at rest.
+        starts: (P,) seconds, each piece's start (the first is 0).
+        q0, v0, acc: (P, K) position (rad / m), velocity (per s) and acceleration (per s²) at
+            each piece's start.
+        times: (M,) seconds at which the robot is at each stop, or the blend around a corner
+            is half done (there it is at ``W_i + (V_i − V_{i−1})·τ_i/8``, off the corner).
+        stops: (M,) bool, the waypoints the robot reaches at rest: the ends, and every corner
+            whose blend was not proven (or with ``blend=False``).
+        waypoints: (M, K) the path timed (zero-length segments removed).
+        velocity, acceleration: (K,) the limits it was timed within.
+        certified: every pose of the timed motion is certified free (the path's segments and
+            every blend kept, :mod:`profrobot.exact.certification`).
+        reason: why not certified ('' when it is).
+        wraps: (K,) bool, the continuous hinges.
+        robot_name, robot_fingerprint, joint_names: the robot it was timed for.
+    """
+
+    duration: float
+    starts: np.ndarray
+    q0: np.ndarray
+    v0: np.ndarray
+    acc: np.ndarray
+    times: np.ndarray
+    stops: np.ndarray
+    waypoints: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    certified: bool
+    reason: str
+    wraps: np.ndarray
+    robot_name: str = ""
+    robot_fingerprint: str = ""
+    joint_names: list[str] = field(default_factory=list)
+
+    def sample(self, t: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities and accelerations at times ``t`` (seconds; a number or (T,),
+        clamped to [0, duration]): ``(q, qd, qdd)``, each (T, K) (or (K,) for a number);
+        continuous hinges wrapped into [-π, π). At a piece's boundary the later piece's
+        acceleration is given."""
+        tt = np.asarray(t, dtype=np.float64)
+        one = tt.ndim == 0
+        tt = np.atleast_1d(tt)
+        if tt.ndim != 1 or not np.isfinite(tt).all():
+            raise InputError(f"t must be a finite number or (T,) finite seconds; got shape {np.shape(t)}")
+        tt = np.clip(tt, 0.0, self.duration)
+        p = np.clip(np.searchsorted(self.starts, tt, side="right") - 1, 0, len(self.starts) - 1)
+        tau = (tt - self.starts[p])[:, None]
+        q = self.q0[p] + self.v0[p] * tau + 0.5 * self.acc[p] * tau * tau
+        qd = self.v0[p] + self.acc[p] * tau
+        qdd = self.acc[p].copy()
+        q[:, self.wraps] = (q[:, self.wraps] + np.pi) % (2 * np.pi) - np.pi
+        return (q[0], qd[0], qdd[0]) if one else (q, qd, qdd)
+
+    def at_rate(self, hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(t, q, qd, qdd)`` every ``1/hz`` seconds from 0, the end included (a controller's
+        stream): t (T,) seconds, the rest (T, K)."""
+        hz = gate.positive("hz", hz)
+        n = int(np.floor(self.duration * hz + 1e-9)) + 1
+        t = np.arange(n) / hz
+        if t[-1] < self.duration:
+            t = np.append(t, self.duration)
+        return (t, *self.sample(t))
+
+    def summary(self) -> str:
+        corners = len(self.stops) - 2
+        stopped = int(self.stops[1:-1].sum()) if corners > 0 else 0
+        proof = "certified free" if self.certified else f"NOT certified ({self.reason})"
+        return (f"{self.duration:.3f} s over {len(self.waypoints)} waypoints, {max(corners, 0) - stopped} "
+                f"blended corners, {stopped} stops; {proof}")
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write to ``path`` (.npz, atomically); :meth:`load` reads it."""
+        path = Path(path)
+        meta = dict(format=format_tag(_FORMAT, _VERSION), robot=self.robot_name,
+                    robot_fingerprint=self.robot_fingerprint, joint_names=self.joint_names,
+                    duration=self.duration, certified=self.certified, reason=self.reason)
+        with atomic_path(path, ".npz") as tmp:
+            np.savez(tmp, starts=self.starts, q0=self.q0, v0=self.v0, acc=self.acc, times=self.times,
+                     stops=self.stops, waypoints=self.waypoints, velocity=self.velocity,
+                     acceleration=self.acceleration, wraps=self.wraps, meta=np.array(json.dumps(meta)))
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, robot: Robot | None = None) -> "TimedPath":
+        """Read a file :meth:`save` wrote; with ``robot``, refuse one timed for another robot."""
+        path = Path(path)
+        if not path.is_file():
+            raise MissingFileError(f"no timed path at {path}")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            meta = json.loads(str(arrays.pop("meta")))
+        except (OSError, ValueError, KeyError) as e:
+            raise CorruptFileError(f"{path} is not a timed path: {e}") from None
+        check_format(meta.get("format"), _FORMAT, _VERSION, str(path))
+        if robot is not None:
+            check_robot(meta, robot, f"timed path {str(path)!r}")
+        return cls(duration=float(meta["duration"]), certified=bool(meta["certified"]), reason=str(meta["reason"]),
+                   robot_name=str(meta["robot"]), robot_fingerprint=str(meta["robot_fingerprint"]),
+                   joint_names=list(meta["joint_names"]), **arrays)
+
+
+def _run_times(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segment times (n,) and blend times (n+1,) of one run (module docs, steps 1-3), from its
+    segments ``d`` (n, K)."""
+    ad = np.abs(d)
+    t = (ad / v).max(axis=1)
+    for _ in range(_ROUNDS):
+        vel = d / t[:, None]
+        ext = np.concatenate([np.zeros((1, d.shape[1])), vel, np.zeros((1, d.shape[1]))])
+        tau = (np.abs(np.diff(ext, axis=0)) / a).max(axis=1)
+        ratio = 0.5 * (tau[:-1] + tau[1:]) / t
+        if (ratio <= 1.0 + 1e-12).all():
+            return t, tau
+        t = np.where(ratio > 1.0, t * np.sqrt(ratio) * (1.0 + 1e-12), t)
+    # (not settled: stop at every waypoint; each segment alone)
+    return np.maximum(t, np.sqrt((ad / a).max(axis=1))), np.full(len(d) + 1, np.nan)
+
+
+def _pieces(w: np.ndarray, stops: np.ndarray, v: np.ndarray, a: np.ndarray):
+    """The pieces (starts, q0, v0, acc), the waypoints' times, the stops actually made and each
+    interior corner's blend ``(start, via, goal)`` control points (None where the robot stops)."""
+    m, k = w.shape
+    starts, q0, v0, acc = [], [], [], []
+    times = np.zeros(m)
+    blends: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * m
+    stops = stops.copy()
+    clock = 0.0
+    cut = [0, *np.flatnonzero(stops[1:-1]) + 1, m - 1]
+    for r0, r1 in zip(cut[:-1], cut[1:]):
+        d = np.diff(w[r0:r1 + 1], axis=0)
+        t, tau = _run_times(d, v, a)
+        if np.isnan(tau).any():   # (the run stops at every waypoint)
+            stops[r0:r1 + 1] = True
+            for i in range(r1 - r0):
+                s, c, b = _pieces(w[r0 + i:r0 + i + 2], np.ones(2, bool), v, a)[:3]
+                starts.extend(s + clock)
+                q0.extend(c[0])
+                v0.extend(c[1])
+                acc.extend(c[2])
+                times[r0 + i] = clock
+                clock += b
+            times[r1] = clock
+            continue
+        vel = d / t[:, None]
+        ext = np.concatenate([np.zeros((1, k)), vel, np.zeros((1, k))])
+        n = len(d)
+        centre = clock + tau[0] / 2 + np.concatenate([[0.0], np.cumsum(t)])
+        for i in range(n + 1):
+            vin, vout = ext[i], ext[i + 1]
+            if tau[i] > 0:
+                starts.append(centre[i] - tau[i] / 2)
+                q0.append(w[r0 + i] - vin * tau[i] / 2)
+                v0.append(vin)
+                acc.append((vout - vin) / tau[i])
+                if 0 < i < n:
+                    blends[r0 + i] = (w[r0 + i] - vin * tau[i] / 2, w[r0 + i], w[r0 + i] + vout * tau[i] / 2)
+            if i < n:
+                cruise = centre[i] + tau[i] / 2
+                if centre[i + 1] - tau[i + 1] / 2 > cruise:
+                    starts.append(cruise)
+                    q0.append(w[r0 + i] + vout * tau[i] / 2)
+                    v0.append(vout)
+                    acc.append(np.zeros(k))
+        times[r0 + 1:r1] = centre[1:-1]
+        times[r0] = clock                      # (a run starts and ends at rest on its waypoints)
+        clock = centre[-1] + tau[-1] / 2
+        times[r1] = clock
+    return np.asarray(starts), (np.asarray(q0), np.asarray(v0), np.asarray(acc)), clock, times, stops, blends
+
+
+def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | float | None = None,
+              acceleration: npt.ArrayLike | float | None = None, blend: bool = True,
+              layout: Layout | None = None, margin: float = CLEARANCE, threads: int | None = None) -> TimedPath:
+    """Time ``path`` ((M, K) waypoints, radians / metres; as :func:`profrobot.plan_path`
+    returns) within each joint's ``velocity`` (rad/s or m/s) and ``acceleration`` (rad/s² or
+    m/s²) limits, each a number (every joint) or (K,); both required (MJCF carries no such
+    limits) and refused by name when not positive and finite.
+
+    The robot starts and ends at rest; with ``blend`` (the default) it rounds each corner with
+    a parabolic blend proven free, and stops at the corners whose blend is not (module docs);
+    with ``blend=False`` it stops at every waypoint, on the path exactly. ``margin`` and
+    ``layout`` as for :func:`profrobot.plan_path` (the path and the blends keep ``margin``).
+    ``certified`` says whether every pose of the timed motion is proven free; a path whose own
+    segments are not is timed all the same, with ``certified=False`` and the reason.
+    """
+    robot = gate.robot_at(robot, layout=layout, margin=margin)
+    p = as_poses(robot, path, name="path", check_limits=True)
+    if len(p) < 1:
+        raise InputError("path must hold at least one waypoint")
+    v = gate.per_joint(robot, "velocity", velocity, "rad/s or m/s")
+    a = gate.per_joint(robot, "acceleration", acceleration, "rad/s² or m/s²")
+    if not isinstance(blend, (bool, np.bool_)):
+        raise InputError(f"blend must be True or False; got {blend!r}")
+    if robot.couplings and not robot.couplings.linear:
+        raise InputError(f"{robot.name} has nonlinear joint couplings: a timed path would leave them between "
+                         "waypoints (time_path handles linear couplings)")
+    threads = check_threads(threads)
+    # Unwrapped waypoints (short arcs), zero-length segments removed.
+    steps = so2_steps(robot, p) if len(p) > 1 else np.zeros((0, robot.njoint))
+    keep = np.concatenate([[True], np.abs(steps).max(axis=1) > 0]) if len(p) > 1 else np.ones(1, bool)
+    w = p[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)])
+    w = w[keep]
+    m = len(w)
+    meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
+                wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, waypoints=w)
+    if m == 1:
+        free = bool(certify_motions(robot, w, w, threads=threads).certified[0])
+        return TimedPath(duration=0.0, starts=np.zeros(1), q0=w.copy(), v0=np.zeros_like(w), acc=np.zeros_like(w),
+                         times=np.zeros(1), stops=np.ones(1, bool), certified=free,
+                         reason="" if free else "the pose is not certified free", **meta)
+    seg = certify_motions(robot, w[:-1], w[1:], threads=threads)
+    stops = np.zeros(m, dtype=bool)
+    stops[[0, -1]] = True
+    if not blend:
+        stops[:] = True
+    proven: dict[bytes, bool] = {}
+    while True:
+        starts, (q0, v0, acc), duration, times, stops, blends = _pieces(w, stops, v, a)
+        todo = [i for i, b in enumerate(blends) if b is not None and np.stack(b).tobytes() not in proven]
+        if todo:
+            ctl = [np.stack(blends[i]) for i in todo]
+            got = certify_motions(robot, np.stack([c[0] for c in ctl]), np.stack([c[2] for c in ctl]),
+                                  via=np.stack([c[1] for c in ctl]), threads=threads).certified
+            proven.update({c.tobytes(): bool(ok) for c, ok in zip(ctl, got)})
+        failed = [i for i, b in enumerate(blends) if b is not None and not proven[np.stack(b).tobytes()]]
+        if not failed:
+            break
+        stops[failed] = True
+    bad = np.flatnonzero(~seg.certified)
+    reason = "" if not len(bad) else (
+        f"segment {bad[0]} of the path (waypoints {bad[0]} → {bad[0] + 1}) is "
+        f"{'blocked' if seg.blocked[bad[0]] else 'not proven free'}; time a certified path (plan_path)")
+    return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, times=times, stops=stops,
+                     certified=not len(bad), reason=reason, **meta)

@@ -1,0 +1,159 @@
+"""Timed paths (profrobot.time_path, python/profrobot/motion/timing.py): within the limits at
+1 kHz, every sample free (MuJoCo's own collision), the derivatives what finite differences of
+the positions give, blends proven or turned into stops, bad input refused by name."""
+
+from __future__ import annotations
+
+import pickle
+
+import mujoco
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot import InputError, mujoco_labels, time_path
+from profrobot.exact.problems import hard_pairs
+from profrobot.motion import TimedPath
+
+from conftest import scene
+
+# A puck on two slides and a box inside the corner of an L-shaped path: the path's segments keep
+# 5 cm from the box; a slow blend (a = 1 m/s², τ = 1 s) cuts the corner through it, a quick one
+# (a = 10 m/s²) passes 3.75 cm away.
+_PUCK = """
+<mujoco>
+  <worldbody>
+    <geom name="block" type="box" pos="0.85 0.15 0" size="0.05 0.05 0.05"/>
+    <body name="puck">
+      <joint name="x" type="slide" axis="1 0 0" range="-0.2 1.2"/>
+      <joint name="y" type="slide" axis="0 1 0" range="-0.2 1.2"/>
+      <geom type="sphere" size="0.05"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+_L = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+
+
+def puck():
+    return profrobot.Robot.from_spec(mujoco.MjSpec.from_string(_PUCK), name="puck")
+
+
+def _wrapped(d):
+    return (d + np.pi) % (2 * np.pi) - np.pi
+
+
+def _check_timed(robot, tp: TimedPath, v, a):
+    t, q, qd, qdd = tp.at_rate(1000)
+    assert t[0] == 0 and t[-1] == pytest.approx(tp.duration)
+    assert (np.abs(qd) <= v * (1 + 1e-9)).all() and (np.abs(qdd) <= a * (1 + 1e-9)).all()
+    assert np.abs(qd[0]).max() == 0 and np.abs(qd[-1]).max() < 1e-9          # at rest at both ends
+    assert np.abs(_wrapped(q[0] - tp.waypoints[0])).max() < 1e-12
+    assert np.abs(_wrapped(q[-1] - tp.waypoints[-1])).max() < 1e-9
+    # The derivatives are those of the positions (central differences, 0.1 ms).
+    mid = t[1:-1][::7]
+    h = 1e-4
+    qp, qm = tp.sample(mid + h)[0], tp.sample(mid - h)[0]
+    assert np.abs(_wrapped(qp - qm) / (2 * h) - tp.sample(mid)[1]).max() < 1e-3 * (1 + v.max())
+    # Each stop is reached at rest, on its waypoint.
+    for i in np.flatnonzero(tp.stops):
+        q_i, qd_i, _ = tp.sample(tp.times[i])
+        assert np.abs(_wrapped(q_i - tp.waypoints[i])).max() < 1e-9 and np.abs(qd_i).max() < 1e-9
+    # Free at every sample, by MuJoCo's collision and by the certificate.
+    assert not mujoco_labels(robot, q).collides.any()
+    assert profrobot.certify_poses(robot, q).all()
+
+
+@pytest.mark.parametrize("name", ["panda_blocks", "ur5e_wall_box", "vx300s_clutter"])
+def test_planned_paths_timed_within_limits_and_free(name):
+    robot = scene(name)
+    starts, goals = hard_pairs(robot, 6, seed=3)
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0.5, 2.0, robot.njoint)
+    a = rng.uniform(1.0, 5.0, robot.njoint)
+    shorter = 0
+    for s, g in zip(starts, goals):
+        res = profrobot.plan_path(robot, s, g)
+        assert res.found and res.certified
+        tp = time_path(robot, res.path, velocity=v, acceleration=a)
+        stop = time_path(robot, res.path, velocity=v, acceleration=a, blend=False)
+        assert tp.certified and stop.certified and stop.stops.all()
+        _check_timed(robot, tp, v, a)
+        _check_timed(robot, stop, v, a)
+        assert tp.duration <= stop.duration * (1 + 1e-12)
+        shorter += tp.duration < stop.duration * 0.999
+    assert shorter >= 1          # a corner blended saves time
+
+
+def test_a_blend_through_an_obstacle_becomes_a_stop():
+    robot = puck()
+    assert profrobot.check_path(robot, _L).certified
+    slow = time_path(robot, _L, velocity=1.0, acceleration=1.0)
+    assert slow.certified and slow.stops.tolist() == [True, True, True]
+    # (the blend it refused does cross the block)
+    w, vin, vout, tau = _L[1], np.array([1.0, 0]), np.array([0, 1.0]), 1.0
+    cut = profrobot.certify_motions(robot, w - vin * tau / 2, w + vout * tau / 2, via=w)
+    assert cut.blocked[0]
+    quick = time_path(robot, _L, velocity=1.0, acceleration=10.0)
+    assert quick.certified and quick.stops.tolist() == [True, False, True]
+    for tp, a in ((slow, 1.0), (quick, 10.0)):
+        _check_timed(robot, tp, np.ones(2), np.full(2, a))
+    # The quick blend leaves the corner: it does not pass through the waypoint.
+    q_corner = quick.sample(quick.times[1])[0]
+    assert np.linalg.norm(q_corner - _L[1]) > 1e-3
+    # Durations, by hand: the stop at the corner costs v/a = 1 s more than the blend.
+    assert slow.duration == pytest.approx(1 + 1 + 1 + 1)          # two segments of 1 m, each 1 s + v/a
+    assert quick.duration == pytest.approx(2 + 0.1)
+
+
+def test_an_uncertified_path_is_timed_and_says_so():
+    robot = puck()
+    through = np.array([[0.6, 0.15], [1.1, 0.15]])
+    tp = time_path(robot, through, velocity=1.0, acceleration=1.0)
+    assert not tp.certified and "segment 0" in tp.reason
+
+
+def test_saved_loaded_pickled_and_refused_for_another_robot(tmp_path, panda):
+    robot = puck()
+    tp = time_path(robot, _L, velocity=[1.0, 0.5], acceleration=10.0)
+    path = tp.save(tmp_path / "l.npz")
+    back = TimedPath.load(path, robot)
+    t = np.linspace(0, tp.duration, 57)
+    for x, y in zip(tp.sample(t), back.sample(t)):
+        np.testing.assert_array_equal(x, y)
+    for x, y in zip(tp.sample(t), pickle.loads(pickle.dumps(tp)).sample(t)):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(profrobot.RobotMismatchError):
+        TimedPath.load(path, panda)
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(acceleration=1.0), "velocity is required"),
+    (dict(velocity=1.0), "acceleration is required"),
+    (dict(velocity=-1.0, acceleration=1.0), "velocity[0] (x)"),
+    (dict(velocity=[1.0, 0.0], acceleration=1.0), "velocity[1] (y)"),
+    (dict(velocity=1.0, acceleration=[1.0, np.nan]), "acceleration[1] (y)"),
+    (dict(velocity=[1.0, 1.0, 1.0], acceleration=1.0), "velocity must be a number or 2 numbers"),
+    (dict(velocity="fast", acceleration=1.0), "velocity must be a number"),
+    (dict(velocity=1.0, acceleration=1.0, blend="yes"), "blend must be True or False"),
+])
+def test_bad_input_refused_by_name(kwargs, words):
+    with pytest.raises(InputError) as e:
+        time_path(puck(), _L, **kwargs)
+    assert words in str(e.value)
+
+
+def test_bad_path_and_times_refused_by_name():
+    robot = puck()
+    with pytest.raises(InputError, match="path"):
+        time_path(robot, [[0.0, 0.0], [np.inf, 0.0]], velocity=1.0, acceleration=1.0)
+    with pytest.raises(InputError, match="path"):
+        time_path(robot, [[0.0, 0.0], [5.0, 0.0]], velocity=1.0, acceleration=1.0)   # beyond the slide's range
+    tp = time_path(robot, _L, velocity=1.0, acceleration=1.0)
+    with pytest.raises(InputError, match="t must be"):
+        tp.sample([0.0, np.nan])
+    with pytest.raises(InputError, match="hz"):
+        tp.at_rate(0)
+    one = time_path(robot, _L[:1], velocity=1.0, acceleration=1.0)
+    assert one.duration == 0 and one.certified
