@@ -28,10 +28,10 @@ from typing import Any, Literal, overload
 import numpy as np
 import numpy.typing as npt
 
-from .._core import first_bad_entries
 from ..errors import InputError, InputTypeError
 from .family import Layout
 from .margin import CLEARANCE
+from .poses import pose_array
 from .robot import Robot
 
 __all__ = ["robot_at", "with_layout", "as_poses", "poses_within_limits", "joint_mask", "positive", "finite", "count", "seed",
@@ -144,50 +144,11 @@ def threads(value: Any) -> int | None:
 
 def as_poses(robot: "Robot", poses: npt.ArrayLike, *, name: str = "poses", check_limits: bool = False,
              atol: float = 1e-9) -> np.ndarray:
-    """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
-
-    Accepts a single pose (K,) as a batch of one, and torch tensors. Rejects non-float dtypes,
-    wrong widths, empty batches, NaN/inf, and (with ``check_limits``) limited joints outside
-    their limits by more than ``atol``.
-    """
+    """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception
+    (:func:`profrobot.robot.poses.pose_array`, after the robot's type)."""
     if not isinstance(robot, Robot):
         raise InputTypeError(f"expected a profrobot.Robot; got {type(robot).__name__}")
-    if hasattr(poses, "detach") and hasattr(poses, "cpu"):  # a torch tensor
-        poses = poses.detach().cpu().numpy()
-    try:
-        arr = np.asarray(poses)
-    except (ValueError, TypeError) as e:  # ragged nested lists
-        raise InputError(f"{name} must be a (B, {robot.njoint}) array of numbers; got {type(poses).__name__} ({e})") from e
-    if arr.dtype.kind in "iu":   # whole numbers (a list of ints, an int array) are radians / metres too
-        arr = arr.astype(np.float64)
-    if arr.dtype.kind not in "f":
-        raise InputTypeError(f"{name} must be a floating-point array of numbers (radians / metres); got dtype {arr.dtype}")
-    k = robot.njoint
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != k:
-        raise InputError(f"{name} must have shape (B, {k}) for {robot.name} ({k} joints); got {np.shape(poses)}")
-    if arr.shape[0] == 0:
-        raise InputError(f"{name} is empty: at least one pose is needed")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    # One pass in Rust (numpy's comparisons and reductions took 4-12 ms a 200 000-pose batch):
-    # the first non-finite entry, and the first limited entry outside its limits by more than atol.
-    lim = robot.joint_limits
-    if check_limits:
-        limited = ~robot.continuous
-        lo = np.where(limited, lim[:, 0] - atol, -np.inf)
-        hi = np.where(limited, lim[:, 1] + atol, np.inf)
-    else:
-        lo, hi = np.full(k, -np.inf), np.full(k, np.inf)
-    nonfinite, outside = first_bad_entries(arr, lo, hi) if k else (None, None)
-    if nonfinite is not None:
-        i, j = divmod(nonfinite, k)
-        raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
-    if outside is not None:
-        i, j = divmod(outside, k)
-        raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
-                         f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
-    return arr
+    return pose_array(robot, poses, name=name, check_limits=check_limits, atol=atol)
 
 
 def _robot(robot: object) -> Robot:

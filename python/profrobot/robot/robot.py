@@ -30,6 +30,7 @@ from ..errors import InputError, InputTypeError
 from . import layouts as _layouts
 from . import loading as _loading
 from . import file as _file
+from . import grasp as _grasp
 from . import state as _state
 from .arrays import BALL, FREE, GEOM_NAMES, HINGE, SLIDE, label_fingerprint, model_arrays, object_name
 from .margin import ObstacleMargin
@@ -364,6 +365,22 @@ class Robot:
                     raise
                 raise InputError(f"obstacles[{i}] ({ob.label}): MuJoCo refused it: {e}") from e
         return self._derived(spec, obstacles, name or self.name)
+
+    def attach(self, obstacle: "str | Obstacle", *, to: str, at: npt.ArrayLike | None = None,
+               touching: Sequence[str] = ()) -> "Robot":
+        """A new Robot holding ``obstacle`` with its body ``to`` (:mod:`profrobot.robot.grasp`):
+        the name of a fixed geom of the world, taken where it is when the robot is at pose ``at``
+        ((K,), the grasp), or a new named :class:`Obstacle` whose ``pos`` / ``quat`` are in
+        ``to``'s frame. The object moves with ``to`` and is checked against the world and the
+        robot's other bodies; it may touch ``to``, the bodies whose parent is ``to`` (MuJoCo's
+        rules: a hand's fingers) and the bodies named in ``touching``. The labeller, the
+        certificates, the planner, IK and pickles see it; the original is left unchanged."""
+        return _grasp.attach(self, obstacle, to=to, at=at, touching=touching)
+
+    def detach(self, name: str, *, at: npt.ArrayLike) -> "Robot":
+        """A new Robot that has let go of the held object ``name``: it stays in the world where
+        the robot holds it at pose ``at`` ((K,), the place), a fixed obstacle again."""
+        return _grasp.detach(self, name, at=at)
 
     def _derived(self, spec: mujoco.MjSpec, edits: tuple, name: str) -> "Robot":
         """The robot of ``spec``, this robot's spec after ``edits`` (their ``add_to``), carrying
