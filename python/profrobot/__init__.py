@@ -46,7 +46,7 @@ from .exact.labels import Labels, collides, interpolate, label_poses, sample_pos
 from .exact.oracle import NearestFree, nearest_free  # noqa: E402
 from .exact.planning import PathResult, plan_path  # noqa: E402
 from .exact.ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
-from .motion import TimedPath, time_path  # noqa: E402
+from .motion import CartesianPath, TimedPath, plan_cartesian, time_path  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from .robot.pointcloud import PointCloud  # noqa: E402
 from .robot.family import Moves  # noqa: E402
@@ -91,7 +91,7 @@ __all__ = [
     "Kinematics", "PoseSDF", "train_sdf", "export_sdf",
     "collision_penalty", "resolve", "ResolveResult", "plan_trajectory", "plan_trajectories", "TrajectoryResult",
     "plan_path", "PathResult", "nearest_free", "NearestFree", "ik", "IKResult", "plan_to_pose", "PoseMotion",
-    "time_path", "TimedPath",
+    "time_path", "TimedPath", "plan_cartesian", "CartesianPath",
     "pose_from_images", "InverseResult", "trajectory_from_images", "pose_from_text", "TextResult",
     "actions_from_video", "estimate_layout", "LayoutEstimate",
     "certify_poses", "certify_motions", "MotionCertificate", "first_contact", "FirstContact", "check_path", "PathCheck",

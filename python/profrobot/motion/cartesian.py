@@ -1,0 +1,362 @@
+"""Straight-line moves of a frame: the approach and the retreat of a grasp, certified.
+
+:func:`plan_cartesian` moves a frame (a site, body or geom, with an optional tool offset) along
+straight lines between given poses: position linear, orientation by slerp (held where the
+targets are positions only). It returns a joint path whose every pose keeps the frame within
+``position_tolerance`` metres and ``rotation_tolerance`` radians of the line, and whose every
+segment is certified free continuously; where the line cannot be followed, the part that can,
+the fraction of the line it covers and why the rest cannot (as MoveIt's
+``computeCartesianPath`` does), never a path that leaves the line or is not proven.
+
+**How.** The line is cut into waypoints at most ``step`` metres (and ``10·step`` radians) apart;
+certified IK (:func:`profrobot.ik`, one seed: the previous joint pose) solves them all at once
+from the start, then again from the last good pose wherever the solutions stop following
+the line. Between consecutive joint waypoints the motion is the straight joint interpolation;
+the frame's deviation from the line there is measured by forward kinematics every 0.1 mm of the
+frame's travel, and a segment that strays is halved (a new waypoint in the middle, solved from
+the segment's start) up to 6 times. The joint path is then certified by the continuous
+certificate (:func:`profrobot.certify_motions`) and cut at the first segment not proven free.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation, Slerp
+
+from ..errors import InputError
+from ..exact.certification import CLEARANCE, certify_motions, certify_poses
+from ..exact.ik import as_targets, frame_of, ik, with_tool
+from ..exact.labels import as_poses, check_threads, label_poses
+from ..robot import gate
+from ..robot.gate import Layout
+from ..robot.robot import Robot
+
+__all__ = ["CartesianPath", "plan_cartesian"]
+
+#: metres of the frame's travel between two deviation checks
+CHECK_SPACING = 1e-4
+_HALVINGS = 6
+
+
+@dataclass
+class CartesianPath:
+    """A straight-line move of a frame (:func:`plan_cartesian`).
+
+    Attributes:
+        path: (M, K) joint waypoints from the start (radians / metres); every segment certified
+            free and keeping the frame on the line.
+        fraction: the share of the line's length (metres; radians where it only turns) the
+            path covers, in [0, 1].
+        reached: ``fraction == 1``: the whole line is followed.
+        reason: why the line stops where it does ('' when reached).
+        position_deviation: metres, the largest distance of the frame from the line found on
+            the path (checked every 0.1 mm of the frame's travel); rotation_deviation: radians,
+            likewise from the slerp.
+        seconds: wall time.
+    """
+
+    path: np.ndarray
+    fraction: float
+    reached: bool
+    reason: str
+    position_deviation: float
+    rotation_deviation: float
+    seconds: float
+
+    def summary(self) -> str:
+        state = "the whole line" if self.reached else f"{self.fraction:.1%} of the line ({self.reason})"
+        return (f"{state}: {len(self.path)} waypoints, frame within {self.position_deviation * 1e3:.3f} mm and "
+                f"{self.rotation_deviation * 1e3:.2f} mrad of it, every segment certified; "
+                f"{self.seconds * 1e3:.1f} ms")
+
+
+def _quat_xyzw(q_wxyz: np.ndarray) -> np.ndarray:
+    return np.asarray(q_wxyz)[..., [1, 2, 3, 0]]
+
+
+# (the dense checks' quaternion arithmetic in numpy, (w, x, y, z): scipy's Rotation costs ~0.1 ms a
+# call on these batches, which was most of a move's time; scipy builds the line, these check it)
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of (N, 4) and (N, 4) or (4,) quaternions, (w, x, y, z)."""
+    aw, ax, ay, az = np.moveaxis(np.broadcast_to(a, np.broadcast_shapes(a.shape, b.shape)), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.broadcast_to(b, np.broadcast_shapes(a.shape, b.shape)), -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 3): the vector ``v`` (3,) rotated by each unit quaternion of ``q`` (N, 4)."""
+    w, u = q[:, :1], q[:, 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Radians between unit quaternions, row by row."""
+    return 2.0 * np.arccos(np.clip(np.abs((a * b).sum(axis=-1)), 0.0, 1.0))
+
+
+def _slerp(qa: np.ndarray, qb: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions from ``qa`` to ``qb`` (4,) each at ``u`` (N,), the short way."""
+    if qa @ qb < 0:
+        qb = -qb
+    c = float(np.clip(qa @ qb, -1.0, 1.0))
+    th = np.arccos(c)
+    if th < 1e-9:
+        return np.broadcast_to(qa, (len(u), 4)).copy()
+    sa, sb = np.sin((1 - u) * th) / np.sin(th), np.sin(u * th) / np.sin(th)
+    return sa[:, None] * qa + sb[:, None] * qb
+
+
+class _Line:
+    """The polyline of legs between frame poses: points, rotations and arc length."""
+
+    def __init__(self, pos: np.ndarray, rot: Rotation, step: float):
+        self.pos, self.rot = pos, rot
+        lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+        angles = (rot[:-1].inv() * rot[1:]).magnitude()
+        self.turning_only = lengths.sum() <= 1e-12
+        self.length = angles if self.turning_only else lengths
+        self.total = float(self.length.sum())
+        self.slerps = [Slerp([0.0, 1.0], rot[i:i + 2]) for i in range(len(pos) - 1)]
+        self.quats = rot.as_quat()[:, [3, 0, 1, 2]]
+        self.cuts = [max(1, int(np.ceil(max(lengths[i] / step, angles[i] / (10 * step))))) for i in range(len(pos) - 1)]
+
+    def at(self, leg: int, u: np.ndarray) -> tuple[np.ndarray, Rotation]:
+        return self.pos[leg] + np.outer(u, self.pos[leg + 1] - self.pos[leg]), self.slerps[leg](u)
+
+    def deviation(self, leg: int, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distance to the leg's segment, angle to its slerp at the nearest point, that point's
+        u) of frame positions ``p`` (N, 3) and orientations ``r`` (N, 4) (w, x, y, z)."""
+        a, b = self.pos[leg], self.pos[leg + 1]
+        qa, qb = self.quats[leg], self.quats[leg + 1]
+        d = b - a
+        dd = float(d @ d)
+        if dd > 0:
+            u = np.clip((p - a) @ d / dd, 0.0, 1.0)
+        else:   # (a turn in place: the parameter from the rotation)
+            total = float(_angle(qa, qb))
+            u = np.clip(_angle(np.broadcast_to(qa, r.shape), r) / total, 0.0, 1.0) if total > 0 else np.zeros(len(p))
+        dist = np.linalg.norm(a + np.outer(u, d) - p, axis=1)
+        return dist, _angle(_slerp(qa, qb, u), r), u
+
+
+def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *, frame: str,
+                   tool: npt.ArrayLike | None = None, step: float = 0.005, position_tolerance: float = 1e-3,
+                   rotation_tolerance: float = 0.01, locked: Sequence[str] = (), layout: Layout | None = None,
+                   margin: float = CLEARANCE, threads: int | None = None) -> CartesianPath:
+    """Move ``frame`` from where it is at ``start`` ((K,), a certified pose) along straight lines
+    through ``targets`` (as in :func:`profrobot.ik`: (N, 4, 4) world transforms, or (N, 3)
+    positions in metres with the start's orientation held), position linear and orientation by
+    slerp, the frame within ``position_tolerance`` (m) and ``rotation_tolerance`` (rad) of the
+    line at every pose (module docs). ``tool``: a (3,) offset or (4, 4) transform of the tool in
+    the frame's coordinates (the targets are the tool's poses). ``step``: metres between the
+    waypoints solved (10·step radians of turning). ``locked``: joints that keep their start
+    values; joints that do not move the frame keep them too. ``layout``, ``margin``: as for
+    :func:`profrobot.plan_path`.
+
+    Returns a :class:`CartesianPath`: the certified joint path along as much of the line as can
+    be followed, the fraction it covers and why it stops (a joint limit or singularity, a
+    collision, a segment the certificate does not prove)."""
+    t0 = time.perf_counter()
+    robot = gate.robot_at(robot, layout=layout, margin=margin)
+    s = as_poses(robot, start, name="start", check_limits=True)
+    if s.shape != (1, robot.njoint):
+        raise InputError(f"start must be one pose of {robot.njoint} joints; got shape {np.shape(start)}")
+    step = gate.positive("step", step)
+    position_tolerance = gate.positive("position_tolerance", position_tolerance)
+    rotation_tolerance = gate.positive("rotation_tolerance", rotation_tolerance)
+    threads = check_threads(threads)
+    body, lpos, lquat = frame_of(robot, frame)
+    lpos, lquat = with_tool(lpos, lquat, tool)
+    gate.joint_mask(robot, locked, "locked")
+    if not certify_poses(robot, s)[0]:
+        lab = label_poses(robot, s, pairs=True)
+        why = (f"collides ({' / '.join(robot.pair_names(int(lab.colliding_pairs[0, 1])))})"
+               if lab.collides[0] and lab.colliding_pairs is not None and len(lab.colliding_pairs)
+               else "is within the clearance of contact or off its couplings")
+        raise InputError(f"start {why}; move from a certified pose")
+
+    def frames(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the frame is at poses ``q`` (N, K): positions (N, 3), quaternions (N, 4) (w, x, y, z)."""
+        xpos, xquat = robot.core.forward_kinematics(np.ascontiguousarray(q), threads=threads)
+        qb = xquat[:, body]
+        return xpos[:, body] + _rotate(qb, lpos), _qmul(qb, lquat)
+
+    p0, q0 = frames(s)
+    r0 = Rotation.from_quat(_quat_xyzw(q0[0]))
+    tpos, tquat = as_targets(targets)
+    trot = (Rotation.from_quat(_quat_xyzw(tquat)) if tquat is not None
+            else Rotation.from_quat(np.repeat(_quat_xyzw(q0), len(tpos), axis=0)))
+    line = _Line(np.concatenate([p0, tpos]), Rotation.concatenate([r0, trot]), step)
+
+    # Waypoints (leg, u) along the line, and their arc length from the start.
+    legs = np.concatenate([np.full(c, i) for i, c in enumerate(line.cuts)])
+    us = np.concatenate([np.arange(1, c + 1) / c for c in line.cuts])
+    before = np.concatenate([[0.0], np.cumsum(line.length)])
+
+    def arc(leg: int, u: float) -> float:
+        return float(before[leg] + u * line.length[leg])
+
+    def points(leg_u: list[tuple[int, float]]) -> np.ndarray:
+        """(N, 4, 4) frame poses on the line at ``(leg, u)`` each."""
+        lu = np.asarray(leg_u, dtype=np.float64).reshape(-1, 2)
+        T = np.zeros((len(lu), 4, 4))
+        T[:, 3, 3] = 1
+        for leg in np.unique(lu[:, 0]).astype(int):
+            on = lu[:, 0] == leg
+            p, r = line.at(leg, lu[on, 1])
+            T[on, :3, 3], T[on, :3, :3] = p, r.as_matrix()
+        return T
+
+    def solve(leg_u: list[tuple[int, float]], q_from: np.ndarray):
+        T = points(leg_u)
+        return ik(robot, T, frame=frame, tool=tool, start=np.repeat(q_from[None], len(T), axis=0), seeds=1,
+                  position_tolerance=position_tolerance / 100, rotation_tolerance=rotation_tolerance / 100,
+                  locked=locked, threads=threads)
+
+    def stray(qa: np.ndarray, qb: np.ndarray, leg: int, pa: np.ndarray) -> tuple[float, float]:
+        """The frame's largest deviations from leg ``leg`` on the joint segment qa → qb."""
+        pb, _ = frames(qb[None])
+        n = max(2, int(np.ceil(np.linalg.norm(pb[0] - pa) / CHECK_SPACING)) + 1)
+        n = min(n, 4000)
+        w = np.linspace(0.0, 1.0, n)[:, None]
+        d = qb - qa
+        wraps = robot.continuous
+        d[wraps] = (d[wraps] + np.pi) % (2 * np.pi) - np.pi
+        q = robot.project(qa + w * d)
+        p, r = frames(q)
+        dist, ang, _ = line.deviation(leg, p, r)
+        return float(dist.max()), float(ang.max())
+
+    def strays(q: np.ndarray, seg_legs: np.ndarray, pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``stray`` of every segment of the joint path ``q`` (n + 1, K) at once (one forward
+        kinematics call for all its checks); ``pw`` (n + 1, 3): where the frame is at each pose."""
+        n = np.clip(np.ceil(np.linalg.norm(np.diff(pw, axis=0), axis=1) / CHECK_SPACING).astype(int) + 1, 2, 4000)
+        d = np.diff(q, axis=0)
+        wraps = robot.continuous
+        d[:, wraps] = (d[:, wraps] + np.pi) % (2 * np.pi) - np.pi
+        seg = np.repeat(np.arange(len(d)), n)
+        w = np.concatenate([np.linspace(0.0, 1.0, k) for k in n])[:, None]
+        p, r = frames(robot.project(q[seg] + w * d[seg]))
+        dist, ang = np.zeros(len(seg)), np.zeros(len(seg))
+        for leg in np.unique(seg_legs):
+            on = seg_legs[seg] == leg
+            dist[on], ang[on], _ = line.deviation(int(leg), p[on], r[on])
+        out_d, out_a = np.zeros(len(d)), np.zeros(len(d))
+        np.maximum.at(out_d, seg, dist)
+        np.maximum.at(out_a, seg, ang)
+        return out_d, out_a
+
+    path, reached_arc, reason = [s[0]], 0.0, ""
+    worst = [0.0, 0.0]
+    i = 0
+    pending: list[tuple[int, float]] = list(zip(legs.tolist(), us.tolist()))
+    sol = solve(pending, s[0])
+    # The common case at once: every waypoint solved from the start, every segment on the line.
+    ok = np.cumprod(sol.certified).astype(bool)
+    if ok.any():
+        k = int(ok.sum())
+        dists, angs = strays(np.concatenate([s, sol.poses[:k]]), legs[:k],
+                             np.concatenate([p0, points(pending[:k])[:, :3, 3]]))
+        good = np.cumprod((dists <= position_tolerance) & (angs <= rotation_tolerance)).astype(bool)
+        i = int(good.sum())
+        if i:
+            path.extend(sol.poses[:i])
+            worst = [float(dists[:i].max()), float(angs[:i].max())]
+            reached_arc = arc(*pending[i - 1])
+    while i < len(pending):
+        leg, u = pending[i]
+        if not sol.certified[i]:
+            # (solved from the start: try again from the last pose on the line)
+            again = solve(pending[i:], path[-1])
+            if again.certified[0]:
+                sol = _tail(sol, again, i)
+            else:
+                where = arc(leg, u)
+                reason = (f"no certified pose reaches the line at {where:.4g} {'rad' if line.turning_only else 'm'}: "
+                          + ("it collides there" if again.outcome[0] == 2
+                             else "out of reach from the last pose (a joint limit or a singularity)"))
+                break
+        qa, qb = path[-1], sol.poses[i]
+        pa, _ = frames(qa[None])
+        dist, ang = stray(qa, qb, leg, pa[0])
+        halvings = 0
+        prev_u = 0.0 if i == 0 or pending[i - 1][0] != leg else pending[i - 1][1]
+        while (dist > position_tolerance or ang > rotation_tolerance) and halvings < _HALVINGS:
+            # the joint segment leaves the line: a waypoint in the middle, solved from qa
+            mid = (leg, 0.5 * (prev_u + u))
+            m_sol = solve([mid], qa)
+            if not m_sol.certified[0]:
+                break
+            pending.insert(i, mid)
+            sol = _insert(sol, m_sol, i)
+            leg, u = mid
+            qb = sol.poses[i]
+            dist, ang = stray(qa, qb, leg, pa[0])
+            halvings += 1
+        if dist > position_tolerance or ang > rotation_tolerance:
+            # solved from the start, the pose may be on another branch: from the last pose instead
+            again = solve(pending[i:], qa)
+            if again.certified[0]:
+                d2, a2 = stray(qa, again.poses[0], leg, pa[0])
+                if d2 <= position_tolerance and a2 <= rotation_tolerance:
+                    sol = _tail(sol, again, i)
+                    dist, ang, qb = d2, a2, again.poses[0]
+        if dist > position_tolerance or ang > rotation_tolerance:
+            reason = (f"the frame leaves the line near {arc(leg, u):.4g} {'rad' if line.turning_only else 'm'} "
+                      f"({dist * 1e3:.3g} mm, {ang * 1e3:.3g} mrad off it): a singularity or a joint limit")
+            break
+        worst = [max(worst[0], dist), max(worst[1], ang)]
+        path.append(qb)
+        reached_arc = arc(leg, u)
+        i += 1
+
+    q = np.asarray(path)
+    if len(q) > 1:
+        cert = certify_motions(robot, q[:-1], q[1:], threads=threads)
+        bad = np.flatnonzero(~cert.certified)
+        if len(bad):
+            k = int(bad[0])
+            what = "blocked" if cert.blocked[k] else "not proven free"
+            q = q[:k + 1]
+            # (the arc at waypoint k: recomputed from the frame, the nearest point of the line)
+            reached_arc = _arc_of(line, frames(q[-1:])[0][0], before)
+            reason = f"the joint motion after {reached_arc:.4g} {'rad' if line.turning_only else 'm'} is {what}"
+    fraction = 1.0 if line.total == 0 else min(1.0, reached_arc / line.total)
+    done = not reason
+    return CartesianPath(path=q, fraction=1.0 if done else fraction, reached=done, reason=reason,
+                         position_deviation=worst[0], rotation_deviation=worst[1],
+                         seconds=time.perf_counter() - t0)
+
+
+def _arc_of(line: _Line, p: np.ndarray, before: np.ndarray) -> float:
+    best = (np.inf, 0.0)
+    for leg in range(len(line.pos) - 1):
+        a, b = line.pos[leg], line.pos[leg + 1]
+        d = b - a
+        u = float(np.clip((p - a) @ d / (d @ d), 0, 1)) if d @ d > 0 else 0.0
+        dist = float(np.linalg.norm(a + u * d - p))
+        if dist < best[0]:
+            best = (dist, float(before[leg] + u * line.length[leg]))
+    return best[1]
+
+
+def _tail(sol, again, i: int):
+    """``sol`` with its answers from ``i`` on replaced by ``again``'s."""
+    from dataclasses import replace
+    fields = ("poses", "reached", "certified", "position_error", "rotation_error", "iterations", "seeds", "outcome")
+    return replace(sol, **{f: np.concatenate([getattr(sol, f)[:i], getattr(again, f)]) for f in fields})
+
+
+def _insert(sol, one, i: int):
+    """``sol`` with ``one``'s single answer inserted at ``i``."""
+    from dataclasses import replace
+    fields = ("poses", "reached", "certified", "position_error", "rotation_error", "iterations", "seeds", "outcome")
+    return replace(sol, **{f: np.concatenate([getattr(sol, f)[:i], getattr(one, f), getattr(sol, f)[i:]])
+                           for f in fields})

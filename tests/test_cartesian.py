@@ -1,0 +1,122 @@
+"""Straight-line moves (profrobot.plan_cartesian, python/profrobot/motion/cartesian.py): the frame
+stays on the line (MuJoCo's forward kinematics every 0.1 mm of its travel, measured here
+independently of the implementation), every segment is certified, and where the line cannot
+be followed the fraction and the reason say how far and why."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+import profrobot
+from profrobot import InputError, plan_cartesian
+
+from conftest import scene
+from test_timing import puck
+
+
+def _frame(robot, q, body):
+    m = robot.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[robot.qpos_adr] = q
+    mujoco.mj_kinematics(m, d)
+    b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body)
+    return d.xpos[b].copy(), d.xquat[b].copy()
+
+
+def _check_on_line(robot, res, body, a, b, ra, rb, pos_tol=1e-3, rot_tol=0.01):
+    """Every 0.1 mm of the frame's travel along the returned path: within the tolerances of the
+    segment a → b (orientation: the slerp ra → rb at the nearest point); every segment certified."""
+    q = res.path
+    if len(q) > 1:
+        assert profrobot.certify_motions(robot, q[:-1], q[1:]).certified.all()
+    slerp = Slerp([0, 1], Rotation.concatenate([ra, rb]))
+    d = b - a
+    worst = 0.0
+    for qa, qb in zip(q[:-1], q[1:]):
+        pa, pb = _frame(robot, qa, body)[0], _frame(robot, qb, body)[0]
+        n = int(np.ceil(np.linalg.norm(pb - pa) / 1e-4)) + 2
+        for x in profrobot.interpolate(robot, qa, qb, n):
+            p, quat = _frame(robot, x, body)
+            u = np.clip((p - a) @ d / (d @ d), 0, 1)
+            dist = np.linalg.norm(a + u * d - p)
+            ang = (slerp([u]).inv() * Rotation.from_quat(quat[[1, 2, 3, 0]])).magnitude()[0]
+            assert dist <= pos_tol and ang <= rot_tol, (dist, ang)
+            worst = max(worst, dist)
+    return worst
+
+
+@pytest.mark.parametrize("name, body", [("panda_blocks", "hand"), ("ur5e_wall_box", "wrist_3_link")])
+def test_approach_moves_stay_on_the_line_and_are_certified(name, body):
+    robot = scene(name)
+    qs = profrobot.sample_poses(robot, 300, seed=3)
+    qs = qs[profrobot.certify_poses(robot, qs)][:12]
+    rng = np.random.default_rng(0)
+    reached = 0
+    for q in qs:
+        p, quat = _frame(robot, q, body)
+        r = Rotation.from_quat(quat[[1, 2, 3, 0]])
+        target = p + r.as_matrix()[:, 2] * rng.uniform(0.05, 0.10)
+        res = plan_cartesian(robot, q, target, frame=body)
+        np.testing.assert_array_equal(res.path[0], q)
+        _check_on_line(robot, res, body, p, target, r, r)
+        end = _frame(robot, res.path[-1], body)[0]
+        if res.reached:
+            reached += 1
+            assert res.fraction == 1 and not res.reason
+            assert np.linalg.norm(end - target) < 1e-4
+        else:
+            assert res.reason and 0 <= res.fraction < 1
+            # the fraction is how far along the line the last pose is
+            assert abs(np.linalg.norm(end - p) / np.linalg.norm(target - p) - res.fraction) < 0.02
+    assert reached >= 6
+
+
+def test_a_line_into_an_obstacle_or_past_a_limit_stops_and_says_why():
+    robot = puck()
+    into = plan_cartesian(robot, [0.0, 0.15], [1.0, 0.15, 0.0], frame="puck")
+    # the block's face is at x = 0.8, the puck's radius 0.05: contact at x = 0.75
+    x_end = into.path[-1, 0]
+    assert not into.reached and ("collides" in into.reason or "blocked" in into.reason), into.reason
+    assert 0.74 - 0.006 <= x_end < 0.75 and into.fraction == pytest.approx(x_end, abs=0.006)
+    past = plan_cartesian(robot, [0.0, 0.5], [1.5, 0.5, 0.0], frame="puck")
+    assert not past.reached and "reach" in past.reason and past.path[-1, 0] <= 1.2
+    assert past.path[-1, 0] > 1.2 - 0.006
+    assert past.fraction == pytest.approx(past.path[-1, 0] / 1.5, abs=0.005)
+    for res in (into, past):
+        assert profrobot.certify_motions(robot, res.path[:-1], res.path[1:]).certified.all()
+
+
+def test_several_legs_in_one_move():
+    robot = puck()
+    corners = np.array([[0.5, 0.0, 0.0], [0.5, 0.5, 0.0], [1.0, 0.5, 0.0]])
+    res = plan_cartesian(robot, [0.0, 0.0], corners, frame="puck")
+    assert res.reached, res.reason
+    # every corner is a waypoint, and between them the puck is on its leg
+    for c in corners[:, :2]:
+        assert np.min(np.linalg.norm(res.path - c, axis=1)) < 1e-6
+    assert np.abs(np.diff(res.path, axis=0)).max() <= 0.005 + 1e-6       # (IK to 1e-7 m)
+
+
+def test_bad_input_refused_by_name(panda):
+    q = profrobot.sample_poses(panda, 50, seed=1)
+    q = q[profrobot.certify_poses(panda, q)][0]
+    cases = [
+        (dict(frame="nowhere"), "frame 'nowhere'"),
+        (dict(frame="hand", step=0), "step"),
+        (dict(frame="hand", position_tolerance=-1), "position_tolerance"),
+        (dict(frame="hand", rotation_tolerance=np.nan), "rotation_tolerance"),
+        (dict(frame="hand", locked=["nope"]), "locked"),
+    ]
+    for kwargs, words in cases:
+        with pytest.raises(profrobot.ProfrobotError) as e:
+            plan_cartesian(panda, q, [0.3, 0.0, 0.5], **kwargs)
+        assert words in str(e.value)
+    with pytest.raises(InputError, match="targets"):
+        plan_cartesian(panda, q, [[0.3, 0.0]], frame="hand")
+    with pytest.raises(InputError, match="start"):
+        plan_cartesian(panda, q[:4], [0.3, 0.0, 0.5], frame="hand")
+    with pytest.raises(InputError, match="start collides"):
+        plan_cartesian(puck(), [0.85, 0.15], [0.3, 0.0, 0.0], frame="puck")
