@@ -159,3 +159,48 @@ def test_a_tool_offset_moves_the_target_point(robot):
                                atol=1e-4)
     with pytest.raises(profrobot.InputError, match="tool"):
         profrobot.ik(robot, tool_T[:1], frame="hand", tool=[[1.0, 2.0]])
+
+
+def _frame_poses(robot, q: np.ndarray, body: str) -> np.ndarray:
+    m, d = robot.mj_model, mujoco.MjData(robot.mj_model)
+    out = np.tile(np.eye(4), (len(q), 1, 1))
+    for i, x in enumerate(q):
+        d.qpos[robot.qpos_adr] = x
+        mujoco.mj_kinematics(m, d)
+        out[i, :3, :3], out[i, :3, 3] = d.body(body).xmat.reshape(3, 3), d.body(body).xpos
+    return out
+
+
+def test_the_gripper_moves_when_asked_and_says_so_when_held():
+    """vx300s_clutter: 1 000 targets made by forward kinematics of free poses. With the gripper's
+    joints free to move every one is certified; held at their start values (the default), a
+    target reached only with another jaw value says so, with the value, never only that every
+    reaching pose collides."""
+    robot = profrobot.scenes.load("vx300s_clutter")
+    fingers = ["left_finger", "right_finger"]
+    truth = problems.free_poses(robot, 1000, seed=0)     # (one of them is reached only with the jaw moved)
+    targets = _frame_poses(robot, truth, "gripper_link")
+    free = profrobot.ik(robot, targets, frame="gripper_link", moving=fingers)
+    assert free.certified.all(), free.summary()
+    np.testing.assert_array_equal(free.reached, free.outcome != 1)
+    got = _frame_poses(robot, free.poses, "gripper_link")
+    assert np.abs(got[:, :3, 3] - targets[:, :3, 3]).max() <= 1e-4
+    held = profrobot.ik(robot, targets, frame="gripper_link")
+    j = [robot.joint_names.index(n) for n in fingers]
+    start = profrobot.ik(robot, targets[:1], frame="gripper_link").poses   # (the default start's jaw)
+    np.testing.assert_array_equal(held.poses[:, j], np.repeat(start[:, j], len(targets), axis=0))
+    stuck = np.flatnonzero(held.outcome == 2)
+    assert len(stuck) >= 1
+    for i in stuck:
+        assert "another value of them reaches it certified" in held.reasons[i] and "moving=" in held.reasons[i]
+        assert "every pose that reaches it collides" not in held.reasons[i]
+    # the note is checked: what it says is what moving= finds
+    again = profrobot.ik(robot, targets[stuck], frame="gripper_link", moving=fingers)
+    assert again.certified.all()
+
+
+def test_moving_refused_by_name(robot):
+    with pytest.raises(profrobot.InputError, match="moving"):
+        profrobot.ik(robot, np.eye(4), frame="hand", moving=["nope"])
+    with pytest.raises(profrobot.InputError, match="both locked and moving: finger_joint1"):
+        profrobot.ik(robot, np.eye(4), frame="hand", moving=["finger_joint1"], locked=["finger_joint1"])

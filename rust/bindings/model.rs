@@ -472,7 +472,7 @@ impl PyRobotModel {
     /// Inverse kinematics of a frame (see `_core.pyi` and `ik/mod.rs`): `targets_pos` `(N, 3)`,
     /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
     /// is body `body` offset by `local_pos`, `local_quat`.
-    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, accept_pos=1e-6, accept_rot=1e-6, clearance=1e-6, seed=0, escape=true, held=None, free_axis=None, threads=None))]
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, accept_pos=1e-6, accept_rot=1e-6, clearance=1e-6, seed=0, escape=true, held=None, moving=None, free_axis=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn ik<'py>(
         &self,
@@ -493,6 +493,7 @@ impl PyRobotModel {
         seed: u64,
         escape: bool,
         held: Option<Vec<bool>>,
+        moving: Option<Vec<bool>>,
         free_axis: Option<[f64; 3]>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
@@ -512,6 +513,11 @@ impl PyRobotModel {
                 return Err(input_error(format!("held has {} entries for {k} joints", h.len())));
             }
             scene.iter_mut().zip(&h).for_each(|(s, &h)| *s |= h);
+        }
+        if let Some(m) = &moving {
+            if m.len() != k {
+                return Err(input_error(format!("moving has {} entries for {k} joints", m.len())));
+            }
         }
         let pos = pose_array(targets_pos, 3, "targets_pos")?;
         let n = pos.shape()[0];
@@ -537,8 +543,21 @@ impl PyRobotModel {
             .map(|i| IkTarget { pos: [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]], rot: quat.as_ref().map(|q| unit(&q[4 * i..4 * i + 4])) })
             .collect();
         let local = Isometry3::from_parts(Translation3::from(local_pos), unit(&local_quat));
-        let opts =
-            IkOptions { body, local, seeds, iterations, tol_pos, tol_rot, accept_pos, accept_rot, free_axis, clearance, seed, escape };
+        let opts = IkOptions {
+            body,
+            local,
+            seeds,
+            iterations,
+            tol_pos,
+            tol_rot,
+            accept_pos,
+            accept_rot,
+            free_axis,
+            clearance,
+            seed,
+            escape,
+            moving: moving.unwrap_or_default(),
+        };
         let scene: &[bool] = &scene;
         let r = interrupt::run(py, threads, || ik(model, &targets, starts, scene, &opts))?;
         let out = PyDict::new(py);

@@ -79,6 +79,10 @@ pub struct IkOptions {
     pub seed: u64,
     /// Whether a seed that reaches the target in contact tries the distance rows (`escape`).
     pub escape: bool,
+    /// Joints that are variables although they do not move the frame (a gripper's jaw asked to
+    /// move): their Jacobian columns are zero, so they move only where the escape rows or a
+    /// uniform seed take them. Empty: none (the rest keep their start values).
+    pub moving: Vec<bool>,
 }
 
 impl IkOptions {
@@ -96,6 +100,7 @@ impl IkOptions {
             clearance: 1e-6,
             seed: 0,
             escape: true,
+            moving: Vec::new(),
         }
     }
 }
@@ -239,9 +244,9 @@ fn cost(e: &[f64; 6], rows: usize) -> f64 {
 }
 
 impl Chain {
-    fn of(model: &RobotModel, body: usize, scene: &[bool]) -> Chain {
+    fn of(model: &RobotModel, body: usize, scene: &[bool], moving: &[bool]) -> Chain {
         let k = model.njoint();
-        let mut moves = vec![false; k];
+        let mut moves: Vec<bool> = (0..k).map(|j| moving.get(j).copied().unwrap_or(false)).collect();
         let mut b = body;
         while b != 0 {
             let (j0, j1) = model.body_joints[b];
@@ -508,7 +513,7 @@ pub fn ik(model: &RobotModel, targets: &[IkTarget], starts: &[f64], scene: &[boo
         return invalid_input(format!("start {} joint {} is not finite", i / k, i % k));
     }
     let ranges = model.sampling_ranges()?;
-    let chain = Chain::of(model, opts.body, scene);
+    let chain = Chain::of(model, opts.body, scene, &opts.moving);
     if chain.vars.is_empty() {
         return invalid_input("no joint moves the frame: nothing to solve for");
     }

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -45,6 +45,9 @@ class IKResult:
         iterations: (N,) Levenberg–Marquardt steps over every seed tried; seeds: (N,) seeds tried.
         outcome: (N,) 0 certified, 1 unreachable, 2 reached only in collision (:attr:`reasons`).
         seconds: wall time of the call.
+        notes: target index → what more is known of it: for a target reached only in collision
+            with joints that do not move the frame kept at their start values, whether another
+            value of them reaches it certified (the pose ``ik(..., moving=[...])`` would give).
     """
 
     poses: np.ndarray
@@ -56,6 +59,7 @@ class IKResult:
     seeds: np.ndarray
     outcome: np.ndarray
     seconds: float
+    notes: dict[int, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -63,7 +67,8 @@ class IKResult:
     @property
     def reasons(self) -> list[str]:
         """Why each answer is what it is, in words."""
-        return [_REASONS[int(o)] for o in self.outcome]
+        return [f"reached only in collision {self.notes[i]}" if i in self.notes else _REASONS[int(o)]
+                for i, o in enumerate(self.outcome)]
 
     @property
     def failures(self) -> np.ndarray:
@@ -172,8 +177,8 @@ def _starts(robot: Robot, start: npt.ArrayLike | None, n: int) -> np.ndarray:
 def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike | None = None,
        layout: Layout | None = None, position_tolerance: float = 1e-4, rotation_tolerance: float = 1e-3,
        seeds: int = 128, iterations: int = 60, seed: int = 0, escape: bool = True, margin: float = CLEARANCE,
-       locked: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None, tool: npt.ArrayLike | None = None,
-       threads: int | None = None) -> IKResult:
+       locked: Sequence[str] = (), moving: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
+       tool: npt.ArrayLike | None = None, threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
@@ -193,7 +198,10 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     ends in is certified like any other. Same ``seed``, same answers, for any thread count.
     ``margin``: metres every answer keeps from the obstacles (:mod:`profrobot.robot.gate`).
     ``locked``: names of joints that keep their ``start`` values exactly (a gripper's jaw, a
-    joint the task must not move); the rest solve for the target. ``free_axis``: an axis of the
+    joint the task must not move); the rest solve for the target. ``moving``: names of joints
+    that do not move the frame but may move to make the answer free (a gripper's jaw closed on
+    an obstacle at its start value); without it such joints keep their start values, and a
+    target reached only with another value of them says so in :attr:`IKResult.reasons`. ``free_axis``: an axis of the
     frame (``"x"``, ``"y"``, ``"z"`` or a (3,) vector in its own coordinates) whose rotation is
     free: the target fixes where it points, not the angle about it (a symmetric part grasped at
     any angle about the tool axis; the rotation error is then the angle between the two axes).
@@ -205,6 +213,10 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     only then is it certified or reported "reached only in collision"."""
     robot = robot_at(robot, layout=layout, margin=margin, family=True)
     held = joint_mask(robot, locked, "locked")
+    asked = joint_mask(robot, moving, "moving")
+    if held is not None and asked is not None and any(h and a for h, a in zip(held, asked)):
+        both = [n for n, h, a in zip(robot.joint_names, held, asked) if h and a]
+        raise InputError(f"joints both locked and moving: {', '.join(both)}")
     t0 = time.perf_counter()
     pos, quat = as_targets(targets)
     body, lpos, lquat = frame_of(robot, frame)
@@ -221,17 +233,38 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
                         tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100,
                         accept_pos=position_tolerance, accept_rot=rotation_tolerance, clearance=CLEARANCE,
-                        seed=check_seed(seed), escape=bool(escape), held=held, free_axis=axis,
+                        seed=check_seed(seed), escape=bool(escape), held=held, moving=asked, free_axis=axis,
                         threads=check_threads(threads))
     poses = out["poses"]
     pe, re = out["position_error"], out["rotation_error"]
     reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
     certified = out["outcome"] == 0
+    notes: dict[int, str] = {}
+    # Reached only in collision with joints kept that do not move the frame (a jaw at its start
+    # value): does another value of them reach it certified? Say so, with the value found.
+    none = [False] * robot.njoint
+    kept = (~frame_moved_by(robot, frame) & ~np.asarray(held or none) & ~np.asarray(asked or none)
+            & ~np.isin(np.arange(robot.njoint), robot.scene_index))
+    stuck = np.flatnonzero(out["outcome"] == 2)
+    if len(stuck) and kept.any():
+        names = [n for n, k in zip(robot.joint_names, kept) if k]
+        again = robot.core.ik(pos[stuck], quat[stuck] if quat is not None else None, starts[stuck], body, lpos.tolist(),
+                              lquat.tolist(), seeds=seeds, iterations=iterations, tol_pos=position_tolerance / 100,
+                              tol_rot=rotation_tolerance / 100, accept_pos=position_tolerance,
+                              accept_rot=rotation_tolerance, clearance=CLEARANCE, seed=check_seed(seed),
+                              escape=bool(escape), held=held, moving=(kept | np.asarray(asked or none)).tolist(),
+                              free_axis=axis, threads=check_threads(threads))
+        for i, ok, q in zip(stuck, again["outcome"] == 0, again["poses"]):
+            values = ", ".join(f"{n}={q[robot.joint_names.index(n)]:.4g}" for n in names)
+            notes[int(i)] = (f"with {', '.join(names)} at their start values: another value of them reaches it "
+                             f"certified ({values}; pass moving={names!r})" if ok else
+                             f"(every pose that reaches it collides or comes within the clearance, also with "
+                             f"{', '.join(names)} free to move)")
     # one verdict: reached exactly where the outcome is not "unreachable" (rust/ik/mod.rs accepts a
     # seed at the tolerances, not only at the hundredth it iterates to; tests/test_ik_options.py)
     return IKResult(poses=poses, reached=reached, certified=certified, position_error=pe, rotation_error=re,
                     iterations=out["iterations"], seeds=out["seeds"], outcome=out["outcome"],
-                    seconds=time.perf_counter() - t0)
+                    seconds=time.perf_counter() - t0, notes=notes)
 
 
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -318,7 +351,7 @@ class PoseMotion:
 
 def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, frame: str, layout: Layout | None = None,
                  margin: float = CLEARANCE, candidates: int = 8, max_time: float = 10.0, seed: int = 0,
-                 locked: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
+                 locked: Sequence[str] = (), moving: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
                  tool: npt.ArrayLike | None = None, threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
@@ -330,7 +363,9 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
     shared among them; the first path found is returned with the goal pose it chose. Always a
     :class:`PoseMotion`: when no candidate reaches the target certified free, or the time runs
     out, its ``outcome`` says so (bad input raises :class:`InputError`). ``margin``: metres the
-    path keeps from the obstacles; a family plans at ``layout`` (:mod:`profrobot.robot.gate`)."""
+    path keeps from the obstacles; a family plans at ``layout`` (:mod:`profrobot.robot.gate`).
+    ``locked``, ``moving``: as for :func:`ik` (joints that do not move the frame stay at their
+    ``start`` values, a gripper's jaw, unless named in ``moving``)."""
     robot = robot_at(robot, layout=layout, margin=margin)
     q0 = as_poses(robot, start, name="start", check_limits=True)
     if len(q0) != 1:
@@ -342,9 +377,10 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
     max_time = positive("max_time", max_time)
     tgt = pos if quat is None else np.asarray(target, dtype=np.float64).reshape(1, 4, 4)
     joint_mask(robot, locked, "locked")   # refused here, before any candidate is computed
+    asked = joint_mask(robot, moving, "moving")
     others = sample_poses(robot, max(candidates - 1, 1), seed=check_seed(seed))
     # another branch of the arm, not another jaw: what does not move the frame stays at the start
-    still = ~frame_moved_by(robot, frame)
+    still = ~frame_moved_by(robot, frame) & ~np.asarray(asked or [False] * robot.njoint)
     others[:, still] = q0[0, still]
     goals: list[tuple[np.ndarray, IKResult]] = []
     made = 0
@@ -355,8 +391,8 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
         nonlocal made, last_ik
         while len(goals) <= c and made < candidates:
             near = q0[0] if made == 0 else others[made - 1]
-            sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, locked=locked, free_axis=free_axis,
-                     tool=tool, threads=threads)
+            sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, locked=locked, moving=moving,
+                     free_axis=free_axis, tool=tool, threads=threads)
             made += 1
             last_ik = sol
             if sol.certified[0] and not any(np.abs(sol.poses[0] - g).max() < 1e-6 for g, _ in goals):

@@ -1,0 +1,163 @@
+"""Timed paths beside Ruckig and TOPP-RA, on the same certified waypoints.
+
+    python benches/timing.py [--paths 100] [--scenes a,b] [--velocity 1.5] [--acceleration 3]
+
+Per bundled arm, ``--paths`` hard problems (``hard_pairs``) planned by ``plan_path`` (every path
+certified), then timed under the same per-joint limits (rad/s, rad/s²; no jerk limit) by:
+
+- **ours** (``time_path``): segments at constant velocity, parabolic blends at the corners, each
+  blend proven free (or a stop there); checked here at 1 kHz: no sample above a limit, every
+  sample free by MuJoCo's own collision (``mj_collision``);
+- **Ruckig** (PyPI ``ruckig``, the community version, offline): state to state only, so it stops
+  at every waypoint, each segment phase-synchronised (a straight line in joint space: the
+  certified path itself) and time-optimal under the same limits (jerk unlimited);
+- **TOPP-RA** (PyPI ``toppra``): time-optimal along a cubic spline through the waypoints — another
+  path than the certified one; the share of its 1 kHz samples the exact labeller does not
+  certify is reported.
+
+Also the cost of ``time_path`` on paths of 20 waypoints (certified plans chained goal to goal,
+cut at 20 waypoints). Timings are medians; run it alone on the machine.
+Markdown in ``benches/timing_results.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import profrobot
+from profrobot.exact.labels import so2_steps
+from profrobot.exact.problems import hard_pairs
+
+ARMS = ["panda_blocks", "panda_shelf", "ur5e_wall_box", "xarm7_table", "vx300s_clutter"]
+RESULTS = Path(__file__).resolve().parent / "timing_results.md"
+
+
+def unwrapped(robot, path):
+    steps = so2_steps(robot, path)
+    return path[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)])
+
+
+def ruckig_stops(path, v, a) -> float:
+    """Ruckig from rest to rest along each segment, phase-synchronised: the duration."""
+    from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
+    k = path.shape[1]
+    otg, inp, total = Ruckig(k), InputParameter(k), 0.0
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = v.tolist(), a.tolist(), [float("inf")] * k
+    inp.synchronization = Synchronization.Phase
+    for x, y in zip(path[:-1], path[1:]):
+        if np.abs(y - x).max() == 0:
+            continue
+        inp.current_position, inp.target_position = x.tolist(), y.tolist()
+        tr = Trajectory(k)
+        otg.calculate(inp, tr)
+        total += tr.duration
+    return total
+
+
+def toppra_time(robot, path, v, a) -> tuple[float, float]:
+    """TOPP-RA along a cubic spline through the waypoints: (duration, share of its 1 kHz samples
+    not certified free)."""
+    import toppra as ta
+    import toppra.algorithm as algo
+    import toppra.constraint as constraint
+    ta.setup_logging("WARNING")
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    spline = ta.SplineInterpolator(s / s[-1], path)
+    cons = [constraint.JointVelocityConstraint(np.stack([-v, v], axis=1)),
+            constraint.JointAccelerationConstraint(np.stack([-a, a], axis=1))]
+    traj = algo.TOPPRA(cons, spline, parametrizer="ParametrizeConstAccel").compute_trajectory(0, 0)
+    if traj is None:
+        return np.nan, np.nan
+    t = np.arange(0.0, traj.duration, 1e-3)
+    q = traj(t)
+    return float(traj.duration), float(1.0 - profrobot.certify_poses(robot, q).mean())
+
+
+def run(name: str, n: int, vmax: float, amax: float) -> dict:
+    robot = profrobot.scenes.load(name)
+    v, a = np.full(robot.njoint, vmax), np.full(robot.njoint, amax)
+    starts, goals = hard_pairs(robot, n, seed=0)
+    ours, stops, rk, tp, tp_off, ms, corners, violations, mj_hits, samples, blends_stopped = ([] for _ in range(11))
+    twenty = []
+    for s, g in zip(starts, goals):
+        plan = profrobot.plan_path(robot, s, g)
+        if not plan.certified:
+            continue
+        t0 = time.perf_counter()
+        timed = profrobot.time_path(robot, plan.path, velocity=v, acceleration=a)
+        ms.append(time.perf_counter() - t0)
+        assert timed.certified
+        stop = profrobot.time_path(robot, plan.path, velocity=v, acceleration=a, blend=False)
+        t, q, qd, qdd = timed.at_rate(1000)
+        violations.append(int(((np.abs(qd) > v * (1 + 1e-9)) | (np.abs(qdd) > a * (1 + 1e-9))).any(axis=1).sum()))
+        mj_hits.append(int(profrobot.mujoco_labels(robot, q, progress=False).collides.sum()))
+        samples.append(len(t))
+        ours.append(timed.duration)
+        stops.append(stop.duration)
+        corners.append(len(timed.waypoints) - 2)
+        blends_stopped.append(int(timed.stops[1:-1].sum()))
+        w = unwrapped(robot, plan.path)
+        rk.append(ruckig_stops(w, v, a))
+        d, off = toppra_time(robot, w, v, a)
+        tp.append(d)
+        tp_off.append(off)
+    # 20-waypoint paths: certified plans chained goal to goal until 20 waypoints
+    chain = [goals[0][None]]
+    for g in goals[1:]:
+        plan = profrobot.plan_path(robot, chain[-1][-1], g)
+        if not plan.certified:
+            continue
+        chain.append(plan.path[1:])
+        path = np.concatenate(chain)
+        if len(path) >= 20:
+            t0 = time.perf_counter()
+            timed = profrobot.time_path(robot, path[:20], velocity=v, acceleration=a)
+            twenty.append(time.perf_counter() - t0)
+            assert timed.certified
+            chain = [path[19:20]]
+    ours, rk = np.array(ours), np.array(rk)
+    return dict(scene=name, paths=len(ours), corners=float(np.median(corners)), stopped=int(np.sum(blends_stopped)),
+                ours=float(np.median(ours)), stops=float(np.median(stops)), ruckig=float(np.median(rk)),
+                ratio=float(np.median(ours / rk)), toppra=float(np.nanmedian(tp)),
+                toppra_off=float(np.nanmean(np.array(tp_off) > 0)), violations=int(np.sum(violations)),
+                mujoco=int(np.sum(mj_hits)), samples=int(np.sum(samples)), ms=float(np.median(ms) * 1e3),
+                ms20=float(np.median(twenty) * 1e3) if twenty else np.nan, n20=len(twenty))
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--paths", type=int, default=100)
+    ap.add_argument("--scenes", default=",".join(ARMS))
+    ap.add_argument("--velocity", type=float, default=1.5)
+    ap.add_argument("--acceleration", type=float, default=3.0)
+    args = ap.parse_args(argv)
+    rows = []
+    for name in args.scenes.split(","):
+        r = run(name, args.paths, args.velocity, args.acceleration)
+        rows.append(r)
+        print(r, flush=True)
+    load = os.getloadavg()[0]
+    head = (f"Per arm, {args.paths} hard problems planned by `plan_path` (certified), timed under the same limits "
+            f"({args.velocity} rad/s, {args.acceleration} rad/s², no jerk limit). Load average {load:.2f}.\n\n"
+            "| scene | paths | corners (median) | blends turned into stops | ours: duration (median, s) | "
+            "ours stopping at every waypoint | Ruckig, stopping at every waypoint | ours / Ruckig (median) | "
+            "TOPP-RA on a spline | TOPP-RA trajectories leaving the certified set | ours: samples over a limit | "
+            "ours: MuJoCo contacts in 1 kHz samples | `time_path` ms (median) | 20 waypoints: ms (median, n) |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    lines = [f"| {r['scene']} | {r['paths']} | {r['corners']:.0f} | {r['stopped']} | {r['ours']:.3f} | {r['stops']:.3f} | "
+             f"{r['ruckig']:.3f} | {r['ratio']:.3f} | {r['toppra']:.3f} | {r['toppra_off']:.0%} | {r['violations']} | "
+             f"{r['mujoco']} of {r['samples']} | {r['ms']:.2f} | {r['ms20']:.2f} ({r['n20']}) |" for r in rows]
+    text = "# Timed paths beside Ruckig and TOPP-RA\n\n`python benches/timing.py`\n\n" + head + "\n".join(lines) + "\n"
+    RESULTS.write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
