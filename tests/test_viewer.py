@@ -51,26 +51,30 @@ def scene():
     raise AssertionError("no certified pose whose joint at its limit collides")
 
 
-def projected_mask(robot, pose, width: int, height: int) -> np.ndarray:
-    """(H, W) bool: the robot's collision geoms at ``pose`` projected through the viewer's
-    camera (three.js: vertical fov, look-at with +z up), filled triangle by triangle."""
+def projected_mask(robot, pose, width: int, height: int, eye=EYE, target=TARGET, fov=FOV,
+                   robot_only: bool = True) -> np.ndarray:
+    """(H, W) bool: the robot's collision geoms (or every non-plane geom) at ``pose`` projected
+    through the viewer's camera (three.js: vertical fov, look-at with +z up), filled triangle by
+    triangle."""
     from PIL import Image, ImageDraw
 
     m = robot.mj_model
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_adr] = pose
     mujoco.mj_kinematics(m, d)
-    eye, tgt = np.array(EYE), np.array(TARGET)
+    eye, tgt = np.array(eye, dtype=float), np.array(target, dtype=float)
     f = (tgt - eye) / np.linalg.norm(tgt - eye)
     r = np.cross(f, [0, 0, 1.0])
     r /= np.linalg.norm(r)
     u = np.cross(r, f)
-    focal = (height / 2) / np.tan(np.radians(FOV) / 2)
+    focal = (height / 2) / np.tan(np.radians(fov) / 2)
     img = Image.new("1", (width, height), 0)
     draw = ImageDraw.Draw(img)
     mine = robot_bodies(robot)
     for g in range(m.ngeom):
-        if not (m.geom_contype[g] or m.geom_conaffinity[g]) or not mine[m.geom_bodyid[g]]:
+        if not (m.geom_contype[g] or m.geom_conaffinity[g]) or (robot_only and not mine[m.geom_bodyid[g]]):
+            continue
+        if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
             continue
         tri = geom_triangles(m, g)
         if tri is None:
@@ -169,6 +173,42 @@ def test_paths_are_coloured_by_their_certificates(scene):
         info["slider"].value = len(info["poses"]) - 1
         np.testing.assert_allclose(viewer.pose, res.path[-1])
         assert viewer.verdict.startswith("free")
+
+
+@pytest.mark.parametrize("name", ["vx300s_clutter", "xarm7_table", "panda_blocks"])
+def test_the_default_camera_frames_the_robot_and_its_obstacles(name):
+    """No look(): the page opens on the robot and its obstacles (it opened on the floor plane,
+    a 7-DoF arm ~450 of 280 000 pixels): the robot covers a fair share of the canvas and
+    nothing is cut off (in these scenes every obstacle is within the robot's reach)."""
+    robot = profrobot.scenes.load(name)
+    pose = profrobot.sample_poses(robot, 50, seed=1)
+    pose = pose[certify_poses(robot, pose)][0]
+    with Viewer(robot, pose, port=free_port(), gizmo=False, sliders=False) as viewer:
+        cam = viewer.server.initial_camera
+        eye, target, fov = np.array(cam.position), np.array(cam.look_at), np.degrees(cam.fov)
+    arm = projected_mask(robot, pose, W, H, eye, target, fov)
+    everything = projected_mask(robot, pose, W + 2, H + 2, eye, target, fov, robot_only=False)
+    assert arm.mean() > 0.02, f"the robot covers {arm.mean():.1%} of the canvas"
+    # nothing reaches the border (drawn on a canvas one pixel wider all round)
+    border = np.ones_like(everything)
+    border[1:-1, 1:-1] = False
+    assert not (everything & border).any()
+
+
+def test_a_timed_path_plays_in_real_time(scene):
+    robot, pose, joint = scene
+    free = profrobot.sample_poses(robot, 300, seed=2)[certify_poses(robot, profrobot.sample_poses(robot, 300, seed=2))]
+    res = profrobot.plan_path(robot, free[0], free[1])
+    timed = profrobot.time_path(robot, res.path, velocity=1.0, acceleration=2.0)
+    with Viewer(robot, free[0], port=free_port()) as viewer:
+        shown = viewer.show_path(timed, name="timed", fps=30)
+        assert shown["certified"] == timed.certified
+        info = viewer._paths["timed"]
+        np.testing.assert_allclose(info["poses"], robot.project(timed.at_rate(30)[1]))
+        info["slider"].value = len(info["poses"]) - 1
+        np.testing.assert_allclose(viewer.pose, res.path[-1], atol=1e-9)
+        with pytest.raises(profrobot.InputError, match="fps"):
+            viewer.show_path(timed, fps=0)
 
 
 def test_the_gizmo_follows_through_ik_and_refuses_what_it_cannot_certify(scene):

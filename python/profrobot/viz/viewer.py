@@ -36,7 +36,8 @@ from ..exact.ik import IKResult, frame_of, ik
 from ..exact.labels import interpolate, label_poses
 from ..robot.margin import obstacle_bodies
 from ..robot.robot import Robot
-from ..robot.gate import Layout, as_poses
+from ..motion.timing import TimedPath
+from ..robot.gate import Layout, as_poses, positive
 from ..robot.pointcloud import PointCloud
 
 if TYPE_CHECKING:   # viser (an optional extra) loads with the first Viewer; the slice with torch
@@ -236,6 +237,7 @@ class Viewer:
             self._gizmo = self.server.scene.add_transform_controls("/target", scale=0.15, position=pos, wxyz=quat)
             self._gizmo.on_update(lambda _e: self.follow(self._gizmo.position, self._gizmo.wxyz))
         self.set_pose(self.pose)
+        self.look(*self.framing())
 
     # ---- the scene -------------------------------------------------------------------------------
     def _add_geoms(self) -> None:
@@ -367,27 +369,41 @@ class Viewer:
                 image=img, wxyz=_quat(c2w[:3, :3]), position=c2w[:3, 3]))
         return out
 
-    def show_path(self, path: npt.ArrayLike, *, name: str = "path", steps: int = 12, fps: float = 20.0) -> dict:
+    def show_path(self, path: npt.ArrayLike | TimedPath, *, name: str = "path", steps: int = 12,
+                  fps: float = 20.0) -> dict:
         """Waypoints ``path`` (S, K): each segment certified by :func:`~profrobot.certify_motions`
         and the frame's trace drawn coloured by its verdict (:data:`VERDICT_COLOURS`); a slider
-        and a play button animate the robot along it (``steps`` poses per segment). Returns
-        ``{"verdicts": [...] (S - 1,), "certified": bool}``."""
-        path = as_poses(self.robot, path, name="path")
-        if path.ndim != 2 or len(path) < 2:
-            raise InputError(f"path must be (S, K) waypoints with S >= 2; got shape {path.shape}")
-        cert = certify_motions(self.robot, path[:-1], path[1:])
-        verdicts = ["certified" if c else "blocked" if b else "unproven"
-                    for c, b in zip(cert.certified, cert.blocked)]
-        dense = interpolate(self.robot, path[:-1], path[1:], steps)   # (S - 1, steps, K)
-        trace = np.array([[self.frame_pose(q)[0] for q in seg] for seg in dense])   # (S - 1, steps, 3)
-        segs = np.stack([trace[:, :-1], trace[:, 1:]], 2).reshape(-1, 2, 3)
-        colours = np.repeat([VERDICT_COLOURS[v] for v in verdicts], steps - 1, axis=0)
+        and a play button animate the robot along it (``steps`` poses per segment). A
+        :class:`~profrobot.TimedPath` (:func:`profrobot.time_path`) plays in real time instead,
+        ``fps`` poses a second, its blends included, coloured by its own certificate. Returns
+        ``{"verdicts": [...] (one per segment), "certified": bool}``."""
+        if isinstance(path, TimedPath):
+            if path.joint_names and list(path.joint_names) != list(self.robot.joint_names):
+                raise InputError(f"path was timed for {path.robot_name!r}, whose joints differ from {self.robot.name}'s")
+            fps = positive("fps", fps)
+            poses = path.at_rate(fps)[1]
+            poses[:, :] = self.robot.project(poses)
+            verdicts = ["certified" if path.certified else "unproven"]
+            runs = [poses]
+        else:
+            path = as_poses(self.robot, path, name="path")
+            if path.ndim != 2 or len(path) < 2:
+                raise InputError(f"path must be (S, K) waypoints with S >= 2; got shape {path.shape}")
+            cert = certify_motions(self.robot, path[:-1], path[1:])
+            verdicts = ["certified" if c else "blocked" if b else "unproven"
+                        for c, b in zip(cert.certified, cert.blocked)]
+            dense = interpolate(self.robot, path[:-1], path[1:], steps)   # (S - 1, steps, K)
+            runs = list(dense)
+            poses = np.concatenate([dense[:, :-1].reshape(-1, path.shape[1]), path[-1:]])
+        trace = [np.array([self.frame_pose(q)[0] for q in run]) for run in runs]
+        segs = np.concatenate([np.stack([t[:-1], t[1:]], 1) for t in trace])
+        colours = np.concatenate([np.repeat([VERDICT_COLOURS[v]], len(t) - 1, axis=0) for v, t in zip(verdicts, trace)])
         lines = self.server.scene.add_line_segments(f"/{name}", segs.astype(np.float32),
                                                     np.repeat(colours[:, None], 2, 1).astype(np.uint8), thickness=0.012)
-        poses = np.concatenate([dense[:, :-1].reshape(-1, path.shape[1]), path[-1:]])
         with self.server.gui.add_folder(f"Path '{name}'", order=2):
             n_ok = verdicts.count("certified")
-            self.server.gui.add_markdown(f"{n_ok}/{len(verdicts)} segments certified"
+            timing = f" ({path.duration:.2f} s timed)" if isinstance(path, TimedPath) else ""
+            self.server.gui.add_markdown(f"{n_ok}/{len(verdicts)} segments certified{timing}"
                                          + "".join(f"; segment {i}: {v}" for i, v in enumerate(verdicts) if v != "certified"))
             slider = self.server.gui.add_slider("t", 0, len(poses) - 1, 1, 0)
             play = self.server.gui.add_button("Play / pause")
@@ -425,6 +441,47 @@ class Viewer:
         with self.server.gui.add_folder("Field slice", order=3):
             return self.server.gui.add_image(img, label=f"g over {self.robot.joint_names[joints[0]]}, "
                                                         f"{self.robot.joint_names[joints[1]]}")
+
+    def framing(self, fov: float = 50.0) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(position, look_at, fov)`` of the default camera: the robot at its pose and every
+        obstacle within its reach (but infinite planes) in view, their bounding sphere filling
+        the vertical field of view ``fov`` degrees, seen from the front right and above.
+        :meth:`look` takes it. The reach: the robot's bodies over 64 poses spread over its
+        limits (an obstacle no link can come near is left out of the frame, not of the scene)."""
+        m, d, robot = self._m, self._d, self.robot
+        xpos, _ = robot.core.forward_kinematics(np.ascontiguousarray(np.concatenate(
+            [self.pose[None], robot.core.sample(64, 0)])))
+        mine = robot_bodies(robot)
+        bodies = xpos[:, mine].reshape(-1, 3)
+        base = xpos[0, mine].mean(0)
+        reach = float(np.linalg.norm(bodies - base, axis=1).max()) + 0.15
+        with self._lock:
+            self._place(self.pose)
+            pts = []
+            for g in self._geoms:
+                if int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_PLANE:
+                    continue
+                tri = geom_triangles(m, g)
+                if tri is None:
+                    continue
+                v = tri[0] @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+                if self._is_robot[g] or (np.linalg.norm(v - base, axis=1) <= reach).any():
+                    pts.append(v)
+        if not pts:
+            return np.array([1.5, -1.5, 1.2]), np.zeros(3), fov
+        pts_all = np.concatenate(pts)
+        centre = (pts_all.min(0) + pts_all.max(0)) / 2
+        back = np.array([1.6, -1.1, 0.9]) / np.linalg.norm([1.6, -1.1, 0.9])   # from the centre to the eye
+        right = np.cross(-back, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, -back)
+        # the nearest eye on that line that sees every point within the field of view (taken as
+        # square, whatever the window's shape): |x|, |y| <= depth · tan(fov / 2)
+        rel = pts_all - centre
+        tan = np.tan(np.radians(fov) / 2)
+        distance = float((np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / tan + rel @ back).max())
+        distance = max(distance, 0.3) * 1.04
+        return centre + back * distance, centre, fov
 
     def look(self, position: Iterable[float], look_at: Iterable[float], fov: float = 50.0) -> None:
         """Point the browser's camera: from ``position`` (3,) at ``look_at`` (3,), metres, with
