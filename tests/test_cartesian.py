@@ -48,11 +48,14 @@ def _check_on_line(robot, res, body, a, b, ra, rb, pos_tol=1e-3, rot_tol=0.01):
     return worst
 
 
-@pytest.mark.parametrize("name, body", [("panda_blocks", "hand"), ("ur5e_wall_box", "wrist_3_link")])
-def test_approach_moves_stay_on_the_line_and_are_certified(name, body):
+@pytest.mark.parametrize("name, body, n", [("panda_blocks", "hand", 12), ("ur5e_wall_box", "wrist_3_link", 16)])
+def test_approach_moves_stay_on_the_line_and_are_certified(name, body, n):
+    """(ur5e's 15th start: the batch solves one waypoint on the other elbow branch, 1.8 rad
+    away in the joints but beside its neighbour in space; a check spaced by the frame's travel
+    alone passed it, and the frame swung 9 mm off the line between the two)"""
     robot = scene(name)
-    qs = profrobot.sample_poses(robot, 300, seed=3)
-    qs = qs[profrobot.certify_poses(robot, qs)][:12]
+    qs = profrobot.sample_poses(robot, 2000, seed=3)
+    qs = qs[profrobot.certify_poses(robot, qs)][:n]
     rng = np.random.default_rng(0)
     reached = 0
     for q in qs:

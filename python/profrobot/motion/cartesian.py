@@ -13,8 +13,11 @@ certified IK (:func:`profrobot.ik`, one seed: the previous joint pose) solves th
 from the start, then again from the last good pose wherever the solutions stop following
 the line. Between consecutive joint waypoints the motion is the straight joint interpolation;
 the frame's deviation from the line there is measured by forward kinematics every 0.1 mm of the
-frame's travel, and a segment that strays is halved (a new waypoint in the middle, solved from
-the segment's start) up to 6 times. The joint path is then certified by the continuous
+frame's travel and every 0.2 mrad of the joints' (a flip of the elbow between two nearby frame
+poses swings the frame far off the line between them). A segment that strays is solved again
+from its start pose (the rest of the line with it: the batch may have chosen another branch),
+then halved (a new waypoint in the middle, solved from the segment's start) up to 6 times, at
+most twice as many waypoints added in all as the line had. The joint path is then certified by the continuous
 certificate (:func:`profrobot.certify_motions`) and cut at the first segment not proven free.
 """
 
@@ -38,8 +41,11 @@ from ..robot.robot import Robot
 
 __all__ = ["CartesianPath", "plan_cartesian"]
 
-#: metres of the frame's travel between two deviation checks
+#: metres of the frame's travel between two deviation checks (from the segment's ends), and
+#: radians of the joints' (a segment whose ends are close in space may still swing far between
+#: them: an arm flipping its elbow between two nearby frame poses)
 CHECK_SPACING = 1e-4
+JOINT_SPACING = 2e-4
 _HALVINGS = 6
 
 
@@ -223,12 +229,13 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     def stray(qa: np.ndarray, qb: np.ndarray, leg: int, pa: np.ndarray) -> tuple[float, float]:
         """The frame's largest deviations from leg ``leg`` on the joint segment qa → qb."""
         pb, _ = frames(qb[None])
-        n = max(2, int(np.ceil(np.linalg.norm(pb[0] - pa) / CHECK_SPACING)) + 1)
-        n = min(n, 4000)
-        w = np.linspace(0.0, 1.0, n)[:, None]
         d = qb - qa
         wraps = robot.continuous
         d[wraps] = (d[wraps] + np.pi) % (2 * np.pi) - np.pi
+        n = max(2, int(np.ceil(np.linalg.norm(pb[0] - pa) / CHECK_SPACING)) + 1,
+                int(np.ceil(np.abs(d).max() / JOINT_SPACING)) + 1)
+        n = min(n, 4000)
+        w = np.linspace(0.0, 1.0, n)[:, None]
         q = robot.project(qa + w * d)
         p, r = frames(q)
         dist, ang, _ = line.deviation(leg, p, r)
@@ -237,10 +244,11 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     def strays(q: np.ndarray, seg_legs: np.ndarray, pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``stray`` of every segment of the joint path ``q`` (n + 1, K) at once (one forward
         kinematics call for all its checks); ``pw`` (n + 1, 3): where the frame is at each pose."""
-        n = np.clip(np.ceil(np.linalg.norm(np.diff(pw, axis=0), axis=1) / CHECK_SPACING).astype(int) + 1, 2, 4000)
         d = np.diff(q, axis=0)
         wraps = robot.continuous
         d[:, wraps] = (d[:, wraps] + np.pi) % (2 * np.pi) - np.pi
+        n = np.clip(np.maximum(np.ceil(np.linalg.norm(np.diff(pw, axis=0), axis=1) / CHECK_SPACING),
+                               np.ceil(np.abs(d).max(axis=1) / JOINT_SPACING)).astype(int) + 1, 2, 4000)
         seg = np.repeat(np.arange(len(d)), n)
         w = np.concatenate([np.linspace(0.0, 1.0, k) for k in n])[:, None]
         p, r = frames(robot.project(q[seg] + w * d[seg]))
@@ -257,6 +265,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     worst = [0.0, 0.0]
     i = 0
     pending: list[tuple[int, float]] = list(zip(legs.tolist(), us.tolist()))
+    inserted, budget = 0, 2 * len(pending) + 16     # waypoints added by halving, at most
     sol = solve(pending, s[0])
     # The common case at once: every waypoint solved from the start, every segment on the line.
     ok = np.cumprod(sol.certified).astype(bool)
@@ -286,9 +295,18 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
         qa, qb = path[-1], sol.poses[i]
         pa, _ = frames(qa[None])
         dist, ang = stray(qa, qb, leg, pa[0])
+        if dist > position_tolerance or ang > rotation_tolerance:
+            # solved from the start, the pose may be on another branch: the rest from this pose
+            again = solve(pending[i:], qa)
+            if again.certified[0]:
+                d2, a2 = stray(qa, again.poses[0], leg, pa[0])
+                if d2 <= position_tolerance and a2 <= rotation_tolerance:
+                    sol = _tail(sol, again, i)
+                    dist, ang, qb = d2, a2, again.poses[0]
         halvings = 0
         prev_u = 0.0 if i == 0 or pending[i - 1][0] != leg else pending[i - 1][1]
-        while (dist > position_tolerance or ang > rotation_tolerance) and halvings < _HALVINGS:
+        while (dist > position_tolerance or ang > rotation_tolerance) and halvings < _HALVINGS \
+                and inserted < budget:
             # the joint segment leaves the line: a waypoint in the middle, solved from qa
             mid = (leg, 0.5 * (prev_u + u))
             m_sol = solve([mid], qa)
@@ -296,18 +314,11 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
                 break
             pending.insert(i, mid)
             sol = _insert(sol, m_sol, i)
+            inserted += 1
             leg, u = mid
             qb = sol.poses[i]
             dist, ang = stray(qa, qb, leg, pa[0])
             halvings += 1
-        if dist > position_tolerance or ang > rotation_tolerance:
-            # solved from the start, the pose may be on another branch: from the last pose instead
-            again = solve(pending[i:], qa)
-            if again.certified[0]:
-                d2, a2 = stray(qa, again.poses[0], leg, pa[0])
-                if d2 <= position_tolerance and a2 <= rotation_tolerance:
-                    sol = _tail(sol, again, i)
-                    dist, ang, qb = d2, a2, again.poses[0]
         if dist > position_tolerance or ang > rotation_tolerance:
             reason = (f"the frame leaves the line near {arc(leg, u):.4g} {'rad' if line.turning_only else 'm'} "
                       f"({dist * 1e3:.3g} mm, {ang * 1e3:.3g} mrad off it): a singularity or a joint limit")
