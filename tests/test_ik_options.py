@@ -204,3 +204,30 @@ def test_moving_refused_by_name(robot):
         profrobot.ik(robot, np.eye(4), frame="hand", moving=["nope"])
     with pytest.raises(profrobot.InputError, match="both locked and moving: finger_joint1"):
         profrobot.ik(robot, np.eye(4), frame="hand", moving=["finger_joint1"], locked=["finger_joint1"])
+
+
+def test_a_posture_pulls_the_answers_within_what_the_target_leaves_free(robot):
+    """posture=: each answer moves towards it in the target's null space and stays on the target.
+    Position-only targets leave a 7-joint arm four joints' worth of freedom: the answers come
+    much nearer the posture; full poses leave one (the elbow): nearer, never off the target."""
+    truth = problems.free_poses(robot, 100, seed=3)
+    targets = hand_poses(robot, truth)
+    posture = np.clip(robot.mj_model.key("home").qpos if robot.mj_model.nkey else robot.joint_limits.mean(1),
+                      robot.joint_limits[:, 0], robot.joint_limits[:, 1])
+
+    def dist(q):
+        return np.linalg.norm(q[:, :7] - posture[:7], axis=1)
+
+    for tgt, gain in ((targets[:, :3, 3], 0.8), (targets, 1.0)):
+        plain = profrobot.ik(robot, tgt, frame="hand")
+        near = profrobot.ik(robot, tgt, frame="hand", posture=posture)
+        assert near.certified.mean() >= plain.certified.mean() - 0.01, near.summary()
+        ok = plain.certified & near.certified
+        assert np.median(dist(near.poses[ok])) < gain * np.median(dist(plain.poses[ok]))
+        got = hand_poses(robot, near.poses[near.certified])
+        pos = tgt[near.certified] if tgt.ndim == 2 else tgt[near.certified, :3, 3]
+        assert np.abs(got[:, :3, 3] - pos).max() <= 1e-4
+        assert profrobot.certify_poses(robot, near.poses[near.certified]).all()
+    for bad in (posture[:3], np.full(robot.njoint, np.nan), posture + 10.0):
+        with pytest.raises(profrobot.InputError, match="posture"):
+            profrobot.ik(robot, targets[:2], frame="hand", posture=bad)

@@ -118,7 +118,8 @@ class RobotModel:
            seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,
            accept_pos: float = 1e-6, accept_rot: float = 1e-6, clearance: float = 1e-6, seed: int = 0,
            escape: bool = True, held: Sequence[bool] | None = None, moving: Sequence[bool] | None = None,
-           free_axis: Sequence[float] | None = None, threads: int | None = None) -> dict[str, npt.NDArray]:
+           posture: Sequence[float] | None = None, free_axis: Sequence[float] | None = None,
+           threads: int | None = None) -> dict[str, npt.NDArray]:
         """Inverse kinematics of the frame at ``local_pos``, ``local_quat`` (w, x, y, z) in body
         ``body``: for each of N targets (``targets_pos`` (N, 3) metres, ``targets_quat`` (N, 4) or
         None for position only), Levenberg–Marquardt on the SE(3) error from ``seeds`` seeds (the
@@ -128,6 +129,8 @@ class RobotModel:
         (``escape``: a seed that reaches it in contact first tries the linearised distance rows).
         ``held`` (K,): joints kept at their start values (with a family's scene joints).
         ``moving`` (K,): joints solved for although they do not move the frame (a gripper's jaw).
+        ``posture`` (K,): a pose the answers move towards in the target's null space, and the
+        certified answer nearest it chosen (``rust/ik/mod.rs`` ``toward_posture``).
         ``free_axis`` (3,): an axis of the frame (its own coordinates) whose rotation is free. Keys: poses (N, K), outcome (N,) uint8 (0 certified, 1 unreachable, 2
         reached only in collision), reached (N,) bool, position_error, rotation_error (N,)
         float64, iterations, seeds (N,) int64. Same seed, same answer, for any thread count."""

@@ -472,7 +472,7 @@ impl PyRobotModel {
     /// Inverse kinematics of a frame (see `_core.pyi` and `ik/mod.rs`): `targets_pos` `(N, 3)`,
     /// `targets_quat` `(N, 4)` `(w, x, y, z)` or None (position only), `starts` `(N, K)`; the frame
     /// is body `body` offset by `local_pos`, `local_quat`.
-    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, accept_pos=1e-6, accept_rot=1e-6, clearance=1e-6, seed=0, escape=true, held=None, moving=None, free_axis=None, threads=None))]
+    #[pyo3(signature = (targets_pos, targets_quat, starts, body, local_pos, local_quat, *, seeds=128, iterations=60, tol_pos=1e-6, tol_rot=1e-6, accept_pos=1e-6, accept_rot=1e-6, clearance=1e-6, seed=0, escape=true, held=None, moving=None, posture=None, free_axis=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn ik<'py>(
         &self,
@@ -494,6 +494,7 @@ impl PyRobotModel {
         escape: bool,
         held: Option<Vec<bool>>,
         moving: Option<Vec<bool>>,
+        posture: Option<Vec<f64>>,
         free_axis: Option<[f64; 3]>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
@@ -517,6 +518,11 @@ impl PyRobotModel {
         if let Some(m) = &moving {
             if m.len() != k {
                 return Err(input_error(format!("moving has {} entries for {k} joints", m.len())));
+            }
+        }
+        if let Some(p) = &posture {
+            if p.len() != k || !p.iter().all(|v| v.is_finite()) {
+                return Err(input_error(format!("posture must be {k} finite joint values; got {p:?}")));
             }
         }
         let pos = pose_array(targets_pos, 3, "targets_pos")?;
@@ -557,6 +563,7 @@ impl PyRobotModel {
             seed,
             escape,
             moving: moving.unwrap_or_default(),
+            posture,
         };
         let scene: &[bool] = &scene;
         let r = interrupt::run(py, threads, || ik(model, &targets, starts, scene, &opts))?;

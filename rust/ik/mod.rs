@@ -83,6 +83,10 @@ pub struct IkOptions {
     /// move): their Jacobian columns are zero, so they move only where the escape rows or a
     /// uniform seed take them. Empty: none (the rest keep their start values).
     pub moving: Vec<bool>,
+    /// A posture (K,) the answers should be near: each seed that reaches the target then moves
+    /// in the target's null space towards it (`toward_posture`), and the certified answer
+    /// nearest it is chosen. None: the start plays that part (no null-space motion).
+    pub posture: Option<Vec<f64>>,
 }
 
 impl IkOptions {
@@ -101,6 +105,7 @@ impl IkOptions {
             seed: 0,
             escape: true,
             moving: Vec::new(),
+            posture: None,
         }
     }
 }
@@ -368,6 +373,61 @@ fn solve(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTar
     (pe <= opts.tol_pos && re <= opts.tol_rot, pe, re, iters)
 }
 
+/// Null-space steps towards the posture, at most.
+const POSTURE_ITERATIONS: usize = 30;
+
+/// From a pose in `w.q` that reaches the target: steps towards `posture` within the target's
+/// null space, `Δv = ½·(I − J⁺J)·(v_posture − v)` (the task-priority rule: the target first, the
+/// posture with what it leaves; mink's posture task, solved here as a secondary one), each
+/// followed by Levenberg–Marquardt back onto the target (the null space is first-order); a step
+/// is kept only while it stays within the tolerances and comes nearer the posture. A target
+/// that fixes every joint (a full pose for a 6-joint arm) leaves no null space and no step.
+/// Returns the LM iterations.
+fn toward_posture(model: &RobotModel, chain: &mut Chain, opts: &IkOptions, target: &IkTarget, w: &mut Work, posture: &[f64]) -> usize {
+    let rows = if target.rot.is_some() { 6 } else { 3 };
+    let (nv, k) = (chain.vars.len(), model.njoint());
+    let mut jac = DMatrix::<f64>::zeros(rows, k);
+    let mut iters = 0;
+    for _ in 0..POSTURE_ITERATIONS {
+        place(model, w);
+        frame_jacobian(model, w, opts, target, rows, &mut jac);
+        chain.update(model, &w.q);
+        let dq = DMatrix::from_row_slice(k, nv, &chain.dq);
+        let mut jv = &jac * dq;
+        for r in 3..rows {
+            jv.row_mut(r).scale_mut(LENGTH);
+        }
+        let pull = DVector::from_iterator(
+            nv,
+            chain.vars.iter().map(|&j| {
+                let d = posture[j] - w.q[j];
+                if model.joints[j].hinge && !model.limited[j] {
+                    wrap(d)
+                } else {
+                    d
+                }
+            }),
+        );
+        let Ok(pinv) = jv.clone().pseudo_inverse(1e-9) else { break };
+        let dv = (DMatrix::<f64>::identity(nv, nv) - pinv * jv) * pull * 0.5;
+        let size = dv.norm();
+        if size.is_nan() || size <= 1e-9 {
+            break;
+        }
+        let keep = w.q.clone();
+        let before = distance(model, posture, &w.q);
+        step(model, chain, &keep, &dv, &mut w.q);
+        let (_, pe, re, it) = solve(model, chain, opts, target, w);
+        iters += it;
+        if !(pe <= opts.accept_pos && re <= opts.accept_rot && distance(model, posture, &w.q) < before - 1e-12) {
+            w.q.copy_from_slice(&keep);
+            break;
+        }
+    }
+    place(model, w);
+    iters
+}
+
 /// Distance (metres, beyond each pair's margin) the escape rows push pairs apart to.
 const SAFE: f64 = 0.005;
 /// Pairs closer than this (metres) are measured for the rows.
@@ -596,6 +656,14 @@ fn one(
         let (converged, pe, re, it) = solve(model, chain, opts, target, w);
         let reached = converged || (pe <= opts.accept_pos && re <= opts.accept_rot);
         iterations += it;
+        let (pe, re) = match &opts.posture {
+            Some(posture) if reached => {
+                iterations += toward_posture(model, chain, opts, target, w, posture);
+                let mut e = [0.0; 6];
+                error(opts, target, w, &mut e)
+            }
+            _ => (pe, re),
+        };
         let c = pe * pe + LENGTH * LENGTH * re * re;
         if reached {
             let certify = |w: &mut Work| -> Result<bool> {
@@ -619,7 +687,7 @@ fn one(
                 }
             }
             if free {
-                let d = distance(model, &home, &w.q);
+                let d = distance(model, opts.posture.as_deref().unwrap_or(&home), &w.q);
                 if best_certified.as_ref().is_none_or(|(bd, ..)| d < *bd) {
                     best_certified = Some((d, w.q.clone(), pe, re));
                 }

@@ -177,8 +177,9 @@ def _starts(robot: Robot, start: npt.ArrayLike | None, n: int) -> np.ndarray:
 def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike | None = None,
        layout: Layout | None = None, position_tolerance: float = 1e-4, rotation_tolerance: float = 1e-3,
        seeds: int = 128, iterations: int = 60, seed: int = 0, escape: bool = True, margin: float = CLEARANCE,
-       locked: Sequence[str] = (), moving: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
-       tool: npt.ArrayLike | None = None, threads: int | None = None) -> IKResult:
+       locked: Sequence[str] = (), moving: Sequence[str] = (), posture: npt.ArrayLike | None = None,
+       free_axis: str | npt.ArrayLike | None = None, tool: npt.ArrayLike | None = None,
+       threads: int | None = None) -> IKResult:
     """Joint poses that put ``frame`` (a site, body or geom name) at ``targets``, certified free.
 
     ``targets``: (N, 4, 4) world transforms of the frame, or (N, 3) positions (position only),
@@ -201,7 +202,13 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     joint the task must not move); the rest solve for the target. ``moving``: names of joints
     that do not move the frame but may move to make the answer free (a gripper's jaw closed on
     an obstacle at its start value); without it such joints keep their start values, and a
-    target reached only with another value of them says so in :attr:`IKResult.reasons`. ``free_axis``: an axis of the
+    target reached only with another value of them says so in :attr:`IKResult.reasons`.
+    ``posture``: (K,) a joint pose the answers should be near (radians / metres, within the
+    limits): each seed that reaches its target then moves towards it in the target's null space
+    (what the target leaves free: a 7-joint arm's elbow, the roll about a free axis, every
+    orientation of a position-only target), staying on the target, and among certified answers
+    the one nearest the posture is returned (without it, the one nearest the start). A target
+    that fixes every joint leaves the answer where it was. ``free_axis``: an axis of the
     frame (``"x"``, ``"y"``, ``"z"`` or a (3,) vector in its own coordinates) whose rotation is
     free: the target fixes where it points, not the angle about it (a symmetric part grasped at
     any angle about the tool axis; the rotation error is then the angle between the two axes).
@@ -218,6 +225,12 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
         both = [n for n, h, a in zip(robot.joint_names, held, asked) if h and a]
         raise InputError(f"joints both locked and moving: {', '.join(both)}")
     t0 = time.perf_counter()
+    prefer = None
+    if posture is not None:
+        p = as_poses(robot, posture, name="posture", check_limits=True)
+        if p.shape != (1, robot.njoint):
+            raise InputError(f"posture must be one pose of {robot.njoint} joints; got shape {np.shape(posture)}")
+        prefer = p[0].tolist()
     pos, quat = as_targets(targets)
     body, lpos, lquat = frame_of(robot, frame)
     lpos, lquat = with_tool(lpos, lquat, tool)
@@ -233,8 +246,8 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
                         tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100,
                         accept_pos=position_tolerance, accept_rot=rotation_tolerance, clearance=CLEARANCE,
-                        seed=check_seed(seed), escape=bool(escape), held=held, moving=asked, free_axis=axis,
-                        threads=check_threads(threads))
+                        seed=check_seed(seed), escape=bool(escape), held=held, moving=asked, posture=prefer,
+                        free_axis=axis, threads=check_threads(threads))
     poses = out["poses"]
     pe, re = out["position_error"], out["rotation_error"]
     reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
@@ -253,7 +266,7 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
                               tol_rot=rotation_tolerance / 100, accept_pos=position_tolerance,
                               accept_rot=rotation_tolerance, clearance=CLEARANCE, seed=check_seed(seed),
                               escape=bool(escape), held=held, moving=(kept | np.asarray(asked or none)).tolist(),
-                              free_axis=axis, threads=check_threads(threads))
+                              posture=prefer, free_axis=axis, threads=check_threads(threads))
         for i, ok, q in zip(stuck, again["outcome"] == 0, again["poses"]):
             values = ", ".join(f"{n}={q[robot.joint_names.index(n)]:.4g}" for n in names)
             notes[int(i)] = (f"with {', '.join(names)} at their start values: another value of them reaches it "
@@ -351,8 +364,9 @@ class PoseMotion:
 
 def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, frame: str, layout: Layout | None = None,
                  margin: float = CLEARANCE, candidates: int = 8, max_time: float = 10.0, seed: int = 0,
-                 locked: Sequence[str] = (), moving: Sequence[str] = (), free_axis: str | npt.ArrayLike | None = None,
-                 tool: npt.ArrayLike | None = None, threads: int | None = None, **plan_options) -> PoseMotion:
+                 locked: Sequence[str] = (), moving: Sequence[str] = (), posture: npt.ArrayLike | None = None,
+                 free_axis: str | npt.ArrayLike | None = None, tool: npt.ArrayLike | None = None,
+                 threads: int | None = None, **plan_options) -> PoseMotion:
     """A certified path from the joint pose ``start`` (K,) to a pose of ``frame`` (``target``:
     (4, 4) world transform or (3,) position, metres).
 
@@ -365,7 +379,8 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
     out, its ``outcome`` says so (bad input raises :class:`InputError`). ``margin``: metres the
     path keeps from the obstacles; a family plans at ``layout`` (:mod:`profrobot.robot.gate`).
     ``locked``, ``moving``: as for :func:`ik` (joints that do not move the frame stay at their
-    ``start`` values, a gripper's jaw, unless named in ``moving``)."""
+    ``start`` values, a gripper's jaw, unless named in ``moving``); ``posture``: as for
+    :func:`ik`, the goal poses it prefers (the nearest candidate is then near the posture)."""
     robot = robot_at(robot, layout=layout, margin=margin)
     q0 = as_poses(robot, start, name="start", check_limits=True)
     if len(q0) != 1:
@@ -392,7 +407,7 @@ def plan_to_pose(robot: Robot, start: npt.ArrayLike, target: npt.ArrayLike, *, f
         while len(goals) <= c and made < candidates:
             near = q0[0] if made == 0 else others[made - 1]
             sol = ik(robot, tgt, frame=frame, start=near, seed=int(seed) + made, locked=locked, moving=moving,
-                     free_axis=free_axis, tool=tool, threads=threads)
+                     posture=posture, free_axis=free_axis, tool=tool, threads=threads)
             made += 1
             last_ik = sol
             if sol.certified[0] and not any(np.abs(sol.poses[0] - g).max() < 1e-6 for g, _ in goals):
