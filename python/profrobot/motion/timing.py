@@ -20,7 +20,10 @@ and ``a_j`` (rad/s² or m/s²):
    ``q(t_i − τ_i/2 + s) = W_i − V_{i−1}·τ_i/2 + V_{i−1}·s + A_i·s²/2``, ``s ∈ [0, τ_i]``.
    That is the quadratic Bézier ``W_i − V_{i−1}τ_i/2 → W_i → W_i + V_iτ_i/2``; at a run's
    ends it is a straight start or stop along the segment.
-3. A segment must hold half of each blend: ``τ_i/2 + τ_{i+1}/2 ≤ T_i``. A segment where they
+3. A segment must hold half of each blend: ``τ_i/2 + τ_{i+1}/2 ≤ T_i``. The speeds start from a
+   ramp (``_ramp``: forward and backward passes that fit each blend in half of each neighbour,
+   so that many short segments speed up and slow down across several of them) and from every
+   segment at its velocity limit, the shorter result kept; a segment where the blends still
    do not fit is slowed (``T_i ← T_i·√(need / T_i)``, the exact answer for a lone segment)
    until they do; after 200 rounds a run still infeasible stops at every waypoint (each
    segment alone needs ``T_i = max(max_j |D_ij|/v_j, √(max_j |D_ij|/a_j))``).
@@ -171,11 +174,41 @@ class TimedPath:
                    joint_names=list(meta["joint_names"]), **arrays)
 
 
-def _run_times(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Segment times (n,) and blend times (n+1,) of one run (module docs, steps 1-3), from its
-    segments ``d`` (n, K)."""
-    ad = np.abs(d)
-    t = (ad / v).max(axis=1)
+_GRID = np.linspace(1.0, 0.0, 65)[:-1]     # speed fractions tried by the ramp's passes, fastest first
+
+
+def _ramp(d: np.ndarray, t_min: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Per segment, a speed fraction ``s`` (of its velocity-limited speed) such that every blend
+    fits in half of each segment beside it, ``τ_i ≤ min(T_{i−1}, T_i)`` with ``T_i = t_min_i / s_i``
+    (a sufficient form of step 3, local to one corner): a forward pass from rest, a backward one
+    to rest, each taking at every corner the fastest fraction of a grid that fits, and their
+    minimum. Over many short segments (a straight-line move cut every 5 mm) this ramps the speed
+    up and down across segments, where slowing each violating segment alone (step 3) slows them
+    all; step 3 then settles what is left."""
+    n = len(d)
+    u = d / t_min[:, None]                       # each segment's velocity at full speed
+
+    def fastest(prev_v: np.ndarray, prev_t: float, i: int) -> float:
+        cand = _GRID[:, None] * u[i]                                     # (G, K)
+        tau = (np.abs(cand - prev_v) / a).max(axis=1)
+        ok = (tau <= prev_t) & (tau <= t_min[i] / _GRID)
+        return float(_GRID[np.argmax(ok)]) if ok.any() else float(_GRID[-1])
+
+    fwd, bwd = np.zeros(n), np.zeros(n)
+    prev_v, prev_t = np.zeros(d.shape[1]), np.inf
+    for i in range(n):
+        fwd[i] = fastest(prev_v, prev_t, i)
+        prev_v, prev_t = fwd[i] * u[i], t_min[i] / fwd[i]
+    prev_v, prev_t = np.zeros(d.shape[1]), np.inf
+    for i in range(n - 1, -1, -1):
+        bwd[i] = fastest(prev_v, prev_t, i)
+        prev_v, prev_t = bwd[i] * u[i], t_min[i] / bwd[i]
+    return np.minimum(fwd, bwd)
+
+
+def _settle(d: np.ndarray, t: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Step 3 from segment times ``t``: slow each segment whose blends do not fit until they do;
+    None when 200 rounds do not settle."""
     for _ in range(_ROUNDS):
         vel = d / t[:, None]
         ext = np.concatenate([np.zeros((1, d.shape[1])), vel, np.zeros((1, d.shape[1]))])
@@ -184,8 +217,25 @@ def _run_times(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray,
         if (ratio <= 1.0 + 1e-12).all():
             return t, tau
         t = np.where(ratio > 1.0, t * np.sqrt(ratio) * (1.0 + 1e-12), t)
+    return None
+
+
+def _run_times(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segment times (n,) and blend times (n+1,) of one run (module docs, steps 1-3), from its
+    segments ``d`` (n, K): step 3 settled from every segment at its velocity limit and from the
+    ramp, the shorter kept."""
+    ad = np.abs(d)
+    t_min = (ad / v).max(axis=1)
+    best = None
+    for start in (t_min, t_min / _ramp(d, t_min, a)):
+        got = _settle(d, start.copy(), a)
+        if got is not None and (best is None or got[0].sum() + 0.5 * (got[1][0] + got[1][-1])
+                                < best[0].sum() + 0.5 * (best[1][0] + best[1][-1])):
+            best = got
+    if best is not None:
+        return best
     # (not settled: stop at every waypoint; each segment alone)
-    return np.maximum(t, np.sqrt((ad / a).max(axis=1))), np.full(len(d) + 1, np.nan)
+    return np.maximum(t_min, np.sqrt((ad / a).max(axis=1))), np.full(len(d) + 1, np.nan)
 
 
 def _pieces(w: np.ndarray, stops: np.ndarray, v: np.ndarray, a: np.ndarray):
