@@ -27,9 +27,10 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation, Slerp
 
 from ..errors import InputError
 from ..exact.certification import CLEARANCE, certify_motions, certify_poses
@@ -38,6 +39,9 @@ from ..exact.labels import as_poses, check_threads, label_poses
 from ..robot import gate
 from ..robot.gate import Layout
 from ..robot.robot import Robot
+
+if TYPE_CHECKING:   # (scipy loads on first use: ``import profrobot`` stays light)
+    from scipy.spatial.transform import Rotation
 
 __all__ = ["CartesianPath", "plan_cartesian"]
 
@@ -123,6 +127,7 @@ class _Line:
     """The polyline of legs between frame poses: points, rotations and arc length."""
 
     def __init__(self, pos: np.ndarray, rot: Rotation, step: float):
+        from scipy.spatial.transform import Slerp
         self.pos, self.rot = pos, rot
         lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
         angles = (rot[:-1].inv() * rot[1:]).magnitude()
@@ -169,6 +174,8 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     Returns a :class:`CartesianPath`: the certified joint path along as much of the line as can
     be followed, the fraction it covers and why it stops (a joint limit or singularity, a
     collision, a segment the certificate does not prove)."""
+    from scipy.spatial.transform import Rotation
+
     t0 = time.perf_counter()
     robot = gate.robot_at(robot, layout=layout, margin=margin)
     s = as_poses(robot, start, name="start", check_limits=True)
