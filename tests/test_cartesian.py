@@ -1,4 +1,4 @@
-"""Straight-line moves (profrobot.plan_cartesian, python/profrobot/motion/cartesian.py): the frame
+"""Straight-line moves (profrobot.plan_cartesian, python/profrobot/exact/cartesian.py): the frame
 stays on the line (MuJoCo's forward kinematics every 0.1 mm of its travel, measured here
 independently of the implementation), every segment is certified, and where the line cannot
 be followed the fraction and the reason say how far and why."""

@@ -17,22 +17,24 @@ from profrobot import Box, InputError, Mesh, Sphere, crosscheck, interpolate, mu
 from conftest import scene
 
 
-def _world_pose(robot, q, geom: str):
+def _kinematics(robot, q) -> mujoco.MjData:
     m = robot.mj_model
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_adr] = q
     mujoco.mj_kinematics(m, d)
-    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, geom)
-    return d.geom_xpos[g].copy(), d.geom_xmat[g].reshape(3, 3).copy()
+    return d
+
+
+def _world_pose(robot, q, geom: str):
+    """(position (3,), rotation (3, 3)) of geom ``geom`` at pose ``q``, by MuJoCo."""
+    g = _kinematics(robot, q).geom(geom)
+    return g.xpos.copy(), g.xmat.reshape(3, 3).copy()
 
 
 def _body_pose(robot, q, body: str):
-    m = robot.mj_model
-    d = mujoco.MjData(m)
-    d.qpos[robot.qpos_adr] = q
-    mujoco.mj_kinematics(m, d)
-    b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body)
-    return d.xpos[b].copy(), d.xmat[b].reshape(3, 3).copy()
+    """(position (3,), rotation (3, 3)) of body ``body`` at pose ``q``, by MuJoCo."""
+    b = _kinematics(robot, q).body(body)
+    return b.xpos.copy(), b.xmat.reshape(3, 3).copy()
 
 
 def _grasp_pose(robot, seed=0):

@@ -1,4 +1,4 @@
-"""Timed paths (profrobot.time_path, python/profrobot/motion/timing.py): within the limits at
+"""Timed paths (profrobot.time_path, python/profrobot/exact/timing.py): within the limits at
 1 kHz, every sample free (MuJoCo's own collision), the derivatives what finite differences of
 the positions give, blends proven or turned into stops, bad input refused by name."""
 
@@ -13,7 +13,7 @@ import pytest
 import profrobot
 from profrobot import InputError, mujoco_labels, time_path
 from profrobot.exact.problems import hard_pairs
-from profrobot.motion import TimedPath
+from profrobot.exact.timing import TimedPath
 
 from conftest import scene
 

@@ -46,7 +46,8 @@ from .exact.labels import Labels, collides, interpolate, label_poses, sample_pos
 from .exact.oracle import NearestFree, nearest_free  # noqa: E402
 from .exact.planning import PathResult, plan_path  # noqa: E402
 from .exact.ik import IKResult, PoseMotion, ik, plan_to_pose  # noqa: E402
-from .motion import CartesianPath, TimedPath, plan_cartesian, time_path  # noqa: E402
+from .exact.timing import TimedPath, time_path  # noqa: E402
+from .exact.cartesian import CartesianPath, plan_cartesian  # noqa: E402
 from .robot import Box, Capsule, Cylinder, Mesh, Obstacle, Plane, Robot, Sphere  # noqa: E402
 from .robot.pointcloud import PointCloud  # noqa: E402
 from .robot.family import Moves  # noqa: E402
@@ -78,11 +79,11 @@ _LAZY = {
     "cloud_from_depth": ".perception", "CloudBuild": ".perception",
 }
 #: the layers (the package's folders), each loaded on first attribute access
-_SUBPACKAGES = ("robot", "exact", "motion", "executors", "gl", "kinematics", "field", "render", "optim", "inverse",
+_SUBPACKAGES = ("robot", "exact", "executors", "gl", "kinematics", "field", "render", "optim", "inverse",
                 "perception", "viz", "cli", "errors", "files")
 
 __all__ = [
-    "__version__", "scenes", "robot", "exact", "motion", "executors", "kinematics", "field", "render", "optim", "inverse",
+    "__version__", "scenes", "robot", "exact", "executors", "kinematics", "field", "render", "optim", "inverse",
     "perception", "viz", "errors",
     "Robot", "Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "Moves",
     "PointCloud", "cloud_from_depth", "CloudBuild",

@@ -4,6 +4,8 @@
 - :mod:`.certification`: poses and motions certified free (conservative advancement);
 - :mod:`.planning`: global paths (RRT-Connect on the labeller, certified continuously);
 - :mod:`.ik`: certified inverse kinematics and motions to a pose;
+- :mod:`.timing`: timed paths within joint limits, their blends certified;
+- :mod:`.cartesian`: straight-line moves of a frame, certified;
 - :mod:`.oracle`: the nearest free pose (the Δθ yardstick);
 - :mod:`.problems`: benchmark problems (colliding, free poses, hard pairs);
 - :mod:`.dataset`: labelled datasets on disk;
@@ -12,6 +14,7 @@
 
 from __future__ import annotations
 
-from . import certification, crosscheck, dataset, ik, labels, oracle, planning, problems
+from . import cartesian, certification, crosscheck, dataset, ik, labels, oracle, planning, problems, timing
 
-__all__ = ["labels", "certification", "planning", "ik", "oracle", "problems", "dataset", "crosscheck"]
+__all__ = ["labels", "certification", "planning", "ik", "timing", "cartesian", "oracle", "problems", "dataset",
+           "crosscheck"]

@@ -243,11 +243,16 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     seeds = count("seeds", seeds)
     iterations = count("iterations", iterations)
     starts = _starts(robot, start, len(pos))
-    out = robot.core.ik(pos, quat, starts, body, lpos.tolist(), lquat.tolist(), seeds=seeds, iterations=iterations,
-                        tol_pos=position_tolerance / 100, tol_rot=rotation_tolerance / 100,
-                        accept_pos=position_tolerance, accept_rot=rotation_tolerance, clearance=CLEARANCE,
-                        seed=check_seed(seed), escape=bool(escape), held=held, moving=asked, posture=prefer,
-                        free_axis=axis, threads=check_threads(threads))
+    seed, threads = check_seed(seed), check_threads(threads)
+
+    def solve(rows: np.ndarray | slice, moving_mask: list[bool] | None) -> dict:
+        return robot.core.ik(pos[rows], quat[rows] if quat is not None else None, starts[rows], body, lpos.tolist(),
+                             lquat.tolist(), seeds=seeds, iterations=iterations, tol_pos=position_tolerance / 100,
+                             tol_rot=rotation_tolerance / 100, accept_pos=position_tolerance,
+                             accept_rot=rotation_tolerance, clearance=CLEARANCE, seed=seed, escape=bool(escape),
+                             held=held, moving=moving_mask, posture=prefer, free_axis=axis, threads=threads)
+
+    out = solve(slice(None), asked)
     poses = out["poses"]
     pe, re = out["position_error"], out["rotation_error"]
     reached = (pe <= position_tolerance) & (re <= rotation_tolerance)
@@ -261,12 +266,7 @@ def ik(robot: Robot, targets: npt.ArrayLike, *, frame: str, start: npt.ArrayLike
     stuck = np.flatnonzero(out["outcome"] == 2)
     if len(stuck) and kept.any():
         names = [n for n, k in zip(robot.joint_names, kept) if k]
-        again = robot.core.ik(pos[stuck], quat[stuck] if quat is not None else None, starts[stuck], body, lpos.tolist(),
-                              lquat.tolist(), seeds=seeds, iterations=iterations, tol_pos=position_tolerance / 100,
-                              tol_rot=rotation_tolerance / 100, accept_pos=position_tolerance,
-                              accept_rot=rotation_tolerance, clearance=CLEARANCE, seed=check_seed(seed),
-                              escape=bool(escape), held=held, moving=(kept | np.asarray(asked or none)).tolist(),
-                              posture=prefer, free_axis=axis, threads=check_threads(threads))
+        again = solve(stuck, (kept | np.asarray(asked or none)).tolist())
         for i, ok, q in zip(stuck, again["outcome"] == 0, again["poses"]):
             values = ", ".join(f"{n}={q[robot.joint_names.index(n)]:.4g}" for n in names)
             notes[int(i)] = (f"with {', '.join(names)} at their start values: another value of them reaches it "

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError, InputTypeError
-from .obstacles import Obstacle
+from .obstacles import Obstacle, apply_edit
 from .poses import pose_array
 
 __all__ = ["Attach", "Detach"]   # (attach, detach: the bodies of Robot.attach and Robot.detach)
@@ -122,12 +122,7 @@ class Detach:
 
 def _edited(robot, spec: mujoco.MjSpec, edit: "Attach | Detach"):
     """The robot of ``spec`` after ``edit`` (carried in its source: pickles replay it)."""
-    try:
-        edit.add_to(spec)
-    except ValueError as e:
-        if isinstance(e, InputError):
-            raise
-        raise InputError(f"{type(edit).__name__.lower()} {edit.name!r}: MuJoCo refused it: {e}") from e
+    apply_edit(spec, edit, f"{type(edit).__name__.lower()} {edit.name!r}")
     return robot._derived(spec, (edit,), robot.name)
 
 

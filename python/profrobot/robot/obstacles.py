@@ -7,6 +7,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -14,7 +15,24 @@ import numpy as np
 from ..errors import InputError, InputTypeError
 from .family import Moves, add_moving_geom
 
-__all__ = ["Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh"]
+__all__ = ["Obstacle", "Box", "Sphere", "Capsule", "Cylinder", "Plane", "Mesh", "SpecEdit", "apply_edit"]
+
+
+class SpecEdit(Protocol):
+    """An edit a robot carries in its source and replays on its spec (an obstacle, a grasp, a margin)."""
+
+    def add_to(self, spec: mujoco.MjSpec) -> None: ...
+
+
+def apply_edit(spec: mujoco.MjSpec, edit: SpecEdit, what: str) -> None:
+    """``edit.add_to(spec)`` (an obstacle, a grasp, any spec edit a robot carries in its source),
+    MuJoCo's refusal (a ``ValueError``) raised as an :class:`InputError` naming ``what``."""
+    try:
+        edit.add_to(spec)
+    except ValueError as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{what}: MuJoCo refused it: {e}") from e
 
 @dataclass(frozen=True)
 class Obstacle(abc.ABC):

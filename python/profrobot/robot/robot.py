@@ -34,7 +34,7 @@ from . import grasp as _grasp
 from . import state as _state
 from .arrays import BALL, FREE, GEOM_NAMES, HINGE, SLIDE, label_fingerprint, model_arrays, object_name
 from .margin import ObstacleMargin
-from .obstacles import Obstacle
+from .obstacles import Obstacle, apply_edit
 from .pointcloud import CLOUD_GEOM_ID, PointCloud
 from .sources import _SpecSource
 from .state import CACHES
@@ -358,12 +358,7 @@ class Robot:
                                  f"body of {self.name}); names must be unique")
             if ob.name:
                 taken.add(ob.name)
-            try:
-                ob.add_to(spec)
-            except ValueError as e:
-                if isinstance(e, InputError):
-                    raise
-                raise InputError(f"obstacles[{i}] ({ob.label}): MuJoCo refused it: {e}") from e
+            apply_edit(spec, ob, f"obstacles[{i}] ({ob.label})")
         return self._derived(spec, obstacles, name or self.name)
 
     def attach(self, obstacle: "str | Obstacle", *, to: str, at: npt.ArrayLike | None = None,

@@ -36,7 +36,7 @@ from ..exact.ik import IKResult, frame_of, ik
 from ..exact.labels import interpolate, label_poses
 from ..robot.margin import obstacle_bodies
 from ..robot.robot import Robot
-from ..motion.timing import TimedPath
+from ..exact.timing import TimedPath
 from ..robot.gate import Layout, as_poses, positive
 from ..robot.pointcloud import PointCloud
 

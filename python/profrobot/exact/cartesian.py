@@ -25,17 +25,17 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
-from ..exact.certification import CLEARANCE, certify_motions, certify_poses
-from ..exact.ik import as_targets, frame_of, ik, with_tool
-from ..exact.labels import as_poses, check_threads, label_poses
+from .certification import CLEARANCE, certify_motions, certify_poses
+from .ik import IKResult, as_targets, frame_of, ik, with_tool
+from .labels import as_poses, check_threads, label_poses
 from ..robot import gate
 from ..robot.gate import Layout
 from ..robot.robot import Robot
@@ -292,7 +292,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
             # (solved from the start: try again from the last pose on the line)
             again = solve(pending[i:], path[-1])
             if again.certified[0]:
-                sol = _tail(sol, again, i)
+                sol = _splice(sol, i, len(pending), again)
             else:
                 where = arc(leg, u)
                 reason = (f"no certified pose reaches the line at {where:.4g} {'rad' if line.turning_only else 'm'}: "
@@ -308,7 +308,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
             if again.certified[0]:
                 d2, a2 = stray(qa, again.poses[0], leg, pa[0])
                 if d2 <= position_tolerance and a2 <= rotation_tolerance:
-                    sol = _tail(sol, again, i)
+                    sol = _splice(sol, i, len(pending), again)
                     dist, ang, qb = d2, a2, again.poses[0]
         halvings = 0
         prev_u = 0.0 if i == 0 or pending[i - 1][0] != leg else pending[i - 1][1]
@@ -320,7 +320,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
             if not m_sol.certified[0]:
                 break
             pending.insert(i, mid)
-            sol = _insert(sol, m_sol, i)
+            sol = _splice(sol, i, i, m_sol)
             inserted += 1
             leg, u = mid
             qb = sol.poses[i]
@@ -365,16 +365,11 @@ def _arc_of(line: _Line, p: np.ndarray, before: np.ndarray) -> float:
     return best[1]
 
 
-def _tail(sol, again, i: int):
-    """``sol`` with its answers from ``i`` on replaced by ``again``'s."""
-    from dataclasses import replace
-    fields = ("poses", "reached", "certified", "position_error", "rotation_error", "iterations", "seeds", "outcome")
-    return replace(sol, **{f: np.concatenate([getattr(sol, f)[:i], getattr(again, f)]) for f in fields})
+_PER_TARGET = ("poses", "reached", "certified", "position_error", "rotation_error", "iterations", "seeds", "outcome")
 
 
-def _insert(sol, one, i: int):
-    """``sol`` with ``one``'s single answer inserted at ``i``."""
-    from dataclasses import replace
-    fields = ("poses", "reached", "certified", "position_error", "rotation_error", "iterations", "seeds", "outcome")
-    return replace(sol, **{f: np.concatenate([getattr(sol, f)[:i], getattr(one, f), getattr(sol, f)[i:]])
-                           for f in fields})
+def _splice(sol: IKResult, start: int, stop: int, new: IKResult) -> IKResult:
+    """``sol`` with its answers ``start:stop`` replaced by all of ``new``'s."""
+    spliced: dict[str, Any] = {f: np.concatenate([getattr(sol, f)[:start], getattr(new, f), getattr(sol, f)[stop:]])
+                               for f in _PER_TARGET}
+    return replace(sol, notes={}, **spliced)

@@ -49,8 +49,8 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import CorruptFileError, InputError, MissingFileError
-from ..exact.certification import CLEARANCE, certify_motions
-from ..exact.labels import as_poses, check_threads, so2_steps
+from .certification import CLEARANCE, certify_motions
+from .labels import as_poses, check_threads, so2_steps
 from ..files import atomic_path, check_format, check_robot, format_tag
 from ..robot import gate
 from ..robot.gate import Layout
