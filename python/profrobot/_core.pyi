@@ -37,6 +37,7 @@ class _PlannedPath(TypedDict):
     tree_sizes: tuple[int, int]
     raw_waypoints: int
     seconds: float
+    shortcut_seconds: float
 
 class ProfrobotError(Exception):
     """Root of every error profrobot raises on purpose (profrobot.errors lists the family)."""
@@ -157,7 +158,8 @@ class RobotModel:
         state of the search moves (start and goal must agree on them). ``checks``: poses placed
         (continuous) or labelled. Keys: path (M, K) float64 (0 rows
         when none was found), status ('direct' | 'connected' | 'time_out' | 'iteration_limit'),
-        checks, iterations, tree_sizes (2,), raw_waypoints, seconds. Continuous hinges of the path
+        checks, iterations, tree_sizes (2,), raw_waypoints, seconds, shortcut_seconds (of seconds).
+        Continuous hinges of the path
         are wrapped into [-pi, pi) (start and goal too); each segment is the motion
         :func:`interpolate` replays between its ends. Same seed, same path, for any thread count."""
     def sample(self, n: int, seed: int, threads: int | None = None) -> npt.NDArray[np.float64]:
@@ -169,6 +171,13 @@ class RobotModel:
         id -1 in :meth:`pairs`, its balls with geom ``margin`` and MuJoCo's contact filter. The
         MuJoCo geoms' shapes are shared, not built again. InputError for NaN points or negative
         radii, naming the entry."""
+    def rebuilt(self, arrays: dict[str, npt.NDArray | bool]) -> RobotModel:
+        """The model of ``arrays`` (as ``RobotModel(arrays)``), a scene edited from this one: a geom
+        described bit for bit as one of this model's shares its shape (hull, inner balls), and a
+        pair of two such geoms its proofs of clearance over joint boxes, so replacing obstacles
+        costs the new geoms, the candidate pairs, the broad phase and, on first use, the new pairs'
+        proofs (``Robot.with_obstacles``, ``robot/world.py``). This model's proofs are made first
+        (once). Labels, certificates and proofs as ``RobotModel(arrays)``'s, bit for bit."""
     def points_near(self, pose: npt.NDArray[np.float64], points: npt.NDArray[np.float64], margin: float,
                     static_margin: float | None = None) -> npt.NDArray[np.uint8]:
         """(N,) per point of ``points`` (N, 3, world metres) at ``pose`` (1, K): 1 within

@@ -189,7 +189,23 @@ impl PyRobotModel {
             (None, None) => None,
             _ => return Err(input_error("points and radius are given together, or neither")),
         };
-        let model = py.detach(|| self.model.with_cloud(desc.clone())).map_err(to_py)?;
+        let model = py.detach(|| self.model.rebuilt(&self.desc, desc.clone())).map_err(to_py)?;
+        Ok(Self { model, desc })
+    }
+
+    /// The model of `arrays` (as `RobotModel(arrays)`), a scene edited from this one: geoms
+    /// described bit for bit as one of this model's share its shape, and pairs of two such geoms
+    /// their proofs (`RobotModel::rebuilt`), so replacing obstacles costs the new geoms, the
+    /// candidate pairs, the broad phase and, on first use, the new pairs' proofs. This model's
+    /// proofs are made first (once, `prove_apart`), for every model rebuilt from it to inherit.
+    fn rebuilt(&self, py: Python<'_>, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let desc = desc_from_dict(arrays)?;
+        let model = py
+            .detach(|| {
+                prove_apart(&self.model);
+                self.model.rebuilt(&self.desc, desc.clone())
+            })
+            .map_err(to_py)?;
         Ok(Self { model, desc })
     }
 
@@ -466,6 +482,7 @@ impl PyRobotModel {
         out.set_item("tree_sizes", (r.tree_sizes[0], r.tree_sizes[1]))?;
         out.set_item("raw_waypoints", r.raw_waypoints)?;
         out.set_item("seconds", r.seconds)?;
+        out.set_item("shortcut_seconds", r.shortcut_seconds)?;
         Ok(out)
     }
 

@@ -13,7 +13,7 @@ pub struct Geom {
     pub body: usize,
     /// Geom frame in the body frame, with the shape's own axis convention folded in.
     pub local: Isometry3<f64>,
-    /// Shared with the models derived from this one (`RobotModel::with_cloud`).
+    /// Shared with the models derived from this one (`RobotModel::rebuilt`).
     pub shape: Arc<GeomShape>,
     /// Belongs to a body whose kinematic root carries joints (the robot), not the static scene.
     pub on_robot: bool,

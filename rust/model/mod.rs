@@ -17,6 +17,7 @@ mod trig;
 
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use crate::error::{invalid_input, invalid_model, Result};
@@ -65,7 +66,7 @@ pub struct RobotModel {
     /// Per candidate pair whose distance one joint alone changes: that joint and the spans of
     /// its values over which the pair is proven clear (`planning/spans.rs`); `u32::MAX` and none for
     /// the other pairs. On first use by `planning/motion.rs`.
-    pub(crate) joint_spans: std::sync::OnceLock<Vec<(u32, Vec<[f64; 2]>)>>,
+    pub(crate) joint_spans: std::sync::OnceLock<Vec<PairSpans>>,
     /// Per candidate pair: a box of one or two joints' values over which the pair is proven
     /// clear (a one-joint pair's widest of `joint_spans`, or a two-joint pair's whole sampling
     /// box; `Apart::NONE` for the others), so that labelling, the fast paths and motion
@@ -76,6 +77,82 @@ pub struct RobotModel {
     /// sampling box, and that box: for four poses inside it (`collide::Scratch4`). Set with
     /// `apart`, where the sampling box exists.
     pub(crate) pruned4: std::sync::OnceLock<Pruned4>,
+    /// For a model rebuilt from another (`RobotModel::rebuilt`): the proofs of `joint_spans` and
+    /// `apart` that model had made, for the pairs both models share, so that an edit of the
+    /// world proves only its own pairs again.
+    pub(crate) inherited: Option<Inherited>,
+}
+
+/// A pair's joint and its spans of `planning/spans.rs` (`u32::MAX` and none: not one joint's pair).
+pub(crate) type PairSpans = (u32, Vec<[f64; 2]>);
+
+/// A geom or pair with nothing to inherit.
+const NOT_INHERITED: usize = usize::MAX;
+
+/// What a rebuilt model takes over from the model it was rebuilt from (`RobotModel::inherited`):
+/// per pair of the new model, the old model's `joint_spans` and `apart` entries of the same
+/// pair, or None (proved again on first use). Where either model had not made its proofs, None.
+///
+/// Exactness: a pair is the same when both its geoms share their shapes (the same bits,
+/// `shape_key`), it joins the same two old geoms in the same order with the same margin, kind
+/// and explicitness, and the bodies, joints, their ranges and couplings are the same in both
+/// descriptions. A pair's spans and box (`planning/spans.rs`, `motion::prove_apart`) are
+/// functions of that pair, its bodies' chain and the joints' ranges alone, so the entries taken
+/// over are those the new model would prove (tested: byte-identical labels and proofs).
+#[derive(Debug)]
+pub(crate) struct Inherited {
+    pub(crate) spans: Option<Vec<Option<PairSpans>>>,
+    pub(crate) apart: Option<Vec<Option<Apart>>>,
+}
+
+impl Inherited {
+    fn of(model: &RobotModel, old: &ModelDesc, desc: &ModelDesc, geom_from: &[usize], pairs: &[CandidatePair]) -> Option<Self> {
+        let same_kinematics = old.body_parent == desc.body_parent
+            && old.body_weld == desc.body_weld
+            && old.body_pos == desc.body_pos
+            && old.body_quat == desc.body_quat
+            && old.jnt_type == desc.jnt_type
+            && old.jnt_body == desc.jnt_body
+            && old.jnt_pos == desc.jnt_pos
+            && old.jnt_axis == desc.jnt_axis
+            && old.jnt_qpos0 == desc.jnt_qpos0
+            && old.jnt_range == desc.jnt_range
+            && old.jnt_limited == desc.jnt_limited
+            && old.jnt_scene == desc.jnt_scene
+            && old.couplings == desc.couplings;
+        let (spans, apart) = (model.joint_spans.get(), model.apart.get());
+        if !same_kinematics || (spans.is_none() && apart.is_none()) {
+            return None;
+        }
+        let index: HashMap<(usize, usize), usize> = model.pairs.iter().enumerate().map(|(q, p)| ((p.g1, p.g2), q)).collect();
+        let same = |q: usize, p: &CandidatePair| {
+            let o = &model.pairs[q];
+            o.margin.to_bits() == p.margin.to_bits() && o.kind == p.kind && o.explicit == p.explicit
+        };
+        let old_geom = |g: usize| geom_from.get(g).copied().filter(|&o| o != NOT_INHERITED);
+        let from: Vec<usize> = pairs
+            .iter()
+            .map(|p| match (old_geom(p.g1), old_geom(p.g2)) {
+                (Some(a), Some(b)) => index.get(&(a, b)).copied().filter(|&q| same(q, p)).unwrap_or(NOT_INHERITED),
+                _ => NOT_INHERITED,
+            })
+            .collect();
+        let take = |q: usize| (q != NOT_INHERITED).then_some(q);
+        Some(Self {
+            spans: spans.map(|s| from.iter().map(|&q| take(q).map(|q| s[q].clone())).collect()),
+            apart: apart.map(|a| from.iter().map(|&q| take(q).map(|q| a[q])).collect()),
+        })
+    }
+
+    /// Pair `p`'s spans, when taken over.
+    pub(crate) fn spans(&self, p: usize) -> Option<&PairSpans> {
+        self.spans.as_ref()?.get(p)?.as_ref()
+    }
+
+    /// Pair `p`'s box, when taken over.
+    pub(crate) fn apart(&self, p: usize) -> Option<Apart> {
+        *self.apart.as_ref()?.get(p)?
+    }
 }
 
 /// `RobotModel::pruned4`.
@@ -160,6 +237,24 @@ fn iso(pos: [f64; 3], q: [f64; 4]) -> Result<Isometry3<f64>> {
     Ok(Isometry3::from_parts(Translation3::new(pos[0], pos[1], pos[2]), quat(q)?))
 }
 
+/// MuJoCo's `mjGEOM_MESH`.
+const MJGEOM_MESH: i32 = 7;
+
+/// What builds geom `g`'s shape and frame in `desc`, bit for bit: its type, body, frame and
+/// size, and a mesh's vertices (None for a mesh index out of range: built, and refused, as new).
+fn shape_key(desc: &ModelDesc, g: usize) -> Option<Vec<u64>> {
+    let mut key = vec![desc.geom_type[g] as u64, desc.geom_body[g] as u64];
+    let floats = desc.geom_pos.get(g)?.iter().chain(desc.geom_quat.get(g)?).chain(desc.geom_size.get(g)?);
+    key.extend(floats.map(|v| v.to_bits()));
+    if desc.geom_type[g] == MJGEOM_MESH {
+        let m = usize::try_from(*desc.geom_mesh.get(g)?).ok()?;
+        let adr = *desc.mesh_vert_adr.get(m)? as usize;
+        let num = *desc.mesh_vert_num.get(m)? as usize;
+        key.extend(desc.mesh_vert.get(adr..adr + num)?.iter().flatten().map(|v| v.to_bits()));
+    }
+    Some(key)
+}
+
 impl RobotModel {
     /// Validates `desc` and derives everything the labeller needs (shapes, candidate pairs).
     ///
@@ -169,14 +264,20 @@ impl RobotModel {
         Self::build(desc, None)
     }
 
-    /// This model with `desc`'s point cloud instead of its own: `desc` must be the description
-    /// this model was built from, its cloud aside. The MuJoCo geoms' shapes (their hulls) are
-    /// shared, not built again, so a new cloud costs its tree and the candidate pairs.
-    pub fn with_cloud(&self, desc: ModelDesc) -> Result<Self> {
-        Self::build(desc, Some(self))
+    /// The model of `desc`, a scene edited from `old`, the description this model was built
+    /// from (obstacles added, removed or replaced, another point cloud). A geom whose entries in
+    /// `desc` (type, body, frame, size, margin aside; a mesh's vertices) are bit for bit those of
+    /// a geom of `old` shares that geom's shape (its hull and inner balls) instead of building it
+    /// again, so an edit of the world costs its own geoms, the candidate pairs and the broad phase
+    /// (`Robot.with_obstacles`: milliseconds where building a Panda's hulls takes ten).
+    ///
+    /// Exactness: a shared shape is the one `GeomShape::new` builds from the same bits, so the
+    /// result labels as `RobotModel::new(desc)` would, byte for byte (tested).
+    pub fn rebuilt(&self, old: &ModelDesc, desc: ModelDesc) -> Result<Self> {
+        Self::build(desc, Some((self, old)))
     }
 
-    fn build(mut desc: ModelDesc, reuse: Option<&RobotModel>) -> Result<Self> {
+    fn build(mut desc: ModelDesc, reuse: Option<(&RobotModel, &ModelDesc)>) -> Result<Self> {
         let nbody = desc.body_parent.len();
         if nbody == 0 {
             return invalid_model("no bodies (body 0 must be the world)");
@@ -293,20 +394,26 @@ impl RobotModel {
         finite("geom_margin", &desc.geom_margin)?;
         finite("mesh_vert", desc.mesh_vert.as_flattened())?;
         let mut geoms = Vec::with_capacity(ngeom + 1);
-        // (the caller's promise, checked where cheap: the same MuJoCo geoms)
-        let reuse = reuse.filter(|m| {
-            m.geoms.iter().filter(|g| g.mujoco_id >= 0).count() == ngeom
-                && m.geoms.iter().zip(&desc.geom_id).all(|(g, &id)| g.mujoco_id == id)
-        });
+        // per geom: the old model's geom whose shape it shares (`NOT_INHERITED` for none)
+        let mut geom_from = Vec::with_capacity(ngeom + 1);
+        // The old model's geoms by what builds their shapes (its MuJoCo geoms come first, in
+        // `old`'s order; its cloud, if any, after them).
+        let shared: HashMap<Vec<u64>, usize> = match reuse {
+            Some((model, old)) if model.geoms.iter().filter(|g| g.mujoco_id >= 0).count() == old.geom_type.len() => {
+                (0..old.geom_type.len()).filter_map(|g| Some((shape_key(old, g)?, g))).collect()
+            }
+            _ => HashMap::new(),
+        };
         for g in 0..ngeom {
             let b = desc.geom_body[g];
             if b < 0 || b as usize >= nbody {
                 return invalid_model(format!("geom {} sits on body {b}", desc.geom_id[g]));
             }
-            if let Some(old) = reuse {
-                let o = &old.geoms[g];
+            if let (Some((model, _)), Some(&o)) = (reuse, shape_key(&desc, g).and_then(|k| shared.get(&k))) {
+                geom_from.push(o);
+                let o = &model.geoms[o];
                 geoms.push(Geom {
-                    mujoco_id: o.mujoco_id,
+                    mujoco_id: desc.geom_id[g],
                     body: o.body,
                     local: o.local,
                     shape: Arc::clone(&o.shape),
@@ -330,6 +437,7 @@ impl RobotModel {
                 Vec::new()
             };
             let (shape, axis_fix) = GeomShape::new(gtype, desc.geom_size[g], &hull_points, desc.geom_id[g])?;
+            geom_from.push(NOT_INHERITED);
             geoms.push(Geom {
                 mujoco_id: desc.geom_id[g],
                 body: b as usize,
@@ -359,6 +467,7 @@ impl RobotModel {
         let couplings = Couplings::new(&desc.couplings, njnt)?;
         let pairs = candidate_pairs(&desc, &body_parent, &geoms)?;
         let broad = Broad::new(nbody, &geoms, &pairs);
+        let inherited = reuse.and_then(|(model, old)| Inherited::of(model, old, &desc, &geom_from, &pairs));
         Ok(Self {
             body_parent,
             body_local,
@@ -375,6 +484,7 @@ impl RobotModel {
             joint_spans: std::sync::OnceLock::new(),
             apart: std::sync::OnceLock::new(),
             pruned4: std::sync::OnceLock::new(),
+            inherited,
         })
     }
 

@@ -254,10 +254,12 @@ impl<'m> Levers<'m> {
     fn spans(&self, model: &'m RobotModel) -> &'m [(u32, Vec<[f64; 2]>)] {
         model.joint_spans.get_or_init(|| {
             let mut s = Scratch::new(model);
+            let inherited = model.inherited.as_ref();
             (0..model.pairs.len())
-                .map(|p| match self.sole_joint(p) {
-                    Some(j) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j], &mut s)),
-                    None => (u32::MAX, Vec::new()),
+                .map(|p| match (inherited.and_then(|i| i.spans(p)), self.sole_joint(p)) {
+                    (Some(taken), _) => taken.clone(),
+                    (None, Some(j)) => (j as u32, clear_spans(model, p, j, self.rows[p * self.k + j], &mut s)),
+                    (None, None) => (u32::MAX, Vec::new()),
                 })
                 .collect()
         })
@@ -893,6 +895,9 @@ pub fn prove_apart(model: &RobotModel) {
             .iter()
             .enumerate()
             .map(|(p, (j, spans))| {
+                if let Some(taken) = model.inherited.as_ref().and_then(|i| i.apart(p)) {
+                    return taken;
+                }
                 if *j != u32::MAX {
                     return match spans.iter().max_by(|a, b| (a[1] - a[0]).total_cmp(&(b[1] - b[0]))) {
                         Some(&[lo, hi]) => Apart { joints: [*j, u32::MAX], lo: [lo, f64::NAN], hi: [hi, f64::NAN] },
@@ -1087,6 +1092,50 @@ pub(crate) mod tests {
     /// the proofs, on poses within the limits and on poses up to 1 rad beyond them (outside the
     /// spans and boxes, where nothing is skipped); and the proofs do skip pairs, over one joint
     /// and over two (the Panda's link 0 / link 1 pair, which reaches the narrow phase in every
+    /// A model rebuilt after an edit of its world (`RobotModel::rebuilt`: one obstacle removed,
+    /// another moved) takes over the proofs of the pairs it shares, and they are exactly those it
+    /// would make itself: the same spans and boxes, bit for bit, as a model built from nothing.
+    #[test]
+    fn rebuilt_models_inherit_exactly_the_proofs_they_would_make() {
+        for scene in ["panda_blocks", "ur5e_wall_box", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc.clone()).unwrap();
+            prove_apart(&model);
+            let world: Vec<usize> = (0..desc.geom_body.len()).filter(|&g| desc.geom_body[g] == 0).collect();
+            assert!(world.len() >= 2, "{scene}: {world:?}");
+            let mut edited = desc.clone();
+            edited.geom_pos[world[1]][2] += 0.05; // moved: its pairs are proved again
+            let g = world[0]; // removed
+            edited.geom_id.remove(g);
+            edited.geom_type.remove(g);
+            edited.geom_body.remove(g);
+            edited.geom_pos.remove(g);
+            edited.geom_quat.remove(g);
+            edited.geom_size.remove(g);
+            edited.geom_contype.remove(g);
+            edited.geom_conaffinity.remove(g);
+            edited.geom_margin.remove(g);
+            edited.geom_mesh.remove(g);
+            let rebuilt = model.rebuilt(&desc, edited.clone()).unwrap();
+            let fresh = RobotModel::new(edited).unwrap();
+            let taken = rebuilt.inherited.as_ref().unwrap().apart.as_ref().unwrap();
+            let n_taken = taken.iter().filter(|a| a.is_some()).count();
+            assert!(n_taken > 0 && n_taken < taken.len(), "{scene}: {n_taken} of {}", taken.len());
+            prove_apart(&rebuilt);
+            prove_apart(&fresh);
+            assert_eq!(joint_spans(&rebuilt), joint_spans(&fresh), "{scene}");
+            let bits = |m: &RobotModel| -> Vec<(u32, u32, u64, u64, u64, u64)> {
+                m.apart()
+                    .unwrap()
+                    .iter()
+                    .map(|a| (a.joints[0], a.joints[1], a.lo[0].to_bits(), a.lo[1].to_bits(), a.hi[0].to_bits(), a.hi[1].to_bits()))
+                    .collect()
+            };
+            assert_eq!(bits(&rebuilt), bits(&fresh), "{scene}");
+        }
+    }
+
     /// pose, over its hinge's whole range).
     #[test]
     fn pairs_proven_apart_are_skipped_without_changing_any_answer() {

@@ -106,6 +106,8 @@ pub struct PlanResult {
     /// Waypoints before shortcutting.
     pub raw_waypoints: usize,
     pub seconds: f64,
+    /// Of `seconds`, the time spent shortcutting the path the search found.
+    pub shortcut_seconds: f64,
 }
 
 impl PlanResult {
@@ -407,7 +409,8 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
             checker.space.hi[j] = start[j];
         }
     }
-    let finish = |path: Vec<f64>, status, checks, iterations, tree_sizes, raw| PlanResult {
+    let mut shortcut_seconds = 0.0;
+    let finish = |path: Vec<f64>, status, checks, iterations, tree_sizes, raw, shortcut_seconds| PlanResult {
         path,
         status,
         checks,
@@ -415,6 +418,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         tree_sizes,
         raw_waypoints: raw,
         seconds: clock.elapsed().as_secs_f64(),
+        shortcut_seconds,
     };
     // a stop asked for (Ctrl-C, `cancel`) ends the search as the time budget would; the binding
     // that asked raises instead of returning what was found
@@ -425,14 +429,16 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     } else {
         let search = rrt_connect(&mut checker, &mut rng, &start, &goal, range, opts.max_iterations, || deadline(&clock))?;
         let Some(order) = search.path else {
-            return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0));
+            return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0, 0.0));
         };
         let raw = order.len();
+        let searched = clock.elapsed().as_secs_f64();
         let path = shortcut(order, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock))?;
+        shortcut_seconds = clock.elapsed().as_secs_f64() - searched;
         (path, search.status, search.iterations, search.sizes, raw)
     };
     if opts.verify <= 1 || opts.continuous {
-        return Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw));
+        return Ok(finish(path.concat(), status, checker.checks, iterations, sizes, raw, shortcut_seconds));
     }
     // Verification: every segment of the answer again, `verify` times finer. Search and
     // shortcutting decide edges at `resolution`; a thin feature or a grazing contact can slip
@@ -451,12 +457,12 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         let sub = rrt_connect(&mut checker, &mut rng, &w[0], &w[1], range, budget, || deadline(&clock))?;
         iterations += sub.iterations;
         let Some(sub_path) = sub.path else {
-            return Ok(finish(Vec::new(), sub.status, checker.checks, iterations, sizes, raw));
+            return Ok(finish(Vec::new(), sub.status, checker.checks, iterations, sizes, raw, shortcut_seconds));
         };
         let sub_path = shortcut(sub_path, &mut checker, &mut rng, opts.shortcut_rounds, || deadline(&clock))?;
         out.extend(sub_path.into_iter().skip(1));
     }
-    Ok(finish(out.concat(), status, checker.checks, iterations, sizes, raw))
+    Ok(finish(out.concat(), status, checker.checks, iterations, sizes, raw, shortcut_seconds))
 }
 
 /// What one bidirectional search found.

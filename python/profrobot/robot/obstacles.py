@@ -49,7 +49,7 @@ class Obstacle(abc.ABC):
     moves: Moves | None = field(default=None, kw_only=True)
 
     @abc.abstractmethod
-    def _geom_args(self, spec: mujoco.MjSpec) -> dict:
+    def _geom_args(self, spec: mujoco.MjSpec | None) -> dict:
         """The geom's MuJoCo type and size (and any asset it needs, added to ``spec``)."""
 
     @property
@@ -63,7 +63,10 @@ class Obstacle(abc.ABC):
             where = repr(self.pos)
         return f"{type(self).__name__} at ({where})"
 
-    def add_to(self, spec: mujoco.MjSpec) -> None:
+    def geom(self, spec: mujoco.MjSpec | None = None) -> dict:
+        """The geom MuJoCo is given for this obstacle (``add_geom``'s keywords: ``pos``, unit
+        ``quat``, ``rgba``, ``type``, ``size``, a mesh's name), validated: :class:`InputError`
+        naming the obstacle and the entry. A :class:`Mesh` adds its mesh asset to ``spec``."""
         try:
             pos = np.asarray(self.pos, dtype=float)
             quat = np.asarray(self.quat, dtype=float)
@@ -73,17 +76,19 @@ class Obstacle(abc.ABC):
             raise InputError(f"{self.label}: pos must be 3 finite numbers and quat 4")
         if not np.linalg.norm(quat) > 0:
             raise InputError(f"{self.label}: quat is zero")
+        if self.moves is not None and not isinstance(self.moves, Moves):
+            raise InputTypeError(f"{self.label}: moves must be a profrobot.Moves; got {type(self.moves).__name__}")
+        if self.moves is not None and isinstance(self, Plane):
+            raise InputError(f"{self.label}: an infinite plane cannot move; use a thin Box")
+        return dict(pos=pos, quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
+                    **self._geom_args(spec))
+
+    def add_to(self, spec: mujoco.MjSpec) -> None:
+        kwargs = self.geom(spec)
         if self.moves is not None:
-            if not isinstance(self.moves, Moves):
-                raise InputTypeError(f"{self.label}: moves must be a profrobot.Moves; got {type(self.moves).__name__}")
-            if isinstance(self, Plane):
-                raise InputError(f"{self.label}: an infinite plane cannot move; use a thin Box")
-            add_moving_geom(spec, self.label, self.name, self.moves, pos,
-                            dict(quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
-                                 **self._geom_args(spec)))
+            pos = kwargs.pop("pos")
+            add_moving_geom(spec, self.label, self.name, self.moves, pos, kwargs)
             return
-        kwargs = dict(pos=pos, quat=quat / np.linalg.norm(quat), rgba=np.asarray(self.rgba, dtype=float),
-                      **self._geom_args(spec))
         if self.name:
             kwargs["name"] = self.name
         spec.worldbody.add_geom(**kwargs)
@@ -169,6 +174,8 @@ class Mesh(Obstacle):
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4 or not np.isfinite(v).all():
             raise InputError(f"{self.label}: vertices must be a finite (N >= 4, 3) array; got shape {v.shape}")
+        if spec is None:
+            raise InputError(f"{self.label}: a mesh obstacle needs the spec its mesh is added to")
         mesh_name = f"{self.name or 'obstacle'}_mesh_{len(spec.meshes)}"
         spec.add_mesh(name=mesh_name, uservert=v.ravel())
         return dict(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name)

@@ -32,6 +32,7 @@ from . import loading as _loading
 from . import file as _file
 from . import grasp as _grasp
 from . import state as _state
+from . import world as _world
 from .arrays import BALL, FREE, GEOM_NAMES, HINGE, SLIDE, label_fingerprint, model_arrays, object_name
 from .margin import ObstacleMargin
 from .obstacles import Obstacle, apply_edit
@@ -350,15 +351,22 @@ class Robot:
             union = sum(clouds[1:], self.cloud + clouds[0] if self.cloud is not None else clouds[0])
             base = self.with_obstacles(obstacles, name=name) if obstacles else self
             return base.with_points(union)
-        spec = self._editable("obstacles")
-        taken = {g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name}
+        # static primitives are written into the core's arrays, MuJoCo compiled on first use
+        # (robot/world.py); the rest are edits of the spec, compiled now
+        fast = _world.fits(self, obstacles)
+        spec = None if fast else self._editable("obstacles")
+        taken = (set(_world.world_geoms(self).names) if spec is None else
+                 {g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name})
         for i, ob in enumerate(obstacles):
             if ob.name and ob.name in taken:
                 raise InputError(f"obstacles[{i}]: the name {ob.name!r} is taken (by another obstacle or by a geom or "
                                  f"body of {self.name}); names must be unique")
             if ob.name:
                 taken.add(ob.name)
-            apply_edit(spec, ob, f"obstacles[{i}] ({ob.label})")
+            if spec is not None:
+                apply_edit(spec, ob, f"obstacles[{i}] ({ob.label})")
+        if spec is None:
+            return _world.with_primitives(self, obstacles, name or self.name)
         return self._derived(spec, obstacles, name or self.name)
 
     def attach(self, obstacle: "str | Obstacle", *, to: str, at: npt.ArrayLike | None = None,
@@ -416,7 +424,7 @@ class Robot:
             cloud = PointCloud(points, 0.005 if radius is None else radius)
         new = object.__new__(type(self))
         new.__dict__.update({k: v for k, v in self.__dict__.items()
-                             if k not in CACHES})
+                             if k not in CACHES or k == "_spec_from"})   # (the cloud is not in the spec)
         arrays = {k: v for k, v in self._arrays.items() if not k.startswith("cloud_")}
         if cloud is not None and len(cloud):
             arrays.update(cloud.core_arrays(self.margin))

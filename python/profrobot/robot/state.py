@@ -19,9 +19,11 @@ from .sources import _Mjcf
 
 STATE_FORMAT = "profrobot.Robot/1"
 
-#: what a Robot keeps for itself only: derived scenes (at(), with_margin()) and the MuJoCo reference
-#: with its point cloud (pointcloud.reference_model); left out of copies, derived robots and pickles
-CACHES = ("_layouts", "_margins", "_reference_model", "_reference_ids")
+#: what a Robot keeps for itself only: derived scenes (at(), with_margin()), the MuJoCo reference
+#: with its point cloud (pointcloud.reference_model) and, for a robot derived without compiling
+#: (robot/world.py), the spec it was derived from and the edits since (an MjSpec does not pickle);
+#: left out of copies, derived robots and pickles
+CACHES = ("_layouts", "_margins", "_reference_model", "_reference_ids", "_spec_from")
 
 
 def getstate(self) -> dict:
@@ -81,20 +83,49 @@ def deep_copy(self, memo: dict) -> Any:
     return new
 
 
+def _fingerprint(self, model: mujoco.MjModel) -> str:
+    """The label fingerprint ``model`` (with this robot's point cloud) would have."""
+    names = [object_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt)]
+    arrays = model_arrays(model)
+    if self.cloud is not None and len(self.cloud):
+        arrays.update(self.cloud.core_arrays(self.margin))
+    return label_fingerprint(names, arrays, tuple(n for n in names if n in model_scene_joints(model)))
+
+
+def _from_ancestor(self) -> tuple[mujoco.MjSpec, mujoco.MjModel] | None:
+    """The spec and model of a robot derived without compiling (``robot/world.py``), from the spec
+    of the robot it was derived from and the edits since (a copy: the ancestor's is untouched):
+    a compile, where the source would also parse every mesh again. None where that spec no longer
+    gives this robot (edited in place since)."""
+    ancestor = self.__dict__.get("_spec_from")
+    if ancestor is None:
+        return None
+    spec = ancestor[0].copy()
+    try:
+        for edit in ancestor[1]:
+            edit.add_to(spec)
+        model = spec.compile()
+    except Exception:
+        return None
+    return (spec, model) if _fingerprint(self, model) == self.fingerprint else None
+
+
 def restore(self) -> None:
     """Rebuild the MjSpec (and the MjModel, if the pickle left it out) from the source, and
     check that it compiles to this very robot."""
+    built = _from_ancestor(self)
+    if built is not None:
+        self._spec, model = built
+        if self._mj_model is None:
+            self._mj_model = model
+        return
     try:
         spec = self._source.spec()
         model = spec.compile()
     except Exception as e:
         raise CorruptFileError(f"{self.name}: could not rebuild the MuJoCo model from the MJCF this robot "
                                f"carries: {type(e).__name__}: {e}") from e
-    names = [object_name(model, mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(model.njnt)]
-    arrays = model_arrays(model)
-    if self.cloud is not None and len(self.cloud):
-        arrays.update(self.cloud.core_arrays(self.margin))
-    if label_fingerprint(names, arrays, tuple(n for n in names if n in model_scene_joints(model))) != self.fingerprint:
+    if _fingerprint(self, model) != self.fingerprint:
         how = ("its MjSpec, written out with MjSpec.to_xml (6 significant digits), compiles to another robot"
                if not self._source.loaded().root.exact else
                "the MJCF files it was built from now compile to another robot (edited since, another MuJoCo "

@@ -1,0 +1,127 @@
+"""Obstacles replaced on a built robot without compiling MuJoCo (``robot/world.py``,
+``RobotModel.rebuilt``): the arrays are MuJoCo's to the bit, the labels MuJoCo's, the model and
+its inherited proofs label exactly as one built from nothing, and the robot pickles and
+compiles its MuJoCo model on first use."""
+
+import copy
+import pickle
+
+import mujoco
+import numpy as np
+import pytest
+
+import profrobot
+from profrobot import Box, Capsule, Cylinder, Plane, Sphere
+from profrobot._core import RobotModel
+from profrobot.errors import InputError
+from profrobot.robot.arrays import model_arrays
+
+
+@pytest.fixture(scope="module")
+def arm():
+    """The Menagerie Panda without its floor (MotionBenchMaker's robot)."""
+    return profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+
+
+def random_scene(rng: np.random.Generator, n: int = 8, kinds=(Box, Cylinder, Sphere, Capsule), prefix: str = "ob") -> list:
+    """``n`` primitives around the arm (0.3-0.8 m out, -0.4-0.8 m up), unnormalised quaternions."""
+    out = []
+    for i in range(n):
+        kind = kinds[i % len(kinds)]
+        r, a = rng.uniform(0.3, 0.8), rng.uniform(-np.pi, np.pi)
+        pos = (r * np.cos(a), r * np.sin(a), rng.uniform(-0.4, 0.8))
+        quat = tuple(rng.normal(size=4) * rng.uniform(0.2, 5.0))
+        size = dict(half_size=tuple(rng.uniform(0.01, 0.2, 3))) if kind is Box else (
+            dict(radius=rng.uniform(0.01, 0.1)) if kind is Sphere else
+            dict(radius=rng.uniform(0.01, 0.08), half_length=rng.uniform(0.02, 0.2)))
+        out.append(kind(pos=pos, quat=quat, name=f"{prefix}{i}" if i % 2 else None, **size))
+    return out
+
+
+def assert_arrays_are_mujocos(robot):
+    """The robot's arrays (written without compiling) equal those of its compiled model, bit for bit."""
+    compiled = model_arrays(robot.mj_model)   # compiles, and checks the fingerprint (state.restore)
+    for key, value in compiled.items():
+        assert np.array_equal(np.asarray(value), np.asarray(robot._arrays[key])), key
+
+
+def test_replaced_obstacles_are_mujocos_geoms_to_the_bit(arm):
+    rng = np.random.default_rng(0)
+    for trial in range(6):
+        robot = arm.with_obstacles(random_scene(rng, n=3 + trial))
+        assert robot._mj_model is None   # nothing compiled yet
+        assert_arrays_are_mujocos(robot)
+    # on a scene with its own world geoms (the floor shifts every robot geom's id), twice in a row
+    floor = profrobot.Robot.from_menagerie("franka_emika_panda")
+    twice = floor.with_obstacles(random_scene(rng, 4)).with_obstacles([Plane(pos=(0, 0, -0.5))] + random_scene(rng, 3, prefix="more"))
+    assert_arrays_are_mujocos(twice)
+
+
+def test_margins_and_defaults_follow_mujoco():
+    """A safety margin reaches the new geoms (ObstacleMargin), and a spec whose default geom
+    collides with nothing adds ids but no rows."""
+    rng = np.random.default_rng(1)
+    panda = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+    assert_arrays_are_mujocos(panda.with_margin(0.02).with_obstacles(random_scene(rng, 5)))
+    spec = mujoco.MjSpec.from_string("""<mujoco><default><geom contype="0" conaffinity="0" margin="0.003"/></default>
+      <worldbody><geom name="wall" type="box" size=".1 .1 .1" pos="1 0 0" contype="1" conaffinity="1"/>
+      <body name="arm" pos="0 0 .5"><joint name="j" type="hinge" range="-2 2"/>
+        <geom type="capsule" size=".05 .3" contype="1" conaffinity="1"/></body></worldbody></mujoco>""")
+    quiet = profrobot.Robot.from_spec(spec)
+    # (a from_spec robot's source is its XML, not exact: the compile path answers; the rows agree either way)
+    assert_arrays_are_mujocos(quiet.with_obstacles([Box(pos=(0.5, 0, 0.5))]))
+
+
+def test_labels_agree_with_mujoco_after_a_scene_update(arm):
+    rng = np.random.default_rng(2)
+    robot = arm.with_obstacles(random_scene(rng, 10))
+    poses = profrobot.sample_poses(robot, 20_000, seed=3)
+    report = profrobot.crosscheck(robot, poses, progress=False)
+    assert report.agreement == 1.0 and report.pair_agreement == 1.0, report.summary()
+    assert 0 < report.confusion[1, 1] < len(poses) and report.ours.scene_collides.any()
+
+
+def test_rebuilt_model_labels_as_one_built_from_nothing(arm):
+    """Shapes shared and proofs taken over (``Inherited``): labels, pairs, distances, the fast
+    path, pose certificates and motion certificates are byte-identical to a model built anew."""
+    rng = np.random.default_rng(4)
+    poses = profrobot.sample_poses(arm, 3000, seed=5)
+    profrobot.label_poses(arm, poses[:4])          # the base model's proofs exist: inherited below
+    robot = arm.with_obstacles(random_scene(rng, 9))
+    fresh = RobotModel(robot._arrays)
+    for core in (robot.core, fresh):
+        assert core.npair == robot.core.npair
+    a = robot.core.label(poses, pairs=True, distance=True)
+    b = fresh.label(poses, pairs=True, distance=True)
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    assert np.array_equal(robot.core.collides(poses), fresh.collides(poses))
+    assert np.array_equal(robot.core.certified(poses, 1e-6), fresh.certified(poses, 1e-6))
+    free = poses[~a["collides"]][:200]
+    m1, m2 = robot.core.certify_motions(free[:-1], free[1:], 1e-6), fresh.certify_motions(free[:-1], free[1:], 1e-6)
+    for key in m1:
+        assert np.array_equal(m1[key], m2[key], equal_nan=m1[key].dtype.kind == "f"), key
+
+
+def test_a_scene_update_pickles_copies_and_refuses_bad_input(arm):
+    robot = arm.with_obstacles([Box(pos=(0.5, 0, 0.3), name="crate"), Cylinder(pos=(0.4, 0.3, 0.2))])
+    for other in (pickle.loads(pickle.dumps(robot)), copy.deepcopy(robot)):
+        assert other.fingerprint == robot.fingerprint
+        assert other.mj_model.ngeom == robot.mj_model.ngeom   # rebuilt from the source, checked
+    with pytest.raises(InputError, match=r"obstacles\[1\].*'crate' is taken"):
+        robot.with_obstacles([Sphere(pos=(0, 0, 1)), Sphere(pos=(0, 0, 2), name="crate")])
+    with pytest.raises(InputError, match="half_size y must be a positive length"):
+        robot.with_obstacles([Box(pos=(0, 0, 1), half_size=(0.1, -0.1, 0.1))])
+    with pytest.raises(InputError, match="quat is zero"):
+        robot.with_obstacles([Box(pos=(0, 0, 1), quat=(0, 0, 0, 0))])
+
+
+
+def test_an_ancestor_spec_edited_in_place_falls_back_to_the_source():
+    """The MuJoCo model of a scene update is compiled from the spec it was derived from; edited in
+    place since, that spec no longer gives the robot, and its source does (the fingerprint says)."""
+    own = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+    derived = own.with_obstacles([Box(pos=(0.5, 0, 0.3), name="crate")])
+    own.spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.1, 0, 0], pos=[0, 0, 2])
+    assert derived.mj_model.ngeom == own.mj_model.ngeom + 1
+    assert_arrays_are_mujocos(derived)
