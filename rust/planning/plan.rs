@@ -18,8 +18,19 @@
 //! same for any number of threads (only `seconds` differs, and a run cut by `max_time`).
 //!
 //! RRT-Connect (Kuffner & LaValle 2000): two trees, from start and goal; each iteration extends
-//! one toward a uniform sample by at most `range` (L2, radians/metres), then greedily connects
-//! the other tree to the new node; the trees swap roles every iteration.
+//! one toward a uniform sample by at most `range` (L2, radians/metres), or a quarter of it where
+//! the full step is blocked, then greedily connects the other tree to the new node; the trees
+//! swap roles every iteration.
+//!
+//! Continuous edges: explore cheaply, prove what is returned. The search and the shortcuts check
+//! edges sampled at `EXPLORE` (0.05 rad) only; the path they find is then proven: each interior
+//! waypoint certified (`certified_pose`, else dropped) and each segment by the continuous
+//! certificate (`motion::certify_motion`), a segment that fails replaced by a search between
+//! its ends whose every edge is proven. What is returned is proven exactly as before; the search
+//! no longer pays for proofs of the edges it throws away (on MotionBenchMaker's Panda problems,
+//! most of its time). Where the repairs find nothing, a search that proves every edge runs from
+//! the start with the time left. A sampled search that finds nothing is the answer: a proving
+//! one accepts fewer edges.
 
 use std::time::Instant;
 
@@ -152,6 +163,11 @@ const BATCHES: [usize; 4] = [4, 16, 64, 256];
 /// with 4 and 0.1 with 2 tried).
 const PRECHECK_STEP: f64 = 0.1;
 const PRECHECK_STATES: usize = 8;
+/// Continuous planning explores with edges sampled this finely (radians / metres) and proves
+/// only the path it returns (`explore`, `prove`).
+const EXPLORE: f64 = 0.05;
+/// A blocked extension tries again this share of the range toward the same target (`extend`).
+const SHORT_STEP: f64 = 0.25;
 /// Batches at least this large are checked in parallel.
 const PARALLEL_FROM: usize = 64;
 
@@ -330,11 +346,23 @@ fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) ->
         checker.space.delta(&from, target, &mut d);
         checker.space.along(&from, &d, range / dist, &mut q);
     }
+    if checker.edge_free(&from, &q)? {
+        let i = tree.push(&q, near);
+        return Ok(if reached { Extend::Reached(i) } else { Extend::Advanced(i) });
+    }
+    // Blocked: a step of a quarter of the range toward the same target (a tree whose root is in
+    // a narrow place, a goal between shelves, grows where steps of the full range never pass).
+    let short = SHORT_STEP * range;
+    if dist <= short {
+        return Ok(Extend::Trapped);
+    }
+    let mut d = vec![0.0; q.len()];
+    checker.space.delta(&from, target, &mut d);
+    checker.space.along(&from, &d, short / dist, &mut q);
     if !checker.edge_free(&from, &q)? {
         return Ok(Extend::Trapped);
     }
-    let i = tree.push(&q, near);
-    Ok(if reached { Extend::Reached(i) } else { Extend::Advanced(i) })
+    Ok(Extend::Advanced(tree.push(&q, near)))
 }
 
 /// Plans a collision-free path from `start` to `goal` (length K each, free, within limits).
@@ -424,6 +452,30 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     // that asked raises instead of returning what was found
     let deadline = |c: &Instant| c.elapsed().as_secs_f64() > opts.max_time || crate::cancel::requested();
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    if opts.continuous {
+        // Explore cheaply, prove what is returned (module docs): the search and the shortcuts
+        // check edges at `EXPLORE` only; the answer is then proven waypoint by waypoint and
+        // segment by segment, a segment that fails repaired by a search that proves every edge.
+        // Where no proven answer comes of it, the search below proves every edge from the start.
+        let motion = checker.motion.take();
+        checker.resolution = EXPLORE;
+        let explored = explore(&mut checker, &mut rng, &start, &goal, range, opts, || deadline(&clock))?;
+        checker.motion = motion;
+        let mut found = match explored {
+            Ok(found) => found,
+            Err(search) => return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0, 0.0)),
+        };
+        if let Some((path, repairs)) = prove(&mut checker, &mut rng, &found.path, range, opts, || deadline(&clock))? {
+            if let Some(r) = repairs {
+                // (repaired: the straight path was not the answer, and the repairs' trees met)
+                found.status = PlanStatus::Connected;
+                found.iterations += r.iterations;
+                found.sizes = [found.sizes[0] + r.sizes[0], found.sizes[1] + r.sizes[1]];
+            }
+            let (checks, shortcut) = (checker.checks, found.shortcut_seconds);
+            return Ok(finish(path.concat(), found.status, checks, found.iterations, found.sizes, found.raw, shortcut));
+        }
+    }
     let (path, status, iterations, sizes, raw) = if checker.edge_free(&start, &goal)? {
         (vec![start.clone(), goal.clone()], PlanStatus::Direct, 0, [1, 1], 2)
     } else {
@@ -463,6 +515,93 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
         out.extend(sub_path.into_iter().skip(1));
     }
     Ok(finish(out.concat(), status, checker.checks, iterations, sizes, raw, shortcut_seconds))
+}
+
+/// What the exploring search found (`plan_path`, continuous: edges checked at `EXPLORE`).
+struct Explored {
+    path: Vec<Vec<f64>>,
+    status: PlanStatus,
+    iterations: usize,
+    sizes: [usize; 2],
+    raw: usize,
+    shortcut_seconds: f64,
+}
+
+/// The straight path, else RRT-Connect, then shortcuts, all with `checker`'s sampled edges (its
+/// `motion` taken out by the caller): `Err` with the search's status and iterations when it found
+/// nothing within its budget (a search that proves every edge accepts fewer edges: it would not).
+fn explore(
+    checker: &mut Checker,
+    rng: &mut ChaCha8Rng,
+    start: &[f64],
+    goal: &[f64],
+    range: f64,
+    opts: &PlanOptions,
+    out_of_time: impl Fn() -> bool + Copy,
+) -> Result<std::result::Result<Explored, Search>> {
+    if checker.edge_free(start, goal)? {
+        let path = vec![start.to_vec(), goal.to_vec()];
+        return Ok(Ok(Explored { path, status: PlanStatus::Direct, iterations: 0, sizes: [1, 1], raw: 2, shortcut_seconds: 0.0 }));
+    }
+    let mut search = rrt_connect(checker, rng, start, goal, range, opts.max_iterations, out_of_time)?;
+    let Some(order) = search.path.take() else {
+        return Ok(Err(search));
+    };
+    let raw = order.len();
+    let clock = Instant::now();
+    let path = shortcut(order, checker, rng, opts.shortcut_rounds, out_of_time)?;
+    let shortcut_seconds = clock.elapsed().as_secs_f64();
+    Ok(Ok(Explored { path, status: search.status, iterations: search.iterations, sizes: search.sizes, raw, shortcut_seconds }))
+}
+
+/// `path` (found with sampled edges) proven: its waypoints certified (`certified_pose`) and its
+/// segments by the continuous certificate (`checker.motion`); a waypoint that is not is dropped,
+/// and a segment that is not proven is replaced by a search between its ends that proves every
+/// edge (and its shortcuts). `Some((path, the repairs' search))`, every segment proven (the
+/// search: its iterations and trees' nodes, summed; none when nothing was repaired); None when a
+/// repair finds nothing within the budget.
+fn prove(
+    checker: &mut Checker,
+    rng: &mut ChaCha8Rng,
+    path: &[Vec<f64>],
+    range: f64,
+    opts: &PlanOptions,
+    out_of_time: impl Fn() -> bool + Copy,
+) -> Result<Option<(Vec<Vec<f64>>, Option<Search>)>> {
+    let Some(clearance) = checker.motion.as_ref().map(|m| m.2) else {
+        return Ok(None);
+    };
+    // start and goal are certified by the caller; interior waypoints only free at EXPLORE
+    let mut kept = vec![path[0].clone()];
+    for q in &path[1..path.len() - 1] {
+        checker.checks += 1;
+        let clear = certified_pose(checker.model, q, clearance, &mut checker.scratch)
+            .map_err(|e| e.error(checker.model, format!("planning state {q:?}")))?;
+        if clear {
+            kept.push(q.clone());
+        }
+    }
+    kept.push(path[path.len() - 1].clone());
+    let mut out = vec![kept[0].clone()];
+    let mut repairs: Option<Search> = None;
+    for w in kept.windows(2) {
+        if checker.edge_free(&w[0], &w[1])? {
+            out.push(w[1].clone());
+            continue;
+        }
+        let done = repairs.as_ref().map_or(0, |r| r.iterations);
+        let budget = opts.max_iterations.saturating_sub(done).max(1);
+        let sub = rrt_connect(checker, rng, &w[0], &w[1], range, budget, out_of_time)?;
+        let Some(sub_path) = sub.path else {
+            return Ok(None);
+        };
+        let sub_path = shortcut(sub_path, checker, rng, opts.shortcut_rounds, out_of_time)?;
+        out.extend(sub_path.into_iter().skip(1));
+        let total = repairs.get_or_insert(Search { path: None, status: PlanStatus::Connected, iterations: 0, sizes: [0, 0] });
+        total.iterations += sub.iterations;
+        total.sizes = [total.sizes[0] + sub.sizes[0], total.sizes[1] + sub.sizes[1]];
+    }
+    Ok(Some((out, repairs)))
 }
 
 /// What one bidirectional search found.

@@ -4,10 +4,12 @@
 it tries the straight SO(2) path, then grows two trees (RRT-Connect), then shortcuts the path
 (a pair of waypoints found blocked is not tried again until the path changes).
 
-Every edge is **certified continuously** (``check="continuous"``, the default;
+Every returned edge is **certified continuously** (``check="continuous"``, the default;
 :mod:`profrobot.exact.certification`): every pose of the edge, not only samples, is proven to keep
 every candidate pair more than ``max(margin, CLEARANCE)`` apart, by conservative advancement on
-the exact labeller's shapes. With ``check="sampled"`` edges are checked densely instead (no joint
+the exact labeller's shapes. The search explores with edges sampled at 0.05 rad and proves only
+the path it returns, repairing a segment that fails with a search whose every edge is proven
+(``rust/planning/plan.rs``). With ``check="sampled"`` edges are checked densely instead (no joint
 moves more than ``resolution`` between two labelled poses) and the answer is verified ``verify``
 (10) times finer, re-planning any segment that fails: a thin part can still pass a thin obstacle
 between two samples. Either way every segment of the result is an SO(2) interpolation, so
@@ -26,7 +28,7 @@ import numpy.typing as npt
 
 from .labels import as_poses, check_threads, label_poses, so2_steps
 from ..robot.robot import Robot
-from .certification import CLEARANCE, check_path, path_free_at
+from .certification import CLEARANCE, path_free_at
 from ..robot import gate
 from ..robot.gate import Layout
 from ..errors import InputError
@@ -41,11 +43,12 @@ class PathResult:
     Attributes:
         path: (M, K) waypoints, start first and goal last (radians / metres; continuous hinges
             in [-pi, pi)); (0, K) when none was found.
-        found: whether ``path`` joins start and goal (the planner's own verdict: every edge
-            certified continuously, or labelled at ``resolution`` with ``check="sampled"``).
-        certified: the path is certified free (:mod:`profrobot.exact.certification`, checked again
-            after planning: continuously, or every pose re-interpolated at ``resolution`` with
-            ``check="sampled"``); False when nothing was found.
+        found: whether ``path`` joins start and goal (the planner's own verdict: every returned
+            edge certified continuously, or labelled at ``resolution`` with ``check="sampled"``).
+        certified: the path is certified free (:mod:`profrobot.exact.certification`): continuously,
+            each returned segment proven by the planner with the certificate :func:`check_path`
+            runs, or, with ``check="sampled"``, every pose re-interpolated at ``resolution`` checked
+            again after planning; False when nothing was found.
         status: ``"direct"`` (the straight path is free), ``"connected"`` (the trees met),
             ``"time_out"`` or ``"iteration_limit"`` (none found within the budget).
         checks: poses placed by the continuous certificate and its refutation pre-check, or
@@ -105,7 +108,7 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
             ``resolution`` (a thin feature or a grazing contact can slip between two samples of
             the search); a segment that fails is re-planned at the fine resolution. 1 turns this
             off.
-        check: ``"continuous"`` (every edge proven free at every pose, module docs) or
+        check: ``"continuous"`` (every returned edge proven free at every pose, module docs) or
             ``"sampled"`` (every edge labelled at ``resolution``).
         margin: metres the path keeps from every obstacle (:mod:`profrobot.robot.margin`; an estimated
             layout's :attr:`~profrobot.perception.layouts.LayoutEstimate.margin`): the start and goal must
@@ -136,11 +139,11 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
     verify = gate.count("verify", verify, why="1: no verification")
     if check not in ("continuous", "sampled"):
         raise InputError(f"check must be 'continuous' or 'sampled'; got {check!r}")
-    for name, q in (("start", s), ("goal", g)):
-        lab = label_poses(robot, q, pairs=True)
-        if lab.collides[0]:
+    lab = label_poses(robot, np.concatenate([s, g]), pairs=True)
+    for i, name in enumerate(("start", "goal")):
+        if lab.collides[i]:
             assert lab.colliding_pairs is not None   # asked for: pairs=True
-            (k,) = lab.colliding_pairs[:1, 1]
+            k = lab.colliding_pairs[lab.colliding_pairs[:, 0] == i][0, 1]
             within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
             raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
     out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
@@ -159,8 +162,10 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
     return PathResult(path=path, found=found, status=status,
                       checks=int(out["checks"]), seconds=float(out["seconds"]), iterations=int(out["iterations"]),
                       tree_sizes=(int(out["tree_sizes"][0]), int(out["tree_sizes"][1])), raw_waypoints=int(out["raw_waypoints"]),
-                      reason=reason, shortcut_seconds=float(out["shortcut_seconds"]), certified=found and (check_path(robot, path).certified if check == "continuous"
-                                                          else path_free_at(robot, path, float(resolution))))
+                      reason=reason, shortcut_seconds=float(out["shortcut_seconds"]),
+                      # continuous: every returned segment was proven by the planner with the
+                      # certificate check_path runs (certify_motion, CLEARANCE), its ends too
+                      certified=found and (check == "continuous" or path_free_at(robot, path, float(resolution))))
 
 
 def resample_path(robot: Robot, path, steps: int) -> np.ndarray:
