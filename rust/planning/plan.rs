@@ -465,7 +465,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
             Ok(found) => found,
             Err(search) => return Ok(finish(Vec::new(), search.status, checker.checks, search.iterations, search.sizes, 0, 0.0)),
         };
-        if let Some((path, repairs)) = prove(&mut checker, &mut rng, &found.path, range, opts, || deadline(&clock))? {
+        if let Some(Proven { path, repairs }) = prove(&mut checker, &mut rng, &found.path, range, opts, || deadline(&clock))? {
             if let Some(r) = repairs {
                 // (repaired: the straight path was not the answer, and the repairs' trees met)
                 found.status = PlanStatus::Connected;
@@ -554,12 +554,18 @@ fn explore(
     Ok(Ok(Explored { path, status: search.status, iterations: search.iterations, sizes: search.sizes, raw, shortcut_seconds }))
 }
 
+/// A path every segment of which is proven (`prove`), and the search its repairs made.
+struct Proven {
+    path: Vec<Vec<f64>>,
+    repairs: Option<Search>,
+}
+
 /// `path` (found with sampled edges) proven: its waypoints certified (`certified_pose`) and its
 /// segments by the continuous certificate (`checker.motion`); a waypoint that is not is dropped,
 /// and a segment that is not proven is replaced by a search between its ends that proves every
-/// edge (and its shortcuts). `Some((path, the repairs' search))`, every segment proven (the
-/// search: its iterations and trees' nodes, summed; none when nothing was repaired); None when a
-/// repair finds nothing within the budget.
+/// edge (and its shortcuts). `Some`, every segment proven (the repairs' search: their iterations
+/// and trees' nodes, summed; none when nothing was repaired); None when a repair finds nothing
+/// within the budget.
 fn prove(
     checker: &mut Checker,
     rng: &mut ChaCha8Rng,
@@ -567,7 +573,7 @@ fn prove(
     range: f64,
     opts: &PlanOptions,
     out_of_time: impl Fn() -> bool + Copy,
-) -> Result<Option<(Vec<Vec<f64>>, Option<Search>)>> {
+) -> Result<Option<Proven>> {
     let Some(clearance) = checker.motion.as_ref().map(|m| m.2) else {
         return Ok(None);
     };
@@ -601,7 +607,7 @@ fn prove(
         total.iterations += sub.iterations;
         total.sizes = [total.sizes[0] + sub.sizes[0], total.sizes[1] + sub.sizes[1]];
     }
-    Ok(Some((out, repairs)))
+    Ok(Some(Proven { path: out, repairs }))
 }
 
 /// What one bidirectional search found.
