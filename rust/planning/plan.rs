@@ -56,7 +56,7 @@ pub struct PlanOptions {
     pub max_time: f64,
     /// Seed of the sampler (and of the shortcut pairs).
     pub seed: u64,
-    /// Longest tree extension (L2 in joint space); 0 picks 0.2 × the space's diagonal, as OMPL.
+    /// Longest tree extension (L2 in joint space); 0 picks `DEFAULT_RANGE` × the space's diagonal.
     pub range: f64,
     /// Deterministic budget: tree-extension iterations.
     pub max_iterations: usize,
@@ -166,6 +166,8 @@ const PRECHECK_STATES: usize = 8;
 /// Continuous planning explores with edges sampled this finely (radians / metres) and proves
 /// only the path it returns (`explore`, `prove`).
 const EXPLORE: f64 = 0.05;
+/// The default range: this share of the joint space's diagonal.
+const DEFAULT_RANGE: f64 = 0.1;
 /// A blocked extension tries again this share of the range toward the same target (`extend`).
 const SHORT_STEP: f64 = 0.25;
 /// Batches at least this large are checked in parallel.
@@ -392,7 +394,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     }
     let space = Space::of(model)?;
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
-    let range = if opts.range > 0.0 { opts.range } else { 0.2 * diagonal };
+    let range = if opts.range > 0.0 { opts.range } else { DEFAULT_RANGE * diagonal };
     let motion = opts.continuous.then(|| (Levers::of(model), MotionScratch::new(model), opts.clearance));
     let mut checker = Checker { model, space, resolution: opts.resolution, scratch: Scratch::new(model), checks: 0, motion };
     for (q, what) in [(start, "start"), (goal, "goal")] {

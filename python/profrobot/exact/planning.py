@@ -100,8 +100,9 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
         max_time: wall-clock budget in seconds (> 0); the call returns by then (give or take
             one edge check) with ``found=False`` if no path was found.
         seed: the sampler's seed; the same seed gives the same path for any thread count.
-        range: longest tree extension (L2 in joint space); 0 picks 0.2 × the joint-space
-            diagonal, OMPL's default.
+        range: longest tree extension (L2 in joint space; a blocked one retries a quarter of
+            it); 0 picks 0.1 × the joint-space diagonal (half OMPL's default: MotionBenchMaker's
+            p95 halved, the bundled scenes' medians level or lower).
         iterations: a deterministic budget of tree extensions.
         shortcut_rounds: shortcut attempts on the found path.
         verify: with ``check="sampled"``, the answer is re-checked ``verify`` times finer than
