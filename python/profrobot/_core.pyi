@@ -84,6 +84,11 @@ class RobotModel:
         """(K, 2) joint ranges; continuous hinges report [-pi, pi]."""
     def continuous(self) -> npt.NDArray[np.bool_]:
         """(K,) whether each joint is an unlimited hinge."""
+    def body_frames(self, poses: npt.NDArray[np.float64], body: int, threads: int | None = None
+                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Body ``body``'s world frame for (B, K) poses: positions (B, 3) metres and quaternions
+        (B, 4) (w, x, y, z), :meth:`forward_kinematics`' for that body bit for bit; only its chain
+        is placed. InputError for a body out of range."""
     def forward_kinematics(self, poses: npt.NDArray[np.float64], threads: int | None = None
                            ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Body poses for (B, K) poses: xpos (B, nbody, 3) metres and xquat (B, nbody, 4) (w, x, y, z),

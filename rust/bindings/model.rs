@@ -20,7 +20,7 @@ use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
 use crate::joints::couplings::Coupling;
 use crate::joints::sample::sample_uniform;
 use crate::model::desc::{CloudDesc, ModelDesc};
-use crate::model::kinematics::forward_kinematics;
+use crate::model::kinematics::{body_frames, forward_kinematics};
 use crate::model::pairs::PairKind;
 use crate::model::RobotModel;
 use crate::planning::motion::prove_apart;
@@ -267,6 +267,25 @@ impl PyRobotModel {
 
     fn continuous<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<bool>> {
         PyArray1::from_vec(py, self.model.continuous())
+    }
+
+    /// Body `body`'s world frame at each pose: positions `(B, 3)`, quaternions `(B, 4)`
+    /// `(w, x, y, z)` (`model/kinematics.rs`: its chain only).
+    #[pyo3(signature = (poses, body, threads=None))]
+    fn body_frames<'py>(
+        &self,
+        py: Python<'py>,
+        poses: &Bound<'py, PyAny>,
+        body: usize,
+        threads: Option<usize>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+        let model = &self.model;
+        let poses = pose_array(poses, model.njoint(), "poses")?;
+        let q = rows_of(&poses);
+        let q: &[f64] = &q;
+        let (xpos, xquat) = py.detach(|| with_threads(threads, || body_frames(model, q, body))).map_err(to_py)?.map_err(to_py)?;
+        let b = xpos.len() / 3;
+        Ok((PyArray1::from_vec(py, xpos).reshape([b, 3])?, PyArray1::from_vec(py, xquat).reshape([b, 4])?))
     }
 
     #[pyo3(signature = (poses, threads=None))]

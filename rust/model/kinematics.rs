@@ -174,9 +174,66 @@ pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>
     Ok((xpos, xquat))
 }
 
+/// Body `body`'s world frame at each of the poses (`B × K`, row-major): positions `B × 3` and
+/// quaternions `B × 4` `(w, x, y, z)`, `forward_kinematics`' for that body bit for bit. Only
+/// the body's ancestors are placed (`marked_body_poses`), so a hand's frame costs its chain,
+/// not the whole tree (the fingers, a second arm).
+pub fn body_frames(model: &RobotModel, poses: &[f64], body: usize) -> Result<(Vec<f64>, Vec<f64>)> {
+    let b = model.check_poses(poses)?;
+    let (k, nb) = (model.njoint(), model.nbody());
+    if body >= nb {
+        return crate::error::invalid_input(format!("body {body} is out of range: the model has {nb} bodies"));
+    }
+    crate::budget::check("poses (a body's frames)", &[b, 7], 8)?;
+    let mut marks = vec![0u32; nb];
+    let mut up = body;
+    while up != 0 {
+        marks[up] = 1;
+        up = model.body_parent[up];
+    }
+    let mut xpos = vec![0.0; b * 3];
+    let mut xquat = vec![0.0; b * 4];
+    poses.par_chunks(CHUNK * k).zip(xpos.par_chunks_mut(CHUNK * 3)).zip(xquat.par_chunks_mut(CHUNK * 4)).for_each_init(
+        || vec![Isometry3::identity(); nb],
+        |frames, ((q, pos), quat)| {
+            for ((qi, p), r) in q.chunks_exact(k).zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+                marked_body_poses(model, qi, frames, &marks, 1);
+                let f = &frames[body];
+                p.copy_from_slice(f.translation.vector.as_slice());
+                let q = f.rotation.quaternion();
+                r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
+            }
+        },
+    );
+    Ok((xpos, xquat))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One body's frames are `forward_kinematics`' for that body, bit for bit, on every bundled
+    /// robot and every body.
+    #[test]
+    fn body_frames_are_forward_kinematics_of_that_body() {
+        for scene in ["panda_blocks", "xarm7_table", "vx300s_clutter", "shadow_hand"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: crate::model::ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc).unwrap();
+            let ranges = model.sampling_ranges().unwrap();
+            let poses = crate::joints::sample::sample_uniform(&ranges, 300, 4).unwrap();
+            let (xpos, xquat) = forward_kinematics(&model, &poses).unwrap();
+            let nb = model.nbody();
+            for body in 0..nb {
+                let (p, q) = body_frames(&model, &poses, body).unwrap();
+                for i in 0..300 {
+                    assert_eq!(p[i * 3..i * 3 + 3], xpos[(i * nb + body) * 3..(i * nb + body) * 3 + 3], "{scene} body {body}");
+                    assert_eq!(q[i * 4..i * 4 + 4], xquat[(i * nb + body) * 4..(i * nb + body) * 4 + 4], "{scene} body {body}");
+                }
+            }
+            assert!(body_frames(&model, &poses, nb).is_err());
+        }
+    }
 
     /// Four lanes give `body_poses` bit for bit (every coordinate's bits, signs of zero
     /// included) on every bundled robot, at random poses within and beyond the limits and at

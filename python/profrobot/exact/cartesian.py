@@ -197,9 +197,8 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
 
     def frames(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the frame is at poses ``q`` (N, K): positions (N, 3), quaternions (N, 4) (w, x, y, z)."""
-        xpos, xquat = robot.core.forward_kinematics(np.ascontiguousarray(q), threads=threads)
-        qb = xquat[:, body]
-        return xpos[:, body] + _rotate(qb, lpos), _qmul(qb, lquat)
+        xb, qb = robot.core.body_frames(np.ascontiguousarray(q), body, threads=threads)
+        return xb + _rotate(qb, lpos), _qmul(qb, lquat)
 
     p0, q0 = frames(s)
     r0 = Rotation.from_quat(_quat_xyzw(q0[0]))
