@@ -124,6 +124,8 @@ fn couplings_from_dict(d: &Bound<'_, PyDict>) -> PyResult<Vec<Coupling>> {
 /// `RobotModel.pairs()`: geom ids `(P, 2)`, is-self `(P,)`, margin `(P,)`.
 type PairArrays<'py> = (Bound<'py, PyArray2<i32>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<f64>>);
 
+/// `RobotModel.body_frames()`: positions `(B, 3)`, quaternions `(B, 4)`.
+type BodyFrames<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 /// `RobotModel.forward_kinematics()`: xpos `(B, nbody, 3)`, xquat `(B, nbody, 4)`.
 type FrameArrays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>);
 
@@ -278,7 +280,7 @@ impl PyRobotModel {
         poses: &Bound<'py, PyAny>,
         body: usize,
         threads: Option<usize>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<BodyFrames<'py>> {
         let model = &self.model;
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
