@@ -3,7 +3,7 @@ its defaults (every returned path proven free continuously) beside VAMP run in t
 OMPL's RRT-Connect.
 
     python benches/mbm.py [--mbm ../shared/mbm] [--classes box,bookshelf_small,bookshelf_tall,table_pick]
-                          [--problems 100] [--vamp /work/vamp] [--ompl 10] [--ompl-time 10]
+                          [--problems 100] [--vamp ../vamp] [--ompl 10] [--ompl-time 10]
 
 Each problem (``../shared/mbm/<class>_panda/sceneNNNN.yaml`` and ``requestNNNN.yaml``: MoveIt's
 planning scene and request) becomes the Menagerie Panda (its ``panda`` entry: no floor; fingers open
@@ -22,7 +22,8 @@ with the certificate's clearance (``plan_path`` refuses it otherwise, naming why
   moving more than 0.001 rad between replayed poses: contacts counted; the MuJoCo model compiled
   on first use (``robot.mj_model``), timed apart.
 
-VAMP (``../shared/peers/vamp/build.sh DIR``, then ``--vamp DIR``) runs in its own venv on its own
+VAMP (``../shared/peers/vamp/build.sh DIR``, then ``--vamp DIR``; default ``../vamp`` beside the
+repository) runs in its own venv on its own
 copy of the same problems (``benches/vamp_mbm.py``: RRT-Connect, Halton, default settings, one
 thread, as its ``evaluate_mbm.py``), its published figures otherwise. OMPL's RRT-Connect
 (``pip install ".[bench]"``) with our exact labeller as its validity checker at 0.01 rad on the
@@ -48,6 +49,7 @@ from profrobot.errors import InputError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import load  # noqa: E402
+from planning import ompl_plan  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "mbm_results.md"
 
@@ -152,9 +154,7 @@ def ours(base, folder: Path, i: int) -> dict:
 
 
 def ompl_row(base, folder: Path, i: int, max_time: float) -> dict:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from planning import ompl_plan  # noqa: E402
-
+    """Problem ``i`` with OMPL's RRT-Connect (``benches/planning.py``'s, our labeller at 0.01 rad)."""
     robot = base.with_obstacles(read_scene(folder / f"scene{i:04d}.yaml"))
     start, goal = read_request(folder / f"request{i:04d}.yaml", robot)
     lab = profrobot.label_poses(robot, np.stack([start, goal])).collides
@@ -188,7 +188,8 @@ def main() -> None:
     ap.add_argument("--mbm", type=Path, default=here.parent.parent / "shared" / "mbm")
     ap.add_argument("--classes", default=",".join(CLASSES))
     ap.add_argument("--problems", type=int, default=100)
-    ap.add_argument("--vamp", type=Path, default=Path("/work/vamp"))
+    ap.add_argument("--vamp", type=Path, default=here.parent.parent / "vamp",
+                    help="where ../shared/peers/vamp/build.sh DIR built VAMP (default: ../vamp beside the repository)")
     ap.add_argument("--ompl", type=int, default=10, help="problems per class for OMPL (0: none)")
     ap.add_argument("--ompl-time", type=float, default=10.0)
     args = ap.parse_args()

@@ -52,7 +52,7 @@ use crate::error::{Error, Result};
 use crate::joints::angles::wrap;
 use crate::joints::couplings::{Couplings, FEASIBLE_TOL};
 use crate::model::broad::{check_clearance, slack_above, DISTANCE_SLACK};
-use crate::model::{Apart, RobotModel};
+use crate::model::{Apart, PairSpans, RobotModel};
 use crate::planning::spans::{clear_spans, covers, has_cloud, span_need};
 
 /// Radians / metres: the smallest joint move of an interval the certificate halves further.
@@ -251,7 +251,7 @@ impl<'m> Levers<'m> {
 
     /// Per candidate pair, the joint and the spans of `planning/spans.rs` (`RobotModel::joint_spans`),
     /// swept on first use (on the calling thread, as `fastpath::likely_pairs`).
-    fn spans(&self, model: &'m RobotModel) -> &'m [(u32, Vec<[f64; 2]>)] {
+    fn spans(&self, model: &'m RobotModel) -> &'m [PairSpans] {
         model.joint_spans.get_or_init(|| {
             let mut s = Scratch::new(model);
             let inherited = model.inherited.as_ref();
@@ -862,7 +862,7 @@ where
 }
 
 /// The model's spans (`planning/spans.rs`), per candidate pair.
-pub(crate) fn joint_spans(model: &RobotModel) -> &[(u32, Vec<[f64; 2]>)] {
+pub(crate) fn joint_spans(model: &RobotModel) -> &[PairSpans] {
     Levers::of(model).spans(model)
 }
 

@@ -38,7 +38,6 @@ from .margin import ObstacleMargin
 from .obstacles import Obstacle, apply_edit
 from .pointcloud import CLOUD_GEOM_ID, PointCloud
 from .sources import _SpecSource
-from .state import CACHES
 
 
 #: coupling warnings already given in this process (one per set of couplings)
@@ -355,8 +354,7 @@ class Robot:
         # (robot/world.py); the rest are edits of the spec, compiled now
         fast = _world.fits(self, obstacles)
         spec = None if fast else self._editable("obstacles")
-        taken = (set(_world.world_geoms(self).names) if spec is None else
-                 {g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name})
+        taken = set(_world.world_geoms(self).names if spec is None else _world.spec_names(spec))
         for i, ob in enumerate(obstacles):
             if ob.name and ob.name in taken:
                 raise InputError(f"obstacles[{i}]: the name {ob.name!r} is taken (by another obstacle or by a geom or "
@@ -422,19 +420,14 @@ class Robot:
             cloud = points
         else:
             cloud = PointCloud(points, 0.005 if radius is None else radius)
-        new = object.__new__(type(self))
-        new.__dict__.update({k: v for k, v in self.__dict__.items()
-                             if k not in CACHES or k == "_spec_from"})   # (the cloud is not in the spec)
         arrays = {k: v for k, v in self._arrays.items() if not k.startswith("cloud_")}
         if cloud is not None and len(cloud):
             arrays.update(cloud.core_arrays(self.margin))
-            new.core = self.core.with_cloud(arrays["cloud_points"], arrays["cloud_radius"], self.margin)
+            core = self.core.with_cloud(arrays["cloud_points"], arrays["cloud_radius"], self.margin)
         else:
-            new.core = self.core.with_cloud(None, None)
-        new._arrays = arrays
+            core = self.core.with_cloud(None, None)
+        new = _state.with_core(self, arrays, core, keep=("_spec_from",))   # (the cloud is not in the spec)
         new.cloud = cloud
-        new.pair_geoms, new.pair_is_self, new.pair_margin = new.core.pairs()
-        new.fingerprint = label_fingerprint(self.joint_names, arrays, self.scene_joints)
         return new
 
     def _editable(self, what: str) -> mujoco.MjSpec:

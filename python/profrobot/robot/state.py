@@ -68,6 +68,19 @@ def shallow_copy(self) -> Any:
     return new
 
 
+def with_core(self, arrays: dict, core: Any, *, keep: tuple[str, ...] = ()) -> Any:
+    """A robot like this one (its caches left out, those in ``keep`` aside) whose collision model
+    is ``core``, built from ``arrays``: its pairs and fingerprint follow them (``with_points``,
+    ``robot/world.py``)."""
+    new = object.__new__(type(self))
+    new.__dict__.update({k: v for k, v in self.__dict__.items() if k not in CACHES or k in keep})
+    new._arrays = arrays
+    new.core = core
+    new.pair_geoms, new.pair_is_self, new.pair_margin = core.pairs()
+    new.fingerprint = label_fingerprint(self.joint_names, arrays, self.scene_joints)
+    return new
+
+
 def deep_copy(self, memo: dict) -> Any:
     """:meth:`Robot.__deepcopy__` (see there)."""
     new = object.__new__(type(self))

@@ -34,9 +34,9 @@ from .arrays import label_fingerprint
 from .margin import ObstacleMargin
 from .obstacles import Box, Capsule, Cylinder, Obstacle, Plane, Sphere
 from .sources import _Mjcf
-from .state import CACHES
+from .state import with_core
 
-__all__ = ["WorldGeoms", "world_geoms", "fits", "with_primitives"]
+__all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives"]
 
 #: the obstacle types written without compiling (primitives: MuJoCo keeps their frames as given)
 PRIMITIVES = (Box, Sphere, Capsule, Cylinder, Plane)
@@ -58,6 +58,11 @@ class WorldGeoms:
     names: frozenset[str]
 
 
+def spec_names(spec: mujoco.MjSpec) -> frozenset[str]:
+    """Every geom and body name of ``spec`` (an obstacle's name must be none of them)."""
+    return frozenset({g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name})
+
+
 def world_geoms(robot: Any) -> WorldGeoms:
     """The robot's :class:`WorldGeoms`: carried by robots this module made, else read from its
     compiled model and spec (once)."""
@@ -65,12 +70,12 @@ def world_geoms(robot: Any) -> WorldGeoms:
     if known is not None:
         return known
     m, spec = robot.mj_model, robot.spec
-    assert spec is not None  # callers check robot._editable first
+    assert spec is not None  # fits(): the robot's source rebuilds it exactly
     default = spec.default.geom
     known = WorldGeoms(
         count=int(m.body_geomnum[0]), contype=int(default.contype), conaffinity=int(default.conaffinity),
         margin=float(default.margin), override=bool(m.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE),
-        names=frozenset({g.name for g in spec.geoms if g.name} | {b.name for b in spec.bodies if b.name}))
+        names=spec_names(spec))
     robot.__dict__["_world_geoms"] = known
     return known
 
@@ -90,23 +95,19 @@ def _exact_source(robot: Any) -> bool:
 
 
 def _rows(world: WorldGeoms, obstacles: tuple[Obstacle, ...], margin: float) -> dict[str, np.ndarray]:
-    """The arrays' geom rows of ``obstacles`` (MuJoCo ids from ``world.count`` on), those that collide."""
-    pos, quat, size, kind = [], [], [], []
-    for ob in obstacles:
-        geom = ob.geom()   # validated exactly as add_to validates it
-        pos.append(geom["pos"])
-        q = geom["quat"]
-        quat.append(q)
-        size.append(geom["size"])
-        kind.append(int(geom["type"]))
-    n = len(obstacles) if (world.contype or world.conaffinity) else 0
+    """The arrays' geom rows of ``obstacles`` (MuJoCo ids from ``world.count`` on): none where the
+    spec's default geom collides with nothing."""
+    geoms = [ob.geom() for ob in obstacles]   # validated exactly as add_to validates them
+    if not (world.contype or world.conaffinity):
+        geoms = []
+    n = len(geoms)
     g_margin = max(world.margin, margin) if margin > 0 else world.margin
     return dict(
         geom_id=np.arange(world.count, world.count + n, dtype=np.int32),
-        geom_type=np.asarray(kind[:n], dtype=np.int32), geom_body=np.zeros(n, dtype=np.int32),
-        geom_pos=np.asarray(pos[:n], dtype=np.float64).reshape(-1, 3),
-        geom_quat=np.asarray(quat[:n], dtype=np.float64).reshape(-1, 4),
-        geom_size=np.asarray(size[:n], dtype=np.float64).reshape(-1, 3),
+        geom_type=np.asarray([int(g["type"]) for g in geoms], dtype=np.int32), geom_body=np.zeros(n, dtype=np.int32),
+        geom_pos=np.asarray([g["pos"] for g in geoms], dtype=np.float64).reshape(-1, 3),
+        geom_quat=np.asarray([g["quat"] for g in geoms], dtype=np.float64).reshape(-1, 4),
+        geom_size=np.asarray([g["size"] for g in geoms], dtype=np.float64).reshape(-1, 3),
         geom_contype=np.full(n, world.contype, dtype=np.uint32),
         geom_conaffinity=np.full(n, world.conaffinity, dtype=np.uint32),
         geom_margin=np.full(n, g_margin, dtype=np.float64), geom_mesh=np.full(n, -1, dtype=np.int32))
@@ -130,24 +131,22 @@ def with_primitives(robot: Any, obstacles: tuple[Obstacle, ...], name: str) -> A
     rows = _rows(world, obstacles, robot.margin)
     old = robot._arrays
     arrays: dict[str, Any] = dict(old)
-    shifted = np.where(old["geom_id"] >= world.count, old["geom_id"] + len(obstacles), old["geom_id"]).astype(np.int32)
+
+    def shift(ids: np.ndarray) -> np.ndarray:
+        """Every geom after the world's moves up by the obstacles' ids (in the rows, in <pair>s)."""
+        return np.where(ids >= world.count, ids + len(obstacles), ids).astype(np.int32)
+
+    arrays["pair_geom"] = shift(old["pair_geom"])
     at = int(np.searchsorted(old["geom_id"], world.count))   # the rows of the world's geoms come first
-    pairs = old["pair_geom"]   # explicit <pair>s name geoms by id
-    arrays["pair_geom"] = np.where(pairs >= world.count, pairs + len(obstacles), pairs).astype(np.int32)
     for key, new in rows.items():
-        base = shifted if key == "geom_id" else old[key]
+        base = shift(old[key]) if key == "geom_id" else old[key]
         arrays[key] = np.ascontiguousarray(np.concatenate([base[:at], new, base[at:]]))
     edits: tuple = obstacles
     if robot.margin > 0:  # as Robot._derived: the source's new obstacles get the margin too
         edits = edits + (ObstacleMargin(robot.margin),)
 
-    derived = object.__new__(type(robot))
-    derived.__dict__.update({k: v for k, v in robot.__dict__.items() if k not in CACHES})
+    derived = with_core(robot, arrays, robot.core.rebuilt(arrays))
     derived.name = name
-    derived._arrays = arrays
-    derived.core = robot.core.rebuilt(arrays)
-    derived.pair_geoms, derived.pair_is_self, derived.pair_margin = derived.core.pairs()
-    derived.fingerprint = label_fingerprint(robot.joint_names, arrays, robot.scene_joints)
     plain = {k: v for k, v in arrays.items() if not k.startswith("cloud_")}
     derived.geometry_fingerprint = (derived.fingerprint if len(plain) == len(arrays)
                                     else label_fingerprint(robot.joint_names, plain, robot.scene_joints))
