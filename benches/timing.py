@@ -1,6 +1,6 @@
 """Timed paths beside Ruckig and TOPP-RA, on the same certified waypoints.
 
-    python benches/timing.py [--paths 100] [--scenes a,b] [--velocity 1.5] [--acceleration 3]
+    python benches/timing.py [--paths 100] [--scenes a,b] [--velocity 1.5] [--acceleration 3] [--jerk 30]
 
 Per bundled arm, ``--paths`` hard problems (``hard_pairs``) planned by ``plan_path`` (every path
 certified), then timed under the same per-joint limits (rad/s, rad/s²; no jerk limit) by:
@@ -14,6 +14,10 @@ certified), then timed under the same per-joint limits (rad/s, rad/s²; no jerk 
 - **TOPP-RA** (PyPI ``toppra``): time-optimal along a cubic spline through the waypoints — another
   path than the certified one; the share of its 1 kHz samples the exact labeller does not
   certify is reported.
+
+Then again with a jerk limit as well (``--jerk`` rad/s³): ours (``time_path(..., jerk=)``, a
+stop at every waypoint, each segment a double-S move) beside Ruckig under the same three limits,
+with velocity, acceleration and jerk (differences of acceleration) checked at 1 kHz.
 
 Also the cost of ``time_path`` on paths of 20 waypoints (certified plans chained goal to goal,
 cut at 20 waypoints). Timings are medians; run it alone on the machine.
@@ -43,12 +47,14 @@ def unwrapped(robot, path):
     return path[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)])
 
 
-def ruckig_stops(path, v, a) -> float:
-    """Ruckig from rest to rest along each segment, phase-synchronised: the duration."""
+def ruckig_stops(path, v, a, j=None) -> float:
+    """Ruckig from rest to rest along each segment, phase-synchronised (jerk ``j`` or none):
+    the duration."""
     from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
     k = path.shape[1]
     otg, inp, total = Ruckig(k), InputParameter(k), 0.0
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = v.tolist(), a.tolist(), [float("inf")] * k
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = v.tolist(), a.tolist(), (
+        [float("inf")] * k if j is None else j.tolist())
     inp.synchronization = Synchronization.Phase
     for x, y in zip(path[:-1], path[1:]):
         if np.abs(y - x).max() == 0:
@@ -79,9 +85,10 @@ def toppra_time(robot, path, v, a) -> tuple[float, float]:
     return float(traj.duration), float(1.0 - profrobot.certify_poses(robot, q).mean())
 
 
-def run(name: str, n: int, vmax: float, amax: float) -> dict:
+def run(name: str, n: int, vmax: float, amax: float, jmax: float) -> dict:
     robot = profrobot.scenes.load(name)
-    v, a = np.full(robot.njoint, vmax), np.full(robot.njoint, amax)
+    v, a, j = np.full(robot.njoint, vmax), np.full(robot.njoint, amax), np.full(robot.njoint, jmax)
+    jerk, rk_jerk, jerk_over = [], [], []
     starts, goals = hard_pairs(robot, n, seed=0)
     ours, stops, rk, tp, tp_off, ms, corners, violations, mj_hits, samples, blends_stopped = ([] for _ in range(11))
     twenty = []
@@ -104,6 +111,13 @@ def run(name: str, n: int, vmax: float, amax: float) -> dict:
         blends_stopped.append(int(timed.stops[1:-1].sum()))
         w = unwrapped(robot, plan.path)
         rk.append(ruckig_stops(w, v, a))
+        smooth = profrobot.time_path(robot, plan.path, velocity=v, acceleration=a, jerk=j)
+        assert smooth.certified
+        qd, qdd = smooth.at_rate(1000)[2:]
+        jerk_over.append(int(((np.abs(qd) > v * (1 + 1e-9)) | (np.abs(qdd) > a * (1 + 1e-9))).any(axis=1).sum()
+                             + (np.abs(np.diff(qdd, axis=0)) * 1000 > j * (1 + 1e-9)).any(axis=1).sum()))
+        jerk.append(smooth.duration)
+        rk_jerk.append(ruckig_stops(w, v, a, j))
         d, off = toppra_time(robot, w, v, a)
         tp.append(d)
         tp_off.append(off)
@@ -127,7 +141,9 @@ def run(name: str, n: int, vmax: float, amax: float) -> dict:
                 ratio=float(np.median(ours / rk)), toppra=float(np.nanmedian(tp)),
                 toppra_off=float(np.nanmean(np.array(tp_off) > 0)), violations=int(np.sum(violations)),
                 mujoco=int(np.sum(mj_hits)), samples=int(np.sum(samples)), ms=float(np.median(ms) * 1e3),
-                ms20=float(np.median(twenty) * 1e3) if twenty else np.nan, n20=len(twenty))
+                ms20=float(np.median(twenty) * 1e3) if twenty else np.nan, n20=len(twenty),
+                jerk=float(np.median(jerk)), ruckig_jerk=float(np.median(rk_jerk)),
+                jerk_ratio=float(np.median(np.array(jerk) / np.array(rk_jerk))), jerk_over=int(np.sum(jerk_over)))
 
 
 def main(argv: list[str]) -> int:
@@ -136,10 +152,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--scenes", default=",".join(ARMS))
     ap.add_argument("--velocity", type=float, default=1.5)
     ap.add_argument("--acceleration", type=float, default=3.0)
+    ap.add_argument("--jerk", type=float, default=30.0)
     args = ap.parse_args(argv)
     rows = []
     for name in args.scenes.split(","):
-        r = run(name, args.paths, args.velocity, args.acceleration)
+        r = run(name, args.paths, args.velocity, args.acceleration, args.jerk)
         rows.append(r)
         print(r, flush=True)
     load = os.getloadavg()[0]
@@ -153,7 +170,14 @@ def main(argv: list[str]) -> int:
     lines = [f"| {r['scene']} | {r['paths']} | {r['corners']:.0f} | {r['stopped']} | {r['ours']:.3f} | {r['stops']:.3f} | "
              f"{r['ruckig']:.3f} | {r['ratio']:.3f} | {r['toppra']:.3f} | {r['toppra_off']:.0%} | {r['violations']} | "
              f"{r['mujoco']} of {r['samples']} | {r['ms']:.2f} | {r['ms20']:.2f} ({r['n20']}) |" for r in rows]
-    text = "# Timed paths beside Ruckig and TOPP-RA\n\n`python benches/timing.py`\n\n" + head + "\n".join(lines) + "\n"
+    jerk = (f"\n\nWith a jerk limit of {args.jerk} rad/s³ as well (`time_path(..., jerk=)`: a stop at every waypoint, "
+            "each segment a double-S move; Ruckig phase-synchronised from rest to rest along each segment, "
+            "the same limits):\n\n| scene | ours: duration (median, s) | Ruckig (median, s) | ours / Ruckig (median) | "
+            "ours: 1 kHz samples over a limit (velocity, acceleration, jerk) |\n|---|---|---|---|---|\n"
+            + "\n".join(f"| {r['scene']} | {r['jerk']:.3f} | {r['ruckig_jerk']:.3f} | {r['jerk_ratio']:.4f} | "
+                        f"{r['jerk_over']} |" for r in rows))
+    text = ("# Timed paths beside Ruckig and TOPP-RA\n\n`python benches/timing.py`\n\n" + head + "\n".join(lines)
+            + jerk + "\n")
     RESULTS.write_text(text)
     print(text)
     return 0

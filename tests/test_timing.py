@@ -106,6 +106,49 @@ def test_a_blend_through_an_obstacle_becomes_a_stop():
     assert quick.duration == pytest.approx(2 + 0.1)
 
 
+def test_jerk_limited_moves_are_the_textbook_double_s_and_stay_on_the_path():
+    # Biagiotti & Melchiorri, Trajectory Planning for Automatic Machines and Robots, example
+    # 3.9: 10 units at v 5, a 10, j 30 take T = 2.8333 s (T_j = 1/3, T_a = 0.8333, T_v = 1.1667).
+    robot = puck()
+    line = np.array([[0.0, 0.0], [1.0, 0.0]])
+    tp = time_path(robot, line, velocity=0.5, acceleration=1.0, jerk=3.0)
+    assert tp.duration == pytest.approx(17 / 6, abs=1e-12)
+    assert np.diff(tp.starts).round(12).tolist()[:3] == [round(1 / 3, 12), round(1 / 6, 12), round(1 / 3, 12)]
+    # Too short to reach v (then a): the peak speed solves the distance (checked by sampling).
+    for length, v, a, j in ((0.1, 1.0, 1.0, 3.0), (0.01, 1.0, 1.0, 3.0), (1.0, 0.5, 1.0, 1000.0)):
+        seg = np.array([[0.0, 0.0], [length, 0.0]])
+        tp = time_path(robot, seg, velocity=v, acceleration=a, jerk=j)
+        t, q, qd, qdd = tp.at_rate(20000)
+        assert q[-1, 0] == pytest.approx(length, abs=1e-12) and (np.diff(q[:, 0]) >= -1e-15).all()
+        assert qd[:, 0].max() <= v * (1 + 1e-12) and np.abs(qdd).max() <= a * (1 + 1e-12)
+        # time-optimal: a bang-bang profile touches a limit in every phase; the jerk limit at the start
+        assert np.abs(tp.jrk[0, 0]) == pytest.approx(j)
+    # A huge jerk limit gives the trapezoid's duration back.
+    assert time_path(robot, _L, velocity=1.0, acceleration=1.0, jerk=1e9).duration == pytest.approx(
+        time_path(robot, _L, velocity=1.0, acceleration=1.0, blend=False).duration, abs=1e-6)
+    # On planned paths: within every limit at 1 kHz, jerk by finite differences of acceleration,
+    # stopping at every waypoint, on the certified segments.
+    arm = scene("panda_blocks")
+    starts, goals = hard_pairs(arm, 3, seed=5)
+    rng = np.random.default_rng(1)
+    v, a, j = rng.uniform(0.5, 2.0, arm.njoint), rng.uniform(1.0, 5.0, arm.njoint), rng.uniform(5.0, 40.0, arm.njoint)
+    for s, g in zip(starts, goals):
+        res = profrobot.plan_path(arm, s, g)
+        tp = time_path(arm, res.path, velocity=v, acceleration=a, jerk=j)
+        assert tp.certified and tp.stops.all() and tp.duration > time_path(arm, res.path, velocity=v,
+                                                                            acceleration=a).duration
+        _check_timed(arm, tp, v, a)
+        t, q, qd, qdd = tp.at_rate(1000)
+        assert (np.abs(np.diff(qdd, axis=0)) * 1000 <= j * (1 + 1e-9)).all()
+        np.testing.assert_array_equal(tp.jerk, j)
+        # every sample on the segment between its waypoints: q = W_i + D_i·s, s in [0, 1]
+        seg = np.clip(np.searchsorted(tp.times, t, side="right") - 1, 0, len(tp.times) - 2)
+        d = tp.waypoints[seg + 1] - tp.waypoints[seg]
+        s_ = np.einsum("tk,tk->t", q - tp.waypoints[seg], d) / np.einsum("tk,tk->t", d, d)
+        assert (s_ >= -1e-9).all() and (s_ <= 1 + 1e-9).all()
+        assert np.abs(q - tp.waypoints[seg] - s_[:, None] * d).max() < 1e-9
+
+
 def test_an_uncertified_path_is_timed_and_says_so():
     robot = puck()
     through = np.array([[0.6, 0.15], [1.1, 0.15]])
@@ -115,14 +158,16 @@ def test_an_uncertified_path_is_timed_and_says_so():
 
 def test_saved_loaded_pickled_and_refused_for_another_robot(tmp_path, panda):
     robot = puck()
-    tp = time_path(robot, _L, velocity=[1.0, 0.5], acceleration=10.0)
-    path = tp.save(tmp_path / "l.npz")
-    back = TimedPath.load(path, robot)
-    t = np.linspace(0, tp.duration, 57)
-    for x, y in zip(tp.sample(t), back.sample(t)):
-        np.testing.assert_array_equal(x, y)
-    for x, y in zip(tp.sample(t), pickle.loads(pickle.dumps(tp)).sample(t)):
-        np.testing.assert_array_equal(x, y)
+    for jerk in (None, 7.0):
+        tp = time_path(robot, _L, velocity=[1.0, 0.5], acceleration=10.0, jerk=jerk)
+        path = tp.save(tmp_path / "l.npz")
+        back = TimedPath.load(path, robot)
+        t = np.linspace(0, tp.duration, 57)
+        for x, y in zip(tp.sample(t), back.sample(t)):
+            np.testing.assert_array_equal(x, y)
+        for x, y in zip(tp.sample(t), pickle.loads(pickle.dumps(tp)).sample(t)):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(back.jerk, tp.jerk)
     with pytest.raises(profrobot.RobotMismatchError):
         TimedPath.load(path, panda)
     assert not list(tmp_path.glob(".*tmp*"))
@@ -137,6 +182,8 @@ def test_saved_loaded_pickled_and_refused_for_another_robot(tmp_path, panda):
     (dict(velocity=[1.0, 1.0, 1.0], acceleration=1.0), "velocity must be a number or 2 numbers"),
     (dict(velocity="fast", acceleration=1.0), "velocity must be a number"),
     (dict(velocity=1.0, acceleration=1.0, blend="yes"), "blend must be True or False"),
+    (dict(velocity=1.0, acceleration=1.0, jerk=0.0), "jerk[0] (x)"),
+    (dict(velocity=1.0, acceleration=1.0, jerk=[1.0, np.inf]), "jerk[1] (y)"),
 ])
 def test_bad_input_refused_by_name(kwargs, words):
     with pytest.raises(InputError) as e:

@@ -34,8 +34,24 @@ the path's segments; the segments and every blend are certified continuously (``
 metres from every obstacle, :data:`~profrobot.CLEARANCE` at least); a blend that is not proven
 becomes a stop at its waypoint (the robot reaches it at rest, along the segments, and the run
 on either side is timed again), until every blend left is proven. ``certified`` then holds for
-the whole timed motion exactly when it holds for the path. Not jerk-limited: acceleration
+the whole timed motion exactly when it holds for the path. Without ``jerk``, acceleration
 steps at the ends of each blend.
+
+**With a jerk limit** ``j_j`` (rad/s³ or m/s³) the robot stops at every waypoint, on the
+path's segments exactly: a blend at speed must have continuous curvature to keep jerk finite,
+and such a curve is not one the certificate proves (it proves segments and quadratic blends).
+Each segment is one rest-to-rest move of ``s ∈ [0, 1]``, ``q = W_i + D_i·s``, within
+``v_s = min_j v_j/|D_ij|``, ``a_s = min_j a_j/|D_ij|`` and ``j_s = min_j j_j/|D_ij|`` (so each
+joint is within its own limits, and every joint moves in phase, as Ruckig's phase
+synchronisation does): the time-optimal double-S profile (Biagiotti & Melchiorri, *Trajectory
+Planning for Automatic Machines and Robots*, §3.4). The acceleration phase to a peak speed
+``u`` is a jerk ramp ``t_j``, a constant-acceleration part ``t_c`` and a ramp down, with
+``t_j = a_s/j_s``, ``t_c = u/a_s − t_j`` when ``u·j_s ≥ a_s²`` (the acceleration limit is
+reached), else ``t_j = √(u/j_s)``, ``t_c = 0``; by symmetry it covers ``u·(2t_j + t_c)/2``.
+``u = v_s`` when acceleration and deceleration together cover at most 1 (the rest is cruise),
+else the peak solves ``u·(2t_j + t_c) = 1``: ``u = a_s(−a_s/j_s + √(a_s²/j_s² + 4/a_s))/2``
+when that reaches the acceleration limit, else ``u = (√j_s / 2)^{2/3}``. Pieces are then of
+constant jerk.
 """
 
 from __future__ import annotations
@@ -59,29 +75,31 @@ from ..robot.robot import Robot
 __all__ = ["TimedPath", "time_path"]
 
 _FORMAT = "profrobot-timed-path"
-_VERSION = 1
+_VERSION = 2   # 2: pieces of constant jerk (jrk) and the jerk limit
 _ROUNDS = 200
 
 
 @dataclass
 class TimedPath:
-    """A path in time (:func:`time_path`): pieces of constant acceleration.
+    """A path in time (:func:`time_path`): pieces of constant jerk (zero without a jerk limit).
 
     Piece ``p`` holds from ``starts[p]`` (s) to the next start (or ``duration``):
-    ``q(t) = q0[p] + v0[p]·τ + acc[p]·τ²/2`` with ``τ = t − starts[p]``, in unwrapped joint
-    coordinates (continuous hinges are wrapped into [-π, π) by :meth:`sample`).
+    ``q(t) = q0[p] + v0[p]·τ + acc[p]·τ²/2 + jrk[p]·τ³/6`` with ``τ = t − starts[p]``, in
+    unwrapped joint coordinates (continuous hinges are wrapped into [-π, π) by :meth:`sample`).
 
     Attributes:
         duration: seconds from the first waypoint, at rest, to the last, at rest.
         starts: (P,) seconds, each piece's start (the first is 0).
         q0, v0, acc: (P, K) position (rad / m), velocity (per s) and acceleration (per s²) at
             each piece's start.
+        jrk: (P, K) each piece's constant jerk (per s³; zero without a jerk limit).
         times: (M,) seconds at which the robot is at each stop, or the blend around a corner
             is half done (there it is at ``W_i + (V_i − V_{i−1})·τ_i/8``, off the corner).
         stops: (M,) bool, the waypoints the robot reaches at rest: the ends, and every corner
             whose blend was not proven (or with ``blend=False``).
         waypoints: (M, K) the path timed (zero-length segments removed).
-        velocity, acceleration: (K,) the limits it was timed within.
+        velocity, acceleration, jerk: (K,) the limits it was timed within (``jerk`` is inf
+            where there was none).
         certified: every pose of the timed motion is certified free (the path's segments and
             every blend kept, :mod:`profrobot.exact.certification`).
         reason: why not certified ('' when it is).
@@ -94,11 +112,13 @@ class TimedPath:
     q0: np.ndarray
     v0: np.ndarray
     acc: np.ndarray
+    jrk: np.ndarray
     times: np.ndarray
     stops: np.ndarray
     waypoints: np.ndarray
     velocity: np.ndarray
     acceleration: np.ndarray
+    jerk: np.ndarray
     certified: bool
     reason: str
     wraps: np.ndarray
@@ -119,9 +139,9 @@ class TimedPath:
         tt = np.clip(tt, 0.0, self.duration)
         p = np.clip(np.searchsorted(self.starts, tt, side="right") - 1, 0, len(self.starts) - 1)
         tau = (tt - self.starts[p])[:, None]
-        q = self.q0[p] + self.v0[p] * tau + 0.5 * self.acc[p] * tau * tau
-        qd = self.v0[p] + self.acc[p] * tau
-        qdd = self.acc[p].copy()
+        q = self.q0[p] + tau * (self.v0[p] + tau * (0.5 * self.acc[p] + tau * self.jrk[p] / 6))
+        qd = self.v0[p] + tau * (self.acc[p] + 0.5 * tau * self.jrk[p])
+        qdd = self.acc[p] + tau * self.jrk[p]
         q[:, self.wraps] = (q[:, self.wraps] + np.pi) % (2 * np.pi) - np.pi
         return (q[0], qd[0], qdd[0]) if one else (q, qd, qdd)
 
@@ -149,9 +169,10 @@ class TimedPath:
                     robot_fingerprint=self.robot_fingerprint, joint_names=self.joint_names,
                     duration=self.duration, certified=self.certified, reason=self.reason)
         with atomic_path(path, ".npz") as tmp:
-            np.savez(tmp, starts=self.starts, q0=self.q0, v0=self.v0, acc=self.acc, times=self.times,
+            np.savez(tmp, starts=self.starts, q0=self.q0, v0=self.v0, acc=self.acc, jrk=self.jrk, times=self.times,
                      stops=self.stops, waypoints=self.waypoints, velocity=self.velocity,
-                     acceleration=self.acceleration, wraps=self.wraps, meta=np.array(json.dumps(meta)))
+                     acceleration=self.acceleration, jerk=self.jerk, wraps=self.wraps,
+                     meta=np.array(json.dumps(meta)))
         return path
 
     @classmethod
@@ -290,8 +311,76 @@ def _pieces(w: np.ndarray, stops: np.ndarray, v: np.ndarray, a: np.ndarray):
     return np.asarray(starts), (np.asarray(q0), np.asarray(v0), np.asarray(acc)), clock, times, stops, blends
 
 
+def _double_s(v: float, a: float, j: float) -> list[tuple[float, float]]:
+    """The time-optimal rest-to-rest move of ``s`` from 0 to 1 within speed ``v``, acceleration
+    ``a`` and jerk ``j`` (module docs): its phases ``(duration, jerk)``, zero-length ones left out."""
+
+    def ramp(u: float) -> tuple[float, float]:      # (t_j, t_c) of the acceleration to speed u
+        if u * j >= a * a:
+            return a / j, max(u / a - a / j, 0.0)
+        return float(np.sqrt(u / j)), 0.0
+
+    tj, tc = ramp(v)
+    cruise = (1.0 - v * (2 * tj + tc)) / v
+    if cruise < 0:
+        u = a * (-a / j + np.sqrt(a * a / (j * j) + 4 / a)) / 2
+        if u * j < a * a:
+            u = (np.sqrt(j) / 2) ** (2 / 3)
+        (tj, tc), cruise = ramp(float(u)), 0.0
+    phases = [(tj, j), (tc, 0.0), (tj, -j), (cruise, 0.0), (tj, -j), (tc, 0.0), (tj, j)]
+    return [(t, jj) for t, jj in phases if t > 0]
+
+
+def _jerk_pieces(w: np.ndarray, v: np.ndarray, a: np.ndarray, jerk: np.ndarray):
+    """Stops at every waypoint, each segment a double-S move (module docs): the pieces
+    (starts, (q0, v0, acc, jrk)), the duration and the waypoints' times."""
+    starts, q0, v0, acc, jrk = [], [], [], [], []
+    times = np.zeros(len(w))
+    clock = 0.0
+    for i, d in enumerate(np.diff(w, axis=0)):
+        ad = np.abs(d)
+        moving = ad > 0
+        lim = [float((x[moving] / ad[moving]).min()) for x in (v, a, jerk)]
+        s = sd = sdd = 0.0
+        for h, jj in _double_s(*lim):
+            starts.append(clock)
+            q0.append(w[i] + d * s)
+            v0.append(d * sd)
+            acc.append(d * sdd)
+            jrk.append(d * jj)
+            s += h * (sd + h * (sdd / 2 + h * jj / 6))
+            sd += h * (sdd + h * jj / 2)
+            sdd += h * jj
+            clock += h
+        times[i + 1] = clock
+    return np.asarray(starts), tuple(map(np.asarray, (q0, v0, acc, jrk))), clock, times
+
+
+def _blended(robot: Robot, w: np.ndarray, blend: bool, v: np.ndarray, a: np.ndarray, threads: int | None):
+    """The pieces with every corner blended whose blend is proven free, the others stops
+    (module docs): (starts, (q0, v0, acc), duration, times, stops)."""
+    stops = np.zeros(len(w), dtype=bool)
+    stops[[0, -1]] = True
+    if not blend:
+        stops[:] = True
+    proven: dict[bytes, bool] = {}
+    while True:
+        starts, pieces, duration, times, stops, blends = _pieces(w, stops, v, a)
+        todo = [i for i, b in enumerate(blends) if b is not None and np.stack(b).tobytes() not in proven]
+        if todo:
+            ctl = [np.stack(blends[i]) for i in todo]
+            got = certify_motions(robot, np.stack([c[0] for c in ctl]), np.stack([c[2] for c in ctl]),
+                                  via=np.stack([c[1] for c in ctl]), threads=threads).certified
+            proven.update({c.tobytes(): bool(ok) for c, ok in zip(ctl, got)})
+        failed = [i for i, b in enumerate(blends) if b is not None and not proven[np.stack(b).tobytes()]]
+        if not failed:
+            return starts, pieces, duration, times, stops
+        stops[failed] = True
+
+
 def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | float | None = None,
-              acceleration: npt.ArrayLike | float | None = None, blend: bool = True,
+              acceleration: npt.ArrayLike | float | None = None, jerk: npt.ArrayLike | float | None = None,
+              blend: bool = True,
               layout: Layout | None = None, margin: float = CLEARANCE, threads: int | None = None) -> TimedPath:
     """Time ``path`` ((M, K) waypoints, radians / metres; as :func:`profrobot.plan_path`
     returns) within each joint's ``velocity`` (rad/s or m/s) and ``acceleration`` (rad/s² or
@@ -311,6 +400,7 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
         raise InputError("path must hold at least one waypoint")
     v = gate.per_joint(robot, "velocity", velocity, "rad/s or m/s")
     a = gate.per_joint(robot, "acceleration", acceleration, "rad/s² or m/s²")
+    j = np.full(robot.njoint, np.inf) if jerk is None else gate.per_joint(robot, "jerk", jerk, "rad/s³ or m/s³")
     if not isinstance(blend, (bool, np.bool_)):
         raise InputError(f"blend must be True or False; got {blend!r}")
     if robot.couplings and not robot.couplings.linear:
@@ -324,33 +414,22 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     w = w[keep]
     m = len(w)
     meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
-                wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, waypoints=w)
+                wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, jerk=j, waypoints=w)
     if m == 1:
         free = bool(certify_motions(robot, w, w, threads=threads).certified[0])
         return TimedPath(duration=0.0, starts=np.zeros(1), q0=w.copy(), v0=np.zeros_like(w), acc=np.zeros_like(w),
-                         times=np.zeros(1), stops=np.ones(1, bool), certified=free,
+                         jrk=np.zeros_like(w), times=np.zeros(1), stops=np.ones(1, bool), certified=free,
                          reason="" if free else "the pose is not certified free", **meta)
     seg = certify_motions(robot, w[:-1], w[1:], threads=threads)
-    stops = np.zeros(m, dtype=bool)
-    stops[[0, -1]] = True
-    if not blend:
-        stops[:] = True
-    proven: dict[bytes, bool] = {}
-    while True:
-        starts, (q0, v0, acc), duration, times, stops, blends = _pieces(w, stops, v, a)
-        todo = [i for i, b in enumerate(blends) if b is not None and np.stack(b).tobytes() not in proven]
-        if todo:
-            ctl = [np.stack(blends[i]) for i in todo]
-            got = certify_motions(robot, np.stack([c[0] for c in ctl]), np.stack([c[2] for c in ctl]),
-                                  via=np.stack([c[1] for c in ctl]), threads=threads).certified
-            proven.update({c.tobytes(): bool(ok) for c, ok in zip(ctl, got)})
-        failed = [i for i, b in enumerate(blends) if b is not None and not proven[np.stack(b).tobytes()]]
-        if not failed:
-            break
-        stops[failed] = True
+    if jerk is None:
+        starts, (q0, v0, acc), duration, times, stops = _blended(robot, w, blend, v, a, threads)
+        jrk = np.zeros_like(q0)
+    else:
+        starts, (q0, v0, acc, jrk), duration, times = _jerk_pieces(w, v, a, j)
+        stops = np.ones(m, dtype=bool)
     bad = np.flatnonzero(~seg.certified)
     reason = "" if not len(bad) else (
         f"segment {bad[0]} of the path (waypoints {bad[0]} → {bad[0] + 1}) is "
         f"{'blocked' if seg.blocked[bad[0]] else 'not proven free'}; time a certified path (plan_path)")
-    return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, times=times, stops=stops,
+    return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, jrk=jrk, times=times, stops=stops,
                      certified=not len(bad), reason=reason, **meta)
