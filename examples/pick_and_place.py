@@ -17,10 +17,13 @@ executed: MuJoCo steps the Panda's own position actuators tracking it (mj_step),
 body welded to the hand while held; every contact is counted.
 
     python examples/pick_and_place.py            # prints the stages and the execution report
+    python examples/pick_and_place.py --view     # then plays them in the browser (viewer extra)
+    python examples/pick_and_place.py --shot pick.png   # a picture of the carry, from the browser
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from dataclasses import dataclass, field
@@ -237,7 +240,34 @@ def execute(stages: list[Stage]) -> Execution:
     return out
 
 
+def view(stages: list[Stage], *, shot: str | None = None, port: int = 8080) -> None:
+    """Play the stages in the browser viewer, each with its own robot (the mug held, or left in
+    the world); with ``shot``, save a picture of the carry instead of serving until Ctrl-C."""
+    from profrobot.viz import Viewer
+
+    with Viewer(stages[0].robot, stages[0].timed.sample(0.0)[0], port=port, frame="hand", gizmo=False) as viewer:
+        shown = viewer.show_stages([(st.robot, st.timed) for st in stages], name="pick and place", fps=30)
+        print(f"viewer: {shown['duration']:.2f} s of stages, {'all certified' if shown['certified'] else 'NOT all certified'}")
+        if shot is not None:
+            carry = [i for i, st in enumerate(stages) if st.name == "carry"][0]
+            viewer.seek("pick and place", sum(st.timed.duration for st in stages[:carry])
+                        + stages[carry].timed.duration / 2)
+            print("saved", viewer.screenshot(shot))
+            return
+        print(f"open {viewer.url} and press Play (Ctrl-C stops)")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+
+
 def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--view", action="store_true", help="play the stages in the browser viewer (viewer extra)")
+    ap.add_argument("--shot", help="save a PNG of the carry from the browser viewer (and Chromium)")
+    ap.add_argument("--port", type=int, default=8080)
+    args = ap.parse_args(argv)
     t0 = time.perf_counter()
     stages = plan()
     print(f"planned in {time.perf_counter() - t0:.2f} s:")
@@ -250,6 +280,8 @@ def main(argv: list[str]) -> int:
           f"mug placed {ex.place_error * 1e3:.2f} mm from its place, "
           f"{sum(ex.forbidden.values())} forbidden contact steps {sorted(ex.forbidden)}")
     print("contacts seen (allowed):", sorted(ex.contacts))
+    if args.view or args.shot:
+        view(stages, shot=args.shot, port=args.port)
     return 0 if not ex.forbidden and ex.place_error <= 0.005 else 1
 
 

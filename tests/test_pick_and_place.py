@@ -66,3 +66,32 @@ def test_executed_in_mujoco_with_the_arm_s_actuators(example, stages):
     touched = {n for key in ex.contacts for n in key}
     assert "table" in touched and any(n.startswith("left_finger") for n in touched) \
         and any(n.startswith("right_finger") for n in touched)
+
+
+def test_played_in_the_viewer_with_the_mug_in_the_hand_while_held(example, stages):
+    """``examples/pick_and_place.py --view``: the stages play in the browser viewer, each with
+    its own robot; during the carry the mug drawn is the held one, where MuJoCo's model of the
+    holding robot puts it at that frame."""
+    pytest.importorskip("viser", reason="the viewer needs viser: pip install '.[viewer]'")
+    import mujoco
+
+    from profrobot.viz import Viewer
+
+    from test_viewer import free_port
+
+    with Viewer(stages[0].robot, stages[0].timed.sample(0.0)[0], port=free_port(), gizmo=False) as viewer:
+        shown = viewer.show_stages([(st.robot, st.timed) for st in stages], name="pp", fps=30)
+        assert shown["certified"]
+        carry = [i for i, st in enumerate(stages) if st.name == "carry"][0]
+        t = sum(st.timed.duration for st in stages[:carry]) + stages[carry].timed.duration / 2
+        q = viewer.seek("pp", t)
+        held = stages[carry].robot
+        assert viewer.robot is held and viewer.verdict == "free, certified"
+        m = held.mj_model
+        d = mujoco.MjData(m)
+        d.qpos[held.qpos_adr] = q
+        mujoco.mj_kinematics(m, d)
+        g = m.geom("mug").id
+        np.testing.assert_allclose(viewer._geoms[g].position, d.geom_xpos[g], atol=1e-12)
+        np.testing.assert_allclose(q, stages[carry].robot.project(
+            stages[carry].timed.sample(t - sum(st.timed.duration for st in stages[:carry]))[0][None])[0], atol=0.05)

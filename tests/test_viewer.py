@@ -211,6 +211,86 @@ def test_a_timed_path_plays_in_real_time(scene):
             viewer.show_path(timed, fps=0)
 
 
+def test_stages_play_each_with_its_own_robot_the_held_object_moving_with_the_hand():
+    """A grasp's stages (issue 63): the world's robot, then one holding a box (Robot.attach),
+    then one that has put it down (Robot.detach). Playing them shows each stage's own geoms: the
+    held box where MuJoCo's model of that robot puts it, moving with the hand; the world's box
+    hidden while it is held."""
+    from profrobot import Box
+
+    base = profrobot.scenes.load("panda_blocks")
+    free = profrobot.sample_poses(base, 400, seed=4)
+    free = free[certify_poses(base, free)]
+    hand = base.mj_model.body("hand").id
+    q0 = next(q for q in free if base.core.forward_kinematics(q[None])[0][0, hand, 2] > 0.45)
+    xpos = base.core.forward_kinematics(q0[None])[0][0]
+    world = base.with_obstacles([Box(pos=xpos[hand] + [0, 0, -0.16], half_size=(0.02, 0.02, 0.02), name="part")])
+    held = world.attach("part", to="hand", at=q0)
+    assert certify_poses(world, q0[None])[0] and certify_poses(held, q0[None])[0]
+    goal = next(q for q in free[1:] if certify_poses(held, q[None])[0] and certify_poses(world, q[None])[0]
+                and profrobot.plan_path(held, q0, q).certified)
+    carry = profrobot.plan_path(held, q0, goal)
+    put = held.detach("part", at=goal)
+    back = profrobot.plan_path(put, goal, q0)
+    v, a = 1.0, 2.0
+    stages = [(world, profrobot.time_path(world, [q0, q0], velocity=v, acceleration=a)),
+              (held, profrobot.time_path(held, carry.path, velocity=v, acceleration=a)),
+              (put, profrobot.time_path(put, back.path, velocity=v, acceleration=a))]
+    with Viewer(world, q0, port=free_port(), gizmo=False) as viewer:
+        shown = viewer.show_stages(stages, fps=20)
+        assert shown["certified"] and shown["verdicts"] == ["certified"] * 3
+        assert shown["duration"] == pytest.approx(sum(t.duration for _, t in stages))
+        info = viewer._paths["stages"]
+        k = int(np.flatnonzero(info["stage"] == 1)[len(np.flatnonzero(info["stage"] == 1)) // 2])
+        info["slider"].value = k
+        assert viewer.robot is held and viewer.verdict == "free, certified"
+        m = held.mj_model
+        d = mujoco.MjData(m)
+        d.qpos[held.qpos_adr] = info["poses"][k]
+        mujoco.mj_kinematics(m, d)
+        g = m.geom("part").id
+        np.testing.assert_allclose(viewer._geoms[g].position, d.geom_xpos[g], atol=1e-12)
+        assert all(h.visible for h in viewer._geoms.values())
+        hidden = viewer._drawn[world.fingerprint][3]
+        assert not any(h.visible for h in hidden.values())
+        np.testing.assert_array_equal(viewer.seek("stages", shown["duration"]), info["poses"][-1])
+        assert viewer.robot is put
+        viewer.seek("stages", 0.0)
+        assert viewer.robot is world
+        with pytest.raises(profrobot.InputError, match="name 'nothing'"):
+            viewer.seek("nothing", 0.0)
+        with pytest.raises(profrobot.InputError, match=r"stages\[1\]"):
+            viewer.show_stages([stages[0], (held, carry.path)])
+        with pytest.raises(profrobot.InputError, match="stages must be"):
+            viewer.show_stages([])
+
+
+def test_the_software_webgl_notice_leaves_the_view_for_the_panel(scene):
+    """Headless Chromium draws WebGL in software (SwiftShader), as a machine without a GPU does:
+    viser's notice about it stays over the view until closed. It fades after NOTICE_SECONDS and
+    the panel says the same in a line."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="the browser test needs playwright: pip install '.[dev]'")
+    if BROWSER is None:
+        pytest.skip("no Chromium here (Debian: apt-get install chromium; or set PROFROBOT_CHROMIUM)")
+    from profrobot.viz.viewer import NOTICE_SECONDS
+
+    robot, pose, _ = scene
+    with Viewer(robot, pose, port=free_port(), gizmo=False) as viewer, sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=BROWSER, args=[
+            "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
+        try:
+            page = browser.new_page(viewport={"width": W, "height": H})
+            page.goto(viewer.url)
+            page.locator("canvas").first.wait_for(state="visible", timeout=30_000)
+            notice, line = page.locator("#webgl-software-rendering"), page.get_by_text("draws WebGL in software")
+            notice.wait_for(state="visible", timeout=10_000)     # (viser shows it: this browser is software)
+            assert line.is_visible()
+            notice.wait_for(state="hidden", timeout=(NOTICE_SECONDS + 5) * 1000)
+            assert line.is_visible()
+        finally:
+            browser.close()
+
+
 def test_the_gizmo_follows_through_ik_and_refuses_what_it_cannot_certify(scene):
     robot, pose, joint = scene
     with Viewer(robot, pose, port=free_port()) as viewer:

@@ -54,6 +54,20 @@ ROBOT_COLOUR = (255, 120, 0)
 CONTACT_COLOUR = (215, 0, 0)
 OBSTACLE_COLOUR = (140, 145, 160)
 _PLANE_HALF = 2.0   # metres: an infinite plane is drawn this far out
+NOTICE_SECONDS = 5.0
+"""How long viser's software-WebGL notice stays over the view before it fades (the panel keeps
+a line saying so)."""
+# viser's client shows a notice (id "webgl-software-rendering") when the browser draws WebGL in
+# software (SwiftShader, llvmpipe: no GPU, a remote desktop); it stays until closed, over the
+# view's top-left corner. A stylesheet in the panel fades it after NOTICE_SECONDS and shows the
+# same fact as a line in the panel instead, only while the notice exists (CSS ``:has``).
+_WEBGL_NOTICE = f"""<style>
+#webgl-software-rendering {{ animation: profrobot-notice 0.4s ease-in {NOTICE_SECONDS}s forwards; }}
+@keyframes profrobot-notice {{ to {{ opacity: 0; visibility: hidden; }} }}
+.profrobot-webgl {{ display: none; font-size: 0.8em; color: #a65200; padding: 0 0.75em 0.4em; }}
+body:has(#webgl-software-rendering) .profrobot-webgl {{ display: block; }}
+</style><div class="profrobot-webgl">This browser draws WebGL in software (no GPU): the view is
+slower; what it shows is the same.</div>"""
 
 
 class _GeomHandle(Protocol):
@@ -62,6 +76,7 @@ class _GeomHandle(Protocol):
     position: np.ndarray
     wxyz: np.ndarray
     color: tuple[int, int, int]
+    visible: bool
 
 
 class CameraSet(Protocol):
@@ -201,18 +216,20 @@ class Viewer:
         elif layout is not None:
             raise InputError(f"layout= is for a family of scenes; {robot.name} has no scene joints")
         self.robot = robot
-        m = robot.mj_model
-        self._m, self._d = m, mujoco.MjData(m)
         self._lock = threading.RLock()
         self._quiet = False   # set while the viewer moves its own sliders
         self.frame = frame if frame is not None else robot.body_names[tool_body(robot)]
-        self._frame = frame_of(robot, self.frame)
+        frame_of(robot, self.frame)   # (refused by name here, before a server starts)
         self.server = viser.ViserServer(host=host, port=int(port), verbose=verbose)
         self.server.scene.set_up_direction("+z")
         self.server.gui.configure_theme(show_share_button=False)
         self.server.gui.main_panel.dock_right()   # the panel beside the view, not over it
         self._geoms: dict[int, _GeomHandle] = {}
         self._is_robot: dict[int, bool] = {}
+        self._drawn: dict[str, tuple] = {}   # fingerprint → (robot, model, data, geom handles, is-robot)
+        self._m: mujoco.MjModel
+        self._d: mujoco.MjData
+        self._frame: tuple[int, np.ndarray, np.ndarray]
         self._paths: dict[str, dict] = {}
         self._playing = threading.Event()
         self._closed = False
@@ -222,6 +239,7 @@ class Viewer:
         if robot.cloud is not None:
             self.show_cloud(robot.cloud)
         self._status = self.server.gui.add_markdown("", order=0)
+        self.server.gui.add_html(_WEBGL_NOTICE, order=0.5)
         self.pose = robot.joint_limits.mean(1) if pose is None else as_poses(robot, pose, name="pose").reshape(-1)
         self._sliders = []
         if sliders:
@@ -240,10 +258,15 @@ class Viewer:
         self.look(*self.framing())
 
     # ---- the scene -------------------------------------------------------------------------------
-    def _add_geoms(self) -> None:
-        m, robot = self._m, self.robot
+    def _add_geoms(self, robot: Robot | None = None, prefix: str = "/geoms", visible: bool = True) -> None:
+        """Draw ``robot``'s collision geoms (default: the viewer's) under ``prefix`` and make them
+        the ones :meth:`set_pose` moves (:meth:`_use` switches between robots' sets)."""
+        robot = self.robot if robot is None else robot
+        m = robot.mj_model
         bodies = robot_bodies(robot)
         paired = {int(g) for g in np.asarray(robot.pair_geoms).reshape(-1) if g >= 0}
+        geoms: dict[int, _GeomHandle] = {}
+        is_robot: dict[int, bool] = {}
         for g in range(m.ngeom):
             if not (m.geom_contype[g] or m.geom_conaffinity[g] or g in paired):
                 continue
@@ -252,11 +275,29 @@ class Viewer:
                 continue
             mine = bool(bodies[int(m.geom_bodyid[g])])
             plane = int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_PLANE
-            self._is_robot[g] = mine
-            self._geoms[g] = self.server.scene.add_mesh_simple(
-                f"/geoms/{'robot' if mine else 'scene'}/g{g}", tri[0].astype(np.float32), tri[1].astype(np.uint32),
+            is_robot[g] = mine
+            geoms[g] = self.server.scene.add_mesh_simple(
+                f"{prefix}/{'robot' if mine else 'scene'}/g{g}", tri[0].astype(np.float32), tri[1].astype(np.uint32),
                 color=ROBOT_COLOUR if mine else OBSTACLE_COLOUR, opacity=0.35 if plane else None,
-                side="double" if plane else "front")
+                side="double" if plane else "front", visible=visible)
+        self._drawn[robot.fingerprint] = (robot, m, mujoco.MjData(m), geoms, is_robot)
+        self._use(robot)
+
+    def _use(self, robot: Robot) -> None:
+        """Show ``robot``'s geoms (drawn by :meth:`_add_geoms`) and hide the others: the robot a
+        stage of :meth:`show_stages` holds (an object attached, or left in the world)."""
+        with self._lock:
+            if robot.fingerprint == getattr(self, "_fingerprint", None):
+                return
+            old = self._geoms
+            self.robot, self._m, self._d, self._geoms, self._is_robot = self._drawn[robot.fingerprint]
+            self._fingerprint = robot.fingerprint
+            self._frame = frame_of(self.robot, self.frame)
+            with self.server.atomic():
+                for h in old.values():
+                    h.visible = False
+                for h in self._geoms.values():
+                    h.visible = True
 
     def _place(self, pose: np.ndarray) -> None:
         m, d = self._m, self._d
@@ -381,7 +422,7 @@ class Viewer:
             if path.joint_names and list(path.joint_names) != list(self.robot.joint_names):
                 raise InputError(f"path was timed for {path.robot_name!r}, whose joints differ from {self.robot.name}'s")
             fps = positive("fps", fps)
-            poses = path.at_rate(fps)[1]
+            times, poses = path.at_rate(fps)[:2]
             poses[:, :] = self.robot.project(poses)
             verdicts = ["certified" if path.certified else "unproven"]
             runs = [poses]
@@ -395,6 +436,7 @@ class Viewer:
             dense = interpolate(self.robot, path[:-1], path[1:], steps)   # (S - 1, steps, K)
             runs = list(dense)
             poses = np.concatenate([dense[:, :-1].reshape(-1, path.shape[1]), path[-1:]])
+            times = np.arange(len(poses), dtype=np.float64)
         trace = [np.array([self.frame_pose(q)[0] for q in run]) for run in runs]
         segs = np.concatenate([np.stack([t[:-1], t[1:]], 1) for t in trace])
         colours = np.concatenate([np.repeat([VERDICT_COLOURS[v]], len(t) - 1, axis=0) for v, t in zip(verdicts, trace)])
@@ -409,9 +451,90 @@ class Viewer:
             play = self.server.gui.add_button("Play / pause")
         slider.on_update(lambda _e: self.set_pose(poses[int(slider.value)]))
         play.on_click(lambda _e: self._toggle(slider, len(poses), fps))
-        info = dict(verdicts=verdicts, certified=n_ok == len(verdicts), poses=poses, lines=lines, slider=slider)
+        info = dict(verdicts=verdicts, certified=n_ok == len(verdicts), poses=poses, times=times, lines=lines,
+                    slider=slider)
         self._paths[name] = info
         return {"verdicts": verdicts, "certified": n_ok == len(verdicts)}
+
+    def show_stages(self, stages: Sequence[tuple[Robot, TimedPath]], *, name: str = "stages",
+                    fps: float = 20.0) -> dict:
+        """Play timed stages one after another, each ``(robot, timed)`` with its own robot: the
+        viewer's with an object attached (:meth:`profrobot.Robot.attach`) while it is held, or
+        left in the world after :meth:`~profrobot.Robot.detach`, as a pick-and-place's stages
+        are (``examples/pick_and_place.py --view``). Every robot has the viewer's joints; each
+        one's geoms are drawn once and shown while its stage plays. ``fps`` poses a second of
+        each :class:`~profrobot.TimedPath`, the frame's trace coloured by each stage's
+        certificate. Returns ``{"verdicts": [...] (one per stage), "certified": bool,
+        "duration": seconds}``."""
+        fps = positive("fps", fps)
+        if isinstance(stages, (str, bytes)) or not isinstance(stages, Sequence) or not len(stages):
+            raise InputError(f"stages must be a non-empty sequence of (robot, timed path) pairs; got {stages!r}")
+        for i, st in enumerate(stages):
+            if not (isinstance(st, tuple) and len(st) == 2 and isinstance(st[0], Robot)
+                    and isinstance(st[1], TimedPath)):
+                raise InputError(f"stages[{i}] must be a (profrobot.Robot, profrobot.TimedPath) pair; got {st!r}")
+            robot, timed = st
+            if list(robot.joint_names) != list(self.robot.joint_names):
+                raise InputError(f"stages[{i}]: {robot.name}'s joints differ from {self.robot.name}'s")
+            if timed.joint_names and list(timed.joint_names) != list(robot.joint_names):
+                raise InputError(f"stages[{i}]: the path was timed for {timed.robot_name!r}, whose joints differ")
+        shown = self.robot
+        frames, owner, clock, trace_segs, colours, verdicts = [], [], [], [], [], []
+        start = 0.0
+        for i, (robot, timed) in enumerate(stages):
+            if robot.fingerprint not in self._drawn:
+                self._add_geoms(robot, prefix=f"/{name}/robot{len(self._drawn)}", visible=False)
+            t, poses = timed.at_rate(fps)[:2]
+            poses = robot.project(poses)
+            frames.append(poses)
+            clock.append(start + t)
+            start += timed.duration
+            owner += [i] * len(poses)
+            verdict = "certified" if timed.certified else "unproven"
+            verdicts.append(verdict)
+            self._use(robot)
+            trace = np.array([self.frame_pose(q)[0] for q in poses])
+            if len(trace) > 1:
+                trace_segs.append(np.stack([trace[:-1], trace[1:]], 1))
+                colours.append(np.repeat([VERDICT_COLOURS[verdict]], len(trace) - 1, axis=0))
+        self._use(shown)
+        poses = np.concatenate(frames)
+        if trace_segs:
+            self.server.scene.add_line_segments(f"/{name}/trace", np.concatenate(trace_segs).astype(np.float32),
+                                                np.repeat(np.concatenate(colours)[:, None], 2, 1).astype(np.uint8),
+                                                thickness=0.012)
+        duration = float(sum(t.duration for _, t in stages))
+        certified = verdicts.count("certified") == len(verdicts)
+
+        def show(k: int) -> None:
+            self._use(stages[owner[k]][0])
+            self.set_pose(poses[k])
+
+        with self.server.gui.add_folder(f"Stages '{name}'", order=2):
+            self.server.gui.add_markdown(
+                f"{verdicts.count('certified')}/{len(verdicts)} stages certified, {duration:.2f} s"
+                + "".join(f"; stage {i}: {v}" for i, v in enumerate(verdicts) if v != "certified"))
+            slider = self.server.gui.add_slider("t", 0, len(poses) - 1, 1, 0)
+            play = self.server.gui.add_button("Play / pause")
+        slider.on_update(lambda _e: show(int(slider.value)))
+        play.on_click(lambda _e: self._toggle(slider, len(poses), fps))
+        self._paths[name] = dict(verdicts=verdicts, certified=certified, poses=poses, stage=np.asarray(owner),
+                                 times=np.concatenate(clock), slider=slider)
+        return {"verdicts": verdicts, "certified": certified, "duration": duration}
+
+    def seek(self, name: str, t: float) -> np.ndarray:
+        """Show the path or stages ``name`` (:meth:`show_path`, :meth:`show_stages`) at ``t``
+        seconds from its start (timed) or at pose number ``t`` (waypoints drawn ``steps`` per
+        segment): the frame nearest, as its slider would. Returns the pose shown (K,)."""
+        if name not in self._paths:
+            raise InputError(f"name {name!r} is not a path or stages shown here (shown: {sorted(self._paths)})")
+        info = self._paths[name]
+        t = float(t)
+        if not np.isfinite(t):
+            raise InputError(f"t must be a finite number of seconds; got {t!r}")
+        k = int(np.argmin(np.abs(info["times"] - t)))
+        info["slider"].value = k
+        return info["poses"][k]
 
     def _toggle(self, slider, n: int, fps: float) -> None:
         if self._playing.is_set():
