@@ -36,26 +36,37 @@ from .obstacles import Box, Capsule, Cylinder, Obstacle, Plane, Sphere
 from .sources import _Mjcf
 from .state import with_core
 
-__all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives"]
+__all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives", "held_geom", "with_held"]
 
 #: the obstacle types written without compiling (primitives: MuJoCo keeps their frames as given)
 PRIMITIVES = (Box, Sphere, Capsule, Cylinder, Plane)
+#: the geom types a held object is moved onto a body without compiling
+_HELD_TYPES = tuple(int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
+                                     mujoco.mjtGeom.mjGEOM_ELLIPSOID, mujoco.mjtGeom.mjGEOM_CYLINDER,
+                                     mujoco.mjtGeom.mjGEOM_BOX))
 
 
 @dataclass(frozen=True)
 class WorldGeoms:
     """What a geom added to the world of a robot's spec gets from MuJoCo, and what is taken.
 
-    ``count``: geoms on the world body (MuJoCo ids ``0 .. count - 1``, visual ones included);
     ``contype`` / ``conaffinity`` / ``margin``: the spec's default geom's; ``override``: the model
-    overrides contact margins; ``names``: every geom and body name (obstacle names must be new)."""
+    overrides contact margins; ``names``: every geom and body name (obstacle names must be new);
+    ``geom_names``: every geom's name in MuJoCo's id order ('' where it has none), visual ones
+    included; ``body_geoms``: how many geoms each body has (MuJoCo's ``body_geomnum``)."""
 
-    count: int
     contype: int
     conaffinity: int
     margin: float
     override: bool
     names: frozenset[str]
+    geom_names: tuple[str, ...]
+    body_geoms: tuple[int, ...]
+
+    @property
+    def count(self) -> int:
+        """Geoms on the world body (MuJoCo ids ``0 .. count - 1``)."""
+        return self.body_geoms[0]
 
 
 def spec_names(spec: mujoco.MjSpec) -> frozenset[str]:
@@ -73,9 +84,11 @@ def world_geoms(robot: Any) -> WorldGeoms:
     assert spec is not None  # fits(): the robot's source rebuilds it exactly
     default = spec.default.geom
     known = WorldGeoms(
-        count=int(m.body_geomnum[0]), contype=int(default.contype), conaffinity=int(default.conaffinity),
+        contype=int(default.contype), conaffinity=int(default.conaffinity),
         margin=float(default.margin), override=bool(m.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE),
-        names=spec_names(spec))
+        names=spec_names(spec),
+        geom_names=tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(m.ngeom)),
+        body_geoms=tuple(int(n) for n in m.body_geomnum))
     robot.__dict__["_world_geoms"] = known
     return known
 
@@ -162,6 +175,126 @@ def with_primitives(robot: Any, obstacles: tuple[Obstacle, ...], name: str) -> A
     elif "_spec_from" in robot.__dict__:
         spec, before = robot.__dict__["_spec_from"]
         derived._spec_from = (spec, before + edits)
-    derived._world_geoms = replace(world, count=world.count + len(obstacles),
-                                   names=world.names | {ob.name for ob in obstacles if ob.name})
+    derived._world_geoms = replace(
+        world, names=world.names | {ob.name for ob in obstacles if ob.name},
+        geom_names=world.geom_names[:world.count] + tuple(ob.name or "" for ob in obstacles) + world.geom_names[world.count:],
+        body_geoms=(world.count + len(obstacles), *world.body_geoms[1:]))
+    return derived
+
+
+# ---- a world geom taken onto a body of the robot (Robot.attach) -------------------------------------
+#
+# What MuJoCo's compiler makes of ``grasp.Attach`` (the geom deleted from the world, a body ``name``
+# added as the last child of ``to`` at ``pos`` / ``quat``, the geom on it at its origin), and so
+# what is written here:
+#
+# - bodies are numbered depth first: the new body's id is one past the last body of ``to``'s
+#   subtree, and every later body id (parents, welds, joints, geoms, excludes) moves up by one;
+#   its parent is ``to``, its weld ``to``'s weld (it has no joint), its frame ``pos`` and ``quat``
+#   normalised as the compiler normalises it (each component divided by the 2-norm);
+# - geoms are numbered body by body: the geom leaves the world's ids (later ids down by one) and
+#   takes the id after every geom of the bodies before the new one; its frame in the new body is
+#   the origin, its size, type, contype, conaffinity and margin the world geom's row;
+# - ``touching``: an exclude of (new body, body) each, the lower id first, all excludes sorted by
+#   MuJoCo's signature ``(body1 << 16) + body2`` (a repeated one once).
+
+
+def held_geom(robot: Any, name: str) -> int | None:
+    """The MuJoCo id of the geom ``name`` when :func:`with_held` can attach it without compiling:
+    a primitive (not a plane) on the world body with a row in the arrays, on a robot whose source
+    rebuilds it exactly, with no point cloud, scene joints or margin override; else None."""
+    if robot.cloud is not None or robot.scene_joints or not _exact_source(robot):
+        return None
+    world = world_geoms(robot)
+    if world.override or name not in world.geom_names[:world.count]:
+        return None
+    g = world.geom_names.index(name)
+    ids = robot._arrays["geom_id"]
+    r = int(np.searchsorted(ids, g))
+    if r == len(ids) or ids[r] != g or int(robot._arrays["geom_type"][r]) not in _HELD_TYPES:
+        return None
+    return g
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    """``q`` normalised as MuJoCo's compiler normalises a body's quaternion: left as it is when
+    its 2-norm (summed in order) is within ``mjMINVAL`` (1e-15) of 1, else each component divided
+    by it (checked against the compiler on 2 000 quaternions, half of them near unit)."""
+    q = np.asarray(q, dtype=np.float64)
+    norm = float(np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]))
+    return q.copy() if abs(norm - 1.0) <= 1e-15 else np.array([float(x) / norm for x in q])
+
+
+def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: str) -> Any:
+    """``robot.attach`` of the world geom ``g`` (:func:`held_geom`) as the ``grasp.Attach``
+    ``edit`` says, without compiling (the notes above); ``touching``: body ids."""
+    world = world_geoms(robot)
+    old = robot._arrays
+    parent = old["body_parent"]
+    to = robot.body_names.index(edit.to)
+    last = to
+    for b in range(to + 1, len(parent)):      # (depth first: the subtree of `to` is contiguous)
+        if parent[b] < to or parent[b] > last:
+            break
+        last = b
+    new_body = last + 1
+    held_id = sum(world.body_geoms[:new_body]) - 1   # (the geom has left the world, before it)
+
+    def body_ids(ids: np.ndarray) -> np.ndarray:
+        return np.where(ids >= new_body, ids + 1, ids).astype(np.int32)
+
+    def geom_ids(ids: np.ndarray) -> np.ndarray:
+        a = ids - (ids > g)
+        return np.where(ids == g, held_id, np.where(a >= held_id, a + 1, a)).astype(np.int32)
+
+    arrays: dict[str, Any] = dict(old)
+    arrays["body_parent"] = np.insert(body_ids(parent), new_body, to).astype(np.int32)
+    arrays["body_weld"] = np.insert(body_ids(old["body_weld"]), new_body, body_ids(old["body_weld"])[to])
+    arrays["body_pos"] = np.insert(old["body_pos"], new_body, np.asarray(edit.pos, dtype=np.float64), axis=0)
+    arrays["body_quat"] = np.insert(old["body_quat"], new_body, _unit(np.asarray(edit.quat)), axis=0)
+    arrays["jnt_body"] = body_ids(old["jnt_body"])
+    r = int(np.searchsorted(old["geom_id"], g))
+    row = {k: old[k][r] for k in old if k.startswith("geom_")}
+    row.update(geom_id=held_id, geom_body=new_body, geom_pos=np.zeros(3), geom_quat=np.array([1.0, 0.0, 0.0, 0.0]))
+    keep = np.arange(len(old["geom_id"])) != r
+    ids = geom_ids(old["geom_id"][keep])
+    at = int(np.searchsorted(ids, held_id))
+    for key, value in row.items():
+        rest = old[key][keep]
+        if key == "geom_id":
+            rest = ids
+        elif key == "geom_body":
+            rest = body_ids(rest)
+        arrays[key] = np.ascontiguousarray(np.insert(rest, at, value, axis=0).astype(old[key].dtype))
+    excl = body_ids(old["exclude"])
+    extra = np.sort(np.array([[new_body, int(body_ids(np.array([t]))[0])] for t in touching],
+                             dtype=np.int32).reshape(-1, 2), axis=1)    # (MuJoCo signs a pair lower id first)
+    excl = np.unique(np.concatenate([excl, extra]).astype(np.int64), axis=0)   # (and sorts the signatures)
+    arrays["exclude"] = np.ascontiguousarray(excl.astype(np.int32)).reshape(-1, 2)
+    arrays["pair_geom"] = geom_ids(old["pair_geom"]) if len(old["pair_geom"]) else old["pair_geom"]
+    edits: tuple = (edit,)
+    if robot.margin > 0:  # as Robot._derived
+        edits = edits + (ObstacleMargin(robot.margin),)
+
+    derived = with_core(robot, arrays, robot.core.rebuilt(arrays))
+    derived.name = name
+    derived.body_names = robot.body_names[:new_body] + [edit.name] + robot.body_names[new_body:]
+    derived.geometry_fingerprint = derived.fingerprint
+    derived._mj_model = None
+    derived._spec = None
+    derived._spec_lost = None
+    derived._source = robot._source.then(edits)
+    if robot._spec is not None:
+        derived._spec_from = (robot._spec, edits)
+    elif "_spec_from" in robot.__dict__:
+        spec, before = robot.__dict__["_spec_from"]
+        derived._spec_from = (spec, before + edits)
+    names = list(world.geom_names)
+    del names[g]
+    names.insert(held_id, edit.name)
+    counts = list(world.body_geoms)
+    counts[0] -= 1
+    counts.insert(new_body, 1)
+    derived._world_geoms = replace(world, names=world.names | {edit.name}, geom_names=tuple(names),
+                                   body_geoms=tuple(counts))
     return derived

@@ -1,0 +1,93 @@
+"""Grasped objects: what ``Robot.attach`` costs beside replacing a scene's obstacles.
+
+    python benches/attach.py [--scenes 50]
+
+The Menagerie Panda (its ``panda`` entry, as ``benches/mbm.py``) in MotionBenchMaker's
+``table_pick`` scenes (``../shared/mbm/``, or ``--mbm DIR``), each with a mug-sized cylinder
+added 12 cm in front of the hand at the problem's start pose. Timed per scene (medians and p95;
+run it alone on the machine): replacing the obstacles (``with_obstacles``), attaching the
+cylinder to the hand there (``attach``: the arrays written, no compile) and, for comparison, the
+same attach through a compile of the edited MjSpec (how ``attach`` worked before), and letting
+go (``detach``, which compiles). Every attached robot's first use of ``mj_model`` compiles it and
+checks it against the robot's fingerprint (a mismatch raises). Markdown in
+``benches/attach_results.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+import profrobot
+from profrobot import Cylinder
+from profrobot.robot import world as _world
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mbm import FINGERS, OPEN, read_request, read_scene  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "attach_results.md"
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=50)
+    ap.add_argument("--mbm", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "mbm")
+    args = ap.parse_args(argv)
+    folder = args.mbm / "table_pick_panda"
+    base = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+    hand = base.body_names.index("hand")
+    times: dict[str, list[float]] = {"with_obstacles": [], "attach": [], "attach, compiled": [], "detach": []}
+    done = 0
+    for i in range(1, 10 * args.scenes):
+        if done == args.scenes or not (folder / f"scene{i:04d}.yaml").exists():
+            break
+        scene = read_scene(folder / f"scene{i:04d}.yaml")
+        q = read_request(folder / f"request{i:04d}.yaml", base)[0]
+        q[[base.joint_names.index(f) for f in FINGERS]] = OPEN
+        xpos, xquat = base.core.body_frames(q[None], hand)
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, xquat[0])
+        mug = Cylinder(pos=tuple(xpos[0] + R.reshape(3, 3) @ [0.0, 0.0, 0.12]), radius=0.025, half_length=0.05,
+                       name="mug")
+        t = time.perf_counter()
+        world = base.with_obstacles(scene + [mug])
+        times["with_obstacles"].append(time.perf_counter() - t)
+        if not base.feasible(q[None])[0]:
+            continue
+        t = time.perf_counter()
+        held = world.attach("mug", to="hand", at=q)
+        times["attach"].append(time.perf_counter() - t)
+        assert held._mj_model is None and held.mj_model is not None   # (compiled and checked here)
+        keep = _world.held_geom
+        _world.held_geom = lambda robot, name: None     # the compile path, as attach was before
+        try:
+            t = time.perf_counter()
+            compiled = world.attach("mug", to="hand", at=q)
+            times["attach, compiled"].append(time.perf_counter() - t)
+        finally:
+            _world.held_geom = keep
+        assert compiled.fingerprint != world.fingerprint
+        t = time.perf_counter()
+        held.detach("mug", at=q)
+        times["detach"].append(time.perf_counter() - t)
+        done += 1
+    load = os.getloadavg()[0]
+    rows = "\n".join(f"| {k} | {len(v)} | {np.median(v) * 1e3:.2f} | {np.percentile(v, 95) * 1e3:.2f} |"
+                     for k, v in times.items())
+    text = ("# Grasped objects: attach beside a scene update\n\n`python benches/attach.py`\n\n"
+            f"The Menagerie Panda in {done} MotionBenchMaker `table_pick` scenes, a mug-sized cylinder 12 cm in front "
+            f"of the hand at each problem's start; load average {load:.2f}.\n\n"
+            "| operation | n | ms (median) | ms (p95) |\n|---|---|---|---|\n" + rows + "\n")
+    RESULTS.write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
