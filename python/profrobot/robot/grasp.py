@@ -170,9 +170,10 @@ def attach(robot, obstacle: str | Obstacle, *, to: str, at: npt.ArrayLike | None
     for t in touching:
         _body(robot, t, "touching")
     touching = tuple(dict.fromkeys(touching))   # (each body once)
-    g = _world.held_geom(robot, obstacle) if isinstance(obstacle, str) else None
-    if g is not None:   # a primitive of the world: written into the arrays (robot/world.py), no compile
-        return _held(robot, obstacle, g, b, at, touching)
+    if isinstance(obstacle, str):
+        g = _world.held_geom(robot, obstacle)
+        if g is not None:   # a primitive of the world: written into the arrays (robot/world.py), no compile
+            return _held(robot, obstacle, g, b, at, touching)
     m = robot.mj_model
     if isinstance(obstacle, Obstacle):
         if at is not None:
