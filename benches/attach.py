@@ -8,14 +8,16 @@ added 12 cm in front of the hand at the problem's start pose. Timed per scene (m
 run it alone on the machine): replacing the obstacles (``with_obstacles``), attaching the
 cylinder to the hand there (``attach``: the arrays written, no compile) and, for comparison, the
 same attach through a compile of the edited MjSpec (how ``attach`` worked before), and letting
-go (``detach``, which compiles). Every attached robot's first use of ``mj_model`` compiles it and
-checks it against the robot's fingerprint (a mismatch raises). Markdown in
-``benches/attach_results.md``.
+go (``detach``, which compiles); each operation over every scene in turn, then the next. Every
+attached robot's first use of ``mj_model`` compiles it and checks it against the robot's
+fingerprint (a mismatch raises), and the compiled attach gives the same fingerprint. Markdown
+in ``benches/attach_results.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import time
@@ -43,40 +45,55 @@ def main(argv: list[str]) -> int:
     base = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
     hand = base.body_names.index("hand")
     times: dict[str, list[float]] = {"with_obstacles": [], "attach": [], "attach, compiled": [], "detach": []}
-    done = 0
+    jobs = []
     for i in range(1, 10 * args.scenes):
-        if done == args.scenes or not (folder / f"scene{i:04d}.yaml").exists():
+        if len(jobs) == args.scenes or not (folder / f"scene{i:04d}.yaml").exists():
             break
-        scene = read_scene(folder / f"scene{i:04d}.yaml")
         q = read_request(folder / f"request{i:04d}.yaml", base)[0]
         q[[base.joint_names.index(f) for f in FINGERS]] = OPEN
+        if not base.feasible(q[None])[0]:
+            continue
         xpos, xquat = base.core.body_frames(q[None], hand)
         R = np.zeros(9)
         mujoco.mju_quat2Mat(R, xquat[0])
         mug = Cylinder(pos=tuple(xpos[0] + R.reshape(3, 3) @ [0.0, 0.0, 0.12]), radius=0.025, half_length=0.05,
                        name="mug")
+        jobs.append((read_scene(folder / f"scene{i:04d}.yaml") + [mug], q))
+    done = len(jobs)
+
+    def timed(key, call, *args):
+        gc.collect()   # (not inside the timings: compiles leave garbage behind)
         t = time.perf_counter()
-        world = base.with_obstacles(scene + [mug])
-        times["with_obstacles"].append(time.perf_counter() - t)
-        if not base.feasible(q[None])[0]:
-            continue
-        t = time.perf_counter()
-        held = world.attach("mug", to="hand", at=q)
-        times["attach"].append(time.perf_counter() - t)
-        assert held._mj_model is None and held.mj_model is not None   # (compiled and checked here)
-        keep = _world.held_geom
-        _world.held_geom = lambda robot, name: None     # the compile path, as attach was before
-        try:
-            t = time.perf_counter()
-            compiled = world.attach("mug", to="hand", at=q)
-            times["attach, compiled"].append(time.perf_counter() - t)
-        finally:
-            _world.held_geom = keep
-        assert compiled.fingerprint != world.fingerprint
-        t = time.perf_counter()
-        held.detach("mug", at=q)
-        times["detach"].append(time.perf_counter() - t)
-        done += 1
+        out = call(*args)
+        times[key].append(time.perf_counter() - t)
+        return out
+
+    def grasp(w, q):
+        return w.attach("mug", to="hand", at=q)
+
+    def let_go(h, q):
+        return h.detach("mug", at=q)
+
+    # each operation over every scene in turn (steady state), then the next; robots dropped as
+    # they are done with (MuJoCo's MjSpec.delete, which the compiled attach calls, slows down
+    # with every live spec: 50 held robots with their specs made it ~2 s)
+    worlds = [timed("with_obstacles", base.with_obstacles, scene) for scene, _ in jobs]
+    prints = []
+    for w, (_, q) in zip(worlds, jobs):
+        h = timed("attach", grasp, w, q)
+        assert h._mj_model is None and h.mj_model is not None   # (compiled and checked here)
+        prints.append(h.fingerprint)
+        timed("detach", let_go, h, q)
+        del h
+    keep = _world.held_geom
+    _world.held_geom = lambda robot, name: None     # the compile path, as attach was before
+    try:
+        for k, (scene, q) in enumerate(jobs):
+            w = base.with_obstacles(scene)
+            assert w.mj_model is not None   # (compiled before: with_obstacles compiled at once then)
+            assert timed("attach, compiled", grasp, w, q).fingerprint == prints[k]
+    finally:
+        _world.held_geom = keep
     load = os.getloadavg()[0]
     rows = "\n".join(f"| {k} | {len(v)} | {np.median(v) * 1e3:.2f} | {np.percentile(v, 95) * 1e3:.2f} |"
                      for k, v in times.items())

@@ -198,13 +198,17 @@ impl PyRobotModel {
     /// The model of `arrays` (as `RobotModel(arrays)`), a scene edited from this one: geoms
     /// described bit for bit as one of this model's share its shape, and pairs of two such geoms
     /// their proofs (`RobotModel::rebuilt`), so replacing obstacles costs the new geoms, the
-    /// candidate pairs, the broad phase and, on first use, the new pairs' proofs. This model's
-    /// proofs are made first (once, `prove_apart`), for every model rebuilt from it to inherit.
+    /// candidate pairs, the broad phase and, on first use, the new pairs' proofs. Where the
+    /// kinematics are this model's, its proofs are made first (once, `prove_apart`), for every
+    /// model rebuilt from it to inherit; a model with other bodies (an object attached) inherits
+    /// none, so none are made for it.
     fn rebuilt(&self, py: Python<'_>, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
         let desc = desc_from_dict(arrays)?;
         let model = py
             .detach(|| {
-                prove_apart(&self.model);
+                if self.desc.same_kinematics(&desc) {
+                    prove_apart(&self.model);
+                }
                 self.model.rebuilt(&self.desc, desc.clone())
             })
             .map_err(to_py)?;

@@ -119,6 +119,25 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 }
 
 impl ModelDesc {
+    /// Whether `other` has this description's bodies, joints, ranges and couplings, bit for bit:
+    /// the kinematics a pair's proofs of clearance depend on (`RobotModel::rebuilt` takes them
+    /// over only then).
+    pub fn same_kinematics(&self, other: &ModelDesc) -> bool {
+        self.body_parent == other.body_parent
+            && self.body_weld == other.body_weld
+            && self.body_pos == other.body_pos
+            && self.body_quat == other.body_quat
+            && self.jnt_type == other.jnt_type
+            && self.jnt_body == other.jnt_body
+            && self.jnt_pos == other.jnt_pos
+            && self.jnt_axis == other.jnt_axis
+            && self.jnt_qpos0 == other.jnt_qpos0
+            && self.jnt_range == other.jnt_range
+            && self.jnt_limited == other.jnt_limited
+            && self.jnt_scene == other.jnt_scene
+            && self.couplings == other.couplings
+    }
+
     /// The description as bytes: a magic tag, a checksum, then postcard (every `f64` as its
     /// 8 bytes, so the round trip is exact, NaN and infinities included). The Python
     /// `RobotModel` pickles this.

@@ -107,19 +107,7 @@ pub(crate) struct Inherited {
 
 impl Inherited {
     fn of(model: &RobotModel, old: &ModelDesc, desc: &ModelDesc, geom_from: &[usize], pairs: &[CandidatePair]) -> Option<Self> {
-        let same_kinematics = old.body_parent == desc.body_parent
-            && old.body_weld == desc.body_weld
-            && old.body_pos == desc.body_pos
-            && old.body_quat == desc.body_quat
-            && old.jnt_type == desc.jnt_type
-            && old.jnt_body == desc.jnt_body
-            && old.jnt_pos == desc.jnt_pos
-            && old.jnt_axis == desc.jnt_axis
-            && old.jnt_qpos0 == desc.jnt_qpos0
-            && old.jnt_range == desc.jnt_range
-            && old.jnt_limited == desc.jnt_limited
-            && old.jnt_scene == desc.jnt_scene
-            && old.couplings == desc.couplings;
+        let same_kinematics = old.same_kinematics(desc);
         let (spans, apart) = (model.joint_spans.get(), model.apart.get());
         if !same_kinematics || (spans.is_none() && apart.is_none()) {
             return None;
