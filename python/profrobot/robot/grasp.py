@@ -19,8 +19,8 @@ from the relative pose stored here: no forward kinematics on the way.
 
 A primitive of the world (box, sphere, capsule, cylinder, ellipsoid) is attached without
 compiling MuJoCo: the body and geom the compiler would make are written into the core's arrays
-(:func:`profrobot.robot.world.with_held`, bit for bit the compiled model's, tested), about 3 ms
-on a Panda in a MotionBenchMaker scene instead of a compile (~130 ms); ``robot.mj_model``
+(:func:`profrobot.robot.world.with_held`, bit for bit the compiled model's, tested), about 2 ms
+on a Panda in a MotionBenchMaker scene instead of a compile (70-140 ms); ``robot.mj_model``
 compiles on first use and is checked against the fingerprint. Meshes, new obstacles and
 ``detach`` compile.
 """
