@@ -6,9 +6,9 @@ The Menagerie Panda (its ``panda`` entry, as ``benches/mbm.py``) in MotionBenchM
 ``table_pick`` scenes (``../shared/mbm/``, or ``--mbm DIR``), each with a mug-sized cylinder
 added 12 cm in front of the hand at the problem's start pose. Timed per scene (medians and p95;
 run it alone on the machine): replacing the obstacles (``with_obstacles``), attaching the
-cylinder to the hand there (``attach``: the arrays written, no compile) and, for comparison, the
-same attach through a compile of the edited MjSpec (how ``attach`` worked before), and letting
-go (``detach``, which compiles); each operation over every scene in turn, then the next. Every
+cylinder to the hand there (``attach``: the arrays written, no compile), letting go
+(``detach``, likewise) and, for comparison, both through a compile of the edited MjSpec (how
+they worked before); each operation over every scene in turn, then the next. Every
 attached robot's first use of ``mj_model`` compiles it and checks it against the robot's
 fingerprint (a mismatch raises), and the compiled attach gives the same fingerprint. Markdown
 in ``benches/attach_results.md``.
@@ -44,7 +44,8 @@ def main(argv: list[str]) -> int:
     folder = args.mbm / "table_pick_panda"
     base = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
     hand = base.body_names.index("hand")
-    times: dict[str, list[float]] = {"with_obstacles": [], "attach": [], "attach, compiled": [], "detach": []}
+    times: dict[str, list[float]] = {"with_obstacles": [], "attach": [], "detach": [], "attach, compiled": [],
+                                     "detach, compiled": []}
     jobs = []
     for i in range(1, 10 * args.scenes):
         if len(jobs) == args.scenes or not (folder / f"scene{i:04d}.yaml").exists():
@@ -85,15 +86,18 @@ def main(argv: list[str]) -> int:
         prints.append(h.fingerprint)
         timed("detach", let_go, h, q)
         del h
-    keep = _world.held_geom
-    _world.held_geom = lambda robot, name: None     # the compile path, as attach was before
+    keep = _world.held_geom, _world.put_geom
+    _world.held_geom = _world.put_geom = lambda robot, name: None     # the compile path, as before
     try:
         for k, (scene, q) in enumerate(jobs):
             w = base.with_obstacles(scene)
             assert w.mj_model is not None   # (compiled before: with_obstacles compiled at once then)
-            assert timed("attach, compiled", grasp, w, q).fingerprint == prints[k]
+            h = timed("attach, compiled", grasp, w, q)
+            assert h.fingerprint == prints[k]
+            timed("detach, compiled", let_go, h, q)
+            del h
     finally:
-        _world.held_geom = keep
+        _world.held_geom, _world.put_geom = keep
     load = os.getloadavg()[0]
     rows = "\n".join(f"| {k} | {len(v)} | {np.median(v) * 1e3:.2f} | {np.percentile(v, 95) * 1e3:.2f} |"
                      for k, v in times.items())

@@ -129,10 +129,10 @@ def test_an_ancestor_spec_edited_in_place_falls_back_to_the_source():
 
 def test_an_attached_world_primitive_is_mujocos_body_and_geom_to_the_bit(arm):
     """Robot.attach of a primitive of the world (robot/world.py ``with_held``): a body inserted
-    after the last of ``to``'s subtree, the geom moved onto it, excludes for ``touching``: the
-    arrays, body names and geom bookkeeping equal the compiled model's, bit for bit, on bodies at
-    the end and in the middle of the tree, after a floor, with a margin, twice in a row; labels
-    agree with MuJoCo; detach and pickles work from it."""
+    after the last of ``to``'s subtree, the geom moved onto it, excludes for ``touching``; and
+    Robot.detach of it (``with_put``): the arrays, body names and geom bookkeeping equal the
+    compiled model's, bit for bit, on bodies at the end and in the middle of the tree, after a
+    floor, with a margin, twice in a row; labels agree with MuJoCo; pickles work."""
     from profrobot.robot.world import WorldGeoms, world_geoms
 
     rng = np.random.default_rng(5)
@@ -153,6 +153,17 @@ def test_an_attached_world_primitive_is_mujocos_body_and_geom_to_the_bit(arm):
             kept = robot.__dict__["_world_geoms"]
             assert isinstance(kept, WorldGeoms)
             assert (kept.geom_names, kept.body_geoms) == (fresh.geom_names, fresh.body_geoms)
+        # and let go again (robot/world.py ``with_put``), where the arm is at another pose
+        q2 = profrobot.sample_poses(world, 1, seed=10 + trial)[0]
+        put = twice.detach(named[1], at=q2)
+        both = put.detach(named[0], at=q2)
+        for robot in (put, both):
+            assert robot._mj_model is None
+            assert_arrays_are_mujocos(robot)
+            kept = robot.__dict__["_world_geoms"]
+            fresh = world_geoms(type(robot)(robot.mj_model, spec=robot.spec))
+            assert (kept.geom_names, kept.body_geoms) == (fresh.geom_names, fresh.body_geoms)
+        assert both.body_names == world.body_names
         if trial == 0:
             # (labels: two cylinders held, as MuJoCo 4.0 is right on every pair they make; a held
             # capsule can pierce a thin box, where MuJoCo reports no contact and we report it: the

@@ -21,8 +21,8 @@ A primitive of the world (box, sphere, capsule, cylinder, ellipsoid) is attached
 compiling MuJoCo: the body and geom the compiler would make are written into the core's arrays
 (:func:`profrobot.robot.world.with_held`, bit for bit the compiled model's, tested), about 2 ms
 on a Panda in a MotionBenchMaker scene instead of a compile (70-140 ms); ``robot.mj_model``
-compiles on first use and is checked against the fingerprint. Meshes, new obstacles and
-``detach`` compile.
+compiles on first use and is checked against the fingerprint. ``detach`` of such an object is
+written the same way (:func:`profrobot.robot.world.with_put`). Meshes and new obstacles compile.
 """
 
 from __future__ import annotations
@@ -239,9 +239,21 @@ def _held(robot, name: str, g: int, b: int, at: npt.ArrayLike | None, touching: 
 def detach(robot, name: str, *, at: npt.ArrayLike):
     """``robot`` with the held object ``name`` left in the world where it is at pose ``at``
     (module docs; :meth:`Robot.detach`)."""
-    m = robot.mj_model
     if not isinstance(name, str):
         raise InputTypeError(f"name must be the held object's name (str); got {type(name).__name__}")
+    put = _world.put_geom(robot, name)
+    if put is not None:   # a held primitive: written into the arrays (robot/world.py), no compile
+        b, g = put
+        q = pose_array(robot, at, name="at", check_limits=True)
+        if q.shape != (1, robot.njoint):
+            raise InputError(f"at must be one pose of {robot.njoint} joints; got shape {np.shape(at)}")
+        xpos, xquat = robot.core.body_frames(np.ascontiguousarray(q), b, threads=1)
+        r = int(np.searchsorted(robot._arrays["geom_id"], g))
+        pos, quat = _compose(xpos[0], xquat[0], robot._arrays["geom_pos"][r], robot._arrays["geom_quat"][r])
+        edit = Detach(name, tuple(map(float, pos)), tuple(map(float, quat)),
+                      size=tuple(map(float, robot._arrays["geom_size"][r])))
+        return _world.with_put(robot, edit, b, g, robot.name)
+    m = robot.mj_model
     spec = robot._editable("detach")
     # (the compiler may fuse a held object's body into its parent: the spec says what is held)
     held = [b.name for b in spec.bodies if b.name and not b.joints and len(b.geoms) == 1 and b.geoms[0].name == b.name

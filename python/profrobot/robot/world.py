@@ -36,7 +36,8 @@ from .obstacles import Box, Capsule, Cylinder, Obstacle, Plane, Sphere
 from .sources import _Mjcf
 from .state import with_core
 
-__all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives", "held_geom", "with_held"]
+__all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives", "held_geom", "with_held",
+           "put_geom", "with_put"]
 
 #: the obstacle types written without compiling (primitives: MuJoCo keeps their frames as given)
 PRIMITIVES = (Box, Sphere, Capsule, Cylinder, Plane)
@@ -272,13 +273,26 @@ def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: st
     excl = np.unique(np.concatenate([excl, extra]).astype(np.int64), axis=0)   # (and sorts the signatures)
     arrays["exclude"] = np.ascontiguousarray(excl.astype(np.int32)).reshape(-1, 2)
     arrays["pair_geom"] = geom_ids(old["pair_geom"]) if len(old["pair_geom"]) else old["pair_geom"]
+    body_names = robot.body_names[:new_body] + [edit.name] + robot.body_names[new_body:]
+    names = list(world.geom_names)
+    del names[g]
+    names.insert(held_id, edit.name)
+    counts = list(world.body_geoms)
+    counts[0] -= 1
+    counts.insert(new_body, 1)
+    return _edited(robot, arrays, edit, name, body_names,
+                   replace(world, names=world.names | {edit.name}, geom_names=tuple(names), body_geoms=tuple(counts)))
+
+
+def _edited(robot: Any, arrays: dict, edit: Any, name: str, body_names: list[str], world: WorldGeoms) -> Any:
+    """The robot of ``arrays``, ``robot`` after the spec edit ``edit`` (carried in its source,
+    with the margin as ``Robot._derived`` adds it), its MuJoCo model compiled on first use."""
     edits: tuple = (edit,)
     if robot.margin > 0:  # as Robot._derived
         edits = edits + (ObstacleMargin(robot.margin),)
-
     derived = with_core(robot, arrays, robot.core.rebuilt(arrays))
     derived.name = name
-    derived.body_names = robot.body_names[:new_body] + [edit.name] + robot.body_names[new_body:]
+    derived.body_names = body_names
     derived.geometry_fingerprint = derived.fingerprint
     derived._mj_model = None
     derived._spec = None
@@ -289,12 +303,88 @@ def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: st
     elif "_spec_from" in robot.__dict__:
         spec, before = robot.__dict__["_spec_from"]
         derived._spec_from = (spec, before + edits)
+    derived._world_geoms = world
+    return derived
+
+
+# ---- a held object left in the world (Robot.detach) --------------------------------------------------
+#
+# What MuJoCo's compiler makes of ``grasp.Detach`` (the held body and its excludes deleted, the geom
+# added to the world at ``pos`` / ``quat``), the inverse of the above: every body id after the held
+# one moves down by one (its excludes gone); the geom leaves its id (later ids down by one) and
+# takes the id after the world's geoms (later ids up by one); its frame is ``pos`` and ``quat``
+# normalised as the compiler normalises it, its margin raised to the robot's safety margin
+# (``ObstacleMargin``: it is an obstacle again), the rest of its row kept.
+
+
+def put_geom(robot: Any, name: str) -> tuple[int, int] | None:
+    """``(body, geom)`` MuJoCo ids of the held object ``name`` when :func:`with_put` can leave it
+    in the world without compiling: a leaf body without joints holding one primitive geom of its
+    name (not in an explicit ``<pair>``), on a robot as :func:`held_geom` requires; else None."""
+    if robot.cloud is not None or robot.scene_joints or not _exact_source(robot) or name not in robot.body_names:
+        return None
+    world = world_geoms(robot)
+    a = robot._arrays
+    b = robot.body_names.index(name)
+    if (world.override or b == 0 or a["body_parent"][b] == 0 or world.body_geoms[b] != 1 or b in a["jnt_body"]
+            or b in a["body_parent"][b + 1:]):
+        return None
+    g = sum(world.body_geoms[:b])
+    if world.geom_names[g] != name or g in a["pair_geom"]:
+        return None
+    r = int(np.searchsorted(a["geom_id"], g))
+    if r == len(a["geom_id"]) or a["geom_id"][r] != g or int(a["geom_type"][r]) not in _HELD_TYPES:
+        return None
+    return b, g
+
+
+def with_put(robot: Any, edit: Any, b: int, g: int, name: str) -> Any:
+    """``robot.detach`` of the held object on body ``b`` (geom ``g``, :func:`put_geom`) as the
+    ``grasp.Detach`` ``edit`` says, without compiling (the notes above)."""
+    world = world_geoms(robot)
+    old = robot._arrays
+    put_id = world.count                      # (the held geom is after the world's: removing it moves none)
+
+    def body_ids(ids: np.ndarray) -> np.ndarray:
+        return np.where(ids > b, ids - 1, ids).astype(np.int32)
+
+    def geom_ids(ids: np.ndarray) -> np.ndarray:
+        a = ids - (ids > g)
+        return np.where(ids == g, put_id, np.where(a >= put_id, a + 1, a)).astype(np.int32)
+
+    arrays: dict[str, Any] = dict(old)
+    keep_body = np.arange(len(old["body_parent"])) != b
+    arrays["body_parent"] = body_ids(old["body_parent"][keep_body])
+    arrays["body_weld"] = body_ids(old["body_weld"][keep_body])
+    arrays["body_pos"] = np.ascontiguousarray(old["body_pos"][keep_body])
+    arrays["body_quat"] = np.ascontiguousarray(old["body_quat"][keep_body])
+    arrays["jnt_body"] = body_ids(old["jnt_body"])
+    r = int(np.searchsorted(old["geom_id"], g))
+    row = {k: old[k][r] for k in old if k.startswith("geom_")}
+    margin = row["geom_margin"]
+    row.update(geom_id=put_id, geom_body=0, geom_pos=np.asarray(edit.pos, dtype=np.float64),
+               geom_quat=_unit(np.asarray(edit.quat)),
+               geom_margin=max(float(margin), robot.margin) if robot.margin > 0 else margin)
+    keep = np.arange(len(old["geom_id"])) != r
+    ids = geom_ids(old["geom_id"][keep])
+    at = int(np.searchsorted(ids, put_id))
+    for key, value in row.items():
+        rest = old[key][keep]
+        if key == "geom_id":
+            rest = ids
+        elif key == "geom_body":
+            rest = body_ids(rest)
+        arrays[key] = np.ascontiguousarray(np.insert(rest, at, value, axis=0).astype(old[key].dtype))
+    excl = old["exclude"]
+    excl = excl[~(excl == b).any(axis=1)] if len(excl) else excl
+    arrays["exclude"] = np.ascontiguousarray(body_ids(excl)).reshape(-1, 2)
+    arrays["pair_geom"] = geom_ids(old["pair_geom"]) if len(old["pair_geom"]) else old["pair_geom"]
+    body_names = robot.body_names[:b] + robot.body_names[b + 1:]
     names = list(world.geom_names)
     del names[g]
-    names.insert(held_id, edit.name)
+    names.insert(put_id, edit.name)
     counts = list(world.body_geoms)
-    counts[0] -= 1
-    counts.insert(new_body, 1)
-    derived._world_geoms = replace(world, names=world.names | {edit.name}, geom_names=tuple(names),
-                                   body_geoms=tuple(counts))
-    return derived
+    del counts[b]
+    counts[0] += 1
+    return _edited(robot, arrays, edit, name, body_names,
+                   replace(world, geom_names=tuple(names), body_geoms=tuple(counts)))
