@@ -178,3 +178,32 @@ def test_an_attached_world_primitive_is_mujocos_body_and_geom_to_the_bit(arm):
     poses = profrobot.sample_poses(world, 3000, seed=6)
     np.testing.assert_array_equal(profrobot.label_poses(back, poses).collides,
                                   profrobot.label_poses(world, poses).collides)
+
+
+def test_frames_of_a_robot_derived_without_compiling_need_no_compile():
+    """ik, plan_cartesian and plan_to_pose find a frame (a site, a body) of a robot whose scene
+    was updated or whose object was attached without compiling MuJoCo (robot/world.py
+    ``frame``): the same frame as the compiled model's, and still nothing compiled after."""
+    from profrobot.exact.ik import frame_of
+
+    ur5e = profrobot.Robot.from_menagerie("universal_robots_ur5e")
+    world = ur5e.with_obstacles([Box(pos=(0.5, 0.3, 0.2), half_size=(0.03, 0.03, 0.03), name="part"),
+                                 Sphere(pos=(-0.4, -0.4, 0.3), radius=0.05)])
+    q = next(p for p in profrobot.sample_poses(world, 200, seed=1) if profrobot.certify_poses(world, p[None])[0])
+    held = world.attach("part", to="wrist_3_link", at=q)
+    put = held.detach("part", at=q)
+    twin = profrobot.Robot.from_spec(held.spec.copy())   # (a compiled one, to compare with; held untouched)
+    held = world.attach("part", to="wrist_3_link", at=q)
+    for robot in (world, held, put):
+        for name in ("attachment_site", "wrist_3_link", "shoulder_link"):
+            body, pos, quat = frame_of(robot, name)
+            b2, p2, q2 = frame_of(twin, name)
+            assert robot.body_names[body] == twin.body_names[b2] and (pos == p2).all() and (quat == q2).all()
+        assert robot._mj_model is None
+    xpos, xquat = held.core.body_frames(q[None], held.body_names.index("wrist_3_link"))
+    res = profrobot.ik(held, xpos, frame="wrist_3_link", start=q)
+    assert res.reached[0] and held._mj_model is None
+    move = profrobot.plan_cartesian(held, q, xpos[0] + [0.0, 0.0, 0.02], frame="attachment_site")
+    assert move.fraction > 0 and held._mj_model is None
+    with pytest.raises(InputError, match="frame 'nowhere'"):
+        frame_of(held, "nowhere")       # (not a frame: the compiled model says so, by name)

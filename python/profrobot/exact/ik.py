@@ -20,6 +20,7 @@ import numpy.typing as npt
 from .certification import CLEARANCE
 from ..errors import InputError, InputTypeError
 from .planning import PathResult, plan_path
+from ..robot import world as _world
 from ..robot.robot import Robot
 from .labels import sample_poses
 from ..robot.gate import (Layout, as_poses, count, joint_mask, positive, robot_at, seed as check_seed,
@@ -90,6 +91,11 @@ def frame_of(robot: Robot, frame: str) -> tuple[int, np.ndarray, np.ndarray]:
     in its body: a MuJoCo site, body or geom (looked up in that order)."""
     if not isinstance(frame, str):
         raise InputTypeError(f"frame must be the name of a site, body or geom; got {type(frame).__name__}")
+    known = _world.frame(robot, frame)   # (a robot derived without compiling: no compile for its frames)
+    if known is not None:
+        if known[0] == 0:
+            raise InputError("frame 'world' does not move: name a site, body or geom of the robot")
+        return known
     m = robot.mj_model
     for kind, obj in (("site", mujoco.mjtObj.mjOBJ_SITE), ("body", mujoco.mjtObj.mjOBJ_BODY),
                       ("geom", mujoco.mjtObj.mjOBJ_GEOM)):
@@ -321,12 +327,12 @@ def with_tool(lpos: np.ndarray, lquat: np.ndarray, tool: npt.ArrayLike | None) -
 def frame_moved_by(robot: Robot, frame: str) -> np.ndarray:
     """(K,) bool: the joints that move ``frame`` (those on the bodies from the world to its body)."""
     body, _, _ = frame_of(robot, frame)
-    m = robot.mj_model
+    parent, jnt_body = robot._arrays["body_parent"], robot._arrays["jnt_body"]
     chain = set()
     while body > 0:
         chain.add(int(body))
-        body = int(m.body_parentid[body])
-    return np.array([int(m.jnt_bodyid[m.joint(n).id]) in chain for n in robot.joint_names])
+        body = int(parent[body])
+    return np.array([int(b) in chain for b in jnt_body])
 
 
 @dataclass

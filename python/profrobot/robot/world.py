@@ -37,7 +37,7 @@ from .sources import _Mjcf
 from .state import with_core
 
 __all__ = ["WorldGeoms", "world_geoms", "spec_names", "fits", "with_primitives", "held_geom", "with_held",
-           "put_geom", "with_put"]
+           "put_geom", "with_put", "frame"]
 
 #: the obstacle types written without compiling (primitives: MuJoCo keeps their frames as given)
 PRIMITIVES = (Box, Sphere, Capsule, Cylinder, Plane)
@@ -54,7 +54,9 @@ class WorldGeoms:
     ``contype`` / ``conaffinity`` / ``margin``: the spec's default geom's; ``override``: the model
     overrides contact margins; ``names``: every geom and body name (obstacle names must be new);
     ``geom_names``: every geom's name in MuJoCo's id order ('' where it has none), visual ones
-    included; ``body_geoms``: how many geoms each body has (MuJoCo's ``body_geomnum``)."""
+    included; ``body_geoms``: how many geoms each body has (MuJoCo's ``body_geomnum``);
+    ``sites``: every named site as ``(name, body id, pos, quat)`` (the frames ``ik`` and
+    ``plan_cartesian`` move, found without compiling: :func:`frame`)."""
 
     contype: int
     conaffinity: int
@@ -63,6 +65,7 @@ class WorldGeoms:
     names: frozenset[str]
     geom_names: tuple[str, ...]
     body_geoms: tuple[int, ...]
+    sites: tuple[tuple[str, int, tuple[float, ...], tuple[float, ...]], ...] = ()
 
     @property
     def count(self) -> int:
@@ -89,7 +92,10 @@ def world_geoms(robot: Any) -> WorldGeoms:
         margin=float(default.margin), override=bool(m.opt.enableflags & mujoco.mjtEnableBit.mjENBL_OVERRIDE),
         names=spec_names(spec),
         geom_names=tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(m.ngeom)),
-        body_geoms=tuple(int(n) for n in m.body_geomnum))
+        body_geoms=tuple(int(n) for n in m.body_geomnum),
+        sites=tuple((mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i), int(m.site_bodyid[i]),
+                     tuple(map(float, m.site_pos[i])), tuple(map(float, m.site_quat[i])))
+                    for i in range(m.nsite) if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i)))
     robot.__dict__["_world_geoms"] = known
     return known
 
@@ -280,8 +286,10 @@ def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: st
     counts = list(world.body_geoms)
     counts[0] -= 1
     counts.insert(new_body, 1)
+    sites = tuple((n, b + (b >= new_body), p, q) for n, b, p, q in world.sites)
     return _edited(robot, arrays, edit, name, body_names,
-                   replace(world, names=world.names | {edit.name}, geom_names=tuple(names), body_geoms=tuple(counts)))
+                   replace(world, names=world.names | {edit.name}, geom_names=tuple(names), body_geoms=tuple(counts),
+                           sites=sites))
 
 
 def _edited(robot: Any, arrays: dict, edit: Any, name: str, body_names: list[str], world: WorldGeoms) -> Any:
@@ -330,7 +338,7 @@ def put_geom(robot: Any, name: str) -> tuple[int, int] | None:
             or b in a["body_parent"][b + 1:]):
         return None
     g = sum(world.body_geoms[:b])
-    if world.geom_names[g] != name or g in a["pair_geom"]:
+    if world.geom_names[g] != name or g in a["pair_geom"] or any(s_b == b for _, s_b, _, _ in world.sites):
         return None
     r = int(np.searchsorted(a["geom_id"], g))
     if r == len(a["geom_id"]) or a["geom_id"][r] != g or int(a["geom_type"][r]) not in _HELD_TYPES:
@@ -386,5 +394,22 @@ def with_put(robot: Any, edit: Any, b: int, g: int, name: str) -> Any:
     counts = list(world.body_geoms)
     del counts[b]
     counts[0] += 1
+    sites = tuple((n, s_b - (s_b > b), p, q) for n, s_b, p, q in world.sites)   # (none on the held body)
     return _edited(robot, arrays, edit, name, body_names,
-                   replace(world, geom_names=tuple(names), body_geoms=tuple(counts)))
+                   replace(world, geom_names=tuple(names), body_geoms=tuple(counts), sites=sites))
+
+
+def frame(robot: Any, name: str) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """``(body, pos (3,), quat (4,))`` of the site or body ``name`` of a robot derived here whose
+    MuJoCo model is not compiled yet (``exact.ik.frame_of`` without a compile: sites first, then
+    bodies, as there); None where the model is at hand, or ``name`` is neither (a geom's frame,
+    or no frame: the caller asks the compiled model)."""
+    world = robot.__dict__.get("_world_geoms")
+    if world is None or robot._mj_model is not None:
+        return None
+    for site, b, pos, quat in world.sites:
+        if site == name:
+            return b, np.array(pos), np.array(quat)
+    if name in world.names and name in robot.body_names:   # (a real name: not a placeholder "body7")
+        return robot.body_names.index(name), np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
+    return None
