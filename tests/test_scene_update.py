@@ -207,3 +207,25 @@ def test_frames_of_a_robot_derived_without_compiling_need_no_compile():
     assert move.fraction > 0 and held._mj_model is None
     with pytest.raises(InputError, match="frame 'nowhere'"):
         frame_of(held, "nowhere")       # (not a frame: the compiled model says so, by name)
+
+
+@pytest.mark.parametrize("name", ["panda_blocks", "ur5e_wall_box", "shadow_hand", "xarm7_table", "vx300s_clutter"])
+def test_attach_and_detach_without_compiling_on_every_bundled_robot(name):
+    """On each bundled robot (couplings, a hand's many bodies, grippers): a box held by the last
+    moving body (touching the first), a capsule by one in the middle of the tree, the box let go
+    elsewhere; each robot's arrays are its compiled model's, bit for bit, nothing compiled first."""
+    from profrobot.exact.labels import sample_poses
+
+    base = profrobot.scenes.load(name)
+    rng = np.random.default_rng(7)
+    world = base.with_obstacles([
+        Box(pos=(0.4, 0.1, 0.5), half_size=(0.02, 0.03, 0.04), quat=tuple(rng.normal(size=4)), name="xbox"),
+        Capsule(pos=(0.1, 0.4, 0.3), radius=0.02, half_length=0.05, name="xcap")])
+    q, q2 = sample_poses(world, 2, seed=1)
+    moving = [b for i, b in enumerate(base.body_names) if i and base._arrays["body_weld"][i] != 0]
+    held = world.attach("xbox", to=moving[-1], at=q, touching=[moving[0]])
+    both = held.attach("xcap", to=moving[len(moving) // 2], at=q)
+    put = both.detach("xbox", at=q2)
+    for robot in (held, both, put):
+        assert robot._mj_model is None
+        assert_arrays_are_mujocos(robot)
