@@ -327,7 +327,7 @@ def with_tool(lpos: np.ndarray, lquat: np.ndarray, tool: npt.ArrayLike | None) -
 def frame_moved_by(robot: Robot, frame: str) -> np.ndarray:
     """(K,) bool: the joints that move ``frame`` (those on the bodies from the world to its body)."""
     body, _, _ = frame_of(robot, frame)
-    parent, jnt_body = robot._arrays["body_parent"], robot._arrays["jnt_body"]
+    parent, jnt_body = robot.body_parents, robot.joint_bodies
     chain = set()
     while body > 0:
         chain.add(int(body))

@@ -446,6 +446,17 @@ class Robot:
         return len(self.joint_names)
 
     @property
+    def body_parents(self) -> np.ndarray:
+        """(nbody,) int32: each body's parent body id, in MuJoCo's body order (the world's, 0, is
+        its own); :attr:`body_names` names them."""
+        return self._arrays["body_parent"].copy()
+
+    @property
+    def joint_bodies(self) -> np.ndarray:
+        """(K,) int32: the body each joint moves (an id into :attr:`body_names`)."""
+        return self._arrays["jnt_body"].copy()
+
+    @property
     def joint_limits(self) -> np.ndarray:
         """(K, 2) joint ranges in radians / metres; continuous hinges report [-pi, pi]."""
         return self.core.sampling_ranges()
