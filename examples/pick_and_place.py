@@ -69,8 +69,10 @@ class Execution:
     duration: float = 0.0
 
 
-def world() -> profrobot.Robot:
-    panda = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+def world(panda: profrobot.Robot | None = None) -> profrobot.Robot:
+    """The Panda (built here unless given) with the table, the wall and the mug."""
+    if panda is None:
+        panda = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
     return panda.with_obstacles([
         Box(pos=(0.5, 0.0, TABLE_TOP / 2), half_size=(0.3, 0.6, TABLE_TOP / 2), name="table"),
         Box(pos=(0.45, 0.0, TABLE_TOP + 0.125), half_size=(0.12, 0.02, 0.125), name="wall"),
@@ -99,8 +101,9 @@ def _limits(robot):
 
 
 def plan(seed: int = 0) -> list[Stage]:
-    robot = world()
-    home = robot.mj_model.key("home").qpos.copy()
+    panda = profrobot.Robot.from_menagerie("franka_emika_panda", "panda")
+    home = panda.mj_model.key("home").qpos.copy()
+    robot = world(panda)     # (the scene, the grasp and the release are written without compiling MuJoCo)
     grasp_z = TABLE_TOP + MUG_HALF + HOVER + 0.02          # the fingertips 3 cm below the mug's top
     place_z = grasp_z
     fingers = ("finger_joint1", "finger_joint2")
@@ -117,7 +120,7 @@ def plan(seed: int = 0) -> list[Stage]:
 
     def cartesian(name, r, q, dz, holding):
         t0 = time.perf_counter()
-        p = robot_frame(r, q)
+        p = tcp(r, q)
         move = profrobot.plan_cartesian(r, q, p + [0.0, 0.0, dz], frame="hand", tool=TCP, locked=fingers)
         if not move.reached:
             raise RuntimeError(f"stage {name}: {move.reason}")
@@ -150,7 +153,16 @@ def plan(seed: int = 0) -> list[Stage]:
     return stages
 
 
+def tcp(r, q) -> np.ndarray:
+    """Where the fingertips' centre is at pose ``q`` (the core's forward kinematics)."""
+    xpos, xquat = r.core.body_frames(np.asarray(q, dtype=np.float64)[None], r.body_names.index("hand"), threads=1)
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, xquat[0])
+    return xpos[0] + rot.reshape(3, 3) @ TCP
+
+
 def robot_frame(r, q) -> np.ndarray:
+    """The same by MuJoCo's ``mj_kinematics`` (the tests' independent check)."""
     m = r.mj_model
     d = mujoco.MjData(m)
     d.qpos[r.qpos_adr] = q

@@ -23,7 +23,7 @@ import numpy as np
 from . import urdf
 from ..errors import InputError, MissingFileError
 from .arrays import FREE, object_name
-from .sources import _SpecSource, _Urdf, _zip
+from .sources import _SpecSource, _Urdf
 
 
 
@@ -155,7 +155,7 @@ def from_urdf(cls, path: str | os.PathLike, *, package_dirs=None, srdf: str | os
     name = name or files.name
     for note in files.notes:
         warnings.warn(f"{name} ({files.path}): {note}", urdf.UrdfWarning, stacklevel=3)
-    root = _Urdf(files.xml, {}, _zip(files.assets), files.folder, True, mimics=files.mimics)
+    root = _Urdf(files.xml, {}, dict(files.assets), files.folder, True, mimics=files.mimics)
     robot = _from_urdf_root(cls, root, files, name)
     disabled: list[urdf.DisabledPair] = []
     if srdf is not None:

@@ -23,10 +23,12 @@ def _unzip(files: dict[str, bytes]) -> dict[str, bytes]:
 @dataclass(frozen=True, eq=False)
 class _Mjcf:
     """An MJCF model as bytes: the main file's text, the files it includes and every asset file
-    its meshes, textures, height fields and skins read (zlib-compressed), keyed by the name
-    MuJoCo looks them up by (the compiler folder joined with the ``file`` attribute), and the
-    folder it was read from (``modelfiledir``: names in MuJoCo's compiled ``paths`` stay the
-    same; the carried assets take precedence over any file there).
+    its meshes, textures, height fields and skins read, keyed by the name MuJoCo looks them up
+    by (the compiler folder joined with the ``file`` attribute), and the folder it was read from
+    (``modelfiledir``: names in MuJoCo's compiled ``paths`` stay the same; the carried assets
+    take precedence over any file there). Held as read; zlib-compressed in a pickle (once per
+    object: compressing a Panda's meshes takes ~0.2 s, which a scene update on a robot just
+    loaded, reading its sources, should not pay).
 
     ``exact``: the very files the model was parsed from (``from_mjcf``, ``from_menagerie``), so
     they compile to the same ``MjModel``, bit for bit. False for a spec given to ``from_spec``:
@@ -41,10 +43,22 @@ class _Mjcf:
     exact: bool
 
     def spec(self) -> mujoco.MjSpec:
-        spec = mujoco.MjSpec.from_string(self.xml, include=_unzip(self.include) or None,
-                                         assets=_unzip(self.assets) or None)
+        spec = mujoco.MjSpec.from_string(self.xml, include=self.include or None, assets=self.assets or None)
         spec.modelfiledir = self.modelfiledir
         return spec
+
+    def __getstate__(self) -> dict:
+        zipped = self.__dict__.get("_zipped")
+        if zipped is None:
+            zipped = (_zip(self.include), _zip(self.assets))
+            object.__setattr__(self, "_zipped", zipped)
+        state = {k: v for k, v in self.__dict__.items() if k != "_zipped"}
+        state["include"], state["assets"] = zipped
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        for k, v in state.items():
+            object.__setattr__(self, k, _unzip(v) if k in ("include", "assets") else v)
 
 
 def _asset_files(spec: mujoco.MjSpec) -> list[tuple[str, str]]:
@@ -103,7 +117,7 @@ def _read_mjcf(path: str) -> _Mjcf:
     bases = [os.path.basename(k).casefold() for k in assets]
     if len(set(bases)) < len(bases) or any(os.path.basename(v).casefold() not in bases for v in attrs):
         exact = False
-    return _Mjcf(xml, _zip(include), _zip(assets), spec.modelfiledir, exact)
+    return _Mjcf(xml, include, assets, spec.modelfiledir, exact)
 
 
 def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
@@ -113,7 +127,7 @@ def _spec_mjcf(spec: mujoco.MjSpec) -> _Mjcf:
     for key, full in _asset_files(spec):
         if key not in assets and os.path.basename(key) not in assets and os.path.isfile(full):
             assets[key] = _read(full)
-    return _Mjcf(spec.to_xml(), {}, _zip(assets), spec.modelfiledir or "", exact=False)
+    return _Mjcf(spec.to_xml(), {}, assets, spec.modelfiledir or "", exact=False)
 
 
 @dataclass(frozen=True, eq=False)
