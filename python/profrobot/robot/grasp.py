@@ -138,10 +138,16 @@ def _names(m: mujoco.MjModel, kind: mujoco.mjtObj, n: int) -> list[str]:
     return [mujoco.mj_id2name(m, kind, i) or "" for i in range(n)]
 
 
-def _kinematics(robot, at: npt.ArrayLike, name: str) -> mujoco.MjData:
+def _one_pose(robot, at: npt.ArrayLike, name: str) -> np.ndarray:
+    """``at`` as one pose (1, K) within the limits, refused by ``name`` otherwise."""
     q = pose_array(robot, at, name=name, check_limits=True)
     if q.shape != (1, robot.njoint):
         raise InputError(f"{name} must be one pose of {robot.njoint} joints; got shape {np.shape(at)}")
+    return np.ascontiguousarray(q)
+
+
+def _kinematics(robot, at: npt.ArrayLike, name: str) -> mujoco.MjData:
+    q = _one_pose(robot, at, name)
     m = robot.mj_model
     d = mujoco.MjData(m)
     d.qpos[robot.qpos_adr] = q[0]
@@ -220,17 +226,20 @@ def attach(robot, obstacle: str | Obstacle, *, to: str, at: npt.ArrayLike | None
     return _edited(robot, robot._editable("attach"), edit)
 
 
+def _placed(robot, at: npt.ArrayLike, b: int, g: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Body ``b``'s world position (3,) and quaternion (4,) at pose ``at`` by the core's forward
+    kinematics (no compile), and the arrays' row of geom ``g``."""
+    xpos, xquat = robot.core.body_frames(_one_pose(robot, at, "at"), b, threads=1)
+    return xpos[0], xquat[0], int(np.searchsorted(robot._arrays["geom_id"], g))
+
+
 def _held(robot, name: str, g: int, b: int, at: npt.ArrayLike | None, touching: tuple[str, ...]):
     """:func:`attach` of the world primitive ``g`` to body ``b`` without compiling: where the
     robot holds it at ``at``, by the core's forward kinematics and the geom's row."""
     if at is None:
         raise InputError("at is required: the robot's pose at the grasp (the object keeps its place there)")
-    q = pose_array(robot, at, name="at", check_limits=True)
-    if q.shape != (1, robot.njoint):
-        raise InputError(f"at must be one pose of {robot.njoint} joints; got shape {np.shape(at)}")
-    xpos, xquat = robot.core.body_frames(np.ascontiguousarray(q), b, threads=1)
-    r = int(np.searchsorted(robot._arrays["geom_id"], g))
-    body_p, body_q = _compose(*_inverse(xpos[0], xquat[0]), robot._arrays["geom_pos"][r], robot._arrays["geom_quat"][r])
+    xpos, xquat, r = _placed(robot, at, b, g)
+    body_p, body_q = _compose(*_inverse(xpos, xquat), robot._arrays["geom_pos"][r], robot._arrays["geom_quat"][r])
     edit = Attach(name, robot.body_names[b], tuple(map(float, body_p)), tuple(map(float, body_q)),
                   size=tuple(map(float, robot._arrays["geom_size"][r])), touching=touching)
     return _world.with_held(robot, edit, g, tuple(robot.body_names.index(t) for t in touching), robot.name)
@@ -244,12 +253,8 @@ def detach(robot, name: str, *, at: npt.ArrayLike):
     put = _world.put_geom(robot, name)
     if put is not None:   # a held primitive: written into the arrays (robot/world.py), no compile
         b, g = put
-        q = pose_array(robot, at, name="at", check_limits=True)
-        if q.shape != (1, robot.njoint):
-            raise InputError(f"at must be one pose of {robot.njoint} joints; got shape {np.shape(at)}")
-        xpos, xquat = robot.core.body_frames(np.ascontiguousarray(q), b, threads=1)
-        r = int(np.searchsorted(robot._arrays["geom_id"], g))
-        pos, quat = _compose(xpos[0], xquat[0], robot._arrays["geom_pos"][r], robot._arrays["geom_quat"][r])
+        xpos, xquat, r = _placed(robot, at, b, g)
+        pos, quat = _compose(xpos, xquat, robot._arrays["geom_pos"][r], robot._arrays["geom_quat"][r])
         edit = Detach(name, tuple(map(float, pos)), tuple(map(float, quat)),
                       size=tuple(map(float, robot._arrays["geom_size"][r])))
         return _world.with_put(robot, edit, b, g, robot.name)

@@ -250,22 +250,45 @@ def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: st
     def body_ids(ids: np.ndarray) -> np.ndarray:
         return np.where(ids >= new_body, ids + 1, ids).astype(np.int32)
 
-    def geom_ids(ids: np.ndarray) -> np.ndarray:
-        a = ids - (ids > g)
-        return np.where(ids == g, held_id, np.where(a >= held_id, a + 1, a)).astype(np.int32)
-
     arrays: dict[str, Any] = dict(old)
     arrays["body_parent"] = np.insert(body_ids(parent), new_body, to).astype(np.int32)
     arrays["body_weld"] = np.insert(body_ids(old["body_weld"]), new_body, body_ids(old["body_weld"])[to])
     arrays["body_pos"] = np.insert(old["body_pos"], new_body, np.asarray(edit.pos, dtype=np.float64), axis=0)
     arrays["body_quat"] = np.insert(old["body_quat"], new_body, _unit(np.asarray(edit.quat)), axis=0)
     arrays["jnt_body"] = body_ids(old["jnt_body"])
+    names = _move_geom(old, arrays, world, g, held_id, body_ids, geom_body=new_body, geom_pos=np.zeros(3),
+                       geom_quat=np.array([1.0, 0.0, 0.0, 0.0]))
+    excl = body_ids(old["exclude"])
+    extra = np.sort(np.array([[new_body, int(body_ids(np.array([t]))[0])] for t in touching],
+                             dtype=np.int32).reshape(-1, 2), axis=1)    # (MuJoCo signs a pair lower id first)
+    excl = np.unique(np.concatenate([excl, extra]).astype(np.int64), axis=0)   # (and sorts the signatures)
+    arrays["exclude"] = np.ascontiguousarray(excl.astype(np.int32)).reshape(-1, 2)
+    body_names = robot.body_names[:new_body] + [edit.name] + robot.body_names[new_body:]
+    counts = list(world.body_geoms)
+    counts[0] -= 1
+    counts.insert(new_body, 1)
+    sites = tuple((n, b + (b >= new_body), p, q) for n, b, p, q in world.sites)
+    return _edited(robot, arrays, edit, name, body_names,
+                   replace(world, names=world.names | {edit.name}, geom_names=names, body_geoms=tuple(counts),
+                           sites=sites))
+
+
+def _move_geom(old: dict, arrays: dict, world: WorldGeoms, g: int, new_id: int, body_ids: Any,
+               **values: Any) -> tuple[str, ...]:
+    """Into ``arrays``: the geom row of MuJoCo id ``g`` moved to id ``new_id`` with ``values``
+    (its body, frame, ...), every other geom renumbered as MuJoCo numbers them (down by one
+    after ``g``, then up by one from ``new_id``, in the rows and in ``<pair>``s) and every row's
+    body by ``body_ids``. Returns the geom names in the new order."""
+    def geom_ids(ids: np.ndarray) -> np.ndarray:
+        a = ids - (ids > g)
+        return np.where(ids == g, new_id, np.where(a >= new_id, a + 1, a)).astype(np.int32)
+
     r = int(np.searchsorted(old["geom_id"], g))
     row = {k: old[k][r] for k in old if k.startswith("geom_")}
-    row.update(geom_id=held_id, geom_body=new_body, geom_pos=np.zeros(3), geom_quat=np.array([1.0, 0.0, 0.0, 0.0]))
+    row.update(geom_id=new_id, **values)
     keep = np.arange(len(old["geom_id"])) != r
     ids = geom_ids(old["geom_id"][keep])
-    at = int(np.searchsorted(ids, held_id))
+    at = int(np.searchsorted(ids, new_id))
     for key, value in row.items():
         rest = old[key][keep]
         if key == "geom_id":
@@ -273,23 +296,10 @@ def with_held(robot: Any, edit: Any, g: int, touching: tuple[int, ...], name: st
         elif key == "geom_body":
             rest = body_ids(rest)
         arrays[key] = np.ascontiguousarray(np.insert(rest, at, value, axis=0).astype(old[key].dtype))
-    excl = body_ids(old["exclude"])
-    extra = np.sort(np.array([[new_body, int(body_ids(np.array([t]))[0])] for t in touching],
-                             dtype=np.int32).reshape(-1, 2), axis=1)    # (MuJoCo signs a pair lower id first)
-    excl = np.unique(np.concatenate([excl, extra]).astype(np.int64), axis=0)   # (and sorts the signatures)
-    arrays["exclude"] = np.ascontiguousarray(excl.astype(np.int32)).reshape(-1, 2)
     arrays["pair_geom"] = geom_ids(old["pair_geom"]) if len(old["pair_geom"]) else old["pair_geom"]
-    body_names = robot.body_names[:new_body] + [edit.name] + robot.body_names[new_body:]
     names = list(world.geom_names)
-    del names[g]
-    names.insert(held_id, edit.name)
-    counts = list(world.body_geoms)
-    counts[0] -= 1
-    counts.insert(new_body, 1)
-    sites = tuple((n, b + (b >= new_body), p, q) for n, b, p, q in world.sites)
-    return _edited(robot, arrays, edit, name, body_names,
-                   replace(world, names=world.names | {edit.name}, geom_names=tuple(names), body_geoms=tuple(counts),
-                           sites=sites))
+    names.insert(new_id, names.pop(g))
+    return tuple(names)
 
 
 def _edited(robot: Any, arrays: dict, edit: Any, name: str, body_names: list[str], world: WorldGeoms) -> Any:
@@ -356,10 +366,6 @@ def with_put(robot: Any, edit: Any, b: int, g: int, name: str) -> Any:
     def body_ids(ids: np.ndarray) -> np.ndarray:
         return np.where(ids > b, ids - 1, ids).astype(np.int32)
 
-    def geom_ids(ids: np.ndarray) -> np.ndarray:
-        a = ids - (ids > g)
-        return np.where(ids == g, put_id, np.where(a >= put_id, a + 1, a)).astype(np.int32)
-
     arrays: dict[str, Any] = dict(old)
     keep_body = np.arange(len(old["body_parent"])) != b
     arrays["body_parent"] = body_ids(old["body_parent"][keep_body])
@@ -367,36 +373,20 @@ def with_put(robot: Any, edit: Any, b: int, g: int, name: str) -> Any:
     arrays["body_pos"] = np.ascontiguousarray(old["body_pos"][keep_body])
     arrays["body_quat"] = np.ascontiguousarray(old["body_quat"][keep_body])
     arrays["jnt_body"] = body_ids(old["jnt_body"])
-    r = int(np.searchsorted(old["geom_id"], g))
-    row = {k: old[k][r] for k in old if k.startswith("geom_")}
-    margin = row["geom_margin"]
-    row.update(geom_id=put_id, geom_body=0, geom_pos=np.asarray(edit.pos, dtype=np.float64),
-               geom_quat=_unit(np.asarray(edit.quat)),
-               geom_margin=max(float(margin), robot.margin) if robot.margin > 0 else margin)
-    keep = np.arange(len(old["geom_id"])) != r
-    ids = geom_ids(old["geom_id"][keep])
-    at = int(np.searchsorted(ids, put_id))
-    for key, value in row.items():
-        rest = old[key][keep]
-        if key == "geom_id":
-            rest = ids
-        elif key == "geom_body":
-            rest = body_ids(rest)
-        arrays[key] = np.ascontiguousarray(np.insert(rest, at, value, axis=0).astype(old[key].dtype))
+    margin = old["geom_margin"][int(np.searchsorted(old["geom_id"], g))]
+    names = _move_geom(old, arrays, world, g, put_id, body_ids, geom_body=0,
+                       geom_pos=np.asarray(edit.pos, dtype=np.float64), geom_quat=_unit(np.asarray(edit.quat)),
+                       geom_margin=max(float(margin), robot.margin) if robot.margin > 0 else margin)
     excl = old["exclude"]
     excl = excl[~(excl == b).any(axis=1)] if len(excl) else excl
     arrays["exclude"] = np.ascontiguousarray(body_ids(excl)).reshape(-1, 2)
-    arrays["pair_geom"] = geom_ids(old["pair_geom"]) if len(old["pair_geom"]) else old["pair_geom"]
     body_names = robot.body_names[:b] + robot.body_names[b + 1:]
-    names = list(world.geom_names)
-    del names[g]
-    names.insert(put_id, edit.name)
     counts = list(world.body_geoms)
     del counts[b]
     counts[0] += 1
     sites = tuple((n, s_b - (s_b > b), p, q) for n, s_b, p, q in world.sites)   # (none on the held body)
     return _edited(robot, arrays, edit, name, body_names,
-                   replace(world, geom_names=tuple(names), body_geoms=tuple(counts), sites=sites))
+                   replace(world, geom_names=names, body_geoms=tuple(counts), sites=sites))
 
 
 def frame(robot: Any, name: str) -> tuple[int, np.ndarray, np.ndarray] | None:
