@@ -39,6 +39,12 @@ const CHUNK: usize = 256;
 
 /// Sample behind `likely_pairs`: poses, seed.
 const SAMPLE_POSES: usize = 512;
+/// Poses of the sample for a model rebuilt from one that had made its proofs (a scene update,
+/// `RobotModel::rebuilt`), whose first use should cost milliseconds: labelling 512 poses took
+/// 1.3 ms of a MotionBenchMaker Panda's 6 ms first plan, 128 take a quarter of it, and the
+/// plans after it were no slower (`benches/mbm.py`'s problems: second calls' median 3.87 ms
+/// both ways, the first calls' 0.8 ms lower).
+const SAMPLE_POSES_REBUILT: usize = 128;
 const SAMPLE_SEED: u64 = 0x6c69_6b65_6c79; // "likely"
 
 /// At most this many likely pairs (each costs every free pose a sphere test); a pair joins
@@ -239,7 +245,8 @@ fn greedy_cover(model: &RobotModel) -> Vec<u32> {
     if k == 0 || model.pairs.is_empty() {
         return Vec::new();
     }
-    let mut poses = vec![0.0; SAMPLE_POSES * k];
+    let n = if model.inherited.is_some() { SAMPLE_POSES_REBUILT } else { SAMPLE_POSES };
+    let mut poses = vec![0.0; n * k];
     for (c, block) in poses.chunks_mut(BLOCK * k).enumerate() {
         fill_block(&ranges, SAMPLE_SEED, c, block);
     }
@@ -259,7 +266,7 @@ fn greedy_cover(model: &RobotModel) -> Vec<u32> {
         }
     }
     let min_gain = ((colliding as f64 * MIN_SHARE).ceil() as usize).max(1);
-    let mut covered = vec![false; SAMPLE_POSES];
+    let mut covered = vec![false; n];
     let mut order = Vec::new();
     while order.len() < MAX_LIKELY {
         let gain = |p: &[u32]| p.iter().filter(|&&i| !covered[i as usize]).count();

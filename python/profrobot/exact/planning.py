@@ -140,9 +140,11 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
     verify = gate.count("verify", verify, why="1: no verification")
     if check not in ("continuous", "sampled"):
         raise InputError(f"check must be 'continuous' or 'sampled'; got {check!r}")
-    lab = label_poses(robot, np.concatenate([s, g]), pairs=True)
+    ends = np.concatenate([s, g])
+    # the fast path first (a plan's ends are free): the pairs are labelled only to name one
+    lab = label_poses(robot, ends, pairs=True) if robot.core.collides(ends, threads=1).any() else None
     for i, name in enumerate(("start", "goal")):
-        if lab.collides[i]:
+        if lab is not None and lab.collides[i]:
             assert lab.colliding_pairs is not None   # asked for: pairs=True
             k = lab.colliding_pairs[lab.colliding_pairs[:, 0] == i][0, 1]
             within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
