@@ -17,7 +17,7 @@ pub fn available_bytes() -> u64 {
 }
 
 /// Sizes up to this many bytes are allowed without reading `/proc/meminfo` (a read costs about
-/// 20 µs, as much as a planner's edge check; the planner asks once per edge): a machine without
+/// 30 µs, more than a planner's edge check; the planner asks once per edge): a machine without
 /// 64 MiB to spare has failed before the call.
 const ALWAYS_FITS: u64 = 1 << 26;
 

@@ -113,7 +113,7 @@ def available_bytes() -> int:
         return 2**63
 
 
-#: Bytes allowed without reading /proc/meminfo (a read costs about 20 µs; a machine without
+#: Bytes allowed without reading /proc/meminfo (a read costs about 30 µs; a machine without
 #: 64 MiB to spare has failed before the call). The same rule as the core's (``budget.rs``).
 ALWAYS_FITS = 1 << 26
 
