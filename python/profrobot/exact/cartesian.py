@@ -93,17 +93,27 @@ def _quat_xyzw(q_wxyz: np.ndarray) -> np.ndarray:
 # call on these batches, which was most of a move's time; scipy builds the line, these check it)
 def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products of (N, 4) and (N, 4) or (4,) quaternions, (w, x, y, z)."""
-    aw, ax, ay, az = np.moveaxis(np.broadcast_to(a, np.broadcast_shapes(a.shape, b.shape)), -1, 0)
-    bw, bx, by, bz = np.moveaxis(np.broadcast_to(b, np.broadcast_shapes(a.shape, b.shape)), -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
 
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(N, 3): the vector ``v`` (3,) rotated by each unit quaternion of ``q`` (N, 4)."""
-    w, u = q[:, :1], q[:, 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    """(N, 3): the vector ``v`` (3,) rotated by each unit quaternion of ``q`` (N, 4):
+    ``v + w t + u × t`` with ``t = 2 u × v`` (``u`` the vector part), written out by component."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    vx, vy, vz = (float(c) for c in v)
+    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+    out = np.empty((len(q), 3))
+    out[:, 0] = vx + w * tx + y * tz - z * ty
+    out[:, 1] = vy + w * ty + z * tx - x * tz
+    out[:, 2] = vz + w * tz + x * ty - y * tx
+    return out
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -123,23 +133,34 @@ def _slerp(qa: np.ndarray, qb: np.ndarray, u: np.ndarray) -> np.ndarray:
     return sa[:, None] * qa + sb[:, None] * qb
 
 
+def _matrices(q: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of unit quaternions ``q`` (N, 4), (w, x, y, z)."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    m = np.empty((len(q), 3, 3))
+    m[:, 0, 0], m[:, 0, 1], m[:, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    m[:, 1, 0], m[:, 1, 1], m[:, 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    m[:, 2, 0], m[:, 2, 1], m[:, 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return m
+
+
 class _Line:
     """The polyline of legs between frame poses: points, rotations and arc length."""
 
     def __init__(self, pos: np.ndarray, rot: Rotation, step: float):
-        from scipy.spatial.transform import Slerp
         self.pos, self.rot = pos, rot
         lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
         angles = (rot[:-1].inv() * rot[1:]).magnitude()
         self.turning_only = lengths.sum() <= 1e-12
         self.length = angles if self.turning_only else lengths
         self.total = float(self.length.sum())
-        self.slerps = [Slerp([0.0, 1.0], rot[i:i + 2]) for i in range(len(pos) - 1)]
         self.quats = rot.as_quat()[:, [3, 0, 1, 2]]
         self.cuts = [max(1, int(np.ceil(max(lengths[i] / step, angles[i] / (10 * step))))) for i in range(len(pos) - 1)]
 
-    def at(self, leg: int, u: np.ndarray) -> tuple[np.ndarray, Rotation]:
-        return self.pos[leg] + np.outer(u, self.pos[leg + 1] - self.pos[leg]), self.slerps[leg](u)
+    def at(self, leg: int, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (N, 3) and rotation matrices (N, 3, 3) on leg ``leg`` at ``u`` (N,): the
+        deviation's own slerp (``_slerp``), so the targets are the line it measures from."""
+        q = _slerp(self.quats[leg], self.quats[leg + 1], np.asarray(u, dtype=np.float64))
+        return self.pos[leg] + np.outer(u, self.pos[leg + 1] - self.pos[leg]), _matrices(q)
 
     def deviation(self, leg: int, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(distance to the leg's segment, angle to its slerp at the nearest point, that point's
@@ -222,8 +243,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
         T[:, 3, 3] = 1
         for leg in np.unique(lu[:, 0]).astype(int):
             on = lu[:, 0] == leg
-            p, r = line.at(leg, lu[on, 1])
-            T[on, :3, 3], T[on, :3, :3] = p, r.as_matrix()
+            T[on, :3, 3], T[on, :3, :3] = line.at(leg, lu[on, 1])
         return T
 
     def solve(leg_u: list[tuple[int, float]], q_from: np.ndarray):
