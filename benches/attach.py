@@ -76,19 +76,21 @@ def main(argv: list[str]) -> int:
     def let_go(h, q):
         return h.detach("mug", at=q)
 
-    # each operation over every scene in turn (steady state), then the next; robots dropped as
-    # they are done with (MuJoCo's MjSpec.delete, which the compiled attach calls, slows down
-    # with every live spec: 50 held robots with their specs made it ~2 s)
+    # the three operations on one scene, one after another (paired); the held robots compiled and
+    # checked after all of them (a compile between two timings would leave the second cold), then
+    # dropped before the compiled path (MuJoCo's MjSpec.delete, which the compiled attach calls,
+    # slows down with every live spec: 50 held robots with their specs made it ~2 s)
     held = []
-    for scene, q in jobs:   # (paired: the three operations on one scene, one after another)
-        h = timed("attach", grasp, timed("with_obstacles", base.with_obstacles, scene), q)
+    for scene, q in jobs:
+        w = timed("with_obstacles", base.with_obstacles, scene)
+        h = timed("attach", grasp, w, q)
         timed("detach", let_go, h, q)
         held.append(h)
     prints = []
-    for h in held:   # (after the timings: a compile between two of them would leave them cold)
+    for h in held:
         assert h._mj_model is None and h.mj_model is not None   # (compiled and checked here)
         prints.append(h.fingerprint)
-    del held
+    del held, h
     keep = _world.held_geom, _world.put_geom
     _world.held_geom = _world.put_geom = lambda robot, name: None     # the compile path, as before
     try:

@@ -147,7 +147,7 @@ class _Line:
     """The polyline of legs between frame poses: points, rotations and arc length."""
 
     def __init__(self, pos: np.ndarray, rot: Rotation, step: float):
-        self.pos, self.rot = pos, rot
+        self.pos = pos
         lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
         angles = (rot[:-1].inv() * rot[1:]).magnitude()
         self.turning_only = lengths.sum() <= 1e-12

@@ -93,9 +93,9 @@ def world_geoms(robot: Any) -> WorldGeoms:
         names=spec_names(spec),
         geom_names=tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(m.ngeom)),
         body_geoms=tuple(int(n) for n in m.body_geomnum),
-        sites=tuple((mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i), int(m.site_bodyid[i]),
-                     tuple(map(float, m.site_pos[i])), tuple(map(float, m.site_quat[i])))
-                    for i in range(m.nsite) if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i)))
+        sites=tuple((n, int(m.site_bodyid[i]), tuple(map(float, m.site_pos[i])), tuple(map(float, m.site_quat[i])))
+                    for i, n in enumerate(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i) for i in range(m.nsite))
+                    if n))
     robot.__dict__["_world_geoms"] = known
     return known
 
