@@ -5,8 +5,10 @@ call, which wall-clock runs of two builds one after the other on a shared VM do 
 
     python benches/paired.py --other ../old/python [--rounds 5] [--problems 40] [--targets 300]
 
-Prints, per scene, the median wall time of ``plan_path`` (defaults, hard pairs) and of ``ik``
-(FK targets of free poses) for each build, and their ratio (this / other). The load average is
+Prints, per scene, the median wall time of ``plan_path`` (defaults, hard pairs), of ``ik`` (FK
+targets of free poses) and of ``plan_cartesian`` (5-10 cm approach moves along the frame's z axis
+from certified poses, as ``benches/cartesian.py`` makes them) for each build, and their ratio
+(this / other). The load average is
 printed beside the table. Build the other checkout's extension first, e.g. in a git worktree:
 ``PYO3_PYTHON=python cargo build --release --features python --lib`` then copy
 ``target/release/libprofrobot.so`` to ``python/profrobot/_core.abi3.so``.
@@ -39,6 +41,7 @@ for name in profrobot.scenes.names():
     probs[name] = (d["starts"], d["goals"])
     if "targets" in d:
         targets[name] = d["targets"]
+        probs[name] += (d["move_starts"], d["move_ends"])
     profrobot.plan_path(robots[name], d["starts"][0], d["goals"][0])   # warm
 print("ready", flush=True)
 for line in sys.stdin:
@@ -47,6 +50,9 @@ for line in sys.stdin:
     t0 = time.perf_counter()
     if kind == "plan":
         found = profrobot.plan_path(robot, probs[name][0][int(i)], probs[name][1][int(i)]).found
+    elif kind == "cart":
+        profrobot.plan_cartesian(robot, probs[name][2][int(i)], probs[name][3][int(i)][None], frame=arms[name])
+        found = True   # (a move stopped short is an answer too)
     else:
         found = profrobot.ik(robot, targets[name], frame=arms[name]).certified.any()
     print(time.perf_counter() - t0 if found else "nan", flush=True)
@@ -74,6 +80,17 @@ def make_problems(folder: Path, problems: int, n_targets: int) -> None:
                 body = d.body(ARMS[name])
                 T[i, :3, :3], T[i, :3, 3] = body.xmat.reshape(3, 3), body.xpos
             out["targets"] = T
+            # straight approach moves: 5-10 cm along the frame's z from certified poses
+            q = profrobot.sample_poses(robot, 20 * problems, seed=3)
+            q = q[profrobot.certify_poses(robot, q)][:problems]
+            rng = np.random.default_rng(0)
+            ends = np.empty((len(q), 3))
+            for i, x in enumerate(q):
+                d.qpos[robot.qpos_adr] = x
+                mujoco.mj_kinematics(m, d)
+                body = d.body(ARMS[name])
+                ends[i] = body.xpos + body.xmat.reshape(3, 3)[:, 2] * rng.uniform(0.05, 0.10)
+            out["move_starts"], out["move_ends"] = q, ends
         np.savez(folder / f"{name}.npz", **out)
 
 
@@ -96,7 +113,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--other", required=True, help="the other checkout's python/ folder (its extension built there)")
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--problems", type=int, default=40, help="plan_path problems per scene")
+    ap.add_argument("--problems", type=int, default=40, help="plan_path problems per scene (and straight-line moves per arm)")
     ap.add_argument("--targets", type=int, default=300, help="IK targets per arm (one call)")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1] / "python")
@@ -117,6 +134,7 @@ def main() -> None:
 
         calls = [("plan", name, str(i)) for name in profrobot.scenes.names() for i in range(args.problems)]
         calls += [("ik", name, "0") for name in ARMS for _ in range(5)]
+        calls += [("cart", name, str(i)) for name in ARMS for i in range(args.problems)]
         for r in range(args.rounds):
             for j, (kind, name, i) in enumerate(calls):
                 for tag in (("this", "other") if (j + r) % 2 == 0 else ("other", "this")):
@@ -130,7 +148,7 @@ def main() -> None:
         if tag == "this":
             a = statistics.median(times[(kind, name, "this")]) * 1e3
             b = statistics.median(times[(kind, name, "other")]) * 1e3
-            what = "plan_path" if kind == "plan" else f"ik, {args.targets} targets"
+            what = {"plan": "plan_path", "cart": "plan_cartesian"}.get(kind, f"ik, {args.targets} targets")
             print(f"| {what} | {name} | {a:.3f} | {b:.3f} | {a / b:.3f} |")
 
 

@@ -13,7 +13,7 @@
 //! Only the pool handles leak in the child, once.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 use rayon::{ThreadPool, ThreadPoolBuilder};
 
@@ -30,9 +30,13 @@ struct PoolCache(Mutex<Option<Pools>>);
 
 static POOLS: PoolCache = PoolCache(Mutex::new(None));
 
-/// The thread count `threads = None` stands for: the cores this process may run on.
+/// The thread count `threads = None` stands for: the cores this process may run on, read once
+/// per process (`available_parallelism` reads the cgroup's quota and the affinity mask, ~0.1 ms
+/// a call on a container, which every native call with `threads = None` paid; rayon reads it
+/// once too).
 pub fn default_threads() -> usize {
-    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+    static CORES: OnceLock<usize> = OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
 }
 
 impl PoolCache {
