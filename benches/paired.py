@@ -115,6 +115,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--problems", type=int, default=40, help="plan_path problems per scene (and straight-line moves per arm)")
     ap.add_argument("--targets", type=int, default=300, help="IK targets per arm (one call)")
+    ap.add_argument("--calls", default="plan,ik,cart", help="which calls to pair (comma-separated: plan, ik, cart)")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1] / "python")
     with tempfile.TemporaryDirectory() as tmp:
@@ -135,6 +136,10 @@ def main() -> None:
         calls = [("plan", name, str(i)) for name in profrobot.scenes.names() for i in range(args.problems)]
         calls += [("ik", name, "0") for name in ARMS for _ in range(5)]
         calls += [("cart", name, str(i)) for name in ARMS for i in range(args.problems)]
+        kinds = set(args.calls.split(","))
+        if not kinds <= {"plan", "ik", "cart"}:
+            raise SystemExit(f"--calls takes plan, ik and cart; got {args.calls}")
+        calls = [c for c in calls if c[0] in kinds]
         for r in range(args.rounds):
             for j, (kind, name, i) in enumerate(calls):
                 for tag in (("this", "other") if (j + r) % 2 == 0 else ("other", "this")):

@@ -123,3 +123,47 @@ def test_bad_input_refused_by_name(panda):
         plan_cartesian(panda, q[:4], [0.3, 0.0, 0.5], frame="hand")
     with pytest.raises(InputError, match="start collides"):
         plan_cartesian(puck(), [0.85, 0.15], [0.3, 0.0, 0.0], frame="puck")
+
+
+@pytest.mark.parametrize("name, body", [("panda_blocks", "hand"), ("ur5e_wall_box", "wrist_3_link")])
+def test_the_bound_between_samples_holds_on_segments_that_stray(name, body):
+    """plan_cartesian shows a segment on the line from a few samples and a bound on how far the
+    frame can go between them (cartesian._bounded): MuJoCo's forward kinematics every 1/4000 of
+    segments large and small (0.01-0.6 rad per joint), measured from the chord of the frame's
+    own motion, never finds the frame farther from it, or turned farther from its slerp, than the
+    bound, also with loose tolerances (few samples: the bound between them carries it)."""
+    from profrobot.exact.cartesian import _bounded, _lever_arms, _Line
+
+    robot = scene(name)
+    b = robot.mj_model.body(body).id
+    arms = _lever_arms(robot, b, np.zeros(3))
+    assert arms is not None and len(arms[0]) >= 6
+
+    def frames(q):
+        return robot.core.body_frames(np.ascontiguousarray(q), b)
+
+    rng = np.random.default_rng(7)
+    data = mujoco.MjData(robot.mj_model)
+    qs = profrobot.sample_poses(robot, 36, seed=11)
+    for i, qa in enumerate(qs):
+        scale = (0.01, 0.1, 0.6)[(i // 2) % 3]
+        qb = np.clip(qa + rng.normal(0, scale, robot.njoint), *robot.joint_limits.T)
+        # the leg is the chord of the frame's own motion, as plan_cartesian's waypoints are on
+        # the line: the ends are on it, and all the deviation is between the samples
+        (pa, ra), (pb, rb) = _frame(robot, qa, body), _frame(robot, qb, body)
+        line = _Line(np.stack([pa, pb]), np.stack([ra, rb]), 0.005)
+        q = np.stack([qa, qb])
+        # (the tolerances plan_cartesian uses, and loose ones: a single interval, the bound alone)
+        tols = ((1e-3, 0.01), (1.0, 1.0))[i % 2]
+        bound_p, bound_r = _bounded(line, frames, q, np.diff(q, axis=0), np.array([0]), arms, tols)
+        a, d = line.pos[0], line.pos[1] - line.pos[0]
+        slerp = Slerp([0, 1], Rotation.from_quat(line.quats[:, [1, 2, 3, 0]]))
+        p, quat = np.empty((4001, 3)), np.empty((4001, 4))
+        for k, w in enumerate(np.linspace(0, 1, 4001)):
+            data.qpos[robot.qpos_adr] = qa + w * (qb - qa)
+            mujoco.mj_kinematics(robot.mj_model, data)
+            p[k], quat[k] = data.xpos[b], data.xquat[b]
+        u = np.clip((p - a) @ d / (d @ d), 0, 1)
+        worst_p = np.linalg.norm(a + u[:, None] * d - p, axis=1).max()
+        worst_r = (slerp(u).inv() * Rotation.from_quat(quat[:, [1, 2, 3, 0]])).magnitude().max()
+        assert worst_p <= bound_p[0] + 1e-12 and worst_r <= bound_r[0] + 1e-12, (i, worst_p, bound_p, worst_r, bound_r)

@@ -12,9 +12,13 @@ the fraction of the line it covers and why the rest cannot (as MoveIt's
 certified IK (:func:`profrobot.ik`, one seed: the previous joint pose) solves them all at once
 from the start, then again from the last good pose wherever the solutions stop following
 the line. Between consecutive joint waypoints the motion is the straight joint interpolation;
-the frame's deviation from the line there is measured by forward kinematics every 0.1 mm of the
-frame's travel and every 0.2 mrad of the joints' (a flip of the elbow between two nearby frame
-poses swings the frame far off the line between them). A segment that strays is solved again
+the frame's deviation from the line there is bounded everywhere on it, not only where it is
+sampled: forward kinematics at a few samples, spaced by the joints' motion, and a bound on how
+far the frame can move off the chord between two samples and turn between them (``_bounded``,
+its exactness argument there; a flip of the elbow between two nearby frame poses moves the
+joints far, and its bound takes it). Where the frame's chain has a slide or coupled joint the
+deviation is sampled instead, every 0.1 mm of the frame's travel and every 0.2 mrad of the
+joints'. A segment that strays is solved again
 from its start pose (the rest of the line with it: the batch may have chosen another branch),
 then halved (a new waypoint in the middle, solved from the segment's start) up to 6 times, at
 most twice as many waypoints added in all as the line had. The joint path is then certified by the continuous
@@ -27,7 +31,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -39,9 +43,6 @@ from .labels import as_poses, check_threads, label_poses
 from ..robot import gate
 from ..robot.gate import Layout
 from ..robot.robot import Robot
-
-if TYPE_CHECKING:   # (scipy loads on first use: ``import profrobot`` stays light)
-    from scipy.spatial.transform import Rotation
 
 __all__ = ["CartesianPath", "plan_cartesian"]
 
@@ -64,9 +65,9 @@ class CartesianPath:
             path covers, in [0, 1].
         reached: ``fraction == 1``: the whole line is followed.
         reason: why the line stops where it does ('' when reached).
-        position_deviation: metres, the largest distance of the frame from the line found on
-            the path (checked every 0.1 mm of the frame's travel); rotation_deviation: radians,
-            likewise from the slerp.
+        position_deviation: metres, a bound on the frame's distance from the line anywhere on
+            the path (module docs; the largest found every 0.1 mm of its travel where its chain
+            has a slide or coupled joint); rotation_deviation: radians, likewise from the slerp.
         seconds: wall time.
     """
 
@@ -85,12 +86,8 @@ class CartesianPath:
                 f"{self.seconds * 1e3:.1f} ms")
 
 
-def _quat_xyzw(q_wxyz: np.ndarray) -> np.ndarray:
-    return np.asarray(q_wxyz)[..., [1, 2, 3, 0]]
-
-
-# (the dense checks' quaternion arithmetic in numpy, (w, x, y, z): scipy's Rotation costs ~0.1 ms a
-# call on these batches, which was most of a move's time; scipy builds the line, these check it)
+# (the quaternion arithmetic in numpy, (w, x, y, z): scipy's Rotation costs ~0.1 ms a call on these
+# small batches, which was most of a move's time)
 def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products of (N, 4) and (N, 4) or (4,) quaternions, (w, x, y, z)."""
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
@@ -146,14 +143,18 @@ def _matrices(q: np.ndarray) -> np.ndarray:
 class _Line:
     """The polyline of legs between frame poses: points, rotations and arc length."""
 
-    def __init__(self, pos: np.ndarray, rot: Rotation, step: float):
+    def __init__(self, pos: np.ndarray, quats: np.ndarray, step: float):
         self.pos = pos
         lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-        angles = (rot[:-1].inv() * rot[1:]).magnitude()
+        quats = quats / np.linalg.norm(quats, axis=1, keepdims=True)
+        # (the turn of each leg: 2 atan2(|v|, |w|) of the relative rotation, exact also where small)
+        rel = _qmul(quats[:-1] * [1.0, -1.0, -1.0, -1.0], quats[1:])
+        angles = 2.0 * np.arctan2(np.linalg.norm(rel[:, 1:], axis=1), np.abs(rel[:, 0]))
         self.turning_only = lengths.sum() <= 1e-12
+        self.chord, self.turn = lengths, angles
         self.length = angles if self.turning_only else lengths
         self.total = float(self.length.sum())
-        self.quats = rot.as_quat()[:, [3, 0, 1, 2]]
+        self.quats = quats
         self.cuts = [max(1, int(np.ceil(max(lengths[i] / step, angles[i] / (10 * step))))) for i in range(len(pos) - 1)]
 
     def at(self, leg: int, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,6 +179,110 @@ class _Line:
         return dist, _angle(_slerp(qa, qb, u), r), u
 
 
+#: the most intervals one segment's bound is cut into (a joint flip between two nearby frame poses
+#: would need more: that segment is then not shown on the line, and is halved as one that strays)
+_MOST_INTERVALS = 4096
+_HINGE = 3   # (MuJoCo's mjJNT_HINGE)
+
+
+def _lever_arms(robot: Robot, body: int, lpos: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The joints that move the frame point ``lpos`` of ``body``, base to tip, and for each a bound
+    ρ_j (metres) on the point's distance from the joint's anchor at every pose; None where one of
+    them is a slide or a coupled joint (the sampled check serves those).
+
+    Exactness: the anchor of hinge j keeps its distance ``|anchor_j|`` from its body's origin;
+    each later hinge of that body moves the origin by at most ``2 |anchor_k|`` (it turns the
+    anchor's offset about its own anchor); from a body's origin to its child's is ``|pos|`` and
+    to the frame point ``|lpos|``. ρ_j is the sum along the chain (the triangle inequality)."""
+    a = robot._arrays
+    parent, jbody, jtype = a["body_parent"].tolist(), a["jnt_body"].tolist(), a["jnt_type"].tolist()
+    arm = np.linalg.norm(a["jnt_pos"], axis=1).tolist()
+    offset = np.linalg.norm(a["body_pos"], axis=1).tolist()
+    dependent = set(robot.couplings.dependent)
+    on_body: dict[int, list[int]] = {}
+    for j, b in enumerate(jbody):
+        on_body.setdefault(b, []).append(j)
+    joints: list[int] = []
+    rho: list[float] = []
+    after = float(np.linalg.norm(lpos))          # bounds |origin of body b - the point|
+    b = int(body)
+    while b > 0:                                   # (tip to base)
+        js = on_body.get(b, [])
+        if any(jtype[j] != _HINGE or j in dependent for j in js):
+            return None
+        later = 0.0
+        for j in reversed(js):
+            joints.append(j)
+            rho.append(arm[j] + later + after)
+            later += 2 * arm[j]
+        after += later + offset[b]
+        b = parent[b]
+    return np.array(joints[::-1], dtype=np.int64), np.array(rho[::-1])
+
+
+def _bounded(line: _Line, frames, q: np.ndarray, d: np.ndarray, seg_legs: np.ndarray,
+             arms: tuple[np.ndarray, np.ndarray], tols: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Upper bounds (metres, radians) on the frame's distance from leg ``seg_legs[i]`` and angle
+    from its slerp anywhere on each joint segment ``q[i] + s d[i]``, s in [0, 1], from the frame
+    at a few samples each.
+
+    Exactness, on a chain of hinges (``_lever_arms``), s the segment's parameter: the frame point
+    moves at ``|p'| ≤ Σ |d_j| ρ_j`` and turns at ``|ω| ≤ Σ |d_j|`` (unit axes); differentiating
+    ``p' = Σ d_j ω_j × (p - a_j)`` once more (``ω_j' = Σ_{i<j} d_i ω_i × ω_j``, the anchors moved
+    by the joints before them) gives ``|p''| ≤ Σ_j |d_j| (2 D_j ρ_j + Σ_{i≥j} |d_i| ρ_i)``, D_j
+    = ``Σ_{i<j} |d_i|``. Between two samples h apart the point is within ``h² max|p''| / 8`` of
+    the chord between them, and the chord's distance from the leg (a convex set) is at most the
+    larger of its ends': the position bound. The angle to the slerp is Lipschitz with ``|ω|``
+    plus the slerp's rate (θ_leg per unit u, and u moves at most ``|p'| / |leg|``; a leg that only
+    turns takes u from the angle, at most ``|ω| / θ``), so between samples it is at most the mean
+    of the ends' plus half the rate times h. Samples are spaced so that these terms are half the
+    tolerance and the rate times h the tolerance; a segment not shown within the tolerances is
+    sampled four times finer, twice, and is otherwise reported with its bound (it strays)."""
+    joints, rho = arms
+    tol_p, tol_r = tols
+    dj = np.abs(d[:, joints])
+    lp = dj @ rho
+    lr = dj.sum(axis=1)
+    before = np.cumsum(dj, axis=1) - dj
+    tail = np.cumsum((dj * rho)[:, ::-1], axis=1)[:, ::-1]
+    m2 = (dj * (2 * before * rho + tail)).sum(axis=1)
+    chord, turn = line.chord[seg_legs], line.turn[seg_legs]
+    la = lr + np.where(chord > 0, turn * lp / np.where(chord > 0, chord, 1.0), lr)
+    k = np.ceil(np.maximum(np.sqrt(m2 / (4 * tol_p)), la / tol_r))
+    k = np.clip(np.nan_to_num(k, nan=_MOST_INTERVALS), 1, _MOST_INTERVALS).astype(np.int64)
+    out_d, out_a = np.full(len(d), np.inf), np.full(len(d), np.inf)
+    todo = np.arange(len(d))
+    for _ in range(3):
+        kt = k[todo]
+        seg = np.repeat(todo, kt + 1)
+        first = np.concatenate([[0], np.cumsum(kt + 1)[:-1]])
+        s = (np.arange(len(seg)) - np.repeat(first, kt + 1)) / np.repeat(kt, kt + 1)
+        p, r = frames(q[seg] + s[:, None] * d[seg])
+        dist, ang = np.zeros(len(seg)), np.zeros(len(seg))
+        for leg in np.unique(seg_legs[todo]):
+            on = seg_legs[seg] == leg
+            dist[on], ang[on], _ = line.deviation(int(leg), p[on], r[on])
+        left = np.flatnonzero(seg[:-1] == seg[1:])            # intervals [left, left + 1]
+        iseg, h = seg[left], 1.0 / k[seg[left]]
+        pos = np.maximum(dist[left], dist[left + 1]) + h * h * m2[iseg] / 8
+        rot = np.maximum(np.maximum(ang[left], ang[left + 1]), (ang[left] + ang[left + 1] + la[iseg] * h) / 2)
+        bd, ba = np.zeros(len(d)), np.zeros(len(d))
+        np.maximum.at(bd, iseg, pos)
+        np.maximum.at(ba, iseg, rot)
+        out_d[todo], out_a[todo] = bd[todo], ba[todo]
+        # (finer samples can only help where the samples themselves are within the tolerances)
+        sd, sa = np.zeros(len(d)), np.zeros(len(d))
+        np.maximum.at(sd, seg, dist)
+        np.maximum.at(sa, seg, ang)
+        fail = todo[((out_d[todo] > tol_p) | (out_a[todo] > tol_r)) & (sd[todo] <= tol_p) & (sa[todo] <= tol_r)
+                    & (k[todo] < _MOST_INTERVALS)]
+        if not len(fail):
+            break
+        k[fail] = np.minimum(4 * k[fail], _MOST_INTERVALS)
+        todo = fail
+    return out_d, out_a
+
+
 def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *, frame: str,
                    tool: npt.ArrayLike | None = None, step: float = 0.005, position_tolerance: float = 1e-3,
                    rotation_tolerance: float = 0.01, locked: Sequence[str] = (), layout: Layout | None = None,
@@ -195,8 +300,6 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     Returns a :class:`CartesianPath`: the certified joint path along as much of the line as can
     be followed, the fraction it covers and why it stops (a joint limit or singularity, a
     collision, a segment the certificate does not prove)."""
-    from scipy.spatial.transform import Rotation
-
     t0 = time.perf_counter()
     robot = gate.robot_at(robot, layout=layout, margin=margin)
     s = as_poses(robot, start, name="start", check_limits=True)
@@ -222,11 +325,9 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
         return xb + _rotate(qb, lpos), _qmul(qb, lquat)
 
     p0, q0 = frames(s)
-    r0 = Rotation.from_quat(_quat_xyzw(q0[0]))
     tpos, tquat = as_targets(targets)
-    trot = (Rotation.from_quat(_quat_xyzw(tquat)) if tquat is not None
-            else Rotation.from_quat(np.repeat(_quat_xyzw(q0), len(tpos), axis=0)))
-    line = _Line(np.concatenate([p0, tpos]), Rotation.concatenate([r0, trot]), step)
+    line = _Line(np.concatenate([p0, tpos]), np.concatenate([q0, tquat if tquat is not None else
+                                                             np.repeat(q0, len(tpos), axis=0)]), step)
 
     # Waypoints (leg, u) along the line, and their arc length from the start.
     legs = np.concatenate([np.full(c, i) for i, c in enumerate(line.cuts)])
@@ -252,27 +353,20 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
                   position_tolerance=position_tolerance / 100, rotation_tolerance=rotation_tolerance / 100,
                   locked=locked, threads=threads)
 
-    def stray(qa: np.ndarray, qb: np.ndarray, leg: int, pa: np.ndarray) -> tuple[float, float]:
-        """The frame's largest deviations from leg ``leg`` on the joint segment qa → qb."""
-        pb, _ = frames(qb[None])
-        d = qb - qa
-        wraps = robot.continuous
-        d[wraps] = (d[wraps] + np.pi) % (2 * np.pi) - np.pi
-        n = max(2, int(np.ceil(np.linalg.norm(pb[0] - pa) / CHECK_SPACING)) + 1,
-                int(np.ceil(np.abs(d).max() / JOINT_SPACING)) + 1)
-        n = min(n, 4000)
-        w = np.linspace(0.0, 1.0, n)[:, None]
-        q = robot.project(qa + w * d)
-        p, r = frames(q)
-        dist, ang, _ = line.deviation(leg, p, r)
-        return float(dist.max()), float(ang.max())
+    arms = _lever_arms(robot, body, lpos)
+    tols = (position_tolerance, rotation_tolerance)
 
-    def strays(q: np.ndarray, seg_legs: np.ndarray, pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``stray`` of every segment of the joint path ``q`` (n + 1, K) at once (one forward
-        kinematics call for all its checks); ``pw`` (n + 1, 3): where the frame is at each pose."""
+    def strays(q: np.ndarray, seg_legs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds on the frame's deviations from the line (metres, radians) anywhere on each
+        segment of the joint path ``q`` (n + 1, K), each measured from its leg ``seg_legs[i]``
+        (module docs: a few samples and the joints' motion), or, where the frame's chain has a
+        slide or coupled joint, the largest found every 0.1 mm and 0.2 mrad."""
         d = np.diff(q, axis=0)
         wraps = robot.continuous
         d[:, wraps] = (d[:, wraps] + np.pi) % (2 * np.pi) - np.pi
+        if arms is not None:
+            return _bounded(line, frames, q, d, seg_legs, arms, tols)
+        pw = frames(q)[0]
         n = np.clip(np.maximum(np.ceil(np.linalg.norm(np.diff(pw, axis=0), axis=1) / CHECK_SPACING),
                                np.ceil(np.abs(d).max(axis=1) / JOINT_SPACING)).astype(int) + 1, 2, 4000)
         seg = np.repeat(np.arange(len(d)), n)
@@ -287,6 +381,11 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
         np.maximum.at(out_a, seg, ang)
         return out_d, out_a
 
+    def stray(qa: np.ndarray, qb: np.ndarray, leg: int) -> tuple[float, float]:
+        """``strays`` of the one joint segment qa → qb, from leg ``leg``."""
+        dist, ang = strays(np.stack([qa, qb]), np.array([leg]))
+        return float(dist[0]), float(ang[0])
+
     path, reached_arc, reason = [s[0]], 0.0, ""
     worst = [0.0, 0.0]
     i = 0
@@ -297,8 +396,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
     ok = np.cumprod(sol.certified).astype(bool)
     if ok.any():
         k = int(ok.sum())
-        dists, angs = strays(np.concatenate([s, sol.poses[:k]]), legs[:k],
-                             np.concatenate([p0, points(pending[:k])[:, :3, 3]]))
+        dists, angs = strays(np.concatenate([s, sol.poses[:k]]), legs[:k])
         good = np.cumprod((dists <= position_tolerance) & (angs <= rotation_tolerance)).astype(bool)
         i = int(good.sum())
         if i:
@@ -319,13 +417,12 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
                              else "out of reach from the last pose (a joint limit or a singularity)"))
                 break
         qa, qb = path[-1], sol.poses[i]
-        pa, _ = frames(qa[None])
-        dist, ang = stray(qa, qb, leg, pa[0])
+        dist, ang = stray(qa, qb, leg)
         if dist > position_tolerance or ang > rotation_tolerance:
             # solved from the start, the pose may be on another branch: the rest from this pose
             again = solve(pending[i:], qa)
             if again.certified[0]:
-                d2, a2 = stray(qa, again.poses[0], leg, pa[0])
+                d2, a2 = stray(qa, again.poses[0], leg)
                 if d2 <= position_tolerance and a2 <= rotation_tolerance:
                     sol = _splice(sol, i, len(pending), again)
                     dist, ang, qb = d2, a2, again.poses[0]
@@ -343,7 +440,7 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
             inserted += 1
             leg, u = mid
             qb = sol.poses[i]
-            dist, ang = stray(qa, qb, leg, pa[0])
+            dist, ang = stray(qa, qb, leg)
             halvings += 1
         if dist > position_tolerance or ang > rotation_tolerance:
             reason = (f"the frame leaves the line near {arc(leg, u):.4g} {'rad' if line.turning_only else 'm'} "
