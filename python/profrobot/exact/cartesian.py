@@ -182,7 +182,6 @@ class _Line:
 #: the most intervals one segment's bound is cut into (a joint flip between two nearby frame poses
 #: would need more: that segment is then not shown on the line, and is halved as one that strays)
 _MOST_INTERVALS = 4096
-_HINGE = 3   # (MuJoCo's mjJNT_HINGE)
 
 
 def _lever_arms(robot: Robot, body: int, lpos: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -194,10 +193,9 @@ def _lever_arms(robot: Robot, body: int, lpos: np.ndarray) -> tuple[np.ndarray, 
     each later hinge of that body moves the origin by at most ``2 |anchor_k|`` (it turns the
     anchor's offset about its own anchor); from a body's origin to its child's is ``|pos|`` and
     to the frame point ``|lpos|``. ρ_j is the sum along the chain (the triangle inequality)."""
-    a = robot._arrays
-    parent, jbody, jtype = a["body_parent"].tolist(), a["jnt_body"].tolist(), a["jnt_type"].tolist()
-    arm = np.linalg.norm(a["jnt_pos"], axis=1).tolist()
-    offset = np.linalg.norm(a["body_pos"], axis=1).tolist()
+    parent, jbody, jtype = robot.body_parents.tolist(), robot.joint_bodies.tolist(), robot.joint_types
+    arm = np.linalg.norm(robot.joint_anchors, axis=1).tolist()
+    offset = np.linalg.norm(robot.body_offsets, axis=1).tolist()
     dependent = set(robot.couplings.dependent)
     on_body: dict[int, list[int]] = {}
     for j, b in enumerate(jbody):
@@ -208,7 +206,7 @@ def _lever_arms(robot: Robot, body: int, lpos: np.ndarray) -> tuple[np.ndarray, 
     b = int(body)
     while b > 0:                                   # (tip to base)
         js = on_body.get(b, [])
-        if any(jtype[j] != _HINGE or j in dependent for j in js):
+        if any(jtype[j] != "hinge" or j in dependent for j in js):
             return None
         later = 0.0
         for j in reversed(js):

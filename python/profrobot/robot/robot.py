@@ -457,6 +457,17 @@ class Robot:
         return self._arrays["jnt_body"].copy()
 
     @property
+    def joint_anchors(self) -> np.ndarray:
+        """(K, 3) float64: each joint's anchor in its body's frame, metres (MuJoCo's ``jnt_pos``)."""
+        return self._arrays["jnt_pos"].copy()
+
+    @property
+    def body_offsets(self) -> np.ndarray:
+        """(nbody, 3) float64: each body's origin in its parent's frame, metres (MuJoCo's
+        ``body_pos``; the world's is zero)."""
+        return self._arrays["body_pos"].copy()
+
+    @property
     def joint_limits(self) -> np.ndarray:
         """(K, 2) joint ranges in radians / metres; continuous hinges report [-pi, pi]."""
         return self.core.sampling_ranges()
