@@ -41,7 +41,7 @@
 //! |---|---|---|---|
 //! | [`error`] | the one error type | | |
 //! | [`budget`] | sizes checked against the memory available before they are allocated | `error` | |
-//! | [`threads`] | one rayon pool per thread count, fork-safe | `error` | |
+//! | [`threads`] | one rayon pool per thread count, fork-safe; one work item on the calling thread | `error` | |
 //! | [`cancel`] | the flag long loops read between items: a call stopped part-way (Ctrl-C) | `error` | |
 //! | [`joints`] | joint space: poses and what holds of them before any geometry | `error`, `budget` | |
 //! | [`joints::angles`] | the one angle wrap (SO(2), shortest arcs) | | |
@@ -63,7 +63,7 @@
 //! | `model::trig` | sin and cos of hinge half angles: libm's (msun), one pose or four lanes, bit for bit | | |
 //! | `model::lanes` | four poses at once: nalgebra's quaternion and matrix arithmetic lane for lane, bit for bit | | |
 //! | [`model::kinematics`] | forward kinematics, one pose or a batch | | |
-//! | [`collision`] | collision queries of one pose over the candidate pairs | `error`, `cancel`, `joints`, `geometry`, `model` | `planning` |
+//! | [`collision`] | collision queries of one pose over the candidate pairs | `error`, `threads`, `cancel`, `joints`, `geometry`, `model` | `planning` |
 //! | [`collision::collide`] | labelling: narrow phase and batches | | |
 //! | `collision::sat` | remembered separating axes, tried before GJK | | |
 //! | `collision::capsules` | two capsules in closed form, as MuJoCo measures them | | |

@@ -15,6 +15,7 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
+use rayon::prelude::*;
 use rayon::{ThreadPool, ThreadPoolBuilder};
 
 use crate::error::{invalid_input, Result};
@@ -86,15 +87,47 @@ pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Sen
     Ok(pool(threads)?.install(f))
 }
 
+/// `data.par_chunks(size).enumerate().map_init(init, f).collect()` on rayon's current pool, or,
+/// where `data` is one chunk (or none), the same on the calling thread without touching rayon:
+/// no hand-off to a pool and no sleeping worker woken (20-250 µs on a VM after a pause, most of
+/// a one-pose call). The chunks, and so the results, are the same either way.
+///
+/// # Example
+/// ```
+/// let sums = profrobot::threads::map_chunks(&[1, 2, 3, 4, 5], 2, || (), |_, (i, c)| (i, c.iter().sum::<i32>()));
+/// assert_eq!(sums, vec![(0, 3), (1, 7), (2, 5)]);
+/// ```
+pub fn map_chunks<T, S, R>(
+    data: &[T],
+    size: usize,
+    init: impl Fn() -> S + Sync + Send,
+    f: impl Fn(&mut S, (usize, &[T])) -> R + Sync + Send,
+) -> Vec<R>
+where
+    T: Sync,
+    R: Send,
+{
+    let size = size.max(1);
+    if data.len() <= size {
+        let mut state = init();
+        return data.chunks(size).enumerate().map(|c| f(&mut state, c)).collect();
+    }
+    data.par_chunks(size).enumerate().map_init(init, f).collect()
+}
+
 /// This process's pool of `threads` workers (`None`: [`default_threads`]), built on first use;
 /// `Some(0)` is an error. [`with_threads`] runs a closure on it.
 pub fn pool(threads: Option<usize>) -> Result<Arc<ThreadPool>> {
-    let n = match threads {
-        None => default_threads(),
-        Some(0) => return invalid_input("threads must be at least 1"),
-        Some(n) => n,
-    };
-    POOLS.get(std::process::id(), n)
+    POOLS.get(std::process::id(), count(threads)?)
+}
+
+/// The thread count `threads` stands for (`None`: [`default_threads`]); `Some(0)` is an error.
+pub fn count(threads: Option<usize>) -> Result<usize> {
+    match threads {
+        None => Ok(default_threads()),
+        Some(0) => invalid_input("threads must be at least 1"),
+        Some(n) => Ok(n),
+    }
 }
 
 #[cfg(test)]

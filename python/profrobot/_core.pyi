@@ -59,7 +59,9 @@ class RobotModel:
     Immutable and picklable: the pickle holds the model's description, every float exact to
     the bit, so an unpickled model (in another process, e.g. a DataLoader worker) labels
     exactly as the original. Safe to use in a child forked after the parent labelled poses:
-    the child starts its own threads."""
+    the child starts its own threads. A batch of at most 256 poses (``body_frames``,
+    ``forward_kinematics``, ``label``, ``collides``, ``certified``) is one work item and runs on
+    the calling thread, the GIL released: no thread hand-off; results never depend on it."""
 
     def __new__(cls, arrays: dict[str, npt.NDArray | bool]) -> RobotModel: ...
     def __reduce__(self) -> tuple[Callable[[bytes], RobotModel], tuple[bytes]]:

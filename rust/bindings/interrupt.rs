@@ -13,10 +13,32 @@ use pyo3::prelude::*;
 use super::errors::to_py;
 use crate::cancel;
 use crate::error::Result;
-use crate::threads::pool;
+use crate::threads::{count, pool};
 
 /// How often the waiting thread checks for signals.
 const POLL: Duration = Duration::from_millis(20);
+
+/// Batches of at most this many poses are one work item of every pose loop (their `CHUNK`s),
+/// milliseconds at most: [`run_batch`] runs them on the calling thread.
+const ONE_ITEM: usize = 256;
+
+/// `work()` over a batch of `poses` poses: as [`run`], except that a batch of one work item runs
+/// on the calling thread (the GIL released), where the pose loops run one item without rayon
+/// (`threads::map_chunks`): no hand-off to the pool and no sleeping worker woken, 20-250 µs on a
+/// VM after a pause, most of a one-pose call. Results never depend on where the work runs; bad
+/// `threads` is refused all the same.
+pub(super) fn run_batch<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    poses: usize,
+    work: impl FnOnce() -> Result<T> + Send,
+) -> PyResult<T> {
+    if poses > ONE_ITEM {
+        return run(py, threads, work);
+    }
+    count(threads).map_err(to_py)?;
+    py.detach(work).map_err(to_py)
+}
 
 /// `work()` on the pool of `threads` workers, the GIL released, stopping on Ctrl-C (module docs).
 /// What `py.detach(|| with_threads(threads, work))` was, with the core's errors mapped to Python's.

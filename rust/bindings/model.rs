@@ -289,7 +289,7 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let (xpos, xquat) = py.detach(|| with_threads(threads, || body_frames(model, q, body))).map_err(to_py)?.map_err(to_py)?;
+        let (xpos, xquat) = interrupt::run_batch(py, threads, q.len() / model.njoint().max(1), || body_frames(model, q, body))?;
         let b = xpos.len() / 3;
         Ok((PyArray1::from_vec(py, xpos).reshape([b, 3])?, PyArray1::from_vec(py, xquat).reshape([b, 4])?))
     }
@@ -300,7 +300,7 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let (xpos, xquat) = py.detach(|| with_threads(threads, || forward_kinematics(model, q))).map_err(to_py)?.map_err(to_py)?;
+        let (xpos, xquat) = interrupt::run_batch(py, threads, q.len() / model.njoint().max(1), || forward_kinematics(model, q))?;
         let nb = model.nbody();
         let b = xpos.len() / (3 * nb);
         Ok((PyArray1::from_vec(py, xpos).reshape([b, nb, 3])?, PyArray1::from_vec(py, xquat).reshape([b, nb, 4])?))
@@ -320,7 +320,7 @@ impl PyRobotModel {
         let q = rows_of(&poses);
         let q: &[f64] = &q;
         let opts = LabelOptions { pairs, distance };
-        let batch = interrupt::run(py, threads, || {
+        let batch = interrupt::run_batch(py, threads, q.len() / model.njoint().max(1), || {
             // (checked first, so that bad input costs no proofs)
             model.check_poses(q)?;
             prove_apart(model);
@@ -350,7 +350,7 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = interrupt::run(py, threads, || {
+        let out = interrupt::run_batch(py, threads, q.len() / model.njoint().max(1), || {
             model.check_poses(q)?;
             prove_apart(model);
             collides_batch(model, q)
@@ -372,7 +372,7 @@ impl PyRobotModel {
         let poses = pose_array(poses, model.njoint(), "poses")?;
         let q = rows_of(&poses);
         let q: &[f64] = &q;
-        let out = interrupt::run(py, threads, || {
+        let out = interrupt::run_batch(py, threads, q.len() / model.njoint().max(1), || {
             model.check_poses(q)?;
             crate::model::broad::check_clearance(clearance)?;
             prove_apart(model);

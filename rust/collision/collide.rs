@@ -19,7 +19,6 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use parry3d_f64::query;
 use parry3d_f64::shape::{Shape, SupportMap};
-use rayon::prelude::*;
 
 use crate::collision::capsules;
 use crate::collision::sat::intersection_test_remembering;
@@ -1095,26 +1094,24 @@ pub fn label_batch(model: &RobotModel, poses: &[f64], opts: LabelOptions) -> Res
     let k = model.njoint();
     // Per chunk of poses: its labels and colliding (pose, pair)s, or its first error.
     type Chunk = Result<(Vec<Label>, Vec<[u32; 2]>)>;
-    let chunks: Vec<Chunk> = poses
-        .par_chunks(CHUNK * k)
-        .enumerate()
-        .map_init(
-            || (Scratch4::new(model), Vec::new()),
-            |(scratch, hits), (c, chunk)| {
-                crate::cancel::check()?;
-                let mut labels = Vec::with_capacity(chunk.len() / k);
-                let mut pairs = Vec::new();
-                scratch.for_each(model, chunk, opts.distance, |i, q, s| {
-                    hits.clear();
-                    let pose = c * CHUNK + i;
-                    labels.push(label_placed(model, q, s, opts, hits).map_err(|e| e.error(model, format!("pose {pose}")))?);
-                    pairs.extend(hits.iter().map(|&p| [pose as u32, p]));
-                    Ok(())
-                })?;
-                Ok((labels, pairs))
-            },
-        )
-        .collect();
+    let chunks: Vec<Chunk> = crate::threads::map_chunks(
+        poses,
+        CHUNK * k,
+        || (Scratch4::new(model), Vec::new()),
+        |(scratch, hits), (c, chunk)| {
+            crate::cancel::check()?;
+            let mut labels = Vec::with_capacity(chunk.len() / k);
+            let mut pairs = Vec::new();
+            scratch.for_each(model, chunk, opts.distance, |i, q, s| {
+                hits.clear();
+                let pose = c * CHUNK + i;
+                labels.push(label_placed(model, q, s, opts, hits).map_err(|e| e.error(model, format!("pose {pose}")))?);
+                pairs.extend(hits.iter().map(|&p| [pose as u32, p]));
+                Ok(())
+            })?;
+            Ok((labels, pairs))
+        },
+    );
     let chunks = first_error(chunks)?;
     let mut out = LabelBatch::default();
     for (labels, pairs) in chunks {

@@ -26,8 +26,6 @@
 //! with another pair in contact may stop at that pair first and answer `true`, which is right
 //! whatever the undecided pair would say.)
 
-use rayon::prelude::*;
-
 use crate::collision::collide::{first_error, label_pose, LabelOptions, Scratch, Scratch4, Undecided};
 use crate::error::Result;
 use crate::joints::sample::{fill_block, BLOCK};
@@ -141,29 +139,27 @@ where
     model.check_poses(poses)?;
     let k = model.njoint();
     likely_pairs(model);
-    let chunks: Vec<Result<Vec<bool>>> = poses
-        .par_chunks(CHUNK * k)
-        .enumerate()
-        .map_init(
-            || Scratch4::new(model),
-            |s, (c, chunk)| {
-                crate::cancel::check()?;
-                let mut out = Vec::with_capacity(chunk.len() / k);
-                s.for_each_lazy(
-                    model,
-                    chunk,
-                    false,
-                    |_, q, s| first(q, s),
-                    |_, q, s| second(q, s),
-                    |i, r| {
-                        out.push(r.map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
-                        Ok(())
-                    },
-                )?;
-                Ok(out)
-            },
-        )
-        .collect();
+    let chunks: Vec<Result<Vec<bool>>> = crate::threads::map_chunks(
+        poses,
+        CHUNK * k,
+        || Scratch4::new(model),
+        |s, (c, chunk)| {
+            crate::cancel::check()?;
+            let mut out = Vec::with_capacity(chunk.len() / k);
+            s.for_each_lazy(
+                model,
+                chunk,
+                false,
+                |_, q, s| first(q, s),
+                |_, q, s| second(q, s),
+                |i, r| {
+                    out.push(r.map_err(|e| e.error(model, format!("pose {}", c * CHUNK + i)))?);
+                    Ok(())
+                },
+            )?;
+            Ok(out)
+        },
+    );
     Ok(first_error(chunks)?.concat())
 }
 

@@ -158,19 +158,26 @@ pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>
     crate::budget::check("poses (forward kinematics' frames)", &[b, nb, 7], 8)?;
     let mut xpos = vec![0.0; b * nb * 3];
     let mut xquat = vec![0.0; b * nb * 4];
-    poses.par_chunks(CHUNK * k).zip(xpos.par_chunks_mut(CHUNK * nb * 3)).zip(xquat.par_chunks_mut(CHUNK * nb * 4)).for_each_init(
-        || vec![Isometry3::identity(); nb],
-        |frames, ((q, pos), quat)| {
-            for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
-                body_poses(model, qi, frames);
-                for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
-                    p.copy_from_slice(f.translation.vector.as_slice());
-                    let q = f.rotation.quaternion();
-                    r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
-                }
+    let work = |frames: &mut Vec<Isometry3<f64>>, ((q, pos), quat): ((&[f64], &mut [f64]), &mut [f64])| {
+        for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
+            body_poses(model, qi, frames);
+            for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+                p.copy_from_slice(f.translation.vector.as_slice());
+                let q = f.rotation.quaternion();
+                r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
             }
-        },
-    );
+        }
+    };
+    if b <= CHUNK {
+        // (one work item: on the calling thread, without rayon, as `threads::map_chunks`)
+        work(&mut vec![Isometry3::identity(); nb], ((poses, &mut xpos), &mut xquat));
+    } else {
+        poses
+            .par_chunks(CHUNK * k)
+            .zip(xpos.par_chunks_mut(CHUNK * nb * 3))
+            .zip(xquat.par_chunks_mut(CHUNK * nb * 4))
+            .for_each_init(|| vec![Isometry3::identity(); nb], work);
+    }
     Ok((xpos, xquat))
 }
 
@@ -193,18 +200,25 @@ pub fn body_frames(model: &RobotModel, poses: &[f64], body: usize) -> Result<(Ve
     }
     let mut xpos = vec![0.0; b * 3];
     let mut xquat = vec![0.0; b * 4];
-    poses.par_chunks(CHUNK * k).zip(xpos.par_chunks_mut(CHUNK * 3)).zip(xquat.par_chunks_mut(CHUNK * 4)).for_each_init(
-        || vec![Isometry3::identity(); nb],
-        |frames, ((q, pos), quat)| {
-            for ((qi, p), r) in q.chunks_exact(k).zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
-                marked_body_poses(model, qi, frames, &marks, 1);
-                let f = &frames[body];
-                p.copy_from_slice(f.translation.vector.as_slice());
-                let q = f.rotation.quaternion();
-                r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
-            }
-        },
-    );
+    let work = |frames: &mut Vec<Isometry3<f64>>, ((q, pos), quat): ((&[f64], &mut [f64]), &mut [f64])| {
+        for ((qi, p), r) in q.chunks_exact(k).zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+            marked_body_poses(model, qi, frames, &marks, 1);
+            let f = &frames[body];
+            p.copy_from_slice(f.translation.vector.as_slice());
+            let q = f.rotation.quaternion();
+            r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
+        }
+    };
+    if b <= CHUNK {
+        // (one work item: on the calling thread, without rayon, as `threads::map_chunks`)
+        work(&mut vec![Isometry3::identity(); nb], ((poses, &mut xpos), &mut xquat));
+    } else {
+        poses
+            .par_chunks(CHUNK * k)
+            .zip(xpos.par_chunks_mut(CHUNK * 3))
+            .zip(xquat.par_chunks_mut(CHUNK * 4))
+            .for_each_init(|| vec![Isometry3::identity(); nb], work);
+    }
     Ok((xpos, xquat))
 }
 
