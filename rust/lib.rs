@@ -54,7 +54,7 @@
 //! | `geometry::inner` | balls inside each convex shape: overlaps proven without GJK | | |
 //! | [`geometry::cloud`] | point clouds: balls in a tree, exact queries against one convex shape, voxel downsampling | | |
 //! | [`geometry::shapes`] | `GeomType`, `GeomShape`, `Solid` (half-space, convex or cloud), `Convex` | | |
-//! | [`model`] | `RobotModel`: the validated, derived robot, its pairs, broad phase and kinematics | `error`, `budget`, `joints`, `geometry` | |
+//! | [`model`] | `RobotModel`: the validated, derived robot, its pairs, broad phase and kinematics | `error`, `budget`, `threads`, `joints`, `geometry` | |
 //! | [`model::desc`] | `ModelDesc`: the robot as plain serde data | | |
 //! | [`model::geom`] | `Geom`: a shape on a body | | |
 //! | [`model::pairs`] | candidate pairs with MuJoCo's filters | | |

@@ -32,9 +32,9 @@ struct PoolCache(Mutex<Option<Pools>>);
 static POOLS: PoolCache = PoolCache(Mutex::new(None));
 
 /// The thread count `threads = None` stands for: the cores this process may run on, read once
-/// per process (`available_parallelism` reads the cgroup's quota and the affinity mask, ~0.1 ms
-/// a call on a container, which every native call with `threads = None` paid; rayon reads it
-/// once too).
+/// (`available_parallelism` reads the cgroup's quota and the affinity mask, ~0.1 ms a call on a
+/// container, which every native call with `threads = None` paid; rayon reads it once too). A
+/// forked child keeps its parent's count, also where it changes its affinity.
 pub fn default_threads() -> usize {
     static CORES: OnceLock<usize> = OnceLock::new();
     *CORES.get_or_init(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
@@ -86,6 +86,12 @@ impl PoolCache {
 pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
     Ok(pool(threads)?.install(f))
 }
+
+/// Poses per parallel work item of every pose loop (labels, the fast paths, forward kinematics):
+/// large enough to amortise scheduling, small enough to balance, and fixed, so the split never
+/// depends on the thread count. A batch of at most this many is one item, which
+/// [`map_chunks`] and the bindings run on the calling thread.
+pub const POSE_CHUNK: usize = 256;
 
 /// `data.par_chunks(size).enumerate().map_init(init, f).collect()` on rayon's current pool, or,
 /// where `data` is one chunk (or none), the same on the calling thread without touching rayon:

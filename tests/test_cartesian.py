@@ -125,7 +125,37 @@ def test_bad_input_refused_by_name(panda):
         plan_cartesian(puck(), [0.85, 0.15], [0.3, 0.0, 0.0], frame="puck")
 
 
-@pytest.mark.parametrize("name, body", [("panda_blocks", "hand"), ("ur5e_wall_box", "wrist_3_link")])
+# An arm whose hinges sit off their bodies' origins, two and three to a body, one unlimited, with
+# turned bodies and a `ref`: the lever arms' anchor terms (cartesian._lever_arms), which the
+# bundled arms (every hinge at its body's origin) never exercise.
+_OFFSET_ARM = """
+<mujoco model="offset_arm">
+  <worldbody>
+    <body name="l1" pos="0 0 0.1">
+      <joint name="a" type="hinge" axis="0 0 1" pos="0.05 0 0" range="-2 2"/>
+      <geom type="capsule" fromto="0 0 0 0 0 0.3" size="0.04" contype="0" conaffinity="0"/>
+      <body name="l2" pos="0 0.02 0.3" quat="0.9239 0.3827 0 0">
+        <joint name="b" type="hinge" axis="0 1 0" pos="0 0 0.04" range="-2 2"/>
+        <joint name="c" type="hinge" axis="1 0 0" pos="0.03 -0.02 0" ref="0.3"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.035" contype="0" conaffinity="0"/>
+        <body name="tip" pos="0.3 0 0" quat="0.7071 0 0.7071 0">
+          <joint name="d" type="hinge" axis="0 0 1" pos="0 0.05 0.02" range="-2.5 2.5"/>
+          <joint name="e" type="hinge" axis="0 1 0" pos="0.02 0 0" range="-2 2"/>
+          <joint name="f" type="hinge" axis="1 0 0" pos="0 0 -0.03" range="-2 2"/>
+          <geom type="box" size="0.03 0.02 0.06" pos="0 0 0.08" contype="0" conaffinity="0"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def _offset_arm():
+    return profrobot.Robot.from_spec(mujoco.MjSpec.from_string(_OFFSET_ARM), name="offset_arm")
+
+
+@pytest.mark.parametrize("name, body", [("panda_blocks", "hand"), ("ur5e_wall_box", "wrist_3_link"), ("offset", "tip")])
 def test_the_bound_between_samples_holds_on_segments_that_stray(name, body):
     """plan_cartesian shows a segment on the line from a few samples and a bound on how far the
     frame can go between them (cartesian._bounded): MuJoCo's forward kinematics every 1/4000 of
@@ -134,7 +164,7 @@ def test_the_bound_between_samples_holds_on_segments_that_stray(name, body):
     bound, also with loose tolerances (few samples: the bound between them carries it)."""
     from profrobot.exact.cartesian import _bounded, _lever_arms, _Line
 
-    robot = scene(name)
+    robot = _offset_arm() if name == "offset" else scene(name)
     b = robot.mj_model.body(body).id
     arms = _lever_arms(robot, b, np.zeros(3))
     assert arms is not None and len(arms[0]) >= 6
@@ -167,3 +197,32 @@ def test_the_bound_between_samples_holds_on_segments_that_stray(name, body):
         worst_p = np.linalg.norm(a + u[:, None] * d - p, axis=1).max()
         worst_r = (slerp(u).inv() * Rotation.from_quat(quat[:, [1, 2, 3, 0]])).magnitude().max()
         assert worst_p <= bound_p[0] + 1e-12 and worst_r <= bound_r[0] + 1e-12, (i, worst_p, bound_p, worst_r, bound_r)
+
+
+def test_turning_in_place_with_the_target_where_mujoco_puts_the_frame():
+    """A turn of the hand in place, its target position read from MuJoCo (the last bits differ
+    from the core's forward kinematics): measured as a turn, not along a chord of 1e-16 m; the
+    hand stays within 1 mm of the point and ends at the target's orientation."""
+    robot = scene("panda_blocks")
+    qs = profrobot.sample_poses(robot, 2000, seed=3)
+    qs = qs[profrobot.certify_poses(robot, qs)][:12]
+    rng = np.random.default_rng(4)
+    data = mujoco.MjData(robot.mj_model)
+    hand = robot.mj_model.body("hand").id
+    reached = 0
+    for q in qs:
+        p, quat = _frame(robot, q, "hand")
+        turn = Rotation.from_rotvec(0.6 * Rotation.random(random_state=rng).apply([0.0, 0.0, 1.0]))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = (turn * Rotation.from_quat(quat[[1, 2, 3, 0]])).as_matrix(), p
+        res = plan_cartesian(robot, q, T[None], frame="hand")
+        reached += res.reached
+        for qa, qb in zip(res.path[:-1], res.path[1:]):
+            for w in np.linspace(0, 1, 50):
+                data.qpos[robot.qpos_adr] = qa + w * (qb - qa)
+                mujoco.mj_kinematics(robot.mj_model, data)
+                assert np.linalg.norm(data.xpos[hand] - p) <= 1e-3
+        if res.reached:
+            end = Rotation.from_quat(_frame(robot, res.path[-1], "hand")[1][[1, 2, 3, 0]])
+            assert (end.inv() * Rotation.from_matrix(T[:3, :3])).magnitude() < 1e-3
+    assert reached >= 8

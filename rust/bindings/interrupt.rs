@@ -18,15 +18,15 @@ use crate::threads::{count, pool};
 /// How often the waiting thread checks for signals.
 const POLL: Duration = Duration::from_millis(20);
 
-/// Batches of at most this many poses are one work item of every pose loop (their `CHUNK`s),
-/// milliseconds at most: [`run_batch`] runs them on the calling thread.
-const ONE_ITEM: usize = 256;
+/// Batches of at most this many poses are one work item of every pose loop, milliseconds at
+/// most: [`run_batch`] runs them on the calling thread.
+const ONE_ITEM: usize = crate::threads::POSE_CHUNK;
 
 /// `work()` over a batch of `poses` poses: as [`run`], except that a batch of one work item runs
 /// on the calling thread (the GIL released), where the pose loops run one item without rayon
 /// (`threads::map_chunks`): no hand-off to the pool and no sleeping worker woken, 20-250 µs on a
-/// VM after a pause, most of a one-pose call. Results never depend on where the work runs; bad
-/// `threads` is refused all the same.
+/// VM after a pause, most of a one-pose call. Results never depend on where the work runs;
+/// `threads=0` is refused all the same (a count no pool could start is not tried).
 pub(super) fn run_batch<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,

@@ -1083,8 +1083,8 @@ fn label_placed(
     Ok(label)
 }
 
-/// Poses per parallel work item: large enough to amortise scheduling, small enough to balance.
-const CHUNK: usize = 256;
+/// Poses per parallel work item (`threads::POSE_CHUNK`).
+const CHUNK: usize = crate::threads::POSE_CHUNK;
 
 /// Labels a `(B, K)` row-major batch of poses in parallel (rayon's current pool).
 ///

@@ -32,8 +32,8 @@ use crate::joints::sample::{fill_block, BLOCK};
 use crate::model::broad::check_clearance;
 use crate::model::RobotModel;
 
-/// Poses per parallel work item (fixed, so the split never depends on the thread count).
-const CHUNK: usize = 256;
+/// Poses per parallel work item (`threads::POSE_CHUNK`).
+const CHUNK: usize = crate::threads::POSE_CHUNK;
 
 /// Sample behind `likely_pairs`: poses, seed.
 const SAMPLE_POSES: usize = 512;

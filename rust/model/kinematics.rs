@@ -135,8 +135,8 @@ pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isomet
     }
 }
 
-/// Poses per parallel work item (fixed, so the split never depends on the thread count).
-const CHUNK: usize = 256;
+/// Poses per parallel work item (`threads::POSE_CHUNK`).
+const CHUNK: usize = crate::threads::POSE_CHUNK;
 
 /// Forward kinematics of a `(B, K)` row-major batch of poses, in parallel on rayon's current
 /// pool: `xpos` `(B, nbody, 3)` metres and `xquat` `(B, nbody, 4)` `(w, x, y, z)`, row-major,

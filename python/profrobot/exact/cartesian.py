@@ -144,8 +144,16 @@ class _Line:
     """The polyline of legs between frame poses: points, rotations and arc length."""
 
     def __init__(self, pos: np.ndarray, quats: np.ndarray, step: float):
-        self.pos = pos
         lengths = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+        if (lengths <= 1e-12).any():
+            # (a leg that only turns, given as a target whose position is the start's to the last
+            # bits, as MuJoCo's and the core's forward kinematics differ: of length zero, so that
+            # it is measured by its angle, not along a chord of 1e-16 m)
+            pos = pos.copy()
+            for i in np.flatnonzero(lengths <= 1e-12):
+                pos[i + 1] = pos[i]
+            lengths = np.where(lengths <= 1e-12, 0.0, lengths)
+        self.pos = pos
         quats = quats / np.linalg.norm(quats, axis=1, keepdims=True)
         # (the turn of each leg: 2 atan2(|v|, |w|) of the relative rotation, exact also where small)
         rel = _qmul(quats[:-1] * [1.0, -1.0, -1.0, -1.0], quats[1:])
@@ -235,7 +243,10 @@ def _bounded(line: _Line, frames, q: np.ndarray, d: np.ndarray, seg_legs: np.nda
     turns takes u from the angle, at most ``|ω| / θ``), so between samples it is at most the mean
     of the ends' plus half the rate times h. Samples are spaced so that these terms are half the
     tolerance and the rate times h the tolerance; a segment not shown within the tolerances is
-    sampled four times finer, twice, and is otherwise reported with its bound (it strays)."""
+    sampled four times finer, twice (each round's bound holds: the least is kept), and is
+    otherwise reported with its bound (it strays). The measured angles carry arccos's rounding
+    near zero, ~1e-8 rad. A leg that mostly turns (millimetres of travel, a large turn) takes
+    many samples: its slerp's rate per metre of the frame's travel is large."""
     joints, rho = arms
     tol_p, tol_r = tols
     dj = np.abs(d[:, joints])
@@ -267,7 +278,7 @@ def _bounded(line: _Line, frames, q: np.ndarray, d: np.ndarray, seg_legs: np.nda
         bd, ba = np.zeros(len(d)), np.zeros(len(d))
         np.maximum.at(bd, iseg, pos)
         np.maximum.at(ba, iseg, rot)
-        out_d[todo], out_a[todo] = bd[todo], ba[todo]
+        out_d[todo], out_a[todo] = np.minimum(out_d[todo], bd[todo]), np.minimum(out_a[todo], ba[todo])
         # (finer samples can only help where the samples themselves are within the tolerances)
         sd, sa = np.zeros(len(d)), np.zeros(len(d))
         np.maximum.at(sd, seg, dist)
