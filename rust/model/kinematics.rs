@@ -154,31 +154,14 @@ const CHUNK: usize = crate::threads::POSE_CHUNK;
 /// ```
 pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>, Vec<f64>)> {
     let b = model.check_poses(poses)?;
-    let (k, nb) = (model.njoint(), model.nbody());
+    let nb = model.nbody();
     crate::budget::check("poses (forward kinematics' frames)", &[b, nb, 7], 8)?;
-    let mut xpos = vec![0.0; b * nb * 3];
-    let mut xquat = vec![0.0; b * nb * 4];
-    let work = |frames: &mut Vec<Isometry3<f64>>, ((q, pos), quat): ((&[f64], &mut [f64]), &mut [f64])| {
-        for ((qi, pos), quat) in q.chunks_exact(k).zip(pos.chunks_exact_mut(nb * 3)).zip(quat.chunks_exact_mut(nb * 4)) {
-            body_poses(model, qi, frames);
-            for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
-                p.copy_from_slice(f.translation.vector.as_slice());
-                let q = f.rotation.quaternion();
-                r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
-            }
+    Ok(frames_of_poses(model, poses, b, nb, |q, frames, pos, quat| {
+        body_poses(model, q, frames);
+        for ((f, p), r) in frames.iter().zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
+            write_frame(f, p, r);
         }
-    };
-    if b <= CHUNK {
-        // (one work item: on the calling thread, without rayon, as `threads::map_chunks`)
-        work(&mut vec![Isometry3::identity(); nb], ((poses, &mut xpos), &mut xquat));
-    } else {
-        poses
-            .par_chunks(CHUNK * k)
-            .zip(xpos.par_chunks_mut(CHUNK * nb * 3))
-            .zip(xquat.par_chunks_mut(CHUNK * nb * 4))
-            .for_each_init(|| vec![Isometry3::identity(); nb], work);
-    }
-    Ok((xpos, xquat))
+    }))
 }
 
 /// Body `body`'s world frame at each of the poses (`B × K`, row-major): positions `B × 3` and
@@ -187,7 +170,7 @@ pub fn forward_kinematics(model: &RobotModel, poses: &[f64]) -> Result<(Vec<f64>
 /// not the whole tree (the fingers, a second arm).
 pub fn body_frames(model: &RobotModel, poses: &[f64], body: usize) -> Result<(Vec<f64>, Vec<f64>)> {
     let b = model.check_poses(poses)?;
-    let (k, nb) = (model.njoint(), model.nbody());
+    let nb = model.nbody();
     if body >= nb {
         return crate::error::invalid_input(format!("body {body} is out of range: the model has {nb} bodies"));
     }
@@ -198,28 +181,46 @@ pub fn body_frames(model: &RobotModel, poses: &[f64], body: usize) -> Result<(Ve
         marks[up] = 1;
         up = model.body_parent[up];
     }
-    let mut xpos = vec![0.0; b * 3];
-    let mut xquat = vec![0.0; b * 4];
+    Ok(frames_of_poses(model, poses, b, 1, |q, frames, pos, quat| {
+        marked_body_poses(model, q, frames, &marks, 1);
+        write_frame(&frames[body], pos, quat);
+    }))
+}
+
+/// `n` frames for each of the `b` poses (`B × K`, row-major): `place(q, scratch, pos, quat)`
+/// writes pose `q`'s into its `n × 3` positions and `n × 4` quaternions (`scratch`: nbody
+/// frames to place them in). In parallel on rayon's current pool, in work items of
+/// [`CHUNK`] poses; one item runs on the calling thread, without rayon (as
+/// `threads::map_chunks`). Every pose is computed alone: the result depends on neither.
+fn frames_of_poses<F>(model: &RobotModel, poses: &[f64], b: usize, n: usize, place: F) -> (Vec<f64>, Vec<f64>)
+where
+    F: Fn(&[f64], &mut Vec<Isometry3<f64>>, &mut [f64], &mut [f64]) + Sync,
+{
+    let (k, nb) = (model.njoint(), model.nbody());
+    let mut xpos = vec![0.0; b * n * 3];
+    let mut xquat = vec![0.0; b * n * 4];
     let work = |frames: &mut Vec<Isometry3<f64>>, ((q, pos), quat): ((&[f64], &mut [f64]), &mut [f64])| {
-        for ((qi, p), r) in q.chunks_exact(k).zip(pos.chunks_exact_mut(3)).zip(quat.chunks_exact_mut(4)) {
-            marked_body_poses(model, qi, frames, &marks, 1);
-            let f = &frames[body];
-            p.copy_from_slice(f.translation.vector.as_slice());
-            let q = f.rotation.quaternion();
-            r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
+        for ((qi, p), r) in q.chunks_exact(k).zip(pos.chunks_exact_mut(n * 3)).zip(quat.chunks_exact_mut(n * 4)) {
+            place(qi, frames, p, r);
         }
     };
     if b <= CHUNK {
-        // (one work item: on the calling thread, without rayon, as `threads::map_chunks`)
         work(&mut vec![Isometry3::identity(); nb], ((poses, &mut xpos), &mut xquat));
     } else {
         poses
             .par_chunks(CHUNK * k)
-            .zip(xpos.par_chunks_mut(CHUNK * 3))
-            .zip(xquat.par_chunks_mut(CHUNK * 4))
+            .zip(xpos.par_chunks_mut(CHUNK * n * 3))
+            .zip(xquat.par_chunks_mut(CHUNK * n * 4))
             .for_each_init(|| vec![Isometry3::identity(); nb], work);
     }
-    Ok((xpos, xquat))
+    (xpos, xquat)
+}
+
+/// Frame `f` as a position `p` (3) and a quaternion `r` (4, `(w, x, y, z)`).
+fn write_frame(f: &Isometry3<f64>, p: &mut [f64], r: &mut [f64]) {
+    p.copy_from_slice(f.translation.vector.as_slice());
+    let q = f.rotation.quaternion();
+    r.copy_from_slice(&[q.w, q.i, q.j, q.k]);
 }
 
 #[cfg(test)]

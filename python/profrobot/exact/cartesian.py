@@ -186,6 +186,26 @@ class _Line:
         dist = np.linalg.norm(a + np.outer(u, d) - p, axis=1)
         return dist, _angle(_slerp(qa, qb, u), r), u
 
+    def deviations(self, legs: np.ndarray, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``deviation``'s distances and angles of frames ``p`` (N, 3), ``r`` (N, 4), each from
+        its own leg ``legs`` (N,)."""
+        dist, ang = np.zeros(len(legs)), np.zeros(len(legs))
+        for leg in np.unique(legs):
+            on = legs == leg
+            dist[on], ang[on], _ = self.deviation(int(leg), p[on], r[on])
+        return dist, ang
+
+
+def _largest(n: int, seg: np.ndarray, *values: np.ndarray) -> list[np.ndarray]:
+    """Per segment 0..n-1, the largest of each of ``values`` over the entries ``seg`` names it in
+    (0 for a segment named nowhere)."""
+    out = []
+    for v in values:
+        m = np.zeros(n)
+        np.maximum.at(m, seg, v)
+        out.append(m)
+    return out
+
 
 #: the most intervals one segment's bound is cut into (a joint flip between two nearby frame poses
 #: would need more: that segment is then not shown on the line, and is halved as one that strays)
@@ -266,23 +286,15 @@ def _bounded(line: _Line, frames, q: np.ndarray, d: np.ndarray, seg_legs: np.nda
         seg = np.repeat(todo, kt + 1)
         first = np.concatenate([[0], np.cumsum(kt + 1)[:-1]])
         s = (np.arange(len(seg)) - np.repeat(first, kt + 1)) / np.repeat(kt, kt + 1)
-        p, r = frames(q[seg] + s[:, None] * d[seg])
-        dist, ang = np.zeros(len(seg)), np.zeros(len(seg))
-        for leg in np.unique(seg_legs[todo]):
-            on = seg_legs[seg] == leg
-            dist[on], ang[on], _ = line.deviation(int(leg), p[on], r[on])
+        dist, ang = line.deviations(seg_legs[seg], *frames(q[seg] + s[:, None] * d[seg]))
         left = np.flatnonzero(seg[:-1] == seg[1:])            # intervals [left, left + 1]
         iseg, h = seg[left], 1.0 / k[seg[left]]
         pos = np.maximum(dist[left], dist[left + 1]) + h * h * m2[iseg] / 8
         rot = np.maximum(np.maximum(ang[left], ang[left + 1]), (ang[left] + ang[left + 1] + la[iseg] * h) / 2)
-        bd, ba = np.zeros(len(d)), np.zeros(len(d))
-        np.maximum.at(bd, iseg, pos)
-        np.maximum.at(ba, iseg, rot)
+        bd, ba = _largest(len(d), iseg, pos, rot)
         out_d[todo], out_a[todo] = np.minimum(out_d[todo], bd[todo]), np.minimum(out_a[todo], ba[todo])
         # (finer samples can only help where the samples themselves are within the tolerances)
-        sd, sa = np.zeros(len(d)), np.zeros(len(d))
-        np.maximum.at(sd, seg, dist)
-        np.maximum.at(sa, seg, ang)
+        sd, sa = _largest(len(d), seg, dist, ang)
         fail = todo[((out_d[todo] > tol_p) | (out_a[todo] > tol_r)) & (sd[todo] <= tol_p) & (sa[todo] <= tol_r)
                     & (k[todo] < _MOST_INTERVALS)]
         if not len(fail):
@@ -380,14 +392,8 @@ def plan_cartesian(robot: Robot, start: npt.ArrayLike, targets: npt.ArrayLike, *
                                np.ceil(np.abs(d).max(axis=1) / JOINT_SPACING)).astype(int) + 1, 2, 4000)
         seg = np.repeat(np.arange(len(d)), n)
         w = np.concatenate([np.linspace(0.0, 1.0, k) for k in n])[:, None]
-        p, r = frames(robot.project(q[seg] + w * d[seg]))
-        dist, ang = np.zeros(len(seg)), np.zeros(len(seg))
-        for leg in np.unique(seg_legs):
-            on = seg_legs[seg] == leg
-            dist[on], ang[on], _ = line.deviation(int(leg), p[on], r[on])
-        out_d, out_a = np.zeros(len(d)), np.zeros(len(d))
-        np.maximum.at(out_d, seg, dist)
-        np.maximum.at(out_a, seg, ang)
+        dist, ang = line.deviations(seg_legs[seg], *frames(robot.project(q[seg] + w * d[seg])))
+        out_d, out_a = _largest(len(d), seg, dist, ang)
         return out_d, out_a
 
     def stray(qa: np.ndarray, qb: np.ndarray, leg: int) -> tuple[float, float]:
