@@ -109,9 +109,10 @@ def plan(seed: int = 0) -> list[Stage]:
     fingers = ("finger_joint1", "finger_joint2")
     stages: list[Stage] = []
 
-    def add(name, r, path, certified, t0, holding, grip=False):
+    def add(name, r, path, certified, t0, holding, grip=False, line=False):
         v, a = _limits(r)
-        timed = profrobot.time_path(r, path, velocity=v, acceleration=a)
+        # (a straight-line move keeps its corners: a cut would leave the line)
+        timed = profrobot.time_path(r, path, velocity=v, acceleration=a, cut=0.0 if line else 0.5)
         if not (certified and timed.certified):
             raise RuntimeError(f"stage {name}: not certified ({timed.reason})")
         stages.append(Stage(name, r, np.asarray(path), timed, certified and timed.certified,
@@ -124,7 +125,7 @@ def plan(seed: int = 0) -> list[Stage]:
         move = profrobot.plan_cartesian(r, q, p + [0.0, 0.0, dz], frame="hand", tool=TCP, locked=fingers)
         if not move.reached:
             raise RuntimeError(f"stage {name}: {move.reason}")
-        return add(name, r, move.path, True, t0, holding)
+        return add(name, r, move.path, True, t0, holding, line=True)
 
     def to_pose(name, r, q, target, holding):
         t0 = time.perf_counter()

@@ -71,7 +71,7 @@ def test_planned_paths_timed_within_limits_and_free(name):
     rng = np.random.default_rng(0)
     v = rng.uniform(0.5, 2.0, robot.njoint)
     a = rng.uniform(1.0, 5.0, robot.njoint)
-    shorter = 0
+    shorter = cut = 0
     for s, g in zip(starts, goals):
         res = profrobot.plan_path(robot, s, g)
         assert res.found and res.certified
@@ -82,19 +82,26 @@ def test_planned_paths_timed_within_limits_and_free(name):
         _check_timed(robot, stop, v, a)
         assert tp.duration <= stop.duration * (1 + 1e-12)
         shorter += tp.duration < stop.duration * 0.999
-    assert shorter >= 1          # a corner blended saves time
+        # corners cut: every waypoint timed lies on the planned path, the ends on its ends
+        w = tp.waypoints
+        assert _on_path(w, stop.waypoints).all() and (w[[0, -1]] == stop.waypoints[[0, -1]]).all()
+        own = time_path(robot, res.path, velocity=v, acceleration=a, cut=0.0)
+        assert own.certified and len(own.waypoints) == len(stop.waypoints)
+        assert tp.duration <= own.duration * (1 + 1e-12)
+        cut += len(w) > len(stop.waypoints)
+    assert shorter >= 1 and cut >= 1        # a corner blended saves time, a corner is cut
 
 
 def test_a_blend_through_an_obstacle_becomes_a_stop():
     robot = puck()
     assert profrobot.check_path(robot, _L).certified
-    slow = time_path(robot, _L, velocity=1.0, acceleration=1.0)
+    slow = time_path(robot, _L, velocity=1.0, acceleration=1.0, cut=0.0)
     assert slow.certified and slow.stops.tolist() == [True, True, True]
     # (the blend it refused does cross the block)
     w, vin, vout, tau = _L[1], np.array([1.0, 0]), np.array([0, 1.0]), 1.0
     cut = profrobot.certify_motions(robot, w - vin * tau / 2, w + vout * tau / 2, via=w)
     assert cut.blocked[0]
-    quick = time_path(robot, _L, velocity=1.0, acceleration=10.0)
+    quick = time_path(robot, _L, velocity=1.0, acceleration=10.0, cut=0.0)
     assert quick.certified and quick.stops.tolist() == [True, False, True]
     for tp, a in ((slow, 1.0), (quick, 10.0)):
         _check_timed(robot, tp, np.ones(2), np.full(2, a))
@@ -104,6 +111,42 @@ def test_a_blend_through_an_obstacle_becomes_a_stop():
     # Durations, by hand: the stop at the corner costs v/a = 1 s more than the blend.
     assert slow.duration == pytest.approx(1 + 1 + 1 + 1)          # two segments of 1 m, each 1 s + v/a
     assert quick.duration == pytest.approx(2 + 0.1)
+
+
+def _on_path(q, w, tol=1e-12):
+    """Whether each pose of ``q`` (N, K) lies on a segment of the polyline ``w`` (M, K)."""
+    out = []
+    for p in q:
+        best = np.inf
+        for a, b in zip(w[:-1], w[1:]):
+            d = b - a
+            s = np.clip((p - a) @ d / (d @ d), 0.0, 1.0)
+            best = min(best, np.abs(a + s * d - p).max())
+        out.append(best <= tol)
+    return np.array(out)
+
+
+def test_a_corner_is_cut_by_the_widest_proven_chord():
+    # The L's corner cut: joint x leads the first segment and y the second, so the chord from
+    # (0.5, 0) to (1, 0.5) takes 0.5 s at v = 1 where the two half-segments take 1 s.
+    robot = puck()
+    cut = time_path(robot, _L, velocity=1.0, acceleration=10.0)
+    own = time_path(robot, _L, velocity=1.0, acceleration=10.0, cut=0.0)
+    assert cut.certified and cut.waypoints.tolist() == [[0, 0], [0.5, 0], [1, 0.5], [1, 1]]
+    assert cut.duration < own.duration - 0.4
+    _check_timed(robot, cut, np.ones(2), np.full(2, 10.0))
+    # A block on that chord (and 7 cm from the quarter's): the corner is cut by a quarter.
+    spec = mujoco.MjSpec.from_string(_PUCK.replace('pos="0.85 0.15 0"', 'pos="0.78 0.28 0"'))
+    blocked = profrobot.Robot.from_spec(spec, name="puck2")
+    half = profrobot.certify_motions(blocked, [0.5, 0.0], [1.0, 0.5])
+    assert half.blocked[0]
+    tp = time_path(blocked, _L, velocity=1.0, acceleration=10.0)
+    assert tp.certified and tp.waypoints.tolist() == [[0, 0], [0.75, 0], [1, 0.25], [1, 1]]
+    _check_timed(blocked, tp, np.ones(2), np.full(2, 10.0))
+    assert tp.duration < time_path(blocked, _L, velocity=1.0, acceleration=10.0, cut=0.0).duration
+    # With a jerk limit, or without blends, nothing is cut.
+    assert len(time_path(robot, _L, velocity=1.0, acceleration=10.0, jerk=100.0).waypoints) == 3
+    assert len(time_path(robot, _L, velocity=1.0, acceleration=10.0, blend=False).waypoints) == 3
 
 
 def test_jerk_limited_moves_are_the_textbook_double_s_and_stay_on_the_path():
@@ -182,6 +225,9 @@ def test_saved_loaded_pickled_and_refused_for_another_robot(tmp_path, panda):
     (dict(velocity=[1.0, 1.0, 1.0], acceleration=1.0), "velocity must be a number or 2 numbers"),
     (dict(velocity="fast", acceleration=1.0), "velocity must be a number"),
     (dict(velocity=1.0, acceleration=1.0, blend="yes"), "blend must be True or False"),
+    (dict(velocity=1.0, acceleration=1.0, cut=0.6), "cut must be a share of each segment in [0, 0.5]"),
+    (dict(velocity=1.0, acceleration=1.0, cut=-0.1), "cut must be a non-negative number"),
+    (dict(velocity=1.0, acceleration=1.0, cut="half"), "cut must be a non-negative number"),
     (dict(velocity=1.0, acceleration=1.0, jerk=0.0), "jerk[0] (x)"),
     (dict(velocity=1.0, acceleration=1.0, jerk=[1.0, np.inf]), "jerk[1] (y)"),
 ])

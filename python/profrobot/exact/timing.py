@@ -8,6 +8,19 @@ The path's straight segments are crossed at constant velocity and each corner is
 blend leaves the path, so each one is **proven free** by the continuous certificate
 (:func:`profrobot.certify_motions` with ``via=``), and one that is not becomes a stop.
 
+**Corner cuts.** A parabolic blend takes exactly the time the cruise it replaces would (its
+velocity goes from one segment's to the next's), so blends alone save only the stops; with each
+joint at its own velocity limit, a straight chord across a corner is quicker than the two
+half-segments it replaces (``max_j |x_j + y_j|/v_j ≤ max_j |x_j|/v_j + max_j |y_j|/v_j``, and
+strictly less where different joints lead the two segments). So first (step 0), with ``cut`` > 0:
+corner ``i`` is cut by the chord from ``W_i − D_{i−1}·c`` to ``W_i + D_i·c`` (points of the two
+segments, ``c`` a share of each), the widest of ``cut``, ``cut/2``, ``cut/4`` whose chord the
+continuous certificate proves free, none where no chord is. The chord's ends become waypoints
+(the parts of the segments up to them are parts of proven segments) and steps 1–3 time the
+cut path, its blends proven as below. The cut timing is kept unless the path uncut is faster
+(computed only when its best case, every blend proven, could be). ``cut=0`` times the path's own
+corners.
+
 **The math.** Per run of waypoints ``W_0 … W_n`` between two stops (at rest at both ends),
 ``D_i = W_{i+1} − W_i`` (short arcs on continuous hinges), joint limits ``v_j`` (rad/s or m/s)
 and ``a_j`` (rad/s² or m/s²):
@@ -94,14 +107,16 @@ class TimedPath:
             each piece's start.
         jrk: (P, K) each piece's constant jerk (per s³; zero without a jerk limit).
         times: (M,) seconds at which the robot is at each stop, or the blend around a corner
-            is half done (there it is at ``W_i + (V_i − V_{i−1})·τ_i/8``, off the corner).
+            is half done (there it is at ``W_i + (V_i − V_{i−1})·τ_i/8``, off the corner), for
+            each of ``waypoints``.
         stops: (M,) bool, the waypoints the robot reaches at rest: the ends, and every corner
             whose blend was not proven (or with ``blend=False``).
-        waypoints: (M, K) the path timed (zero-length segments removed).
+        waypoints: (M, K) the path timed: the one given, zero-length segments removed, each
+            corner cut (``time_path(cut=)``) replaced by the two ends of its chord.
         velocity, acceleration, jerk: (K,) the limits it was timed within (``jerk`` is inf
             where there was none).
-        certified: every pose of the timed motion is certified free (the path's segments and
-            every blend kept, :mod:`profrobot.exact.certification`).
+        certified: every pose of the timed motion is certified free (the path's segments, every
+            chord and every blend kept, :mod:`profrobot.exact.certification`).
         reason: why not certified ('' when it is).
         wraps: (K,) bool, the continuous hinges.
         robot_name, robot_fingerprint, joint_names: the robot it was timed for.
@@ -378,9 +393,49 @@ def _blended(robot: Robot, w: np.ndarray, blend: bool, v: np.ndarray, a: np.ndar
         stops[failed] = True
 
 
+def _cut_points(w: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """The waypoints with corner ``i`` (``share[i] > 0``) replaced by the two ends of its chord:
+    ``W_i − D_{i−1}·share_i`` and ``W_i + D_i·share_i``, each written as a point of its segment,
+    ``W_j + D_j·s`` (the form :func:`_cuts` proves); two ends that meet (``s`` equal, at the
+    middle of a segment) are one waypoint."""
+    out = [w[0]]
+    for j in range(len(w) - 1):
+        d = w[j + 1] - w[j]
+        s_out, s_in = share[j], 1.0 - share[j + 1]      # (share is 0 at the path's ends)
+        if s_out > 0:
+            out.append(w[j] + d * s_out)
+        if share[j + 1] > 0 and s_in != s_out:
+            out.append(w[j] + d * s_in)
+        if share[j + 1] == 0:
+            out.append(w[j + 1])
+    return np.asarray(out)
+
+
+def _cuts(robot: Robot, w: np.ndarray, cut: float, wraps: np.ndarray, threads: int | None) -> np.ndarray:
+    """Per waypoint, the share of its segments each corner is cut by (module docs, step 0): the
+    widest of ``cut``, ``cut/2``, ``cut/4`` whose chord is proven free, 0 where none is (and at
+    the ends)."""
+    m = len(w)
+    share = np.zeros(m)
+    todo = np.arange(1, m - 1)
+    for f in (cut, cut / 2, cut / 4):
+        if not len(todo) or f <= 0:
+            break
+        d_in, d_out = w[todo] - w[todo - 1], w[todo + 1] - w[todo]
+        p0, p1 = w[todo - 1] + d_in * (1.0 - f), w[todo] + d_out * f
+        # (a continuous hinge's chord must be the short arc the certificate proves)
+        arc = (np.abs(p1 - p0)[:, wraps] < np.pi - 1e-6).all(axis=1)
+        ok = np.zeros(len(todo), bool)
+        if arc.any():
+            ok[arc] = certify_motions(robot, p0[arc], p1[arc], threads=threads).certified
+        share[todo[ok]] = f
+        todo = todo[~ok]
+    return share
+
+
 def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | float | None = None,
               acceleration: npt.ArrayLike | float | None = None, jerk: npt.ArrayLike | float | None = None,
-              blend: bool = True,
+              blend: bool = True, cut: float = 0.5,
               layout: Layout | None = None, margin: float = CLEARANCE, threads: int | None = None) -> TimedPath:
     """Time ``path`` ((M, K) waypoints, radians / metres; as :func:`profrobot.plan_path`
     returns) within each joint's ``velocity`` (rad/s or m/s) and ``acceleration`` (rad/s² or
@@ -389,7 +444,12 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
 
     The robot starts and ends at rest; with ``blend`` (the default) it rounds each corner with
     a parabolic blend proven free, and stops at the corners whose blend is not (module docs);
-    with ``blend=False`` it stops at every waypoint, on the path exactly. ``margin`` and
+    with ``blend=False`` it stops at every waypoint, on the path exactly. ``cut`` (a share of
+    each segment, in [0, 0.5]; with blends and no jerk limit): each corner is first cut by a
+    straight chord between points this share (or a half, or a quarter of it) of the way along
+    the segments beside it, where the chord is proven free and the cut path is quicker (module
+    docs); the chords' ends are then among ``waypoints``. 0 keeps the path's own corners (a
+    straight-line move of :func:`profrobot.plan_cartesian`, whose frame would leave its line). ``margin`` and
     ``layout`` as for :func:`profrobot.plan_path` (the path and the blends keep ``margin``).
     ``certified`` says whether every pose of the timed motion is proven free; a path whose own
     segments are not is timed all the same, with ``certified=False`` and the reason.
@@ -403,6 +463,9 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     j = np.full(robot.njoint, np.inf) if jerk is None else gate.per_joint(robot, "jerk", jerk, "rad/s³ or m/s³")
     if not isinstance(blend, (bool, np.bool_)):
         raise InputError(f"blend must be True or False; got {blend!r}")
+    cut = gate.positive("cut", cut, allow_zero=True)
+    if cut > 0.5:
+        raise InputError(f"cut must be a share of each segment in [0, 0.5]; got {cut!r}")
     if robot.couplings and not robot.couplings.linear:
         raise InputError(f"{robot.name} has nonlinear joint couplings: a timed path would leave them between "
                          "waypoints (time_path handles linear couplings)")
@@ -422,7 +485,26 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
                          reason="" if free else "the pose is not certified free", **meta)
     seg = certify_motions(robot, w[:-1], w[1:], threads=threads)
     if jerk is None:
-        starts, (q0, v0, acc), duration, times, stops = _blended(robot, w, blend, v, a, threads)
+        share = np.zeros(m)
+        if blend and cut > 0 and m > 2 and seg.certified.all():
+            share = _cuts(robot, w, cut, meta["wraps"], threads)
+        timed = None
+        if share.any():
+            wc = _cut_points(w, share)
+            timed = _blended(robot, wc, True, v, a, threads)
+            ends = np.zeros(m, bool)
+            ends[[0, -1]] = True
+            # kept outright when no timing of the uncut path could be faster (all its blends
+            # proven, at best); else the faster of the two
+            if timed[2] > _pieces(w, ends, v, a)[2]:
+                uncut = _blended(robot, w, blend, v, a, threads)
+                if uncut[2] < timed[2]:
+                    timed, wc = uncut, w
+            w = wc
+        if timed is None:
+            timed = _blended(robot, w, blend, v, a, threads)
+        starts, (q0, v0, acc), duration, times, stops = timed
+        meta["waypoints"] = w
         jrk = np.zeros_like(q0)
     else:
         starts, (q0, v0, acc, jrk), duration, times = _jerk_pieces(w, v, a, j)
