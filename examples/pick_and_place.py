@@ -112,7 +112,8 @@ def plan(seed: int = 0) -> list[Stage]:
     def add(name, r, path, certified, t0, holding, grip=False, line=False):
         v, a = _limits(r)
         # (a straight-line move keeps its corners: a cut would leave the line)
-        timed = profrobot.time_path(r, path, velocity=v, acceleration=a, cut=0.0 if line else 0.5)
+        keep = {"cut": 0.0} if line else {}
+        timed = profrobot.time_path(r, path, velocity=v, acceleration=a, **keep)
         if not (certified and timed.certified):
             raise RuntimeError(f"stage {name}: not certified ({timed.reason})")
         stages.append(Stage(name, r, np.asarray(path), timed, certified and timed.certified,

@@ -419,7 +419,7 @@ def _cuts(robot: Robot, w: np.ndarray, cut: float, wraps: np.ndarray, threads: i
     share = np.zeros(m)
     todo = np.arange(1, m - 1)
     for f in (cut, cut / 2, cut / 4):
-        if not len(todo) or f <= 0:
+        if not len(todo):
             break
         d_in, d_out = w[todo] - w[todo - 1], w[todo + 1] - w[todo]
         p0, p1 = w[todo - 1] + d_in * (1.0 - f), w[todo] + d_out * f
@@ -449,8 +449,8 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     straight chord between points this share (or a half, or a quarter of it) of the way along
     the segments beside it, where the chord is proven free and the cut path is quicker (module
     docs); the chords' ends are then among ``waypoints``. 0 keeps the path's own corners (a
-    straight-line move of :func:`profrobot.plan_cartesian`, whose frame would leave its line). ``margin`` and
-    ``layout`` as for :func:`profrobot.plan_path` (the path and the blends keep ``margin``).
+    straight-line move of :func:`profrobot.plan_cartesian`, whose frame would leave its line).
+    ``margin`` and ``layout`` as for :func:`profrobot.plan_path` (the path and the blends keep ``margin``).
     ``certified`` says whether every pose of the timed motion is proven free; a path whose own
     segments are not is timed all the same, with ``certified=False`` and the reason.
     """
@@ -485,10 +485,8 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
                          reason="" if free else "the pose is not certified free", **meta)
     seg = certify_motions(robot, w[:-1], w[1:], threads=threads)
     if jerk is None:
-        share = np.zeros(m)
-        if blend and cut > 0 and m > 2 and seg.certified.all():
-            share = _cuts(robot, w, cut, meta["wraps"], threads)
-        timed = None
+        cutting = blend and cut > 0 and m > 2 and seg.certified.all()
+        share = _cuts(robot, w, cut, meta["wraps"], threads) if cutting else np.zeros(m)
         if share.any():
             wc = _cut_points(w, share)
             timed = _blended(robot, wc, True, v, a, threads)
@@ -497,11 +495,11 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
             # kept outright when no timing of the uncut path could be faster (all its blends
             # proven, at best); else the faster of the two
             if timed[2] > _pieces(w, ends, v, a)[2]:
-                uncut = _blended(robot, w, blend, v, a, threads)
+                uncut = _blended(robot, w, True, v, a, threads)
                 if uncut[2] < timed[2]:
                     timed, wc = uncut, w
             w = wc
-        if timed is None:
+        else:
             timed = _blended(robot, w, blend, v, a, threads)
         starts, (q0, v0, acc), duration, times, stops = timed
         meta["waypoints"] = w
