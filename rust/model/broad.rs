@@ -4,6 +4,10 @@
 //! Two levels of bounding spheres, fixed in the body frames:
 //! - pairs are grouped by body pair, and a group is dropped with one test when the spheres
 //!   holding each body's geoms are apart (most of the ~60 body pairs of an arm, most poses);
+//!   the world's geoms (a scene's obstacles, which never move) are split first into clusters of
+//!   at most [`CLUSTER`] neighbours (`clusters`), each a *group body* of its own with its own
+//!   sphere, so that a link is tested against the few obstacles near it, not against one sphere
+//!   around the whole scene (which every link is inside);
 //! - in a group that survives, each pair is dropped when its geoms' own spheres (about their box
 //!   centre, out to the farthest hull vertex) are apart;
 //! - four poses at a time (`near_pairs4`, the batches), a pair left is dropped in the poses where
@@ -24,6 +28,12 @@ use crate::model::geom::Geom;
 use crate::model::lanes::{Frames4, Reg, F4, M4, V4};
 use crate::model::pairs::CandidatePair;
 use crate::model::sphere_pairs::{has_avx2, Centres, PairList, LANES};
+
+/// Most world geoms in one group body (`clusters`). On MotionBenchMaker's scenes (7-15 boxes and
+/// cylinders around a Panda; 40 problems' second `plan_path` calls, one thread, callgrind)
+/// `near_pairs` took 174 M instructions with one sphere around the world, 154 M with clusters of
+/// one geom, 141 M with two or four.
+pub(crate) const CLUSTER: usize = 4;
 
 /// Metres: the largest clearance a certification may ask for (`fastpath::certified_pose`). The
 /// broad phase keeps every pair that may come this close, so a pair it drops is clear of it.
@@ -87,8 +97,9 @@ struct MemberBox {
     lim2: [f64; 3],
 }
 
-/// The pairs between two bodies, `members[start..end]`, and the squared reach of the two
-/// bodies' spheres (plus the largest margin among the pairs).
+/// The pairs between two group bodies, `members[start..end]`, and the squared reach of the two
+/// group bodies' spheres (plus the largest margin among the pairs). A group body is a body, or a
+/// cluster of the world's geoms (`clusters`: ids from the number of bodies up).
 #[derive(Clone, Copy, Debug)]
 struct Group {
     b1: u32,
@@ -130,8 +141,12 @@ pub(crate) struct Broad {
     /// Bodies other than the world that carry a geom in `geoms` (their rotation matrices are
     /// needed per pose).
     bodies: Vec<u32>,
-    /// Per body (indexed by body id): centre of the sphere holding its geoms, in body frame.
+    /// Per group body (a body, by its id, then the world's clusters, `clusters`): centre of the
+    /// sphere holding its geoms, in its body's frame (the world's, for a cluster).
     body_centre: Vec<Vector3<f64>>,
+    /// Per group body: the radius of its sphere (read by tests; the groups' tests hold it).
+    #[cfg(test)]
+    body_radius: Vec<f64>,
     /// Per geom: centre of its sphere (its box's centre) in its body's frame, its rotation in
     /// its body's frame as a matrix, and its body.
     geom_centre: Vec<Vector3<f64>>,
@@ -143,8 +158,9 @@ pub(crate) struct Broad {
     /// Non-plane geoms of some pair on the world body: their sphere centres never move, and
     /// `scratch` places them once.
     static_geoms: Vec<u32>,
-    /// Whether the world body holds such a geom (its sphere is then placed once, too).
-    static_body: bool,
+    /// The group bodies that never move (the world, when it holds such a geom, and its
+    /// clusters): their spheres are placed once, by `scratch`, too.
+    static_bodies: Vec<u32>,
     groups: Vec<Group>,
     /// The groups' body-sphere tests (`model/sphere_pairs.rs`), in group order, padded at the end.
     group_tests: PairList,
@@ -200,6 +216,16 @@ impl Lists4 {
     }
 }
 
+/// One cluster of the world's geoms as `Broad::world_clusters` reports it (for tests): its
+/// sphere, and the geoms it holds, each with whether it lies inside the sphere.
+#[cfg(test)]
+#[derive(Debug)]
+pub(crate) struct WorldCluster {
+    pub centre: Vector3<f64>,
+    pub radius: f64,
+    pub held: Vec<(usize, bool)>,
+}
+
 /// Tag of an `of_pair` entry that indexes `planes`.
 const PLANE: u32 = 1 << 31;
 /// An `of_pair` entry for a pair in neither list.
@@ -244,8 +270,6 @@ impl Broad {
                     sphere[geom] = true;
                 }
                 (false, false) => {
-                    let (b1, b2) = (geom_body[p.g1], geom_body[p.g2]);
-                    by_bodies.entry((b1.min(b2), b1.max(b2))).or_default().push(k as u32);
                     used[p.g1] = true;
                     used[p.g2] = true;
                     sphere[p.g1] = true;
@@ -254,23 +278,38 @@ impl Broad {
             }
         }
 
-        // Each body's sphere: centred in the box around its geoms' spheres, out to the farthest.
-        let mut lo = vec![Vector3::repeat(f64::INFINITY); nbody];
-        let mut hi = vec![Vector3::repeat(f64::NEG_INFINITY); nbody];
+        // The group bodies: each body, then the world's geoms of non-plane pairs in clusters.
+        let world: Vec<usize> = (0..geoms.len()).filter(|&g| used[g] && geom_body[g] == 0).collect();
+        let world_clusters = clusters(world, &|g| geom_centre[g]);
+        let nb = nbody + world_clusters.len();
+        let mut group_body = geom_body.clone();
+        for (c, members) in world_clusters.iter().enumerate() {
+            for &g in members {
+                group_body[g] = (nbody + c) as u32;
+            }
+        }
+        // Each group body's sphere: centred in the box around its geoms' spheres, out to the
+        // farthest.
+        let mut lo = vec![Vector3::repeat(f64::INFINITY); nb];
+        let mut hi = vec![Vector3::repeat(f64::NEG_INFINITY); nb];
         for g in (0..geoms.len()).filter(|&g| used[g]) {
-            let (b, r) = (geom_body[g] as usize, geoms[g].shape.radius);
+            let (b, r) = (group_body[g] as usize, geoms[g].shape.radius);
             lo[b] = lo[b].inf(&geom_centre[g].add_scalar(-r));
             hi[b] = hi[b].sup(&geom_centre[g].add_scalar(r));
         }
         let body_centre: Vec<Vector3<f64>> =
-            (0..nbody).map(|b| if lo[b].x.is_finite() { (lo[b] + hi[b]) * 0.5 } else { Vector3::zeros() }).collect();
-        let mut body_radius = vec![0.0f64; nbody];
+            (0..nb).map(|b| if lo[b].x.is_finite() { (lo[b] + hi[b]) * 0.5 } else { Vector3::zeros() }).collect();
+        let mut body_radius = vec![0.0f64; nb];
         for g in (0..geoms.len()).filter(|&g| used[g]) {
-            let b = geom_body[g] as usize;
+            let b = group_body[g] as usize;
             let r = ((geom_centre[g] - body_centre[b]).norm() + geoms[g].shape.radius) * (1.0 + 1e-12);
             body_radius[b] = body_radius[b].max(r);
         }
 
+        for (k, p) in pairs.iter().enumerate().filter(|(_, p)| !is_plane(p.g1) && !is_plane(p.g2)) {
+            let (b1, b2) = (group_body[p.g1], group_body[p.g2]);
+            by_bodies.entry((b1.min(b2), b1.max(b2))).or_default().push(k as u32);
+        }
         let mut groups = Vec::new();
         let mut members = Vec::new();
         let padding = Member { pair: NONE, g1: 0, g2: 0, reach2: -1.0 };
@@ -312,7 +351,7 @@ impl Broad {
                 }
             })
             .collect();
-        let all4 = Lists4::of(&groups, &members, &member_boxes, nbody, geoms.len(), |_| true);
+        let all4 = Lists4::of(&groups, &members, &member_boxes, nb, geoms.len(), |_| true);
         let mut member_tests = PairList::default();
         for m in &members {
             member_tests.push(m.g1, m.g2, m.reach2);
@@ -325,7 +364,7 @@ impl Broad {
         let mut bodies: Vec<u32> = (0..geoms.len()).filter(|&g| sphere[g]).map(|g| geom_body[g]).collect();
         bodies.sort_unstable();
         bodies.dedup();
-        let static_body = bodies.first() == Some(&0);
+        let static_bodies = bodies.iter().take_while(|&&b| b == 0).copied().chain(nbody as u32..nb as u32).collect();
         bodies.retain(|&b| b != 0);
         let static_geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize] && geom_body[g as usize] == 0).collect();
         let geoms = (0..geoms.len() as u32)
@@ -345,12 +384,14 @@ impl Broad {
         Broad {
             bodies,
             body_centre,
+            #[cfg(test)]
+            body_radius,
             geom_centre,
             geom_rot,
             geom_body,
             geoms,
             static_geoms,
-            static_body,
+            static_bodies,
             groups,
             group_tests,
             members,
@@ -362,6 +403,31 @@ impl Broad {
             plane_geoms,
             of_pair,
         }
+    }
+
+    /// Per cluster of the world's geoms (`clusters`; group bodies `nbody..`): its sphere's centre
+    /// and radius, and the world geoms its groups' pairs hold, each with whether it lies inside
+    /// that sphere (for tests).
+    #[cfg(test)]
+    pub(crate) fn world_clusters(&self, nbody: usize, geoms: &[Geom]) -> Vec<WorldCluster> {
+        (nbody..self.body_centre.len())
+            .map(|c| {
+                let (centre, radius) = (self.body_centre[c], self.body_radius[c]);
+                let mut held: Vec<usize> = self
+                    .groups
+                    .iter()
+                    .filter(|gr| gr.b1 as usize == c || gr.b2 as usize == c)
+                    .flat_map(|gr| self.members[gr.start as usize..gr.end as usize].iter())
+                    .filter(|m| m.pair != NONE)
+                    .flat_map(|m| [m.g1 as usize, m.g2 as usize])
+                    .filter(|&g| geoms[g].body == 0)
+                    .collect();
+                held.sort_unstable();
+                held.dedup();
+                let inside = |g: usize| (centre - self.geom_centre[g]).norm() + geoms[g].shape.radius <= radius;
+                WorldCluster { centre, radius, held: held.into_iter().map(|g| (g, inside(g))).collect() }
+            })
+            .collect()
     }
 
     /// Whether the CPU has AVX2 (found once, when the model was built).
@@ -390,13 +456,14 @@ impl Broad {
             buf: vec![0; self.members.len() + self.planes.len()],
         };
         // The world body's frame is the identity in every pose (`kinematics::body_poses`): its
-        // sphere and its geoms' are placed here, once, as `place` would place them (bit for bit:
-        // the identity's rotation matrix is exact, and adding its zero translation is too).
+        // spheres (its own, its clusters' and its geoms') are placed here, once, as `place`
+        // would place them (bit for bit: the identity's rotation matrix is exact, and adding its
+        // zero translation is too).
         let world = Isometry3::identity();
         let r = world.rotation.to_rotation_matrix().into_inner();
-        if self.static_body {
-            s.rot[0] = r;
-            s.body_world.set(0, &(world.translation.vector + r * self.body_centre[0]));
+        s.rot[0] = r;
+        for &b in &self.static_bodies {
+            s.body_world.set(b as usize, &(world.translation.vector + r * self.body_centre[b as usize]));
         }
         for &g in &self.static_geoms {
             self.set_geom_centre(&world, &r, g as usize, &mut s.geom_world);
@@ -453,11 +520,11 @@ impl Broad {
             geom_world[l] = centres(&mut s.geom_world);
         }
         let (bodies, rots) = (&room.bodies, &mut room.rots);
-        if rots.len() != bodies.len() {
+        if rots.len() != nb {
             // (the world's frame is the identity in every pose, and no body below writes it:
-            // `near_pairs4`'s box tests read its rotation)
+            // `near_pairs4`'s box tests read its rotation; the clusters' are never read)
             rots.clear();
-            rots.resize(bodies.len(), M4([[F4::splat(0.0); 3]; 3]));
+            rots.resize(nb, M4([[F4::splat(0.0); 3]; 3]));
             rots[0] = M4::splat(&Matrix3::identity());
         }
         let zero = V4 { x: F4::splat(0.0), y: F4::splat(0.0), z: F4::splat(0.0) };
@@ -465,8 +532,8 @@ impl Broad {
         body_centres.resize(nb, zero);
         geom_centres.resize(ng, zero);
         // (the world's spheres, placed once a scratch: lane 0's, the same in every scratch)
-        if self.static_body {
-            body_centres[0] = V4::splat(&out[0].body_world.get(0));
+        for &b in &self.static_bodies {
+            body_centres[b as usize] = V4::splat(&out[0].body_world.get(b as usize));
         }
         for &g in &self.static_geoms {
             geom_centres[g as usize] = V4::splat(&out[0].geom_world.get(g as usize));
@@ -745,6 +812,27 @@ impl Broad {
         }
         near.extend_from_slice(&buf[..n]);
     }
+}
+
+/// The geoms `gs` split into clusters of at most [`CLUSTER`] neighbours: halved at the median of
+/// their centres (`centre`) along the axis on which those spread most, until each part is small
+/// enough. A function of the geoms and their centres alone (ties by geom index), so the groups
+/// and their order, and with them `near_pairs`' order, are too.
+fn clusters(mut gs: Vec<usize>, centre: &impl Fn(usize) -> Vector3<f64>) -> Vec<Vec<usize>> {
+    if gs.len() <= CLUSTER {
+        return if gs.is_empty() { Vec::new() } else { vec![gs] };
+    }
+    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+    for &g in &gs {
+        lo = lo.inf(&centre(g));
+        hi = hi.sup(&centre(g));
+    }
+    let axis = (hi - lo).imax();
+    gs.sort_by(|&a, &b| centre(a)[axis].total_cmp(&centre(b)[axis]).then(a.cmp(&b)));
+    let right = gs.split_off(gs.len() / 2);
+    let mut out = clusters(gs, centre);
+    out.extend(clusters(right, centre));
+    out
 }
 
 /// `Broad::boxes_may_touch` in registers `R`, of the lanes `hit`: each geom's sphere against

@@ -1021,6 +1021,35 @@ pub(crate) mod tests {
     /// anchors, and a body with a hinge then a slide (so its hinge is not `tight`). (Also
     /// `ik/mod.rs`'s test arm.)
     pub(crate) fn arm() -> RobotModel {
+        RobotModel::new(arm_desc()).unwrap()
+    }
+
+    /// `arm` among eight more boxes in the world around it, some within its reach: the world's
+    /// geoms then make several clusters (`model/broad.rs`).
+    pub(crate) fn cluttered_arm() -> RobotModel {
+        let mut d = arm_desc();
+        for i in 0..8 {
+            let a = i as f64 * 0.8;
+            d.geom_id.push(d.geom_id.len() as i32);
+            d.geom_type.push(6);
+            d.geom_body.push(0);
+            d.geom_pos.push([
+                (0.35 + 0.05 * (i % 3) as f64) * a.cos(),
+                (0.35 + 0.05 * (i % 3) as f64) * a.sin(),
+                0.2 + 0.05 * (i % 4) as f64,
+            ]);
+            let q = nalgebra::Vector4::new(0.9, 0.1 * (i % 2) as f64, 0.2, 0.0).normalize();
+            d.geom_quat.push([q[0], q[1], q[2], q[3]]);
+            d.geom_size.push([0.04, 0.03 + 0.01 * (i % 3) as f64, 0.05]);
+            d.geom_contype.push(1);
+            d.geom_conaffinity.push(1);
+            d.geom_margin.push(if i == 5 { 0.01 } else { 0.0 });
+            d.geom_mesh.push(-1);
+        }
+        RobotModel::new(d).unwrap()
+    }
+
+    fn arm_desc() -> ModelDesc {
         let mut d = ModelDesc::example_pendulum();
         d.body_parent = vec![0, 0, 1, 2];
         d.body_weld = vec![0, 1, 2, 3];
@@ -1043,7 +1072,7 @@ pub(crate) mod tests {
         d.geom_conaffinity = vec![1; 5];
         d.geom_margin = vec![0.0, 0.0, 0.0, 0.01, 0.0];
         d.geom_mesh = vec![-1; 5];
-        RobotModel::new(d).unwrap()
+        d
     }
 
     /// The pair's distance, clipped at 0 (GJK's separation; ~1e-8 relative).
@@ -1241,11 +1270,64 @@ pub(crate) mod tests {
         assert!(checks > 5000 && tight_wins > 100, "{checks} {tight_wins}");
     }
 
+    /// The world's boxes around the test arm are split into clusters of at most `CLUSTER`
+    /// (`model/broad.rs`), each a group body whose sphere holds its geoms'; in random poses,
+    /// `near_pairs` keeps every pair within its margin plus `MAX_CLEARANCE` (GJK's distance) and
+    /// only pairs that pass their own sphere test.
+    #[test]
+    fn world_clusters_keep_every_pair_that_may_touch() {
+        use crate::model::broad::{CLUSTER, MAX_CLEARANCE};
+        let model = cluttered_arm();
+        let b = &model.broad;
+        let world: Vec<usize> =
+            (0..model.geoms.len()).filter(|&g| model.geoms[g].body == 0 && !model.geoms[g].shape.is_half_space()).collect();
+        let clusters = b.world_clusters(model.body_parent.len(), &model.geoms);
+        let mut seen = vec![0; model.geoms.len()];
+        for c in &clusters {
+            assert!(!c.held.is_empty() && c.held.len() <= CLUSTER, "{c:?}");
+            for &(g, inside) in &c.held {
+                assert!(inside, "world geom {g} outside its cluster's sphere ({:?}, {})", c.centre, c.radius);
+                seen[g] += 1;
+            }
+        }
+        assert!(world.iter().all(|&g| seen[g] == 1), "each world geom in one cluster: {seen:?}");
+        assert!(clusters.len() >= world.len().div_ceil(CLUSTER), "{} clusters", clusters.len());
+        let mut s = Scratch::new(&model);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(14);
+        let (mut touching, mut culled) = (0, 0);
+        let mut near = Vec::new();
+        for _ in 0..2000 {
+            let q: Vec<f64> = model.limits.iter().map(|l| rng.random_range(l[0]..l[1])).collect();
+            s.place(&model, &q, false);
+            near.clear();
+            b.near_pairs(&mut s.broad, &mut near);
+            for k in 0..model.pairs.len() {
+                let kept = near.contains(&(k as u32));
+                assert!(!kept || b.may_touch(&s.broad, k), "pair {k} kept without passing its own test");
+                s.forget_axes();
+                let d = s.pair_lower_bound(&model, k, f64::INFINITY, f64::INFINITY).unwrap();
+                if d <= model.pairs[k].margin.max(0.0) + MAX_CLEARANCE + 1e-6 {
+                    assert!(kept, "pair {k} at {d} m dropped");
+                    touching += 1;
+                } else if !kept {
+                    culled += 1;
+                }
+            }
+        }
+        assert!(touching > 100 && culled > 10000, "{touching} touching, {culled} culled");
+    }
+
     /// Certified motions are clear at every state of a fine sampling; a motion through the box
-    /// is blocked at a state that is not; the verdict is the same from a used scratch.
+    /// is blocked at a state that is not; the verdict is the same from a used scratch (on the
+    /// arm, and on the arm among boxes).
     #[test]
     fn certified_motions_are_clear_between_samples_and_verdicts_do_not_depend_on_history() {
-        let model = arm();
+        for model in [arm(), cluttered_arm()] {
+            certified_motions_are_clear_between_samples(model);
+        }
+    }
+
+    fn certified_motions_are_clear_between_samples(model: RobotModel) {
         let space = Space::of(&model).unwrap();
         let levers = Levers::of(&model);
         let mut ms = MotionScratch::new(&model);
