@@ -119,7 +119,7 @@ pub(crate) struct Lists4 {
     members: Vec<Member>,
     /// Member by member, its box tests.
     boxes: Vec<MemberBox>,
-    /// The numbers of bodies and geoms of the broad phase they come from: every index they hold
+    /// The numbers of group bodies (`Group`) and geoms of the broad phase they come from: every index they hold
     /// is below them (`near_pairs4` reads the centres unchecked).
     nbody: usize,
     ngeom: usize,
@@ -407,7 +407,8 @@ impl Broad {
 
     /// Per cluster of the world's geoms (`clusters`; group bodies `nbody..`): its sphere's centre
     /// and radius, and the world geoms its groups' pairs hold, each with whether it lies inside
-    /// that sphere (for tests).
+    /// that sphere (for tests, on models without a pair of two world geoms: both would be
+    /// credited to each of their clusters).
     #[cfg(test)]
     pub(crate) fn world_clusters(&self, nbody: usize, geoms: &[Geom]) -> Vec<WorldCluster> {
         (nbody..self.body_centre.len())
@@ -474,7 +475,7 @@ impl Broad {
     /// Places the spheres for the pose whose body frames are `bodies` (`geom_poses` must hold
     /// the world frames of the plane geoms): what `near_pairs` and `may_touch` test.
     ///
-    /// The world body's sphere and its geoms' were placed with the scratch (`scratch`): `bodies[0]`
+    /// The world's spheres (its own, its clusters' and its geoms') were placed with the scratch (`scratch`): `bodies[0]`
     /// must be the identity, as `kinematics::body_poses` makes it.
     pub(crate) fn place(&self, bodies: &[Isometry3<f64>], geom_poses: &[Isometry3<f64>], s: &mut BroadScratch) {
         debug_assert!(bodies[0] == Isometry3::identity());
@@ -608,7 +609,7 @@ impl Broad {
     }
 
     /// Whether candidate pair `k` passes its own sphere test in the placed pose (`near_pairs`
-    /// keeps exactly the pairs that pass it and their body pair's test).
+    /// keeps exactly the pairs that pass it and their group's test).
     #[inline]
     pub(crate) fn may_touch(&self, s: &BroadScratch, k: usize) -> bool {
         let i = self.of_pair[k];

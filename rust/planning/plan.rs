@@ -26,10 +26,10 @@
 //! edges sampled at `EXPLORE` (0.05 rad) only; the path they find is then proven: each interior
 //! waypoint certified (`certified_pose`, else dropped) and each segment by the continuous
 //! certificate (`motion::certify_motion`), a segment that fails replaced by a search between
-//! its ends whose every edge is proven. The segments are proven side by side, each cut into
-//! [`PROOF_PIECES`] equal motions (a segment is proven when each of its pieces is): a fixed cut,
-//! so every verdict, and the path, are the same on any number of threads, and a path of one
-//! segment (a direct move, most often) is proven on two threads too. What is returned is proven exactly as before; the search
+//! its ends whose every edge is proven. The segments are proven side by side on the call's
+//! threads (`proven_segments`), each whole, as `certify_motions` proves it: every verdict, and
+//! the path, are the same on any number of threads, and `certify_motions` of the returned path
+//! agrees with it. What is returned is proven exactly as before; the search
 //! no longer pays for proofs of the edges it throws away (on MotionBenchMaker's Panda problems,
 //! most of its time). Where the repairs find nothing, a search that proves every edge runs from
 //! the start with the time left. A sampled search that finds nothing is the answer: a proving
@@ -175,10 +175,6 @@ const DEFAULT_RANGE: f64 = 0.1;
 const SHORT_STEP: f64 = 0.25;
 /// Batches at least this large are checked in parallel.
 const PARALLEL_FROM: usize = 64;
-/// Each segment of an explored path is proven as this many equal motions, all of a path's in
-/// parallel (`proven_segments`). Two halves cost ~one state more than the whole segment and
-/// keep two threads busy on the commonest path, a direct move.
-const PROOF_PIECES: usize = 2;
 
 /// Exact collision checks for one planning call.
 struct Checker<'m> {
@@ -620,53 +616,32 @@ fn prove(
     Ok(Some(Proven { path: out, repairs }))
 }
 
-/// Whether each segment of `path` is proven by the continuous certificate at `clearance`: its
-/// [`PROOF_PIECES`] pieces (`a + (i/n)·Δ` to `a + ((i+1)/n)·Δ`, states placed as the checker's
-/// `Space::along` places them) certified in parallel on rayon's current pool, each alone (its
-/// own scratch), so the verdicts do not depend on the number of threads. The states placed
-/// count as checks.
+/// Whether each segment of `path` is proven by the continuous certificate at `clearance`, the
+/// segments certified in parallel on rayon's current pool, each alone (its own scratch), so the
+/// verdicts do not depend on the number of threads; an error is the first in path order. (Cut
+/// into halves, a direct move would keep two threads busy too, but the halves' verdicts are not
+/// the whole segment's, which `certify_motions` of the returned path gives: a result that
+/// contradicts itself.) The states placed count as checks.
 fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> Result<Vec<bool>> {
     let (model, space) = (checker.model, &checker.space);
-    let k = model.njoint();
-    let mut pieces: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity((path.len() - 1) * PROOF_PIECES);
-    let mut d = vec![0.0; k];
-    for w in path.windows(2) {
-        space.delta(&w[0], &w[1], &mut d);
-        let mut from = w[0].clone();
-        for i in 1..=PROOF_PIECES {
-            let mut to = w[1].clone();
-            if i < PROOF_PIECES {
-                space.along(&w[0], &d, i as f64 / PROOF_PIECES as f64, &mut to);
-            }
-            let mut delta = vec![0.0; k];
-            space.delta(&from, &to, &mut delta);
-            pieces.push((from, delta));
-            from = to;
-        }
-    }
     let levers = Levers::of(model);
-    let verdicts: Vec<Result<(bool, usize)>> = pieces
-        .par_iter()
+    let verdicts: Vec<Result<(bool, usize)>> = path
+        .par_windows(2)
         .with_min_len(1)
         .map_init(
-            || MotionScratch::new(model),
-            |ms, (a, delta)| {
-                crate::cancel::check()?;
-                match certify_motion(model, levers, space, a, delta, clearance, ms) {
+            || (MotionScratch::new(model), vec![0.0; model.njoint()]),
+            |(ms, delta), w| {
+                space.delta(&w[0], &w[1], delta);
+                match certify_motion(model, levers, space, &w[0], delta, clearance, ms) {
                     Ok(m) => Ok((m == Motion::Certified, ms.states)),
-                    Err(e) => {
-                        let mut b = a.clone();
-                        space.along(a, delta, 1.0, &mut b);
-                        Err(e.error(model, format!("planning motion {a:?} -> {b:?}")))
-                    }
+                    Err(e) => Err(e.error(model, format!("planning motion {:?} -> {:?}", w[0], w[1]))),
                 }
             },
         )
         .collect();
-    // (the first error in path order, as a sequential proof would meet it)
     let verdicts = verdicts.into_iter().collect::<Result<Vec<_>>>()?;
     checker.checks += verdicts.iter().map(|v| v.1 as u64).sum::<u64>();
-    Ok(verdicts.chunks(PROOF_PIECES).map(|c| c.iter().all(|v| v.0)).collect())
+    Ok(verdicts.into_iter().map(|v| v.0).collect())
 }
 
 /// What one bidirectional search found.
