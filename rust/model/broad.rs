@@ -158,9 +158,10 @@ pub(crate) struct Broad {
     /// Non-plane geoms of some pair on the world body: their sphere centres never move, and
     /// `scratch` places them once.
     static_geoms: Vec<u32>,
-    /// The group bodies that never move (the world, when it holds such a geom, and its
-    /// clusters): their spheres are placed once, by `scratch`, too.
-    static_bodies: Vec<u32>,
+    /// The world's clusters' group bodies (`clusters`; every world geom of a non-plane pair is in
+    /// one, so the world body itself is in no group): their spheres never move, and `scratch`
+    /// places them once.
+    clusters: std::ops::Range<usize>,
     groups: Vec<Group>,
     /// The groups' body-sphere tests (`model/sphere_pairs.rs`), in group order, padded at the end.
     group_tests: PairList,
@@ -364,7 +365,6 @@ impl Broad {
         let mut bodies: Vec<u32> = (0..geoms.len()).filter(|&g| sphere[g]).map(|g| geom_body[g]).collect();
         bodies.sort_unstable();
         bodies.dedup();
-        let static_bodies = bodies.iter().take_while(|&&b| b == 0).copied().chain(nbody as u32..nb as u32).collect();
         bodies.retain(|&b| b != 0);
         let static_geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize] && geom_body[g as usize] == 0).collect();
         let geoms = (0..geoms.len() as u32)
@@ -391,7 +391,7 @@ impl Broad {
             geom_body,
             geoms,
             static_geoms,
-            static_bodies,
+            clusters: nbody..nb,
             groups,
             group_tests,
             members,
@@ -405,13 +405,14 @@ impl Broad {
         }
     }
 
-    /// Per cluster of the world's geoms (`clusters`; group bodies `nbody..`): its sphere's centre
+    /// Per cluster of the world's geoms (`clusters`): its sphere's centre
     /// and radius, and the world geoms its groups' pairs hold, each with whether it lies inside
     /// that sphere (for tests, on models without a pair of two world geoms: both would be
     /// credited to each of their clusters).
     #[cfg(test)]
-    pub(crate) fn world_clusters(&self, nbody: usize, geoms: &[Geom]) -> Vec<WorldCluster> {
-        (nbody..self.body_centre.len())
+    pub(crate) fn world_clusters(&self, geoms: &[Geom]) -> Vec<WorldCluster> {
+        self.clusters
+            .clone()
             .map(|c| {
                 let (centre, radius) = (self.body_centre[c], self.body_radius[c]);
                 let mut held: Vec<usize> = self
@@ -463,8 +464,8 @@ impl Broad {
         let world = Isometry3::identity();
         let r = world.rotation.to_rotation_matrix().into_inner();
         s.rot[0] = r;
-        for &b in &self.static_bodies {
-            s.body_world.set(b as usize, &(world.translation.vector + r * self.body_centre[b as usize]));
+        for b in self.clusters.clone() {
+            s.body_world.set(b, &(world.translation.vector + r * self.body_centre[b]));
         }
         for &g in &self.static_geoms {
             self.set_geom_centre(&world, &r, g as usize, &mut s.geom_world);
@@ -533,8 +534,8 @@ impl Broad {
         body_centres.resize(nb, zero);
         geom_centres.resize(ng, zero);
         // (the world's spheres, placed once a scratch: lane 0's, the same in every scratch)
-        for &b in &self.static_bodies {
-            body_centres[b as usize] = V4::splat(&out[0].body_world.get(b as usize));
+        for b in self.clusters.clone() {
+            body_centres[b] = V4::splat(&out[0].body_world.get(b));
         }
         for &g in &self.static_geoms {
             geom_centres[g as usize] = V4::splat(&out[0].geom_world.get(g as usize));

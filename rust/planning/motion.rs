@@ -1281,7 +1281,7 @@ pub(crate) mod tests {
         let b = &model.broad;
         let world: Vec<usize> =
             (0..model.geoms.len()).filter(|&g| model.geoms[g].body == 0 && !model.geoms[g].shape.is_half_space()).collect();
-        let clusters = b.world_clusters(model.body_parent.len(), &model.geoms);
+        let clusters = b.world_clusters(&model.geoms);
         let mut seen = vec![0; model.geoms.len()];
         for c in &clusters {
             assert!(!c.held.is_empty() && c.held.len() <= CLUSTER, "{c:?}");

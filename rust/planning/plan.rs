@@ -221,12 +221,9 @@ impl<'m> Checker<'m> {
             }
         }
         if let Some((levers, ms, clearance)) = &mut self.motion {
-            let verdict = certify_motion(self.model, *levers, &self.space, a, &d, *clearance, ms);
-            self.checks += ms.states as u64;
-            return match verdict {
-                Ok(m) => Ok(m == Motion::Certified),
-                Err(e) => Err(e.error(self.model, format!("planning motion {a:?} -> {b:?}"))),
-            };
+            let (certified, states) = certified_edge(self.model, *levers, &self.space, a, b, &d, *clearance, ms)?;
+            self.checks += states as u64;
+            return Ok(certified);
         }
         let n = ((span / self.resolution).ceil() as usize).max(1);
         crate::budget::check("the states of one edge (its length / resolution)", &[n, 2], 8)?;
@@ -632,16 +629,33 @@ fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> 
             || (MotionScratch::new(model), vec![0.0; model.njoint()]),
             |(ms, delta), w| {
                 space.delta(&w[0], &w[1], delta);
-                match certify_motion(model, levers, space, &w[0], delta, clearance, ms) {
-                    Ok(m) => Ok((m == Motion::Certified, ms.states)),
-                    Err(e) => Err(e.error(model, format!("planning motion {:?} -> {:?}", w[0], w[1]))),
-                }
+                certified_edge(model, levers, space, &w[0], &w[1], delta, clearance, ms)
             },
         )
         .collect();
     let verdicts = verdicts.into_iter().collect::<Result<Vec<_>>>()?;
     checker.checks += verdicts.iter().map(|v| v.1 as u64).sum::<u64>();
     Ok(verdicts.into_iter().map(|v| v.0).collect())
+}
+
+/// Whether the motion `a → a + delta` (ending at `b`) is certified at `clearance`, and the states
+/// it placed (`certify_motion`); an error names the motion. The continuous check of
+/// `Checker::edge_free` and of `proven_segments`.
+#[allow(clippy::too_many_arguments)]
+fn certified_edge(
+    model: &RobotModel,
+    levers: Levers,
+    space: &Space,
+    a: &[f64],
+    b: &[f64],
+    delta: &[f64],
+    clearance: f64,
+    ms: &mut MotionScratch,
+) -> Result<(bool, usize)> {
+    match certify_motion(model, levers, space, a, delta, clearance, ms) {
+        Ok(m) => Ok((m == Motion::Certified, ms.states)),
+        Err(e) => Err(e.error(model, format!("planning motion {a:?} -> {b:?}"))),
+    }
 }
 
 /// What one bidirectional search found.
