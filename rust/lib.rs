@@ -35,7 +35,8 @@
 //!
 //! Unit tests may use more (`tests also use`), higher up too, for cross-checks: the labeller's
 //! tests run the planners on a model it cannot decide, IK's reuse the motion tests' arm, the
-//! rasterizer's pick thread counts. `tests/test_rust_layout.py` holds the code to this table.
+//! rasterizer's and the timed paths' pick thread counts. `tests/test_rust_layout.py` holds the
+//! code to this table.
 //!
 //! | module | concern | uses | tests also use |
 //! |---|---|---|---|
@@ -69,11 +70,12 @@
 //! | `collision::capsules` | two capsules in closed form, as MuJoCo measures them | | |
 //! | [`collision::fastpath`] | the booleans-only fast path: first pair in contact, likeliest first | | |
 //! | [`collision::filter`] | a sensor's points within a margin of the model at a pose (the self-filter) | | |
-//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `cancel`, `joints`, `geometry`, `model`, `collision` | |
+//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `cancel`, `joints`, `geometry`, `model`, `collision` | `threads` |
 //! | `planning::spans` | pairs one joint alone moves, certified once over that joint's values | | |
 //! | [`planning::motion`] | straight joint-space motions certified continuously (conservative advancement) | | |
 //! | [`planning::oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) | | |
 //! | [`planning::plan`] | global paths: RRT-Connect on the exact labeller, shortcutting | | |
+//! | [`planning::timing`] | paths in time: parabolic blends and corner cuts, each proven by the certificate | | |
 //! | [`ik`] | inverse kinematics: Levenberg–Marquardt on the SE(3) error, seeds, certified answers | `error`, `cancel`, `joints`, `model`, `collision` | `planning` |
 //! | [`render`] | the renderer after FK: EWA projection, SH colour, rasterization, fused backward | `error`, `budget` | `threads` |
 //! | [`render::real`] | `f32`/`f64`: the float types the renderer computes in | | |

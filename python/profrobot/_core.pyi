@@ -16,7 +16,7 @@ function (``rust/joints/angles.rs``; ``profrobot.robot.angles.wrap`` is its Pyth
 """
 
 from collections.abc import Callable, Sequence
-from typing import Literal, TypedDict, final
+from typing import Any, Literal, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -121,6 +121,20 @@ class RobotModel:
         certified, 1 blocked: a placed pose not shown clear, 2 unproven within 1e-7 rad /
         65 536 poses), blocked_at (B,) float64 (t in [0, 1] of that pose, NaN otherwise), states
         (B,) int64 (poses placed). Same answer for any thread count."""
+    def time_path(self, path: npt.NDArray[np.float64], velocity: npt.NDArray[np.float64],
+                  acceleration: npt.NDArray[np.float64], clearance: float, *, blend: bool = True, cut: float = 0.5,
+                  threads: int | None = None) -> dict[str, Any]:
+        """``path`` ((M, K) float64, M >= 2, unwrapped: each step the short arc on continuous
+        hinges, none of length zero) timed within ``velocity`` and ``acceleration`` ((K,) float64,
+        positive; per second and per second squared): straight segments at constant velocity,
+        each corner a parabolic blend kept only where ``certify_motions(via=)`` proves it (else
+        a stop), and with ``blend``, ``cut`` in (0, 0.5] and every segment certified, each corner
+        first cut by the widest proven chord of ``cut``, ``cut/2``, ``cut/4`` of its segments
+        (``planning/timing.rs``). Keys: waypoints (M', K) (the path timed, cut corners replaced by
+        their chords' ends), starts (P,) s, q0, v0, acc (P, K) (each piece of constant
+        acceleration at its start), duration (float, s), times (M',) s, stops (M',) bool,
+        segments (M - 1,) uint8 (the certificate's verdict on each segment of ``path``, as
+        ``certify_motions``). Same answer for any thread count."""
     def ik(self, targets_pos: npt.NDArray[np.float64], targets_quat: npt.NDArray[np.float64] | None,
            starts: npt.NDArray[np.float64], body: int, local_pos: Sequence[float], local_quat: Sequence[float], *,
            seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,

@@ -27,7 +27,17 @@ use crate::planning::motion::prove_apart;
 use crate::planning::motion::{certify_blends, certify_motions, Motion};
 use crate::planning::oracle::{nearest_free, OracleOptions};
 use crate::planning::plan::{plan_path, PlanOptions, PlanStatus};
+use crate::planning::timing::time_path;
 use crate::threads::with_threads;
+
+/// A certificate's verdict as Python reads it: 0 certified, 1 blocked, 2 unproven.
+fn motion_code(m: &Motion) -> u8 {
+    match m {
+        Motion::Certified => 0,
+        Motion::Blocked(_) => 1,
+        Motion::Unproven => 2,
+    }
+}
 
 fn item<'py>(d: &Bound<'py, PyDict>, key: &str) -> PyResult<Bound<'py, PyAny>> {
     d.get_item(key)?.ok_or_else(|| input_error(format!("model arrays lack '{key}'")))
@@ -407,14 +417,7 @@ impl PyRobotModel {
                 interrupt::run(py, threads, || certify_blends(model, a, v, b, clearance))?
             }
         };
-        let verdict: Vec<u8> = r
-            .iter()
-            .map(|(m, _)| match m {
-                Motion::Certified => 0,
-                Motion::Blocked(_) => 1,
-                Motion::Unproven => 2,
-            })
-            .collect();
+        let verdict: Vec<u8> = r.iter().map(|(m, _)| motion_code(m)).collect();
         let at: Vec<f64> = r
             .iter()
             .map(|(m, _)| match m {
@@ -427,6 +430,43 @@ impl PyRobotModel {
         out.set_item("verdict", PyArray1::from_vec(py, verdict))?;
         out.set_item("blocked_at", PyArray1::from_vec(py, at))?;
         out.set_item("states", PyArray1::from_vec(py, states))?;
+        Ok(out)
+    }
+
+    /// `path` timed with its corners blended and cut where the certificate proves it (see
+    /// `_core.pyi` and `planning/timing.rs`).
+    #[pyo3(signature = (path, velocity, acceleration, clearance, *, blend=true, cut=0.5, threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn time_path<'py>(
+        &self,
+        py: Python<'py>,
+        path: &Bound<'py, PyAny>,
+        velocity: PyReadonlyArray1<'py, f64>,
+        acceleration: PyReadonlyArray1<'py, f64>,
+        clearance: f64,
+        blend: bool,
+        cut: f64,
+        threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let model = &self.model;
+        let k = model.njoint();
+        let w = pose_array(path, k, "path")?;
+        let w = rows_of(&w);
+        let (v, a) = (rows_of(&velocity), rows_of(&acceleration));
+        let (w, v, a): (&[f64], &[f64], &[f64]) = (&w, &v, &a);
+        let r = interrupt::run(py, threads, || time_path(model, w, v, a, blend, cut, clearance))?;
+        let (m, p) = (r.times.len(), r.starts.len());
+        let verdict: Vec<u8> = r.segments.iter().map(motion_code).collect();
+        let out = PyDict::new(py);
+        out.set_item("waypoints", PyArray1::from_vec(py, r.waypoints).reshape([m, k])?)?;
+        out.set_item("starts", PyArray1::from_vec(py, r.starts))?;
+        out.set_item("q0", PyArray1::from_vec(py, r.q0).reshape([p, k])?)?;
+        out.set_item("v0", PyArray1::from_vec(py, r.v0).reshape([p, k])?)?;
+        out.set_item("acc", PyArray1::from_vec(py, r.acc).reshape([p, k])?)?;
+        out.set_item("duration", r.duration)?;
+        out.set_item("times", PyArray1::from_vec(py, r.times))?;
+        out.set_item("stops", PyArray1::from_vec(py, r.stops))?;
+        out.set_item("segments", PyArray1::from_vec(py, verdict))?;
         Ok(out)
     }
 

@@ -34,8 +34,8 @@ and ``a_j`` (rad/s² or m/s²):
    That is the quadratic Bézier ``W_i − V_{i−1}τ_i/2 → W_i → W_i + V_iτ_i/2``; at a run's
    ends it is a straight start or stop along the segment.
 3. A segment must hold half of each blend: ``τ_i/2 + τ_{i+1}/2 ≤ T_i``. The speeds start from a
-   ramp (``_ramp``: forward and backward passes that fit each blend in half of each neighbour,
-   so that many short segments speed up and slow down across several of them) and from every
+   ramp (forward and backward passes that fit each blend in half of each neighbour, so that
+   many short segments speed up and slow down across several of them) and from every
    segment at its velocity limit, the shorter result kept; a segment where the blends still
    do not fit is slowed (``T_i ← T_i·√(need / T_i)``, the exact answer for a lone segment)
    until they do; after 200 rounds a run still infeasible stops at every waypoint (each
@@ -48,7 +48,8 @@ metres from every obstacle, :data:`~profrobot.CLEARANCE` at least); a blend that
 becomes a stop at its waypoint (the robot reaches it at rest, along the segments, and the run
 on either side is timed again), until every blend left is proven. ``certified`` then holds for
 the whole timed motion exactly when it holds for the path. Without ``jerk``, acceleration
-steps at the ends of each blend.
+steps at the ends of each blend. Steps 0–3 and their proofs run in the core
+(``rust/planning/timing.rs``), with the call's ``threads``.
 
 **With a jerk limit** ``j_j`` (rad/s³ or m/s³) the robot stops at every waypoint, on the
 path's segments exactly: a blend at speed must have continuous curvature to keep jerk finite,
@@ -89,7 +90,6 @@ __all__ = ["TimedPath", "time_path"]
 
 _FORMAT = "profrobot-timed-path"
 _VERSION = 2   # 2: pieces of constant jerk (jrk) and the jerk limit
-_ROUNDS = 200
 
 
 @dataclass
@@ -210,122 +210,6 @@ class TimedPath:
                    joint_names=list(meta["joint_names"]), **arrays)
 
 
-_GRID = np.linspace(1.0, 0.0, 65)[:-1]     # speed fractions tried by the ramp's passes, fastest first
-
-
-def _ramp(d: np.ndarray, t_min: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """Per segment, a speed fraction ``s`` (of its velocity-limited speed) such that every blend
-    fits in half of each segment beside it, ``τ_i ≤ min(T_{i−1}, T_i)`` with ``T_i = t_min_i / s_i``
-    (a sufficient form of step 3, local to one corner): a forward pass from rest, a backward one
-    to rest, each taking at every corner the fastest fraction of a grid that fits, and their
-    minimum. Over many short segments (a straight-line move cut every 5 mm) this ramps the speed
-    up and down across segments, where slowing each violating segment alone (step 3) slows them
-    all; step 3 then settles what is left."""
-    n = len(d)
-    u = d / t_min[:, None]                       # each segment's velocity at full speed
-
-    def fastest(prev_v: np.ndarray, prev_t: float, i: int) -> float:
-        cand = _GRID[:, None] * u[i]                                     # (G, K)
-        tau = (np.abs(cand - prev_v) / a).max(axis=1)
-        ok = (tau <= prev_t) & (tau <= t_min[i] / _GRID)
-        return float(_GRID[np.argmax(ok)]) if ok.any() else float(_GRID[-1])
-
-    fwd, bwd = np.zeros(n), np.zeros(n)
-    prev_v, prev_t = np.zeros(d.shape[1]), np.inf
-    for i in range(n):
-        fwd[i] = fastest(prev_v, prev_t, i)
-        prev_v, prev_t = fwd[i] * u[i], t_min[i] / fwd[i]
-    prev_v, prev_t = np.zeros(d.shape[1]), np.inf
-    for i in range(n - 1, -1, -1):
-        bwd[i] = fastest(prev_v, prev_t, i)
-        prev_v, prev_t = bwd[i] * u[i], t_min[i] / bwd[i]
-    return np.minimum(fwd, bwd)
-
-
-def _settle(d: np.ndarray, t: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Step 3 from segment times ``t``: slow each segment whose blends do not fit until they do;
-    None when 200 rounds do not settle."""
-    for _ in range(_ROUNDS):
-        vel = d / t[:, None]
-        ext = np.concatenate([np.zeros((1, d.shape[1])), vel, np.zeros((1, d.shape[1]))])
-        tau = (np.abs(np.diff(ext, axis=0)) / a).max(axis=1)
-        ratio = 0.5 * (tau[:-1] + tau[1:]) / t
-        if (ratio <= 1.0 + 1e-12).all():
-            return t, tau
-        t = np.where(ratio > 1.0, t * np.sqrt(ratio) * (1.0 + 1e-12), t)
-    return None
-
-
-def _run_times(d: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Segment times (n,) and blend times (n+1,) of one run (module docs, steps 1-3), from its
-    segments ``d`` (n, K): step 3 settled from every segment at its velocity limit and from the
-    ramp, the shorter kept."""
-    ad = np.abs(d)
-    t_min = (ad / v).max(axis=1)
-    best = None
-    for start in (t_min, t_min / _ramp(d, t_min, a)):
-        got = _settle(d, start.copy(), a)
-        if got is not None and (best is None or got[0].sum() + 0.5 * (got[1][0] + got[1][-1])
-                                < best[0].sum() + 0.5 * (best[1][0] + best[1][-1])):
-            best = got
-    if best is not None:
-        return best
-    # (not settled: stop at every waypoint; each segment alone)
-    return np.maximum(t_min, np.sqrt((ad / a).max(axis=1))), np.full(len(d) + 1, np.nan)
-
-
-def _pieces(w: np.ndarray, stops: np.ndarray, v: np.ndarray, a: np.ndarray):
-    """The pieces (starts, q0, v0, acc), the waypoints' times, the stops actually made and each
-    interior corner's blend ``(start, via, goal)`` control points (None where the robot stops)."""
-    m, k = w.shape
-    starts, q0, v0, acc = [], [], [], []
-    times = np.zeros(m)
-    blends: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * m
-    stops = stops.copy()
-    clock = 0.0
-    cut = [0, *np.flatnonzero(stops[1:-1]) + 1, m - 1]
-    for r0, r1 in zip(cut[:-1], cut[1:]):
-        d = np.diff(w[r0:r1 + 1], axis=0)
-        t, tau = _run_times(d, v, a)
-        if np.isnan(tau).any():   # (the run stops at every waypoint)
-            stops[r0:r1 + 1] = True
-            for i in range(r1 - r0):
-                s, c, b = _pieces(w[r0 + i:r0 + i + 2], np.ones(2, bool), v, a)[:3]
-                starts.extend(s + clock)
-                q0.extend(c[0])
-                v0.extend(c[1])
-                acc.extend(c[2])
-                times[r0 + i] = clock
-                clock += b
-            times[r1] = clock
-            continue
-        vel = d / t[:, None]
-        ext = np.concatenate([np.zeros((1, k)), vel, np.zeros((1, k))])
-        n = len(d)
-        centre = clock + tau[0] / 2 + np.concatenate([[0.0], np.cumsum(t)])
-        for i in range(n + 1):
-            vin, vout = ext[i], ext[i + 1]
-            if tau[i] > 0:
-                starts.append(centre[i] - tau[i] / 2)
-                q0.append(w[r0 + i] - vin * tau[i] / 2)
-                v0.append(vin)
-                acc.append((vout - vin) / tau[i])
-                if 0 < i < n:
-                    blends[r0 + i] = (w[r0 + i] - vin * tau[i] / 2, w[r0 + i], w[r0 + i] + vout * tau[i] / 2)
-            if i < n:
-                cruise = centre[i] + tau[i] / 2
-                if centre[i + 1] - tau[i + 1] / 2 > cruise:
-                    starts.append(cruise)
-                    q0.append(w[r0 + i] + vout * tau[i] / 2)
-                    v0.append(vout)
-                    acc.append(np.zeros(k))
-        times[r0 + 1:r1] = centre[1:-1]
-        times[r0] = clock                      # (a run starts and ends at rest on its waypoints)
-        clock = centre[-1] + tau[-1] / 2
-        times[r1] = clock
-    return np.asarray(starts), (np.asarray(q0), np.asarray(v0), np.asarray(acc)), clock, times, stops, blends
-
-
 def _double_s(v: float, a: float, j: float) -> list[tuple[float, float]]:
     """The time-optimal rest-to-rest move of ``s`` from 0 to 1 within speed ``v``, acceleration
     ``a`` and jerk ``j`` (module docs): its phases ``(duration, jerk)``, zero-length ones left out."""
@@ -369,68 +253,6 @@ def _jerk_pieces(w: np.ndarray, v: np.ndarray, a: np.ndarray, jerk: np.ndarray):
             clock += h
         times[i + 1] = clock
     return np.asarray(starts), tuple(map(np.asarray, (q0, v0, acc, jrk))), clock, times
-
-
-def _blended(robot: Robot, w: np.ndarray, blend: bool, v: np.ndarray, a: np.ndarray, threads: int | None):
-    """The pieces with every corner blended whose blend is proven free, the others stops
-    (module docs): (starts, (q0, v0, acc), duration, times, stops)."""
-    stops = np.zeros(len(w), dtype=bool)
-    stops[[0, -1]] = True
-    if not blend:
-        stops[:] = True
-    proven: dict[bytes, bool] = {}
-    while True:
-        starts, pieces, duration, times, stops, blends = _pieces(w, stops, v, a)
-        todo = [i for i, b in enumerate(blends) if b is not None and np.stack(b).tobytes() not in proven]
-        if todo:
-            ctl = [np.stack(blends[i]) for i in todo]
-            got = certify_motions(robot, np.stack([c[0] for c in ctl]), np.stack([c[2] for c in ctl]),
-                                  via=np.stack([c[1] for c in ctl]), threads=threads).certified
-            proven.update({c.tobytes(): bool(ok) for c, ok in zip(ctl, got)})
-        failed = [i for i, b in enumerate(blends) if b is not None and not proven[np.stack(b).tobytes()]]
-        if not failed:
-            return starts, pieces, duration, times, stops
-        stops[failed] = True
-
-
-def _cut_points(w: np.ndarray, share: np.ndarray) -> np.ndarray:
-    """The waypoints with corner ``i`` (``share[i] > 0``) replaced by the two ends of its chord:
-    ``W_i − D_{i−1}·share_i`` and ``W_i + D_i·share_i``, each written as a point of its segment,
-    ``W_j + D_j·s`` (the form :func:`_cuts` proves); two ends that meet (``s`` equal, at the
-    middle of a segment) are one waypoint."""
-    out = [w[0]]
-    for j in range(len(w) - 1):
-        d = w[j + 1] - w[j]
-        s_out, s_in = share[j], 1.0 - share[j + 1]      # (share is 0 at the path's ends)
-        if s_out > 0:
-            out.append(w[j] + d * s_out)
-        if share[j + 1] > 0 and s_in != s_out:
-            out.append(w[j] + d * s_in)
-        if share[j + 1] == 0:
-            out.append(w[j + 1])
-    return np.asarray(out)
-
-
-def _cuts(robot: Robot, w: np.ndarray, cut: float, wraps: np.ndarray, threads: int | None) -> np.ndarray:
-    """Per waypoint, the share of its segments each corner is cut by (module docs, step 0): the
-    widest of ``cut``, ``cut/2``, ``cut/4`` whose chord is proven free, 0 where none is (and at
-    the ends)."""
-    m = len(w)
-    share = np.zeros(m)
-    todo = np.arange(1, m - 1)
-    for f in (cut, cut / 2, cut / 4):
-        if not len(todo):
-            break
-        d_in, d_out = w[todo] - w[todo - 1], w[todo + 1] - w[todo]
-        p0, p1 = w[todo - 1] + d_in * (1.0 - f), w[todo] + d_out * f
-        # (a continuous hinge's chord must be the short arc the certificate proves)
-        arc = (np.abs(p1 - p0)[:, wraps] < np.pi - 1e-6).all(axis=1)
-        ok = np.zeros(len(todo), bool)
-        if arc.any():
-            ok[arc] = certify_motions(robot, p0[arc], p1[arc], threads=threads).certified
-        share[todo[ok]] = f
-        todo = todo[~ok]
-    return share
 
 
 def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | float | None = None,
@@ -483,33 +305,19 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
         return TimedPath(duration=0.0, starts=np.zeros(1), q0=w.copy(), v0=np.zeros_like(w), acc=np.zeros_like(w),
                          jrk=np.zeros_like(w), times=np.zeros(1), stops=np.ones(1, bool), certified=free,
                          reason="" if free else "the pose is not certified free", **meta)
-    seg = certify_motions(robot, w[:-1], w[1:], threads=threads)
     if jerk is None:
-        cutting = blend and cut > 0 and m > 2 and seg.certified.all()
-        share = _cuts(robot, w, cut, meta["wraps"], threads) if cutting else np.zeros(m)
-        if share.any():
-            wc = _cut_points(w, share)
-            timed = _blended(robot, wc, True, v, a, threads)
-            ends = np.zeros(m, bool)
-            ends[[0, -1]] = True
-            # kept outright when no timing of the uncut path could be faster (all its blends
-            # proven, at best); else the faster of the two
-            if timed[2] > _pieces(w, ends, v, a)[2]:
-                uncut = _blended(robot, w, True, v, a, threads)
-                if uncut[2] < timed[2]:
-                    timed, wc = uncut, w
-            w = wc
-        else:
-            timed = _blended(robot, w, blend, v, a, threads)
-        starts, (q0, v0, acc), duration, times, stops = timed
-        meta["waypoints"] = w
+        out = robot.core.time_path(w, v, a, CLEARANCE, blend=bool(blend), cut=float(cut), threads=threads)
+        starts, q0, v0, acc = out["starts"], out["q0"], out["v0"], out["acc"]
+        duration, times, stops, verdict = out["duration"], out["times"], out["stops"], out["segments"]
+        meta["waypoints"] = out["waypoints"]
         jrk = np.zeros_like(q0)
     else:
+        verdict = robot.core.certify_motions(w[:-1], w[1:], CLEARANCE, threads=threads)["verdict"]
         starts, (q0, v0, acc, jrk), duration, times = _jerk_pieces(w, v, a, j)
         stops = np.ones(m, dtype=bool)
-    bad = np.flatnonzero(~seg.certified)
+    bad = np.flatnonzero(verdict != 0)
     reason = "" if not len(bad) else (
         f"segment {bad[0]} of the path (waypoints {bad[0]} → {bad[0] + 1}) is "
-        f"{'blocked' if seg.blocked[bad[0]] else 'not proven free'}; time a certified path (plan_path)")
+        f"{'blocked' if verdict[bad[0]] == 1 else 'not proven free'}; time a certified path (plan_path)")
     return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, jrk=jrk, times=times, stops=stops,
                      certified=not len(bad), reason=reason, **meta)

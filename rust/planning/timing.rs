@@ -1,0 +1,589 @@
+//! Timed paths: a waypoint path crossed within each joint's velocity and acceleration limits,
+//! its corners rounded by parabolic blends and cut by chords, every blend and chord kept proven
+//! free by the continuous certificate ([`super::motion`]). `profrobot.time_path` (Python) gates
+//! the arguments, unwraps the path and keeps the jerk-limited profile; this is its search.
+//!
+//! Per run of waypoints `W_0 … W_n` between two stops (at rest at both ends), `D_i = W_{i+1} −
+//! W_i` (unwrapped: short arcs on continuous hinges), limits `v_j`, `a_j`:
+//!
+//! 1. Segment `i` is crossed at the constant velocity `V_i = D_i / T_i`, `T_i ≥ max_j |D_ij|/v_j`.
+//! 2. At waypoint `i` the velocity changes from `V_{i−1}` to `V_i` (`V_{−1} = V_n = 0`) at the
+//!    constant acceleration `(V_i − V_{i−1}) / τ_i` over `τ_i = max_j |V_ij − V_{i−1,j}| / a_j`,
+//!    centred on the waypoint's time: the quadratic Bézier `W_i − V_{i−1}τ_i/2 → W_i → W_i +
+//!    V_iτ_i/2`, proven as a curve (`certify_blends`); one that is not becomes a stop.
+//! 3. A segment holds half of each blend beside it: `τ_i/2 + τ_{i+1}/2 ≤ T_i`. The times start
+//!    from every segment at its velocity limit and from a ramp (`ramp`), and a segment whose
+//!    blends do not fit is slowed by `√(need / T_i)` (the exact answer for a lone segment) until
+//!    they do (`settle`); the quicker settled start is kept. After `ROUNDS` rounds a run still
+//!    unsettled stops at every waypoint.
+//!
+//! Step 0, corner cuts (`cuts`): a chord from `W_i − D_{i−1}·c` to `W_i + D_i·c` is quicker
+//! than the two half-segments it replaces wherever different joints lead them; the widest of
+//! `cut`, `cut/2`, `cut/4` whose chord is proven replaces the corner, and the cut path is timed
+//! as above. It is kept unless timing the path uncut is quicker (tried only when the uncut
+//! path's best case, every blend proven, could be).
+//!
+//! Velocity is piecewise linear and acceleration piecewise constant, each within its limit by
+//! construction; the cruise parts lie on proven segments (or chords) and every blend is proven,
+//! so the timed motion is certified exactly when the path's segments are. Every verdict is the
+//! certificate's of one motion alone, so the result does not depend on the thread count.
+
+use std::collections::HashMap;
+
+use crate::error::{Error, Result};
+use crate::model::RobotModel;
+use crate::planning::motion::{certify_blends, certify_motions, Motion};
+
+/// Speed fractions the ramp tries, fastest first: `1 − i/GRID` for `i < GRID` (exact in binary).
+const GRID: usize = 64;
+/// Rounds of `settle` before a run stops at every waypoint.
+const ROUNDS: usize = 200;
+
+#[inline]
+fn grid(i: usize) -> f64 {
+    1.0 - i as f64 / GRID as f64
+}
+
+/// A timed path: pieces of constant acceleration, in unwrapped joint coordinates.
+#[derive(Clone, Debug)]
+pub struct Timed {
+    /// `(M, K)` the waypoints timed: the path given, each cut corner replaced by its chord's ends.
+    pub waypoints: Vec<f64>,
+    /// `(P,)` seconds: each piece's start.
+    pub starts: Vec<f64>,
+    /// `(P, K)` position, velocity and acceleration at each piece's start.
+    pub q0: Vec<f64>,
+    pub v0: Vec<f64>,
+    pub acc: Vec<f64>,
+    /// Seconds from the first waypoint to the last.
+    pub duration: f64,
+    /// `(M,)` seconds at each stop, or halfway through the blend at each corner.
+    pub times: Vec<f64>,
+    /// `(M,)` the waypoints reached at rest.
+    pub stops: Vec<bool>,
+    /// The certificate's verdict on each segment of the path given, in order.
+    pub segments: Vec<Motion>,
+}
+
+/// The pieces of one timing of a path with given stops (`pieces`).
+struct Pieces {
+    starts: Vec<f64>,
+    q0: Vec<f64>,
+    v0: Vec<f64>,
+    acc: Vec<f64>,
+    duration: f64,
+    times: Vec<f64>,
+    stops: Vec<bool>,
+    /// Each interior corner blended: its index and control points `(start, via, goal)`, `3K`.
+    blends: Vec<(usize, Vec<f64>)>,
+}
+
+/// What every timing of one call shares: the joint count and the limits.
+struct Limits<'a> {
+    k: usize,
+    v: &'a [f64],
+    a: &'a [f64],
+}
+
+impl Limits<'_> {
+    /// `max_j |x_j| / l_j`.
+    #[inline]
+    fn lead(&self, x: impl Iterator<Item = f64>, l: &[f64]) -> f64 {
+        x.zip(l).fold(0.0f64, |m, (x, l)| m.max(x.abs() / l))
+    }
+
+    /// Each segment's time at its velocity limit, `max_j |D_ij| / v_j`.
+    fn t_min(&self, d: &[f64]) -> Vec<f64> {
+        d.chunks_exact(self.k).map(|di| self.lead(di.iter().copied(), self.v)).collect()
+    }
+
+    /// Per segment, a speed fraction `s` (of its velocity-limited speed) with every blend inside
+    /// half of each segment beside it, `τ_i ≤ min(T_{i−1}, T_i)` for `T_i = t_min_i / s_i` (a
+    /// sufficient form of step 3, local to one corner): a forward pass from rest and a backward
+    /// one to rest, each taking at every corner the fastest fraction of the grid that fits; their
+    /// minimum. Over many short segments this ramps the speed up and down across segments, where
+    /// slowing each violating segment alone slows them all.
+    fn ramp(&self, d: &[f64], t_min: &[f64]) -> Vec<f64> {
+        let k = self.k;
+        let n = t_min.len();
+        let u: Vec<f64> = d.chunks_exact(k).zip(t_min).flat_map(|(di, &t)| di.iter().map(move |x| x / t)).collect();
+        let fastest = |prev_v: &[f64], prev_t: f64, i: usize| -> f64 {
+            let ui = &u[i * k..(i + 1) * k];
+            (0..GRID)
+                .map(grid)
+                .find(|&g| {
+                    let tau = self.lead(ui.iter().zip(prev_v).map(|(u, p)| g * u - p), self.a);
+                    tau <= prev_t && tau <= t_min[i] / g
+                })
+                .unwrap_or(grid(GRID - 1))
+        };
+        let pass = |order: &mut dyn Iterator<Item = usize>| {
+            let mut s = vec![0.0; n];
+            let (mut prev_v, mut prev_t) = (vec![0.0; k], f64::INFINITY);
+            for i in order {
+                s[i] = fastest(&prev_v, prev_t, i);
+                for (p, u) in prev_v.iter_mut().zip(&u[i * k..(i + 1) * k]) {
+                    *p = s[i] * u;
+                }
+                prev_t = t_min[i] / s[i];
+            }
+            s
+        };
+        let fwd = pass(&mut (0..n));
+        let bwd = pass(&mut (0..n).rev());
+        fwd.iter().zip(&bwd).map(|(f, b)| f.min(*b)).collect()
+    }
+
+    /// The blend times `τ_0 … τ_n` of segments `d` crossed in times `t`.
+    fn blend_times(&self, d: &[f64], t: &[f64]) -> Vec<f64> {
+        let k = self.k;
+        let n = t.len();
+        let vel = |i: usize, j: usize| if i < n { d[i * k + j] / t[i] } else { 0.0 };
+        (0..=n).map(|i| self.lead((0..k).map(|j| vel(i, j) - if i > 0 { vel(i - 1, j) } else { 0.0 }), self.a)).collect()
+    }
+
+    /// Step 3 from segment times `t`: each segment whose blends do not fit slowed until they do;
+    /// `(t, τ)`, or None when `ROUNDS` rounds do not settle.
+    fn settle(&self, d: &[f64], mut t: Vec<f64>) -> Option<(Vec<f64>, Vec<f64>)> {
+        for _ in 0..ROUNDS {
+            let tau = self.blend_times(d, &t);
+            let ratio: Vec<f64> = t.iter().enumerate().map(|(i, ti)| 0.5 * (tau[i] + tau[i + 1]) / ti).collect();
+            if ratio.iter().all(|&r| r <= 1.0 + 1e-12) {
+                return Some((t, tau));
+            }
+            for (ti, r) in t.iter_mut().zip(&ratio) {
+                if *r > 1.0 {
+                    *ti = *ti * r.sqrt() * (1.0 + 1e-12);
+                }
+            }
+        }
+        None
+    }
+
+    /// Segment times and blend times of one run (steps 1-3): settled from every segment at its
+    /// velocity limit and from the ramp, the quicker kept; None when neither settles.
+    fn run_times(&self, d: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+        let t_min = self.t_min(d);
+        let ramped: Vec<f64> = t_min.iter().zip(self.ramp(d, &t_min)).map(|(t, s)| t / s).collect();
+        let cost = |(t, tau): &(Vec<f64>, Vec<f64>)| t.iter().sum::<f64>() + 0.5 * (tau[0] + tau[tau.len() - 1]);
+        let mut best: Option<(Vec<f64>, Vec<f64>)> = None;
+        for start in [t_min, ramped] {
+            if let Some(got) = self.settle(d, start) {
+                if best.as_ref().is_none_or(|b| cost(&got) < cost(b)) {
+                    best = Some(got);
+                }
+            }
+        }
+        best
+    }
+
+    /// One segment alone, from rest to rest: `run_times`, or (should it not settle) the
+    /// trapezoid `T = max(max_j |D_j|/v_j, √(max_j |D_j|/a_j))`, whose blends fit by construction.
+    fn lone(&self, d: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        self.run_times(d).unwrap_or_else(|| {
+            let t = self.lead(d.iter().copied(), self.v).max(self.lead(d.iter().copied(), self.a).sqrt());
+            let tau = self.lead(d.iter().map(|x| x / t), self.a);
+            (vec![t], vec![tau, tau])
+        })
+    }
+
+    /// The pieces of the path `w` (`(M, K)`) stopping at `stops` (and, per run that does not
+    /// settle, at every waypoint of it), the waypoints' times and each corner's blend.
+    fn pieces(&self, w: &[f64], stops: &[bool]) -> Pieces {
+        let k = self.k;
+        let m = stops.len();
+        let mut out = Pieces {
+            starts: Vec::new(),
+            q0: Vec::new(),
+            v0: Vec::new(),
+            acc: Vec::new(),
+            duration: 0.0,
+            times: vec![0.0; m],
+            stops: stops.to_vec(),
+            blends: Vec::new(),
+        };
+        let mut cut: Vec<usize> = vec![0];
+        cut.extend((1..m - 1).filter(|&i| stops[i]));
+        cut.push(m - 1);
+        let mut clock = 0.0;
+        for r in cut.windows(2) {
+            let (r0, r1) = (r[0], r[1]);
+            let d: Vec<f64> = (r0 * k..r1 * k).map(|x| w[x + k] - w[x]).collect();
+            match self.run_times(&d) {
+                Some((t, tau)) => {
+                    clock = out.run(w, r0, &t, &tau, clock, k, true);
+                }
+                None => {
+                    // (the run stops at every waypoint; each segment alone)
+                    for i in r0..r1 {
+                        out.stops[i] = true;
+                        out.stops[i + 1] = true;
+                        let (t, tau) = self.lone(&d[(i - r0) * k..(i - r0 + 1) * k]);
+                        let first = out.starts.len();
+                        let end = out.run(w, i, &t, &tau, 0.0, k, false);
+                        for s in &mut out.starts[first..] {
+                            *s += clock;
+                        }
+                        out.times[i] = clock;
+                        clock += end;
+                    }
+                    out.times[r1] = clock;
+                }
+            }
+        }
+        out.duration = clock;
+        out
+    }
+}
+
+impl Pieces {
+    /// Appends the pieces of the run from waypoint `r0` crossed in segment times `t` with blend
+    /// times `tau`, starting at `clock`; returns the clock at its end. With `corners`, the
+    /// run's waypoints' times and its interior blends are recorded.
+    #[allow(clippy::too_many_arguments)]
+    fn run(&mut self, w: &[f64], r0: usize, t: &[f64], tau: &[f64], clock: f64, k: usize, corners: bool) -> f64 {
+        let n = t.len();
+        // (the velocity before waypoint `i` of the run: of segment `i − 1`, at rest outside)
+        let vel = |i: usize, j: usize| {
+            if i == 0 || i > n {
+                0.0
+            } else {
+                (w[(r0 + i) * k + j] - w[(r0 + i - 1) * k + j]) / t[i - 1]
+            }
+        };
+        // (the waypoint times: the first blend's half, then each segment; summed in order)
+        let mut centre = Vec::with_capacity(n + 1);
+        let (base, mut sum) = (clock + tau[0] / 2.0, 0.0);
+        centre.push(base + 0.0);
+        for ti in t {
+            sum += ti;
+            centre.push(base + sum);
+        }
+        for i in 0..=n {
+            let wi = &w[(r0 + i) * k..(r0 + i + 1) * k];
+            if tau[i] > 0.0 {
+                self.starts.push(centre[i] - tau[i] / 2.0);
+                for (j, x) in wi.iter().enumerate() {
+                    let (vin, vout) = (vel(i, j), vel(i + 1, j));
+                    self.q0.push(x - vin * tau[i] / 2.0);
+                    self.v0.push(vin);
+                    self.acc.push((vout - vin) / tau[i]);
+                }
+                if corners && 0 < i && i < n {
+                    let mut ctl = Vec::with_capacity(3 * k);
+                    ctl.extend((0..k).map(|j| wi[j] - vel(i, j) * tau[i] / 2.0));
+                    ctl.extend_from_slice(wi);
+                    ctl.extend((0..k).map(|j| wi[j] + vel(i + 1, j) * tau[i] / 2.0));
+                    self.blends.push((r0 + i, ctl));
+                }
+            }
+            if i < n {
+                let cruise = centre[i] + tau[i] / 2.0;
+                if centre[i + 1] - tau[i + 1] / 2.0 > cruise {
+                    self.starts.push(cruise);
+                    for (j, x) in wi.iter().enumerate() {
+                        let vout = vel(i + 1, j);
+                        self.q0.push(x + vout * tau[i] / 2.0);
+                        self.v0.push(vout);
+                        self.acc.push(0.0);
+                    }
+                }
+            }
+        }
+        let end = centre[n] + tau[n] / 2.0;
+        if corners {
+            self.times[r0 + 1..r0 + n].copy_from_slice(&centre[1..n]);
+            self.times[r0] = clock;
+            self.times[r0 + n] = end;
+        }
+        end
+    }
+}
+
+/// Whether each motion `starts[i] → goals[i]` is certified.
+fn proven(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<bool>> {
+    Ok(certify_motions(model, starts, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
+}
+
+/// The pieces with every corner blended whose blend is proven free and the others stops (all
+/// stops without `blend`): corners whose blend fails become stops and the runs beside them are
+/// timed again, until every blend left is proven (each blend proven once per call).
+fn blended(model: &RobotModel, lim: &Limits, w: &[f64], blend: bool, clearance: f64) -> Result<Pieces> {
+    let m = w.len() / lim.k;
+    let mut stops = vec![!blend; m];
+    stops[0] = true;
+    stops[m - 1] = true;
+    let mut memo: HashMap<Vec<u64>, bool> = HashMap::new();
+    let key = |c: &[f64]| c.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+    loop {
+        let p = lim.pieces(w, &stops);
+        let todo: Vec<&Vec<f64>> = p.blends.iter().map(|(_, c)| c).filter(|c| !memo.contains_key(&key(c))).collect();
+        if !todo.is_empty() {
+            let k = lim.k;
+            let part = |s: usize| todo.iter().flat_map(|c| c[s * k..(s + 1) * k].iter().copied()).collect::<Vec<f64>>();
+            let got = certify_blends(model, &part(0), &part(1), &part(2), clearance)?;
+            for (c, (verdict, _)) in todo.iter().zip(got) {
+                memo.insert(key(c), matches!(verdict, Motion::Certified));
+            }
+        }
+        let failed: Vec<usize> = p.blends.iter().filter(|(_, c)| !memo[&key(c)]).map(|&(i, _)| i).collect();
+        if failed.is_empty() {
+            return Ok(p);
+        }
+        stops = p.stops;
+        for i in failed {
+            stops[i] = true;
+        }
+    }
+}
+
+/// Per waypoint, the share of its segments its corner is cut by (step 0): the widest of `cut`,
+/// `cut/2`, `cut/4` whose chord from `W_i − D_{i−1}·f` to `W_i + D_i·f` is proven, 0 where none is (and at the
+/// ends). A continuous hinge's chord must be the short arc the certificate proves.
+fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Result<Vec<f64>> {
+    let m = w.len() / k;
+    let wraps = model.continuous();
+    let mut share = vec![0.0; m];
+    let mut todo: Vec<usize> = (1..m - 1).collect();
+    for f in [cut, cut / 2.0, cut / 4.0] {
+        if todo.is_empty() {
+            break;
+        }
+        let mut p0 = Vec::with_capacity(todo.len() * k);
+        let mut p1 = Vec::with_capacity(todo.len() * k);
+        let mut arcs = Vec::with_capacity(todo.len());
+        for &i in &todo {
+            let (a, b, c) = (&w[(i - 1) * k..i * k], &w[i * k..(i + 1) * k], &w[(i + 1) * k..(i + 2) * k]);
+            let s = p0.len();
+            p0.extend((0..k).map(|j| a[j] + (b[j] - a[j]) * (1.0 - f)));
+            p1.extend((0..k).map(|j| b[j] + (c[j] - b[j]) * f));
+            let arc = (0..k).all(|j| !wraps[j] || (p1[s + j] - p0[s + j]).abs() < std::f64::consts::PI - 1e-6);
+            if !arc {
+                p0.truncate(s);
+                p1.truncate(s);
+            }
+            arcs.push(arc);
+        }
+        let mut ok = proven(model, &p0, &p1, clearance)?.into_iter();
+        let mut left = Vec::new();
+        for (&i, arc) in todo.iter().zip(arcs) {
+            if arc && ok.next() == Some(true) {
+                share[i] = f;
+            } else {
+                left.push(i);
+            }
+        }
+        todo = left;
+    }
+    Ok(share)
+}
+
+/// The waypoints with corner `i` (`share[i] > 0`) replaced by the two ends of its chord, each
+/// written as a point of its segment, `W_j + D_j·s` (the form `cuts` proves); two ends that
+/// meet (at the middle of a segment) are one waypoint.
+fn cut_points(k: usize, w: &[f64], share: &[f64]) -> Vec<f64> {
+    let m = share.len();
+    let mut out = w[..k].to_vec();
+    for j in 0..m - 1 {
+        let (a, b) = (&w[j * k..(j + 1) * k], &w[(j + 1) * k..(j + 2) * k]);
+        let (s_out, s_in) = (share[j], 1.0 - share[j + 1]);
+        let at = |s: f64| (0..k).map(move |i| a[i] + (b[i] - a[i]) * s);
+        if s_out > 0.0 {
+            out.extend(at(s_out));
+        }
+        if share[j + 1] > 0.0 && s_in != s_out {
+            out.extend(at(s_in));
+        }
+        if share[j + 1] == 0.0 {
+            out.extend_from_slice(b);
+        }
+    }
+    out
+}
+
+/// Times the path `path` (`(M, K)` row-major, M ≥ 2, unwrapped: consecutive waypoints differ by
+/// the short arc on continuous hinges, no zero-length segment) within `velocity` and
+/// `acceleration` (`(K,)`, positive), blending the corners whose blends are proven (stopping at
+/// every waypoint without `blend`) and, with `cut` in `(0, 0.5]` and a certified path, cutting
+/// corners by proven chords (module docs). Every proof keeps `max(margin, clearance)` metres;
+/// the path's own segments are certified too (`Timed::segments`), in parallel on rayon's
+/// current pool.
+pub fn time_path(
+    model: &RobotModel,
+    path: &[f64],
+    velocity: &[f64],
+    acceleration: &[f64],
+    blend: bool,
+    cut: f64,
+    clearance: f64,
+) -> Result<Timed> {
+    let k = model.njoint();
+    let m = model.check_poses(path)?;
+    if m < 2 {
+        return Err(Error::InvalidInput(format!("path must hold at least two waypoints; got {m}")));
+    }
+    for (name, x) in [("velocity", velocity), ("acceleration", acceleration)] {
+        if x.len() != k || !x.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(Error::InvalidInput(format!("{name} must be {k} positive finite limits")));
+        }
+    }
+    if !(0.0..=0.5).contains(&cut) {
+        return Err(Error::InvalidInput(format!("cut must be a share of each segment in [0, 0.5]; got {cut}")));
+    }
+    if (0..m - 1).any(|i| (0..k).all(|j| path[i * k + j] == path[(i + 1) * k + j])) {
+        return Err(Error::InvalidInput("path must hold no zero-length segment".into()));
+    }
+    let lim = Limits { k, v: velocity, a: acceleration };
+    let segments: Vec<Motion> = certify_motions(model, &path[..(m - 1) * k], &path[k..], clearance)?.into_iter().map(|(v, _)| v).collect();
+    let certified = segments.iter().all(|s| matches!(s, Motion::Certified));
+    let share = if blend && cut > 0.0 && m > 2 && certified { cuts(model, k, path, cut, clearance)? } else { vec![0.0; m] };
+    let (timed, waypoints) = if share.iter().any(|&s| s > 0.0) {
+        let wc = cut_points(k, path, &share);
+        let timed = blended(model, &lim, &wc, true, clearance)?;
+        let mut ends = vec![false; m];
+        ends[0] = true;
+        ends[m - 1] = true;
+        // kept outright when no timing of the uncut path could be quicker (every blend proven,
+        // at best); else the quicker of the two
+        if timed.duration > lim.pieces(path, &ends).duration {
+            let uncut = blended(model, &lim, path, true, clearance)?;
+            if uncut.duration < timed.duration {
+                (uncut, path.to_vec())
+            } else {
+                (timed, wc)
+            }
+        } else {
+            (timed, wc)
+        }
+    } else {
+        (blended(model, &lim, path, blend, clearance)?, path.to_vec())
+    };
+    Ok(Timed {
+        waypoints,
+        starts: timed.starts,
+        q0: timed.q0,
+        v0: timed.v0,
+        acc: timed.acc,
+        duration: timed.duration,
+        times: timed.times,
+        stops: timed.stops,
+        segments,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collision::collide::Scratch;
+    use crate::collision::fastpath::certified_pose;
+    use crate::planning::motion::tests::cluttered_arm;
+    use crate::threads::with_threads;
+    use rand::{Rng, SeedableRng};
+
+    /// Position and velocity of piece `p` of `t` at `tau` seconds into it, joint `j`.
+    fn at(t: &Timed, k: usize, p: usize, j: usize, tau: f64) -> (f64, f64) {
+        let (q0, v0, a) = (t.q0[p * k + j], t.v0[p * k + j], t.acc[p * k + j]);
+        (q0 + v0 * tau + 0.5 * a * tau * tau, v0 + a * tau)
+    }
+
+    /// The pose at time `time` (the piece it falls in).
+    fn pose(t: &Timed, k: usize, time: f64) -> Vec<f64> {
+        let p = t.starts.partition_point(|&s| s <= time).max(1) - 1;
+        (0..k).map(|j| at(t, k, p, j, time - t.starts[p]).0).collect()
+    }
+
+    /// Random paths among the boxes, timed under random limits: the pieces join in position and
+    /// velocity, no piece leaves a limit, the motion starts and ends at rest on the path's ends
+    /// and reaches every stop at rest on its waypoint; where the path's segments are certified,
+    /// every pose sampled along the timed motion (blends and chords included) is certified
+    /// clear by the exact labeller; the result is bit for bit the same on one thread and two.
+    #[test]
+    fn timed_paths_keep_the_limits_join_up_and_stay_clear() {
+        let model = cluttered_arm();
+        let k = model.njoint();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut s = Scratch::new(&model);
+        let (mut certified, mut blended, mut cut) = (0, 0, 0);
+        for case in 0..60 {
+            let m = rng.random_range(2..7);
+            let mut path: Vec<f64> = Vec::new();
+            for i in 0..m {
+                for j in 0..k {
+                    let [lo, hi] = model.limits[j];
+                    let x =
+                        if i == 0 { rng.random_range(lo..hi) } else { (path[(i - 1) * k + j] + rng.random_range(-0.8..0.8)).clamp(lo, hi) };
+                    path.push(if j == 2 { x * 0.5 } else { x });
+                }
+            }
+            let v: Vec<f64> = (0..k).map(|_| rng.random_range(0.5..2.0)).collect();
+            let a: Vec<f64> = (0..k).map(|_| rng.random_range(1.0..10.0)).collect();
+            let cut_share = [0.0, 0.5, 0.25][case % 3];
+            let one = with_threads(Some(1), || time_path(&model, &path, &v, &a, true, cut_share, 1e-6)).unwrap().unwrap();
+            let two = with_threads(Some(2), || time_path(&model, &path, &v, &a, true, cut_share, 1e-6)).unwrap().unwrap();
+            assert_eq!(format!("{one:?}"), format!("{two:?}"), "case {case}");
+            let t = one;
+            let n = t.starts.len();
+            assert_eq!(t.starts[0], 0.0);
+            for p in 0..n {
+                let end = if p + 1 < n { t.starts[p + 1] } else { t.duration };
+                assert!(end >= t.starts[p]);
+                for j in 0..k {
+                    assert!(t.acc[p * k + j].abs() <= a[j] * (1.0 + 1e-9), "case {case} piece {p}");
+                    let (q, qd) = at(&t, k, p, j, end - t.starts[p]);
+                    assert!(t.v0[p * k + j].abs() <= v[j] * (1.0 + 1e-9) && qd.abs() <= v[j] * (1.0 + 1e-9));
+                    if p + 1 < n {
+                        assert!(
+                            (q - t.q0[(p + 1) * k + j]).abs() < 1e-9 && (qd - t.v0[(p + 1) * k + j]).abs() < 1e-9,
+                            "case {case} piece {p}"
+                        );
+                    } else {
+                        let last = t.waypoints.len() - k;
+                        assert!((q - t.waypoints[last + j]).abs() < 1e-9 && qd.abs() < 1e-9);
+                    }
+                }
+            }
+            assert!((0..k).all(|j| t.q0[j] == path[j] && t.v0[j] == 0.0));
+            let mw = t.stops.len();
+            assert!(t.stops[0] && t.stops[mw - 1]);
+            for i in (0..mw).filter(|&i| t.stops[i]) {
+                let q = pose(&t, k, t.times[i]);
+                assert!((0..k).all(|j| (q[j] - t.waypoints[i * k + j]).abs() < 1e-9), "case {case} stop {i}");
+            }
+            blended += t.stops.iter().filter(|s| !**s).count();
+            cut += (t.waypoints.len() / k > m) as usize;
+            if t.segments.iter().all(|s| matches!(s, Motion::Certified)) {
+                certified += 1;
+                for i in 0..=2000 {
+                    let q = pose(&t, k, t.duration * i as f64 / 2000.0);
+                    assert!(certified_pose(&model, &q, 1e-6, &mut s).unwrap(), "case {case} sample {i}");
+                }
+            }
+        }
+        assert!(certified >= 10 && blended >= 10 && cut >= 3, "{certified} certified, {blended} blends, {cut} cut");
+    }
+
+    /// One joint crossing one segment alone takes the textbook trapezoid: `d/v + v/a` when it
+    /// reaches `v`, else `2√(d/a)`.
+    #[test]
+    fn a_lone_segment_is_the_trapezoid() {
+        let model = cluttered_arm();
+        for (d, v, a, want) in [(1.0, 1.0, 2.0, 1.5), (0.1, 1.0, 2.0, 2.0 * (0.05f64).sqrt())] {
+            let path = [0.0, 0.0, 0.0, 0.0, d, 0.0, 0.0, 0.0];
+            let t = time_path(&model, &path, &[v; 4], &[a; 4], true, 0.5, 1e-6).unwrap();
+            assert!((t.duration - want).abs() < 1e-9, "{} vs {want}", t.duration);
+        }
+    }
+
+    /// Arguments the core cannot time are refused with what they must be.
+    #[test]
+    fn bad_arguments_are_refused_by_name() {
+        let model = cluttered_arm();
+        let path = [0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0];
+        let err = |r: Result<Timed>| r.unwrap_err().to_string();
+        assert!(err(time_path(&model, &path[..4], &[1.0; 4], &[1.0; 4], true, 0.5, 1e-6)).contains("two waypoints"));
+        assert!(err(time_path(&model, &path, &[1.0, 1.0, 0.0, 1.0], &[1.0; 4], true, 0.5, 1e-6)).contains("velocity"));
+        assert!(err(time_path(&model, &path, &[1.0; 4], &[1.0; 3], true, 0.5, 1e-6)).contains("acceleration"));
+        assert!(err(time_path(&model, &path, &[1.0; 4], &[1.0; 4], true, 0.7, 1e-6)).contains("cut"));
+        assert!(err(time_path(&model, &[0.0; 8], &[1.0; 4], &[1.0; 4], true, 0.5, 1e-6)).contains("zero-length"));
+    }
+}
