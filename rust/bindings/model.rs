@@ -14,7 +14,7 @@ use super::errors::{input_error, model_error, to_py, type_error};
 use super::interrupt;
 
 use crate::collision::collide::{label_batch, LabelOptions};
-use crate::collision::fastpath::{certified_batch, collides_batch};
+use crate::collision::fastpath::{certified_batch, collides_batch, likely_pairs};
 use crate::collision::filter::points_near_model;
 use crate::ik::{ik, IkOptions, IkOutcome, IkTarget};
 use crate::joints::couplings::Coupling;
@@ -209,15 +209,17 @@ impl PyRobotModel {
     /// described bit for bit as one of this model's share its shape, and pairs of two such geoms
     /// their proofs (`RobotModel::rebuilt`), so replacing obstacles costs the new geoms, the
     /// candidate pairs, the broad phase and, on first use, the new pairs' proofs. Where the
-    /// kinematics are this model's, its proofs are made first (once, `prove_apart`), for every
-    /// model rebuilt from it to inherit; a model with other bodies (an object attached) inherits
-    /// none, so none are made for it.
+    /// kinematics are this model's, its proofs are made first (once, `prove_apart`), and its
+    /// likely pairs' sample drawn (`fastpath::likely_pairs`), for every model rebuilt from it to
+    /// inherit; a model with other bodies (an object attached) inherits none, so none are made
+    /// for it.
     fn rebuilt(&self, py: Python<'_>, arrays: &Bound<'_, PyDict>) -> PyResult<Self> {
         let desc = desc_from_dict(arrays)?;
         let model = py
             .detach(|| {
                 if self.desc.same_kinematics(&desc) {
                     prove_apart(&self.model);
+                    likely_pairs(&self.model);
                 }
                 self.model.rebuilt(&self.desc, desc.clone())
             })

@@ -30,7 +30,7 @@ use crate::collision::collide::{first_error, label_pose, LabelOptions, Scratch, 
 use crate::error::Result;
 use crate::joints::sample::{fill_block, BLOCK};
 use crate::model::broad::check_clearance;
-use crate::model::RobotModel;
+use crate::model::{InheritedLikely, Likely, RobotModel};
 
 /// Poses per parallel work item (`threads::POSE_CHUNK`).
 const CHUNK: usize = crate::threads::POSE_CHUNK;
@@ -41,7 +41,8 @@ const SAMPLE_POSES: usize = 512;
 /// `RobotModel::rebuilt`), whose first use should cost milliseconds: labelling 512 poses took
 /// 1.3 ms of a MotionBenchMaker Panda's 6 ms first plan, 128 take a quarter of it, and the
 /// plans after it were no slower (`benches/mbm.py`'s problems: second calls' median 3.87 ms
-/// both ways, the first calls' 0.8 ms lower).
+/// both ways, the first calls' 0.8 ms lower). The first `SAMPLE_POSES_REBUILT` poses of any
+/// sample are these (`fill_block`), so the old model's contacts are taken over as they are.
 const SAMPLE_POSES_REBUILT: usize = 128;
 const SAMPLE_SEED: u64 = 0x6c69_6b65_6c79; // "likely"
 
@@ -225,7 +226,7 @@ pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Res
 /// The model's likely pairs, computed on first use (on the calling thread, without rayon:
 /// a worker that waits here can never be asked to run this initialisation itself).
 pub fn likely_pairs(model: &RobotModel) -> &[u32] {
-    model.likely_pairs.get_or_init(|| greedy_cover(model))
+    &model.likely.get_or_init(|| greedy_cover(model)).order
 }
 
 /// A greedy cover of the colliding poses of a seeded uniform sample: repeatedly the pair in
@@ -233,34 +234,110 @@ pub fn likely_pairs(model: &RobotModel) -> &[u32] {
 /// Empty when the model has no sampling ranges (an unlimited slide joint). A sample pose the
 /// narrow phase cannot decide is left out: the cover only orders pairs, it labels nothing (the
 /// caller's own call on such a pose fails).
-fn greedy_cover(model: &RobotModel) -> Vec<u32> {
+///
+/// A model rebuilt from one that had drawn its sample (a scene update) takes over the contacts
+/// of the pairs both share (`model::InheritedLikely`) and tests only its other pairs in each
+/// pose: the world's new obstacles against the robot, where labelling every pair of 128 Panda
+/// poses took 1.3 ms of a MotionBenchMaker problem's first plan. Whether a pair is in contact
+/// in a pose is a function of the pair and the pose alone, whatever else is tested
+/// (`collide::Scratch::in_contact`), so the contacts, and the cover, are those of labelling
+/// the sample with `label_pose` (tested).
+fn greedy_cover(model: &RobotModel) -> Likely {
     let Ok(ranges) = model.sampling_ranges() else {
-        return Vec::new();
+        return Likely::default();
     };
     let k = ranges.len();
     if k == 0 || model.pairs.is_empty() {
-        return Vec::new();
+        return Likely::default();
     }
     let n = if model.inherited.is_some() { SAMPLE_POSES_REBUILT } else { SAMPLE_POSES };
+    let taken = model.inherited.as_ref().and_then(|i| i.likely.as_ref()).filter(|l| l.n >= n);
+    sample_cover(model, &ranges, n, taken)
+}
+
+/// `greedy_cover` over the first `n` poses of the seeded sample, taking over `taken`'s contacts.
+fn sample_cover(model: &RobotModel, ranges: &[[f64; 2]], n: usize, taken: Option<&InheritedLikely>) -> Likely {
+    let k = ranges.len();
+    let npairs = model.pairs.len();
+    // (pose by pose from each block's stream: the first `n` poses of any larger sample)
     let mut poses = vec![0.0; n * k];
     for (c, block) in poses.chunks_mut(BLOCK * k).enumerate() {
-        fill_block(&ranges, SAMPLE_SEED, c, block);
+        fill_block(ranges, SAMPLE_SEED, c, block);
     }
     let mut scratch = Scratch::new(model);
     let opts = LabelOptions { pairs: true, distance: false };
-    // Per pair, the colliding sample poses it is in contact in.
-    let mut poses_of: Vec<Vec<u32>> = vec![Vec::new(); model.pairs.len()];
-    let mut hits = Vec::new();
-    let mut colliding = 0usize;
-    for (i, q) in poses.chunks_exact(k).enumerate() {
-        hits.clear();
-        if label_pose(model, q, &mut scratch, opts, &mut hits).is_ok_and(|l| l.collides()) {
-            colliding += 1;
-            for &p in &hits {
-                poses_of[p as usize].push(i as u32);
+    let mut contacts: Vec<Vec<u32>> = vec![Vec::new(); npairs];
+    let mut undecided: Vec<(u32, u32)> = Vec::new();
+    // (a sample pose labelled whole: every pair's contacts, or the pair it stopped at)
+    let label = |i: usize, q: &[f64], s: &mut Scratch, contacts: &mut Vec<Vec<u32>>, undecided: &mut Vec<(u32, u32)>| {
+        let mut hits = Vec::new();
+        match label_pose(model, q, s, opts, &mut hits) {
+            Ok(_) => hits.iter().for_each(|&p| contacts[p as usize].push(i as u32)),
+            Err(u) => undecided.push((i as u32, u.pair)),
+        }
+    };
+    match taken {
+        None => {
+            for (i, q) in poses.chunks_exact(k).enumerate() {
+                label(i, q, &mut scratch, &mut contacts, &mut undecided);
+            }
+        }
+        Some(old) => {
+            let kept = |i: &u32| (*i as usize) < n;
+            let mut fresh = vec![false; npairs];
+            for (p, c) in old.contacts.iter().enumerate() {
+                match c {
+                    Some(c) => contacts[p] = c.iter().copied().filter(kept).collect(),
+                    None => fresh[p] = true,
+                }
+            }
+            // Old undecided poses: undecided here too when the pair is shared, else labelled whole.
+            let mut whole = vec![false; n];
+            for &(i, p) in old.undecided.iter().filter(|(i, _)| kept(i)) {
+                match p {
+                    Some(p) => undecided.push((i, p)),
+                    None => whole[i as usize] = true,
+                }
+            }
+            let apart = model.apart();
+            for (i, q) in poses.chunks_exact(k).enumerate() {
+                if whole[i] {
+                    label(i, q, &mut scratch, &mut contacts, &mut undecided);
+                    continue;
+                }
+                scratch.place(model, q, false);
+                let (near, boxed) = scratch.take_near(model);
+                for &p in near.iter().filter(|&&p| fresh[p as usize]) {
+                    let p = p as usize;
+                    if apart.is_some_and(|a| a[p].holds(q)) {
+                        continue;
+                    }
+                    match scratch.in_contact_after(model, p, boxed) {
+                        Ok(true) => contacts[p].push(i as u32),
+                        Ok(false) => {}
+                        Err(u) => {
+                            undecided.push((i as u32, u.pair));
+                            break;
+                        }
+                    }
+                }
+                scratch.near = near;
             }
         }
     }
+    undecided.sort_unstable();
+    undecided.dedup_by_key(|u| u.0);
+    let mut left_out = vec![false; n];
+    for &(i, _) in &undecided {
+        left_out[i as usize] = true;
+    }
+    // Per pair, the colliding sample poses it is in contact in (the poses labelled).
+    let poses_of: Vec<Vec<u32>> = contacts.iter().map(|c| c.iter().copied().filter(|&i| !left_out[i as usize]).collect()).collect();
+    let mut colliding = vec![false; n];
+    for &i in poses_of.iter().flatten() {
+        colliding[i as usize] = true;
+    }
+    let colliding = colliding.iter().filter(|&&c| c).count();
     let min_gain = ((colliding as f64 * MIN_SHARE).ceil() as usize).max(1);
     let mut covered = vec![false; n];
     let mut order = Vec::new();
@@ -277,7 +354,7 @@ fn greedy_cover(model: &RobotModel) -> Vec<u32> {
         }
         order.push(best as u32);
     }
-    order
+    Likely { order, n, contacts: poses_of, undecided }
 }
 
 #[cfg(test)]
@@ -286,6 +363,66 @@ mod tests {
     use crate::collision::collide::label_batch;
     use crate::joints::sample::sample_uniform;
     use crate::model::desc::ModelDesc;
+
+    /// A scene's model and its world geoms edited (one removed, one moved), rebuilt from it.
+    fn edited(scene: &str) -> (RobotModel, RobotModel, ModelDesc) {
+        let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+        let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let model = RobotModel::new(desc.clone()).unwrap();
+        let world: Vec<usize> = (0..desc.geom_body.len()).filter(|&g| desc.geom_body[g] == 0).collect();
+        let mut edited = desc.clone();
+        edited.geom_pos[world[1]][0] += 0.05;
+        let g = world[0];
+        edited.geom_id.remove(g);
+        edited.geom_type.remove(g);
+        edited.geom_body.remove(g);
+        edited.geom_pos.remove(g);
+        edited.geom_quat.remove(g);
+        edited.geom_size.remove(g);
+        edited.geom_contype.remove(g);
+        edited.geom_conaffinity.remove(g);
+        edited.geom_margin.remove(g);
+        edited.geom_mesh.remove(g);
+        likely_pairs(&model);
+        let rebuilt = model.rebuilt(&desc, edited.clone()).unwrap();
+        (model, rebuilt, edited)
+    }
+
+    /// A model rebuilt after an edit of its world takes over the sample contacts of the pairs it
+    /// shares and tests only the others, and its cover, contacts and left-out poses are those
+    /// of labelling the whole sample itself, pair for pair; so are a model rebuilt from that one.
+    #[test]
+    fn rebuilt_models_take_over_the_sample_and_cover_as_if_labelling_it() {
+        for scene in ["panda_blocks", "ur5e_wall_box", "vx300s_clutter"] {
+            let (_, rebuilt, edited) = edited(scene);
+            let taken = rebuilt.inherited.as_ref().unwrap().likely.as_ref().unwrap();
+            let n_taken = taken.contacts.iter().filter(|c| c.is_some()).count();
+            assert!(n_taken > 0 && n_taken < taken.contacts.len(), "{scene}: {n_taken} of {}", taken.contacts.len());
+            let ranges = rebuilt.sampling_ranges().unwrap();
+            likely_pairs(&rebuilt);
+            let again = rebuilt.rebuilt(&edited, edited.clone()).unwrap();
+            likely_pairs(&again);
+            for m in [&rebuilt, &again] {
+                let got = m.likely.get().unwrap();
+                let whole = sample_cover(m, &ranges, SAMPLE_POSES_REBUILT, None);
+                assert_eq!(got.n, SAMPLE_POSES_REBUILT);
+                assert_eq!(got.order, whole.order, "{scene}");
+                assert!(!got.order.is_empty() && got.contacts.iter().any(|c| !c.is_empty()), "{scene}");
+                let sorted = |c: &Vec<Vec<u32>>| {
+                    c.iter()
+                        .map(|c| {
+                            let mut c = c.clone();
+                            c.sort_unstable();
+                            c
+                        })
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(sorted(&got.contacts), sorted(&whole.contacts), "{scene}");
+                let poses = |u: &Vec<(u32, u32)>| u.iter().map(|x| x.0).collect::<Vec<_>>();
+                assert_eq!(poses(&got.undecided), poses(&whole.undecided), "{scene}");
+            }
+        }
+    }
 
     #[test]
     fn fast_path_agrees_with_the_labels_on_any_thread_count() {

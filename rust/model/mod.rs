@@ -57,9 +57,10 @@ pub struct RobotModel {
     pub(crate) pairs: Vec<CandidatePair>,
     /// Bounding spheres by body pair and by pair, for the per-pose broad phase.
     pub(crate) broad: Broad,
-    /// The pairs the booleans-only fast path tries first, likeliest first: derived from a
-    /// seeded sample on first use by `collision/fastpath.rs` (a heuristic: no answer depends on it).
-    pub(crate) likely_pairs: std::sync::OnceLock<Vec<u32>>,
+    /// The pairs the booleans-only fast path tries first, likeliest first, and the seeded
+    /// sample they were drawn from: on first use by `collision/fastpath.rs` (a heuristic: no
+    /// answer depends on it).
+    pub(crate) likely: std::sync::OnceLock<Likely>,
     /// Per candidate pair and joint, the pair's lever, and the pairs' joint chains
     /// (`motion::Levers`), on first use.
     pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>)>,
@@ -83,6 +84,32 @@ pub struct RobotModel {
     pub(crate) inherited: Option<Inherited>,
 }
 
+/// The fast path's likely pairs (`RobotModel::likely`) and what they were drawn from: which
+/// pairs are in contact in each pose of a seeded sample (`collision/fastpath.rs`).
+#[derive(Debug, Default)]
+pub(crate) struct Likely {
+    /// The pairs, likeliest first.
+    pub order: Vec<u32>,
+    /// Poses of the sample (the first `n` of the seeded sequence).
+    pub n: usize,
+    /// Per candidate pair, the sample poses it is in contact in.
+    pub contacts: Vec<Vec<u32>>,
+    /// The sample poses the narrow phase could not decide, each with the pair it stopped at
+    /// (left out of the cover, their other contacts unknown).
+    pub undecided: Vec<(u32, u32)>,
+}
+
+/// What a rebuilt model takes over of the old model's sample (`Likely`): per pair, the old
+/// contacts of the same pair (None: a pair to test again), and the old sample's undecided
+/// poses, each with the same pair in this model (None: a pair this model lacks, so the pose's
+/// other contacts must be found again).
+#[derive(Debug)]
+pub(crate) struct InheritedLikely {
+    pub n: usize,
+    pub contacts: Vec<Option<Vec<u32>>>,
+    pub undecided: Vec<(u32, Option<u32>)>,
+}
+
 /// A pair's joint and its spans of `planning/spans.rs` (`u32::MAX` and none: not one joint's pair).
 pub(crate) type PairSpans = (u32, Vec<[f64; 2]>);
 
@@ -91,25 +118,28 @@ const NOT_INHERITED: usize = usize::MAX;
 
 /// What a rebuilt model takes over from the model it was rebuilt from (`RobotModel::inherited`):
 /// per pair of the new model, the old model's `joint_spans` and `apart` entries of the same
-/// pair, or None (proved again on first use). Where either model had not made its proofs, None.
+/// pair, or None (proved again on first use), and of its likely pairs' sample, the same pairs'
+/// contacts (`InheritedLikely`). Where the old model had made none of them, None.
 ///
 /// Exactness: a pair is the same when both its geoms share their shapes (the same bits,
 /// `shape_key`), it joins the same two old geoms in the same order with the same margin, kind
 /// and explicitness, and the bodies, joints, their ranges and couplings are the same in both
 /// descriptions. A pair's spans and box (`planning/spans.rs`, `motion::prove_apart`) are
 /// functions of that pair, its bodies' chain and the joints' ranges alone, so the entries taken
-/// over are those the new model would prove (tested: byte-identical labels and proofs).
+/// over are those the new model would prove (tested: byte-identical labels and proofs). So are
+/// its contacts in the sample poses, drawn from the same joints' ranges with the same seed.
 #[derive(Debug)]
 pub(crate) struct Inherited {
     pub(crate) spans: Option<Vec<Option<PairSpans>>>,
     pub(crate) apart: Option<Vec<Option<Apart>>>,
+    pub(crate) likely: Option<InheritedLikely>,
 }
 
 impl Inherited {
     fn of(model: &RobotModel, old: &ModelDesc, desc: &ModelDesc, geom_from: &[usize], pairs: &[CandidatePair]) -> Option<Self> {
         let same_kinematics = old.same_kinematics(desc);
-        let (spans, apart) = (model.joint_spans.get(), model.apart.get());
-        if !same_kinematics || (spans.is_none() && apart.is_none()) {
+        let (spans, apart, likely) = (model.joint_spans.get(), model.apart.get(), model.likely.get());
+        if !same_kinematics || (spans.is_none() && apart.is_none() && likely.is_none()) {
             return None;
         }
         let index: HashMap<(usize, usize), usize> = model.pairs.iter().enumerate().map(|(q, p)| ((p.g1, p.g2), q)).collect();
@@ -126,9 +156,23 @@ impl Inherited {
             })
             .collect();
         let take = |q: usize| (q != NOT_INHERITED).then_some(q);
+        let likely = likely.map(|l| {
+            let mut to_new = vec![None; model.pairs.len()];
+            for (p, &q) in from.iter().enumerate() {
+                if let Some(q) = take(q) {
+                    to_new[q] = Some(p as u32);
+                }
+            }
+            InheritedLikely {
+                n: l.n,
+                contacts: from.iter().map(|&q| take(q).map(|q| l.contacts[q].clone())).collect(),
+                undecided: l.undecided.iter().map(|&(i, q)| (i, to_new[q as usize])).collect(),
+            }
+        });
         Some(Self {
             spans: spans.map(|s| from.iter().map(|&q| take(q).map(|q| s[q].clone())).collect()),
             apart: apart.map(|a| from.iter().map(|&q| take(q).map(|q| a[q])).collect()),
+            likely,
         })
     }
 
@@ -467,7 +511,7 @@ impl RobotModel {
             geoms,
             pairs,
             broad,
-            likely_pairs: std::sync::OnceLock::new(),
+            likely: std::sync::OnceLock::new(),
             lever_rows: std::sync::OnceLock::new(),
             joint_spans: std::sync::OnceLock::new(),
             apart: std::sync::OnceLock::new(),

@@ -281,24 +281,33 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
         let mut rows = vec![0.0; model.pairs.len() * k];
         let mut offsets = vec![0u32];
         let mut entries = Vec::new();
-        let ancestors = |mut b: usize| {
-            let mut out = vec![b];
-            while b != 0 {
-                b = model.body_parent[b];
-                out.push(b);
-            }
-            out
-        };
+        // (a joint's reach to a geom, `joint_reach`, is the joint's and the geom's alone: computed
+        // once per geom, not once per pair of it; a scene's obstacles pair with every link)
+        let mut reach = vec![f64::NAN; k * model.geoms.len()];
+        // Each body and its ancestors, up to the world.
+        let ups: Vec<Vec<usize>> = (0..model.body_parent.len())
+            .map(|mut b| {
+                let mut out = vec![b];
+                while b != 0 {
+                    b = model.body_parent[b];
+                    out.push(b);
+                }
+                out
+            })
+            .collect();
         for (p, pair) in model.pairs.iter().enumerate() {
-            let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
-            let (up1, up2) = (ancestors(b1), ancestors(b2));
+            let (up1, up2) = (&ups[model.geoms[pair.g1].body], &ups[model.geoms[pair.g2].body]);
             let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
-            for (side, (g, up)) in [(pair.g1, &up1), (pair.g2, &up2)].into_iter().enumerate() {
-                let below: Vec<usize> = up.iter().copied().take_while(|&b| b != common).collect();
-                for &b in below.iter().rev() {
+            for (side, (g, up)) in [(pair.g1, up1), (pair.g2, up2)].into_iter().enumerate() {
+                let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
+                for &b in up[..below].iter().rev() {
                     let (j0, j1) = model.body_joints[b];
                     for j in j0..j1 {
-                        rows[p * k + j] += joint_reach(model, j, g, up);
+                        let r = &mut reach[g * k + j];
+                        if r.is_nan() {
+                            *r = joint_reach(model, j, g, up);
+                        }
+                        rows[p * k + j] += *r;
                         entries.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32);
                     }
                 }
@@ -947,6 +956,19 @@ pub(crate) const BOX_CELLS: usize = 16_384;
 /// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
 /// order, the pair's remembered axis forgotten first).
 fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], all: &[[f64; 2]], levers: [f64; 2]) -> bool {
+    box_clear_by(model, s, p, joints, all, levers, true)
+}
+
+/// `box_clear`, trying the bounding spheres first (`sphere_box_clear`) when `spheres`.
+fn box_clear_by(
+    model: &RobotModel,
+    s: &mut Scratch,
+    p: usize,
+    joints: [usize; 2],
+    all: &[[f64; 2]],
+    levers: [f64; 2],
+    spheres: bool,
+) -> bool {
     let ranges = joints.map(|j| all[j]);
     if !levers.iter().all(|r| r.is_finite() && *r > 0.0)
         || !ranges.iter().all(|r| r[0].is_finite() && r[1].is_finite())
@@ -956,6 +978,9 @@ fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], 
     }
     let need = span_need(model, p);
     let mut q: Vec<f64> = all.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
+    if spheres && sphere_box_clear(model, s, p, joints, ranges, &mut q, need, levers) {
+        return true;
+    }
     s.forget_axes();
     // How far the pair is proven above its need with the two joints at `at`.
     let mut slack_at = |s: &mut Scratch, at: [f64; 2]| {
@@ -992,6 +1017,56 @@ fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], 
             continue;
         }
         if slack <= 0.0 {
+            return false;
+        }
+        let i = if h[0] * levers[0] >= h[1] * levers[1] { 0 } else { 1 };
+        let mid = cell[i][0] + h[i];
+        let (mut lo, mut hi) = (cell, cell);
+        lo[i][1] = mid;
+        hi[i][0] = mid;
+        cells.push(hi);
+        cells.push(lo);
+    }
+    true
+}
+
+/// Most cells [`sphere_box_clear`] places for one pair before the exact proof takes over.
+const SPHERE_CELLS: usize = 256;
+
+/// `box_clear`'s branch and bound on the pair's bounding spheres alone (`broad::sphere_gap`, a
+/// lower bound of its distance), without the narrow phase: true when every cell is proven, at
+/// most [`SPHERE_CELLS`] cells; false (the exact proof decides) as soon as a cell's centre has
+/// its spheres within the need, or past the budget. A scene's obstacles far from the first
+/// links are proven so, where the exact proof's coarse grid alone costs 64 GJK runs a pair.
+/// Sound as the exact proof is: each proven cell's centre gap exceeds the need by the most the
+/// distance can fall within the cell, and the spheres hold the geoms.
+#[allow(clippy::too_many_arguments)]
+fn sphere_box_clear(
+    model: &RobotModel,
+    s: &mut Scratch,
+    p: usize,
+    joints: [usize; 2],
+    ranges: [[f64; 2]; 2],
+    q: &mut [f64],
+    need: f64,
+    levers: [f64; 2],
+) -> bool {
+    let mut cells = vec![ranges];
+    let mut placed = 0usize;
+    while let Some(cell) = cells.pop() {
+        placed += 1;
+        if placed > SPHERE_CELLS {
+            return false;
+        }
+        let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
+        (q[joints[0]], q[joints[1]]) = (cell[0][0] + h[0], cell[1][0] + h[1]);
+        s.place_pairs(model, q, std::iter::once(p));
+        let slack = model.broad.sphere_gap(&s.broad, p, &model.geoms).0 - need;
+        let fall = (h[0] * levers[0] + h[1] * levers[1]) * (1.0 + 1e-12);
+        if slack >= fall {
+            continue;
+        }
+        if slack.is_nan() || slack <= 0.0 {
             return false;
         }
         let i = if h[0] * levers[0] >= h[1] * levers[1] { 0 } else { 1 };
@@ -1117,6 +1192,38 @@ pub(crate) mod tests {
             // candidates)
             assert!(twos > 0 && (ones > 0 || scene == "shadow_hand"), "{scene}: {ones} spans and {twos} boxes");
         }
+    }
+
+    /// The bounding spheres' proof of a pair's box (`sphere_box_clear`) proves only boxes the
+    /// exact one proves too, and it does prove some (obstacles far from the first links), so
+    /// the boxes are those of the exact proof alone.
+    #[test]
+    fn boxes_proven_by_spheres_are_proven_exactly() {
+        let (mut by_spheres, mut exact_only) = (0, 0);
+        for scene in ["panda_blocks", "panda_shelf", "xarm7_table", "ur5e_wall_box", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            let levers = Levers::of(&model);
+            let ranges = model.sampling_ranges().unwrap();
+            let mut s = Scratch::new(&model);
+            for p in 0..model.pairs.len() {
+                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
+                joints.sort_unstable();
+                joints.dedup();
+                let &[a, b] = joints.as_slice() else { continue };
+                let lv = [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]];
+                let need = span_need(&model, p);
+                let mut q: Vec<f64> = ranges.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
+                let spheres = lv.iter().all(|r| r.is_finite() && *r > 0.0)
+                    && sphere_box_clear(&model, &mut s, p, [a, b], [ranges[a], ranges[b]], &mut q, need, lv);
+                let exact = box_clear_by(&model, &mut s, p, [a, b], &ranges, lv, false);
+                assert!(!spheres || exact, "{scene}: pair {p}");
+                by_spheres += spheres as usize;
+                exact_only += (exact && !spheres) as usize;
+                assert_eq!(box_clear(&model, &mut s, p, [a, b], &ranges, lv), exact, "{scene}: pair {p}");
+            }
+        }
+        assert!(by_spheres > 0, "{by_spheres} by spheres, {exact_only} exactly only");
     }
 
     /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
