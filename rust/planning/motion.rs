@@ -1000,15 +1000,24 @@ fn box_clear_by(
             }
         }
     }
+    cells_clear(ranges, levers, BOX_CELLS, |at| slack_at(s, at).ok())
+}
+
+/// The branch and bound of `box_clear`: whether every cell of `ranges` is proven, a cell with
+/// centre `c` and half-widths `h` when `slack(c)` (how far the pair is above its need there)
+/// is at least `Σ_i h_i·levers_i`; else halved across its longer side (in `h_i·levers_i`), or
+/// false where a centre's slack is not positive, is None, or past `budget` cells. Cells in a
+/// fixed order (depth first, lower halves first).
+fn cells_clear(ranges: [[f64; 2]; 2], levers: [f64; 2], budget: usize, mut slack: impl FnMut([f64; 2]) -> Option<f64>) -> bool {
     let mut cells = vec![ranges];
     let mut placed = 0usize;
     while let Some(cell) = cells.pop() {
         placed += 1;
-        if placed > BOX_CELLS {
+        if placed > budget {
             return false;
         }
         let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
-        let Ok(slack) = slack_at(s, [cell[0][0] + h[0], cell[1][0] + h[1]]) else {
+        let Some(slack) = slack([cell[0][0] + h[0], cell[1][0] + h[1]]) else {
             return false;
         };
         // (the fall bound rounded up a little: it is a sum of products)
@@ -1051,33 +1060,11 @@ fn sphere_box_clear(
     need: f64,
     levers: [f64; 2],
 ) -> bool {
-    let mut cells = vec![ranges];
-    let mut placed = 0usize;
-    while let Some(cell) = cells.pop() {
-        placed += 1;
-        if placed > SPHERE_CELLS {
-            return false;
-        }
-        let h = [0.5 * (cell[0][1] - cell[0][0]), 0.5 * (cell[1][1] - cell[1][0])];
-        (q[joints[0]], q[joints[1]]) = (cell[0][0] + h[0], cell[1][0] + h[1]);
+    cells_clear(ranges, levers, SPHERE_CELLS, |at| {
+        (q[joints[0]], q[joints[1]]) = (at[0], at[1]);
         s.place_pairs(model, q, std::iter::once(p));
-        let slack = model.broad.sphere_gap(&s.broad, p, &model.geoms).0 - need;
-        let fall = (h[0] * levers[0] + h[1] * levers[1]) * (1.0 + 1e-12);
-        if slack >= fall {
-            continue;
-        }
-        if slack.is_nan() || slack <= 0.0 {
-            return false;
-        }
-        let i = if h[0] * levers[0] >= h[1] * levers[1] { 0 } else { 1 };
-        let mid = cell[i][0] + h[i];
-        let (mut lo, mut hi) = (cell, cell);
-        lo[i][1] = mid;
-        hi[i][0] = mid;
-        cells.push(hi);
-        cells.push(lo);
-    }
-    true
+        Some(model.broad.sphere_gap(&s.broad, p, &model.geoms).0 - need).filter(|x| !x.is_nan())
+    })
 }
 
 /// Pair `p`'s lever for joint `j` (0 for a joint at or above its common ancestor).
