@@ -149,6 +149,19 @@ def test_a_corner_is_cut_by_the_widest_proven_chord():
     assert len(time_path(robot, _L, velocity=1.0, acceleration=10.0, blend=False).waypoints) == 3
 
 
+def test_a_blocked_corner_the_chords_bypass_is_certified():
+    # A block on the L's corner: both segments run into it, while the chord between their
+    # middles passes 0.35 m from it. What the robot crosses is proven, not the path given.
+    spec = mujoco.MjSpec.from_string(_PUCK.replace('pos="0.85 0.15 0"', 'pos="1.0 0.0 0"'))
+    robot = profrobot.Robot.from_spec(spec, name="puck3")
+    assert not profrobot.check_path(robot, _L).certified
+    tp = time_path(robot, _L, velocity=1.0, acceleration=10.0)
+    assert tp.certified and tp.waypoints.tolist() == [[0, 0], [0.5, 0], [1, 0.5], [1, 1]]
+    _check_timed(robot, tp, np.ones(2), np.full(2, 10.0))
+    own = time_path(robot, _L, velocity=1.0, acceleration=10.0, cut=0.0)
+    assert not own.certified and "segment 0" in own.reason and "blocked" in own.reason
+
+
 def test_jerk_limited_moves_are_the_textbook_double_s_and_stay_on_the_path():
     # Biagiotti & Melchiorri, Trajectory Planning for Automatic Machines and Robots, example
     # 3.9: 10 units at v 5, a 10, j 30 take T = 2.8333 s (T_j = 1/3, T_a = 0.8333, T_v = 1.1667).

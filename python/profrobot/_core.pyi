@@ -128,13 +128,15 @@ class RobotModel:
         hinges, none of length zero) timed within ``velocity`` and ``acceleration`` ((K,) float64,
         positive; per second and per second squared): straight segments at constant velocity,
         each corner a parabolic blend kept only where ``certify_motions(via=)`` proves it (else
-        a stop), and with ``blend``, ``cut`` in (0, 0.5] and every segment certified, each corner
-        first cut by the widest proven chord of ``cut``, ``cut/2``, ``cut/4`` of its segments
+        a stop), and with ``blend`` and ``cut`` in (0, 0.5], each corner first cut by the widest
+        proven chord of ``cut``, ``cut/2``, ``cut/4`` of its segments
         (``planning/timing.rs``). Keys: waypoints (M', K) (the path timed, cut corners replaced by
         their chords' ends), starts (P,) s, q0, v0, acc (P, K) (each piece of constant
         acceleration at its start), duration (float, s), times (M',) s, stops (M',) bool,
-        segments (M - 1,) uint8 (the certificate's verdict on each segment of ``path``, as
-        ``certify_motions``). Same answer for any thread count."""
+        unproven_segment (int: the first segment of ``path`` whose part the timed motion crosses
+        is not certified, -1 when every part crossed, chord and blend is) and unproven_verdict
+        (int: its verdict, as ``certify_motions``'; 0 with none). Same answer for any thread
+        count."""
     def ik(self, targets_pos: npt.NDArray[np.float64], targets_quat: npt.NDArray[np.float64] | None,
            starts: npt.NDArray[np.float64], body: int, local_pos: Sequence[float], local_quat: Sequence[float], *,
            seeds: int = 128, iterations: int = 60, tol_pos: float = 1e-6, tol_rot: float = 1e-6,

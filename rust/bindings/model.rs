@@ -458,7 +458,6 @@ impl PyRobotModel {
         let (w, v, a): (&[f64], &[f64], &[f64]) = (&w, &v, &a);
         let r = interrupt::run(py, threads, || time_path(model, w, v, a, blend, cut, clearance))?;
         let (m, p) = (r.times.len(), r.starts.len());
-        let verdict: Vec<u8> = r.segments.iter().map(motion_code).collect();
         let out = PyDict::new(py);
         out.set_item("waypoints", PyArray1::from_vec(py, r.waypoints).reshape([m, k])?)?;
         out.set_item("starts", PyArray1::from_vec(py, r.starts))?;
@@ -468,7 +467,10 @@ impl PyRobotModel {
         out.set_item("duration", r.duration)?;
         out.set_item("times", PyArray1::from_vec(py, r.times))?;
         out.set_item("stops", PyArray1::from_vec(py, r.stops))?;
-        out.set_item("segments", PyArray1::from_vec(py, verdict))?;
+        // (the first segment of the path whose crossed part is not certified, and its verdict)
+        let (segment, verdict) = r.unproven.map_or((-1, 0), |(j, v)| (j as i64, motion_code(&v)));
+        out.set_item("unproven_segment", segment)?;
+        out.set_item("unproven_verdict", verdict)?;
         Ok(out)
     }
 

@@ -21,12 +21,14 @@
 //! than the two half-segments it replaces wherever different joints lead them; the widest of
 //! `cut`, `cut/2`, `cut/4` whose chord is proven replaces the corner, and the cut path is timed
 //! as above. It is kept unless timing the path uncut is quicker (tried only when the uncut
-//! path's best case, every blend proven, could be).
+//! path's best case, every blend proven, could be) or certified where the cut one is not.
 //!
-//! Velocity is piecewise linear and acceleration piecewise constant, each within its limit by
-//! construction; the cruise parts lie on proven segments (or chords) and every blend is proven,
-//! so the timed motion is certified exactly when the path's segments are. Every verdict is the
-//! certificate's of one motion alone, so the result does not depend on the thread count.
+//! What is proven is what the robot crosses: the chords, the parts of the path's segments
+//! between them (`Part::Along`; none where two chords of half a segment meet at its middle)
+//! and the blends kept. Velocity is piecewise linear and acceleration piecewise constant, each
+//! within its limit by construction; the cruise parts lie on those segments and chords, so the
+//! timed motion is certified when every part crossed is (`first_unproven`). Every verdict is
+//! the certificate's of one motion alone, so the result does not depend on the thread count.
 
 use std::collections::HashMap;
 
@@ -61,8 +63,10 @@ pub struct Timed {
     pub times: Vec<f64>,
     /// `(M,)` the waypoints reached at rest.
     pub stops: Vec<bool>,
-    /// The certificate's verdict on each segment of the path given, in order.
-    pub segments: Vec<Motion>,
+    /// Where the timed motion is not certified: the first segment of the path given whose part
+    /// it crosses (`Part::Along`) is not certified, and the verdict; None when every pose of
+    /// the timed motion is certified (the parts crossed, every chord and every blend kept).
+    pub unproven: Option<(usize, Motion)>,
 }
 
 /// The pieces of one timing of a path with given stops (`pieces`).
@@ -378,35 +382,68 @@ fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Re
     Ok(share)
 }
 
+/// What a segment of the timed waypoints lies on: a corner's chord (proven by `cuts`), or a
+/// part of the path's segment `j`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Part {
+    Chord,
+    Along(usize),
+}
+
 /// The waypoints with corner `i` (`share[i] > 0`) replaced by the two ends of its chord, each
 /// written as a point of its segment, `W_j + D_j·s` (the form `cuts` proves); two ends that
-/// meet (at the middle of a segment) are one waypoint.
-fn cut_points(k: usize, w: &[f64], share: &[f64]) -> Vec<f64> {
+/// meet (at the middle of a segment) are one waypoint. And what each of their segments lies on.
+fn cut_points(k: usize, w: &[f64], share: &[f64]) -> (Vec<f64>, Vec<Part>) {
     let m = share.len();
     let mut out = w[..k].to_vec();
+    let mut parts = Vec::with_capacity(2 * m);
     for j in 0..m - 1 {
         let (a, b) = (&w[j * k..(j + 1) * k], &w[(j + 1) * k..(j + 2) * k]);
         let (s_out, s_in) = (share[j], 1.0 - share[j + 1]);
         let at = |s: f64| (0..k).map(move |i| a[i] + (b[i] - a[i]) * s);
         if s_out > 0.0 {
             out.extend(at(s_out));
+            parts.push(Part::Chord);
         }
         if share[j + 1] > 0.0 && s_in != s_out {
             out.extend(at(s_in));
+            parts.push(Part::Along(j));
         }
         if share[j + 1] == 0.0 {
             out.extend_from_slice(b);
+            parts.push(Part::Along(j));
         }
     }
-    out
+    (out, parts)
+}
+
+/// The first segment of `w` (`(M, K)`) along the path (`parts`, chords aside) that the
+/// certificate does not certify: the path's segment it lies on, and the verdict. The chords
+/// are proven already; so the timed motion crosses only proven segments when this is None.
+fn first_unproven(model: &RobotModel, k: usize, w: &[f64], parts: &[Part], clearance: f64) -> Result<Option<(usize, Motion)>> {
+    let along: Vec<(usize, usize)> = parts
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| match p {
+            Part::Along(j) => Some((i, *j)),
+            Part::Chord => None,
+        })
+        .collect();
+    let starts: Vec<f64> = along.iter().flat_map(|&(i, _)| w[i * k..(i + 1) * k].iter().copied()).collect();
+    let goals: Vec<f64> = along.iter().flat_map(|&(i, _)| w[(i + 1) * k..(i + 2) * k].iter().copied()).collect();
+    if along.is_empty() {
+        return Ok(None);
+    }
+    let verdicts = certify_motions(model, &starts, &goals, clearance)?;
+    Ok(along.iter().zip(verdicts).find(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)))
 }
 
 /// Times the path `path` (`(M, K)` row-major, M ≥ 2, unwrapped: consecutive waypoints differ by
 /// the short arc on continuous hinges, no zero-length segment) within `velocity` and
 /// `acceleration` (`(K,)`, positive), blending the corners whose blends are proven (stopping at
-/// every waypoint without `blend`) and, with `cut` in `(0, 0.5]` and a certified path, cutting
-/// corners by proven chords (module docs). Every proof keeps `max(margin, clearance)` metres;
-/// the path's own segments are certified too (`Timed::segments`), in parallel on rayon's
+/// every waypoint without `blend`) and, with `cut` in `(0, 0.5]`, cutting corners by proven
+/// chords (module docs). Every proof keeps `max(margin, clearance)` metres, and every part of
+/// the path the timed motion crosses is proven (`Timed::unproven`), in parallel on rayon's
 /// current pool.
 pub fn time_path(
     model: &RobotModel,
@@ -434,29 +471,36 @@ pub fn time_path(
         return Err(Error::InvalidInput("path must hold no zero-length segment".into()));
     }
     let lim = Limits { k, v: velocity, a: acceleration };
-    let segments: Vec<Motion> = certify_motions(model, &path[..(m - 1) * k], &path[k..], clearance)?.into_iter().map(|(v, _)| v).collect();
-    let certified = segments.iter().all(|s| matches!(s, Motion::Certified));
-    let share = if blend && cut > 0.0 && m > 2 && certified { cuts(model, k, path, cut, clearance)? } else { vec![0.0; m] };
-    let (timed, waypoints) = if share.iter().any(|&s| s > 0.0) {
-        let wc = cut_points(k, path, &share);
+    let share = if blend && cut > 0.0 && m > 2 { cuts(model, k, path, cut, clearance)? } else { vec![0.0; m] };
+    let whole: Vec<Part> = (0..m - 1).map(Part::Along).collect();
+    let (timed, waypoints, unproven) = if share.iter().any(|&s| s > 0.0) {
+        let (wc, parts) = cut_points(k, path, &share);
+        let unproven = first_unproven(model, k, &wc, &parts, clearance)?;
         let timed = blended(model, &lim, &wc, true, clearance)?;
         let mut ends = vec![false; m];
         ends[0] = true;
         ends[m - 1] = true;
-        // kept outright when no timing of the uncut path could be quicker (every blend proven,
-        // at best); else the quicker of the two
-        if timed.duration > lim.pieces(path, &ends).duration {
+        // The cut path is kept outright when it is certified and no timing of the uncut path
+        // could be quicker (every blend proven, at best); else the uncut path where it is
+        // certified and the cut one is not, or as certified and quicker.
+        if unproven.is_some() || timed.duration > lim.pieces(path, &ends).duration {
+            let uncut_unproven = first_unproven(model, k, path, &whole, clearance)?;
             let uncut = blended(model, &lim, path, true, clearance)?;
-            if uncut.duration < timed.duration {
-                (uncut, path.to_vec())
+            let better = match (uncut_unproven.is_none(), unproven.is_none()) {
+                (true, false) => true,
+                (false, true) => false,
+                _ => uncut.duration < timed.duration,
+            };
+            if better {
+                (uncut, path.to_vec(), uncut_unproven)
             } else {
-                (timed, wc)
+                (timed, wc, unproven)
             }
         } else {
-            (timed, wc)
+            (timed, wc, unproven)
         }
     } else {
-        (blended(model, &lim, path, blend, clearance)?, path.to_vec())
+        (blended(model, &lim, path, blend, clearance)?, path.to_vec(), first_unproven(model, k, path, &whole, clearance)?)
     };
     Ok(Timed {
         waypoints,
@@ -467,7 +511,7 @@ pub fn time_path(
         duration: timed.duration,
         times: timed.times,
         stops: timed.stops,
-        segments,
+        unproven,
     })
 }
 
@@ -551,7 +595,7 @@ mod tests {
             }
             blended += t.stops.iter().filter(|s| !**s).count();
             cut += (t.waypoints.len() / k > m) as usize;
-            if t.segments.iter().all(|s| matches!(s, Motion::Certified)) {
+            if t.unproven.is_none() {
                 certified += 1;
                 for i in 0..=2000 {
                     let q = pose(&t, k, t.duration * i as f64 / 2000.0);

@@ -16,9 +16,11 @@ strictly less where different joints lead the two segments). So first (step 0), 
 corner ``i`` is cut by the chord from ``W_i − D_{i−1}·c`` to ``W_i + D_i·c`` (points of the two
 segments, ``c`` a share of each), the widest of ``cut``, ``cut/2``, ``cut/4`` whose chord the
 continuous certificate proves free, none where no chord is. The chord's ends become waypoints
-(the parts of the segments up to them are parts of proven segments) and steps 1–3 time the
-cut path, its blends proven as below. The cut timing is kept unless the path uncut is faster
-(computed only when its best case, every blend proven, could be). ``cut=0`` times the path's own
+and steps 1–3 time the cut path, its blends proven as below; the parts of the path's segments
+it still crosses, between the chords, are proven too (none where two chords of half a segment
+meet at its middle), and only those: a segment the chords bypass need not be free. The cut
+timing is kept unless the path uncut is faster (computed only when its best case, every blend
+proven, could be) or certified where the cut one is not. ``cut=0`` times the path's own
 corners.
 
 **The math.** Per run of waypoints ``W_0 … W_n`` between two stops (at rest at both ends),
@@ -43,11 +45,12 @@ and ``a_j`` (rad/s² or m/s²):
 
 So velocity is piecewise linear between the ``V_i`` and acceleration piecewise constant, each
 within its limit by construction (checked again by the tests at 1 kHz). The cruise parts lie on
-the path's segments; the segments and every blend are certified continuously (``margin``
-metres from every obstacle, :data:`~profrobot.CLEARANCE` at least); a blend that is not proven
-becomes a stop at its waypoint (the robot reaches it at rest, along the segments, and the run
-on either side is timed again), until every blend left is proven. ``certified`` then holds for
-the whole timed motion exactly when it holds for the path. Without ``jerk``, acceleration
+the path's segments and the chords; what the robot crosses of them and every blend are
+certified continuously (``margin`` metres from every obstacle, :data:`~profrobot.CLEARANCE` at
+least); a blend that is not proven becomes a stop at its waypoint (the robot reaches it at
+rest, along the segments, and the run on either side is timed again), until every blend left
+is proven. ``certified`` then holds for the whole timed motion exactly when every part of the
+path it crosses is proven. Without ``jerk``, acceleration
 steps at the ends of each blend. Steps 0–3 and their proofs run in the core
 (``rust/planning/timing.rs``), with the call's ``threads``.
 
@@ -115,8 +118,9 @@ class TimedPath:
             corner cut (``time_path(cut=)``) replaced by the two ends of its chord.
         velocity, acceleration, jerk: (K,) the limits it was timed within (``jerk`` is inf
             where there was none).
-        certified: every pose of the timed motion is certified free (the path's segments, every
-            chord and every blend kept, :mod:`profrobot.exact.certification`).
+        certified: every pose of the timed motion is certified free (the parts of the path's
+            segments it crosses, every chord and every blend kept,
+            :mod:`profrobot.exact.certification`).
         reason: why not certified ('' when it is).
         wraps: (K,) bool, the continuous hinges.
         robot_name, robot_fingerprint, joint_names: the robot it was timed for.
@@ -273,8 +277,9 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     docs); the chords' ends are then among ``waypoints``. 0 keeps the path's own corners (a
     straight-line move of :func:`profrobot.plan_cartesian`, whose frame would leave its line).
     ``margin`` and ``layout`` as for :func:`profrobot.plan_path` (the path and the blends keep ``margin``).
-    ``certified`` says whether every pose of the timed motion is proven free; a path whose own
-    segments are not is timed all the same, with ``certified=False`` and the reason.
+    ``certified`` says whether every pose of the timed motion is proven free; a path with a
+    segment that is not, where the timed motion crosses it, is timed all the same, with
+    ``certified=False`` and the reason (a segment the corner cuts bypass need not be free).
     """
     robot = gate.robot_at(robot, layout=layout, margin=margin)
     p = as_poses(robot, path, name="path", check_limits=True)
@@ -308,16 +313,19 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     if jerk is None:
         out = robot.core.time_path(w, v, a, CLEARANCE, blend=bool(blend), cut=float(cut), threads=threads)
         starts, q0, v0, acc = out["starts"], out["q0"], out["v0"], out["acc"]
-        duration, times, stops, verdict = out["duration"], out["times"], out["stops"], out["segments"]
+        duration, times, stops = out["duration"], out["times"], out["stops"]
+        bad, verdict = out["unproven_segment"], out["unproven_verdict"]
         meta["waypoints"] = out["waypoints"]
         jrk = np.zeros_like(q0)
     else:
-        verdict = robot.core.certify_motions(w[:-1], w[1:], CLEARANCE, threads=threads)["verdict"]
+        verdicts = robot.core.certify_motions(w[:-1], w[1:], CLEARANCE, threads=threads)["verdict"]
+        failed = np.flatnonzero(verdicts != 0)
+        bad, verdict = (int(failed[0]), int(verdicts[failed[0]])) if len(failed) else (-1, 0)
         starts, (q0, v0, acc, jrk), duration, times = _jerk_pieces(w, v, a, j)
         stops = np.ones(m, dtype=bool)
-    bad = np.flatnonzero(verdict != 0)
-    reason = "" if not len(bad) else (
-        f"segment {bad[0]} of the path (waypoints {bad[0]} → {bad[0] + 1}) is "
-        f"{'blocked' if verdict[bad[0]] == 1 else 'not proven free'}; time a certified path (plan_path)")
+    reason = "" if bad < 0 else (
+        f"segment {bad} of the path (waypoints {bad} → {bad + 1}) is "
+        f"{'blocked' if verdict == 1 else 'not proven free'} where the timed motion crosses it; "
+        "time a certified path (plan_path)")
     return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, jrk=jrk, times=times, stops=stops,
-                     certified=not len(bad), reason=reason, **meta)
+                     certified=bad < 0, reason=reason, **meta)
