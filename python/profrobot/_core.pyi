@@ -110,7 +110,7 @@ class RobotModel:
         ``~label(poses, distance=True)["collides"] & (min_distance > clearance)``, by the fast
         path (pair by pair, stopping at the first pair that is not clear)."""
     def certify_motions(self, starts: npt.NDArray[np.float64], goals: npt.NDArray[np.float64], clearance: float, *,
-                        via: npt.NDArray[np.float64] | None = None,
+                        via: npt.NDArray[np.float64] | None = None, as_given: bool = False,
                         threads: int | None = None) -> dict[str, npt.NDArray]:
         """The continuous certificate of each straight motion ``starts[i] -> goals[i]`` ((B, K)
         float64 each; continuous hinges along the short arc, other joints straight), or with
@@ -120,7 +120,9 @@ class RobotModel:
         (``0 < clearance <= 1e-6``) by conservative advancement. Keys: verdict (B,) uint8 (0
         certified, 1 blocked: a placed pose not shown clear, 2 unproven within 1e-7 rad /
         65 536 poses), blocked_at (B,) float64 (t in [0, 1] of that pose, NaN otherwise), states
-        (B,) int64 (poses placed). Same answer for any thread count."""
+        (B,) int64 (poses placed). With ``as_given``, each motion is taken as given in unwrapped
+        coordinates (``goals - starts`` on every joint, continuous hinges too, however far: the
+        motion a timed path crosses). Same answer for any thread count."""
     def time_path(self, path: npt.NDArray[np.float64], velocity: npt.NDArray[np.float64],
                   acceleration: npt.NDArray[np.float64], clearance: float, *, blend: bool = True, cut: float = 0.5,
                   threads: int | None = None) -> dict[str, Any]:

@@ -24,7 +24,7 @@ use crate::model::kinematics::{body_frames, forward_kinematics};
 use crate::model::pairs::PairKind;
 use crate::model::RobotModel;
 use crate::planning::motion::prove_apart;
-use crate::planning::motion::{certify_blends, certify_motions, Motion};
+use crate::planning::motion::{certify_as_given, certify_blends, certify_motions, Motion};
 use crate::planning::oracle::{nearest_free, OracleOptions};
 use crate::planning::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::planning::timing::time_path;
@@ -395,7 +395,8 @@ impl PyRobotModel {
 
     /// The continuous certificate of each straight motion `starts[i] -> goals[i]`, or of each
     /// blend `starts[i] -> via[i] -> goals[i]` (see `_core.pyi` and `planning/motion.rs`).
-    #[pyo3(signature = (starts, goals, clearance, *, via=None, threads=None))]
+    #[pyo3(signature = (starts, goals, clearance, *, via=None, as_given=false, threads=None))]
+    #[allow(clippy::too_many_arguments)]
     fn certify_motions<'py>(
         &self,
         py: Python<'py>,
@@ -403,6 +404,7 @@ impl PyRobotModel {
         goals: &Bound<'py, PyAny>,
         clearance: f64,
         via: Option<&Bound<'py, PyAny>>,
+        as_given: bool,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let model = &self.model;
@@ -410,14 +412,13 @@ impl PyRobotModel {
         let (a, b) = (pose_array(starts, k, "starts")?, pose_array(goals, k, "goals")?);
         let (a, b) = (rows_of(&a), rows_of(&b));
         let (a, b): (&[f64], &[f64]) = (&a, &b);
-        let r = match via {
-            None => interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?,
-            Some(via) => {
-                let v = pose_array(via, k, "via")?;
-                let v = rows_of(&v);
-                let v: &[f64] = &v;
-                interrupt::run(py, threads, || certify_blends(model, a, v, b, clearance))?
-            }
+        let v = via.map(|via| pose_array(via, k, "via")).transpose()?;
+        let v = v.as_ref().map(rows_of);
+        let v: Option<&[f64]> = v.as_deref();
+        let r = match (v, as_given) {
+            (_, true) => interrupt::run(py, threads, || certify_as_given(model, a, v, b, clearance))?,
+            (None, false) => interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?,
+            (Some(v), false) => interrupt::run(py, threads, || certify_blends(model, a, v, b, clearance))?,
         };
         let verdict: Vec<u8> = r.iter().map(|(m, _)| motion_code(m)).collect();
         let at: Vec<f64> = r

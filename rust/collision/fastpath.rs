@@ -388,6 +388,20 @@ mod tests {
         (model, rebuilt, edited)
     }
 
+    /// A robot without a sampling box (an unlimited slide) draws no sample: a model rebuilt from
+    /// it takes none over, and draws none either.
+    #[test]
+    fn a_robot_without_a_sample_is_rebuilt() {
+        let mut desc = crate::planning::motion::tests::arm_desc();
+        desc.jnt_limited[2] = false;
+        let model = RobotModel::new(desc.clone()).unwrap();
+        crate::planning::motion::prove_apart(&model);
+        assert!(likely_pairs(&model).is_empty());
+        let rebuilt = model.rebuilt(&desc, desc.clone()).unwrap();
+        assert!(rebuilt.inherited.as_ref().is_some_and(|i| i.likely.is_none()));
+        assert!(likely_pairs(&rebuilt).is_empty());
+    }
+
     /// A model rebuilt after an edit of its world takes over the sample contacts of the pairs it
     /// shares and tests only the others, and its cover, contacts and left-out poses are those
     /// of labelling the whole sample itself, pair for pair; so are a model rebuilt from that one.

@@ -156,7 +156,8 @@ impl Inherited {
             })
             .collect();
         let take = |q: usize| (q != NOT_INHERITED).then_some(q);
-        let likely = likely.map(|l| {
+        // (a model without a sample, no sampling box, has no contacts to give)
+        let likely = likely.filter(|l| l.contacts.len() == model.pairs.len()).map(|l| {
             let mut to_new = vec![None; model.pairs.len()];
             for (p, &q) in from.iter().enumerate() {
                 if let Some(q) = take(q) {

@@ -835,6 +835,35 @@ pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &
     })
 }
 
+/// As `certify_motions` (without `vias`) or `certify_blends`, each curve taken as given, in
+/// unwrapped coordinates: `Δ = goal − start` (`via − start`, `goal − via`) on every joint,
+/// continuous hinges included, however far (no short arc chosen): the motion a timed path
+/// crosses (`planning/timing.rs`), even where a step is half a turn or its unwrapped values
+/// round past one. (Where every step is a short arc, the same motions as those calls'.)
+pub fn certify_as_given(
+    model: &RobotModel,
+    starts: &[f64],
+    vias: Option<&[f64]>,
+    goals: &[f64],
+    clearance: f64,
+) -> Result<Vec<(Motion, usize)>> {
+    let diff = |a: &[f64], b: &[f64], out: &mut [f64]| out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
+    match vias {
+        None => certify_each(model, &[starts, goals], clearance, |space, ms, d, i, k| {
+            let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
+            diff(a, g, &mut d[..k]);
+            certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
+        }),
+        Some(vias) => certify_each(model, &[starts, vias, goals], clearance, |space, ms, d, i, k| {
+            let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
+            let (d1, d2) = d.split_at_mut(k);
+            diff(a, v, d1);
+            diff(v, g, d2);
+            certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
+        }),
+    }
+}
+
 /// `one(space, scratch, buffer of 2K, i, K)` for each motion `i` of `(B, K)` arrays of the same shape.
 fn certify_each<F>(model: &RobotModel, arrays: &[&[f64]], clearance: f64, one: F) -> Result<Vec<(Motion, usize)>>
 where
@@ -1063,7 +1092,8 @@ fn sphere_box_clear(
     cells_clear(ranges, levers, SPHERE_CELLS, |at| {
         (q[joints[0]], q[joints[1]]) = (at[0], at[1]);
         s.place_pairs(model, q, std::iter::once(p));
-        Some(model.broad.sphere_gap(&s.broad, p, &model.geoms).0 - need).filter(|x| !x.is_nan())
+        // (a pair the broad phase keeps no sphere for has an infinite gap: nothing to prove by)
+        Some(model.broad.sphere_gap(&s.broad, p, &model.geoms).0 - need).filter(|x| x.is_finite())
     })
 }
 
@@ -1111,7 +1141,7 @@ pub(crate) mod tests {
         RobotModel::new(d).unwrap()
     }
 
-    fn arm_desc() -> ModelDesc {
+    pub(crate) fn arm_desc() -> ModelDesc {
         let mut d = ModelDesc::example_pendulum();
         d.body_parent = vec![0, 0, 1, 2];
         d.body_weld = vec![0, 1, 2, 3];

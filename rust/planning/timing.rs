@@ -10,7 +10,7 @@
 //! 2. At waypoint `i` the velocity changes from `V_{i−1}` to `V_i` (`V_{−1} = V_n = 0`) at the
 //!    constant acceleration `(V_i − V_{i−1}) / τ_i` over `τ_i = max_j |V_ij − V_{i−1,j}| / a_j`,
 //!    centred on the waypoint's time: the quadratic Bézier `W_i − V_{i−1}τ_i/2 → W_i → W_i +
-//!    V_iτ_i/2`, proven as a curve (`certify_blends`); one that is not becomes a stop.
+//!    V_iτ_i/2`, proven as a curve (`certify_as_given`); one that is not becomes a stop.
 //! 3. A segment holds half of each blend beside it: `τ_i/2 + τ_{i+1}/2 ≤ T_i`. The times start
 //!    from every segment at its velocity limit and from a ramp (`ramp`), and a segment whose
 //!    blends do not fit is slowed by `√(need / T_i)` (the exact answer for a lone segment) until
@@ -20,8 +20,9 @@
 //! Step 0, corner cuts (`cuts`): a chord from `W_i − D_{i−1}·c` to `W_i + D_i·c` is quicker
 //! than the two half-segments it replaces wherever different joints lead them; the widest of
 //! `cut`, `cut/2`, `cut/4` whose chord is proven replaces the corner, and the cut path is timed
-//! as above. It is kept unless timing the path uncut is quicker (tried only when the uncut
-//! path's best case, every blend proven, could be) or certified where the cut one is not.
+//! as above. It is kept when it is certified and the uncut path is not, or as certified and
+//! not slower (the uncut path timed only when its best case, every blend proven, could be
+//! quicker, or when the cut path is not certified).
 //!
 //! What is proven is what the robot crosses: the chords, the parts of the path's segments
 //! between them (`Part::Along`; none where two chords of half a segment meet at its middle)
@@ -34,7 +35,7 @@ use std::collections::HashMap;
 
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_blends, certify_motions, Motion};
+use crate::planning::motion::{certify_as_given, Motion};
 
 /// Speed fractions the ramp tries, fastest first: `1 − i/GRID` for `i < GRID` (exact in binary).
 const GRID: usize = 64;
@@ -165,7 +166,9 @@ impl Limits<'_> {
     }
 
     /// Segment times and blend times of one run (steps 1-3): settled from every segment at its
-    /// velocity limit and from the ramp, the quicker kept; None when neither settles.
+    /// velocity limit and from the ramp, the quicker kept (the times summed in order; numpy's
+    /// pairwise sum, in the Python this replaces, could keep the other on a near-tie of 8
+    /// segments or more); None when neither settles.
     fn run_times(&self, d: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
         let t_min = self.t_min(d);
         let ramped: Vec<f64> = t_min.iter().zip(self.ramp(d, &t_min)).map(|(t, s)| t / s).collect();
@@ -306,7 +309,10 @@ impl Pieces {
 
 /// Whether each motion `starts[i] → goals[i]` is certified.
 fn proven(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<bool>> {
-    Ok(certify_motions(model, starts, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
+    if starts.is_empty() {
+        return Ok(Vec::new());
+    }
+    Ok(certify_as_given(model, starts, None, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
 }
 
 /// The pieces with every corner blended whose blend is proven free and the others stops (all
@@ -325,7 +331,7 @@ fn blended(model: &RobotModel, lim: &Limits, w: &[f64], blend: bool, clearance: 
         if !todo.is_empty() {
             let k = lim.k;
             let part = |s: usize| todo.iter().flat_map(|c| c[s * k..(s + 1) * k].iter().copied()).collect::<Vec<f64>>();
-            let got = certify_blends(model, &part(0), &part(1), &part(2), clearance)?;
+            let got = certify_as_given(model, &part(0), Some(&part(1)), &part(2), clearance)?;
             for (c, (verdict, _)) in todo.iter().zip(got) {
                 memo.insert(key(c), matches!(verdict, Motion::Certified));
             }
@@ -417,10 +423,20 @@ fn cut_points(k: usize, w: &[f64], share: &[f64]) -> (Vec<f64>, Vec<Part>) {
     (out, parts)
 }
 
-/// The first segment of `w` (`(M, K)`) along the path (`parts`, chords aside) that the
-/// certificate does not certify: the path's segment it lies on, and the verdict. The chords
-/// are proven already; so the timed motion crosses only proven segments when this is None.
-fn first_unproven(model: &RobotModel, k: usize, w: &[f64], parts: &[Part], clearance: f64) -> Result<Option<(usize, Motion)>> {
+/// The first segment of `w` (`(M, K)`) along the path `path` (`parts`, chords aside) that is
+/// not proven: the path's segment it lies on, and the verdict on it. The chords are proven
+/// already; so the timed motion crosses only proven segments when this is None. A part the
+/// certificate does not certify on its own is proven still when its whole segment is (its
+/// poses are among the segment's: proving a shorter motion can stop where the longer did not,
+/// at the certificate's state budget).
+fn first_unproven(
+    model: &RobotModel,
+    k: usize,
+    path: &[f64],
+    w: &[f64],
+    parts: &[Part],
+    clearance: f64,
+) -> Result<Option<(usize, Motion)>> {
     let along: Vec<(usize, usize)> = parts
         .iter()
         .enumerate()
@@ -429,17 +445,27 @@ fn first_unproven(model: &RobotModel, k: usize, w: &[f64], parts: &[Part], clear
             Part::Chord => None,
         })
         .collect();
-    let starts: Vec<f64> = along.iter().flat_map(|&(i, _)| w[i * k..(i + 1) * k].iter().copied()).collect();
-    let goals: Vec<f64> = along.iter().flat_map(|&(i, _)| w[(i + 1) * k..(i + 2) * k].iter().copied()).collect();
     if along.is_empty() {
         return Ok(None);
     }
-    let verdicts = certify_motions(model, &starts, &goals, clearance)?;
-    Ok(along.iter().zip(verdicts).find(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)))
+    let rows = |x: &[f64], idx: &mut dyn Iterator<Item = usize>| idx.flat_map(|i| x[i * k..(i + 1) * k].to_vec()).collect::<Vec<f64>>();
+    let starts = rows(w, &mut along.iter().map(|&(i, _)| i));
+    let goals = rows(w, &mut along.iter().map(|&(i, _)| i + 1));
+    let verdicts = certify_as_given(model, &starts, None, &goals, clearance)?;
+    let failed: Vec<(usize, Motion)> =
+        along.iter().zip(verdicts).filter(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)).collect();
+    // (the segments of the failed parts that are not whole segments themselves)
+    let whole = |j: usize| w.len() == path.len() && w[j * k..(j + 2) * k] == path[j * k..(j + 2) * k];
+    let mut segments: Vec<usize> = failed.iter().map(|&(j, _)| j).filter(|&j| !whole(j)).collect();
+    segments.dedup();
+    let whole_ok: Vec<bool> =
+        proven(model, &rows(path, &mut segments.iter().copied()), &rows(path, &mut segments.iter().map(|j| j + 1)), clearance)?;
+    let rescued = |j: usize| segments.iter().position(|&s| s == j).is_some_and(|i| whole_ok[i]);
+    Ok(failed.into_iter().find(|&(j, _)| !rescued(j)))
 }
 
-/// Times the path `path` (`(M, K)` row-major, M ≥ 2, unwrapped: consecutive waypoints differ by
-/// the short arc on continuous hinges, no zero-length segment) within `velocity` and
+/// Times the path `path` (`(M, K)` row-major, M ≥ 2, unwrapped: each segment is crossed, and
+/// proven, as given, `W_i + D_i·s` on every joint; no zero-length segment) within `velocity` and
 /// `acceleration` (`(K,)`, positive), blending the corners whose blends are proven (stopping at
 /// every waypoint without `blend`) and, with `cut` in `(0, 0.5]`, cutting corners by proven
 /// chords (module docs). Every proof keeps `max(margin, clearance)` metres, and every part of
@@ -475,7 +501,7 @@ pub fn time_path(
     let whole: Vec<Part> = (0..m - 1).map(Part::Along).collect();
     let (timed, waypoints, unproven) = if share.iter().any(|&s| s > 0.0) {
         let (wc, parts) = cut_points(k, path, &share);
-        let unproven = first_unproven(model, k, &wc, &parts, clearance)?;
+        let unproven = first_unproven(model, k, path, &wc, &parts, clearance)?;
         let timed = blended(model, &lim, &wc, true, clearance)?;
         let mut ends = vec![false; m];
         ends[0] = true;
@@ -484,7 +510,7 @@ pub fn time_path(
         // could be quicker (every blend proven, at best); else the uncut path where it is
         // certified and the cut one is not, or as certified and quicker.
         if unproven.is_some() || timed.duration > lim.pieces(path, &ends).duration {
-            let uncut_unproven = first_unproven(model, k, path, &whole, clearance)?;
+            let uncut_unproven = first_unproven(model, k, path, path, &whole, clearance)?;
             let uncut = blended(model, &lim, path, true, clearance)?;
             let better = match (uncut_unproven.is_none(), unproven.is_none()) {
                 (true, false) => true,
@@ -500,7 +526,7 @@ pub fn time_path(
             (timed, wc, unproven)
         }
     } else {
-        (blended(model, &lim, path, blend, clearance)?, path.to_vec(), first_unproven(model, k, path, &whole, clearance)?)
+        (blended(model, &lim, path, blend, clearance)?, path.to_vec(), first_unproven(model, k, path, path, &whole, clearance)?)
     };
     Ok(Timed {
         waypoints,

@@ -299,9 +299,9 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     threads = check_threads(threads)
     # Unwrapped waypoints (short arcs), zero-length segments removed.
     steps = so2_steps(robot, p) if len(p) > 1 else np.zeros((0, robot.njoint))
-    keep = np.concatenate([[True], np.abs(steps).max(axis=1) > 0]) if len(p) > 1 else np.ones(1, bool)
     w = p[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)])
-    w = w[keep]
+    # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal)
+    w = w[np.concatenate([[True], np.abs(np.diff(w, axis=0)).max(axis=1) > 0])]
     m = len(w)
     meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
                 wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, jerk=j, waypoints=w)
@@ -318,13 +318,13 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
         meta["waypoints"] = out["waypoints"]
         jrk = np.zeros_like(q0)
     else:
-        verdicts = robot.core.certify_motions(w[:-1], w[1:], CLEARANCE, threads=threads)["verdict"]
+        verdicts = robot.core.certify_motions(w[:-1], w[1:], CLEARANCE, as_given=True, threads=threads)["verdict"]
         failed = np.flatnonzero(verdicts != 0)
         bad, verdict = (int(failed[0]), int(verdicts[failed[0]])) if len(failed) else (-1, 0)
         starts, (q0, v0, acc, jrk), duration, times = _jerk_pieces(w, v, a, j)
         stops = np.ones(m, dtype=bool)
     reason = "" if bad < 0 else (
-        f"segment {bad} of the path (waypoints {bad} → {bad + 1}) is "
+        f"segment {bad} of the path given (its waypoints {bad} → {bad + 1}) is "
         f"{'blocked' if verdict == 1 else 'not proven free'} where the timed motion crosses it; "
         "time a certified path (plan_path)")
     return TimedPath(duration=float(duration), starts=starts, q0=q0, v0=v0, acc=acc, jrk=jrk, times=times, stops=stops,
