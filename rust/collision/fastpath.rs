@@ -164,6 +164,34 @@ where
     Ok(first_error(chunks)?.concat())
 }
 
+/// The first of the row-major `states` (length K each) that collides or that the narrow phase
+/// cannot decide, in their order, with its answer (`collides_pose`'s); None when every one is
+/// free. Four are placed at a time (`Scratch4`: forward kinematics, spheres and near pairs in
+/// lanes), so up to three past the first that collides are placed too; the answer is the
+/// same as `collides_pose` state by state.
+pub(crate) fn first_colliding(
+    model: &RobotModel,
+    states: &[f64],
+    s: &mut Scratch4,
+) -> Option<(usize, std::result::Result<bool, Undecided>)> {
+    let mut found = None;
+    let _ = s.for_each_lazy(
+        model,
+        states,
+        false,
+        |_, q, s| likely_pair_fails(model, q, s, &mut in_contact(model)),
+        |_, q, s| near_pair_fails(model, q, s, &mut in_contact(model)),
+        |i, r| {
+            if r == Ok(false) {
+                return Ok(());
+            }
+            found = Some((i, r));
+            Err(())
+        },
+    );
+    found
+}
+
 /// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
 /// for a pair the narrow phase cannot decide, met before any pair in contact.
 pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
@@ -436,6 +464,33 @@ mod tests {
                 assert_eq!(poses(&got.undecided), poses(&whole.undecided), "{scene}");
             }
         }
+    }
+
+    /// `first_colliding` finds the state `collides_pose` finds scanning in order, on runs of
+    /// every length from 0 to 13 (whole quads and remainders), with the colliding state
+    /// anywhere in a quad, and one scratch reused across runs.
+    #[test]
+    fn first_colliding_is_the_first_collides_pose_finds() {
+        let mut hits = [0usize; 4];
+        for scene in ["panda_blocks", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            let k = model.njoint();
+            let poses = sample_uniform(&model.sampling_ranges().unwrap(), 600, 7).unwrap();
+            let (mut s, mut s4) = (Scratch::new(&model), Scratch4::new(&model));
+            let mut start = 0;
+            for len in (0..=13).cycle().take(90) {
+                let run = &poses[start * k..(start + len) * k];
+                start += len;
+                let scan = run.chunks_exact(k).enumerate().map(|(i, q)| (i, collides_pose(&model, q, &mut s))).find(|(_, r)| *r != Ok(false));
+                let got = first_colliding(&model, run, &mut s4);
+                assert_eq!(got, scan, "{scene}: run of {len}");
+                if let Some((i, _)) = got {
+                    hits[i % 4] += 1;
+                }
+            }
+        }
+        assert!(hits.iter().all(|&h| h > 0), "first hits at each lane {hits:?}");
     }
 
     #[test]
