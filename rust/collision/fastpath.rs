@@ -482,7 +482,8 @@ mod tests {
             for len in (0..=13).cycle().take(90) {
                 let run = &poses[start * k..(start + len) * k];
                 start += len;
-                let scan = run.chunks_exact(k).enumerate().map(|(i, q)| (i, collides_pose(&model, q, &mut s))).find(|(_, r)| *r != Ok(false));
+                let scan =
+                    run.chunks_exact(k).enumerate().map(|(i, q)| (i, collides_pose(&model, q, &mut s))).find(|(_, r)| *r != Ok(false));
                 let got = first_colliding(&model, run, &mut s4);
                 assert_eq!(got, scan, "{scene}: run of {len}");
                 if let Some((i, _)) = got {

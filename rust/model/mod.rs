@@ -61,9 +61,9 @@ pub struct RobotModel {
     /// sample they were drawn from: on first use by `collision/fastpath.rs` (a heuristic: no
     /// answer depends on it).
     pub(crate) likely: std::sync::OnceLock<Likely>,
-    /// Per candidate pair and joint, the pair's lever, and the pairs' joint chains
-    /// (`motion::Levers`), on first use.
-    pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>)>,
+    /// Per candidate pair and joint, the pair's lever, the pairs' joint chains, and per pair
+    /// the geom whose branch from the world is its whole chain (`motion::Levers`), on first use.
+    pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>, Vec<u32>)>,
     /// Per candidate pair whose distance one joint alone changes: that joint and the spans of
     /// its values over which the pair is proven clear (`planning/spans.rs`); `u32::MAX` and none for
     /// the other pairs. On first use by `planning/motion.rs`.

@@ -205,12 +205,16 @@ pub(crate) struct Levers<'m> {
     /// Where the chains start in `chains`: `npairs + 1` (kept, not divided out of `rows` on
     /// every call: an integer division costs tens of cycles, and `chain` runs per pair per state).
     base: usize,
+    /// Per pair, the geom whose branch from the world is the pair's whole chain (a robot geom
+    /// against one the world holds still), `u32::MAX` for the others: such a pair's rates are
+    /// its geom's, the same for every obstacle (`Axes::solo`).
+    solo: &'m [u32],
 }
 
 impl<'m> Levers<'m> {
     pub(crate) fn of(model: &'m RobotModel) -> Levers<'m> {
-        let (rows, chains) = model.lever_rows.get_or_init(|| lever_rows(model));
-        Levers { k: model.njoint(), rows, chains, base: model.pairs.len() + 1 }
+        let (rows, chains, solo) = model.lever_rows.get_or_init(|| lever_rows(model));
+        Levers { k: model.njoint(), rows, chains, base: model.pairs.len() + 1, solo }
     }
 
     /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
@@ -274,13 +278,14 @@ impl<'m> Levers<'m> {
     }
 }
 
-/// The `(npairs, K)` lever table of `Levers`, and the pairs' chains.
-fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
+/// The `(npairs, K)` lever table of `Levers`, the pairs' chains, and their `solo` geoms.
+fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
     {
         let k = model.njoint();
         let mut rows = vec![0.0; model.pairs.len() * k];
         let mut offsets = vec![0u32];
         let mut entries = Vec::new();
+        let mut solo = Vec::with_capacity(model.pairs.len());
         // (a joint's reach to a geom, `joint_reach`, is the joint's and the geom's alone: computed
         // once per geom, not once per pair of it; a scene's obstacles pair with every link)
         let mut reach = vec![f64::NAN; k * model.geoms.len()];
@@ -298,6 +303,7 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
         for (p, pair) in model.pairs.iter().enumerate() {
             let (up1, up2) = (&ups[model.geoms[pair.g1].body], &ups[model.geoms[pair.g2].body]);
             let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
+            let first = entries.len();
             for (side, (g, up)) in [(pair.g1, up1), (pair.g2, up2)].into_iter().enumerate() {
                 let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
                 for &b in up[..below].iter().rev() {
@@ -313,9 +319,16 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>) {
                 }
             }
             offsets.push(entries.len() as u32);
+            // (one side's entries only, and that side's whole branch from the world: the chain,
+            // and the rows over it, are its geom's alone)
+            let sides: Vec<u32> = entries[first..].iter().map(|e| e & SIDE).collect();
+            solo.push(match (common, sides.first()) {
+                (0, Some(&side)) if sides.iter().all(|&s| s == side) => (if side == 0 { pair.g1 } else { pair.g2 }) as u32,
+                _ => u32::MAX,
+            });
         }
         offsets.extend(entries);
-        (rows, offsets)
+        (rows, offsets, solo)
     }
 }
 
@@ -397,6 +410,11 @@ struct Axes {
     ngeom: usize,
     reach: Vec<f64>,
     reach_at: Vec<u32>,
+    /// Per geom, the state-local `a` of its `solo` pairs (`Levers::solo`: the same for each) in
+    /// the state `solo_at[g]` (0: none), and their `B` in this motion (NaN: not yet).
+    solo: Vec<f64>,
+    solo_at: Vec<u32>,
+    solo_quad: Vec<f64>,
 }
 
 impl Axes {
@@ -408,6 +426,9 @@ impl Axes {
             ngeom,
             reach: vec![0.0; k * ngeom],
             reach_at: vec![0; k * ngeom],
+            solo: vec![0.0; ngeom],
+            solo_at: vec![0; ngeom],
+            solo_quad: vec![f64::NAN; ngeom],
         }
     }
 
@@ -415,6 +436,8 @@ impl Axes {
     fn forget(&mut self) {
         self.at.fill(0);
         self.reach_at.fill(0);
+        self.solo_at.fill(0);
+        self.solo_quad.fill(f64::NAN);
     }
 }
 
@@ -452,6 +475,22 @@ fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch
         };
     }
     a
+}
+
+/// `local_rate` of pair `p`, read off its `solo` geom's where another pair of that geom computed
+/// it in this state (the same chain, rows and geom: the same sum, bit for bit).
+#[inline]
+fn local_rate_of(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
+    let g = levers.solo[p];
+    if g == u32::MAX {
+        return local_rate(model, levers, abs_delta, s, axes, p);
+    }
+    let (g, state) = (g as usize, s.pose_stamp());
+    if axes.solo_at[g] != state {
+        axes.solo[g] = local_rate(model, levers, abs_delta, s, axes, p);
+        axes.solo_at[g] = state;
+    }
+    axes.solo[g]
 }
 
 /// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
@@ -521,6 +560,8 @@ pub struct MotionScratch {
     lo: Vec<f64>,
     hi: Vec<f64>,
     rates: Vec<f64>,
+    /// Per geom, its `solo` pairs' chain rate in this motion (NaN: not yet).
+    solo_rates: Vec<f64>,
     quads: Vec<f64>,
     axes: Axes,
     q: Vec<f64>,
@@ -540,6 +581,7 @@ impl MotionScratch {
             lo: vec![0.0; model.njoint()],
             hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
+            solo_rates: vec![f64::NAN; model.geoms.len()],
             quads: vec![0.0; model.pairs.len()],
             axes: Axes::new(model.njoint(), model.geoms.len()),
             q: vec![0.0; model.njoint()],
@@ -593,10 +635,20 @@ fn radius(
         return Ok(rate.reach(gap));
     }
     if chain > 0.0 {
-        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
-        // (the growth of the rate, computed for the pair on its first use in the motion)
+        rate.a = local_rate_of(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
+        // (the growth of the rate, computed for the pair on its first use in the motion, or for
+        // its `solo` geom)
         if quad.is_nan() {
-            *quad = at.levers.quad(k, at.abs_delta);
+            *quad = match at.levers.solo[k] {
+                u32::MAX => at.levers.quad(k, at.abs_delta),
+                g => {
+                    let b = &mut at.axes.solo_quad[g as usize];
+                    if b.is_nan() {
+                        *b = at.levers.quad(k, at.abs_delta);
+                    }
+                    *b
+                }
+            };
         }
         rate.b = *quad;
     }
@@ -679,8 +731,19 @@ pub(crate) fn certify_curve<C: Curve>(
         return Ok(Motion::Unproven);
     }
     let npairs = model.pairs.len();
+    // (a `solo` pair's chain rate is its geom's: computed once per geom)
+    ms.solo_rates.fill(f64::NAN);
     for p in 0..npairs {
-        ms.rates[p] = levers.rate(p, &ms.abs_delta);
+        ms.rates[p] = match levers.solo[p] {
+            u32::MAX => levers.rate(p, &ms.abs_delta),
+            g => {
+                let r = &mut ms.solo_rates[g as usize];
+                if r.is_nan() {
+                    *r = levers.rate(p, &ms.abs_delta);
+                }
+                *r
+            }
+        };
         ms.quads[p] = f64::NAN;
     }
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
@@ -1172,6 +1235,50 @@ pub(crate) mod tests {
         s.place(model, q, false);
         s.forget_axes();
         s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY).unwrap().max(0.0)
+    }
+
+    /// A `solo` pair's chain is its geom's whole branch from the world, its rows that geom's
+    /// reaches, and the other geom never moves: every pair of a solo geom has the same chain
+    /// (joints and tightness) and rows, so their rates are one; the scene pairs of a fixed robot
+    /// among still obstacles are solo, and no self pair is.
+    #[test]
+    fn solo_pairs_share_their_geoms_chain_and_rows() {
+        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter", "ur5e_wall_box"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            let levers = Levers::of(&model);
+            let k = model.njoint();
+            let mut first: std::collections::HashMap<u32, usize> = Default::default();
+            let mut solo = 0;
+            for (p, pair) in model.pairs.iter().enumerate() {
+                let g = levers.solo[p];
+                let moving = |g: usize| {
+                    (0..model.body_parent.len()).any(|b| {
+                        let mut c = model.geoms[g].body;
+                        while c != 0 && c != b {
+                            c = model.body_parent[c];
+                        }
+                        c == b && model.body_joints[b].1 > model.body_joints[b].0
+                    })
+                };
+                if pair.kind == crate::model::pairs::PairKind::SelfCollision {
+                    assert_eq!(g, u32::MAX, "{scene}: self pair {p}");
+                }
+                if g == u32::MAX {
+                    continue;
+                }
+                solo += 1;
+                let other = if g as usize == pair.g1 { pair.g2 } else { pair.g1 };
+                assert!(!moving(other), "{scene}: pair {p}'s other geom moves");
+                let q = *first.entry(g).or_insert(p);
+                let joints = |p: usize| levers.chain(p).iter().map(|e| e & !SIDE).collect::<Vec<_>>();
+                assert_eq!(joints(p), joints(q), "{scene}: pairs {p} and {q}");
+                assert_eq!(levers.rows[p * k..(p + 1) * k], levers.rows[q * k..(q + 1) * k], "{scene}: pairs {p} and {q}");
+            }
+            // (a fixed robot among still obstacles: every scene pair is solo; the Shadow Hand has none)
+            let scene_pairs = model.pairs.iter().filter(|p| p.kind == crate::model::pairs::PairKind::Scene).count();
+            assert_eq!(solo, scene_pairs, "{scene}");
+        }
     }
 
     /// Every proof of `prove_apart` holds where it says: at random poses inside each pair's span
