@@ -399,17 +399,15 @@ impl Rate {
 }
 
 /// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
-/// joint `j`'s belong to the state placed with stamp `at[j]` (0: none). And each tight joint's
-/// reach to each geom's sphere, `reach[j · ngeom + g]`, of the state `reach_at[..]` (0: none):
-/// a function of the joint and the geom alone, shared by every pair of the geom (a Panda's 272
-/// pairs over 26 geoms: most of `local_rate`'s terms are repeats within a state).
+/// joint `j`'s `(stamp, anchor, axis)` belong to the state placed with that stamp (0: none). And
+/// each tight joint's reach to each geom's sphere, `reach[j · ngeom + g]`, `(stamp, reach)` of
+/// the state with that stamp (0: none): a function of the joint and the geom alone, shared by
+/// every pair of the geom (a Panda's 272 pairs over 26 geoms: most of `local_rate`'s terms are
+/// repeats within a state). (A stamp beside its value: one bounds check reads both.)
 struct Axes {
-    anchor: Vec<nalgebra::Vector3<f64>>,
-    axis: Vec<nalgebra::Vector3<f64>>,
-    at: Vec<u32>,
+    joint: Vec<(u32, nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)>,
     ngeom: usize,
-    reach: Vec<f64>,
-    reach_at: Vec<u32>,
+    reach: Vec<(u32, f64)>,
     /// Per geom, the state-local `a` of its `solo` pairs (`Levers::solo`: the same for each) in
     /// the state `solo_at[g]` (0: none), and their `B` in this motion (NaN: not yet).
     solo: Vec<f64>,
@@ -420,12 +418,9 @@ struct Axes {
 impl Axes {
     fn new(k: usize, ngeom: usize) -> Self {
         Axes {
-            anchor: vec![Default::default(); k],
-            axis: vec![Default::default(); k],
-            at: vec![0; k],
+            joint: vec![(0, Default::default(), Default::default()); k],
             ngeom,
-            reach: vec![0.0; k * ngeom],
-            reach_at: vec![0; k * ngeom],
+            reach: vec![(0, 0.0); k * ngeom],
             solo: vec![0.0; ngeom],
             solo_at: vec![0; ngeom],
             solo_quad: vec![f64::NAN; ngeom],
@@ -434,8 +429,8 @@ impl Axes {
 
     /// Forgets every state's values (a new motion).
     fn forget(&mut self) {
-        self.at.fill(0);
-        self.reach_at.fill(0);
+        self.joint.iter_mut().for_each(|x| x.0 = 0);
+        self.reach.iter_mut().for_each(|x| x.0 = 0);
         self.solo_at.fill(0);
         self.solo_quad.fill(f64::NAN);
     }
@@ -445,6 +440,7 @@ impl Axes {
 fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
     let state = s.pose_stamp();
     let pair = &model.pairs[p];
+    let row = &levers.rows[p * levers.k..(p + 1) * levers.k];
     let mut a = 0.0;
     for &e in levers.chain(p) {
         let j = entry_joint(e);
@@ -452,24 +448,22 @@ fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch
         if d == 0.0 {
             continue;
         }
-        let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
-        let lever = levers.rows[p * levers.k + j];
+        let lever = row[j];
         a += d * if e & TIGHT != 0 {
-            let at = j * axes.ngeom + g;
-            if axes.reach_at[at] != state {
-                if axes.at[j] != state {
+            let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
+            let slot = &mut axes.reach[j * axes.ngeom + g];
+            if slot.0 != state {
+                let joint = &mut axes.joint[j];
+                if joint.0 != state {
                     let jnt = &model.joints[j];
                     let x = s.body(jnt.body);
-                    axes.anchor[j] = (x * nalgebra::Point3::from(jnt.anchor)).coords;
-                    axes.axis[j] = x.rotation * jnt.axis.into_inner();
-                    axes.at[j] = state;
+                    *joint = (state, (x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
                 }
                 let c = model.broad.sphere_centre(&s.broad, g);
                 // (1e-9 relative: rounding of the placed frames and of the cross product)
-                axes.reach[at] = ((c - axes.anchor[j]).cross(&axes.axis[j]).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9);
-                axes.reach_at[at] = state;
+                *slot = (state, ((c - joint.1).cross(&joint.2).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9));
             }
-            axes.reach[at].min(lever)
+            slot.1.min(lever)
         } else {
             lever
         };
