@@ -189,12 +189,29 @@ struct Checker<'m> {
     scratch: Scratch,
     /// Four states placed at a time, for the sampled edges' later batches.
     lanes: Scratch4,
+    /// `check_order(n)` by `n`, kept for `n <= KEPT_ORDERS` (an exploring search's edges have
+    /// tens of states: built once per call, not once per edge).
+    orders: Vec<Option<std::sync::Arc<[usize]>>>,
     checks: u64,
     /// Continuous edges: the certificate's levers, buffers and clearance.
     motion: Option<(Levers<'m>, MotionScratch, f64)>,
 }
 
+/// The longest edge (in states) whose check order a `Checker` keeps.
+const KEPT_ORDERS: usize = 1024;
+
 impl<'m> Checker<'m> {
+    /// `check_order(n)`, kept when short.
+    fn order(&mut self, n: usize) -> std::sync::Arc<[usize]> {
+        if n > KEPT_ORDERS {
+            return check_order(n).into();
+        }
+        if self.orders.len() <= n {
+            self.orders.resize(n + 1, None);
+        }
+        self.orders[n].get_or_insert_with(|| check_order(n).into()).clone()
+    }
+
     /// Whether `q` (the call's `what`: start or goal) is free.
     fn free(&mut self, q: &[f64], what: &str) -> Result<bool> {
         self.checks += 1;
@@ -217,7 +234,7 @@ impl<'m> Checker<'m> {
             // usually stops after one pair test). Only a refutation is taken from it.
             let n = ((span / PRECHECK_STEP).ceil() as usize).max(1);
             let mut q = vec![0.0; k];
-            for i in check_order(n).into_iter().take(PRECHECK_STATES) {
+            for &i in self.order(n).iter().take(PRECHECK_STATES) {
                 self.space.along(a, &d, i as f64 / n as f64, &mut q);
                 self.checks += 1;
                 match collides_pose(self.model, &q, &mut self.scratch) {
@@ -234,7 +251,7 @@ impl<'m> Checker<'m> {
         }
         let n = ((span / self.resolution).ceil() as usize).max(1);
         crate::budget::check("the states of one edge (its length / resolution)", &[n, 2], 8)?;
-        let order = check_order(n);
+        let order = self.order(n);
         let mut start = 0;
         let mut b_idx = 0;
         while start < order.len() {
@@ -411,8 +428,16 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
     let range = if opts.range > 0.0 { opts.range } else { DEFAULT_RANGE * diagonal };
     let motion = opts.continuous.then(|| (Levers::of(model), MotionScratch::new(model), opts.clearance));
-    let mut checker =
-        Checker { model, space, resolution: opts.resolution, scratch: Scratch::new(model), lanes: Scratch4::new(model), checks: 0, motion };
+    let mut checker = Checker {
+        model,
+        space,
+        resolution: opts.resolution,
+        scratch: Scratch::new(model),
+        lanes: Scratch4::new(model),
+        orders: Vec::new(),
+        checks: 0,
+        motion,
+    };
     for (q, what) in [(start, "start"), (goal, "goal")] {
         let sp = &checker.space;
         for (j, &v) in q.iter().enumerate() {
