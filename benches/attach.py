@@ -30,6 +30,7 @@ import numpy as np
 import profrobot
 from profrobot import Cylinder
 from profrobot.robot import world as _world
+from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mbm import FINGERS, OPEN, read_request, read_scene  # noqa: E402
@@ -110,7 +111,7 @@ def main(argv: list[str]) -> int:
             f"The Menagerie Panda in {done} MotionBenchMaker `table_pick` scenes, a mug-sized cylinder 12 cm in front "
             f"of the hand at each problem's start; load average {load:.2f}.\n\n"
             "| operation | n | ms (median) | ms (p95) |\n|---|---|---|---|\n" + rows + "\n")
-    RESULTS.write_text(text)
+    write_results(RESULTS, text)
     print(text)
     return 0
 

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import profrobot
+from results import write_results
 
 FRAMES = {"panda_blocks": "hand", "panda_shelf": "hand", "ur5e_wall_box": "wrist_3_link", "xarm7_table": "link7",
           "vx300s_clutter": "gripper_link"}
@@ -98,7 +99,7 @@ def main(argv: list[str]) -> int:
                         f"{'; '.join(f'{k}: {v}' for k, v in r['reasons'].items())} | {r['deviation_mm']:.3f}, "
                         f"{r['deviation_mrad']:.2f} | {r['uncertified']} | {r['ms']:.2f}, {r['p95']:.2f} |" for r in rows)
             + "\n")
-    RESULTS.write_text(text)
+    write_results(RESULTS, text)
     print(text)
     return 0
 

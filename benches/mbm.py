@@ -46,6 +46,7 @@ import yaml
 import profrobot
 from profrobot import Box, Cylinder, Sphere
 from profrobot.errors import InputError
+from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import load  # noqa: E402
@@ -214,7 +215,7 @@ def main() -> None:
             print("OMPL not installed (pip install '.[bench]'): not run")
     print("load after:", load(), flush=True)
     md = markdown(rows, vamp, ompl, args)
-    RESULTS.write_text(md)
+    write_results(RESULTS, md)
     print(md)
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 import profrobot
 from profrobot import Box, Cylinder
+from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pick_place_scene import (ARM_A, ARM_V, DOWN_QUAT, HOME, MUG, PICK, PLACE, STAGES, TABLE, TCP, WALL,  # noqa: E402
@@ -178,7 +179,7 @@ def main(argv: list[str]) -> int:
             f"{os.getloadavg()[0]:.2f}.\n\n"
             "| planner | stages solved | planning ms (total) | trajectory s (total) | 1 kHz samples in contact "
             "(MuJoCo) | per stage |\n|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n")
-    RESULTS.write_text(text)
+    write_results(RESULTS, text)
     print(text)
     return 0
 

@@ -39,6 +39,7 @@ import numpy as np
 import profrobot
 from profrobot.exact.labels import so2_steps
 from profrobot.exact.problems import hard_pairs
+from results import write_results
 
 ARMS = ["panda_blocks", "panda_shelf", "ur5e_wall_box", "xarm7_table", "vx300s_clutter"]
 RESULTS = Path(__file__).resolve().parent / "timing_results.md"
@@ -201,7 +202,7 @@ def main(argv: list[str]) -> int:
                         f"{r['jerk_over']} |" for r in rows))
     text = ("# Timed paths beside Ruckig and TOPP-RA\n\n`python benches/timing.py`\n\n" + head + "\n".join(lines)
             + jerk + "\n")
-    RESULTS.write_text(text)
+    write_results(RESULTS, text)
     print(text)
     return 0
 
