@@ -1508,6 +1508,31 @@ mod tests {
         model
     }
 
+    /// The planner's four-lane edge check (`fastpath::first_colliding`) gives the one-by-one
+    /// scan's answer where a pair is undecidable too: the undecided state and its pair, or the
+    /// free run before it, on runs of every length through the pendulum's swing.
+    #[test]
+    fn first_colliding_names_the_scans_undecided_state() {
+        let model = undecidable_pendulum();
+        let angles: Vec<f64> = (0..=40).map(|i| std::f64::consts::FRAC_PI_2 * (1.0 - i as f64 / 40.0)).collect();
+        let mut errors = 0;
+        for start in 0..angles.len() {
+            for len in 0..=9.min(angles.len() - start) {
+                let run = &angles[start..start + len];
+                let mut s = Scratch::new(&model);
+                let scan = run
+                    .iter()
+                    .enumerate()
+                    .map(|(i, q)| (i, crate::collision::fastpath::collides_pose(&model, &[*q], &mut s)))
+                    .find(|(_, r)| *r != Ok(false));
+                let got = crate::collision::fastpath::first_colliding(&model, run, &mut Scratch4::new(&model), &mut Scratch::new(&model));
+                assert_eq!(got, scan, "run of {len} from {}", angles[start]);
+                errors += matches!(got, Some((_, Err(_)))) as usize;
+            }
+        }
+        assert!(errors > 0, "no run met the undecidable pair");
+    }
+
     /// Issue 19: a parry error (`Unsupported`) used to become "not in contact", i.e. free.
     #[test]
     fn parry_error_is_never_free() {

@@ -167,12 +167,20 @@ where
 /// The first of the row-major `states` (length K each) that collides or that the narrow phase
 /// cannot decide, in their order, with its answer (`collides_pose`'s); None when every one is
 /// free. Four are placed at a time (`Scratch4`: forward kinematics, spheres and near pairs in
-/// lanes), so up to three past the first that collides are placed too; the answer is the
-/// same as `collides_pose` state by state.
+/// lanes), so up to three past the first that collides are placed too.
+///
+/// Where the narrow phase decides every pair it meets, the answer is `collides_pose`'s state by
+/// state: contact is exact, whichever filter let the pair through. A pair it cannot decide is
+/// met by fewer filters in lanes (the four-pose box test keeps pairs the scalar path's sphere
+/// against box test rejects) and in another order (each lane's last hit first), so a state the
+/// lanes find undecided is checked again, and those after it, one by one on `one` (the scalar
+/// path the planner used before): an edge the scalar check finds blocked or free is not turned
+/// into an error.
 pub(crate) fn first_colliding(
     model: &RobotModel,
     states: &[f64],
     s: &mut Scratch4,
+    one: &mut Scratch,
 ) -> Option<(usize, std::result::Result<bool, Undecided>)> {
     let mut found = None;
     let _ = s.for_each_lazy(
@@ -189,7 +197,13 @@ pub(crate) fn first_colliding(
             Err(())
         },
     );
-    found
+    let k = model.njoint();
+    match found {
+        Some((at, Err(_))) => {
+            states.chunks_exact(k).enumerate().skip(at).map(|(i, q)| (i, collides_pose(model, q, one))).find(|(_, r)| *r != Ok(false))
+        }
+        found => found,
+    }
 }
 
 /// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
@@ -484,7 +498,7 @@ mod tests {
                 start += len;
                 let scan =
                     run.chunks_exact(k).enumerate().map(|(i, q)| (i, collides_pose(&model, q, &mut s))).find(|(_, r)| *r != Ok(false));
-                let got = first_colliding(&model, run, &mut s4);
+                let got = first_colliding(&model, run, &mut s4, &mut Scratch::new(&model));
                 assert_eq!(got, scan, "{scene}: run of {len}");
                 if let Some((i, _)) = got {
                     hits[i % 4] += 1;

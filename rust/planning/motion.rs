@@ -205,9 +205,10 @@ pub(crate) struct Levers<'m> {
     /// Where the chains start in `chains`: `npairs + 1` (kept, not divided out of `rows` on
     /// every call: an integer division costs tens of cycles, and `chain` runs per pair per state).
     base: usize,
-    /// Per pair, the geom whose branch from the world is the pair's whole chain (a robot geom
-    /// against one the world holds still), `u32::MAX` for the others: such a pair's rates are
-    /// its geom's, the same for every obstacle (`Axes::solo`).
+    /// Per pair, the geom whose branch from the world is the pair's whole chain (a geom against
+    /// one the world holds still), `u32::MAX` for the others: such a pair's rates are its geom's,
+    /// the same for every pair of it (its chain rate in `MotionScratch::solo_rates`, its
+    /// state-local rate and growth in `Axes::solo`).
     solo: &'m [u32],
 }
 

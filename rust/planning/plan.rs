@@ -190,7 +190,7 @@ struct Checker<'m> {
     /// Four states placed at a time, for the sampled edges' later batches.
     lanes: Scratch4,
     /// `check_order(n)` by `n`, kept for `n <= KEPT_ORDERS` (an exploring search's edges have
-    /// tens of states: built once per call, not once per edge).
+    /// tens of states: built once per call, not once per edge; 260 kB at most).
     orders: Vec<Option<std::sync::Arc<[usize]>>>,
     checks: u64,
     /// Continuous edges: the certificate's levers, buffers and clearance.
@@ -198,7 +198,7 @@ struct Checker<'m> {
 }
 
 /// The longest edge (in states) whose check order a `Checker` keeps.
-const KEPT_ORDERS: usize = 1024;
+const KEPT_ORDERS: usize = 256;
 
 impl<'m> Checker<'m> {
     /// `check_order(n)`, kept when short.
@@ -289,7 +289,7 @@ impl<'m> Checker<'m> {
                 for (&i, q) in batch.iter().zip(states.chunks_exact_mut(k)) {
                     state(i, q);
                 }
-                first_colliding(model, &states, &mut self.lanes).map(|(at, r)| (batch[at], r))
+                first_colliding(model, &states, &mut self.lanes, &mut self.scratch).map(|(at, r)| (batch[at], r))
             } else {
                 let mut q = vec![0.0; k];
                 batch
