@@ -30,10 +30,10 @@ import numpy as np
 import profrobot
 from profrobot import Cylinder
 from profrobot.robot import world as _world
-from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mbm import FINGERS, OPEN, read_request, read_scene  # noqa: E402
+from results import write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "attach_results.md"
 

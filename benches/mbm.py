@@ -46,11 +46,11 @@ import yaml
 import profrobot
 from profrobot import Box, Cylinder, Sphere
 from profrobot.errors import InputError
-from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import load  # noqa: E402
 from planning import ompl_plan  # noqa: E402
+from results import write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "mbm_results.md"
 

@@ -31,11 +31,11 @@ import numpy as np
 
 import profrobot
 from profrobot import Box, Cylinder
-from results import write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pick_place_scene import (ARM_A, ARM_V, DOWN_QUAT, HOME, MUG, PICK, PLACE, STAGES, TABLE, TCP, WALL,  # noqa: E402
                               grasp_z)
+from results import write_results  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "pick_place_peers_results.md"

@@ -409,10 +409,10 @@ struct Axes {
     joint: Vec<(u32, nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)>,
     ngeom: usize,
     reach: Vec<(u32, f64)>,
-    /// Per geom, the state-local `a` of its `solo` pairs (`Levers::solo`: the same for each) in
-    /// the state `solo_at[g]` (0: none), and their `B` in this motion (NaN: not yet).
-    solo: Vec<f64>,
-    solo_at: Vec<u32>,
+    /// Per geom, the state-local `a` of its `solo` pairs (`Levers::solo`: the same for each),
+    /// `(stamp, a)` of the state with that stamp (0: none), and their `B` in this motion (NaN:
+    /// not yet).
+    solo: Vec<(u32, f64)>,
     solo_quad: Vec<f64>,
 }
 
@@ -422,8 +422,7 @@ impl Axes {
             joint: vec![(0, Default::default(), Default::default()); k],
             ngeom,
             reach: vec![(0, 0.0); k * ngeom],
-            solo: vec![0.0; ngeom],
-            solo_at: vec![0; ngeom],
+            solo: vec![(0, 0.0); ngeom],
             solo_quad: vec![f64::NAN; ngeom],
         }
     }
@@ -432,7 +431,7 @@ impl Axes {
     fn forget(&mut self) {
         self.joint.iter_mut().for_each(|x| x.0 = 0);
         self.reach.iter_mut().for_each(|x| x.0 = 0);
-        self.solo_at.fill(0);
+        self.solo.iter_mut().for_each(|x| x.0 = 0);
         self.solo_quad.fill(f64::NAN);
     }
 }
@@ -481,11 +480,19 @@ fn local_rate_of(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scra
         return local_rate(model, levers, abs_delta, s, axes, p);
     }
     let (g, state) = (g as usize, s.pose_stamp());
-    if axes.solo_at[g] != state {
-        axes.solo[g] = local_rate(model, levers, abs_delta, s, axes, p);
-        axes.solo_at[g] = state;
+    if axes.solo[g].0 != state {
+        axes.solo[g] = (state, local_rate(model, levers, abs_delta, s, axes, p));
     }
-    axes.solo[g]
+    axes.solo[g].1
+}
+
+/// `slot`'s value, computed by `f` where it is NaN (not yet): a `solo` geom's rates, once per motion.
+#[inline]
+fn once(slot: &mut f64, f: impl FnOnce() -> f64) -> f64 {
+    if slot.is_nan() {
+        *slot = f();
+    }
+    *slot
 }
 
 /// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
@@ -636,13 +643,7 @@ fn radius(
         if quad.is_nan() {
             *quad = match at.levers.solo[k] {
                 u32::MAX => at.levers.quad(k, at.abs_delta),
-                g => {
-                    let b = &mut at.axes.solo_quad[g as usize];
-                    if b.is_nan() {
-                        *b = at.levers.quad(k, at.abs_delta);
-                    }
-                    *b
-                }
+                g => once(&mut at.axes.solo_quad[g as usize], || at.levers.quad(k, at.abs_delta)),
             };
         }
         rate.b = *quad;
@@ -731,13 +732,7 @@ pub(crate) fn certify_curve<C: Curve>(
     for p in 0..npairs {
         ms.rates[p] = match levers.solo[p] {
             u32::MAX => levers.rate(p, &ms.abs_delta),
-            g => {
-                let r = &mut ms.solo_rates[g as usize];
-                if r.is_nan() {
-                    *r = levers.rate(p, &ms.abs_delta);
-                }
-                *r
-            }
+            g => once(&mut ms.solo_rates[g as usize], || levers.rate(p, &ms.abs_delta)),
         };
         ms.quads[p] = f64::NAN;
     }

@@ -448,9 +448,11 @@ fn first_unproven(
     if along.is_empty() {
         return Ok(None);
     }
-    let rows = |x: &[f64], idx: &mut dyn Iterator<Item = usize>| idx.flat_map(|i| x[i * k..(i + 1) * k].to_vec()).collect::<Vec<f64>>();
-    let starts = rows(w, &mut along.iter().map(|&(i, _)| i));
-    let goals = rows(w, &mut along.iter().map(|&(i, _)| i + 1));
+    fn rows(x: &[f64], k: usize, idx: impl Iterator<Item = usize>) -> Vec<f64> {
+        idx.flat_map(|i| x[i * k..(i + 1) * k].iter().copied()).collect()
+    }
+    let starts = rows(w, k, along.iter().map(|&(i, _)| i));
+    let goals = rows(w, k, along.iter().map(|&(i, _)| i + 1));
     let verdicts = certify_as_given(model, &starts, None, &goals, clearance)?;
     let failed: Vec<(usize, Motion)> =
         along.iter().zip(verdicts).filter(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)).collect();
@@ -459,7 +461,7 @@ fn first_unproven(
     let mut segments: Vec<usize> = failed.iter().map(|&(j, _)| j).filter(|&j| !whole(j)).collect();
     segments.dedup();
     let whole_ok: Vec<bool> =
-        proven(model, &rows(path, &mut segments.iter().copied()), &rows(path, &mut segments.iter().map(|j| j + 1)), clearance)?;
+        proven(model, &rows(path, k, segments.iter().copied()), &rows(path, k, segments.iter().map(|j| j + 1)), clearance)?;
     let rescued = |j: usize| segments.iter().position(|&s| s == j).is_some_and(|i| whole_ok[i]);
     Ok(failed.into_iter().find(|&(j, _)| !rescued(j)))
 }
