@@ -857,6 +857,9 @@ pub(crate) fn certify_curve<C: Curve>(
     verdict
 }
 
+/// Each motion's verdict and the states its proof placed, in motion order.
+pub type Verdicts = Vec<(Motion, usize)>;
+
 /// Motions per parallel work item (fixed, so the split never depends on the thread count). One:
 /// a motion is 10 µs to milliseconds of work, and the calls that certify a few (a timed path's
 /// 19 segments and 18 blends, a straight-line move's ~16 segments) were one or two items of 16,
@@ -868,8 +871,8 @@ const CHUNK: usize = 1;
 /// `max(margin, clearance)` metres, `clearance` in `(0, MAX_CLEARANCE]`, and the states each
 /// placed; in motion order, in parallel on rayon's current pool. Every motion is decided
 /// alone, so the result does not depend on the number of threads.
-pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
-    certify_each(model, &[starts, goals], clearance, |space, ms, d, i, k| {
+pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
+    certify_each(model, same_shape(model, &[starts, goals])?, clearance, |space, ms, d, i, k| {
         let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         space.delta(a, g, &mut d[..k]);
         certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
@@ -878,8 +881,8 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
 
 /// The verdict on each quadratic Bézier `starts[i] → vias[i] → goals[i]` (`Bezier`: a parabolic
 /// blend at the corner `vias[i]`; short arcs on continuous hinges), as `certify_motions`.
-pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &[f64], clearance: f64) -> Result<Vec<(Motion, usize)>> {
-    certify_each(model, &[starts, vias, goals], clearance, |space, ms, d, i, k| {
+pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
+    certify_each(model, same_shape(model, &[starts, vias, goals])?, clearance, |space, ms, d, i, k| {
         let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         let (d1, d2) = d.split_at_mut(k);
         space.delta(a, v, d1);
@@ -893,38 +896,48 @@ pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &
 /// continuous hinges included, however far (no short arc chosen): the motion a timed path
 /// crosses (`planning/timing.rs`), even where a step is half a turn or its unwrapped values
 /// round past one. (Where every step is a short arc, the same motions as those calls'.)
-pub fn certify_as_given(
-    model: &RobotModel,
-    starts: &[f64],
-    vias: Option<&[f64]>,
-    goals: &[f64],
-    clearance: f64,
-) -> Result<Vec<(Motion, usize)>> {
-    let diff = |a: &[f64], b: &[f64], out: &mut [f64]| out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
-    match vias {
-        None => certify_each(model, &[starts, goals], clearance, |space, ms, d, i, k| {
-            let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
-            diff(a, g, &mut d[..k]);
-            certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
-        }),
-        Some(vias) => certify_each(model, &[starts, vias, goals], clearance, |space, ms, d, i, k| {
-            let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
-            let (d1, d2) = d.split_at_mut(k);
-            diff(a, v, d1);
-            diff(v, g, d2);
-            certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
-        }),
-    }
+pub fn certify_as_given(model: &RobotModel, starts: &[f64], vias: Option<&[f64]>, goals: &[f64], clearance: f64) -> Result<Verdicts> {
+    Ok(match vias {
+        None => {
+            same_shape(model, &[starts, goals])?;
+            certify_given(model, [starts, goals], [&[], &[], &[]], clearance)?.0
+        }
+        Some(vias) => {
+            same_shape(model, &[starts, vias, goals])?;
+            certify_given(model, [&[], &[]], [starts, vias, goals], clearance)?.1
+        }
+    })
 }
 
-/// `one(space, scratch, buffer of 2K, i, K)` for each motion `i` of `(B, K)` arrays of the same shape.
-fn certify_each<F>(model: &RobotModel, arrays: &[&[f64]], clearance: f64, one: F) -> Result<Vec<(Motion, usize)>>
-where
-    F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
-{
-    use rayon::prelude::*;
+/// `certify_as_given` of straight motions `lines` (`[starts, goals]`) and of blends `blends`
+/// (`[starts, vias, goals]`), `(B, K)` row-major each, in one parallel batch: a caller with
+/// both kinds (a timed path's parts and its blends) pays one split of the work over the
+/// threads, and one wait for the slowest motion, instead of two. The lines' verdicts, then the
+/// blends'; each motion is decided alone, so the result is that of two calls. Either kind may
+/// be empty (no motion of it).
+pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3], clearance: f64) -> Result<(Verdicts, Verdicts)> {
+    let count = |a: &[&[f64]]| if a.iter().all(|a| a.is_empty()) { Ok(0) } else { same_shape(model, a) };
+    let (nl, nb) = (count(&lines)?, count(&blends)?);
+    let diff = |a: &[f64], b: &[f64], out: &mut [f64]| out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
+    let mut all = certify_each(model, nl + nb, clearance, |space, ms, d, i, k| {
+        if i < nl {
+            let (a, g) = (&lines[0][i * k..(i + 1) * k], &lines[1][i * k..(i + 1) * k]);
+            diff(a, g, &mut d[..k]);
+            return certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms);
+        }
+        let r = (i - nl) * k..(i - nl + 1) * k;
+        let (a, v, g) = (&blends[0][r.clone()], &blends[1][r.clone()], &blends[2][r]);
+        let (d1, d2) = d.split_at_mut(k);
+        diff(a, v, d1);
+        diff(v, g, d2);
+        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
+    })?;
+    let blend_verdicts = all.split_off(nl);
+    Ok((all, blend_verdicts))
+}
 
-    check_clearance(clearance)?;
+/// The number of motions in `arrays`, `(B, K)` row-major each (B ≥ 1) and all of one shape.
+fn same_shape(model: &RobotModel, arrays: &[&[f64]]) -> Result<usize> {
     let b = model.check_poses(arrays[0])?;
     for a in &arrays[1..] {
         if a.len() != arrays[0].len() {
@@ -932,11 +945,23 @@ where
         }
         model.check_poses(a)?;
     }
+    Ok(b)
+}
+
+/// `one(space, scratch, buffer of 2K, i, K)` for each motion `i < b`, in parallel on rayon's
+/// current pool, one motion a work item, each worker's scratch reused across its items.
+fn certify_each<F>(model: &RobotModel, b: usize, clearance: f64, one: F) -> Result<Verdicts>
+where
+    F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
+{
+    use rayon::prelude::*;
+
+    check_clearance(clearance)?;
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
     let idx: Vec<usize> = (0..b).collect();
-    let parts: Vec<Result<Vec<(Motion, usize)>>> = idx
+    let parts: Vec<Result<Verdicts>> = idx
         .par_chunks(CHUNK)
         .map_init(
             || (MotionScratch::new(model), vec![0.0; 2 * k]),
@@ -1642,5 +1667,37 @@ pub(crate) mod tests {
             let blend = certify_curve(&model, levers, &space, &Bezier { p0: &a, d1: &d, d2: &d }, 1e-6, &mut ms).unwrap();
             assert_eq!(line == Motion::Certified, blend == Motion::Certified);
         }
+    }
+
+    /// One batch of lines and blends (`certify_given`) gives each motion the verdict, and the
+    /// states, of the separate calls, in order (lines, then blends), on one thread and two; an
+    /// empty kind is no motion; a bad array is refused as those calls refuse it.
+    #[test]
+    fn lines_and_blends_in_one_batch_are_the_separate_calls() {
+        use crate::threads::with_threads;
+        let model = arm();
+        let space = Space::of(&model).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        let mut rows = |n: usize, scale: f64| -> Vec<f64> {
+            (0..n * 4).map(|x| rng.random_range(space.lo[x % 4] * scale..space.hi[x % 4] * scale)).collect()
+        };
+        let (l0, l1) = (rows(23, 0.8), rows(23, 0.8));
+        let (b0, b2) = (rows(17, 0.8), rows(17, 0.8));
+        let b1: Vec<f64> = b0.iter().zip(&b2).map(|(a, c)| 0.5 * (a + c) + 0.1).collect();
+        let lines = certify_as_given(&model, &l0, None, &l1, 1e-6).unwrap();
+        let blends = certify_as_given(&model, &b0, Some(&b1), &b2, 1e-6).unwrap();
+        let verdicts = |v: &Verdicts| v.iter().map(|(m, n)| format!("{m:?} {n}")).collect::<Vec<_>>();
+        let kinds: std::collections::HashSet<String> =
+            verdicts(&lines).iter().chain(&verdicts(&blends)).map(|v| v[..4].to_string()).collect();
+        assert!(kinds.len() >= 2, "the motions should not all end alike: {kinds:?}");
+        for threads in [1, 2] {
+            let (l, b) = with_threads(Some(threads), || certify_given(&model, [&l0, &l1], [&b0, &b1, &b2], 1e-6)).unwrap().unwrap();
+            assert_eq!(verdicts(&l), verdicts(&lines), "{threads} threads");
+            assert_eq!(verdicts(&b), verdicts(&blends), "{threads} threads");
+        }
+        let (l, b) = certify_given(&model, [&[], &[]], [&b0, &b1, &b2], 1e-6).unwrap();
+        assert!(l.is_empty() && verdicts(&b) == verdicts(&blends));
+        assert!(certify_given(&model, [&l0, &l1[..8]], [&[], &[], &[]], 1e-6).unwrap_err().to_string().contains("differ in shape"));
+        assert!(certify_as_given(&model, &[], None, &[], 1e-6).is_err());
     }
 }

@@ -35,7 +35,7 @@ use std::collections::HashMap;
 
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_as_given, Motion};
+use crate::planning::motion::{certify_as_given, certify_given, Motion, Verdicts};
 
 /// Speed fractions the ramp tries, fastest first: `1 − i/GRID` for `i < GRID` (exact in binary).
 const GRID: usize = 64;
@@ -139,25 +139,33 @@ impl Limits<'_> {
         fwd.iter().zip(&bwd).map(|(f, b)| f.min(*b)).collect()
     }
 
-    /// The blend times `τ_0 … τ_n` of segments `d` crossed in times `t`.
-    fn blend_times(&self, d: &[f64], t: &[f64]) -> Vec<f64> {
+    /// The blend times `τ_0 … τ_n` of segments `d` crossed in times `t`, into `tau`; `vel`
+    /// holds the segments' velocities `D_i / T_i` (each computed once, not at both its corners).
+    fn blend_times(&self, d: &[f64], t: &[f64], vel: &mut Vec<f64>, tau: &mut Vec<f64>) {
         let k = self.k;
-        let n = t.len();
-        let vel = |i: usize, j: usize| if i < n { d[i * k + j] / t[i] } else { 0.0 };
-        (0..=n).map(|i| self.lead((0..k).map(|j| vel(i, j) - if i > 0 { vel(i - 1, j) } else { 0.0 }), self.a)).collect()
+        vel.clear();
+        vel.extend(d.chunks_exact(k).zip(t).flat_map(|(di, ti)| di.iter().map(move |x| x / ti)));
+        vel.resize((t.len() + 1) * k, 0.0);
+        tau.clear();
+        tau.push(self.lead(vel[..k].iter().map(|v| v - 0.0), self.a));
+        tau.extend(vel.windows(2 * k).step_by(k).map(|w| self.lead((0..k).map(|j| w[k + j] - w[j]), self.a)));
     }
 
     /// Step 3 from segment times `t`: each segment whose blends do not fit slowed until they do;
     /// `(t, τ)`, or None when `ROUNDS` rounds do not settle.
     fn settle(&self, d: &[f64], mut t: Vec<f64>) -> Option<(Vec<f64>, Vec<f64>)> {
+        let (mut vel, mut tau) = (Vec::new(), Vec::new());
         for _ in 0..ROUNDS {
-            let tau = self.blend_times(d, &t);
-            let ratio: Vec<f64> = t.iter().enumerate().map(|(i, ti)| 0.5 * (tau[i] + tau[i + 1]) / ti).collect();
-            if ratio.iter().all(|&r| r <= 1.0 + 1e-12) {
+            self.blend_times(d, &t, &mut vel, &mut tau);
+            // (segment `i`'s ratio reads its own time and the blend times only: updating one
+            // segment's time leaves the others' ratios as they were)
+            let ratio = |tau: &[f64], i: usize, ti: f64| 0.5 * (tau[i] + tau[i + 1]) / ti;
+            if t.iter().enumerate().all(|(i, &ti)| ratio(&tau, i, ti) <= 1.0 + 1e-12) {
                 return Some((t, tau));
             }
-            for (ti, r) in t.iter_mut().zip(&ratio) {
-                if *r > 1.0 {
+            for (i, ti) in t.iter_mut().enumerate() {
+                let r = ratio(&tau, i, *ti);
+                if r > 1.0 {
                     *ti = *ti * r.sqrt() * (1.0 + 1e-12);
                 }
             }
@@ -315,36 +323,76 @@ fn proven(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> 
     Ok(certify_as_given(model, starts, None, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
 }
 
+/// Blends proven or refuted in one call, by their control points' bits: each is proven once.
+type Memo = HashMap<Vec<u64>, bool>;
+
+fn memo_key(c: &[f64]) -> Vec<u64> {
+    c.iter().map(|x| x.to_bits()).collect()
+}
+
+/// The control points of `blends` as three `(B, K)` arrays: starts, vias, goals.
+fn controls(k: usize, blends: &[&Vec<f64>]) -> [Vec<f64>; 3] {
+    let part = |s: usize| blends.iter().flat_map(|c| c[s * k..(s + 1) * k].iter().copied()).collect::<Vec<f64>>();
+    [part(0), part(1), part(2)]
+}
+
 /// The pieces with every corner blended whose blend is proven free and the others stops (all
-/// stops without `blend`): corners whose blend fails become stops and the runs beside them are
-/// timed again, until every blend left is proven (each blend proven once per call).
-fn blended(model: &RobotModel, lim: &Limits, w: &[f64], blend: bool, clearance: f64) -> Result<Pieces> {
-    let m = w.len() / lim.k;
-    let mut stops = vec![!blend; m];
-    stops[0] = true;
-    stops[m - 1] = true;
-    let mut memo: HashMap<Vec<u64>, bool> = HashMap::new();
-    let key = |c: &[f64]| c.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+/// stops without `blend`): from `first` (the pieces of that start), corners whose blend fails
+/// become stops and the runs beside them are timed again, until every blend left is proven
+/// (each blend proven once per call: `memo`, which may hold some already).
+fn blended(model: &RobotModel, lim: &Limits, w: &[f64], first: Pieces, memo: &mut Memo, clearance: f64) -> Result<Pieces> {
+    let mut p = first;
     loop {
-        let p = lim.pieces(w, &stops);
-        let todo: Vec<&Vec<f64>> = p.blends.iter().map(|(_, c)| c).filter(|c| !memo.contains_key(&key(c))).collect();
+        let todo: Vec<&Vec<f64>> = p.blends.iter().map(|(_, c)| c).filter(|c| !memo.contains_key(&memo_key(c))).collect();
         if !todo.is_empty() {
-            let k = lim.k;
-            let part = |s: usize| todo.iter().flat_map(|c| c[s * k..(s + 1) * k].iter().copied()).collect::<Vec<f64>>();
-            let got = certify_as_given(model, &part(0), Some(&part(1)), &part(2), clearance)?;
+            let [s, v, g] = controls(lim.k, &todo);
+            let got = certify_as_given(model, &s, Some(&v), &g, clearance)?;
             for (c, (verdict, _)) in todo.iter().zip(got) {
-                memo.insert(key(c), matches!(verdict, Motion::Certified));
+                memo.insert(memo_key(c), matches!(verdict, Motion::Certified));
             }
         }
-        let failed: Vec<usize> = p.blends.iter().filter(|(_, c)| !memo[&key(c)]).map(|&(i, _)| i).collect();
+        let failed: Vec<usize> = p.blends.iter().filter(|(_, c)| !memo[&memo_key(c)]).map(|&(i, _)| i).collect();
         if failed.is_empty() {
             return Ok(p);
         }
-        stops = p.stops;
+        let mut stops = p.stops;
         for i in failed {
             stops[i] = true;
         }
+        p = lim.pieces(w, &stops);
     }
+}
+
+/// The timing of waypoints `w` (`blended`, from every corner blended, or with `blend` false
+/// every waypoint a stop) and the first part of the path it crosses that is not proven
+/// (`first_unproven`; `parts` says what each segment of `w` lies on). The parts and the first
+/// timing's blends are proven in one batch (`certify_given`): neither waits for the other.
+fn timed(
+    model: &RobotModel,
+    lim: &Limits,
+    path: &[f64],
+    w: &[f64],
+    parts: &[Part],
+    blend: bool,
+    clearance: f64,
+) -> Result<(Pieces, Option<(usize, Motion)>)> {
+    let k = lim.k;
+    let m = w.len() / k;
+    let mut stops = vec![!blend; m];
+    stops[0] = true;
+    stops[m - 1] = true;
+    let first = lim.pieces(w, &stops);
+    let along = along(parts);
+    let ends = |d: usize| along.iter().flat_map(|&(i, _)| w[(i + d) * k..(i + d + 1) * k].iter().copied()).collect::<Vec<f64>>();
+    let blends: Vec<&Vec<f64>> = first.blends.iter().map(|(_, c)| c).collect();
+    let [s, v, g] = controls(k, &blends);
+    let (parts_proven, blends_proven) = certify_given(model, [&ends(0), &ends(1)], [&s, &v, &g], clearance)?;
+    let mut memo = Memo::new();
+    for (c, (verdict, _)) in blends.iter().zip(blends_proven) {
+        memo.insert(memo_key(c), matches!(verdict, Motion::Certified));
+    }
+    let unproven = first_unproven(model, k, path, w, &along, parts_proven, clearance)?;
+    Ok((blended(model, lim, w, first, &mut memo, clearance)?, unproven))
 }
 
 /// Per waypoint, the share of its segments its corner is cut by (step 0): the widest of `cut`,
@@ -423,37 +471,37 @@ fn cut_points(k: usize, w: &[f64], share: &[f64]) -> (Vec<f64>, Vec<Part>) {
     (out, parts)
 }
 
-/// The first segment of `w` (`(M, K)`) along the path `path` (`parts`, chords aside) that is
-/// not proven: the path's segment it lies on, and the verdict on it. The chords are proven
-/// already; so the timed motion crosses only proven segments when this is None. A part the
-/// certificate does not certify on its own is proven still when its whole segment is (its
-/// poses are among the segment's: proving a shorter motion can stop where the longer did not,
-/// at the certificate's state budget).
-fn first_unproven(
-    model: &RobotModel,
-    k: usize,
-    path: &[f64],
-    w: &[f64],
-    parts: &[Part],
-    clearance: f64,
-) -> Result<Option<(usize, Motion)>> {
-    let along: Vec<(usize, usize)> = parts
+/// The segments of `w` that lie on the path's segments (`parts`, chords aside): each one's
+/// index in `w` and the path's segment it lies on.
+fn along(parts: &[Part]) -> Vec<(usize, usize)> {
+    parts
         .iter()
         .enumerate()
         .filter_map(|(i, p)| match p {
             Part::Along(j) => Some((i, *j)),
             Part::Chord => None,
         })
-        .collect();
-    if along.is_empty() {
-        return Ok(None);
-    }
+        .collect()
+}
+
+/// The first segment of `w` (`(M, K)`) along the path `path` (`along`, with the certificate's
+/// `verdicts` on them) that is not proven: the path's segment it lies on, and the verdict on
+/// it. The chords are proven already; so the timed motion crosses only proven segments when
+/// this is None. A part the certificate does not certify on its own is proven still when its
+/// whole segment is (its poses are among the segment's: proving a shorter motion can stop where
+/// the longer did not, at the certificate's state budget).
+fn first_unproven(
+    model: &RobotModel,
+    k: usize,
+    path: &[f64],
+    w: &[f64],
+    along: &[(usize, usize)],
+    verdicts: Verdicts,
+    clearance: f64,
+) -> Result<Option<(usize, Motion)>> {
     fn rows(x: &[f64], k: usize, idx: impl Iterator<Item = usize>) -> Vec<f64> {
         idx.flat_map(|i| x[i * k..(i + 1) * k].iter().copied()).collect()
     }
-    let starts = rows(w, k, along.iter().map(|&(i, _)| i));
-    let goals = rows(w, k, along.iter().map(|&(i, _)| i + 1));
-    let verdicts = certify_as_given(model, &starts, None, &goals, clearance)?;
     let failed: Vec<(usize, Motion)> =
         along.iter().zip(verdicts).filter(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)).collect();
     // (the segments of the failed parts that are not whole segments themselves)
@@ -503,8 +551,7 @@ pub fn time_path(
     let whole: Vec<Part> = (0..m - 1).map(Part::Along).collect();
     let (timed, waypoints, unproven) = if share.iter().any(|&s| s > 0.0) {
         let (wc, parts) = cut_points(k, path, &share);
-        let unproven = first_unproven(model, k, path, &wc, &parts, clearance)?;
-        let timed = blended(model, &lim, &wc, true, clearance)?;
+        let (timed, unproven) = timed(model, &lim, path, &wc, &parts, true, clearance)?;
         let mut ends = vec![false; m];
         ends[0] = true;
         ends[m - 1] = true;
@@ -512,8 +559,7 @@ pub fn time_path(
         // could be quicker (every blend proven, at best); else the uncut path where it is
         // certified and the cut one is not, or as certified and quicker.
         if unproven.is_some() || timed.duration > lim.pieces(path, &ends).duration {
-            let uncut_unproven = first_unproven(model, k, path, path, &whole, clearance)?;
-            let uncut = blended(model, &lim, path, true, clearance)?;
+            let (uncut, uncut_unproven) = self::timed(model, &lim, path, path, &whole, true, clearance)?;
             let better = match (uncut_unproven.is_none(), unproven.is_none()) {
                 (true, false) => true,
                 (false, true) => false,
@@ -528,7 +574,8 @@ pub fn time_path(
             (timed, wc, unproven)
         }
     } else {
-        (blended(model, &lim, path, blend, clearance)?, path.to_vec(), first_unproven(model, k, path, path, &whole, clearance)?)
+        let (timed, unproven) = timed(model, &lim, path, path, &whole, blend, clearance)?;
+        (timed, path.to_vec(), unproven)
     };
     Ok(Timed {
         waypoints,

@@ -87,6 +87,18 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
     return float(np.linalg.norm(so2_steps(robot, path), axis=1).sum())
 
 
+def _refuse_colliding_ends(robot: Robot, ends: np.ndarray) -> None:
+    """Raises the :class:`InputError` naming a pair in contact where the start or the goal
+    (``ends``, (2, K)) collides; returns where neither does."""
+    lab = label_poses(robot, ends, pairs=True)
+    for i, name in enumerate(("start", "goal")):
+        if lab.collides[i]:
+            assert lab.colliding_pairs is not None   # asked for: pairs=True
+            k = lab.colliding_pairs[lab.colliding_pairs[:, 0] == i][0, 1]
+            within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
+            raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+
+
 def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout: Layout | None = None,
               margin: float = CLEARANCE, resolution: float = 0.01, max_time: float = 10.0, seed: int = 0,
               range: float = 0.0, iterations: int = 200_000, shortcut_rounds: int = 200, verify: int = 10,
@@ -140,20 +152,17 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
     verify = gate.count("verify", verify, why="1: no verification")
     if check not in ("continuous", "sampled"):
         raise InputError(f"check must be 'continuous' or 'sampled'; got {check!r}")
-    ends = np.concatenate([s, g])
-    # the fast path first (a plan's ends are free): the pairs are labelled only to name one
-    lab = label_poses(robot, ends, pairs=True) if robot.core.collides(ends, threads=1).any() else None
-    for i, name in enumerate(("start", "goal")):
-        if lab is not None and lab.collides[i]:
-            assert lab.colliding_pairs is not None   # asked for: pairs=True
-            k = lab.colliding_pairs[lab.colliding_pairs[:, 0] == i][0, 1]
-            within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
-            raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
-    out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
-                               range=float(range), max_iterations=int(iterations),
-                               shortcut_rounds=int(shortcut_rounds), verify=int(verify),
-                               continuous=check == "continuous", clearance=CLEARANCE, held=held,
-                               threads=check_threads(threads))
+    try:
+        out = robot.core.plan_path(s[0], g[0], resolution=float(resolution), max_time=float(max_time), seed=int(seed),
+                                   range=float(range), max_iterations=int(iterations),
+                                   shortcut_rounds=int(shortcut_rounds), verify=int(verify),
+                                   continuous=check == "continuous", clearance=CLEARANCE, held=held,
+                                   threads=check_threads(threads))
+    except InputError:
+        # (the core refuses a colliding start or goal without naming the pair: labelled only
+        # then, not before every call)
+        _refuse_colliding_ends(robot, np.concatenate([s, g]))
+        raise
     status = out["status"]
     found = status in ("direct", "connected")
     reason = "" if found else {
