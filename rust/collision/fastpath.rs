@@ -18,8 +18,7 @@
 //!    poses; each behind its own bounding-sphere test;
 //! 3. the rest, through the broad phase.
 //!
-//! (`first_colliding`, the planner's states along an edge after its end state, mostly free,
-//! skips step 2.)
+//! (The planner's states, mostly free, skip step 2: `First::LastHit`, and `first_colliding`.)
 //!
 //! Free poses cost what `label_pose` costs (every pair must be cleared); colliding poses
 //! usually stop after one or two narrow-phase tests.
@@ -63,11 +62,24 @@ const NO_PAIR: u32 = u32::MAX;
 /// pose and the pair; its flag, whether the four-pose broad phase's box tests kept the pair,
 /// only lets it skip a filter), trying pairs in the fast path's order (module docs) and stopping at the
 /// first that fails; `Err` for a pair `fails` cannot decide, met before any that fails.
-fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, mut fails: F) -> std::result::Result<bool, Undecided>
+fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, first: First, mut fails: F) -> std::result::Result<bool, Undecided>
 where
     F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
-    likely_pair_fails(model, q, s, &mut fails, true).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
+    likely_pair_fails(model, q, s, &mut fails, first == First::Likely).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
+}
+
+/// What a pose check tries before its near pairs (module docs, "Order"): the last pair hit and
+/// the model's likely pairs (poses drawn over the joint space, which collide often), or the
+/// last pair hit alone: the planner's states, mostly free, where the likely pairs cost each
+/// free state its tests and saved nothing measurable (MotionBenchMaker's second plans: the same
+/// instructions either way), and whose first plan on a new scene then never samples them
+/// (`likely_pairs`: a third of a MotionBenchMaker scene's first-plan overhead). The answer is
+/// the same either way; only the cost differs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum First {
+    Likely,
+    LastHit,
 }
 
 /// `some_pair_fails`' first phase, on the last pair hit and (with `likely`) the likely pairs:
@@ -178,10 +190,10 @@ where
 /// cannot decide, in their order, with its answer (`collides_pose`'s); None when every one is
 /// free. Four are placed at a time (`Scratch4`: forward kinematics, spheres and near pairs in
 /// lanes), so up to three past the first that collides are placed too. The last pair hit is
-/// tried first, then the near pairs: not the likely pairs, which cost each free state their
-/// tests (an edge's states after its end state, which the planner checks first, are mostly
-/// free; without them, MotionBenchMaker's middle problems take 4 % fewer instructions and its
-/// slowest 15 % take 9 % fewer, for the same paths).
+/// tried first, then the near pairs (`First::LastHit`): not the likely pairs, which cost each
+/// free state their tests (an edge's states after its end state, which the planner checks
+/// first, are mostly free; without them, MotionBenchMaker's middle problems take 4 % fewer
+/// instructions and its slowest 15 % take 9 % fewer, for the same paths).
 ///
 /// Where the narrow phase decides every pair it meets, the answer is `collides_pose`'s state by
 /// state: contact is exact, whichever filter let the pair through. A pair it cannot decide is
@@ -213,9 +225,12 @@ pub(crate) fn first_colliding(
     );
     let k = model.njoint();
     match found {
-        Some((at, Err(_))) => {
-            states.chunks_exact(k).enumerate().skip(at).map(|(i, q)| (i, collides_pose(model, q, one))).find(|(_, r)| *r != Ok(false))
-        }
+        Some((at, Err(_))) => states
+            .chunks_exact(k)
+            .enumerate()
+            .skip(at)
+            .map(|(i, q)| (i, collides_pose_with(model, q, one, First::LastHit)))
+            .find(|(_, r)| *r != Ok(false)),
         found => found,
     }
 }
@@ -223,8 +238,13 @@ pub(crate) fn first_colliding(
 /// Whether pose `q` (length K) collides: `label_pose(..).collides()`, by the fast path; `Err`
 /// for a pair the narrow phase cannot decide, met before any pair in contact.
 pub fn collides_pose(model: &RobotModel, q: &[f64], s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    collides_pose_with(model, q, s, First::Likely)
+}
+
+/// `collides_pose`, trying `first` before the near pairs.
+pub(crate) fn collides_pose_with(model: &RobotModel, q: &[f64], s: &mut Scratch, first: First) -> std::result::Result<bool, Undecided> {
     s.place(model, q, false);
-    some_pair_fails(model, q, s, in_contact(model))
+    some_pair_fails(model, q, s, first, in_contact(model))
 }
 
 /// The pair test of `collides`: in contact (the flag: the pair passed the four-pose box tests,
@@ -258,8 +278,19 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
 /// (`model/broad.rs`), so clear. `Err` for a pair the narrow phase cannot decide, met before any pair
 /// that is not clear.
 pub fn certified_pose(model: &RobotModel, q: &[f64], clearance: f64, s: &mut Scratch) -> std::result::Result<bool, Undecided> {
+    certified_pose_with(model, q, clearance, s, First::Likely)
+}
+
+/// `certified_pose`, trying `first` before the near pairs.
+pub(crate) fn certified_pose_with(
+    model: &RobotModel,
+    q: &[f64],
+    clearance: f64,
+    s: &mut Scratch,
+    first: First,
+) -> std::result::Result<bool, Undecided> {
     s.place(model, q, false);
-    some_pair_fails(model, q, s, not_clear(model, clearance)).map(|fails| !fails)
+    some_pair_fails(model, q, s, first, not_clear(model, clearance)).map(|fails| !fails)
 }
 
 /// Whether each pose of a `(B, K)` row-major batch is certified free at `clearance` metres

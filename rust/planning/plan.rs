@@ -43,7 +43,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::collision::collide::{Scratch, Scratch4};
-use crate::collision::fastpath::{certified_pose, collides_pose, first_colliding};
+use crate::collision::fastpath::{certified_pose_with, collides_pose_with, first_colliding, First};
 use crate::error::{invalid_input, Result};
 use crate::joints::angles::wrap;
 use crate::joints::couplings::FEASIBLE_TOL;
@@ -215,7 +215,7 @@ impl<'m> Checker<'m> {
     /// Whether `q` (the call's `what`: start or goal) is free.
     fn free(&mut self, q: &[f64], what: &str) -> Result<bool> {
         self.checks += 1;
-        match collides_pose(self.model, q, &mut self.scratch) {
+        match collides_pose_with(self.model, q, &mut self.scratch, First::LastHit) {
             Ok(c) => Ok(!c),
             Err(e) => Err(e.error(self.model, format!("{what} {q:?}"))),
         }
@@ -237,7 +237,7 @@ impl<'m> Checker<'m> {
             for &i in self.order(n).iter().take(PRECHECK_STATES) {
                 self.space.along(a, &d, i as f64 / n as f64, &mut q);
                 self.checks += 1;
-                match collides_pose(self.model, &q, &mut self.scratch) {
+                match collides_pose_with(self.model, &q, &mut self.scratch, First::LastHit) {
                     Ok(false) => {}
                     Ok(true) => return Ok(false),
                     Err(e) => return Err(e.error(self.model, format!("planning state {q:?}"))),
@@ -278,7 +278,7 @@ impl<'m> Checker<'m> {
                         || (Scratch::new(model), vec![0.0; k]),
                         |(s, q), &i| {
                             state(i, q);
-                            (i, collides_pose(model, q, s))
+                            (i, collides_pose_with(model, q, s, First::LastHit))
                         },
                     )
                     .find_first(stops)
@@ -296,7 +296,7 @@ impl<'m> Checker<'m> {
                     .iter()
                     .map(|&i| {
                         state(i, &mut q);
-                        (i, collides_pose(model, &q, &mut self.scratch))
+                        (i, collides_pose_with(model, &q, &mut self.scratch, First::LastHit))
                     })
                     .find(stops)
             };
@@ -455,8 +455,8 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
             return invalid_input(format!("{what} collides"));
         }
         if opts.continuous {
-            let clear =
-                certified_pose(model, q, opts.clearance, &mut checker.scratch).map_err(|e| e.error(model, format!("{what} {q:?}")))?;
+            let clear = certified_pose_with(model, q, opts.clearance, &mut checker.scratch, First::LastHit)
+                .map_err(|e| e.error(model, format!("{what} {q:?}")))?;
             if !clear {
                 return invalid_input(format!(
                     "{what} is free but within {} m of contact: no motion from it can be certified; plan with sampled edges",
@@ -624,7 +624,7 @@ fn prove(
     let mut kept = vec![path[0].clone()];
     for q in &path[1..path.len() - 1] {
         checker.checks += 1;
-        let clear = certified_pose(checker.model, q, clearance, &mut checker.scratch)
+        let clear = certified_pose_with(checker.model, q, clearance, &mut checker.scratch, First::LastHit)
             .map_err(|e| e.error(checker.model, format!("planning state {q:?}")))?;
         if clear {
             kept.push(q.clone());
