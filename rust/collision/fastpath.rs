@@ -636,4 +636,32 @@ mod tests {
         assert!(collides_batch(&model, &[]).is_err());
         assert!(collides_batch(&model, &[f64::INFINITY]).is_err());
     }
+
+    /// The planner's pose checks without the likely pairs (`First::LastHit`) answer as the
+    /// labeller does, pose by pose, in contact and certified free (1 µm), from one scratch carried
+    /// through the poses (so the last hit is often a pair the next pose does not touch), and
+    /// never draw the likely pairs' sample.
+    #[test]
+    fn pose_checks_from_the_last_hit_answer_as_the_labeller() {
+        for scene in ["panda_blocks", "ur5e_wall_box", "shadow_hand", "vx300s_clutter"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let desc: ModelDesc = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+            let model = RobotModel::new(desc).unwrap();
+            let k = model.njoint();
+            let poses = sample_uniform(&model.sampling_ranges().unwrap(), 1500, 7).unwrap();
+            let labels = label_batch(&model, &poses, LabelOptions { pairs: false, distance: true }).unwrap().labels;
+            let mut s = Scratch::new(&model);
+            let (mut hits, mut clear) = (0, 0);
+            for (i, (q, l)) in poses.chunks_exact(k).zip(&labels).enumerate() {
+                let c = collides_pose_with(&model, q, &mut s, First::LastHit).unwrap();
+                assert_eq!(c, l.collides(), "{scene} pose {i}");
+                let certified = certified_pose_with(&model, q, 1e-6, &mut s, First::LastHit).unwrap();
+                assert_eq!(certified, !l.collides() && l.min_distance > 1e-6, "{scene} pose {i}");
+                hits += c as usize;
+                clear += certified as usize;
+            }
+            assert!(hits > 100 && clear > 100, "{scene}: {hits} in contact, {clear} certified");
+            assert!(model.likely.get().is_none(), "{scene}: the likely pairs were drawn");
+        }
+    }
 }
