@@ -535,13 +535,7 @@ impl PyRobotModel {
         let held = held.unwrap_or_default();
         let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify, continuous, clearance, held };
         let model = &self.model;
-        // (the proofs first, as the labelling entry points make them: the search's states skip
-        // the pairs proven apart from its first call on a new scene, not only after its first
-        // motion is certified)
-        let r = interrupt::run(py, threads, || {
-            prove_apart(model);
-            plan_path(model, &s, &g, &opts)
-        })?;
+        let r = interrupt::run(py, threads, || plan_path(model, &s, &g, &opts))?;
         let k = model.njoint();
         let m = r.path.len() / k.max(1);
         let out = PyDict::new(py);

@@ -1,5 +1,6 @@
 //! The booleans-only fast path: whether each pose collides, stopping at the first pair in
-//! contact, with the likeliest pairs tried first.
+//! contact, with the likeliest pairs tried first (the last pair hit alone for the planner's
+//! states, `First`).
 //!
 //! # Same answer as `label_pose`
 //! `label_pose(..).collides()` is "some candidate pair is in contact", each pair decided by
@@ -66,43 +67,47 @@ fn some_pair_fails<F>(model: &RobotModel, q: &[f64], s: &mut Scratch, first: Fir
 where
     F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
-    likely_pair_fails(model, q, s, &mut fails, first == First::Likely).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
+    first_pairs_fail(model, q, s, &mut fails, first).unwrap_or_else(|| near_pair_fails(model, q, s, &mut fails))
 }
 
-/// What a pose check tries before its near pairs (module docs, "Order"): the last pair hit and
-/// the model's likely pairs (poses drawn over the joint space, which collide often), or the
-/// last pair hit alone: the planner's states, mostly free, where the likely pairs cost each
-/// free state its tests and saved nothing measurable (MotionBenchMaker's second plans: the same
-/// instructions either way), and whose first plan on a new scene then never samples them
-/// (`likely_pairs`: a third of a MotionBenchMaker scene's first-plan overhead). The answer is
-/// the same either way; only the cost differs.
+/// What a pose check tries before its near pairs (module docs, "Order").
+///
+/// Which pairs are tried first changes only the cost where the narrow phase decides every pair
+/// it meets: contact is exact, whatever the order. A pair it cannot decide is met in another
+/// order, so a pose with such a pair and another in contact may answer `true` one way and
+/// `Undecided` the other (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum First {
+pub(crate) enum First {
+    /// The last pair hit, then the model's likely pairs (`likely_pairs`: poses drawn over the
+    /// joint space, which collide often; the labelling batches' poses).
     Likely,
+    /// The last pair hit alone: the planner's states, mostly free, where the likely pairs cost
+    /// each free state its tests and saved nothing measurable (MotionBenchMaker's second plans:
+    /// the same instructions either way), and whose first plan on a new scene then never draws
+    /// their sample (`likely_pairs`, 1.5 M instructions a MotionBenchMaker scene).
     LastHit,
 }
 
-/// `some_pair_fails`' first phase, on the last pair hit and (with `likely`) the likely pairs:
+/// `some_pair_fails`' first phase, on the last pair hit and (`First::Likely`) the likely pairs:
 /// `Some` when one of them fails (or cannot be decided), `None` when the near pairs must be
 /// tried (`near_pair_fails`, on the same placed pose).
-fn likely_pair_fails<F>(
+fn first_pairs_fail<F>(
     model: &RobotModel,
     q: &[f64],
     s: &mut Scratch,
     fails: &mut F,
-    likely: bool,
+    first: First,
 ) -> Option<std::result::Result<bool, Undecided>>
 where
     F: FnMut(&mut Scratch, usize, bool) -> std::result::Result<bool, Undecided>,
 {
     let pose = s.pose_stamp();
-    let last = s.last_hit;
-    let first = (last != NO_PAIR).then_some(last);
+    let last = (s.last_hit != NO_PAIR).then_some(s.last_hit);
     // (a pair proven clear at this pose's joint value fails no test: `motion::prove_apart`)
     let apart = model.apart();
     let proven = |k: usize| apart.is_some_and(|a| a[k].holds(q));
-    let likely: &[u32] = if likely { likely_pairs(model) } else { &[] };
-    for k in first.into_iter().chain(likely.iter().copied()) {
+    let likely: &[u32] = if first == First::Likely { likely_pairs(model) } else { &[] };
+    for k in last.into_iter().chain(likely.iter().copied()) {
         let k = k as usize;
         if s.tested[k] == pose {
             continue;
@@ -150,7 +155,7 @@ where
 
 /// `per_pose` on each pose of a `(B, K)` row-major batch, in pose order, in parallel on rayon's
 /// current pool, four `Scratch`es per work item (`collide::Scratch4`). `per_pose` runs in two
-/// phases (`likely_pair_fails`, then `near_pair_fails` where the first decides nothing), so
+/// phases (`first_pairs_fail`, then `near_pair_fails` where the first decides nothing), so
 /// that the near pairs of four poses are found at once, and only when one of them needs them.
 /// Every pose is decided alone, so the result does not depend on the number of threads; the
 /// first undecided pose is the error, named.
@@ -213,7 +218,7 @@ pub(crate) fn first_colliding(
         model,
         states,
         false,
-        |_, q, s| likely_pair_fails(model, q, s, &mut in_contact(model), false),
+        |_, q, s| first_pairs_fail(model, q, s, &mut in_contact(model), First::LastHit),
         |_, q, s| near_pair_fails(model, q, s, &mut in_contact(model)),
         |i, r| {
             if r == Ok(false) {
@@ -265,7 +270,7 @@ pub fn collides_batch(model: &RobotModel, poses: &[f64]) -> Result<Vec<bool>> {
     batch(
         model,
         poses,
-        |q, s| likely_pair_fails(model, q, s, &mut in_contact(model), true),
+        |q, s| first_pairs_fail(model, q, s, &mut in_contact(model), First::Likely),
         |q, s| near_pair_fails(model, q, s, &mut in_contact(model)),
     )
 }
@@ -304,7 +309,13 @@ pub fn certified_batch(model: &RobotModel, poses: &[f64], clearance: f64) -> Res
     let fails = batch(
         model,
         poses,
-        |q, s| if model.feasible(q) { likely_pair_fails(model, q, s, &mut not_clear(model, clearance), true) } else { Some(Ok(true)) },
+        |q, s| {
+            if model.feasible(q) {
+                first_pairs_fail(model, q, s, &mut not_clear(model, clearance), First::Likely)
+            } else {
+                Some(Ok(true))
+            }
+        },
         |q, s| near_pair_fails(model, q, s, &mut not_clear(model, clearance)),
     )?;
     Ok(fails.into_iter().map(|fails| !fails).collect())

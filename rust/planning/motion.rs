@@ -872,7 +872,8 @@ const CHUNK: usize = 1;
 /// placed; in motion order, in parallel on rayon's current pool. Every motion is decided
 /// alone, so the result does not depend on the number of threads.
 pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
-    certify_each(model, same_shape(model, &[starts, goals])?, clearance, |space, ms, d, i, k| {
+    check_clearance(clearance)?;
+    certify_each(model, same_shape(model, &[starts, goals])?, &|i| format!("motion {i}"), |space, ms, d, i, k| {
         let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         space.delta(a, g, &mut d[..k]);
         certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
@@ -882,7 +883,8 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
 /// The verdict on each quadratic Bézier `starts[i] → vias[i] → goals[i]` (`Bezier`: a parabolic
 /// blend at the corner `vias[i]`; short arcs on continuous hinges), as `certify_motions`.
 pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
-    certify_each(model, same_shape(model, &[starts, vias, goals])?, clearance, |space, ms, d, i, k| {
+    check_clearance(clearance)?;
+    certify_each(model, same_shape(model, &[starts, vias, goals])?, &|i| format!("blend {i}"), |space, ms, d, i, k| {
         let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         let (d1, d2) = d.split_at_mut(k);
         space.delta(a, v, d1);
@@ -897,6 +899,7 @@ pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &
 /// crosses (`planning/timing.rs`), even where a step is half a turn or its unwrapped values
 /// round past one. (Where every step is a short arc, the same motions as those calls'.)
 pub fn certify_as_given(model: &RobotModel, starts: &[f64], vias: Option<&[f64]>, goals: &[f64], clearance: f64) -> Result<Verdicts> {
+    check_clearance(clearance)?;
     Ok(match vias {
         None => {
             same_shape(model, &[starts, goals])?;
@@ -914,12 +917,15 @@ pub fn certify_as_given(model: &RobotModel, starts: &[f64], vias: Option<&[f64]>
 /// both kinds (a timed path's parts and its blends) pays one split of the work over the
 /// threads, and one wait for the slowest motion, instead of two. The lines' verdicts, then the
 /// blends'; each motion is decided alone, so the result is that of two calls. Either kind may
-/// be empty (no motion of it).
+/// be empty (no motion of it). An error names a line "motion i" and a blend "blend j", each
+/// by its index among its kind.
 pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3], clearance: f64) -> Result<(Verdicts, Verdicts)> {
+    check_clearance(clearance)?;
     let count = |a: &[&[f64]]| if a.iter().all(|a| a.is_empty()) { Ok(0) } else { same_shape(model, a) };
     let (nl, nb) = (count(&lines)?, count(&blends)?);
     let diff = |a: &[f64], b: &[f64], out: &mut [f64]| out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
-    let mut all = certify_each(model, nl + nb, clearance, |space, ms, d, i, k| {
+    let name = |i: usize| if i < nl { format!("motion {i}") } else { format!("blend {}", i - nl) };
+    let mut all = certify_each(model, nl + nb, &name, |space, ms, d, i, k| {
         if i < nl {
             let (a, g) = (&lines[0][i * k..(i + 1) * k], &lines[1][i * k..(i + 1) * k]);
             diff(a, g, &mut d[..k]);
@@ -949,14 +955,15 @@ fn same_shape(model: &RobotModel, arrays: &[&[f64]]) -> Result<usize> {
 }
 
 /// `one(space, scratch, buffer of 2K, i, K)` for each motion `i < b`, in parallel on rayon's
-/// current pool, one motion a work item, each worker's scratch reused across its items.
-fn certify_each<F>(model: &RobotModel, b: usize, clearance: f64, one: F) -> Result<Verdicts>
+/// current pool, one motion a work item, each worker's scratch reused across its items; an
+/// error names the first motion that fails in order, as `name(i)` (its kind and its index
+/// among its kind: "motion 3", "blend 0"). The caller checks the clearance and the arrays.
+fn certify_each<F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Verdicts>
 where
     F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
 {
     use rayon::prelude::*;
 
-    check_clearance(clearance)?;
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
@@ -970,7 +977,7 @@ where
                     .iter()
                     .map(|&i| {
                         crate::cancel::check()?;
-                        let m = one(&space, ms, d, i, k).map_err(|e| e.error(model, format!("motion {i}")))?;
+                        let m = one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))?;
                         Ok((m, ms.states))
                     })
                     .collect()
@@ -1058,10 +1065,10 @@ pub(crate) const BOX_CELLS: usize = 16_384;
 /// when the pair's lower bound at `c` exceeds the need by `Σ_i h_i·R_i`, the most its distance
 /// can fall within the cell (module docs, step 1); else it is halved across its longer side (in
 /// `h_i·R_i`), or the whole box fails where a centre (or a point of a coarse grid, tried where
-/// 64 cells do not prove the box) is not above the need, past [`BOX_CELLS`] cells, or where the narrow phase cannot bound the
-/// pair. The other joints stay
-/// at mid-range: they move both geoms together. A function of the model alone (cells in a fixed
-/// order, the pair's remembered axis forgotten first).
+/// the first `GRID²` cells do not prove the box) is not above the need, past [`BOX_CELLS`]
+/// cells, or where the narrow phase cannot bound the pair. The other joints stay at mid-range:
+/// they move both geoms together. A function of the model alone (cells in a fixed order, the
+/// pair's remembered axis forgotten first).
 fn box_clear(model: &RobotModel, s: &mut Scratch, p: usize, joints: [usize; 2], all: &[[f64; 2]], levers: [f64; 2]) -> bool {
     box_clear_by(model, s, p, joints, all, levers, true)
 }
@@ -1675,34 +1682,58 @@ pub(crate) mod tests {
     }
 
     /// One batch of lines and blends (`certify_given`) gives each motion the verdict, and the
-    /// states, of the separate calls, in order (lines, then blends), on one thread and two; an
-    /// empty kind is no motion; a bad array is refused as those calls refuse it.
+    /// states, of the certificate run on it alone (`certify_curve` of the line or the Bézier
+    /// taken as given), in order (lines, then blends), on one thread and two; `certify_as_given`
+    /// of either kind alone agrees; an empty kind is no motion; bad arrays are refused.
     #[test]
-    fn lines_and_blends_in_one_batch_are_the_separate_calls() {
+    fn lines_and_blends_in_one_batch_are_the_motions_alone() {
         use crate::threads::with_threads;
         let model = arm();
+        let k = model.njoint();
         let space = Space::of(&model).unwrap();
+        let given = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], ..space.clone() };
+        let levers = Levers::of(&model);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
-        let mut rows = |n: usize, scale: f64| -> Vec<f64> {
-            (0..n * 4).map(|x| rng.random_range(space.lo[x % 4] * scale..space.hi[x % 4] * scale)).collect()
-        };
-        let (l0, l1) = (rows(23, 0.8), rows(23, 0.8));
-        let (b0, b2) = (rows(17, 0.8), rows(17, 0.8));
+        let mut rows =
+            |n: usize| -> Vec<f64> { (0..n * k).map(|x| rng.random_range(space.lo[x % k] * 0.8..space.hi[x % k] * 0.8)).collect() };
+        let (l0, l1) = (rows(23), rows(23));
+        let (b0, b2) = (rows(17), rows(17));
         let b1: Vec<f64> = b0.iter().zip(&b2).map(|(a, c)| 0.5 * (a + c) + 0.1).collect();
-        let lines = certify_as_given(&model, &l0, None, &l1, 1e-6).unwrap();
-        let blends = certify_as_given(&model, &b0, Some(&b1), &b2, 1e-6).unwrap();
+        let diff = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(a, b)| b - a).collect::<Vec<f64>>();
+        let mut ms = MotionScratch::new(&model);
+        let mut alone = |curve: &dyn Fn(&mut MotionScratch) -> Motion| {
+            let m = curve(&mut ms);
+            format!("{m:?} {}", ms.states)
+        };
+        let lines: Vec<String> = (0..23)
+            .map(|i| {
+                let (a, g) = (&l0[i * k..(i + 1) * k], &l1[i * k..(i + 1) * k]);
+                let delta = diff(a, g);
+                alone(&|ms| certify_curve(&model, levers, &given, &Line { a, delta: &delta }, 1e-6, ms).unwrap())
+            })
+            .collect();
+        let blends: Vec<String> = (0..17)
+            .map(|i| {
+                let r = i * k..(i + 1) * k;
+                let (d1, d2) = (diff(&b0[r.clone()], &b1[r.clone()]), diff(&b1[r.clone()], &b2[r.clone()]));
+                alone(&|ms| certify_curve(&model, levers, &given, &Bezier { p0: &b0[r.clone()], d1: &d1, d2: &d2 }, 1e-6, ms).unwrap())
+            })
+            .collect();
         let verdicts = |v: &Verdicts| v.iter().map(|(m, n)| format!("{m:?} {n}")).collect::<Vec<_>>();
-        let kinds: std::collections::HashSet<String> =
-            verdicts(&lines).iter().chain(&verdicts(&blends)).map(|v| v[..4].to_string()).collect();
+        let kinds: std::collections::HashSet<&str> = lines.iter().chain(&blends).map(|v| &v[..4]).collect();
         assert!(kinds.len() >= 2, "the motions should not all end alike: {kinds:?}");
         for threads in [1, 2] {
             let (l, b) = with_threads(Some(threads), || certify_given(&model, [&l0, &l1], [&b0, &b1, &b2], 1e-6)).unwrap().unwrap();
-            assert_eq!(verdicts(&l), verdicts(&lines), "{threads} threads");
-            assert_eq!(verdicts(&b), verdicts(&blends), "{threads} threads");
+            assert_eq!(verdicts(&l), lines, "{threads} threads");
+            assert_eq!(verdicts(&b), blends, "{threads} threads");
         }
+        assert_eq!(verdicts(&certify_as_given(&model, &l0, None, &l1, 1e-6).unwrap()), lines);
+        assert_eq!(verdicts(&certify_as_given(&model, &b0, Some(&b1), &b2, 1e-6).unwrap()), blends);
         let (l, b) = certify_given(&model, [&[], &[]], [&b0, &b1, &b2], 1e-6).unwrap();
-        assert!(l.is_empty() && verdicts(&b) == verdicts(&blends));
-        assert!(certify_given(&model, [&l0, &l1[..8]], [&[], &[], &[]], 1e-6).unwrap_err().to_string().contains("differ in shape"));
+        assert!(l.is_empty() && verdicts(&b) == blends);
+        let err = |r: Result<(Verdicts, Verdicts)>| r.unwrap_err().to_string();
+        assert!(err(certify_given(&model, [&l0, &l1[..2 * k]], [&[], &[], &[]], 1e-6)).contains("differ in shape"));
+        assert!(err(certify_given(&model, [&l0, &l1], [&[], &[], &[]], 0.0)).contains("clearance"));
         assert!(certify_as_given(&model, &[], None, &[], 1e-6).is_err());
     }
 }

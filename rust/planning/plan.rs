@@ -49,7 +49,7 @@ use crate::joints::angles::wrap;
 use crate::joints::couplings::FEASIBLE_TOL;
 use crate::model::broad::{check_clearance, MAX_CLEARANCE};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_motion, Levers, Motion, MotionScratch, Space};
+use crate::planning::motion::{certify_motion, prove_apart, Levers, Motion, MotionScratch, Space};
 
 /// What a planning call may spend and how finely it checks edges.
 #[derive(Clone, Debug)]
@@ -424,6 +424,10 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     if opts.continuous {
         check_clearance(opts.clearance)?;
     }
+    // The model's proofs first (once per model, as the labelling entry points make them), so
+    // that the search's states skip the pairs proven apart from a new scene's first call on,
+    // not only after its first certified motion.
+    prove_apart(model);
     let space = Space::of(model)?;
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
     let range = if opts.range > 0.0 { opts.range } else { DEFAULT_RANGE * diagonal };

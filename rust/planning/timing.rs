@@ -10,7 +10,8 @@
 //! 2. At waypoint `i` the velocity changes from `V_{i−1}` to `V_i` (`V_{−1} = V_n = 0`) at the
 //!    constant acceleration `(V_i − V_{i−1}) / τ_i` over `τ_i = max_j |V_ij − V_{i−1,j}| / a_j`,
 //!    centred on the waypoint's time: the quadratic Bézier `W_i − V_{i−1}τ_i/2 → W_i → W_i +
-//!    V_iτ_i/2`, proven as a curve (`certify_as_given`); one that is not becomes a stop.
+//!    V_iτ_i/2`, proven as a curve (`certify_as_given`; the first timing's blends in one batch with
+//!    the path's parts, `certify_given`); one that is not becomes a stop.
 //! 3. A segment holds half of each blend beside it: `τ_i/2 + τ_{i+1}/2 ≤ T_i`. The times start
 //!    from every segment at its velocity limit and from a ramp (`ramp`), and a segment whose
 //!    blends do not fit is slowed by `√(need / T_i)` (the exact answer for a lone segment) until
@@ -147,7 +148,7 @@ impl Limits<'_> {
         vel.extend(d.chunks_exact(k).zip(t).flat_map(|(di, ti)| di.iter().map(move |x| x / ti)));
         vel.resize((t.len() + 1) * k, 0.0);
         tau.clear();
-        tau.push(self.lead(vel[..k].iter().map(|v| v - 0.0), self.a));
+        tau.push(self.lead(vel[..k].iter().copied(), self.a));
         tau.extend(vel.windows(2 * k).step_by(k).map(|w| self.lead((0..k).map(|j| w[k + j] - w[j]), self.a)));
     }
 
@@ -367,7 +368,7 @@ fn blended(model: &RobotModel, lim: &Limits, w: &[f64], first: Pieces, memo: &mu
 /// every waypoint a stop) and the first part of the path it crosses that is not proven
 /// (`first_unproven`; `parts` says what each segment of `w` lies on). The parts and the first
 /// timing's blends are proven in one batch (`certify_given`): neither waits for the other.
-fn timed(
+fn proven_timing(
     model: &RobotModel,
     lim: &Limits,
     path: &[f64],
@@ -502,6 +503,7 @@ fn first_unproven(
     fn rows(x: &[f64], k: usize, idx: impl Iterator<Item = usize>) -> Vec<f64> {
         idx.flat_map(|i| x[i * k..(i + 1) * k].iter().copied()).collect()
     }
+    debug_assert_eq!(along.len(), verdicts.len());
     let failed: Vec<(usize, Motion)> =
         along.iter().zip(verdicts).filter(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)).collect();
     // (the segments of the failed parts that are not whole segments themselves)
@@ -551,7 +553,7 @@ pub fn time_path(
     let whole: Vec<Part> = (0..m - 1).map(Part::Along).collect();
     let (timed, waypoints, unproven) = if share.iter().any(|&s| s > 0.0) {
         let (wc, parts) = cut_points(k, path, &share);
-        let (timed, unproven) = timed(model, &lim, path, &wc, &parts, true, clearance)?;
+        let (timed, unproven) = proven_timing(model, &lim, path, &wc, &parts, true, clearance)?;
         let mut ends = vec![false; m];
         ends[0] = true;
         ends[m - 1] = true;
@@ -559,7 +561,7 @@ pub fn time_path(
         // could be quicker (every blend proven, at best); else the uncut path where it is
         // certified and the cut one is not, or as certified and quicker.
         if unproven.is_some() || timed.duration > lim.pieces(path, &ends).duration {
-            let (uncut, uncut_unproven) = self::timed(model, &lim, path, path, &whole, true, clearance)?;
+            let (uncut, uncut_unproven) = proven_timing(model, &lim, path, path, &whole, true, clearance)?;
             let better = match (uncut_unproven.is_none(), unproven.is_none()) {
                 (true, false) => true,
                 (false, true) => false,
@@ -574,7 +576,7 @@ pub fn time_path(
             (timed, wc, unproven)
         }
     } else {
-        let (timed, unproven) = timed(model, &lim, path, path, &whole, blend, clearance)?;
+        let (timed, unproven) = proven_timing(model, &lim, path, path, &whole, blend, clearance)?;
         (timed, path.to_vec(), unproven)
     };
     Ok(Timed {

@@ -87,16 +87,17 @@ def so2_length(robot: Robot, path: np.ndarray) -> float:
     return float(np.linalg.norm(so2_steps(robot, path), axis=1).sum())
 
 
-def _refuse_colliding_ends(robot: Robot, ends: np.ndarray) -> None:
-    """Raises the :class:`InputError` naming a pair in contact where the start or the goal
-    (``ends``, (2, K)) collides; returns where neither does."""
-    lab = label_poses(robot, ends, pairs=True)
+def _colliding_end(robot: Robot, ends: np.ndarray, threads: int | None) -> InputError | None:
+    """The :class:`InputError` naming a pair in contact where the start or the goal (``ends``,
+    (2, K)) collides; None where neither does."""
+    lab = label_poses(robot, ends, pairs=True, threads=threads)
     for i, name in enumerate(("start", "goal")):
         if lab.collides[i]:
             assert lab.colliding_pairs is not None   # asked for: pairs=True
             k = lab.colliding_pairs[lab.colliding_pairs[:, 0] == i][0, 1]
             within = f" or is within margin={robot.margin:g} m of" if robot.margin > 0 else ""
-            raise InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+            return InputError(f"{name} collides{within} ({' / '.join(robot.pair_names(int(k)))}); plan between free poses")
+    return None
 
 
 def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout: Layout | None = None,
@@ -159,10 +160,13 @@ def plan_path(robot: Robot, start: npt.ArrayLike, goal: npt.ArrayLike, *, layout
                                    continuous=check == "continuous", clearance=CLEARANCE, held=held,
                                    threads=check_threads(threads))
     except InputError:
-        # (the core refuses a colliding start or goal without naming the pair: labelled only
-        # then, not before every call)
-        _refuse_colliding_ends(robot, np.concatenate([s, g]))
-        raise
+        # (the core refuses a colliding start or goal without naming the pair: the ends are
+        # labelled only then, not before every call; a colliding end is named before the core's
+        # other refusals, as when they were labelled first)
+        named = _colliding_end(robot, np.concatenate([s, g]), check_threads(threads))
+        if named is None:
+            raise
+        raise named from None
     status = out["status"]
     found = status in ("direct", "connected")
     reason = "" if found else {
