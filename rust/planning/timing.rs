@@ -324,11 +324,23 @@ fn proven(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> 
     Ok(certify_as_given(model, starts, None, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
 }
 
+/// Rows `idx` of the `(M, K)` row-major `x`, row-major.
+fn rows(x: &[f64], k: usize, idx: impl Iterator<Item = usize>) -> Vec<f64> {
+    idx.flat_map(|i| x[i * k..(i + 1) * k].iter().copied()).collect()
+}
+
 /// Blends proven or refuted in one call, by their control points' bits: each is proven once.
 type Memo = HashMap<Vec<u64>, bool>;
 
 fn memo_key(c: &[f64]) -> Vec<u64> {
     c.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Records the certificate's `verdicts` on `blends` (their control points) in `memo`.
+fn remember(memo: &mut Memo, blends: &[&Vec<f64>], verdicts: Verdicts) {
+    for (c, (verdict, _)) in blends.iter().zip(verdicts) {
+        memo.insert(memo_key(c), matches!(verdict, Motion::Certified));
+    }
 }
 
 /// The control points of `blends` as three `(B, K)` arrays: starts, vias, goals.
@@ -347,10 +359,7 @@ fn blended(model: &RobotModel, lim: &Limits, w: &[f64], first: Pieces, memo: &mu
         let todo: Vec<&Vec<f64>> = p.blends.iter().map(|(_, c)| c).filter(|c| !memo.contains_key(&memo_key(c))).collect();
         if !todo.is_empty() {
             let [s, v, g] = controls(lim.k, &todo);
-            let got = certify_as_given(model, &s, Some(&v), &g, clearance)?;
-            for (c, (verdict, _)) in todo.iter().zip(got) {
-                memo.insert(memo_key(c), matches!(verdict, Motion::Certified));
-            }
+            remember(memo, &todo, certify_as_given(model, &s, Some(&v), &g, clearance)?);
         }
         let failed: Vec<usize> = p.blends.iter().filter(|(_, c)| !memo[&memo_key(c)]).map(|&(i, _)| i).collect();
         if failed.is_empty() {
@@ -384,14 +393,12 @@ fn proven_timing(
     stops[m - 1] = true;
     let first = lim.pieces(w, &stops);
     let along = along(parts);
-    let ends = |d: usize| along.iter().flat_map(|&(i, _)| w[(i + d) * k..(i + d + 1) * k].iter().copied()).collect::<Vec<f64>>();
+    let ends = |d: usize| rows(w, k, along.iter().map(|&(i, _)| i + d));
     let blends: Vec<&Vec<f64>> = first.blends.iter().map(|(_, c)| c).collect();
     let [s, v, g] = controls(k, &blends);
     let (parts_proven, blends_proven) = certify_given(model, [&ends(0), &ends(1)], [&s, &v, &g], clearance)?;
     let mut memo = Memo::new();
-    for (c, (verdict, _)) in blends.iter().zip(blends_proven) {
-        memo.insert(memo_key(c), matches!(verdict, Motion::Certified));
-    }
+    remember(&mut memo, &blends, blends_proven);
     let unproven = first_unproven(model, k, path, w, &along, parts_proven, clearance)?;
     Ok((blended(model, lim, w, first, &mut memo, clearance)?, unproven))
 }
@@ -500,9 +507,6 @@ fn first_unproven(
     verdicts: Verdicts,
     clearance: f64,
 ) -> Result<Option<(usize, Motion)>> {
-    fn rows(x: &[f64], k: usize, idx: impl Iterator<Item = usize>) -> Vec<f64> {
-        idx.flat_map(|i| x[i * k..(i + 1) * k].iter().copied()).collect()
-    }
     debug_assert_eq!(along.len(), verdicts.len());
     let failed: Vec<(usize, Motion)> =
         along.iter().zip(verdicts).filter(|(_, (v, _))| !matches!(v, Motion::Certified)).map(|(&(_, j), (v, _))| (j, v)).collect();
