@@ -67,6 +67,7 @@ def _check_timed(robot, tp: TimedPath, v, a):
 @pytest.mark.parametrize("name", ["panda_blocks", "ur5e_wall_box", "vx300s_clutter"])
 def test_planned_paths_timed_within_limits_and_free(name):
     robot = scene(name)
+    fresh = profrobot.scenes.load(name)     # (another model of the scene: it planned nothing)
     starts, goals = hard_pairs(robot, 6, seed=3)
     rng = np.random.default_rng(0)
     v = rng.uniform(0.5, 2.0, robot.njoint)
@@ -87,6 +88,15 @@ def test_planned_paths_timed_within_limits_and_free(name):
         assert _on_path(w, stop.waypoints).all() and (w[[0, -1]] == stop.waypoints[[0, -1]]).all()
         own = time_path(robot, res.path, velocity=v, acceleration=a, cut=0.0)
         assert own.certified and len(own.waypoints) == len(stop.waypoints)
+        # the waypoints timed are the path's, bit for bit (but for continuous hinges, unwrapped)
+        fixed = ~np.asarray(robot.continuous, dtype=bool)
+        assert (own.waypoints[:, fixed] == res.path[:, fixed]).all()
+        # a model that did not plan the path proves its parts itself: the same timed motions
+        for mine, kw in ((tp, {}), (own, dict(cut=0.0))):
+            theirs = time_path(fresh, res.path, velocity=v, acceleration=a, **kw)
+            for f in ("waypoints", "starts", "q0", "v0", "acc", "times", "stops"):
+                assert np.array_equal(getattr(mine, f), getattr(theirs, f)), f
+            assert (mine.duration, mine.certified) == (theirs.duration, theirs.certified)
         assert tp.duration <= own.duration * (1 + 1e-12)
         cut += len(w) > len(stop.waypoints)
     assert shorter >= 1 and cut >= 1        # a corner blended saves time, a corner is cut

@@ -82,6 +82,10 @@ pub struct RobotModel {
     /// `apart` that model had made, for the pairs both models share, so that an edit of the
     /// world proves only its own pairs again.
     pub(crate) inherited: Option<Inherited>,
+    /// Straight motions this model has proven free, written down by the calls that proved them
+    /// (`motion::ProvenLines`): a timed path's parts on a planned path's segments are not proven
+    /// twice.
+    pub(crate) proven_lines: crate::planning::motion::ProvenLines,
 }
 
 /// The fast path's likely pairs (`RobotModel::likely`) and what they were drawn from: which
@@ -518,6 +522,7 @@ impl RobotModel {
             apart: std::sync::OnceLock::new(),
             pruned4: std::sync::OnceLock::new(),
             inherited,
+            proven_lines: Default::default(),
         })
     }
 

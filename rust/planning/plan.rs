@@ -655,7 +655,25 @@ fn prove(
         total.iterations += sub.iterations;
         total.sizes = [total.sizes[0] + sub.sizes[0], total.sizes[1] + sub.sizes[1]];
     }
+    remember_segments(checker, &out, clearance);
     Ok(Some(Proven { path: out, repairs }))
+}
+
+/// Writes the segments of `path`, each proven at `clearance`, into the model's proven motions
+/// (`motion::ProvenLines`), where both ends lie inside the space's bounds: the planner's states
+/// are clamped into them, which a line between two poses inside them leaves by rounding only,
+/// so the motion proven is the straight one `a → a + Δ` (`Δ` the short arc on continuous
+/// hinges), as `time_path` proves a segment.
+fn remember_segments(checker: &Checker, path: &[Vec<f64>], clearance: f64) {
+    let (model, space) = (checker.model, &checker.space);
+    let inside = |q: &[f64]| q.iter().enumerate().all(|(j, x)| space.lo[j] <= *x && *x <= space.hi[j]);
+    let mut delta = vec![0.0; model.njoint()];
+    for w in path.windows(2) {
+        if inside(&w[0]) && inside(&w[1]) {
+            space.delta(&w[0], &w[1], &mut delta);
+            model.proven_lines.insert(&w[0], &delta, clearance);
+        }
+    }
 }
 
 /// Whether each segment of `path` is proven by the continuous certificate at `clearance`, the

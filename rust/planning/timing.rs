@@ -29,8 +29,13 @@
 //! between them (`Part::Along`; none where two chords of half a segment meet at its middle)
 //! and the blends kept. Velocity is piecewise linear and acceleration piecewise constant, each
 //! within its limit by construction; the cruise parts lie on those segments and chords, so the
-//! timed motion is certified when every part crossed is (`first_unproven`). Every verdict is
-//! the certificate's of one motion alone, so the result does not depend on the thread count.
+//! timed motion is certified when every part crossed is (`first_unproven`). A part on a
+//! segment this model has proven whole is not proven again (`motion::ProvenLines`: the segments
+//! `plan_path` returned, and those an earlier timing proved): its poses are the segment's. Every
+//! verdict is the certificate's of one motion alone, so the result does not depend on the thread
+//! count. (A part read as proven was certified by the certificate on this model, through its
+//! segment, at this clearance or a larger one; proven again it is certified alone or through
+//! its segment, `first_unproven`, so the timing is the same either way, as the tests check.)
 
 use std::collections::HashMap;
 
@@ -393,10 +398,16 @@ fn proven_timing(
     stops[m - 1] = true;
     let first = lim.pieces(w, &stops);
     let along = along(parts);
-    let ends = |d: usize| rows(w, k, along.iter().map(|&(i, _)| i + d));
+    // (a part on a segment this model has proven whole is proven: `ProvenLines`)
+    let known: Vec<bool> = along.iter().map(|&(_, j)| segment_proven(model, k, path, j, clearance)).collect();
+    let todo = || along.iter().zip(&known).filter(|(_, &known)| !known).map(|(&(i, _), _)| i);
+    let ends = |d: usize| rows(w, k, todo().map(|i| i + d));
     let blends: Vec<&Vec<f64>> = first.blends.iter().map(|(_, c)| c).collect();
     let [s, v, g] = controls(k, &blends);
     let (parts_proven, blends_proven) = certify_given(model, [&ends(0), &ends(1)], [&s, &v, &g], clearance)?;
+    let mut proven = parts_proven.into_iter();
+    let parts_proven: Verdicts =
+        known.iter().map(|&known| if known { (Motion::Certified, 0) } else { proven.next().expect("a verdict a part") }).collect();
     let mut memo = Memo::new();
     remember(&mut memo, &blends, blends_proven);
     let unproven = first_unproven(model, k, path, w, &along, parts_proven, clearance)?;
@@ -492,6 +503,20 @@ fn along(parts: &[Part]) -> Vec<(usize, usize)> {
         .collect()
 }
 
+/// Segment `j` of the path `path` (`(M, K)`) as `certify_as_given` proves it: its start `W_j`
+/// and its step `W_{j+1} − W_j`.
+fn segment(path: &[f64], k: usize, j: usize) -> (&[f64], Vec<f64>) {
+    let (a, b) = (&path[j * k..(j + 1) * k], &path[(j + 1) * k..(j + 2) * k]);
+    (a, a.iter().zip(b).map(|(a, b)| b - a).collect())
+}
+
+/// Whether this model has proven segment `j` of the path `path` whole, at `clearance` or more
+/// (`ProvenLines`: `plan_path`'s segments, and those an earlier `time_path` proved).
+fn segment_proven(model: &RobotModel, k: usize, path: &[f64], j: usize, clearance: f64) -> bool {
+    let (a, delta) = segment(path, k, j);
+    model.proven_lines.holds(a, &delta, clearance)
+}
+
 /// The first segment of `w` (`(M, K)`) along the path `path` (`along`, with the certificate's
 /// `verdicts` on them) that is not proven: the path's segment it lies on, and the verdict on
 /// it. The chords are proven already; so the timed motion crosses only proven segments when
@@ -516,6 +541,10 @@ fn first_unproven(
     segments.dedup();
     let whole_ok: Vec<bool> =
         proven(model, &rows(path, k, segments.iter().copied()), &rows(path, k, segments.iter().map(|j| j + 1)), clearance)?;
+    for (&j, _) in segments.iter().zip(&whole_ok).filter(|(_, &ok)| ok) {
+        let (a, delta) = segment(path, k, j);
+        model.proven_lines.insert(a, &delta, clearance);
+    }
     let rescued = |j: usize| segments.iter().position(|&s| s == j).is_some_and(|i| whole_ok[i]);
     Ok(failed.into_iter().find(|&(j, _)| !rescued(j)))
 }
@@ -615,6 +644,67 @@ mod tests {
     fn pose(t: &Timed, k: usize, time: f64) -> Vec<f64> {
         let p = t.starts.partition_point(|&s| s <= time).max(1) - 1;
         (0..k).map(|j| at(t, k, p, j, time - t.starts[p]).0).collect()
+    }
+
+    /// A planned path's segments are written down as proven (`ProvenLines`: each at the plan's
+    /// clearance, not at a larger one, and not on another model), and timing the path reads them
+    /// instead of proving its parts again: the same timed motion, bit for bit, as on a model
+    /// that never planned and proves every part itself, with the corners kept (parts only) and
+    /// cut; a whole segment `time_path` proves is written down too.
+    #[test]
+    fn planned_segments_are_not_proven_again() {
+        use crate::planning::plan::{plan_path, PlanOptions};
+        let (planner, fresh) = (cluttered_arm(), cluttered_arm());
+        let k = planner.njoint();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut s = Scratch::new(&planner);
+        let mut free = || loop {
+            let q: Vec<f64> = (0..k).map(|j| rng.random_range(planner.limits[j][0]..planner.limits[j][1])).collect();
+            if certified_pose(&planner, &q, 1e-6, &mut s).unwrap() {
+                return q;
+            }
+        };
+        let (mut planned, mut parts) = (0, 0);
+        for case in 0..12 {
+            let (start, goal) = (free(), free());
+            let opts = PlanOptions { clearance: 1e-6, seed: case, ..PlanOptions::default() };
+            let path = plan_path(&planner, &start, &goal, &opts).unwrap().path;
+            let m = path.len() / k;
+            if m < 3 {
+                continue;
+            }
+            planned += 1;
+            let before = planner.proven_lines.len();
+            for j in 0..m - 1 {
+                let (a, delta) = segment(&path, k, j);
+                assert!(planner.proven_lines.holds(a, &delta, 1e-6) && planner.proven_lines.holds(a, &delta, 5e-7), "case {case}");
+                assert!(!planner.proven_lines.holds(a, &delta, 2e-6) && !fresh.proven_lines.holds(a, &delta, 1e-6));
+            }
+            let (v, acc) = (vec![1.5; k], vec![3.0; k]);
+            for cut in [0.0, 0.5] {
+                let ours = time_path(&planner, &path, &v, &acc, true, cut, 1e-6).unwrap();
+                let theirs = time_path(&fresh, &path, &v, &acc, true, cut, 1e-6).unwrap();
+                assert_eq!(format!("{ours:?}"), format!("{theirs:?}"), "case {case} cut {cut}");
+                assert!(ours.unproven.is_none(), "case {case} cut {cut}");
+                parts += (cut == 0.0) as usize * (m - 1);
+            }
+            // (timing reads the plan's proofs; it writes only whole segments it proves itself)
+            assert_eq!(planner.proven_lines.len(), before, "case {case}");
+        }
+        assert!(planned >= 4 && parts >= 12, "{planned} paths planned, {parts} parts read");
+        // The record itself: the largest clearance kept, a motion by its start and step bit
+        // for bit, emptied when full.
+        let lines = crate::planning::motion::ProvenLines::default();
+        let (a, d) = ([0.1, 0.2], [0.3, -0.4]);
+        lines.insert(&a, &d, 2e-7);
+        lines.insert(&a, &d, 1e-6);
+        lines.insert(&a, &d, 5e-7);
+        assert!(lines.holds(&a, &d, 1e-6) && !lines.holds(&a, &d, 1.1e-6));
+        assert!(!lines.holds(&a, &[0.3, f64::from_bits((-0.4f64).to_bits() + 1)], 1e-7) && !lines.holds(&d, &a, 1e-7));
+        for i in 0..crate::planning::motion::PROVEN_LINES {
+            lines.insert(&[i as f64, 0.0], &d, 1e-6);
+        }
+        assert!(lines.len() < 2 && !lines.holds(&a, &d, 1e-7));
     }
 
     /// Random paths among the boxes, timed under random limits: the pieces join in position and

@@ -280,6 +280,8 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     ``certified`` says whether every pose of the timed motion is proven free; a path with a
     segment that is not, where the timed motion crosses it, is timed all the same, with
     ``certified=False`` and the reason (a segment the corner cuts bypass need not be free).
+    The segments of a path ``plan_path`` returned on this robot are proven already: the parts of
+    the timed motion on them are not proven again (the timing is the same either way).
     """
     robot = gate.robot_at(robot, layout=layout, margin=margin)
     p = as_poses(robot, path, name="path", check_limits=True)
@@ -297,9 +299,13 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
         raise InputError(f"{robot.name} has nonlinear joint couplings: a timed path would leave them between "
                          "waypoints (time_path handles linear couplings)")
     threads = check_threads(threads)
-    # Unwrapped waypoints (short arcs), zero-length segments removed.
+    # Unwrapped waypoints (short arcs on continuous hinges; the other joints' values as given, bit
+    # for bit, so that a planned path's segments are the motions plan_path proved), zero-length
+    # segments removed.
     steps = so2_steps(robot, p) if len(p) > 1 else np.zeros((0, robot.njoint))
-    w = p[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)])
+    w = p.copy()
+    wraps = np.asarray(robot.continuous, dtype=bool)
+    w[:, wraps] = (p[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)]))[:, wraps]
     # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal)
     w = w[np.concatenate([[True], np.abs(np.diff(w, axis=0)).max(axis=1) > 0])]
     m = len(w)
