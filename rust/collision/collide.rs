@@ -21,7 +21,7 @@ use parry3d_f64::query;
 use parry3d_f64::shape::{Shape, SupportMap};
 
 use crate::collision::capsules;
-use crate::collision::sat::intersection_test_remembering;
+use crate::collision::sat::{intersection_test_remembering, separating_axis};
 use crate::error::{Error, Result};
 use crate::geometry::cloud::{Nearest, Probe};
 use crate::geometry::inner;
@@ -414,7 +414,6 @@ impl Scratch {
     /// GJK converges to. The caller takes off its rounding slack (support points and dot
     /// products round at ~1e-16 relative).
     pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64, floor: f64) -> std::result::Result<f64, Undecided> {
-        use parry3d_f64::query::gjk::{self, CSOPoint, GJKResult, VoronoiSimplex};
         let pair = &model.pairs[k];
         let (g1, g2) = (pair.g1, pair.g2);
         self.frame(model, g1);
@@ -470,21 +469,19 @@ impl Scratch {
         // closest points give the rounded shapes' separating axis; the separation along it is
         // then measured on the shapes themselves, from their exact support points.
         let (core_a, core_b) = (ca.core(), cb.core());
-        let mut simplex = VoronoiSimplex::new();
         let start = nalgebra::Unit::try_new(if axis == Vector3::zeros() { -pos12.translation.vector } else { axis }, 1e-12)
             .unwrap_or(Vector3::x_axis());
-        simplex.reset(CSOPoint::from_shapes(&pos12, &core_a, &core_b, &start));
-        match gjk::closest_points(&pos12, &core_a, &core_b, f64::MAX, true, &mut simplex) {
-            GJKResult::ClosestPoints(p1, p2, _) => {
-                let Some(n) = (p2 - p1).try_normalize(1e-12) else {
-                    return Ok(best);
-                };
-                self.axes[k] = n;
+        // (enough: `want` on the shapes, the cores' separation less their roundings; where `want`
+        // is below `floor`, a state's first bound, as tight as GJK gets it)
+        let enough = if want > floor { want + ca.rounding() + cb.rounding() } else { f64::INFINITY };
+        match separating_axis(&core_a, &core_b, &pos12, &start, enough) {
+            Some(n) => {
+                self.axes[k] = n.into_inner();
                 Ok(best.max(separation(&n)))
             }
-            // (GJK found them touching, or did not converge: no proof of separation beyond the
-            // remembered axis's, `-inf` without one)
-            _ => Ok(best),
+            // (GJK found them touching, or no separation: no proof beyond the remembered
+            // axis's, `-inf` without one)
+            None => Ok(best),
         }
     }
 
