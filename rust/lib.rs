@@ -64,9 +64,10 @@
 //! | `model::trig` | sin and cos of hinge half angles: libm's (msun), one pose or four lanes, bit for bit | | |
 //! | `model::lanes` | four poses at once: nalgebra's quaternion and matrix arithmetic lane for lane, bit for bit | | |
 //! | [`model::kinematics`] | forward kinematics, one pose or a batch | | |
+//! | `model::proven` | the straight motions a model has proven, so that none is proven twice | | |
 //! | [`collision`] | collision queries of one pose over the candidate pairs | `error`, `threads`, `cancel`, `joints`, `geometry`, `model` | `planning` |
 //! | [`collision::collide`] | labelling: narrow phase and batches | | |
-//! | `collision::sat` | remembered separating axes, tried before GJK | | |
+//! | `collision::sat` | remembered separating axes, tried before GJK; GJK's axis, stopped when good enough | | |
 //! | `collision::capsules` | two capsules in closed form, as MuJoCo measures them | | |
 //! | [`collision::fastpath`] | the booleans-only fast path: first pair in contact, likeliest first | | |
 //! | [`collision::filter`] | a sensor's points within a margin of the model at a pose (the self-filter) | | |

@@ -473,8 +473,9 @@ impl Scratch {
             .unwrap_or(Vector3::x_axis());
         // (enough: `want` on the shapes, the cores' separation less their roundings; where `want`
         // is below `floor`, a state's first bound, as tight as GJK gets it)
-        let enough = if want > floor { want + ca.rounding() + cb.rounding() } else { f64::INFINITY };
-        match separating_axis(&core_a, &core_b, &pos12, &start, enough) {
+        let rounding = ca.rounding() + cb.rounding();
+        let enough = if want > floor { want + rounding } else { f64::INFINITY };
+        match separating_axis(&core_a, &core_b, &pos12, &start, rounding, enough) {
             Some(n) => {
                 self.axes[k] = n.into_inner();
                 Ok(best.max(separation(&n)))

@@ -56,19 +56,22 @@ pub(crate) fn intersection_test_remembering(a: &Convex, b: &Convex, pos12: &Isom
 
 /// Relative precision at which [`separating_axis`] stops: the separation along its axis is then
 /// within this share of the shapes' distance, which the certificate's steps (proportional to
-/// the distance above the need) barely feel. Parry's own GJK converges to ~1.5e-7, at ~6.5
-/// support points a run on MotionBenchMaker's first plans; at 1e-3 and at 1e-2 (20 first plans,
-/// one thread, callgrind) 735 M → 703 M and 696 M instructions, the same paths.
+/// the distance above the need) barely feel. Parry's own GJK converges to ~1.5e-7 of the cores'
+/// distance, at ~6.5 support points a run on MotionBenchMaker's first plans; at 1e-3 and at 1e-2
+/// (20 first plans, one thread, callgrind) 735 M → 703 M and 696 M instructions, the same paths.
 const AXIS_PRECISION: f64 = 1e-2;
 
 /// A unit axis (in `a`'s frame) along which `a` and `b` (at `pos12` in `a`'s frame) are apart
 /// by nearly their distance, or by `enough`: GJK's iteration (parry's `VoronoiSimplex`, its
 /// support points and its steps, as `gjk::closest_points` takes them) from the direction
-/// `start`, stopped where the separation along the current direction (a lower bound on the
-/// distance) reaches `enough`, or comes within [`AXIS_PRECISION`] of the simplex's distance to
-/// the origin (an upper bound; within parry's own tolerance where `enough` is infinite: the
-/// distance itself is wanted), or where parry's iteration stops; the direction of the largest
-/// separation met. None where the shapes touch or overlap, or GJK finds no separation.
+/// `start`. The shapes are cores (`shapes::Core`), dilated by `rounding` (metres, summed) into the
+/// shapes the caller measures. It stops where the separation along the current direction (a
+/// lower bound on the distance) reaches `enough`, or comes within [`AXIS_PRECISION`] of the
+/// dilated shapes' distance (from the simplex's distance to the origin, an upper bound; where
+/// `enough` is infinite, the distance itself is wanted: within parry's own tolerance of the
+/// cores'), or where parry's iteration stops; the direction of the largest separation met, the
+/// direction to the simplex's closest point included where parry would return that. None where
+/// the shapes touch or overlap, or GJK finds no separation.
 ///
 /// Exactness is the caller's: a separation along any unit axis, from exact support points, is
 /// a lower bound on the distance (`Scratch::pair_lower_bound`); the axis only makes it tight.
@@ -77,6 +80,7 @@ pub(crate) fn separating_axis<A, B>(
     b: &B,
     pos12: &Isometry3<f64>,
     start: &Unit<Vector3<f64>>,
+    rounding: f64,
     enough: f64,
 ) -> Option<Unit<Vector3<f64>>>
 where
@@ -84,26 +88,33 @@ where
     B: SupportMap + ?Sized,
 {
     let eps_tol = parry3d_f64::query::gjk::eps_tol();
-    let precision = if enough.is_finite() { AXIS_PRECISION } else { eps_tol.sqrt() };
+    // (how far the separation may stay below the simplex's distance `max_bound`)
+    let slack = |max_bound: f64| if enough.is_finite() { AXIS_PRECISION * (max_bound - rounding) } else { eps_tol.sqrt() * max_bound };
     let mut simplex = VoronoiSimplex::new();
     simplex.reset(CSOPoint::from_shapes(pos12, a, b, start));
     let mut proj = simplex.project_origin_and_reduce();
     let (mut best, mut best_dir) = (f64::NEG_INFINITY, None);
+    // (the separation along `dir`: the distance is at least this)
+    let mut measure = |dir: Unit<Vector3<f64>>| {
+        let cso = CSOPoint::from_shapes(pos12, a, b, &dir);
+        let min_bound = -dir.dot(&cso.point.coords);
+        if min_bound > best {
+            (best, best_dir) = (min_bound, Some(dir));
+        }
+        (cso, min_bound)
+    };
     let mut max_bound = f64::MAX;
     for _ in 0..100 {
         // (the simplex's closest point to the origin: the distance is at most its norm)
         let (dir, dist) = Unit::try_new_and_get(-proj.coords, eps_tol)?;
         if dist >= max_bound {
+            // (no progress: parry answers with the simplex's closest point, along `dir`)
+            measure(dir);
             break;
         }
         max_bound = dist;
-        let cso = CSOPoint::from_shapes(pos12, a, b, &dir);
-        // (the separation along `dir`: the distance is at least this)
-        let min_bound = -dir.dot(&cso.point.coords);
-        if min_bound > best {
-            (best, best_dir) = (min_bound, Some(dir));
-        }
-        if min_bound >= enough || max_bound - min_bound <= precision * max_bound || !simplex.add_point(cso) {
+        let (cso, min_bound) = measure(dir);
+        if min_bound >= enough || max_bound - min_bound <= slack(max_bound) || !simplex.add_point(cso) {
             break;
         }
         proj = simplex.project_origin_and_reduce();
@@ -111,6 +122,9 @@ where
             // (the origin inside the simplex, or on it within GJK's tolerance)
             if min_bound < eps_tol {
                 return None;
+            }
+            if let Some(dir) = Unit::try_new(-proj.coords, eps_tol) {
+                measure(dir);
             }
             break;
         }
@@ -159,7 +173,8 @@ mod tests {
     }
 
     /// The axis found is the distance's within `AXIS_PRECISION` (parry's distance between the
-    /// shapes), or reaches `enough`, or, where nothing less is enough, is as tight as parry's own
+    /// shapes; on a capsule's core dilated by its radius too, a millimetre apart as a metre),
+    /// or reaches `enough`, or, where nothing less is enough, is as tight as parry's own
     /// GJK run from the same start (to its tolerance, 1.5e-7 relative);
     /// the separation along it never exceeds the distance; shapes in contact give none.
     #[test]
@@ -168,7 +183,7 @@ mod tests {
         let (cuboid, capsule) = (Cuboid::new(Vector3::new(0.1, 0.2, 0.3)), Capsule::new_z(0.2, 0.05));
         let (a, b) = (Convex::Cuboid(cuboid), Convex::Capsule(capsule));
         let sep = |pos12: &Isometry3<f64>, n: &Vector3<f64>| n.dot(&(b.support_point(pos12, &-n).coords - a.local_support_point(n).coords));
-        let (mut apart, mut touching, mut enough_met) = (0, 0, 0);
+        let (mut apart, mut touching, mut enough_met, mut near) = (0, 0, 0, 0);
         for i in 0..2000 {
             let t = i as f64 * 0.01;
             let pos12 = Isometry3::from_parts(
@@ -177,7 +192,7 @@ mod tests {
             );
             let d = parry3d_f64::query::distance(&Isometry3::identity(), &cuboid, &pos12, &capsule).unwrap();
             let start = Vector3::x_axis();
-            let Some(n) = separating_axis(&a, &b, &pos12, &start, 0.5) else {
+            let Some(n) = separating_axis(&a, &b, &pos12, &start, 0.0, 0.5) else {
                 assert!(d < 1e-9, "step {i}: no axis {d} m apart");
                 touching += 1;
                 continue;
@@ -187,8 +202,19 @@ mod tests {
             assert!(s <= d + 1e-12, "step {i}: {s} above the distance {d}");
             assert!(s >= 0.5 || s >= d * (1.0 - AXIS_PRECISION) - 1e-12, "step {i}: {s} against {d}");
             enough_met += (s >= 0.5) as usize;
+            // On the capsule's core (its segment) dilated by its radius, as the certificate runs
+            // it: within the precision of the capsule's own distance, however near.
+            let core = capsule.segment;
+            if let Some(n) = separating_axis(&a, &core, &pos12, &start, capsule.radius, 0.5) {
+                let s = n.dot(&(core.support_point(&pos12, &-n).coords - a.local_support_point(&n).coords)) - capsule.radius;
+                assert!(
+                    s <= d + 1e-12 && (s >= 0.5 - capsule.radius || s >= d * (1.0 - AXIS_PRECISION) - 1e-12),
+                    "step {i}: {s} against {d}"
+                );
+                near += (d < 0.01) as usize;
+            }
             // With nothing less enough, as tight as parry's GJK from the same start.
-            let exact = separating_axis(&a, &b, &pos12, &start, f64::INFINITY).unwrap();
+            let exact = separating_axis(&a, &b, &pos12, &start, 0.0, f64::INFINITY).unwrap();
             let mut simplex = VoronoiSimplex::new();
             simplex.reset(CSOPoint::from_shapes(&pos12, &a, &b, &start));
             let GJKResult::ClosestPoints(p1, p2, _) = gjk::closest_points(&pos12, &a, &b, f64::MAX, true, &mut simplex) else {
@@ -197,6 +223,9 @@ mod tests {
             let (ours, parry) = (sep(&pos12, &exact), sep(&pos12, &(p2 - p1).normalize()));
             assert!(ours >= parry - 2e-7 * d - 1e-15, "step {i}: {ours} against {parry} ({d})");
         }
-        assert!(apart > 300 && touching > 50 && enough_met > 10, "{apart} apart, {touching} touching, {enough_met} enough");
+        assert!(
+            apart > 300 && touching > 50 && enough_met > 10 && near > 10,
+            "{apart} apart, {touching} touching, {enough_met} enough, {near} within 1 cm"
+        );
     }
 }

@@ -3,8 +3,9 @@
 //!
 //! The folder holds the robot as the labeller sees it, below collision: the description
 //! ([`desc`]), the geoms on their bodies ([`geom`]), the candidate pairs ([`pairs`]) and their
-//! broad-phase spheres (`broad`, `sphere_pairs`), derived once here, and forward kinematics
-//! ([`kinematics`], with `trig` and `lanes`).
+//! broad-phase spheres (`broad`, `sphere_pairs`), derived once here, forward kinematics
+//! ([`kinematics`], with `trig` and `lanes`), and the straight motions the model has proven
+//! (`proven`, written by the planning layer).
 
 pub(crate) mod broad;
 pub mod desc;
@@ -12,6 +13,7 @@ pub mod geom;
 pub mod kinematics;
 pub(crate) mod lanes;
 pub mod pairs;
+pub(crate) mod proven;
 mod sphere_pairs;
 mod trig;
 
@@ -83,9 +85,9 @@ pub struct RobotModel {
     /// world proves only its own pairs again.
     pub(crate) inherited: Option<Inherited>,
     /// Straight motions this model has proven free, written down by the calls that proved them
-    /// (`motion::ProvenLines`): a timed path's parts on a planned path's segments are not proven
+    /// (`proven::ProvenLines`): a timed path's parts on a planned path's segments are not proven
     /// twice.
-    pub(crate) proven_lines: crate::planning::motion::ProvenLines,
+    pub(crate) proven_lines: proven::ProvenLines,
 }
 
 /// The fast path's likely pairs (`RobotModel::likely`) and what they were drawn from: which

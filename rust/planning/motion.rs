@@ -860,50 +860,6 @@ pub(crate) fn certify_curve<C: Curve>(
 /// Each motion's verdict and the states its proof placed, in motion order.
 pub type Verdicts = Vec<(Motion, usize)>;
 
-/// Straight motions a model has proven free: `a → a + Δ`, states wrapped on continuous hinges
-/// (`certify_curve` of a `Line`), by the bits of `a` and `Δ`, with the largest clearance each was
-/// proven at. `plan_path` writes its returned segments, `time_path` the whole segments it proves;
-/// `time_path` reads them, and a part of its timed motion on a segment written here is not proven
-/// again: its poses are among the segment's, each certified free, at a clearance at least the
-/// one asked, by the certificate itself on this model. A cache of proofs, never of guesses, and
-/// bounded: emptied when it holds [`PROVEN_LINES`] motions.
-#[derive(Debug, Default)]
-pub(crate) struct ProvenLines(std::sync::Mutex<std::collections::HashMap<Vec<u64>, f64>>);
-
-/// Most motions a model's `ProvenLines` holds.
-pub(crate) const PROVEN_LINES: usize = 1 << 14;
-
-impl ProvenLines {
-    fn key(a: &[f64], delta: &[f64]) -> Vec<u64> {
-        a.iter().chain(delta).map(|x| x.to_bits()).collect()
-    }
-
-    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::HashMap<Vec<u64>, f64>> {
-        self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
-    }
-
-    /// Writes down that `a → a + delta` was certified at `clearance` metres.
-    pub(crate) fn insert(&self, a: &[f64], delta: &[f64], clearance: f64) {
-        let mut map = self.lock();
-        if map.len() >= PROVEN_LINES {
-            map.clear();
-        }
-        let c = map.entry(Self::key(a, delta)).or_insert(clearance);
-        *c = c.max(clearance);
-    }
-
-    /// Whether `a → a + delta` was certified at `clearance` metres or more.
-    pub(crate) fn holds(&self, a: &[f64], delta: &[f64], clearance: f64) -> bool {
-        self.lock().get(&Self::key(a, delta)).is_some_and(|&c| c >= clearance)
-    }
-
-    /// How many motions it holds.
-    #[cfg(test)]
-    pub(crate) fn len(&self) -> usize {
-        self.lock().len()
-    }
-}
-
 /// Motions per parallel work item (fixed, so the split never depends on the thread count). One:
 /// a motion is 10 µs to milliseconds of work, and the calls that certify a few (a timed path's
 /// 19 segments and 18 blends, a straight-line move's ~16 segments) were one or two items of 16,

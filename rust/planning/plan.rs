@@ -660,7 +660,7 @@ fn prove(
 }
 
 /// Writes the segments of `path`, each proven at `clearance`, into the model's proven motions
-/// (`motion::ProvenLines`), where both ends lie inside the space's bounds: the planner's states
+/// (`model::proven::ProvenLines`), where both ends lie inside the space's bounds: the planner's states
 /// are clamped into them, which a line between two poses inside them leaves by rounding only,
 /// so the motion proven is the straight one `a → a + Δ` (`Δ` the short arc on continuous
 /// hinges), as `time_path` proves a segment.

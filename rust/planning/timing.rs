@@ -30,7 +30,7 @@
 //! and the blends kept. Velocity is piecewise linear and acceleration piecewise constant, each
 //! within its limit by construction; the cruise parts lie on those segments and chords, so the
 //! timed motion is certified when every part crossed is (`first_unproven`). A part on a
-//! segment this model has proven whole is not proven again (`motion::ProvenLines`: the segments
+//! segment this model has proven whole is not proven again (`model::proven::ProvenLines`: the segments
 //! `plan_path` returned, and those an earlier timing proved): its poses are the segment's. Every
 //! verdict is the certificate's of one motion alone, so the result does not depend on the thread
 //! count. (A part read as proven was certified by the certificate on this model, through its
@@ -694,14 +694,14 @@ mod tests {
         assert!(planned >= 4 && parts >= 12, "{planned} paths planned, {parts} parts read");
         // The record itself: the largest clearance kept, a motion by its start and step bit
         // for bit, emptied when full.
-        let lines = crate::planning::motion::ProvenLines::default();
+        let lines = crate::model::proven::ProvenLines::default();
         let (a, d) = ([0.1, 0.2], [0.3, -0.4]);
         lines.insert(&a, &d, 2e-7);
         lines.insert(&a, &d, 1e-6);
         lines.insert(&a, &d, 5e-7);
         assert!(lines.holds(&a, &d, 1e-6) && !lines.holds(&a, &d, 1.1e-6));
         assert!(!lines.holds(&a, &[0.3, f64::from_bits((-0.4f64).to_bits() + 1)], 1e-7) && !lines.holds(&d, &a, 1e-7));
-        for i in 0..crate::planning::motion::PROVEN_LINES {
+        for i in 0..crate::model::proven::PROVEN_LINES {
             lines.insert(&[i as f64, 0.0], &d, 1e-6);
         }
         assert!(lines.len() < 2 && !lines.holds(&a, &d, 1e-7));
