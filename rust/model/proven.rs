@@ -20,13 +20,22 @@ impl ProvenLines {
         a.iter().chain(delta).map(|x| x.to_bits()).collect()
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::HashMap<Vec<u64>, f64>> {
-        self.0.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    /// The record, unless another thread holds it: then None, and the caller proves (or does
+    /// not write down) the motion, which is always correct. Never waiting also means a child
+    /// forked while another thread held the lock (which stays locked there) never hangs on it.
+    fn try_lock(&self) -> Option<std::sync::MutexGuard<'_, std::collections::HashMap<Vec<u64>, f64>>> {
+        match self.0.try_lock() {
+            Ok(map) => Some(map),
+            Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        }
     }
 
     /// Writes down that `a → a + delta` was certified at `clearance` metres.
     pub(crate) fn insert(&self, a: &[f64], delta: &[f64], clearance: f64) {
-        let mut map = self.lock();
+        let Some(mut map) = self.try_lock() else {
+            return;
+        };
         if map.len() >= PROVEN_LINES {
             map.clear();
         }
@@ -36,12 +45,12 @@ impl ProvenLines {
 
     /// Whether `a → a + delta` was certified at `clearance` metres or more.
     pub(crate) fn holds(&self, a: &[f64], delta: &[f64], clearance: f64) -> bool {
-        self.lock().get(&Self::key(a, delta)).is_some_and(|&c| c >= clearance)
+        self.try_lock().is_some_and(|map| map.get(&Self::key(a, delta)).is_some_and(|&c| c >= clearance))
     }
 
     /// How many motions it holds.
     #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
-        self.lock().len()
+        self.0.lock().unwrap().len()
     }
 }
