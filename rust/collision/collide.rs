@@ -402,8 +402,9 @@ impl Scratch {
 
     /// A lower bound on candidate pair `k`'s distance in the placed pose: the cheap one (the
     /// pair's remembered axis, else the line between the geoms' origins) when it reaches `want`,
-    /// or stays above `floor` but below `GJK_FROM · want`; else as tight as GJK gets it, whose
-    /// axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
+    /// or stays above `floor` but below `GJK_FROM · want`; else GJK's (`sat::separating_axis`:
+    /// stopped once it reaches `want`, or, above `floor`, within 1 % of the distance; as tight as
+    /// GJK gets it where `want` is at most `floor`), whose axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
     /// axis and none is known); `Err` when parry cannot decide the pair (module docs).
     ///
     /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
@@ -411,7 +412,7 @@ impl Scratch {
     /// (`collision/capsules.rs`), for two other convex geoms every answer is a separation along a unit axis `n` (in the first geom's
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
-    /// GJK converges to. The caller takes off its rounding slack (support points and dot
+    /// GJK converges to (where it is stopped early, within 1 % of it). The caller takes off its rounding slack (support points and dot
     /// products round at ~1e-16 relative).
     pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64, floor: f64) -> std::result::Result<f64, Undecided> {
         let pair = &model.pairs[k];
@@ -472,10 +473,10 @@ impl Scratch {
         let start = nalgebra::Unit::try_new(if axis == Vector3::zeros() { -pos12.translation.vector } else { axis }, 1e-12)
             .unwrap_or(Vector3::x_axis());
         // (enough: `want` on the shapes, the cores' separation less their roundings; where `want`
-        // is below `floor`, a state's first bound, as tight as GJK gets it)
+        // is at most `floor`, a state's first bound, as tight as GJK gets it)
         let rounding = ca.rounding() + cb.rounding();
         let enough = if want > floor { want + rounding } else { f64::INFINITY };
-        match separating_axis(&core_a, &core_b, &pos12, &start, rounding, enough) {
+        match separating_axis(&core_a, &core_b, &pos12, &start, rounding, floor, enough) {
             Some(n) => {
                 self.axes[k] = n.into_inner();
                 Ok(best.max(separation(&n)))

@@ -66,10 +66,12 @@ const AXIS_PRECISION: f64 = 1e-2;
 /// support points and its steps, as `gjk::closest_points` takes them) from the direction
 /// `start`. The shapes are cores (`shapes::Core`), dilated by `rounding` (metres, summed) into the
 /// shapes the caller measures. It stops where the separation along the current direction (a
-/// lower bound on the distance) reaches `enough`, or comes within [`AXIS_PRECISION`] of the
-/// dilated shapes' distance (from the simplex's distance to the origin, an upper bound; where
-/// `enough` is infinite, the distance itself is wanted: within parry's own tolerance of the
-/// cores'), or where parry's iteration stops; the direction of the largest separation met, the
+/// lower bound on the distance) reaches `enough`, or, once the dilated shapes' separation is
+/// above `floor` (the caller's least useful bound: a state is blocked below it, so a bound just
+/// under it is never left for one just above), comes within [`AXIS_PRECISION`] of their distance
+/// (from the simplex's distance to the origin, an upper bound; where `enough` is infinite, the
+/// distance itself is wanted: within parry's own tolerance of the cores'), or where parry's
+/// iteration stops; the direction of the largest separation met, the
 /// direction to the simplex's closest point included where parry would return that. None where
 /// the shapes touch or overlap, or GJK finds no separation.
 ///
@@ -81,6 +83,7 @@ pub(crate) fn separating_axis<A, B>(
     pos12: &Isometry3<f64>,
     start: &Unit<Vector3<f64>>,
     rounding: f64,
+    floor: f64,
     enough: f64,
 ) -> Option<Unit<Vector3<f64>>>
 where
@@ -89,7 +92,13 @@ where
 {
     let eps_tol = parry3d_f64::query::gjk::eps_tol();
     // (how far the separation may stay below the simplex's distance `max_bound`)
-    let slack = |max_bound: f64| if enough.is_finite() { AXIS_PRECISION * (max_bound - rounding) } else { eps_tol.sqrt() * max_bound };
+    let slack = |max_bound: f64, min_bound: f64| {
+        if enough.is_finite() && min_bound - rounding > floor {
+            AXIS_PRECISION * (max_bound - rounding)
+        } else {
+            eps_tol.sqrt() * max_bound
+        }
+    };
     let mut simplex = VoronoiSimplex::new();
     simplex.reset(CSOPoint::from_shapes(pos12, a, b, start));
     let mut proj = simplex.project_origin_and_reduce();
@@ -114,7 +123,7 @@ where
         }
         max_bound = dist;
         let (cso, min_bound) = measure(dir);
-        if min_bound >= enough || max_bound - min_bound <= slack(max_bound) || !simplex.add_point(cso) {
+        if min_bound >= enough || max_bound - min_bound <= slack(max_bound, min_bound) || !simplex.add_point(cso) {
             break;
         }
         proj = simplex.project_origin_and_reduce();
@@ -174,7 +183,7 @@ mod tests {
 
     /// The axis found is the distance's within `AXIS_PRECISION` (parry's distance between the
     /// shapes; on a capsule's core dilated by its radius too, a millimetre apart as a metre),
-    /// or reaches `enough`, or, where nothing less is enough, is as tight as parry's own
+    /// or reaches `enough`, and clears a `floor` the distance clears; or, where nothing less is enough, is as tight as parry's own
     /// GJK run from the same start (to its tolerance, 1.5e-7 relative);
     /// the separation along it never exceeds the distance; shapes in contact give none.
     #[test]
@@ -192,7 +201,7 @@ mod tests {
             );
             let d = parry3d_f64::query::distance(&Isometry3::identity(), &cuboid, &pos12, &capsule).unwrap();
             let start = Vector3::x_axis();
-            let Some(n) = separating_axis(&a, &b, &pos12, &start, 0.0, 0.5) else {
+            let Some(n) = separating_axis(&a, &b, &pos12, &start, 0.0, 0.0, 0.5) else {
                 assert!(d < 1e-9, "step {i}: no axis {d} m apart");
                 touching += 1;
                 continue;
@@ -205,7 +214,7 @@ mod tests {
             // On the capsule's core (its segment) dilated by its radius, as the certificate runs
             // it: within the precision of the capsule's own distance, however near.
             let core = capsule.segment;
-            if let Some(n) = separating_axis(&a, &core, &pos12, &start, capsule.radius, 0.5) {
+            if let Some(n) = separating_axis(&a, &core, &pos12, &start, capsule.radius, 0.0, 0.5) {
                 let s = n.dot(&(core.support_point(&pos12, &-n).coords - a.local_support_point(&n).coords)) - capsule.radius;
                 assert!(
                     s <= d + 1e-12 && (s >= 0.5 - capsule.radius || s >= d * (1.0 - AXIS_PRECISION) - 1e-12),
@@ -213,8 +222,23 @@ mod tests {
                 );
                 near += (d < 0.01) as usize;
             }
+            // A floor just under the distance that parry's converged GJK measures (a need the
+            // pair barely clears): the bound clears it too, not 1 % short of the distance.
+            let mut simplex = VoronoiSimplex::new();
+            simplex.reset(CSOPoint::from_shapes(&pos12, &a, &core, &start));
+            let GJKResult::ClosestPoints(p1, p2, _) = gjk::closest_points(&pos12, &a, &core, f64::MAX, true, &mut simplex) else {
+                panic!("step {i}: parry found no closest points {d} m apart")
+            };
+            let n = (p2 - p1).normalize();
+            let converged = n.dot(&(core.support_point(&pos12, &-n).coords - a.local_support_point(&n).coords)) - capsule.radius;
+            if converged > 1e-6 {
+                let floor = converged * (1.0 - 1e-5);
+                let n = separating_axis(&a, &core, &pos12, &start, capsule.radius, floor, 2.0 * d + capsule.radius).unwrap();
+                let s = n.dot(&(core.support_point(&pos12, &-n).coords - a.local_support_point(&n).coords)) - capsule.radius;
+                assert!(s > floor, "step {i}: {s} not above the floor {floor} ({d})");
+            }
             // With nothing less enough, as tight as parry's GJK from the same start.
-            let exact = separating_axis(&a, &b, &pos12, &start, 0.0, f64::INFINITY).unwrap();
+            let exact = separating_axis(&a, &b, &pos12, &start, 0.0, 0.0, f64::INFINITY).unwrap();
             let mut simplex = VoronoiSimplex::new();
             simplex.reset(CSOPoint::from_shapes(&pos12, &a, &b, &start));
             let GJKResult::ClosestPoints(p1, p2, _) = gjk::closest_points(&pos12, &a, &b, f64::MAX, true, &mut simplex) else {

@@ -3,27 +3,31 @@
 //! only the motions' numbers; the planning layer proves them and writes them here.
 
 /// Straight motions a model has proven free: `a → a + Δ`, states wrapped on continuous hinges
-/// (`planning::motion`'s certificate of a straight motion), by the bits of `a` and `Δ`, with
-/// the largest clearance each was proven at. `plan_path` writes its returned segments, `time_path` the whole segments it proves;
-/// `time_path` reads them, and a part of its timed motion on a segment written here is not proven
-/// again: its poses are among the segment's, each certified free, at a clearance at least the
-/// one asked, by the certificate itself on this model. A cache of proofs, never of guesses, and
-/// bounded: emptied when it holds [`PROVEN_LINES`] motions.
+/// (`planning::motion`'s certificate of a straight motion), by the bits of `a`, `Δ` and the
+/// clearance of the proof. `plan_path` records the segments of its sampled search's path that
+/// its proof certified; `time_path` records a whole segment it proves to cover a part that
+/// failed alone, and reads them: a part of its timed motion on a segment recorded at its
+/// clearance is not proven again (its poses are among the segment's, certified by the
+/// certificate itself on this model). The same timing as proving it again, which certifies
+/// it alone or through its segment, but where the planner clamped a state back into a joint's
+/// limits (an ulp at a waypoint on the limit). On continuous hinges a timed path's unwrapped
+/// waypoints rarely match the planner's wrapped ones: those segments are proven again. A cache
+/// of proofs, never of guesses, and bounded: emptied when it holds [`PROVEN_LINES`] motions.
 #[derive(Debug, Default)]
-pub(crate) struct ProvenLines(std::sync::Mutex<std::collections::HashMap<Vec<u64>, f64>>);
+pub(crate) struct ProvenLines(std::sync::Mutex<std::collections::HashSet<Vec<u64>>>);
 
 /// Most motions a model's `ProvenLines` holds.
 pub(crate) const PROVEN_LINES: usize = 1 << 14;
 
 impl ProvenLines {
-    fn key(a: &[f64], delta: &[f64]) -> Vec<u64> {
-        a.iter().chain(delta).map(|x| x.to_bits()).collect()
+    fn key(a: &[f64], delta: &[f64], clearance: f64) -> Vec<u64> {
+        a.iter().chain(delta).chain([&clearance]).map(|x| x.to_bits()).collect()
     }
 
     /// The record, unless another thread holds it: then None, and the caller proves (or does
     /// not write down) the motion, which is always correct. Never waiting also means a child
     /// forked while another thread held the lock (which stays locked there) never hangs on it.
-    fn try_lock(&self) -> Option<std::sync::MutexGuard<'_, std::collections::HashMap<Vec<u64>, f64>>> {
+    fn try_lock(&self) -> Option<std::sync::MutexGuard<'_, std::collections::HashSet<Vec<u64>>>> {
         match self.0.try_lock() {
             Ok(map) => Some(map),
             Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
@@ -31,7 +35,7 @@ impl ProvenLines {
         }
     }
 
-    /// Writes down that `a → a + delta` was certified at `clearance` metres.
+    /// Records that `a → a + delta` was certified at `clearance` metres.
     pub(crate) fn insert(&self, a: &[f64], delta: &[f64], clearance: f64) {
         let Some(mut map) = self.try_lock() else {
             return;
@@ -39,13 +43,12 @@ impl ProvenLines {
         if map.len() >= PROVEN_LINES {
             map.clear();
         }
-        let c = map.entry(Self::key(a, delta)).or_insert(clearance);
-        *c = c.max(clearance);
+        map.insert(Self::key(a, delta, clearance));
     }
 
-    /// Whether `a → a + delta` was certified at `clearance` metres or more.
+    /// Whether `a → a + delta` was certified at `clearance` metres.
     pub(crate) fn holds(&self, a: &[f64], delta: &[f64], clearance: f64) -> bool {
-        self.try_lock().is_some_and(|map| map.get(&Self::key(a, delta)).is_some_and(|&c| c >= clearance))
+        self.try_lock().is_some_and(|map| map.contains(&Self::key(a, delta, clearance)))
     }
 
     /// How many motions it holds.

@@ -636,6 +636,7 @@ fn prove(
     }
     kept.push(path[path.len() - 1].clone());
     let proven = proven_segments(checker, &kept, clearance)?;
+    record_proven_lines(checker, &kept, &proven, clearance);
     let mut out = vec![kept[0].clone()];
     let mut repairs: Option<Search> = None;
     for (w, proven) in kept.windows(2).zip(proven) {
@@ -655,20 +656,21 @@ fn prove(
         total.iterations += sub.iterations;
         total.sizes = [total.sizes[0] + sub.sizes[0], total.sizes[1] + sub.sizes[1]];
     }
-    remember_segments(checker, &out, clearance);
     Ok(Some(Proven { path: out, repairs }))
 }
 
-/// Writes the segments of `path`, each proven at `clearance`, into the model's proven motions
-/// (`model::proven::ProvenLines`), where both ends lie inside the space's bounds: the planner's states
-/// are clamped into them, which a line between two poses inside them leaves by rounding only,
-/// so the motion proven is the straight one `a → a + Δ` (`Δ` the short arc on continuous
-/// hinges), as `time_path` proves a segment.
-fn remember_segments(checker: &Checker, path: &[Vec<f64>], clearance: f64) {
+/// Records in the model's proven lines (`model::proven::ProvenLines`) the segments of `path`
+/// that `proven_segments` certified at `clearance` (`proven`), each as it proved it, `a → a + Δ`
+/// from the segment's first waypoint (`Δ` the short arc on continuous hinges), where both ends
+/// lie inside the space's bounds: the planner's states are clamped into them, which a line
+/// between two poses inside them leaves by rounding only (an ulp), so the motion proven is the
+/// straight one `time_path` proves for that segment. (A repair's segments are not recorded:
+/// its search proves some edges from their other end.)
+fn record_proven_lines(checker: &Checker, path: &[Vec<f64>], proven: &[bool], clearance: f64) {
     let (model, space) = (checker.model, &checker.space);
     let inside = |q: &[f64]| q.iter().enumerate().all(|(j, x)| space.lo[j] <= *x && *x <= space.hi[j]);
     let mut delta = vec![0.0; model.njoint()];
-    for w in path.windows(2) {
+    for (w, _) in path.windows(2).zip(proven).filter(|(_, &proven)| proven) {
         if inside(&w[0]) && inside(&w[1]) {
             space.delta(&w[0], &w[1], &mut delta);
             model.proven_lines.insert(&w[0], &delta, clearance);
