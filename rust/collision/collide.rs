@@ -404,16 +404,17 @@ impl Scratch {
     /// pair's remembered axis, else the line between the geoms' origins) when it reaches `want`,
     /// or stays above `floor` but below `GJK_FROM · want`; else GJK's (`sat::separating_axis`:
     /// stopped once it reaches `want`, or, above `floor`, within 1 % of the distance; as tight as
-    /// GJK gets it where `want` is at most `floor`), whose axis is remembered. At most 0 when the shapes touch or overlap (`-inf` when GJK gives no
-    /// axis and none is known); `Err` when parry cannot decide the pair (module docs).
+    /// GJK gets it where `want` is at most `floor`), whose axis is remembered. At most 0 when the
+    /// shapes touch or overlap (`-inf` when GJK gives no axis and none is known); `Err` when
+    /// parry cannot decide the pair (module docs).
     ///
     /// Exactness: a plane pair's distance is exact (the support point along the normal). For two
     /// capsules it is the separation along the line between their segments' nearest points
     /// (`collision/capsules.rs`), for two other convex geoms every answer is a separation along a unit axis `n` (in the first geom's
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
-    /// GJK converges to (where it is stopped early, within 1 % of it). The caller takes off its rounding slack (support points and dot
-    /// products round at ~1e-16 relative).
+    /// GJK converges to (where it is stopped early, within 1 % of it). The caller takes off its
+    /// rounding slack (support points and dot products round at ~1e-16 relative).
     pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64, floor: f64) -> std::result::Result<f64, Undecided> {
         let pair = &model.pairs[k];
         let (g1, g2) = (pair.g1, pair.g2);

@@ -71,9 +71,9 @@ const AXIS_PRECISION: f64 = 1e-2;
 /// under it is never left for one just above), comes within [`AXIS_PRECISION`] of their distance
 /// (from the simplex's distance to the origin, an upper bound; where `enough` is infinite, the
 /// distance itself is wanted: within parry's own tolerance of the cores'), or where parry's
-/// iteration stops; the direction of the largest separation met, the
-/// direction to the simplex's closest point included where parry would return that. None where
-/// the shapes touch or overlap, or GJK finds no separation.
+/// iteration stops; the direction of the largest separation met, the direction to the
+/// simplex's closest point included where parry would return that. None where the shapes touch
+/// or overlap, or GJK finds no separation.
 ///
 /// Exactness is the caller's: a separation along any unit axis, from exact support points, is
 /// a lower bound on the distance (`Scratch::pair_lower_bound`); the axis only makes it tight.

@@ -305,7 +305,7 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     steps = so2_steps(robot, p) if len(p) > 1 else np.zeros((0, robot.njoint))
     w = p.copy()
     wraps = np.asarray(robot.continuous, dtype=bool)
-    w[:, wraps] = (p[:1] + np.concatenate([np.zeros((1, robot.njoint)), np.cumsum(steps, axis=0)]))[:, wraps]
+    w[1:, wraps] = p[0, wraps] + np.cumsum(steps[:, wraps], axis=0)
     # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal)
     w = w[np.concatenate([[True], np.abs(np.diff(w, axis=0)).max(axis=1) > 0])]
     m = len(w)
