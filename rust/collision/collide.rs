@@ -256,6 +256,20 @@ impl Scratch {
             }
         }
         marked_body_poses(model, q, &mut self.bodies, &self.body_stamp, pose);
+        self.place_pair_geoms(model, pairs);
+    }
+
+    /// `place_pairs` of a pose whose body frames are `bodies` already (`body_poses`' for it, bit
+    /// for bit: `kinematics::body_poses4` placed four states at once), copied in whole.
+    pub(crate) fn place_pairs_from(&mut self, model: &RobotModel, bodies: &[Isometry3<f64>], pairs: impl Iterator<Item = usize>) {
+        self.next_pose();
+        self.bodies.copy_from_slice(bodies);
+        self.place_pair_geoms(model, pairs);
+    }
+
+    /// The spheres and planes of the geoms of `pairs`, from this pose's body frames.
+    fn place_pair_geoms(&mut self, model: &RobotModel, pairs: impl Iterator<Item = usize>) {
+        let pose = self.pose;
         // Each geom once, each body's rotation matrix once (`placed`: this pose's stamp once
         // done; a body's entry is its rotation's, a geom's its sphere's or plane's).
         for k in pairs {
@@ -1292,9 +1306,10 @@ mod tests {
         assert!(ball_hull >= 100, "{ball_hull} ball-hull pairs");
     }
 
-    /// `place_pairs` gives the pairs it places what `place` gives them, bit for bit: their
-    /// geoms' spheres, boxes and frames, their bodies' frames, their sphere gaps and their
-    /// exact distances; on the Shadow Hand, the Panda and the UR5e, for random subsets of pairs.
+    /// `place_pairs` (and `place_pairs_from` the pose's body frames) gives the pairs it places
+    /// what `place` gives them, bit for bit: their geoms' spheres, boxes and frames, their
+    /// bodies' frames, their sphere gaps and their exact distances; on the Shadow Hand, the
+    /// Panda and the UR5e, for random subsets of pairs.
     #[test]
     fn placing_some_pairs_gives_them_what_placing_all_does() {
         use rand::{Rng, SeedableRng};
@@ -1304,34 +1319,46 @@ mod tests {
             let model = RobotModel::new(desc).unwrap();
             let poses = crate::joints::sample::sample_uniform(&model.sampling_ranges().unwrap(), 200, 4).unwrap();
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-            let (mut all, mut some) = (Scratch::new(&model), Scratch::new(&model));
+            // Per way of placing some pairs, a scratch placed whole beside it (each remembers its
+            // own separating axes, as `pair_lower_bound` does from pose to pose).
+            let mut scratches: [(Scratch, Scratch); 2] = std::array::from_fn(|_| (Scratch::new(&model), Scratch::new(&model)));
+            let mut frames = vec![Isometry3::identity(); model.nbody()];
             for q in poses.chunks_exact(model.njoint()) {
                 let pairs: Vec<usize> = (0..rng.random_range(1..6)).map(|_| rng.random_range(0..model.pairs.len())).collect();
-                all.place(&model, q, false);
-                // (`some` keeps the previous pose's values elsewhere: they must not be read)
-                some.place_pairs(&model, q, pairs.iter().copied());
-                for &k in &pairs {
-                    let pair = &model.pairs[k];
-                    let gap = |s: &Scratch| model.broad.sphere_gap(&s.broad, k, &model.geoms);
-                    assert_eq!(gap(&all), gap(&some), "{scene}: pair {k}");
-                    for g in [pair.g1, pair.g2] {
-                        let mut b = model.geoms[g].body;
-                        while b != 0 {
-                            assert_eq!(all.body(b), some.body(b), "{scene}: body {b}");
-                            b = model.body_parent[b];
-                        }
-                        if !model.geoms[g].shape.is_half_space() {
-                            assert_eq!(model.broad.geom_box(&all.broad, g), model.broad.geom_box(&some.broad, g));
-                        }
-                        all.frame(&model, g);
-                        some.frame(&model, g);
-                        assert_eq!(all.geom_frame(g), some.geom_frame(g));
+                crate::model::kinematics::body_poses(&model, q, &mut frames);
+                for (way, (all, some)) in scratches.iter_mut().enumerate() {
+                    all.place(&model, q, false);
+                    // (`some` keeps the previous pose's values elsewhere: they must not be read;
+                    // the second way takes the pose's body frames whole, as the certificate's
+                    // four-lane states do)
+                    if way == 0 {
+                        some.place_pairs(&model, q, pairs.iter().copied());
+                    } else {
+                        some.place_pairs_from(&model, &frames, pairs.iter().copied());
                     }
-                    let (ca, cs) = (all.clear_of(&model, k, 1e-6).unwrap(), some.clear_of(&model, k, 1e-6).unwrap());
-                    assert_eq!(ca, cs);
-                    let (la, ls) =
-                        (all.pair_lower_bound(&model, k, 0.05, 0.0).unwrap(), some.pair_lower_bound(&model, k, 0.05, 0.0).unwrap());
-                    assert_eq!(la.to_bits(), ls.to_bits(), "{scene}: pair {k}");
+                    for &k in &pairs {
+                        let pair = &model.pairs[k];
+                        let gap = |s: &Scratch| model.broad.sphere_gap(&s.broad, k, &model.geoms);
+                        assert_eq!(gap(all), gap(some), "{scene}: pair {k}");
+                        for g in [pair.g1, pair.g2] {
+                            let mut b = model.geoms[g].body;
+                            while b != 0 {
+                                assert_eq!(all.body(b), some.body(b), "{scene}: body {b}");
+                                b = model.body_parent[b];
+                            }
+                            if !model.geoms[g].shape.is_half_space() {
+                                assert_eq!(model.broad.geom_box(&all.broad, g), model.broad.geom_box(&some.broad, g));
+                            }
+                            all.frame(&model, g);
+                            some.frame(&model, g);
+                            assert_eq!(all.geom_frame(g), some.geom_frame(g));
+                        }
+                        let (ca, cs) = (all.clear_of(&model, k, 1e-6).unwrap(), some.clear_of(&model, k, 1e-6).unwrap());
+                        assert_eq!(ca, cs);
+                        let (la, ls) =
+                            (all.pair_lower_bound(&model, k, 0.05, 0.0).unwrap(), some.pair_lower_bound(&model, k, 0.05, 0.0).unwrap());
+                        assert_eq!(la.to_bits(), ls.to_bits(), "{scene}: pair {k}, way {way}");
+                    }
                 }
             }
         }

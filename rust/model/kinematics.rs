@@ -135,6 +135,27 @@ pub(crate) fn body_poses4(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isomet
     }
 }
 
+/// `body_poses4`, compiled for AVX2 where the CPU has it (as the broad phase found when the
+/// model was built, `Broad::avx2`): the same bits either way.
+pub(crate) fn body_poses4_wide(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isometry3<f64>]; 4], room: &mut Frames4) {
+    #[cfg(target_arch = "x86_64")]
+    if model.broad.avx2() {
+        // SAFETY: the CPU has AVX2 (`Broad::avx2`).
+        return unsafe { body_poses4_avx2(model, q, out, room) };
+    }
+    body_poses4(model, q, out, room)
+}
+
+/// `body_poses4` in AVX2 registers.
+///
+/// # Safety
+/// The CPU has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn body_poses4_avx2(model: &RobotModel, q: [&[f64]; 4], out: [&mut [Isometry3<f64>]; 4], room: &mut Frames4) {
+    body_poses4(model, q, out, room)
+}
+
 /// Poses per parallel work item (`threads::POSE_CHUNK`).
 const CHUNK: usize = crate::threads::POSE_CHUNK;
 
@@ -252,7 +273,8 @@ mod tests {
 
     /// Four lanes give `body_poses` bit for bit (every coordinate's bits, signs of zero
     /// included) on every bundled robot, at random poses within and beyond the limits and at
-    /// each joint's `qpos0` (angles of exactly zero).
+    /// each joint's `qpos0` (angles of exactly zero); compiled for the CPU's vector width too
+    /// (`body_poses4_wide`, as the certificate places four states).
     #[test]
     fn four_lanes_are_body_poses_bit_for_bit() {
         for scene in ["panda_blocks", "xarm7_table", "ur5e_wall_box", "panda_shelf", "shadow_hand", "vx300s_clutter"] {
@@ -276,11 +298,15 @@ mod tests {
                 let mut out = vec![vec![Isometry3::identity(); nb]; 4];
                 let [o0, o1, o2, o3] = &mut out[..] else { unreachable!() };
                 body_poses4(&model, [q[0], q[1], q[2], q[3]], [o0, o1, o2, o3], &mut room);
+                let mut wide = vec![vec![Isometry3::identity(); nb]; 4];
+                let [w0, w1, w2, w3] = &mut wide[..] else { unreachable!() };
+                body_poses4_wide(&model, [q[0], q[1], q[2], q[3]], [w0, w1, w2, w3], &mut room);
                 for l in 0..4 {
                     let mut want = vec![Isometry3::identity(); nb];
                     body_poses(&model, q[l], &mut want);
                     for b in 0..nb {
                         assert_eq!(bits(&out[l][b]), bits(&want[b]), "{scene}: lane {l}, body {b}");
+                        assert_eq!(bits(&wide[l][b]), bits(&want[b]), "{scene}: wide lane {l}, body {b}");
                     }
                 }
             }
