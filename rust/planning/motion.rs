@@ -1020,29 +1020,72 @@ fn certify_each<F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String
 where
     F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
 {
+    each_task(model, b, name, |space, ms, d, i, k| one(space, ms, d, i, k).map(|m| (m, ms.states)))
+}
+
+/// `one(space, scratch, buffer of 3K, i, K)` for each task `i < b` (one or more motions, each
+/// decided alone on `scratch`), as `certify_each` runs its motions: in parallel, one task a work
+/// item, an error named `name(i)`.
+fn each_task<T, F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Vec<T>>
+where
+    T: Send,
+    F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<T, Undecided> + Sync,
+{
     use rayon::prelude::*;
 
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
     let idx: Vec<usize> = (0..b).collect();
-    let parts: Vec<Result<Verdicts>> = idx
+    let parts: Vec<Result<Vec<T>>> = idx
         .par_chunks(CHUNK)
         .map_init(
-            || (MotionScratch::new(model), vec![0.0; 2 * k]),
+            || (MotionScratch::new(model), vec![0.0; 3 * k]),
             |(ms, d), chunk| {
                 chunk
                     .iter()
                     .map(|&i| {
                         crate::cancel::check()?;
-                        let m = one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))?;
-                        Ok((m, ms.states))
+                        one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))
                     })
                     .collect()
             },
         )
         .collect();
-    Ok(first_error(parts)?.concat())
+    Ok(first_error(parts)?.into_iter().flatten().collect())
+}
+
+/// For each of `b` tasks, the first of its straight motions that is certified, taken as given
+/// (`certify_as_given`: `Δ = goal − start` on every joint), with every pair above `max(margin,
+/// clearance)` metres: `motion(i, n, start, goal)` writes task `i`'s `n`-th motion (`(K,)`
+/// each) and says whether to certify it (`Some(false)`: skip it, `None`: the task has no more),
+/// the motions tried in order until one is certified; `None` where none is. The tasks in
+/// parallel, each motion decided alone (so the answer is that of certifying each task's motions
+/// in turn, whatever the thread count), and none waits for another task's: a task whose first
+/// motion is blocked goes on to its next at once. An error names the task, `name(i)`.
+pub(crate) fn first_certified(
+    model: &RobotModel,
+    b: usize,
+    name: &(dyn Fn(usize) -> String + Sync),
+    clearance: f64,
+    motion: impl Fn(usize, usize, &mut [f64], &mut [f64]) -> Option<bool> + Sync,
+) -> Result<Vec<Option<usize>>> {
+    check_clearance(clearance)?;
+    each_task(model, b, name, |space, ms, buf, i, k| {
+        let (a, rest) = buf.split_at_mut(k);
+        let (g, d) = rest.split_at_mut(k);
+        let mut n = 0;
+        while let Some(given) = motion(i, n, a, g) {
+            if given {
+                d.iter_mut().zip(a.iter().zip(g.iter())).for_each(|(d, (a, g))| *d = g - a);
+                if certify_curve(model, Levers::of(model), space, &Line { a, delta: d }, clearance, ms)? == Motion::Certified {
+                    return Ok(Some(n));
+                }
+            }
+            n += 1;
+        }
+        Ok(None)
+    })
 }
 
 /// The model's spans (`planning/spans.rs`), per candidate pair.
@@ -1793,5 +1836,47 @@ pub(crate) mod tests {
         assert!(err(certify_given(&model, [&l0, &l1[..2 * k]], [&[], &[], &[]], 1e-6)).contains("differ in shape"));
         assert!(err(certify_given(&model, [&l0, &l1], [&[], &[], &[]], 0.0)).contains("clearance"));
         assert!(certify_as_given(&model, &[], None, &[], 1e-6).is_err());
+    }
+
+    /// `first_certified` gives each task the first of its motions `certify_as_given` certifies,
+    /// taken in turn (a skipped motion never, a task without one none), on one thread and two;
+    /// a bad clearance is refused.
+    #[test]
+    fn first_certified_is_each_tasks_motions_certified_in_turn() {
+        use crate::threads::with_threads;
+        let model = arm();
+        let k = model.njoint();
+        let space = Space::of(&model).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        // 30 tasks of up to four motions each (start, goal, whether to certify it), some skipped
+        type Task = Vec<(Vec<f64>, Vec<f64>, bool)>;
+        let tasks: Vec<Task> = (0..30)
+            .map(|_| {
+                (0..rng.random_range(0..5))
+                    .map(|_| {
+                        let mut pose = || (0..k).map(|j| rng.random_range(space.lo[j] * 0.8..space.hi[j] * 0.8)).collect::<Vec<f64>>();
+                        (pose(), pose(), rng.random_bool(0.8))
+                    })
+                    .collect()
+            })
+            .collect();
+        let want: Vec<Option<usize>> = tasks
+            .iter()
+            .map(|t| {
+                t.iter().position(|(a, g, given)| *given && certify_as_given(&model, a, None, g, 1e-6).unwrap()[0].0 == Motion::Certified)
+            })
+            .collect();
+        assert!(want.iter().any(|w| w.is_none()) && want.iter().any(|w| w.is_some_and(|n| n > 0)), "{want:?}");
+        let motion = |i: usize, n: usize, a: &mut [f64], g: &mut [f64]| {
+            let (sa, sg, given) = tasks[i].get(n)?;
+            a.copy_from_slice(sa);
+            g.copy_from_slice(sg);
+            Some(*given)
+        };
+        for threads in [1, 2] {
+            let got = with_threads(Some(threads), || first_certified(&model, tasks.len(), &|i| format!("task {i}"), 1e-6, motion));
+            assert_eq!(got.unwrap().unwrap(), want, "{threads} threads");
+        }
+        assert!(first_certified(&model, 3, &|i| format!("task {i}"), 0.0, motion).is_err());
     }
 }

@@ -41,7 +41,7 @@ use std::collections::HashMap;
 
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_as_given, certify_given, Motion, Verdicts};
+use crate::planning::motion::{certify_as_given, certify_given, first_certified, Motion, Verdicts};
 
 /// Speed fractions the ramp tries, fastest first: `1 − i/GRID` for `i < GRID` (exact in binary).
 const GRID: usize = 64;
@@ -420,37 +420,23 @@ fn proven_timing(
 fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Result<Vec<f64>> {
     let m = w.len() / k;
     let wraps = model.continuous();
+    let shares = [cut, cut / 2.0, cut / 4.0];
+    // Each corner tries its chords in turn, the corners in parallel (a corner whose widest
+    // chord is blocked tries the next at once, not after every corner's first).
+    let first = first_certified(model, m.saturating_sub(2), &|c| format!("the chord of corner {}", c + 1), clearance, |c, n, p0, p1| {
+        let f = *shares.get(n)?;
+        let (a, b, c) = (&w[c * k..(c + 1) * k], &w[(c + 1) * k..(c + 2) * k], &w[(c + 2) * k..(c + 3) * k]);
+        for j in 0..k {
+            p0[j] = a[j] + (b[j] - a[j]) * (1.0 - f);
+            p1[j] = b[j] + (c[j] - b[j]) * f;
+        }
+        Some((0..k).all(|j| !wraps[j] || (p1[j] - p0[j]).abs() < std::f64::consts::PI - 1e-6))
+    })?;
     let mut share = vec![0.0; m];
-    let mut todo: Vec<usize> = (1..m - 1).collect();
-    for f in [cut, cut / 2.0, cut / 4.0] {
-        if todo.is_empty() {
-            break;
+    for (c, n) in first.into_iter().enumerate() {
+        if let Some(n) = n {
+            share[c + 1] = shares[n];
         }
-        let mut p0 = Vec::with_capacity(todo.len() * k);
-        let mut p1 = Vec::with_capacity(todo.len() * k);
-        let mut arcs = Vec::with_capacity(todo.len());
-        for &i in &todo {
-            let (a, b, c) = (&w[(i - 1) * k..i * k], &w[i * k..(i + 1) * k], &w[(i + 1) * k..(i + 2) * k]);
-            let s = p0.len();
-            p0.extend((0..k).map(|j| a[j] + (b[j] - a[j]) * (1.0 - f)));
-            p1.extend((0..k).map(|j| b[j] + (c[j] - b[j]) * f));
-            let arc = (0..k).all(|j| !wraps[j] || (p1[s + j] - p0[s + j]).abs() < std::f64::consts::PI - 1e-6);
-            if !arc {
-                p0.truncate(s);
-                p1.truncate(s);
-            }
-            arcs.push(arc);
-        }
-        let mut ok = proven(model, &p0, &p1, clearance)?.into_iter();
-        let mut left = Vec::new();
-        for (&i, arc) in todo.iter().zip(arcs) {
-            if arc && ok.next() == Some(true) {
-                share[i] = f;
-            } else {
-                left.push(i);
-            }
-        }
-        todo = left;
     }
     Ok(share)
 }
