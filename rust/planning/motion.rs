@@ -981,7 +981,6 @@ pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3]
     check_clearance(clearance)?;
     let count = |a: &[&[f64]]| if a.iter().all(|a| a.is_empty()) { Ok(0) } else { same_shape(model, a) };
     let (nl, nb) = (count(&lines)?, count(&blends)?);
-    let diff = |a: &[f64], b: &[f64], out: &mut [f64]| out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
     let name = |i: usize| if i < nl { format!("motion {i}") } else { format!("blend {}", i - nl) };
     let mut all = certify_each(model, nl + nb, &name, |space, ms, d, i, k| {
         if i < nl {
@@ -998,6 +997,11 @@ pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3]
     })?;
     let blend_verdicts = all.split_off(nl);
     Ok((all, blend_verdicts))
+}
+
+/// `out = b − a` on every joint: a step taken as given (`certify_as_given`), no short arc chosen.
+fn diff(a: &[f64], b: &[f64], out: &mut [f64]) {
+    out.iter_mut().zip(a.iter().zip(b)).for_each(|(o, (a, b))| *o = b - a);
 }
 
 /// The number of motions in `arrays`, `(B, K)` row-major each (B ≥ 1) and all of one shape.
@@ -1077,7 +1081,7 @@ pub(crate) fn first_certified(
         let mut n = 0;
         while let Some(given) = motion(i, n, a, g) {
             if given {
-                d.iter_mut().zip(a.iter().zip(g.iter())).for_each(|(d, (a, g))| *d = g - a);
+                diff(a, g, d);
                 if certify_curve(model, Levers::of(model), space, &Line { a, delta: d }, clearance, ms)? == Motion::Certified {
                     return Ok(Some(n));
                 }

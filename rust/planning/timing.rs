@@ -423,9 +423,10 @@ fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Re
     let shares = [cut, cut / 2.0, cut / 4.0];
     // Each corner tries its chords in turn, the corners in parallel (a corner whose widest
     // chord is blocked tries the next at once, not after every corner's first).
-    let first = first_certified(model, m.saturating_sub(2), &|c| format!("the chord of corner {}", c + 1), clearance, |c, n, p0, p1| {
+    // (task `i` is corner `i + 1`)
+    let first = first_certified(model, m.saturating_sub(2), &|i| format!("the chord of corner {}", i + 1), clearance, |i, n, p0, p1| {
         let f = *shares.get(n)?;
-        let (a, b, c) = (&w[c * k..(c + 1) * k], &w[(c + 1) * k..(c + 2) * k], &w[(c + 2) * k..(c + 3) * k]);
+        let (a, b, c) = (&w[i * k..(i + 1) * k], &w[(i + 1) * k..(i + 2) * k], &w[(i + 2) * k..(i + 3) * k]);
         for j in 0..k {
             p0[j] = a[j] + (b[j] - a[j]) * (1.0 - f);
             p1[j] = b[j] + (c[j] - b[j]) * f;
@@ -433,9 +434,9 @@ fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Re
         Some((0..k).all(|j| !wraps[j] || (p1[j] - p0[j]).abs() < std::f64::consts::PI - 1e-6))
     })?;
     let mut share = vec![0.0; m];
-    for (c, n) in first.into_iter().enumerate() {
+    for (i, n) in first.into_iter().enumerate() {
         if let Some(n) = n {
-            share[c + 1] = shares[n];
+            share[i + 1] = shares[n];
         }
     }
     Ok(share)
