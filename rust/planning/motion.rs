@@ -312,30 +312,42 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
                 out
             })
             .collect();
+        // Each body pair's chain entries and common ancestor, once (`memo[start..end]`): a
+        // scene's obstacles share the world's, and a link's geoms their body's.
+        let nb = model.body_parent.len();
+        let mut by_bodies: Vec<Option<(usize, usize, usize)>> = vec![None; nb * nb];
+        let mut memo = Vec::new();
         for (p, pair) in model.pairs.iter().enumerate() {
-            let (up1, up2) = (&ups[model.geoms[pair.g1].body], &ups[model.geoms[pair.g2].body]);
-            let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
-            let first = entries.len();
-            for (side, (g, up)) in [(pair.g1, up1), (pair.g2, up2)].into_iter().enumerate() {
-                let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
-                for &b in up[..below].iter().rev() {
-                    let (j0, j1) = model.body_joints[b];
-                    for j in j0..j1 {
-                        let r = &mut reach[g * k + j];
-                        if r.is_nan() {
-                            *r = joint_reach(model, j, g, up);
-                        }
-                        rows[p * k + j] += *r;
-                        entries.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32);
+            let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
+            let (start, end, common) = *by_bodies[b1 * nb + b2].get_or_insert_with(|| {
+                let (up1, up2) = (&ups[b1], &ups[b2]);
+                let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
+                let start = memo.len();
+                for (side, up) in [up1, up2].into_iter().enumerate() {
+                    let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
+                    for &b in up[..below].iter().rev() {
+                        let (j0, j1) = model.body_joints[b];
+                        memo.extend((j0..j1).map(|j| (j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32));
                     }
                 }
+                (start, memo.len(), common)
+            });
+            let chain = &memo[start..end];
+            for &e in chain {
+                let (j, g) = (entry_joint(e), if e & SIDE == 0 { pair.g1 } else { pair.g2 });
+                let r = &mut reach[g * k + j];
+                if r.is_nan() {
+                    *r = joint_reach(model, j, g, &ups[model.geoms[g].body]);
+                }
+                // (each joint is on one side only: one term per entry of the row)
+                rows[p * k + j] += *r;
             }
+            entries.extend_from_slice(chain);
             offsets.push(entries.len() as u32);
             // (one side's entries only, and that side's whole branch from the world: the chain,
             // and the rows over it, are its geom's alone)
-            let sides: Vec<u32> = entries[first..].iter().map(|e| e & SIDE).collect();
-            solo.push(match (common, sides.first()) {
-                (0, Some(&side)) if sides.iter().all(|&s| s == side) => (if side == 0 { pair.g1 } else { pair.g2 }) as u32,
+            solo.push(match (common, chain.first()) {
+                (0, Some(&e)) if chain.iter().all(|&c| c & SIDE == e & SIDE) => (if e & SIDE == 0 { pair.g1 } else { pair.g2 }) as u32,
                 _ => u32::MAX,
             });
         }
