@@ -314,12 +314,13 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
             .collect();
         // Each body pair's chain entries and common ancestor, once (`memo[start..end]`): a
         // scene's obstacles share the world's, and a link's geoms their body's.
-        let nb = model.body_parent.len();
-        let mut by_bodies: Vec<Option<(usize, usize, usize)>> = vec![None; nb * nb];
+        // (by the body pairs met, not a table of every body pair: that grows with the square of
+        // the bodies)
+        let mut by_bodies: std::collections::HashMap<(usize, usize), (usize, usize, usize)> = Default::default();
         let mut memo = Vec::new();
         for (p, pair) in model.pairs.iter().enumerate() {
             let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
-            let (start, end, common) = *by_bodies[b1 * nb + b2].get_or_insert_with(|| {
+            let (start, end, common) = *by_bodies.entry((b1, b2)).or_insert_with(|| {
                 let (up1, up2) = (&ups[b1], &ups[b2]);
                 let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
                 let start = memo.len();
@@ -1551,7 +1552,7 @@ pub(crate) mod tests {
     fn swept_balls_prove_only_pairs_clear_everywhere() {
         use rand::Rng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
-        let (mut twos, mut longer) = (0, 0);
+        let (mut ones, mut twos, mut longer) = (0, 0, 0);
         for scene in ["panda_blocks", "panda_shelf", "xarm7_table", "ur5e_wall_box", "vx300s_clutter", "shadow_hand"] {
             let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
             let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
@@ -1564,10 +1565,10 @@ pub(crate) mod tests {
                 }
                 let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
                 joints.dedup();
-                if joints.len() == 2 {
-                    twos += 1;
-                } else {
-                    longer += 1;
+                match joints.len() {
+                    1 => ones += 1,
+                    2 => twos += 1,
+                    _ => longer += 1,
                 }
                 for _ in 0..100 {
                     let q: Vec<f64> = ranges.iter().map(|r| rng.random_range(r[0]..=r[1])).collect();
@@ -1576,7 +1577,56 @@ pub(crate) mod tests {
                 }
             }
         }
-        assert!(twos >= 3 && longer > 0, "{twos} pairs over two joints and {longer} over more proven by their balls");
+        assert!(
+            ones > 0 && twos >= 3 && longer > 0,
+            "proven by their balls: {ones} pairs over one joint, {twos} over two, {longer} over more"
+        );
+    }
+
+    /// The swept ball's anchor and reach where the bundled robots have neither: two hinges on one
+    /// body, their anchors off the body's origin. A small ball sits on the second joint's anchor,
+    /// so it sweeps a circle about the first joint's axis and the swept ball is tight in the
+    /// circle's plane; obstacles (balls) in that plane just inside and just outside its reach.
+    /// Each one proven is clear of its need at every first-joint angle of a fine grid (the
+    /// second at random), and the ball proves some and not others. The pair is placed where the
+    /// second joint turns the body (the middle of its range), so a pivot read off the placed
+    /// body instead of the frame before its joints (0.09 m off) fails here.
+    #[test]
+    fn swept_balls_turn_about_the_first_anchor_of_a_two_hinge_body() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
+        let (mut proven, mut not) = (0, 0);
+        let (pivot, rho, r) = (nalgebra::Vector3::new(0.15, -0.05, 0.55), (0.15f64 * 0.15 + 0.15 * 0.15).sqrt(), 0.02);
+        for _ in 0..200 {
+            let mut desc = ModelDesc::example_pendulum();
+            desc.jnt_type = vec![JOINT_HINGE; 2];
+            desc.jnt_body = vec![1, 1];
+            desc.jnt_pos = vec![[0.15, -0.05, 0.0], [0.0, 0.1, 0.0]];
+            desc.jnt_axis = vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]];
+            desc.jnt_qpos0 = vec![0.0; 2];
+            desc.jnt_range = vec![[-3.1, 3.1], [-1.0, 2.2]];
+            desc.jnt_limited = vec![true; 2];
+            let (phi, out) = (rng.random_range(-3.0..3.0f64), rng.random_range(-0.02..0.02));
+            let at = pivot + (rho + r + 0.05 + out) * nalgebra::Vector3::new(phi.cos(), phi.sin(), 0.0);
+            desc.geom_type = vec![2, 2];
+            desc.geom_pos = vec![at.into(), [0.0, 0.1, 0.0]];
+            desc.geom_size = vec![[0.05, 0.0, 0.0], [r, 0.0, 0.0]];
+            let model = RobotModel::new(desc).unwrap();
+            assert_eq!(model.pairs.len(), 1);
+            let levers = Levers::of(&model);
+            let ranges = model.sampling_ranges().unwrap();
+            let mut s = Scratch::new(&model);
+            if !swept_ball_clear(&model, levers, &mut s, 0, &ranges) {
+                not += 1;
+                continue;
+            }
+            proven += 1;
+            for i in 0..=2000 {
+                let q = [-3.1 + 6.2 * i as f64 / 2000.0, rng.random_range(-1.0..=2.2)];
+                s.place(&model, &q, false);
+                assert!(s.clear_of(&model, 0, span_need(&model, 0)).unwrap(), "ball at {at:?} not clear at {q:?}");
+            }
+        }
+        assert!(proven >= 20 && not >= 20, "{proven} places proven, {not} not");
     }
 
     /// Skipping the pairs `prove_apart` proves clear changes no answer: labels (flags, pair
