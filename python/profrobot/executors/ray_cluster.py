@@ -389,9 +389,22 @@ class RayExecutor:
         return pool
 
     def worker_pids(self, robot: Robot) -> list[int]:
-        """The process ids of the actors that hold ``robot`` (started if need be)."""
+        """The process ids of the actors that hold ``robot`` (started if need be). An actor Ray is
+        restarting after it lost its process (``max_restarts``) is waited for, within
+        ``start_timeout`` (:class:`ClusterError` past it), not reported as an error."""
         pool = self._pool(robot)
-        return self._ray.get([a.pid.remote() for a in pool.actors], timeout=self.start_timeout)
+        ray = self._ray
+        # (ActorUnavailableError: the actor is restarting; Ray versions without it raise none)
+        restarting = getattr(ray.exceptions, "ActorUnavailableError", ())
+        deadline = time.monotonic() + self.start_timeout
+        while True:
+            try:
+                return ray.get([a.pid.remote() for a in pool.actors], timeout=max(deadline - time.monotonic(), 0.01))
+            except restarting as e:
+                if time.monotonic() > deadline:
+                    raise ClusterError(f"a Ray worker was still restarting after {self.start_timeout:.0f} s "
+                                       f"(start_timeout) on {self.address_text}") from e
+                time.sleep(0.05)
 
     def put(self, value: Any) -> Any:
         """``value`` in the object store, once (an ObjectRef to pass as a chunk argument)."""
