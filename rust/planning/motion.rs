@@ -314,13 +314,16 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
             .collect();
         // Each body pair's chain entries and common ancestor, once (`memo[start..end]`): a
         // scene's obstacles share the world's, and a link's geoms their body's.
-        // (by the body pairs met, not a table of every body pair: that grows with the square of
-        // the bodies)
-        let mut by_bodies: std::collections::HashMap<(usize, usize), (usize, usize, usize)> = Default::default();
+        // (by the body pairs met, each first body's few in a list: not a table of every body
+        // pair, which grows with the square of the bodies, nor a hash per pair)
+        // (a second body, and its pair's chain: `memo[start..end]` and the common ancestor)
+        type Met = (usize, (usize, usize, usize));
+        let mut by_bodies: Vec<Vec<Met>> = vec![Vec::new(); model.body_parent.len()];
         let mut memo = Vec::new();
         for (p, pair) in model.pairs.iter().enumerate() {
             let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
-            let (start, end, common) = *by_bodies.entry((b1, b2)).or_insert_with(|| {
+            let met = by_bodies[b1].iter().find(|(b, _)| *b == b2).map(|m| m.1);
+            let (start, end, common) = met.unwrap_or_else(|| {
                 let (up1, up2) = (&ups[b1], &ups[b2]);
                 let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
                 let start = memo.len();
@@ -331,6 +334,7 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
                         memo.extend((j0..j1).map(|j| (j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32));
                     }
                 }
+                by_bodies[b1].push((b2, (start, memo.len(), common)));
                 (start, memo.len(), common)
             });
             let chain = &memo[start..end];
