@@ -43,6 +43,26 @@ pub struct Joint {
     pub qpos0: f64,
 }
 
+/// How fast each candidate pair's distance can change per joint (`planning::motion::Levers`,
+/// which builds and reads it): plain data, computed once per model.
+#[derive(Debug, Default)]
+pub(crate) struct LeverTable {
+    /// Pair-major `(npairs, K)`: the pair's lever per joint (0 off its chain).
+    pub rows: Vec<f64>,
+    /// `npairs + 1` offsets, then every pair's chain entries.
+    pub chains: Vec<u32>,
+    /// Per pair, the geom whose branch from the world is its whole chain, or `u32::MAX`.
+    pub solo: Vec<u32>,
+    /// Per pair, how many of its chain's entries lie on each geom's side: each side is the
+    /// last that many entries of its geom's branch (`branches`).
+    pub sides: Vec<[u32; 2]>,
+    /// `ngeom + 1` offsets, then each geom's branch: the chain entries of every joint from the
+    /// world down to the geom's body, top down.
+    pub branches: Vec<u32>,
+    /// Geom-major `(ngeom, K)`: each branch joint's lever to the geom (NaN off its branch).
+    pub reach: Vec<f64>,
+}
+
 /// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.
 #[derive(Debug)]
 pub struct RobotModel {
@@ -63,9 +83,8 @@ pub struct RobotModel {
     /// sample they were drawn from: on first use by `collision/fastpath.rs` (a heuristic: no
     /// answer depends on it).
     pub(crate) likely: std::sync::OnceLock<Likely>,
-    /// Per candidate pair and joint, the pair's lever, the pairs' joint chains, and per pair
-    /// the geom whose branch from the world is its whole chain (`motion::Levers`), on first use.
-    pub(crate) lever_rows: std::sync::OnceLock<(Vec<f64>, Vec<u32>, Vec<u32>)>,
+    /// The levers of `motion::Levers` (`LeverTable`), on first use.
+    pub(crate) lever_rows: std::sync::OnceLock<LeverTable>,
     /// Per candidate pair whose distance one joint alone changes: that joint and the spans of
     /// its values over which the pair is proven clear (`planning/spans.rs`); `u32::MAX` and none for
     /// the other pairs. On first use by `planning/motion.rs`.

@@ -210,19 +210,87 @@ pub(crate) struct Levers<'m> {
     base: usize,
     /// Per pair, the geom whose branch from the world is the pair's whole chain (a geom against
     /// one the world holds still), `u32::MAX` for the others: such a pair's rates are its geom's,
-    /// the same for every pair of it (its chain rate in `MotionScratch::solo_rates`, its
-    /// state-local rate and growth in `Axes::solo`).
+    /// the same for every pair of it.
     solo: &'m [u32],
+    /// Per pair, its chain's entries on each side: the last that many of the side's geom's
+    /// branch (`branch`), whose state-local terms each state sums once per geom (`Axes::sums`).
+    sides: &'m [[u32; 2]],
+    /// `ngeom + 1` offsets, then each geom's branch from the world, top down (`branch`).
+    branches: &'m [u32],
+    /// Geom-major `(ngeom, K)`: a branch joint's lever to the geom (a pair's row on that side).
+    reach: &'m [f64],
+    ngeom: usize,
 }
 
 impl<'m> Levers<'m> {
     pub(crate) fn of(model: &'m RobotModel) -> Levers<'m> {
-        let (rows, chains, solo) = model.lever_rows.get_or_init(|| lever_rows(model));
-        Levers { k: model.njoint(), rows, chains, base: model.pairs.len() + 1, solo }
+        let t = model.lever_rows.get_or_init(|| lever_rows(model));
+        Levers {
+            k: model.njoint(),
+            rows: &t.rows,
+            chains: &t.chains,
+            base: model.pairs.len() + 1,
+            solo: &t.solo,
+            sides: &t.sides,
+            branches: &t.branches,
+            reach: &t.reach,
+            ngeom: model.geoms.len(),
+        }
+    }
+
+    /// Per geom (the layout of `Axes::sums`), summed over its branch from the geom up: the chain
+    /// rate's terms `|Δ_j|·R_j` (`chain`, entry `i` from branch entry `i` down to the geom) and
+    /// the growth's terms `|Δ_j|·Σ_{i below j} |Δ_i|·R_i` over the tight hinges (`quad`; the
+    /// joints below `j` on a pair's side are the branch's below it): a pair's `rate` and
+    /// `quad` are the sums over its sides (`side`). Joints that do not move add nothing.
+    fn motion_sums(&self, abs_delta: &[f64], chain: &mut [f64], quad: &mut [f64]) {
+        for g in 0..self.ngeom {
+            let (from, to) = (self.branches[g] as usize, self.branches[g + 1] as usize);
+            let base = from + g;
+            let (mut c, mut b) = (0.0, 0.0);
+            chain[base + to - from] = 0.0;
+            quad[base + to - from] = 0.0;
+            for (i, &e) in self.branch(g).iter().enumerate().rev() {
+                let j = entry_joint(e);
+                let d = abs_delta[j];
+                if d != 0.0 {
+                    if e & TIGHT != 0 {
+                        b += d * c;
+                    }
+                    c += d * self.reach[g * self.k + j];
+                }
+                chain[base + i] = c;
+                quad[base + i] = b;
+            }
+        }
+    }
+
+    /// Pair `p`'s sum over its sides of geom-major branch `sums` (`motion_sums`, `Axes::sums`).
+    #[inline]
+    fn side_sums(&self, model: &RobotModel, sums: &[f64], p: usize) -> f64 {
+        let pair = &model.pairs[p];
+        let [n1, n2] = self.sides[p];
+        let side = |g: usize, n: u32| sums[self.branches[g + 1] as usize + g - n as usize];
+        let x = if n1 > 0 { side(pair.g1, n1) } else { 0.0 };
+        if n2 > 0 {
+            x + side(pair.g2, n2)
+        } else {
+            x
+        }
+    }
+
+    /// Geom `g`'s branch: the chain entries of every joint from the world down to its body,
+    /// top down; a pair's side is the last `sides[p][side]` of its geom's.
+    #[inline]
+    fn branch(&self, g: usize) -> &'m [u32] {
+        let n = self.ngeom + 1;
+        &self.branches[n + self.branches[g] as usize..n + self.branches[g + 1] as usize]
     }
 
     /// The growth `B` of pair `p`'s state-local rate (`Rate`): `Σ_j |Δ_j|·Σ_{i after j}
-    /// |Δ_i|·R_i` over each branch's hinges, `i` the joints below `j` on its branch.
+    /// |Δ_i|·R_i` over each branch's hinges, `i` the joints below `j` on its branch. (Pair by
+    /// pair, over its chain: what `motion_sums` sums once per geom, kept for the tests.)
+    #[cfg(test)]
     fn quad(&self, p: usize, abs_delta: &[f64]) -> f64 {
         let mut b = 0.0;
         let mut suffix = [0.0f64; 2];
@@ -282,22 +350,25 @@ impl<'m> Levers<'m> {
     }
 
     /// The pair's rate `M` (metres per unit of `t`) for joint moves `|Δ|`; an infinite lever
-    /// counts only for a joint that moves. (Over the chain: the row is 0 elsewhere.)
-    #[inline]
+    /// counts only for a joint that moves. (Over the chain: the row is 0 elsewhere. Pair by
+    /// pair: what `motion_sums` sums once per geom, kept for the tests.)
+    #[cfg(test)]
     fn rate(&self, pair: usize, abs_delta: &[f64]) -> f64 {
         let row = &self.rows[pair * self.k..(pair + 1) * self.k];
         self.chain(pair).iter().map(|&e| entry_joint(e)).filter(|&j| abs_delta[j] != 0.0).map(|j| row[j] * abs_delta[j]).sum()
     }
 }
 
-/// The `(npairs, K)` lever table of `Levers`, the pairs' chains, and their `solo` geoms.
-fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
+/// The lever table of `Levers`: the `(npairs, K)` rows, the pairs' chains, their `solo`
+/// geoms and sides, and each geom's branch and levers.
+fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
     {
         let k = model.njoint();
         let mut rows = vec![0.0; model.pairs.len() * k];
         let mut offsets = vec![0u32];
         let mut entries = Vec::new();
         let mut solo = Vec::with_capacity(model.pairs.len());
+        let mut sides = Vec::with_capacity(model.pairs.len());
         // (a joint's reach to a geom, `joint_reach`, is the joint's and the geom's alone: computed
         // once per geom, not once per pair of it; a scene's obstacles pair with every link)
         let mut reach = vec![f64::NAN; k * model.geoms.len()];
@@ -349,6 +420,8 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
             }
             entries.extend_from_slice(chain);
             offsets.push(entries.len() as u32);
+            let first = chain.iter().filter(|&&e| e & SIDE == 0).count() as u32;
+            sides.push([first, chain.len() as u32 - first]);
             // (one side's entries only, and that side's whole branch from the world: the chain,
             // and the rows over it, are its geom's alone)
             solo.push(match (common, chain.first()) {
@@ -357,7 +430,27 @@ fn lever_rows(model: &RobotModel) -> (Vec<f64>, Vec<u32>, Vec<u32>) {
             });
         }
         offsets.extend(entries);
-        (rows, offsets, solo)
+        // Each geom's branch from the world, top down: a pair's side is its last entries (the
+        // chain from the common ancestor down to the geom, built the same way); and its levers.
+        let ngeom = model.geoms.len();
+        let mut branches = vec![0u32];
+        let mut branch = Vec::new();
+        for g in 0..ngeom {
+            let up = &ups[model.geoms[g].body];
+            for &b in up.iter().rev() {
+                let (j0, j1) = model.body_joints[b];
+                for j in j0..j1 {
+                    branch.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 });
+                    let r = &mut reach[g * k + j];
+                    if r.is_nan() {
+                        *r = joint_reach(model, j, g, up);
+                    }
+                }
+            }
+            branches.push(branch.len() as u32);
+        }
+        branches.extend(branch);
+        crate::model::LeverTable { rows, chains: offsets, solo, sides, branches, reach }
     }
 }
 
@@ -428,99 +521,94 @@ impl Rate {
 }
 
 /// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
-/// joint `j`'s `(stamp, anchor, axis)` belong to the state placed with that stamp (0: none). And
-/// each tight joint's reach to each geom's sphere, `reach[j · ngeom + g]`, `(stamp, reach)` of
-/// the state with that stamp (0: none): a function of the joint and the geom alone, shared by
-/// every pair of the geom (a Panda's 272 pairs over 26 geoms: most of `local_rate`'s terms are
-/// repeats within a state). (A stamp beside its value: one bounds check reads both.)
+/// joint `j`'s `(stamp, anchor, axis)` belong to the state placed with that stamp (0: none).
+/// And each geom's state-local terms along its branch, summed from the geom up (`sums`): a
+/// pair's side is a suffix of its geom's branch, so every pair of a geom reads its side's sum
+/// off the same array (a Panda's 272 pairs over 26 geoms: one sum per geom and state, not one
+/// per pair). (A stamp beside its value: one bounds check reads both.)
 struct Axes {
     joint: Vec<(u32, nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)>,
-    ngeom: usize,
-    reach: Vec<(u32, f64)>,
-    /// Per geom, the state-local `a` of its `solo` pairs (`Levers::solo`: the same for each),
-    /// `(stamp, a)` of the state with that stamp (0: none), and their `B` in this motion (NaN:
-    /// not yet).
-    solo: Vec<(u32, f64)>,
-    solo_quad: Vec<f64>,
+    /// Per geom, the stamp of the state its `sums` belong to (0: none).
+    summed: Vec<u32>,
+    /// Geom `g`'s suffix sums at `branches[g] + g ..= branches[g + 1] + g` (`Levers::branch`):
+    /// entry `i` sums the branch's terms from `i` down to the geom, the last entry 0.
+    sums: Vec<f64>,
+    /// The motion's growth sums per geom (`Levers::motion_sums`), the layout of `sums`.
+    quad: Vec<f64>,
 }
 
 impl Axes {
-    fn new(k: usize, ngeom: usize) -> Self {
+    fn new(model: &RobotModel) -> Self {
+        let levers = Levers::of(model);
+        let ngeom = model.geoms.len();
         Axes {
-            joint: vec![(0, Default::default(), Default::default()); k],
-            ngeom,
-            reach: vec![(0, 0.0); k * ngeom],
-            solo: vec![(0, 0.0); ngeom],
-            solo_quad: vec![f64::NAN; ngeom],
+            joint: vec![(0, Default::default(), Default::default()); model.njoint()],
+            summed: vec![0; ngeom],
+            sums: vec![0.0; levers.branches[ngeom] as usize + ngeom],
+            quad: vec![0.0; levers.branches[ngeom] as usize + ngeom],
         }
     }
 
     /// Forgets every state's values (a new motion).
     fn forget(&mut self) {
         self.joint.iter_mut().for_each(|x| x.0 = 0);
-        self.reach.iter_mut().for_each(|x| x.0 = 0);
-        self.solo.iter_mut().for_each(|x| x.0 = 0);
-        self.solo_quad.fill(f64::NAN);
+        self.summed.fill(0);
     }
 }
 
-/// The state-local `a` of pair `p` (`Rate`) in the state placed in `s`.
+/// The state-local `a` of pair `p` (`Rate`) in the state placed in `s`: on each side, `Σ_j
+/// |Δ_j|·ℓ_j` over the side's chain (`ℓ_j` the joint's lever now where it is `tight`, its
+/// lever otherwise; joints that do not move add nothing), read off the side's geom's `sums`.
+#[inline]
 fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
-    let state = s.pose_stamp();
     let pair = &model.pairs[p];
-    let row = &levers.rows[p * levers.k..(p + 1) * levers.k];
-    let mut a = 0.0;
-    for &e in levers.chain(p) {
-        let j = entry_joint(e);
-        let d = abs_delta[j];
-        if d == 0.0 {
-            continue;
-        }
-        let lever = row[j];
-        a += d * if e & TIGHT != 0 {
-            let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
-            let slot = &mut axes.reach[j * axes.ngeom + g];
-            if slot.0 != state {
-                let joint = &mut axes.joint[j];
-                if joint.0 != state {
-                    let jnt = &model.joints[j];
-                    let x = s.body(jnt.body);
-                    *joint = (state, (x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
-                }
-                let c = model.broad.sphere_centre(&s.broad, g);
-                // (1e-9 relative: rounding of the placed frames and of the cross product)
-                *slot = (state, ((c - joint.1).cross(&joint.2).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9));
+    let [n1, n2] = levers.sides[p];
+    // (a scene pair's other side is the world's: no term)
+    let a = if n1 > 0 { side_sum(model, levers, abs_delta, s, axes, pair.g1, n1 as usize) } else { 0.0 };
+    if n2 > 0 {
+        a + side_sum(model, levers, abs_delta, s, axes, pair.g2, n2 as usize)
+    } else {
+        a
+    }
+}
+
+/// The sum of geom `g`'s state-local terms over the last `n` entries of its branch (`local_rate`),
+/// the geom's `sums` computed on its first use in the placed state.
+#[inline]
+fn side_sum(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, g: usize, n: usize) -> f64 {
+    let state = s.pose_stamp();
+    let from = levers.branches[g] as usize;
+    let len = levers.branches[g + 1] as usize - from;
+    let base = from + g;
+    if axes.summed[g] != state {
+        axes.summed[g] = state;
+        let branch = levers.branch(g);
+        let reach = &levers.reach[g * levers.k..(g + 1) * levers.k];
+        let mut sum = 0.0;
+        axes.sums[base + len] = 0.0;
+        for (i, &e) in branch.iter().enumerate().rev() {
+            let j = entry_joint(e);
+            let d = abs_delta[j];
+            if d != 0.0 {
+                let lever = reach[j];
+                sum += d * if e & TIGHT != 0 {
+                    let joint = &mut axes.joint[j];
+                    if joint.0 != state {
+                        let jnt = &model.joints[j];
+                        let x = s.body(jnt.body);
+                        *joint = (state, (x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
+                    }
+                    let c = model.broad.sphere_centre(&s.broad, g);
+                    // (1e-9 relative: rounding of the placed frames and of the cross product)
+                    (((c - joint.1).cross(&joint.2).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9)).min(lever)
+                } else {
+                    lever
+                };
             }
-            slot.1.min(lever)
-        } else {
-            lever
-        };
+            axes.sums[base + i] = sum;
+        }
     }
-    a
-}
-
-/// `local_rate` of pair `p`, read off its `solo` geom's where another pair of that geom computed
-/// it in this state (the same chain, rows and geom: the same sum, bit for bit).
-#[inline]
-fn local_rate_of(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
-    let g = levers.solo[p];
-    if g == u32::MAX {
-        return local_rate(model, levers, abs_delta, s, axes, p);
-    }
-    let (g, state) = (g as usize, s.pose_stamp());
-    if axes.solo[g].0 != state {
-        axes.solo[g] = (state, local_rate(model, levers, abs_delta, s, axes, p));
-    }
-    axes.solo[g].1
-}
-
-/// `slot`'s value, computed by `f` where it is NaN (not yet): a `solo` geom's rates, once per motion.
-#[inline]
-fn once(slot: &mut f64, f: impl FnOnce() -> f64) -> f64 {
-    if slot.is_nan() {
-        *slot = f();
-    }
-    *slot
+    axes.sums[base + len - n]
 }
 
 /// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
@@ -590,8 +678,8 @@ pub struct MotionScratch {
     lo: Vec<f64>,
     hi: Vec<f64>,
     rates: Vec<f64>,
-    /// Per geom, its `solo` pairs' chain rate in this motion (NaN: not yet).
-    solo_rates: Vec<f64>,
+    /// Per geom, the motion's chain-rate sums over its branch (`Levers::motion_sums`).
+    chain_sums: Vec<f64>,
     quads: Vec<f64>,
     axes: Axes,
     q: Vec<f64>,
@@ -655,9 +743,9 @@ impl MotionScratch {
             lo: vec![0.0; model.njoint()],
             hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
-            solo_rates: vec![f64::NAN; model.geoms.len()],
+            chain_sums: vec![0.0; Levers::of(model).branches[model.geoms.len()] as usize + model.geoms.len()],
             quads: vec![0.0; model.pairs.len()],
-            axes: Axes::new(model.njoint(), model.geoms.len()),
+            axes: Axes::new(model),
             q: vec![0.0; model.njoint()],
             radius1: vec![0.0; model.pairs.len()],
             open: Vec::new(),
@@ -710,14 +798,10 @@ fn radius(
         return Ok(rate.reach(gap));
     }
     if chain > 0.0 {
-        rate.a = local_rate_of(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
-        // (the growth of the rate, computed for the pair on its first use in the motion, or for
-        // its `solo` geom)
+        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k).min(chain);
+        // (the growth of the rate, read off its geoms' sums on the pair's first use in the motion)
         if quad.is_nan() {
-            *quad = match at.levers.solo[k] {
-                u32::MAX => at.levers.quad(k, at.abs_delta),
-                g => once(&mut at.axes.solo_quad[g as usize], || at.levers.quad(k, at.abs_delta)),
-            };
+            *quad = at.levers.side_sums(model, &at.axes.quad, k);
         }
         rate.b = *quad;
     }
@@ -800,13 +884,10 @@ pub(crate) fn certify_curve<C: Curve>(
         return Ok(Motion::Unproven);
     }
     let npairs = model.pairs.len();
-    // (a `solo` pair's chain rate is its geom's: computed once per geom)
-    ms.solo_rates.fill(f64::NAN);
+    // (each pair's chain rate and growth are sums over its geoms' branches, summed once per geom)
+    levers.motion_sums(&ms.abs_delta, &mut ms.chain_sums, &mut ms.axes.quad);
     for p in 0..npairs {
-        ms.rates[p] = match levers.solo[p] {
-            u32::MAX => levers.rate(p, &ms.abs_delta),
-            g => once(&mut ms.solo_rates[g as usize], || levers.rate(p, &ms.abs_delta)),
-        };
+        ms.rates[p] = levers.side_sums(model, &ms.chain_sums, p);
         ms.quads[p] = f64::NAN;
     }
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
@@ -1434,6 +1515,83 @@ pub(crate) mod tests {
         s.pair_lower_bound(model, k, f64::INFINITY, f64::INFINITY).unwrap().max(0.0)
     }
 
+    /// The state-local rate of pair `p` summed pair by pair over its chain, as `local_rate`
+    /// defines it (the reference the per-geom sums must match).
+    fn local_rate_by_pair(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, p: usize) -> f64 {
+        let pair = &model.pairs[p];
+        let row = &levers.rows[p * levers.k..(p + 1) * levers.k];
+        let mut a = 0.0;
+        for &e in levers.chain(p) {
+            let j = entry_joint(e);
+            let d = abs_delta[j];
+            if d == 0.0 {
+                continue;
+            }
+            a += d * if e & TIGHT != 0 {
+                let g = if e & SIDE == 0 { pair.g1 } else { pair.g2 };
+                let jnt = &model.joints[j];
+                let x = s.body(jnt.body);
+                let (anchor, axis) = ((x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
+                let c = model.broad.sphere_centre(&s.broad, g);
+                (((c - anchor).cross(&axis).norm() + model.geoms[g].shape.radius) * (1.0 + 1e-9)).min(row[j])
+            } else {
+                row[j]
+            };
+        }
+        a
+    }
+
+    /// Each pair's side of its chain is the tail of its geom's branch from the world, and the
+    /// chain rate, growth and state-local rate summed once per geom over branches
+    /// (`Levers::motion_sums`, `local_rate`) are the pair-by-pair sums over its chain, to
+    /// rounding, on five bundled scenes (self pairs and scene pairs), with random joint moves
+    /// some of which are 0, over several placed states (the sums of one state not read in another).
+    #[test]
+    fn rates_summed_per_geom_are_the_pairs_own() {
+        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter", "ur5e_wall_box"] {
+            let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
+            let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
+            let levers = Levers::of(&model);
+            let k = model.njoint();
+            for (p, pair) in model.pairs.iter().enumerate() {
+                let [n1, n2] = levers.sides[p];
+                let chain = levers.chain(p);
+                for (side, g, n) in [(0, pair.g1, n1), (1, pair.g2, n2)] {
+                    let ours: Vec<u32> = chain.iter().filter(|&&e| e & SIDE == side).map(|e| e & !SIDE).collect();
+                    let branch = levers.branch(g);
+                    assert_eq!(ours.len(), n as usize, "{scene}: pair {p}");
+                    assert_eq!(ours[..], branch[branch.len() - n as usize..], "{scene}: pair {p} side {side}");
+                    for &e in &ours {
+                        assert_eq!(levers.reach[g * k + entry_joint(e)], levers.rows[p * k + entry_joint(e)], "{scene}: pair {p}");
+                    }
+                }
+            }
+            let space = Space::of(&model).unwrap();
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+            let mut s = Scratch::new(&model);
+            let mut axes = Axes::new(&model);
+            let mut chain_sums = MotionScratch::new(&model).chain_sums;
+            let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * y.abs() || (x == y);
+            for _ in 0..20 {
+                let abs: Vec<f64> = (0..k).map(|_| if rng.random_bool(0.2) { 0.0 } else { rng.random_range(0.0..1.0) }).collect();
+                levers.motion_sums(&abs, &mut chain_sums, &mut axes.quad);
+                axes.forget();
+                for _ in 0..3 {
+                    let q: Vec<f64> = (0..k).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
+                    s.place(&model, &q, false);
+                    for p in 0..model.pairs.len() {
+                        let (rate, quad) = (levers.side_sums(&model, &chain_sums, p), levers.side_sums(&model, &axes.quad, p));
+                        assert!(close(rate, levers.rate(p, &abs)), "{scene}: pair {p}: {rate} {}", levers.rate(p, &abs));
+                        assert!(close(quad, levers.quad(p, &abs)), "{scene}: pair {p}: {quad} {}", levers.quad(p, &abs));
+                        let (a, want) =
+                            (local_rate(&model, levers, &abs, &s, &mut axes, p), local_rate_by_pair(&model, levers, &abs, &s, p));
+                        assert!(close(a, want), "{scene}: pair {p}: {a} {want}");
+                    }
+                }
+            }
+        }
+    }
+
     /// A `solo` pair's chain is its geom's whole branch from the world, its rows that geom's
     /// reaches, and the other geom never moves: every pair of a solo geom has the same chain
     /// (joints and tightness) and rows, so their rates are one; the scene pairs of a fixed robot
@@ -1746,7 +1904,8 @@ pub(crate) mod tests {
         let levers = Levers::of(&model);
         let space = Space::of(&model).unwrap();
         let mut s = Scratch::new(&model);
-        let mut axes = Axes::new(4, model.geoms.len());
+        let mut axes = Axes::new(&model);
+        let mut chain_sums = MotionScratch::new(&model).chain_sums;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (mut tight_wins, mut checks) = (0, 0);
         for _ in 0..400 {
@@ -1755,14 +1914,15 @@ pub(crate) mod tests {
             let mut delta = vec![0.0; 4];
             space.delta(&a, &b, &mut delta);
             let abs: Vec<f64> = delta.iter().map(|d| d.abs()).collect();
+            levers.motion_sums(&abs, &mut chain_sums, &mut axes.quad);
             let t0 = rng.random_range(0.0..1.0);
             let mut q0 = vec![0.0; 4];
             space.along(&a, &delta, t0, &mut q0);
             for k in 0..model.pairs.len() {
                 let d0 = distance(&model, &mut s, &q0, k);
-                let chain = levers.rate(k, &abs);
+                let chain = levers.side_sums(&model, &chain_sums, k);
                 let local = local_rate(&model, levers, &abs, &s, &mut axes, k);
-                let rate = Rate { chain, a: local.min(chain), b: levers.quad(k, &abs) };
+                let rate = Rate { chain, a: local.min(chain), b: levers.side_sums(&model, &axes.quad, k) };
                 tight_wins += (local < 0.9 * chain) as usize;
                 for tau in [1e-3, 1e-2, 0.05, 0.2] {
                     for sign in [-1.0, 1.0] {
