@@ -34,7 +34,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+# TOPP-RA's linear algebra runs on OpenBLAS's threads, which spin for ~0.1 s after each call: on
+# two cores that is one of the two `time_path` runs on, and it timed our 20-waypoint paths ~1.4×
+# slower than in a process without TOPP-RA (vx300s_clutter: 2.04 against 1.48 ms, one after the
+# other). The peers are not timed here; one BLAS thread leaves the cores to what is.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 
 import profrobot
 from profrobot.exact.labels import so2_steps
