@@ -42,7 +42,7 @@
 //! |---|---|---|---|
 //! | [`error`] | the one error type | | |
 //! | [`budget`] | sizes checked against the memory available before they are allocated | `error` | |
-//! | [`threads`] | one rayon pool per thread count, fork-safe; one work item on the calling thread | `error` | |
+//! | [`threads`] | one rayon pool per thread count, fork-safe; one work item on the calling thread; a few unequal items shared, the sleeping workers steered off the busy CPU | `error` | |
 //! | [`cancel`] | the flag long loops read between items: a call stopped part-way (Ctrl-C) | `error` | |
 //! | [`joints`] | joint space: poses and what holds of them before any geometry | `error`, `budget` | |
 //! | [`joints::angles`] | the one angle wrap (SO(2), shortest arcs) | | |
@@ -71,7 +71,7 @@
 //! | `collision::capsules` | two capsules in closed form, as MuJoCo measures them | | |
 //! | [`collision::fastpath`] | the booleans-only fast path: first pair in contact, likeliest first | | |
 //! | [`collision::filter`] | a sensor's points within a margin of the model at a pose (the self-filter) | | |
-//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `cancel`, `joints`, `geometry`, `model`, `collision` | `threads` |
+//! | [`planning`] | joint-space motion over the exact labeller | `error`, `budget`, `cancel`, `threads`, `joints`, `geometry`, `model`, `collision` | |
 //! | `planning::spans` | pairs one joint alone moves, certified once over that joint's values | | |
 //! | [`planning::motion`] | straight joint-space motions certified continuously (conservative advancement) | | |
 //! | [`planning::oracle`] | the nearest free pose found by rays and bisection (the Δθ yardstick) | | |

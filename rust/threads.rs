@@ -61,13 +61,143 @@ impl PoolCache {
         }
         // Built outside the lock, which is only ever held for a lookup: a fork while another
         // thread builds a pool cannot leave the child's lock taken.
-        let built = match ThreadPoolBuilder::new().num_threads(n).thread_name(|i| format!("profrobot-{i}")).build() {
+        let workers = Arc::new(Workers::new(n));
+        let table = workers.clone();
+        let built = match ThreadPoolBuilder::new()
+            .num_threads(n)
+            .thread_name(|i| format!("profrobot-{i}"))
+            .start_handler(move |i| table.started(i))
+            .build()
+        {
             Ok(p) => Arc::new(p),
             Err(e) => return invalid_input(format!("could not start {n} threads: {e}")),
         };
         // Another thread may have built one meanwhile: keep the first (ours is dropped).
         Ok(Self::of_process(&mut lock(), pid).entry(n).or_insert(built).clone())
     }
+}
+
+/// One pool's workers as the OS knows them: each worker's thread id (set as it starts) and the
+/// CPUs the process could run on when the pool was built. [`steer_siblings`] reads them.
+struct Workers {
+    tids: Vec<std::sync::atomic::AtomicI32>,
+    cpus: Vec<usize>,
+}
+
+thread_local! {
+    /// On a pool's worker: its pool's table and its own index in it.
+    static SIBLINGS: std::cell::RefCell<Option<(Arc<Workers>, usize)>> = const { std::cell::RefCell::new(None) };
+}
+
+impl Workers {
+    fn new(n: usize) -> Self {
+        Workers { tids: (0..n).map(|_| std::sync::atomic::AtomicI32::new(0)).collect(), cpus: os::process_cpus() }
+    }
+
+    /// Worker `i` has started on the calling thread.
+    fn started(self: &Arc<Self>, i: usize) {
+        self.tids[i].store(os::thread_id(), std::sync::atomic::Ordering::Release);
+        SIBLINGS.with(|s| *s.borrow_mut() = Some((self.clone(), i)));
+    }
+}
+
+/// While alive, the calling worker's siblings in its pool may run on every CPU of the process
+/// but the one the caller is on ([`steer_siblings`]); dropped, on all of them again.
+pub(crate) struct Steer(Option<(Arc<Workers>, usize)>);
+
+impl Drop for Steer {
+    fn drop(&mut self) {
+        if let Some((w, me)) = &self.0 {
+            for (_, tid) in w.tids.iter().enumerate().filter(|&(i, _)| i != *me) {
+                os::allow(tid.load(std::sync::atomic::Ordering::Acquire), &w.cpus);
+            }
+        }
+    }
+}
+
+/// Keeps the calling worker's sleeping siblings off its CPU while it hands them work (held over
+/// one parallel section). On the 2-core VMs these benchmarks run on, a rayon worker woken for a
+/// job that a busy sibling pushed did not start within 600 µs in 110-120 of 200 hand-offs (a
+/// plain thread woken by a condition variable: 4 µs at the median), as if placed on the busy
+/// CPU: a planned path's segments were all proven on one thread, the second core idle. Steered,
+/// the sibling started on the other CPU in 200 of 200 hand-offs, 30-50 µs at the median.
+/// Placement only, and only for the section: nothing computed depends on it, the OS places the
+/// workers freely again after it (pinning each worker to one CPU for good did as well alone,
+/// but a pinned thread is never moved off a CPU another process keeps busy), and a failed call,
+/// a caller outside a profrobot pool, a one-CPU process or another OS leaves placement alone.
+pub(crate) fn steer_siblings() -> Steer {
+    let Some((w, me)) = SIBLINGS.with(|s| s.borrow().clone()) else {
+        return Steer(None);
+    };
+    let Some(cpu) = os::current_cpu() else {
+        return Steer(None);
+    };
+    let others: Vec<usize> = w.cpus.iter().copied().filter(|&c| c != cpu).collect();
+    if others.is_empty() || others.len() == w.cpus.len() || w.tids.len() < 2 {
+        return Steer(None);
+    }
+    for (_, tid) in w.tids.iter().enumerate().filter(|&(i, _)| i != me) {
+        os::allow(tid.load(std::sync::atomic::Ordering::Acquire), &others);
+    }
+    Steer(Some((w, me)))
+}
+
+/// The scheduler calls `steer_siblings` makes (Linux; elsewhere they do nothing).
+#[cfg(target_os = "linux")]
+mod os {
+    /// The CPUs this process may run on (its affinity mask), ascending; empty where unreadable.
+    pub fn process_cpus() -> Vec<usize> {
+        // SAFETY: a zeroed cpu_set_t is an empty set; sched_getaffinity writes at most its size.
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+                return Vec::new();
+            }
+            (0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect()
+        }
+    }
+
+    /// The calling thread's id (0 where unknown).
+    pub fn thread_id() -> i32 {
+        // SAFETY: gettid has no preconditions.
+        unsafe { libc::gettid() }
+    }
+
+    /// The CPU the calling thread runs on.
+    pub fn current_cpu() -> Option<usize> {
+        // SAFETY: sched_getcpu has no preconditions.
+        usize::try_from(unsafe { libc::sched_getcpu() }).ok()
+    }
+
+    /// Lets thread `tid` run on `cpus` only (a failure, or tid 0 before the worker started,
+    /// changes nothing: 0 would name the caller, so it is skipped).
+    pub fn allow(tid: i32, cpus: &[usize]) {
+        if tid == 0 {
+            return;
+        }
+        // SAFETY: the set holds CPUs of the process's own mask; the call only sets placement.
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            for &c in cpus {
+                libc::CPU_SET(c, &mut set);
+            }
+            libc::sched_setaffinity(tid, std::mem::size_of::<libc::cpu_set_t>(), &set);
+        }
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+mod os {
+    pub fn process_cpus() -> Vec<usize> {
+        Vec::new()
+    }
+    pub fn thread_id() -> i32 {
+        0
+    }
+    pub fn current_cpu() -> Option<usize> {
+        None
+    }
+    pub fn allow(_tid: i32, _cpus: &[usize]) {}
 }
 
 /// Runs `f` on this process's pool of `threads` workers (`None`: [`default_threads`]).
@@ -118,7 +248,59 @@ where
         let mut state = init();
         return data.chunks(size).enumerate().map(|c| f(&mut state, c)).collect();
     }
+    let _steered = steer_siblings();
     data.par_chunks(size).enumerate().map_init(init, f).collect()
+}
+
+/// `f(state, i)` for each `i < n` on rayon's current pool, in item order, each worker taking
+/// the next item from one shared counter as it frees up (one `init()` state per worker, made on
+/// its first item), or on the calling thread alone where the pool has one worker or `n < 2`.
+///
+/// For a few items of very unequal cost (a path's two to five segments, 20 µs to 2 ms of proof
+/// each), where a parallel iterator's halving does not spread them: the worker that splits
+/// runs the cheap first half itself and pops the rest back before a sleeping worker has woken
+/// (tens of µs on a VM), so a planned path's segments all ran on one thread. Here every item
+/// left when the second worker wakes is open to it. Each result is `f`'s of its item alone
+/// wherever it runs (the caller's `f` must not depend on the state's history), so the results
+/// do not depend on the thread count.
+///
+/// # Example
+/// ```
+/// let squares = profrobot::with_threads(Some(2), || profrobot::threads::map_shared(5, || (), |_, i| i * i)).unwrap();
+/// assert_eq!(squares, vec![0, 1, 4, 9, 16]);
+/// ```
+pub fn map_shared<S, R>(n: usize, init: impl Fn() -> S + Sync, f: impl Fn(&mut S, usize) -> R + Sync) -> Vec<R>
+where
+    R: Send,
+{
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    let workers = rayon::current_num_threads().min(n);
+    if workers <= 1 {
+        let mut state = init();
+        return (0..n).map(|i| f(&mut state, i)).collect();
+    }
+    let next = AtomicUsize::new(0);
+    let slots: Vec<Mutex<Option<R>>> = (0..n).map(|_| Mutex::new(None)).collect();
+    let work = || {
+        let mut state = None;
+        loop {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            if i >= n {
+                break;
+            }
+            let r = f(state.get_or_insert_with(&init), i);
+            *slots[i].lock().unwrap_or_else(PoisonError::into_inner) = Some(r);
+        }
+    };
+    let _steered = steer_siblings();
+    rayon::scope(|s| {
+        for _ in 1..workers {
+            s.spawn(|_| work());
+        }
+        work();
+    });
+    slots.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner).expect("every item ran")).collect()
 }
 
 /// This process's pool of `threads` workers (`None`: [`default_threads`]), built on first use;
@@ -170,6 +352,71 @@ mod tests {
         assert_eq!((pools.pid, pools.by_threads.len()), (8, 1));
         // (`parent` is still usable here, where its threads do exist; in a real child the
         // cache forgets it, one leaked handle per count, by design.)
+    }
+
+    #[test]
+    fn shared_items_run_once_each_in_order_on_any_pool() {
+        // Items of very unequal cost (the first few slow), a state per worker counting its items.
+        let run = |threads: usize| {
+            with_threads(Some(threads), || {
+                let seen: Vec<std::sync::atomic::AtomicUsize> = (0..9).map(|_| Default::default()).collect();
+                let out = map_shared(
+                    9,
+                    || 0usize,
+                    |done, i| {
+                        *done += 1;
+                        seen[i].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let mut x = i as u64;
+                        for _ in 0..(if i < 3 { 2_000_000 } else { 10 }) {
+                            x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+                        }
+                        (i, x, rayon::current_thread_index())
+                    },
+                );
+                assert!(seen.iter().all(|n| n.load(std::sync::atomic::Ordering::Relaxed) == 1), "an item ran twice or never");
+                out
+            })
+            .unwrap()
+        };
+        let (one, two) = (run(1), run(2));
+        assert_eq!(one.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(), two.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>());
+        assert!(one.iter().enumerate().all(|(i, r)| r.0 == i));
+        assert!(map_shared(0, || (), |_, i| i).is_empty());
+    }
+
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn steered_siblings_leave_the_callers_cpu_and_get_every_cpu_back() {
+        let mask = |tid: i32| {
+            // SAFETY: as `os::process_cpus`, for thread `tid`.
+            unsafe {
+                let mut set: libc::cpu_set_t = std::mem::zeroed();
+                assert_eq!(libc::sched_getaffinity(tid, std::mem::size_of::<libc::cpu_set_t>(), &mut set), 0);
+                (0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect::<Vec<_>>()
+            }
+        };
+        let all = os::process_cpus();
+        with_threads(Some(2), || {
+            let (w, me) = SIBLINGS.with(|s| s.borrow().clone()).expect("a profrobot pool's worker knows its siblings");
+            let sibling = w.tids[1 - me].load(std::sync::atomic::Ordering::Acquire);
+            assert_ne!(sibling, 0);
+            {
+                let steer = steer_siblings();
+                if all.len() >= 2 {
+                    assert!(steer.0.is_some());
+                    let cpu = os::current_cpu().unwrap();
+                    let allowed = mask(sibling);
+                    assert!(!allowed.is_empty() && !allowed.contains(&cpu), "{allowed:?} holds the caller's CPU {cpu}");
+                    assert!(allowed.iter().all(|c| all.contains(c)));
+                }
+            }
+            assert_eq!(mask(sibling), all, "the sibling did not get the process's CPUs back");
+            assert_eq!(mask(0), all, "the caller was steered");
+        })
+        .unwrap();
+        // Outside a profrobot pool (rayon's global one, or no pool), nothing is steered.
+        assert!(steer_siblings().0.is_none());
+        assert!(rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(steer_siblings).0.is_none());
     }
 
     #[test]

@@ -1147,6 +1147,8 @@ where
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
     let idx: Vec<usize> = (0..b).collect();
+    // (the worker's siblings off its CPU while they take their share: `threads::steer_siblings`)
+    let _steered = (b > CHUNK).then(crate::threads::steer_siblings);
     let parts: Vec<Result<Vec<T>>> = idx
         .par_chunks(CHUNK)
         .map_init(
