@@ -1026,12 +1026,6 @@ pub(crate) fn certify_curve<C: Curve>(
 /// Each motion's verdict and the states its proof placed, in motion order.
 pub type Verdicts = Vec<(Motion, usize)>;
 
-/// Motions per parallel work item (fixed, so the split never depends on the thread count). One:
-/// a motion is 10 µs to milliseconds of work, and the calls that certify a few (a timed path's
-/// 19 segments and 18 blends, a straight-line move's ~16 segments) were one or two items of 16,
-/// most of it on one thread; each worker's scratch is reused across its items (`map_init`).
-const CHUNK: usize = 1;
-
 /// The verdict on each motion `starts[i] → goals[i]` (`(B, K)` row-major each; continuous
 /// hinges along the short arc, other joints straight and unclamped) with every pair above
 /// `max(margin, clearance)` metres, `clearance` in `(0, MAX_CLEARANCE]`, and the states each
@@ -1134,37 +1128,28 @@ where
 }
 
 /// `one(space, scratch, buffer of 3K, i, K)` for each task `i < b` (one or more motions, each
-/// decided alone on `scratch`), as `certify_each` runs its motions: in parallel, one task a work
-/// item, an error named `name(i)`.
+/// decided alone on `scratch`), as `certify_each` runs its motions: in parallel, each worker
+/// taking the next task as it frees up (`threads::map_shared`: a motion is 10 µs to
+/// milliseconds of work, and the calls that certify a few, a timed path's re-proven blends or a
+/// planned path's segments, are a handful of unequal tasks), an error named `name(i)`.
 fn each_task<T, F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Vec<T>>
 where
     T: Send,
     F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<T, Undecided> + Sync,
 {
-    use rayon::prelude::*;
-
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
-    let idx: Vec<usize> = (0..b).collect();
-    // (the worker's siblings off its CPU while they take their share: `threads::steer_siblings`)
-    let _steered = (b > CHUNK).then(crate::threads::steer_siblings);
-    let parts: Vec<Result<Vec<T>>> = idx
-        .par_chunks(CHUNK)
-        .map_init(
-            || (MotionScratch::new(model), vec![0.0; 3 * k]),
-            |(ms, d), chunk| {
-                chunk
-                    .iter()
-                    .map(|&i| {
-                        crate::cancel::check()?;
-                        one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))
-                    })
-                    .collect()
-            },
-        )
-        .collect();
-    Ok(first_error(parts)?.into_iter().flatten().collect())
+    // (each worker takes the next task as it frees up: `threads::map_shared`)
+    let parts: Vec<Result<T>> = crate::threads::map_shared(
+        b,
+        || (MotionScratch::new(model), vec![0.0; 3 * k]),
+        |(ms, d), i| {
+            crate::cancel::check()?;
+            one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))
+        },
+    );
+    first_error(parts)
 }
 
 /// For each of `b` tasks, the first of its straight motions that is certified, taken as given
