@@ -77,11 +77,11 @@ impl PoolCache {
     }
 }
 
-/// One pool's workers as the OS knows them: each worker's thread id (set as it starts) and the
-/// CPUs the process could run on when the pool was built. [`steer_siblings`] reads them.
+/// One pool's workers as the OS knows them: each worker's thread id (set as it starts), and
+/// whether one of them is steering the others now ([`steer_siblings`]).
 struct Workers {
     tids: Vec<std::sync::atomic::AtomicI32>,
-    cpus: Vec<usize>,
+    steering: std::sync::atomic::AtomicBool,
 }
 
 thread_local! {
@@ -91,7 +91,7 @@ thread_local! {
 
 impl Workers {
     fn new(n: usize) -> Self {
-        Workers { tids: (0..n).map(|_| std::sync::atomic::AtomicI32::new(0)).collect(), cpus: os::process_cpus() }
+        Workers { tids: (0..n).map(|_| std::sync::atomic::AtomicI32::new(0)).collect(), steering: false.into() }
     }
 
     /// Worker `i` has started on the calling thread.
@@ -101,16 +101,28 @@ impl Workers {
     }
 }
 
-/// While alive, the calling worker's siblings in its pool may run on every CPU of the process
-/// but the one the caller is on ([`steer_siblings`]); dropped, on all of them again.
-pub(crate) struct Steer(Option<(Arc<Workers>, usize)>);
+/// Pools of more workers are not steered: one call per sibling each way, a few µs each, would
+/// cost as much as the late start it avoids (the case it was measured on is a 2-core VM).
+const STEER_UP_TO: usize = 8;
+
+/// While alive, the calling worker's siblings may not run on the CPU the caller was on
+/// ([`steer_siblings`]); dropped, each has the CPUs it had before again.
+#[must_use]
+pub(crate) struct Steer(Option<Steered>);
+
+/// What a steer changed: the pool, and each steered sibling's thread id with its CPUs before.
+pub(crate) struct Steered {
+    workers: Arc<Workers>,
+    saved: Vec<(i32, Vec<usize>)>,
+}
 
 impl Drop for Steer {
     fn drop(&mut self) {
-        if let Some((w, me)) = &self.0 {
-            for (_, tid) in w.tids.iter().enumerate().filter(|&(i, _)| i != *me) {
-                os::allow(tid.load(std::sync::atomic::Ordering::Acquire), &w.cpus);
+        if let Some(st) = &self.0 {
+            for (tid, cpus) in &st.saved {
+                os::allow(*tid, cpus);
             }
+            st.workers.steering.store(false, std::sync::atomic::Ordering::Release);
         }
     }
 }
@@ -121,46 +133,49 @@ impl Drop for Steer {
 /// plain thread woken by a condition variable: 4 µs at the median), as if placed on the busy
 /// CPU: a planned path's segments were all proven on one thread, the second core idle. Steered,
 /// the sibling started on the other CPU in 200 of 200 hand-offs, 30-50 µs at the median.
-/// Placement only, and only for the section: nothing computed depends on it, the OS places the
-/// workers freely again after it (pinning each worker to one CPU for good did as well alone,
-/// but a pinned thread is never moved off a CPU another process keeps busy), and a failed call,
-/// a caller outside a profrobot pool, a one-CPU process or another OS leaves placement alone.
+///
+/// Placement only, and only for the section: nothing computed depends on it, and each sibling
+/// gets back the CPUs it had (pinning each worker to one CPU for good did as well alone, but a
+/// pinned thread is never moved off a CPU another process keeps busy). One steer at a time per
+/// pool (another caller's section, or one nested in this, leaves placement alone), and a caller
+/// outside a profrobot pool, a pool of more than [`STEER_UP_TO`] workers, a sibling whose CPUs
+/// cannot be read or would be none, or another OS than Linux leave placement alone.
 pub(crate) fn steer_siblings() -> Steer {
+    use std::sync::atomic::Ordering;
+
     let Some((w, me)) = SIBLINGS.with(|s| s.borrow().clone()) else {
         return Steer(None);
     };
+    if w.tids.len() < 2 || w.tids.len() > STEER_UP_TO {
+        return Steer(None);
+    }
     let Some(cpu) = os::current_cpu() else {
         return Steer(None);
     };
-    let others: Vec<usize> = w.cpus.iter().copied().filter(|&c| c != cpu).collect();
-    if others.is_empty() || others.len() == w.cpus.len() || w.tids.len() < 2 {
+    if w.steering.swap(true, Ordering::AcqRel) {
         return Steer(None);
     }
+    let mut saved = Vec::with_capacity(w.tids.len() - 1);
     for (_, tid) in w.tids.iter().enumerate().filter(|&(i, _)| i != me) {
-        os::allow(tid.load(std::sync::atomic::Ordering::Acquire), &others);
+        let tid = tid.load(Ordering::Acquire);
+        let Some(cpus) = os::allowed(tid) else { continue };
+        let others: Vec<usize> = cpus.iter().copied().filter(|&c| c != cpu).collect();
+        if !others.is_empty() && others.len() < cpus.len() {
+            os::allow(tid, &others);
+            saved.push((tid, cpus));
+        }
     }
-    Steer(Some((w, me)))
+    Steer(Some(Steered { workers: w, saved }))
 }
 
 /// The scheduler calls `steer_siblings` makes (Linux; elsewhere they do nothing).
 #[cfg(target_os = "linux")]
 mod os {
-    /// The CPUs this process may run on (its affinity mask), ascending; empty where unreadable.
-    pub fn process_cpus() -> Vec<usize> {
-        // SAFETY: a zeroed cpu_set_t is an empty set; sched_getaffinity writes at most its size.
-        unsafe {
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
-                return Vec::new();
-            }
-            (0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect()
-        }
-    }
-
-    /// The calling thread's id (0 where unknown).
+    /// The calling thread's id (the `gettid` system call: glibc's wrapper is newer than the
+    /// manylinux2014 wheels' glibc 2.17).
     pub fn thread_id() -> i32 {
-        // SAFETY: gettid has no preconditions.
-        unsafe { libc::gettid() }
+        // SAFETY: gettid takes no arguments and cannot fail.
+        unsafe { libc::syscall(libc::SYS_gettid) as i32 }
     }
 
     /// The CPU the calling thread runs on.
@@ -169,13 +184,28 @@ mod os {
         usize::try_from(unsafe { libc::sched_getcpu() }).ok()
     }
 
-    /// Lets thread `tid` run on `cpus` only (a failure, or tid 0 before the worker started,
-    /// changes nothing: 0 would name the caller, so it is skipped).
+    /// The CPUs thread `tid` may run on (its affinity mask), ascending; None for tid 0 (a worker
+    /// not started yet: 0 would name the caller) or where it cannot be read.
+    pub fn allowed(tid: i32) -> Option<Vec<usize>> {
+        if tid == 0 {
+            return None;
+        }
+        // SAFETY: a zeroed cpu_set_t is an empty set; sched_getaffinity writes at most its size.
+        unsafe {
+            let mut set: libc::cpu_set_t = std::mem::zeroed();
+            if libc::sched_getaffinity(tid, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+                return None;
+            }
+            Some((0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect())
+        }
+    }
+
+    /// Lets thread `tid` run on `cpus` only (CPUs it was allowed; a failure changes nothing).
     pub fn allow(tid: i32, cpus: &[usize]) {
         if tid == 0 {
             return;
         }
-        // SAFETY: the set holds CPUs of the process's own mask; the call only sets placement.
+        // SAFETY: every CPU is below CPU_SETSIZE (read from a cpu_set_t); the call only sets placement.
         unsafe {
             let mut set: libc::cpu_set_t = std::mem::zeroed();
             for &c in cpus {
@@ -188,13 +218,13 @@ mod os {
 
 #[cfg(not(target_os = "linux"))]
 mod os {
-    pub fn process_cpus() -> Vec<usize> {
-        Vec::new()
-    }
     pub fn thread_id() -> i32 {
         0
     }
     pub fn current_cpu() -> Option<usize> {
+        None
+    }
+    pub fn allowed(_tid: i32) -> Option<Vec<usize>> {
         None
     }
     pub fn allow(_tid: i32, _cpus: &[usize]) {}
@@ -254,7 +284,9 @@ where
 
 /// `f(state, i)` for each `i < n` on rayon's current pool, in item order, each worker taking
 /// the next item from one shared counter as it frees up (one `init()` state per worker, made on
-/// its first item), or on the calling thread alone where the pool has one worker or `n < 2`.
+/// its first item), or on the calling thread alone where the pool has one worker or `n` is
+/// under `shared_from` (at least 2): for items known to be short, whose sharing would cost a
+/// sibling's wake-up and steering, tens of µs, for little.
 ///
 /// For a few items of very unequal cost (a path's two to five segments, 20 µs to 2 ms of proof
 /// each), where a parallel iterator's halving does not spread them: the worker that splits
@@ -266,17 +298,17 @@ where
 ///
 /// # Example
 /// ```
-/// let squares = profrobot::with_threads(Some(2), || profrobot::threads::map_shared(5, || (), |_, i| i * i)).unwrap();
+/// let squares = profrobot::with_threads(Some(2), || profrobot::threads::map_shared(5, 2, || (), |_, i| i * i)).unwrap();
 /// assert_eq!(squares, vec![0, 1, 4, 9, 16]);
 /// ```
-pub fn map_shared<S, R>(n: usize, init: impl Fn() -> S + Sync, f: impl Fn(&mut S, usize) -> R + Sync) -> Vec<R>
+pub fn map_shared<S, R>(n: usize, shared_from: usize, init: impl Fn() -> S + Sync, f: impl Fn(&mut S, usize) -> R + Sync) -> Vec<R>
 where
     R: Send,
 {
     use std::sync::atomic::{AtomicUsize, Ordering};
 
     let workers = rayon::current_num_threads().min(n);
-    if workers <= 1 {
+    if workers <= 1 || n < shared_from {
         let mut state = init();
         return (0..n).map(|i| f(&mut state, i)).collect();
     }
@@ -362,6 +394,7 @@ mod tests {
                 let seen: Vec<std::sync::atomic::AtomicUsize> = (0..9).map(|_| Default::default()).collect();
                 let out = map_shared(
                     9,
+                    2,
                     || 0usize,
                     |done, i| {
                         *done += 1;
@@ -381,39 +414,56 @@ mod tests {
         let (one, two) = (run(1), run(2));
         assert_eq!(one.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(), two.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>());
         assert!(one.iter().enumerate().all(|(i, r)| r.0 == i));
-        assert!(map_shared(0, || (), |_, i| i).is_empty());
+        assert!(map_shared(0, 2, || (), |_, i| i).is_empty());
+        // under `shared_from`, every item on the calling thread
+        let on = with_threads(Some(2), || {
+            let me = rayon::current_thread_index();
+            map_shared(3, 4, || (), |_, _| rayon::current_thread_index() == me)
+        })
+        .unwrap();
+        assert_eq!(on, vec![true; 3]);
     }
 
     #[test]
     #[cfg(target_os = "linux")]
-    fn steered_siblings_leave_the_callers_cpu_and_get_every_cpu_back() {
-        let mask = |tid: i32| {
-            // SAFETY: as `os::process_cpus`, for thread `tid`.
-            unsafe {
-                let mut set: libc::cpu_set_t = std::mem::zeroed();
-                assert_eq!(libc::sched_getaffinity(tid, std::mem::size_of::<libc::cpu_set_t>(), &mut set), 0);
-                (0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect::<Vec<_>>()
-            }
-        };
-        let all = os::process_cpus();
-        with_threads(Some(2), || {
+    fn steered_siblings_leave_the_callers_cpu_and_get_their_cpus_back() {
+        // A pool of its own (no other test's section steers its workers), 2 workers.
+        let pool = PoolCache(Mutex::new(None)).get(9, 2).unwrap();
+        let all = os::allowed(os::thread_id()).unwrap();
+        pool.install(|| {
             let (w, me) = SIBLINGS.with(|s| s.borrow().clone()).expect("a profrobot pool's worker knows its siblings");
-            let sibling = w.tids[1 - me].load(std::sync::atomic::Ordering::Acquire);
+            // (the sibling records its id as it starts: wait for it)
+            let waited = std::time::Instant::now();
+            let sibling = loop {
+                match w.tids[1 - me].load(std::sync::atomic::Ordering::Acquire) {
+                    0 if waited.elapsed().as_secs() < 5 => std::thread::yield_now(),
+                    tid => break tid,
+                }
+            };
             assert_ne!(sibling, 0);
+            let before = os::allowed(sibling).unwrap();
             {
                 let steer = steer_siblings();
-                if all.len() >= 2 {
-                    assert!(steer.0.is_some());
-                    let cpu = os::current_cpu().unwrap();
-                    let allowed = mask(sibling);
-                    assert!(!allowed.is_empty() && !allowed.contains(&cpu), "{allowed:?} holds the caller's CPU {cpu}");
-                    assert!(allowed.iter().all(|c| all.contains(c)));
+                let Steered { saved, .. } = steer.0.as_ref().expect("a worker of a pool of two steers");
+                let allowed = os::allowed(sibling).unwrap();
+                // (the CPU taken away: the one the caller was on, where it could leave it)
+                let taken: Vec<usize> = before.iter().copied().filter(|c| !allowed.contains(c)).collect();
+                // (the caller runs on one of the process's CPUs, which are the sibling's too)
+                if before.len() >= 2 {
+                    assert_eq!(saved, &vec![(sibling, before.clone())]);
+                    assert_eq!(taken.len(), 1, "{allowed:?} against {before:?}");
+                    assert!(!allowed.is_empty() && allowed.iter().all(|c| before.contains(c)));
+                } else {
+                    assert!(saved.is_empty());
+                    assert_eq!(allowed, before, "a sibling that could not leave the CPU was steered");
                 }
+                // one steer at a time: a second section leaves placement alone
+                assert!(steer_siblings().0.is_none());
             }
-            assert_eq!(mask(sibling), all, "the sibling did not get the process's CPUs back");
-            assert_eq!(mask(0), all, "the caller was steered");
-        })
-        .unwrap();
+            assert_eq!(os::allowed(sibling).unwrap(), before, "the sibling did not get its CPUs back");
+            assert_eq!(os::allowed(os::thread_id()).unwrap(), all, "the caller was steered");
+            assert!(steer_siblings().0.is_some(), "the steer was not released");
+        });
         // Outside a profrobot pool (rayon's global one, or no pool), nothing is steered.
         assert!(steer_siblings().0.is_none());
         assert!(rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(steer_siblings).0.is_none());

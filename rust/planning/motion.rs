@@ -1127,11 +1127,17 @@ where
     each_task(model, b, name, |space, ms, d, i, k| one(space, ms, d, i, k).map(|m| (m, ms.states)))
 }
 
+/// Batches of fewer motions run on the calling thread (`threads::map_shared`): a short timed
+/// path's chord, parts and blends, tens of µs each, were slower shared (a sibling woken and
+/// steered per batch, several batches a call: `benches/timing.py`'s median per path 0.27-0.46 →
+/// 0.35-0.58 ms with every batch of two or more shared).
+const SHARED_FROM: usize = 4;
+
 /// `one(space, scratch, buffer of 3K, i, K)` for each task `i < b` (one or more motions, each
 /// decided alone on `scratch`), as `certify_each` runs its motions: in parallel, each worker
 /// taking the next task as it frees up (`threads::map_shared`: a motion is 10 µs to
-/// milliseconds of work, and the calls that certify a few, a timed path's re-proven blends or a
-/// planned path's segments, are a handful of unequal tasks), an error named `name(i)`.
+/// milliseconds of work, and a timed path's batches are a handful of unequal tasks; fewer than
+/// [`SHARED_FROM`] on the calling thread), an error named `name(i)`.
 fn each_task<T, F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Vec<T>>
 where
     T: Send,
@@ -1143,6 +1149,7 @@ where
     // (each worker takes the next task as it frees up: `threads::map_shared`)
     let parts: Vec<Result<T>> = crate::threads::map_shared(
         b,
+        SHARED_FROM,
         || (MotionScratch::new(model), vec![0.0; 3 * k]),
         |(ms, d), i| {
             crate::cancel::check()?;

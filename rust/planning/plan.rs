@@ -693,6 +693,7 @@ fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> 
     let levers = Levers::of(model);
     let verdicts: Vec<Result<(bool, usize)>> = map_shared(
         path.len() - 1,
+        2,
         || (MotionScratch::new(model), vec![0.0; model.njoint()]),
         |(ms, delta), i| {
             let w = &path[i..i + 2];
