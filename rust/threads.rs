@@ -61,8 +61,7 @@ impl PoolCache {
         }
         // Built outside the lock, which is only ever held for a lookup: a fork while another
         // thread builds a pool cannot leave the child's lock taken.
-        let workers = Arc::new(Workers::new(n));
-        let table = workers.clone();
+        let table = Arc::new(Workers::new(n));
         let built = match ThreadPoolBuilder::new()
             .num_threads(n)
             .thread_name(|i| format!("profrobot-{i}"))

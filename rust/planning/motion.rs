@@ -1128,9 +1128,10 @@ where
 }
 
 /// Batches of fewer motions run on the calling thread (`threads::map_shared`): a short timed
-/// path's chord, parts and blends, tens of µs each, were slower shared (a sibling woken and
-/// steered per batch, several batches a call: `benches/timing.py`'s median per path 0.27-0.46 →
-/// 0.35-0.58 ms with every batch of two or more shared).
+/// path's chord, parts and blends, tens of µs each, gain little from a sibling woken and steered
+/// per batch, several batches a call (`benches/timing.py`'s median per planned path was
+/// 0.35-0.58 ms with every batch of two or more shared, 0.27-0.46 ms in the table before it, in
+/// a noisier hour).
 const SHARED_FROM: usize = 4;
 
 /// `one(space, scratch, buffer of 3K, i, K)` for each task `i < b` (one or more motions, each
