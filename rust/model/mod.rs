@@ -61,6 +61,9 @@ pub(crate) struct LeverTable {
     pub branches: Vec<u32>,
     /// Geom-major `(ngeom, K)`: each branch joint's lever to the geom (NaN off its branch).
     pub reach: Vec<f64>,
+    /// Geom-major `(ngeom, K)`: each branch joint's lever to the geom's bounding-sphere centre
+    /// (its `reach` without the sphere's radius; NaN off its branch).
+    pub centre: Vec<f64>,
 }
 
 /// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.
