@@ -64,6 +64,9 @@ pub(crate) struct LeverTable {
     /// Geom-major `(ngeom, K)`: each branch joint's lever to the geom's bounding-sphere centre
     /// (its `reach` without the sphere's radius; NaN off its branch).
     pub centre: Vec<f64>,
+    /// Per geom, the first geom on its body (the same branch: `motion::side_sum` sums a body's
+    /// terms once per state, for every geom on it).
+    pub twin: Vec<u32>,
 }
 
 /// A validated robot: flat arrays of bodies, joints, geoms and candidate pairs.

@@ -248,6 +248,8 @@ pub(crate) struct Levers<'m> {
     reach: &'m [f64],
     /// Geom-major `(ngeom, K)`: a branch joint's lever to the geom's bounding-sphere centre.
     centre: &'m [f64],
+    /// Per geom, the first geom on its body (`LeverTable::twin`).
+    twin: &'m [u32],
     ngeom: usize,
 }
 
@@ -264,6 +266,7 @@ impl<'m> Levers<'m> {
             branches: &t.branches,
             reach: &t.reach,
             centre: &t.centre,
+            twin: &t.twin,
             ngeom: model.geoms.len(),
         }
     }
@@ -279,19 +282,26 @@ impl<'m> Levers<'m> {
     /// |Δ_m|·(ρ_m + r)` (all terms positive: no cancellation). A pair's `rate` and growth are the
     /// sums over its sides (`side_sums`; the joints below an entry on a pair's side are the
     /// branch's below it). Joints that do not move add nothing.
-    fn motion_sums(&self, model: &RobotModel, abs_delta: &[f64], chain: &mut [f64], axes: &mut Axes) {
+    ///
+    /// And the state-local rate's terms of the joints it takes at their levers (`Axes::other`):
+    /// `Σ |Δ_j|·R_j` over the joints that are not `known`.
+    fn motion_sums(&self, model: &RobotModel, abs_delta: &[f64], axes: &mut Axes) {
         for g in 0..self.ngeom {
             let (from, to) = (self.branches[g] as usize, self.branches[g + 1] as usize);
             let base = from + g;
             let r = model.geoms[g].shape.radius;
-            let (mut c, mut centre, mut b, mut w) = (0.0, 0.0, 0.0, 0.0);
-            chain[base + to - from] = 0.0;
+            let (mut c, mut centre, mut b, mut w, mut other) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            axes.chain[base + to - from] = 0.0;
             axes.quad[base + to - from] = 0.0;
+            axes.other[base + to - from] = 0.0;
             for (i, &e) in self.branch(g).iter().enumerate().rev() {
                 let j = entry_joint(e);
                 let d = abs_delta[j];
                 if d != 0.0 {
                     c += d * self.reach[g * self.k + j];
+                    if !axes.known[j] {
+                        other += d * self.reach[g * self.k + j];
+                    }
                     let rho = self.centre[g * self.k + j];
                     centre += d * rho;
                     if model.joints[j].hinge {
@@ -302,8 +312,9 @@ impl<'m> Levers<'m> {
                         w += d * (rho + r);
                     }
                 }
-                chain[base + i] = c;
+                axes.chain[base + i] = c;
                 axes.quad[base + i] = b;
+                axes.other[base + i] = other;
             }
         }
     }
@@ -471,7 +482,17 @@ fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
             branches.push(branch.len() as u32);
         }
         branches.extend(branch);
-        crate::model::LeverTable { rows, chains: offsets, solo, sides, branches, reach, centre }
+        let mut first = vec![u32::MAX; model.body_parent.len()];
+        let twin = (0..ngeom)
+            .map(|g| {
+                let f = &mut first[model.geoms[g].body];
+                if *f == u32::MAX {
+                    *f = g as u32;
+                }
+                *f
+            })
+            .collect();
+        crate::model::LeverTable { rows, chains: offsets, solo, sides, branches, reach, centre, twin }
     }
 }
 
@@ -545,20 +566,39 @@ impl Rate {
     }
 }
 
-/// World anchors and axes of the `tight` joints, each computed on first use in a placed state:
-/// joint `j`'s `(stamp, anchor, axis)` belong to the state placed with that stamp (0: none).
+/// A `tight` joint's world anchor `p` and axis `u` in the state placed with `stamp` (0: none),
+/// with `u × p` and the rounding scale `1 + |p|₁` (`sum_body`).
+#[derive(Clone, Copy, Default)]
+struct Placed {
+    stamp: u32,
+    u: nalgebra::Vector3<f64>,
+    u_p: nalgebra::Vector3<f64>,
+    scale: f64,
+}
+
+/// World anchors and axes of the `tight` joints, each computed on first use in a placed state
+/// (`Placed`).
 /// And each geom's state-local terms along its branch, summed from the geom up (`twist`): a
 /// pair's side is a suffix of its geom's branch, so every pair of a geom reads its side's sum
 /// off the same array (a Panda's 272 pairs over 26 geoms: one sum per geom and state, not one
 /// per pair). (A stamp beside its value: one bounds check reads both.)
 struct Axes {
-    joint: Vec<(u32, nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)>,
-    /// Per geom, the stamp of the state its `twist` belongs to (0: none).
+    joint: Vec<Placed>,
+    /// Per geom, the stamp of the state its `twist` (a body's first geom: `Levers::twin`) and
+    /// its `bound` belong to (0: none).
     summed: Vec<u32>,
-    /// Geom `g`'s suffix sums at `branches[g] + g ..= branches[g + 1] + g` (`Levers::branch`):
-    /// entry `i` sums the branch's terms from `i` down to the geom (`side_sum`: `ω`, `v`, the
-    /// other joints' terms), and the bound `Rate::a` they give (NaN until first read).
-    twist: Vec<([f64; 7], f64)>,
+    /// Geom `g`'s suffix sums at `branches[g] + g ..= branches[g + 1] + g` (`Levers::branch`),
+    /// kept for the first geom of each body: entry `i` sums the branch's terms from `i` down to
+    /// the body (`sum_body`: `ω`, `Σ q̇_m·u_m × p_m` and two rounding scales).
+    twist: Vec<[f64; 8]>,
+    /// Per geom, the same layout: the bound `Rate::a` of the side from that entry down (NaN
+    /// until first read in the state, `bounded`).
+    bound: Vec<f64>,
+    bounded: Vec<u32>,
+    /// The motion's chain-rate sums per geom (`Levers::motion_sums`), the layout of `twist`.
+    chain: Vec<f64>,
+    /// The motion's sums of the terms of the joints that are not `known`, the same layout.
+    other: Vec<f64>,
     /// The motion's growth sums per geom (`Levers::motion_sums`), the layout of `twist`.
     quad: Vec<f64>,
     /// Per joint, whether the state-local rate takes its signed velocity (`vel`) at the state: a
@@ -576,9 +616,13 @@ impl Axes {
         let levers = Levers::of(model);
         let ngeom = model.geoms.len();
         Axes {
-            joint: vec![(0, Default::default(), Default::default()); model.njoint()],
+            joint: vec![Placed::default(); model.njoint()],
             summed: vec![0; ngeom],
-            twist: vec![([0.0; 7], f64::NAN); levers.branches[ngeom] as usize + ngeom],
+            twist: vec![[0.0; 8]; levers.branches[ngeom] as usize + ngeom],
+            bound: vec![f64::NAN; levers.branches[ngeom] as usize + ngeom],
+            bounded: vec![0; ngeom],
+            chain: vec![0.0; levers.branches[ngeom] as usize + ngeom],
+            other: vec![0.0; levers.branches[ngeom] as usize + ngeom],
             quad: vec![0.0; levers.branches[ngeom] as usize + ngeom],
             known: vec![false; model.njoint()],
             vel: vec![0.0; model.njoint()],
@@ -609,21 +653,22 @@ impl Axes {
 
     /// Forgets every state's values (a new motion).
     fn forget(&mut self) {
-        self.joint.iter_mut().for_each(|x| x.0 = 0);
+        self.joint.iter_mut().for_each(|x| x.stamp = 0);
         self.summed.fill(0);
+        self.bounded.fill(0);
     }
 }
 
 /// The state-local rate `a` of pair `p` (`Rate`) in the state placed in `s`: the sum over its
 /// sides of their geoms' bounds (`side_sum`).
 #[inline]
-fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
+fn local_rate(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
     let pair = &model.pairs[p];
     let [n1, n2] = levers.sides[p];
     // (a scene pair's other side is the world's: no term)
-    let a = if n1 > 0 { side_sum(model, levers, abs_delta, s, axes, pair.g1, n1 as usize) } else { 0.0 };
+    let a = if n1 > 0 { side_sum(model, levers, s, axes, pair.g1, n1 as usize) } else { 0.0 };
     if n2 > 0 {
-        a + side_sum(model, levers, abs_delta, s, axes, pair.g2, n2 as usize)
+        a + side_sum(model, levers, s, axes, pair.g2, n2 as usize)
     } else {
         a
     }
@@ -632,53 +677,67 @@ fn local_rate(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch
 /// How fast any point of geom `g` moves relative to the top of the last `n` entries of its
 /// branch (a pair's side), in the placed state: relative to there the geom moves as one rigid
 /// body with angular velocity `ω = Σ_m q̇_m·u_m` and its sphere's centre `c` at `v = Σ_m q̇_m·u_m
-/// × (c − p_m)` (hinge `m`: axis `u_m`, anchor `p_m`, placed), so no point of it moves faster
-/// than `|v| + r·|ω|`. Joints whose signed velocity is not taken (`Axes::known`) add `|Δ_j|·R_j`
-/// instead; a rounding allowance of `1e-9` of the side's `Σ |Δ_j|·R_j` is added (the vector
-/// sums may cancel). The geom's suffix sums are computed on its first use in the state, each
-/// suffix's bound on its first read.
+/// × (c − p_m) = ω × c − Σ_m q̇_m·u_m × p_m` (hinge `m`: axis `u_m`, anchor `p_m`, placed), so no
+/// point of it moves faster than `|v| + r·|ω|`. Joints whose signed velocity is not taken
+/// (`Axes::known`) add `|Δ_j|·R_j` instead (`Axes::other`). The sums `ω` and `Σ q̇_m·u_m × p_m`
+/// are the body's, summed once per state for every geom on it (`Levers::twin`, `sum_body`); a
+/// rounding allowance of `1e-9` of `Σ |q̇_m|·(1 + |p_m|₁ + |c|₁)` and of the side's `Σ |Δ_j|·R_j`
+/// is added (the vector sums may cancel, and `ω × c` and the second sum nearly cancel where `c`
+/// is far from the origin). Each side's bound is computed on its first read in the state.
 #[inline]
-fn side_sum(model: &RobotModel, levers: Levers, abs_delta: &[f64], s: &Scratch, axes: &mut Axes, g: usize, n: usize) -> f64 {
+fn side_sum(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, g: usize, n: usize) -> f64 {
     let state = s.pose_stamp();
     let from = levers.branches[g] as usize;
     let len = levers.branches[g + 1] as usize - from;
-    let base = from + g;
-    if axes.summed[g] != state {
-        axes.summed[g] = state;
-        let branch = levers.branch(g);
-        let reach = &levers.reach[g * levers.k..(g + 1) * levers.k];
-        let c = model.broad.sphere_centre(&s.broad, g);
-        let (mut levered, mut other, mut omega, mut v) = (0.0, 0.0, nalgebra::Vector3::zeros(), nalgebra::Vector3::zeros());
-        for (i, &e) in branch.iter().enumerate().rev() {
-            let j = entry_joint(e);
-            let d = abs_delta[j];
-            if d != 0.0 {
-                let lever = reach[j];
-                levered += d * lever;
-                if axes.known[j] {
-                    let joint = &mut axes.joint[j];
-                    if joint.0 != state {
-                        let jnt = &model.joints[j];
-                        let x = s.body(jnt.body);
-                        *joint = (state, (x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
-                    }
-                    let w = axes.vel[j];
-                    omega += joint.2 * w;
-                    v += joint.2.cross(&(c - joint.1)) * w;
-                } else {
-                    other += d * lever;
-                }
+    let at = from + g + len - n;
+    if axes.bounded[g] != state {
+        axes.bounded[g] = state;
+        axes.bound[from + g..from + g + len + 1].fill(f64::NAN);
+    } else if !axes.bound[at].is_nan() {
+        return axes.bound[at];
+    }
+    let h = levers.twin[g] as usize;
+    if axes.summed[h] != state {
+        axes.summed[h] = state;
+        sum_body(model, levers, s, axes, h, state);
+    }
+    let t = &axes.twist[levers.branches[h] as usize + h + len - n];
+    let omega = nalgebra::Vector3::new(t[0], t[1], t[2]);
+    let c = model.broad.sphere_centre(&s.broad, g);
+    let v = omega.cross(&c) - nalgebra::Vector3::new(t[3], t[4], t[5]);
+    let far = c.x.abs() + c.y.abs() + c.z.abs();
+    // (1e-9 relative: rounding of the placed frames and of the products)
+    let bound = (v.norm() + model.geoms[g].shape.radius * omega.norm()) * (1.0 + 1e-9)
+        + axes.other[at]
+        + 1e-9 * (axes.chain[at] + t[6] + far * t[7]);
+    axes.bound[at] = bound;
+    bound
+}
+
+/// The body terms of `side_sum` for geom `h`'s body in the placed state `state`, summed over its
+/// branch from the body up (`Axes::twist`): per entry, `ω`, `Σ q̇_m·u_m × p_m` and the rounding
+/// scales `Σ |q̇_m|·(1 + |p_m|₁)` and `Σ |q̇_m|`, over the `known` joints from that entry down.
+fn sum_body(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, h: usize, state: u32) {
+    let base = levers.branches[h] as usize + h;
+    let (mut omega, mut m, mut scale, mut speeds) = (nalgebra::Vector3::zeros(), nalgebra::Vector3::zeros(), 0.0, 0.0);
+    for (i, &e) in levers.branch(h).iter().enumerate().rev() {
+        let j = entry_joint(e);
+        let w = axes.vel[j];
+        if axes.known[j] && w != 0.0 {
+            let joint = &mut axes.joint[j];
+            if joint.stamp != state {
+                let jnt = &model.joints[j];
+                let x = s.body(jnt.body);
+                let (p, u) = ((x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
+                *joint = Placed { stamp: state, u, u_p: u.cross(&p), scale: 1.0 + p.x.abs() + p.y.abs() + p.z.abs() };
             }
-            axes.twist[base + i] = ([omega.x, omega.y, omega.z, v.x, v.y, v.z, other + 1e-9 * levered], f64::NAN);
+            omega += joint.u * w;
+            m += joint.u_p * w;
+            scale += w.abs() * joint.scale;
+            speeds += w.abs();
         }
+        axes.twist[base + i] = [omega.x, omega.y, omega.z, m.x, m.y, m.z, scale, speeds];
     }
-    let (t, bound) = &mut axes.twist[base + len - n];
-    if bound.is_nan() {
-        let norm = |x: &[f64]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-        // (1e-9 relative: rounding of the placed frames and of the products)
-        *bound = (norm(&t[3..6]) + model.geoms[g].shape.radius * norm(&t[..3])) * (1.0 + 1e-9) + t[6];
-    }
-    *bound
 }
 
 /// The largest displacement a slide joint can take from `qpos0` within its limits (infinite
@@ -751,7 +810,6 @@ pub struct MotionScratch {
     hi: Vec<f64>,
     rates: Vec<f64>,
     /// Per geom, the motion's chain-rate sums over its branch (`Levers::motion_sums`).
-    chain_sums: Vec<f64>,
     quads: Vec<f64>,
     axes: Axes,
     q: Vec<f64>,
@@ -815,7 +873,6 @@ impl MotionScratch {
             lo: vec![0.0; model.njoint()],
             hi: vec![0.0; model.njoint()],
             rates: vec![0.0; model.pairs.len()],
-            chain_sums: vec![0.0; Levers::of(model).branches[model.geoms.len()] as usize + model.geoms.len()],
             quads: vec![0.0; model.pairs.len()],
             axes: Axes::new(model),
             q: vec![0.0; model.njoint()],
@@ -839,7 +896,6 @@ enum Stop {
 struct At<'a, 'm> {
     model: &'m RobotModel,
     levers: Levers<'m>,
-    abs_delta: &'a [f64],
     axes: &'a mut Axes,
 }
 
@@ -870,7 +926,7 @@ fn radius(
         return Ok(rate.reach(gap));
     }
     if chain > 0.0 {
-        rate.a = local_rate(model, at.levers, at.abs_delta, s, at.axes, k);
+        rate.a = local_rate(model, at.levers, s, at.axes, k);
         // (the growth of the rate, read off its geoms' sums on the pair's first use in the motion)
         if quad.is_nan() {
             *quad = at.levers.side_sums(model, &at.axes.quad, k);
@@ -958,16 +1014,16 @@ pub(crate) fn certify_curve<C: Curve>(
     let npairs = model.pairs.len();
     // (each pair's chain rate and growth are sums over its geoms' branches, summed once per geom)
     ms.axes.motion(model, space, curve, &ms.lo, &ms.hi);
-    levers.motion_sums(model, &ms.abs_delta, &mut ms.chain_sums, &mut ms.axes);
+    levers.motion_sums(model, &ms.abs_delta, &mut ms.axes);
     for p in 0..npairs {
-        ms.rates[p] = levers.side_sums(model, &ms.chain_sums, p);
+        ms.rates[p] = levers.side_sums(model, &ms.axes.chain, p);
         ms.quads[p] = f64::NAN;
     }
     // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
     ms.axes.forget();
     ms.scratch.forget_axes();
     let spans = levers.spans(model);
-    let mut at = At { model, levers, abs_delta: &ms.abs_delta, axes: &mut ms.axes };
+    let mut at = At { model, levers, axes: &mut ms.axes };
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
     // inside one of its spans (`planning/spans.rs`), proven at a need at least the motion's.
@@ -1597,6 +1653,7 @@ pub(crate) mod tests {
             }
             let c = model.broad.sphere_centre(&s.broad, g);
             let (mut omega, mut v, mut other, mut levered) = (nalgebra::Vector3::zeros(), nalgebra::Vector3::zeros(), 0.0, 0.0);
+            let far = c.x.abs() + c.y.abs() + c.z.abs();
             for &j in &entries {
                 let d = abs_delta[j];
                 if d == 0.0 {
@@ -1610,6 +1667,7 @@ pub(crate) mod tests {
                     let (anchor, axis) = ((x * nalgebra::Point3::from(jnt.anchor)).coords, x.rotation * jnt.axis.into_inner());
                     omega += axis * axes.vel[j];
                     v += axis.cross(&(c - anchor)) * axes.vel[j];
+                    levered += axes.vel[j].abs() * (1.0 + anchor.x.abs() + anchor.y.abs() + anchor.z.abs() + far);
                 } else {
                     other += d * lever;
                 }
@@ -1659,7 +1717,6 @@ pub(crate) mod tests {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
             let mut s = Scratch::new(&model);
             let mut axes = Axes::new(&model);
-            let mut chain_sums = MotionScratch::new(&model).chain_sums;
             let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * y.abs() || (x == y);
             let mut known = 0;
             for m in 0..20 {
@@ -1681,7 +1738,7 @@ pub(crate) mod tests {
                     axes.motion(&model, &space, &line, &lo, &hi);
                 }
                 known += axes.known.iter().zip(&abs).filter(|(&k, &d)| k && d != 0.0).count();
-                levers.motion_sums(&model, &abs, &mut chain_sums, &mut axes);
+                levers.motion_sums(&model, &abs, &mut axes);
                 axes.forget();
                 for _ in 0..3 {
                     let t = rng.random_range(0.0..1.0);
@@ -1693,9 +1750,9 @@ pub(crate) mod tests {
                     let q: Vec<f64> = (0..k).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect();
                     s.place(&model, &q, false);
                     for p in 0..model.pairs.len() {
-                        let (rate, quad) = (levers.side_sums(&model, &chain_sums, p), levers.side_sums(&model, &axes.quad, p));
+                        let (rate, quad) = (levers.side_sums(&model, &axes.chain, p), levers.side_sums(&model, &axes.quad, p));
                         assert!(close(rate, levers.rate(p, &abs)), "{scene}: pair {p}: {rate} {}", levers.rate(p, &abs));
-                        let a = local_rate(&model, levers, &abs, &s, &mut axes, p);
+                        let a = local_rate(&model, levers, &s, &mut axes, p);
                         let (want_a, want_b) = rates_by_pair(&model, levers, &abs, &s, &axes, p);
                         assert!((a - want_a).abs() <= 1e-9 * want_a, "{scene}: pair {p}: {a} {want_a}");
                         assert!(close(quad, want_b) || (quad - want_b).abs() <= 1e-12 * rate * rate, "{scene}: pair {p}: {quad} {want_b}");
@@ -2027,7 +2084,6 @@ pub(crate) mod tests {
             let space = Space::of(&model).unwrap();
             let mut s = Scratch::new(&model);
             let mut axes = Axes::new(&model);
-            let mut chain_sums = MotionScratch::new(&model).chain_sums;
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
             let (mut tight_wins, mut checks, mut measured) = (0, 0, 0);
             let pose =
@@ -2055,7 +2111,7 @@ pub(crate) mod tests {
                     } else {
                         axes.motion(&model, &space, &line, &lo, &hi);
                     }
-                    levers.motion_sums(&model, &abs, &mut chain_sums, &mut axes);
+                    levers.motion_sums(&model, &abs, &mut axes);
                     let place = |t: f64, q: &mut [f64]| if blend { space.place(&bezier, t, q) } else { space.place(&line, t, q) };
                     for _ in 0..3 {
                         let t0 = rng.random_range(0.0..1.0);
@@ -2074,8 +2130,8 @@ pub(crate) mod tests {
                         }
                         let mut rates = vec![None; model.pairs.len()];
                         for p in (0..model.pairs.len()).filter(|p| p % every == m % every) {
-                            let chain = levers.side_sums(&model, &chain_sums, p);
-                            let (local, b) = (local_rate(&model, levers, &abs, &s, &mut axes, p), levers.side_sums(&model, &axes.quad, p));
+                            let chain = levers.side_sums(&model, &axes.chain, p);
+                            let (local, b) = (local_rate(&model, levers, &s, &mut axes, p), levers.side_sums(&model, &axes.quad, p));
                             tight_wins += (local < 0.5 * chain) as usize;
                             measured += 1;
                             rates[p] = Some([Rate::of_chain(chain), Rate { chain: f64::INFINITY, a: local, b }]);
