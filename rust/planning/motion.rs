@@ -1637,6 +1637,21 @@ pub(crate) mod tests {
     }
 
     /// The pair's distance, clipped at 0 (GJK's separation; ~1e-8 relative).
+    /// Prepares `axes` for `curve` as `certify_curve` does (its joints' speeds and swept
+    /// intervals, `Axes::motion`, `Levers::motion_sums`) and returns the speeds.
+    fn prepare<C: Curve>(model: &RobotModel, space: &Space, levers: Levers, axes: &mut Axes, curve: &C) -> Vec<f64> {
+        let k = model.njoint();
+        let (mut abs, mut lo, mut hi) = (vec![0.0; k], vec![0.0; k], vec![0.0; k]);
+        for j in 0..k {
+            let (speed, h) = curve.hull(j);
+            abs[j] = speed;
+            (lo[j], hi[j]) = (h[0].min(h[1]).min(h[2]), h[0].max(h[1]).max(h[2]));
+        }
+        axes.motion(model, space, curve, &lo, &hi);
+        levers.motion_sums(model, &abs, axes);
+        abs
+    }
+
     /// The state-local rate `a` and its growth `b` of pair `p` (`Rate`), side by side over its
     /// chain, each term from its definition (the reference the per-geom suffix sums must match):
     /// per side, `|v| + r·|ω|` with the known joints' velocities `axes.vel`, the others at their
@@ -1726,19 +1741,12 @@ pub(crate) mod tests {
                 let (a, d1, d2) = ((0..k).map(|j| 0.5 * (space.lo[j] + space.hi[j])).collect::<Vec<f64>>(), step(&mut rng), step(&mut rng));
                 let (line, bezier) = (Line { a: &a, delta: &d1 }, Bezier { p0: &a, d1: &d1, d2: &d2 });
                 let blend = m % 2 == 1;
-                let (mut abs, mut lo, mut hi) = (vec![0.0; k], vec![0.0; k], vec![0.0; k]);
-                for j in 0..k {
-                    let (speed, h) = if blend { bezier.hull(j) } else { line.hull(j) };
-                    abs[j] = speed;
-                    (lo[j], hi[j]) = (h[0].min(h[1]).min(h[2]), h[0].max(h[1]).max(h[2]));
-                }
-                if blend {
-                    axes.motion(&model, &space, &bezier, &lo, &hi);
+                let abs = if blend {
+                    prepare(&model, &space, levers, &mut axes, &bezier)
                 } else {
-                    axes.motion(&model, &space, &line, &lo, &hi);
-                }
+                    prepare(&model, &space, levers, &mut axes, &line)
+                };
                 known += axes.known.iter().zip(&abs).filter(|(&k, &d)| k && d != 0.0).count();
-                levers.motion_sums(&model, &abs, &mut axes);
                 axes.forget();
                 for _ in 0..3 {
                     let t = rng.random_range(0.0..1.0);
@@ -2100,18 +2108,11 @@ pub(crate) mod tests {
                 let line = Line { a: &a, delta: &d1 };
                 let bezier = Bezier { p0: &a, d1: &d1, d2: &d2 };
                 for blend in [false, true] {
-                    let (mut abs, mut lo, mut hi) = (vec![0.0; k], vec![0.0; k], vec![0.0; k]);
-                    for j in 0..k {
-                        let (speed, h) = if blend { bezier.hull(j) } else { line.hull(j) };
-                        abs[j] = speed;
-                        (lo[j], hi[j]) = (h[0].min(h[1]).min(h[2]), h[0].max(h[1]).max(h[2]));
-                    }
                     if blend {
-                        axes.motion(&model, &space, &bezier, &lo, &hi);
+                        prepare(&model, &space, levers, &mut axes, &bezier);
                     } else {
-                        axes.motion(&model, &space, &line, &lo, &hi);
+                        prepare(&model, &space, levers, &mut axes, &line);
                     }
-                    levers.motion_sums(&model, &abs, &mut axes);
                     let place = |t: f64, q: &mut [f64]| if blend { space.place(&bezier, t, q) } else { space.place(&line, t, q) };
                     for _ in 0..3 {
                         let t0 = rng.random_range(0.0..1.0);
