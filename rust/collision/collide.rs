@@ -131,6 +131,11 @@ pub struct Scratch {
     /// The last pair the fast path found in contact (`u32::MAX`: none yet), tried first on
     /// the next pose: nearby poses (a bisection, a path) tend to hit the same pair.
     pub(crate) last_hit: u32,
+    /// The unit world axis of `pair_lower_bound`'s last answer, from the pair's first geom toward
+    /// its second (the answer is a separation along it: the second geom lies beyond the first
+    /// by at least the answer along this axis); zero where the answer is not a separation along
+    /// one axis (a point cloud, shapes touching, no axis found).
+    pub(crate) bound_axis: Vector3<f64>,
 }
 
 impl Scratch {
@@ -153,6 +158,7 @@ impl Scratch {
             axes: vec![Vector3::zeros(); model.pairs.len()],
             hints: vec![u32::MAX; model.pairs.len()],
             last_hit: u32::MAX,
+            bound_axis: Vector3::zeros(),
         }
     }
 
@@ -452,8 +458,10 @@ impl Scratch {
     /// frame), `min_{y∈B} n·y − max_{x∈A} n·x` from the two exact support points, which no
     /// point pair can beat: a lower bound whatever the axis, and the distance itself for the axis
     /// GJK converges to (where it is stopped early, within 1 % of it). The caller takes off its
-    /// rounding slack (support points and dot products round at ~1e-16 relative).
+    /// rounding slack (support points and dot products round at ~1e-16 relative). The axis of
+    /// the answer is left in `bound_axis` (world, from the first geom toward the second).
     pub(crate) fn pair_lower_bound(&mut self, model: &RobotModel, k: usize, want: f64, floor: f64) -> std::result::Result<f64, Undecided> {
+        self.bound_axis = Vector3::zeros();
         let pair = &model.pairs[k];
         let (g1, g2) = (pair.g1, pair.g2);
         self.frame(model, g1);
@@ -472,20 +480,32 @@ impl Scratch {
                 let d = self.cloud_search(model, k, want, floor, true).value;
                 return Ok(if d < floor { f64::NEG_INFINITY } else { d.max(cheap) });
             }
-            (Solid::HalfSpace, Solid::Convex { convex, .. }) => return Ok(plane_distance(&self.geoms[g1], convex, &self.geoms[g2])),
-            (Solid::Convex { convex, .. }, Solid::HalfSpace) => return Ok(plane_distance(&self.geoms[g2], convex, &self.geoms[g1])),
+            // (the convex geom lies beyond the plane along its normal)
+            (Solid::HalfSpace, Solid::Convex { convex, .. }) => {
+                self.bound_axis = self.geoms[g1].rotation * Vector3::z();
+                return Ok(plane_distance(&self.geoms[g1], convex, &self.geoms[g2]));
+            }
+            (Solid::Convex { convex, .. }, Solid::HalfSpace) => {
+                self.bound_axis = -(self.geoms[g2].rotation * Vector3::z());
+                return Ok(plane_distance(&self.geoms[g2], convex, &self.geoms[g1]));
+            }
             (Solid::HalfSpace, Solid::HalfSpace) => return Ok(f64::INFINITY),
             (Solid::Convex { convex: ca, .. }, Solid::Convex { convex: cb, .. }) => (ca, cb),
         };
         let pos12 = self.geoms[g1].inv_mul(&self.geoms[g2]);
         let separation = |n: &Vector3<f64>| n.dot(&(cb.support_point(&pos12, &-n).coords - ca.local_support_point(n).coords));
+        // (axes in the first geom's frame)
+        let world = self.geoms[g1].rotation;
         // Two capsules: the separation along the line between their segments' nearest points
         // (`collision/capsules.rs`), from exact support points: a lower bound whatever the rounding of
         // those points, and their distance to second order. Segments that meet overlap.
         if let (Convex::Capsule(c1), Convex::Capsule(c2)) = (ca, cb) {
             let (x, y) = capsules::closest_points(c1, c2, &pos12);
             return Ok(match (y - x).try_normalize(1e-12) {
-                Some(n) => separation(&n),
+                Some(n) => {
+                    self.bound_axis = world * n;
+                    separation(&n)
+                }
                 None => capsules::signed_distance(c1, c2, &pos12).min(0.0),
             });
         }
@@ -495,6 +515,7 @@ impl Scratch {
         let first = if axis == Vector3::zeros() { pos12.translation.vector } else { axis };
         if let Some(n) = first.try_normalize(1e-12) {
             best = separation(&n);
+            self.bound_axis = world * n;
             if best >= want {
                 return Ok(best);
             }
@@ -518,7 +539,12 @@ impl Scratch {
         match separating_axis(&core_a, &core_b, &pos12, &start, rounding, floor, enough) {
             Some(n) => {
                 self.axes[k] = n.into_inner();
-                Ok(best.max(separation(&n)))
+                let d = separation(&n);
+                if d > best || best.is_nan() {
+                    self.bound_axis = world * n.into_inner();
+                    best = d;
+                }
+                Ok(best)
             }
             // (GJK found them touching, or no separation: no proof beyond the remembered
             // axis's, `-inf` without one)

@@ -20,6 +20,10 @@
 //!    they may cancel, rather than their lengths), and that speed grows at most at a rate `b`
 //!    the levers bound, so the distance falls by at most `min(M·τ, a·τ + b·τ²/2)` within `τ` of
 //!    the state.
+//!    Where the state's distance is a separation along an axis (the exact bound's), the rate
+//!    that way is tighter still (`axis_rates`): only the points' velocities along the axis
+//!    close it, forward and backward apart, so a pair moving apart or sliding past has a small
+//!    or negative rate one way.
 //! 2. **What a state proves.** If the pair's distance at `t₀` is `d > need`, it stays above
 //!    `need` for `|t − t₀| < τ` while the fall bound stays under `d − need`: the state's
 //!    *radius* for the pair.
@@ -557,7 +561,11 @@ impl Rate {
             // the range, the quadratic form read past `s / c`, and `s / c` is the right answer)
             return linear;
         }
-        let quadratic = 2.0 * slack / (self.a + (self.a * self.a + 2.0 * self.b * slack).sqrt());
+        // (the root of `a·τ + b·τ²/2 = slack` in the form without cancellation: `a` is negative
+        // where the pair moves apart along the axis its rate was taken on, `axis_rates`; infinite
+        // where it never closes, `b = 0` with `a ≤ 0`)
+        let root = (self.a * self.a + 2.0 * self.b * slack).sqrt();
+        let quadratic = if self.a >= 0.0 { 2.0 * slack / (self.a + root) } else { (root - self.a) / self.b };
         if quadratic.is_nan() {
             linear
         } else {
@@ -591,10 +599,9 @@ struct Axes {
     /// kept for the first geom of each body: entry `i` sums the branch's terms from `i` down to
     /// the body (`sum_body`: `ω`, `Σ q̇_m·u_m × p_m` and two rounding scales).
     twist: Vec<[f64; 8]>,
-    /// Per geom, the same layout: the bound `Rate::a` of the side from that entry down (NaN
-    /// until first read in the state, `bounded`).
-    bound: Vec<f64>,
-    bounded: Vec<u32>,
+    /// Per geom, the same layout: the state-local terms of the side from that entry down
+    /// (`SideRate`), computed on first read in a state.
+    bound: Vec<SideRate>,
     /// The motion's chain-rate sums per geom (`Levers::motion_sums`), the layout of `twist`.
     chain: Vec<f64>,
     /// The motion's sums of the terms of the joints that are not `known`, the same layout.
@@ -619,8 +626,7 @@ impl Axes {
             joint: vec![Placed::default(); model.njoint()],
             summed: vec![0; ngeom],
             twist: vec![[0.0; 8]; levers.branches[ngeom] as usize + ngeom],
-            bound: vec![f64::NAN; levers.branches[ngeom] as usize + ngeom],
-            bounded: vec![0; ngeom],
+            bound: vec![SideRate::UNREAD; levers.branches[ngeom] as usize + ngeom],
             chain: vec![0.0; levers.branches[ngeom] as usize + ngeom],
             other: vec![0.0; levers.branches[ngeom] as usize + ngeom],
             quad: vec![0.0; levers.branches[ngeom] as usize + ngeom],
@@ -655,45 +661,103 @@ impl Axes {
     fn forget(&mut self) {
         self.joint.iter_mut().for_each(|x| x.stamp = 0);
         self.summed.fill(0);
-        self.bounded.fill(0);
+        self.bound.iter_mut().for_each(|x| x.stamp = 0);
     }
 }
 
-/// The state-local rate `a` of pair `p` (`Rate`) in the state placed in `s`: the sum over its
-/// sides of their geoms' bounds (`side_sum`).
+/// One side of a pair in a placed state (`side_sum`): its geom's sphere-centre velocity `v` and
+/// angular velocity times its bounding radius `wr` (relative to the top of the side, in world
+/// axes), and the side's bound without a direction, `a = (|v| + |wr|)·(1 + 1e-9) + extra`, with
+/// `extra` the terms bounded without a direction (the joints taken at their levers) and the
+/// rounding allowance.
+#[derive(Clone, Copy, Debug)]
+struct SideRate {
+    v: nalgebra::Vector3<f64>,
+    wr: nalgebra::Vector3<f64>,
+    a: f64,
+    /// `extra` and the rounding allowance of a rate along an axis, `1e-9·(|v|₁ + |wr|₁)`.
+    extra_axis: f64,
+    /// The state these terms belong to (0: none).
+    stamp: u32,
+}
+
+impl SideRate {
+    const UNREAD: SideRate = SideRate {
+        v: nalgebra::Vector3::new(0.0, 0.0, 0.0),
+        wr: nalgebra::Vector3::new(0.0, 0.0, 0.0),
+        a: f64::NAN,
+        extra_axis: 0.0,
+        stamp: 0,
+    };
+}
+
+/// The state-local rate `a` of pair `p` (`Rate`) in the state placed in `s`, in no direction:
+/// the sum over its sides of their geoms' bounds (`side_sum`).
 #[inline]
 fn local_rate(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, p: usize) -> f64 {
     let pair = &model.pairs[p];
     let [n1, n2] = levers.sides[p];
     // (a scene pair's other side is the world's: no term)
-    let a = if n1 > 0 { side_sum(model, levers, s, axes, pair.g1, n1 as usize) } else { 0.0 };
+    let a = if n1 > 0 { side_sum(model, levers, s, axes, pair.g1, n1 as usize).a } else { 0.0 };
     if n2 > 0 {
-        a + side_sum(model, levers, s, axes, pair.g2, n2 as usize)
+        a + side_sum(model, levers, s, axes, pair.g2, n2 as usize).a
     } else {
         a
     }
+}
+
+/// The state-local rates `a` of pair `p` in the state placed in `s`, `[back, fwd]` along the
+/// motion, for a separation along the unit axis `n` (world, from the pair's first geom `A`
+/// toward its second `B`; zero: none, then both are `local_rate`'s).
+///
+/// Directional advancement: at the state, `B` lies beyond `A` along `n` by the separation.
+/// Hold that axis fixed in the frame of the pair's common ancestor (the top of both sides,
+/// where every term of `side_sum` is measured). Going forward, `A`'s points close along `n` at
+/// most at `n·v_A + r_A·|n × ω_A|` (a point `c + y`, `|y| ≤ r`, moves at `v + ω × y`, and
+/// `n·(ω × y) = y·(n × ω)`), `B`'s at `−n·v_B + r_B·|n × ω_B|`; backward, the velocities change
+/// sign. While the two stay apart along `n`, their distance is at least their separation along
+/// it, which falls at most at the sum. Each side's terms grow at most as its bound without a
+/// direction does (`|n·Δv| ≤ |Δv|`, and `|n × ω|` is 1-Lipschitz in `ω`), so `Rate::b` is the
+/// same. A pair moving apart along `n` has a negative rate that way. The rounding allowance is
+/// `1e-9` of `|v|₁ + |wr|₁` per side besides its `extra`; each rate is at most `local_rate`'s.
+fn axis_rates(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, p: usize, n: &nalgebra::Vector3<f64>) -> [f64; 2] {
+    let pair = &model.pairs[p];
+    let [n1, n2] = levers.sides[p];
+    let (mut along, mut both, mut plain) = (0.0, 0.0, 0.0);
+    for (g, len, sign) in [(pair.g1, n1, 1.0), (pair.g2, n2, -1.0)] {
+        if len == 0 {
+            // (a scene pair's other side is the world's: no term)
+            continue;
+        }
+        let side = side_sum(model, levers, s, axes, g, len as usize);
+        along += sign * n.dot(&side.v);
+        both += n.cross(&side.wr).norm() + side.extra_axis;
+        plain += side.a;
+    }
+    if *n == nalgebra::Vector3::zeros() {
+        return [plain, plain];
+    }
+    [(both - along).min(plain), (both + along).min(plain)]
 }
 
 /// How fast any point of geom `g` moves relative to the top of the last `n` entries of its
 /// branch (a pair's side), in the placed state: relative to there the geom moves as one rigid
 /// body with angular velocity `ω = Σ_m q̇_m·u_m` and its sphere's centre `c` at `v = Σ_m q̇_m·u_m
 /// × (c − p_m) = ω × c − Σ_m q̇_m·u_m × p_m` (hinge `m`: axis `u_m`, anchor `p_m`, placed), so no
-/// point of it moves faster than `|v| + r·|ω|`. Joints whose signed velocity is not taken
-/// (`Axes::known`) add `|Δ_j|·R_j` instead (`Axes::other`). The sums `ω` and `Σ q̇_m·u_m × p_m`
-/// are the body's, summed once per state for every geom on it (`Levers::twin`, `sum_body`); a
-/// rounding allowance of `1e-9` of `Σ |q̇_m|·(1 + |p_m|₁ + |c|₁)` and of the side's `Σ |Δ_j|·R_j`
-/// is added (the vector sums may cancel, and `ω × c` and the second sum nearly cancel where `c`
-/// is far from the origin). Each side's bound is computed on its first read in the state.
+/// point of it moves faster than `|v| + r·|ω|` (`SideRate`). Joints whose signed velocity is not
+/// taken (`Axes::known`) add `|Δ_j|·R_j` instead (`Axes::other`). The sums `ω` and `Σ q̇_m·u_m ×
+/// p_m` are the body's, summed once per state for every geom on it (`Levers::twin`,
+/// `sum_body`); a rounding allowance of `1e-9` of `Σ |q̇_m|·(1 + |p_m|₁ + |c|₁)` and of the
+/// side's `Σ |Δ_j|·R_j` is added (the vector sums may cancel, and `ω × c` and the second sum
+/// nearly cancel where `c` is far from the origin). Each side's terms are computed on its first
+/// read in the state.
 #[inline]
-fn side_sum(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, g: usize, n: usize) -> f64 {
+fn side_sum(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, g: usize, n: usize) -> SideRate {
     let state = s.pose_stamp();
     let from = levers.branches[g] as usize;
     let len = levers.branches[g + 1] as usize - from;
     let at = from + g + len - n;
-    if axes.bounded[g] != state {
-        axes.bounded[g] = state;
-        axes.bound[from + g..from + g + len + 1].fill(f64::NAN);
-    } else if !axes.bound[at].is_nan() {
+    if axes.bound[at].stamp == state {
         return axes.bound[at];
     }
     let h = levers.twin[g] as usize;
@@ -705,13 +769,15 @@ fn side_sum(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, g:
     let omega = nalgebra::Vector3::new(t[0], t[1], t[2]);
     let c = model.broad.sphere_centre(&s.broad, g);
     let v = omega.cross(&c) - nalgebra::Vector3::new(t[3], t[4], t[5]);
+    let wr = omega * model.geoms[g].shape.radius;
     let far = c.x.abs() + c.y.abs() + c.z.abs();
     // (1e-9 relative: rounding of the placed frames and of the products)
-    let bound = (v.norm() + model.geoms[g].shape.radius * omega.norm()) * (1.0 + 1e-9)
-        + axes.other[at]
-        + 1e-9 * (axes.chain[at] + t[6] + far * t[7]);
-    axes.bound[at] = bound;
-    bound
+    let extra = axes.other[at] + 1e-9 * (axes.chain[at] + t[6] + far * t[7]);
+    let l1 = |x: &nalgebra::Vector3<f64>| x.x.abs() + x.y.abs() + x.z.abs();
+    let side =
+        SideRate { v, wr, a: (v.norm() + wr.norm()) * (1.0 + 1e-9) + extra, extra_axis: extra + 1e-9 * (l1(&v) + l1(&wr)), stamp: state };
+    axes.bound[at] = side;
+    side
 }
 
 /// The body terms of `side_sum` for geom `h`'s body in the placed state `state`, summed over its
@@ -816,7 +882,8 @@ pub struct MotionScratch {
     radius1: Vec<f64>,
     open: Vec<Open>,
     next: Vec<Open>,
-    mid: Vec<(Open, f64)>,
+    /// The open pairs of a level state and their radii there, `[back, fwd]`.
+    mid: Vec<(Open, [f64; 2])>,
     /// Four level states' body frames, placed at once (`kinematics::body_poses4_wide`).
     lanes: Lanes,
     /// States placed by the last call.
@@ -899,15 +966,17 @@ struct At<'a, 'm> {
     axes: &'a mut Axes,
 }
 
-/// The radius (in `t`) of pair `k` (chain rate `chain`, growth `quad`) in the placed state, for
-/// an interval end whose neighbours need `cover_min` and `cover_max` (in `t`) of it: the
-/// bounding spheres' radius when it gives `cover_max`, at the chain rate or the state-local one
-/// (`Rate`), or when a closer measurement could not plausibly give even `cover_min` (then the
-/// caller halves the interval, cheaper than measuring); else the separation-axis or GJK bound
-/// (`Scratch::pair_lower_bound`). `Err(Blocked)` when the pair is not shown above its need.
-/// (Which bound is taken is a matter of cost only: each is a lower bound.)
-#[inline]
-#[allow(clippy::too_many_arguments)]
+/// The radii (in `t`, `[back, fwd]`: before and after the state along the motion) of pair `k`
+/// (chain rate `chain`, growth `quad`) in the placed state, for an interval end whose
+/// neighbours need `cover` of it each way (`NEG_INFINITY`: nothing that way; NaN is returned
+/// there): the bounding spheres' radii when they give the whole cover, at the chain rate or the
+/// state-local one (`Rate`, `local_rate`), or when a closer measurement could not plausibly give
+/// even the smaller cover (then the caller halves the interval, cheaper than measuring); else
+/// the separation-axis or GJK bound (`Scratch::pair_lower_bound`) with the state-local rates
+/// along its own axis, each way (`axis_rates`, `Scratch::bound_axis`). `Err(Blocked)` when the
+/// pair is not shown above its need. (Which bound is taken is a matter of cost only: each is a
+/// lower bound. Always inlined: at each call site the ways not asked for fold away.)
+#[inline(always)]
 fn radius(
     at: &mut At,
     s: &mut Scratch,
@@ -915,28 +984,40 @@ fn radius(
     chain: f64,
     quad: &mut f64,
     need: f64,
-    cover_min: f64,
-    cover_max: f64,
-) -> std::result::Result<f64, Stop> {
+    cover: [f64; 2],
+) -> std::result::Result<[f64; 2], Stop> {
     let model = at.model;
     let (gap, reach) = model.broad.sphere_gap(&s.broad, k, &model.geoms);
     let gap = gap - need;
-    let mut rate = Rate::of_chain(chain);
-    if gap > 0.0 && gap >= rate.drop(cover_max) {
-        return Ok(rate.reach(gap));
+    let plain = Rate::of_chain(chain);
+    let most = cover[0].max(cover[1]);
+    if gap > 0.0 && gap >= plain.drop(most) {
+        let r = plain.reach(gap);
+        return Ok([r, r]);
     }
+    let mut rate = plain;
     if chain > 0.0 {
-        rate.a = local_rate(model, at.levers, s, at.axes, k);
         // (the growth of the rate, read off its geoms' sums on the pair's first use in the motion)
         if quad.is_nan() {
             *quad = at.levers.side_sums(model, &at.axes.quad, k);
         }
-        rate.b = *quad;
+        rate = Rate { chain, a: local_rate(model, at.levers, s, at.axes, k), b: *quad };
+        if gap > 0.0 && gap >= rate.drop(most) {
+            let r = rate.reach(gap);
+            return Ok([r, r]);
+        }
     }
-    if gap > 0.0 && (gap >= rate.drop(cover_max) || gap + reach < rate.drop(cover_min)) {
-        return Ok(rate.reach(gap));
+    // (only the ways asked for: at an end of the motion, one)
+    let asked = cover.map(|c| c > f64::NEG_INFINITY);
+    let least = match asked {
+        [true, true] => cover[0].min(cover[1]),
+        _ => most,
+    };
+    if gap > 0.0 && (gap >= rate.drop(most) || gap + reach < rate.drop(least)) {
+        let r = rate.reach(gap);
+        return Ok([r, r]);
     }
-    let want = need + rate.drop(cover_max);
+    let want = need + rate.drop(most);
     let d = s
         .pair_lower_bound(
             model,
@@ -949,7 +1030,14 @@ fn radius(
     if slack.is_nan() || slack <= 0.0 {
         return Err(Stop::Blocked);
     }
-    Ok(rate.reach(slack.max(gap)))
+    let by_spheres = if gap > 0.0 { rate.reach(gap) } else { 0.0 };
+    let exact = if chain > 0.0 {
+        let axis = s.bound_axis;
+        axis_rates(model, at.levers, s, at.axes, k, &axis).map(|a| Rate { a, ..rate })
+    } else {
+        [rate; 2]
+    };
+    Ok(std::array::from_fn(|w| if asked[w] { exact[w].reach(slack).max(by_spheres) } else { f64::NAN }))
 }
 
 /// Whether the motion `a → a + Δ` is certified (module docs) with every pair above
@@ -1053,8 +1141,8 @@ pub(crate) fn certify_curve<C: Curve>(
             ms.radius1[p] = f64::INFINITY;
             continue;
         }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 0.0, 0.0) {
-            Ok(r) => ms.radius1[p] = r,
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [0.0, f64::NEG_INFINITY]) {
+            Ok([r, _]) => ms.radius1[p] = r,
             Err(e) => return stop(e, 1.0),
         }
     }
@@ -1069,9 +1157,9 @@ pub(crate) fn certify_curve<C: Curve>(
         if r1 >= 1.0 {
             continue;
         }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - r1, 1.0 - r1) {
-            Ok(r0) if r0 + r1 >= 1.0 => {}
-            Ok(r0) => ms.next.push(Open { pair: p as u32, r0, r1 }),
+        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [f64::NEG_INFINITY, 1.0 - r1]) {
+            Ok([_, r0]) if r0 + r1 >= 1.0 => {}
+            Ok([_, r0]) => ms.next.push(Open { pair: p as u32, r0, r1 }),
             Err(e) => return stop(e, 0.0),
         }
     }
@@ -1083,9 +1171,9 @@ pub(crate) fn certify_curve<C: Curve>(
         ms.states += 1;
         for o in &ms.next {
             let p = o.pair as usize;
-            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), 1.0 - o.r0, 1.0 - o.r0) {
-                Ok(r1) if o.r0 + r1 >= 1.0 => {}
-                Ok(r1) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [1.0 - o.r0, f64::NEG_INFINITY]) {
+                Ok([r1, _]) if o.r0 + r1 >= 1.0 => {}
+                Ok([r1, _]) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
                 Err(e) => return stop(e, 1.0),
             }
         }
@@ -1127,9 +1215,9 @@ pub(crate) fn certify_curve<C: Curve>(
             ms.mid.clear();
             for o in &ms.open[start..end] {
                 let p = o.pair as usize;
-                // What the midpoint must give to close one half, and both.
-                let (c0, c1) = (half - o.r0, half - o.r1);
-                match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), c0.min(c1), c0.max(c1)) {
+                // What the midpoint must give back to close the first half, and on to close the
+                // second.
+                match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [half - o.r0, half - o.r1]) {
                     Ok(rm) => ms.mid.push((*o, rm)),
                     Err(e) => {
                         verdict = stop(e, tm);
@@ -1139,12 +1227,22 @@ pub(crate) fn certify_curve<C: Curve>(
             }
             let s = ms.next.len();
             // (a NaN radius leaves the half open)
-            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (o.r0 + rm).is_nan() || o.r0 + rm < half).map(|&(o, rm)| Open { r1: rm, ..o }));
+            ms.next.extend(
+                ms.mid
+                    .iter()
+                    .filter(|(o, [back, _])| (o.r0 + back).is_nan() || o.r0 + back < half)
+                    .map(|&(o, [back, _])| Open { r1: back, ..o }),
+            );
             if ms.next.len() > s {
                 next_level.push((t0, s, ms.next.len()));
             }
             let s = ms.next.len();
-            ms.next.extend(ms.mid.iter().filter(|(o, rm)| (rm + o.r1).is_nan() || rm + o.r1 < half).map(|&(o, rm)| Open { r0: rm, ..o }));
+            ms.next.extend(
+                ms.mid
+                    .iter()
+                    .filter(|(o, [_, fwd])| (fwd + o.r1).is_nan() || fwd + o.r1 < half)
+                    .map(|&(o, [_, fwd])| Open { r0: fwd, ..o }),
+            );
             if ms.next.len() > s {
                 next_level.push((tm, s, ms.next.len()));
             }
@@ -2076,9 +2174,12 @@ pub(crate) mod tests {
 
     /// The rate bounds hold: between a state and one `τ` along the motion, no pair's distance
     /// changes by more than each form of `Rate::drop(τ)` alone (the chain rate, the state-local
-    /// one), on straight motions and Béziers, on the test arm and on two bundled arms among
-    /// their scenes (7 and 8 joints, where the joints' terms cancel); and the state-local rate
-    /// is often under half the chain rate (it is what makes it worth its cost).
+    /// one), and no pair's distance falls below its separation along the state's axis
+    /// (`Scratch::bound_axis`) by more than the drop at that axis's rate that way
+    /// (`axis_rates`), on straight motions and Béziers, on the test arm and on two bundled arms
+    /// among their scenes (7 and 8 joints, where the joints' terms cancel); the state-local rate
+    /// is often under half the chain rate, and a rate along the axis often under half the
+    /// state-local one (each is what makes it worth its cost).
     #[test]
     fn no_pair_closes_faster_than_its_rate() {
         let load = |scene: &str| {
@@ -2093,7 +2194,7 @@ pub(crate) mod tests {
             let mut s = Scratch::new(&model);
             let mut axes = Axes::new(&model);
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-            let (mut tight_wins, mut checks, mut measured) = (0, 0, 0);
+            let (mut tight_wins, mut axis_wins, mut checks, mut measured) = (0, 0, 0, 0);
             let pose =
                 |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f64> { (0..k).map(|j| rng.random_range(space.lo[j]..space.hi[j])).collect() };
             for m in 0..motions {
@@ -2126,16 +2227,25 @@ pub(crate) mod tests {
                         s.place(&model, &q0, false);
                         s.forget_axes();
                         let mut d0 = vec![f64::NAN; model.pairs.len()];
+                        let mut sep = vec![(f64::NAN, nalgebra::Vector3::zeros()); model.pairs.len()];
                         for p in (0..model.pairs.len()).filter(|p| p % every == m % every) {
-                            d0[p] = s.pair_lower_bound(&model, p, f64::INFINITY, f64::INFINITY).unwrap().max(0.0);
+                            let d = s.pair_lower_bound(&model, p, f64::INFINITY, f64::INFINITY).unwrap();
+                            (d0[p], sep[p]) = (d.max(0.0), (d, s.bound_axis));
                         }
                         let mut rates = vec![None; model.pairs.len()];
+                        let mut ways = vec![None; model.pairs.len()];
                         for p in (0..model.pairs.len()).filter(|p| p % every == m % every) {
                             let chain = levers.side_sums(&model, &axes.chain, p);
                             let (local, b) = (local_rate(&model, levers, &s, &mut axes, p), levers.side_sums(&model, &axes.quad, p));
                             tight_wins += (local < 0.5 * chain) as usize;
                             measured += 1;
                             rates[p] = Some([Rate::of_chain(chain), Rate { chain: f64::INFINITY, a: local, b }]);
+                            let (d, n) = sep[p];
+                            if d > 0.0 && n != nalgebra::Vector3::zeros() {
+                                let way = axis_rates(&model, levers, &s, &mut axes, p, &n);
+                                axis_wins += (way[0].min(way[1]) < 0.5 * local) as usize;
+                                ways[p] = Some(way.map(|a| Rate { chain: f64::INFINITY, a, b }));
+                            }
                         }
                         for tau in [1e-3, 1e-2, 0.05, 0.2, 0.5] {
                             for sign in [-1.0, 1.0] {
@@ -2150,6 +2260,15 @@ pub(crate) mod tests {
                                 for (p, forms) in rates.iter().enumerate().filter_map(|(p, r)| r.map(|r| (p, r))) {
                                     let d = s.pair_lower_bound(&model, p, f64::INFINITY, f64::INFINITY).unwrap().max(0.0);
                                     checks += 1;
+                                    if let Some(way) = ways[p] {
+                                        // (back for `sign` -1, forward for +1)
+                                        let rate = way[(sign > 0.0) as usize];
+                                        let floor = sep[p].0 - rate.drop(tau) * (1.0 + 1e-6) - 1e-9;
+                                        assert!(
+                                            d >= floor,
+                                            "pair {p} along its axis, blend {blend}, {sign}·{tau}: {d} < {floor} ({rate:?})"
+                                        );
+                                    }
                                     for (form, rate) in forms.iter().enumerate() {
                                         let allowed = rate.drop(tau) * (1.0 + 1e-6) + 1e-9;
                                         assert!(
@@ -2164,7 +2283,10 @@ pub(crate) mod tests {
                     }
                 }
             }
-            assert!(checks > 5000 && tight_wins > measured / 10, "{checks} {measured} {tight_wins}");
+            assert!(
+                checks > 5000 && tight_wins > measured / 10 && axis_wins > measured / 10,
+                "{checks} {measured} {tight_wins} {axis_wins}"
+            );
         }
     }
 
