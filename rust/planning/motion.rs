@@ -968,10 +968,11 @@ struct At<'a, 'm> {
 
 /// The radii (in `t`, `[back, fwd]`: before and after the state along the motion) of pair `k`
 /// (chain rate `chain`, growth `quad`) in the placed state, for an interval end whose
-/// neighbours need `cover` of it each way (`NEG_INFINITY`: nothing that way; NaN is returned
-/// there): the bounding spheres' radii when they give the whole cover, at the chain rate or the
-/// state-local one (`Rate`, `local_rate`), or when a closer measurement could not plausibly give
-/// even the smaller cover (then the caller halves the interval, cheaper than measuring); else
+/// neighbours need `cover` of it each way (`NEG_INFINITY`: nothing that way, and no radius that
+/// way is to be read): the bounding spheres' radii when they give the whole cover, at the chain
+/// rate or the state-local one (`Rate`, `local_rate`), or when a closer measurement could not
+/// plausibly give even the smaller cover (then the caller halves the interval, cheaper than
+/// measuring); else
 /// the separation-axis or GJK bound (`Scratch::pair_lower_bound`) with the state-local rates
 /// along its own axis, each way (`axis_rates`, `Scratch::bound_axis`). `Err(Blocked)` when the
 /// pair is not shown above its need. (Which bound is taken is a matter of cost only: each is a
