@@ -708,7 +708,7 @@ fn local_rate(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, 
 
 /// The state-local rates `a` of pair `p` in the state placed in `s`, `[back, fwd]` along the
 /// motion, for a separation along the unit axis `n` (world, from the pair's first geom `A`
-/// toward its second `B`; zero: none, then both are `local_rate`'s).
+/// toward its second `B`; zero: none, then both are `plain`, the pair's `local_rate`).
 ///
 /// Directional advancement: at the state, `B` lies beyond `A` along `n` by the separation.
 /// Hold that axis fixed in the frame of the pair's common ancestor (the top of both sides,
@@ -719,11 +719,22 @@ fn local_rate(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, 
 /// it, which falls at most at the sum. Each side's terms grow at most as its bound without a
 /// direction does (`|n·Δv| ≤ |Δv|`, and `|n × ω|` is 1-Lipschitz in `ω`), so `Rate::b` is the
 /// same. A pair moving apart along `n` has a negative rate that way. The rounding allowance is
-/// `1e-9` of `|v|₁ + |wr|₁` per side besides its `extra`; each rate is at most `local_rate`'s.
-fn axis_rates(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, p: usize, n: &nalgebra::Vector3<f64>) -> [f64; 2] {
+/// `1e-9` of `|v|₁ + |wr|₁` per side besides its `extra`; each rate is at most `plain`.
+fn axis_rates(
+    model: &RobotModel,
+    levers: Levers,
+    s: &Scratch,
+    axes: &mut Axes,
+    p: usize,
+    n: &nalgebra::Vector3<f64>,
+    plain: f64,
+) -> [f64; 2] {
+    if *n == nalgebra::Vector3::zeros() {
+        return [plain, plain];
+    }
     let pair = &model.pairs[p];
     let [n1, n2] = levers.sides[p];
-    let (mut along, mut both, mut plain) = (0.0, 0.0, 0.0);
+    let (mut along, mut both) = (0.0, 0.0);
     for (g, len, sign) in [(pair.g1, n1, 1.0), (pair.g2, n2, -1.0)] {
         if len == 0 {
             // (a scene pair's other side is the world's: no term)
@@ -732,10 +743,6 @@ fn axis_rates(model: &RobotModel, levers: Levers, s: &Scratch, axes: &mut Axes, 
         let side = side_sum(model, levers, s, axes, g, len as usize);
         along += sign * n.dot(&side.v);
         both += n.cross(&side.wr).norm() + side.extra_axis;
-        plain += side.a;
-    }
-    if *n == nalgebra::Vector3::zeros() {
-        return [plain, plain];
     }
     [(both - along).min(plain), (both + along).min(plain)]
 }
@@ -972,11 +979,11 @@ struct At<'a, 'm> {
 /// way is to be read): the bounding spheres' radii when they give the whole cover, at the chain
 /// rate or the state-local one (`Rate`, `local_rate`), or when a closer measurement could not
 /// plausibly give even the smaller cover (then the caller halves the interval, cheaper than
-/// measuring); else
-/// the separation-axis or GJK bound (`Scratch::pair_lower_bound`) with the state-local rates
-/// along its own axis, each way (`axis_rates`, `Scratch::bound_axis`). `Err(Blocked)` when the
-/// pair is not shown above its need. (Which bound is taken is a matter of cost only: each is a
-/// lower bound. Always inlined: at each call site the ways not asked for fold away.)
+/// measuring); else the separation-axis or GJK bound (`Scratch::pair_lower_bound`) with the
+/// state-local rates along its own axis, each way (`axis_rates`, `Scratch::bound_axis`).
+/// `Err(Blocked)` when the pair is not shown above its need. (Which bound is taken is a matter
+/// of cost only: each is a lower bound. Always inlined: at each call site the ways not asked
+/// for fold away.)
 #[inline(always)]
 fn radius(
     at: &mut At,
@@ -1034,7 +1041,7 @@ fn radius(
     let by_spheres = if gap > 0.0 { rate.reach(gap) } else { 0.0 };
     let exact = if chain > 0.0 {
         let axis = s.bound_axis;
-        axis_rates(model, at.levers, s, at.axes, k, &axis).map(|a| Rate { a, ..rate })
+        axis_rates(model, at.levers, s, at.axes, k, &axis, rate.a).map(|a| Rate { a, ..rate })
     } else {
         [rate; 2]
     };
@@ -2243,7 +2250,7 @@ pub(crate) mod tests {
                             rates[p] = Some([Rate::of_chain(chain), Rate { chain: f64::INFINITY, a: local, b }]);
                             let (d, n) = sep[p];
                             if d > 0.0 && n != nalgebra::Vector3::zeros() {
-                                let way = axis_rates(&model, levers, &s, &mut axes, p, &n);
+                                let way = axis_rates(&model, levers, &s, &mut axes, p, &n, local);
                                 axis_wins += (way[0].min(way[1]) < 0.5 * local) as usize;
                                 ways[p] = Some(way.map(|a| Rate { chain: f64::INFINITY, a, b }));
                             }
