@@ -24,7 +24,7 @@ use crate::model::kinematics::{body_frames, forward_kinematics};
 use crate::model::pairs::PairKind;
 use crate::model::RobotModel;
 use crate::planning::motion::prove_apart;
-use crate::planning::motion::{certify_as_given, certify_blends, certify_motions, Motion};
+use crate::planning::motion::{certify_as_given, certify_blends, certify_motions, Motion, Order};
 use crate::planning::oracle::{nearest_free, OracleOptions};
 use crate::planning::plan::{plan_path, PlanOptions, PlanStatus};
 use crate::planning::timing::time_path;
@@ -416,7 +416,7 @@ impl PyRobotModel {
         let v = v.as_ref().map(rows_of);
         let v: Option<&[f64]> = v.as_deref();
         let r = match (v, as_given) {
-            (_, true) => interrupt::run(py, threads, || certify_as_given(model, a, v, b, clearance))?,
+            (_, true) => interrupt::run(py, threads, || certify_as_given(model, a, v, b, clearance, Order::EndFirst))?,
             (None, false) => interrupt::run(py, threads, || certify_motions(model, a, b, clearance))?,
             (Some(v), false) => interrupt::run(py, threads, || certify_blends(model, a, v, b, clearance))?,
         };

@@ -30,7 +30,11 @@
 //! 3. **What an interval proves.** `[t₀, t₁]` is proven for the pair when `r(t₀) + r(t₁) ≥ t₁ −
 //!    t₀`. Intervals that are not are halved at their midpoint, which is placed and measured for
 //!    the pairs still open there only, level by level (so a collision anywhere on the motion is
-//!    met early, as by the sampled check's coarse-to-fine order).
+//!    met early, as by the sampled check's coarse-to-fine order). The first level is the whole
+//!    motion, its ends measured first ([`Order::EndFirst`]), or its two halves, the middle
+//!    measured first and each end only for the pairs its half leaves open
+//!    ([`Order::MiddleFirst`]: between free poses a pair the middle proves both ways, `r(½) ≥ ½`,
+//!    costs one state instead of two or three).
 //!
 //! Distances are lower bounds, the cheapest that closes the interval: the pair's bounding
 //! spheres (`model/broad.rs`), enough wherever the pair is far; else a separation along an axis from
@@ -81,6 +85,22 @@ pub enum Motion {
     Blocked(f64),
     /// Neither proven nor refuted within [`MIN_STEP`] / [`MAX_STATES`].
     Unproven,
+}
+
+/// Where a motion's proof starts (module docs, point 3); either way every pair is proven over
+/// the whole motion, so the order changes what a proof costs, not what it proves (a motion at
+/// the state budget aside, and which blocked state a blocked motion reports).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Order {
+    /// The end, by the bounding spheres alone; then the start; then the end again, exactly, for
+    /// the pairs still open: for a motion whose end is new (a pose someone asks about), where a
+    /// motion most often collides.
+    EndFirst,
+    /// The middle, both ways at once; then each end for the pairs still open on its half: for a
+    /// motion between poses known to be free (a planner's edge, refuted cheaply at a few states
+    /// first; a timed path's chords and blends, whose ends lie on proven motions), where most
+    /// pairs close from the middle with one state instead of two or three.
+    MiddleFirst,
 }
 
 /// The joint space: bounds per joint and which joints wrap (continuous hinges).
@@ -616,6 +636,12 @@ struct Axes {
     /// its acceleration over the motion (`Curve::accel`).
     vel: Vec<f64>,
     acc: Vec<f64>,
+    /// (tests) The placed state's `t`, and every radius of the motion: pair, `t`, `[back, fwd]`
+    /// (0 for a way not asked for; spanned pairs infinite forward from 0).
+    #[cfg(test)]
+    t: f64,
+    #[cfg(test)]
+    covers: Vec<(usize, f64, [f64; 2])>,
 }
 
 impl Axes {
@@ -633,6 +659,10 @@ impl Axes {
             known: vec![false; model.njoint()],
             vel: vec![0.0; model.njoint()],
             acc: vec![0.0; model.njoint()],
+            #[cfg(test)]
+            t: 0.0,
+            #[cfg(test)]
+            covers: Vec::new(),
         }
     }
 
@@ -655,6 +685,10 @@ impl Axes {
         for (j, v) in self.vel.iter_mut().enumerate() {
             *v = curve.velocity(j, t);
         }
+        #[cfg(test)]
+        {
+            self.t = t;
+        }
     }
 
     /// Forgets every state's values (a new motion).
@@ -662,6 +696,8 @@ impl Axes {
         self.joint.iter_mut().for_each(|x| x.stamp = 0);
         self.summed.fill(0);
         self.bound.iter_mut().for_each(|x| x.stamp = 0);
+        #[cfg(test)]
+        self.covers.clear();
     }
 }
 
@@ -994,6 +1030,26 @@ fn radius(
     need: f64,
     cover: [f64; 2],
 ) -> std::result::Result<[f64; 2], Stop> {
+    let r = measure(at, s, k, chain, quad, need, cover);
+    #[cfg(test)]
+    if let Ok(r) = r {
+        let asked = cover.map(|c| c > f64::NEG_INFINITY);
+        at.axes.covers.push((k, at.axes.t, [0, 1].map(|w| if asked[w] { r[w] } else { 0.0 })));
+    }
+    r
+}
+
+/// `radius`'s measurement (the tests record what it gives).
+#[inline(always)]
+fn measure(
+    at: &mut At,
+    s: &mut Scratch,
+    k: usize,
+    chain: f64,
+    quad: &mut f64,
+    need: f64,
+    cover: [f64; 2],
+) -> std::result::Result<[f64; 2], Stop> {
     let model = at.model;
     let (gap, reach) = model.broad.sphere_gap(&s.broad, k, &model.geoms);
     let gap = gap - need;
@@ -1050,7 +1106,8 @@ fn radius(
 
 /// Whether the motion `a → a + Δ` is certified (module docs) with every pair above
 /// `max(margin, clearance)` metres; `Err` for a pair the narrow phase cannot measure.
-/// `space` wraps and clamps the states as the planner's do.
+/// `space` wraps and clamps the states as the planner's do; the proof starts where `order` says.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn certify_motion(
     model: &RobotModel,
     levers: Levers,
@@ -1058,9 +1115,10 @@ pub(crate) fn certify_motion(
     a: &[f64],
     delta: &[f64],
     clearance: f64,
+    order: Order,
     ms: &mut MotionScratch,
 ) -> std::result::Result<Motion, Undecided> {
-    certify_curve(model, levers, space, &Line { a, delta }, clearance, ms)
+    certify_curve(model, levers, space, &Line { a, delta }, clearance, order, ms)
 }
 
 /// Whether the motion `curve` is certified, as `certify_motion` (the speeds and swept intervals
@@ -1071,6 +1129,7 @@ pub(crate) fn certify_curve<C: Curve>(
     space: &Space,
     curve: &C,
     clearance: f64,
+    order: Order,
     ms: &mut MotionScratch,
 ) -> std::result::Result<Motion, Undecided> {
     let k = model.njoint();
@@ -1137,58 +1196,133 @@ pub(crate) fn certify_curve<C: Curve>(
         Stop::Blocked => Ok(Motion::Blocked(t)),
         Stop::Undecided(u) => Err(u),
     };
-    // The end first (a planner's new state often collides), by spheres wherever they are
-    // apart; then the start, exact where the spheres do not close the motion; then the end
-    // again, exact, for the pairs still open that it measured by spheres only.
-    space.place(curve, 1.0, q);
-    at.axes.at(curve, 1.0);
-    ms.scratch.place(model, q, false);
-    ms.states += 1;
-    for p in 0..npairs {
-        if spanned(p) {
-            ms.radius1[p] = f64::INFINITY;
-            continue;
-        }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [0.0, f64::NEG_INFINITY]) {
-            Ok([r, _]) => ms.radius1[p] = r,
-            Err(e) => return stop(e, 1.0),
-        }
-    }
-    space.place(curve, 0.0, q);
-    at.axes.at(curve, 0.0);
-    ms.scratch.place(model, q, false);
-    ms.states += 1;
-    ms.open.clear();
-    ms.next.clear();
-    for p in 0..npairs {
-        let r1 = ms.radius1[p];
-        if r1 >= 1.0 {
-            continue;
-        }
-        match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [f64::NEG_INFINITY, 1.0 - r1]) {
-            Ok([_, r0]) if r0 + r1 >= 1.0 => {}
-            Ok([_, r0]) => ms.next.push(Open { pair: p as u32, r0, r1 }),
-            Err(e) => return stop(e, 0.0),
-        }
-    }
-    if !ms.next.is_empty() {
-        space.place(curve, 1.0, q);
-        at.axes.at(curve, 1.0);
-        // (only what the open pairs read: `Scratch::place_pairs`)
-        ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
+    let (mut level, mut width): (Vec<(f64, usize, usize)>, f64) = if order == Order::MiddleFirst {
+        // The middle first (a motion between proven poses, whose pairs mostly close from it both
+        // ways at once); then each end for the pairs still open on its half.
+        space.place(curve, 0.5, q);
+        at.axes.at(curve, 0.5);
+        ms.scratch.place(model, q, false);
         ms.states += 1;
-        for o in &ms.next {
+        ms.open.clear();
+        ms.next.clear();
+        for p in 0..npairs {
+            if spanned(p) {
+                #[cfg(test)]
+                at.axes.covers.push((p, 0.0, [0.0, f64::INFINITY]));
+                continue;
+            }
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [0.5, 0.5]) {
+                Ok([back, fwd]) => {
+                    // (a NaN radius leaves its half open)
+                    if back.is_nan() || back < 0.5 {
+                        ms.open.push(Open { pair: p as u32, r0: 0.0, r1: back });
+                    }
+                    if fwd.is_nan() || fwd < 0.5 {
+                        ms.next.push(Open { pair: p as u32, r0: fwd, r1: 0.0 });
+                    }
+                }
+                Err(e) => return stop(e, 0.5),
+            }
+        }
+        if !ms.open.is_empty() {
+            space.place(curve, 0.0, q);
+            at.axes.at(curve, 0.0);
+            ms.scratch.place_pairs(model, q, ms.open.iter().map(|o| o.pair as usize));
+            ms.states += 1;
+        }
+        let mut kept = 0;
+        for i in 0..ms.open.len() {
+            let o = ms.open[i];
             let p = o.pair as usize;
-            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [1.0 - o.r0, f64::NEG_INFINITY]) {
-                Ok([r1, _]) if o.r0 + r1 >= 1.0 => {}
-                Ok([r1, _]) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [f64::NEG_INFINITY, 0.5 - o.r1]) {
+                Ok([_, r0]) if r0 + o.r1 >= 0.5 => {}
+                Ok([_, r0]) => {
+                    ms.open[kept] = Open { r0, ..o };
+                    kept += 1;
+                }
+                Err(e) => return stop(e, 0.0),
+            }
+        }
+        ms.open.truncate(kept);
+        let left = kept;
+        if !ms.next.is_empty() {
+            space.place(curve, 1.0, q);
+            at.axes.at(curve, 1.0);
+            ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
+            ms.states += 1;
+        }
+        for i in 0..ms.next.len() {
+            let o = ms.next[i];
+            let p = o.pair as usize;
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [0.5 - o.r0, f64::NEG_INFINITY]) {
+                Ok([r1, _]) if o.r0 + r1 >= 0.5 => {}
+                Ok([r1, _]) => ms.open.push(Open { r1, ..o }),
                 Err(e) => return stop(e, 1.0),
             }
         }
-    }
-    // Breadth first: intervals of one level, each with its open pairs (contiguous in `open`).
-    let mut level: Vec<(f64, usize, usize)> = if ms.open.is_empty() { Vec::new() } else { vec![(0.0, 0, ms.open.len())] };
-    let mut width = 1.0f64;
+        let mut level = Vec::new();
+        if left > 0 {
+            level.push((0.0, 0, left));
+        }
+        if ms.open.len() > left {
+            level.push((0.5, left, ms.open.len()));
+        }
+        (level, 0.5)
+    } else {
+        // The end first (a planner's new state often collides), by spheres wherever they are
+        // apart; then the start, exact where the spheres do not close the motion; then the end
+        // again, exact, for the pairs still open that it measured by spheres only.
+        space.place(curve, 1.0, q);
+        at.axes.at(curve, 1.0);
+        ms.scratch.place(model, q, false);
+        ms.states += 1;
+        for p in 0..npairs {
+            if spanned(p) {
+                ms.radius1[p] = f64::INFINITY;
+                #[cfg(test)]
+                at.axes.covers.push((p, 0.0, [0.0, f64::INFINITY]));
+                continue;
+            }
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [0.0, f64::NEG_INFINITY]) {
+                Ok([r, _]) => ms.radius1[p] = r,
+                Err(e) => return stop(e, 1.0),
+            }
+        }
+        space.place(curve, 0.0, q);
+        at.axes.at(curve, 0.0);
+        ms.scratch.place(model, q, false);
+        ms.states += 1;
+        ms.open.clear();
+        ms.next.clear();
+        for p in 0..npairs {
+            let r1 = ms.radius1[p];
+            if r1 >= 1.0 {
+                continue;
+            }
+            match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [f64::NEG_INFINITY, 1.0 - r1]) {
+                Ok([_, r0]) if r0 + r1 >= 1.0 => {}
+                Ok([_, r0]) => ms.next.push(Open { pair: p as u32, r0, r1 }),
+                Err(e) => return stop(e, 0.0),
+            }
+        }
+        if !ms.next.is_empty() {
+            space.place(curve, 1.0, q);
+            at.axes.at(curve, 1.0);
+            // (only what the open pairs read: `Scratch::place_pairs`)
+            ms.scratch.place_pairs(model, q, ms.next.iter().map(|o| o.pair as usize));
+            ms.states += 1;
+            for o in &ms.next {
+                let p = o.pair as usize;
+                match radius(&mut at, &mut ms.scratch, p, ms.rates[p], &mut ms.quads[p], need(p), [1.0 - o.r0, f64::NEG_INFINITY]) {
+                    Ok([r1, _]) if o.r0 + r1 >= 1.0 => {}
+                    Ok([r1, _]) => ms.open.push(Open { r1: r1.max(o.r1), ..*o }),
+                    Err(e) => return stop(e, 1.0),
+                }
+            }
+        }
+        // Breadth first: intervals of one level, each with its open pairs (contiguous in `open`).
+        (if ms.open.is_empty() { Vec::new() } else { vec![(0.0, 0, ms.open.len())] }, 1.0)
+    };
     let mut verdict = Ok(Motion::Certified);
     'levels: while !level.is_empty() {
         if width * span < MIN_STEP {
@@ -1275,7 +1409,7 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
     certify_each(model, same_shape(model, &[starts, goals])?, &|i| format!("motion {i}"), |space, ms, d, i, k| {
         let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         space.delta(a, g, &mut d[..k]);
-        certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms)
+        certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, Order::EndFirst, ms)
     })
 }
 
@@ -1288,7 +1422,7 @@ pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &
         let (d1, d2) = d.split_at_mut(k);
         space.delta(a, v, d1);
         space.delta(v, g, d2);
-        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
+        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, Order::EndFirst, ms)
     })
 }
 
@@ -1296,16 +1430,24 @@ pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &
 /// unwrapped coordinates: `Δ = goal − start` (`via − start`, `goal − via`) on every joint,
 /// continuous hinges included, however far (no short arc chosen): the motion a timed path
 /// crosses (`planning/timing.rs`), even where a step is half a turn or its unwrapped values
-/// round past one. (Where every step is a short arc, the same motions as those calls'.)
-pub fn certify_as_given(model: &RobotModel, starts: &[f64], vias: Option<&[f64]>, goals: &[f64], clearance: f64) -> Result<Verdicts> {
+/// round past one. (Where every step is a short arc, the same motions as those calls'.) Each
+/// proof starts as `order` says.
+pub fn certify_as_given(
+    model: &RobotModel,
+    starts: &[f64],
+    vias: Option<&[f64]>,
+    goals: &[f64],
+    clearance: f64,
+    order: Order,
+) -> Result<Verdicts> {
     // (no motion is refused here, as `same_shape` refuses it; `certify_given` checks the rest)
     check_clearance(clearance)?;
     if starts.is_empty() {
         model.check_poses(starts)?;
     }
     Ok(match vias {
-        None => certify_given(model, [starts, goals], [&[], &[], &[]], clearance)?.0,
-        Some(vias) => certify_given(model, [&[], &[]], [starts, vias, goals], clearance)?.1,
+        None => certify_given(model, [starts, goals], [&[], &[], &[]], clearance, order)?.0,
+        Some(vias) => certify_given(model, [&[], &[]], [starts, vias, goals], clearance, order)?.1,
     })
 }
 
@@ -1315,8 +1457,14 @@ pub fn certify_as_given(model: &RobotModel, starts: &[f64], vias: Option<&[f64]>
 /// threads, and one wait for the slowest motion, instead of two. The lines' verdicts, then the
 /// blends'; each motion is decided alone, so the result is that of two calls. Either kind may
 /// be empty (no motion of it). An error names a line "motion i" and a blend "blend j", each
-/// by its index among its kind.
-pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3], clearance: f64) -> Result<(Verdicts, Verdicts)> {
+/// by its index among its kind. Each proof starts as `order` says.
+pub fn certify_given(
+    model: &RobotModel,
+    lines: [&[f64]; 2],
+    blends: [&[f64]; 3],
+    clearance: f64,
+    order: Order,
+) -> Result<(Verdicts, Verdicts)> {
     check_clearance(clearance)?;
     let count = |a: &[&[f64]]| if a.iter().all(|a| a.is_empty()) { Ok(0) } else { same_shape(model, a) };
     let (nl, nb) = (count(&lines)?, count(&blends)?);
@@ -1325,14 +1473,14 @@ pub fn certify_given(model: &RobotModel, lines: [&[f64]; 2], blends: [&[f64]; 3]
         if i < nl {
             let (a, g) = (&lines[0][i * k..(i + 1) * k], &lines[1][i * k..(i + 1) * k]);
             diff(a, g, &mut d[..k]);
-            return certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, ms);
+            return certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, order, ms);
         }
         let r = (i - nl) * k..(i - nl + 1) * k;
         let (a, v, g) = (&blends[0][r.clone()], &blends[1][r.clone()], &blends[2][r]);
         let (d1, d2) = d.split_at_mut(k);
         diff(a, v, d1);
         diff(v, g, d2);
-        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, ms)
+        certify_curve(model, Levers::of(model), space, &Bezier { p0: a, d1, d2 }, clearance, order, ms)
     })?;
     let blend_verdicts = all.split_off(nl);
     Ok((all, blend_verdicts))
@@ -1406,12 +1554,14 @@ where
 /// the motions tried in order until one is certified; `None` where none is. The tasks in
 /// parallel, each motion decided alone (so the answer is that of certifying each task's motions
 /// in turn, whatever the thread count), and none waits for another task's: a task whose first
-/// motion is blocked goes on to its next at once. An error names the task, `name(i)`.
+/// motion is blocked goes on to its next at once. Each proof starts as `order` says. An error
+/// names the task, `name(i)`.
 pub(crate) fn first_certified(
     model: &RobotModel,
     b: usize,
     name: &(dyn Fn(usize) -> String + Sync),
     clearance: f64,
+    order: Order,
     motion: impl Fn(usize, usize, &mut [f64], &mut [f64]) -> Option<bool> + Sync,
 ) -> Result<Vec<Option<usize>>> {
     check_clearance(clearance)?;
@@ -1422,7 +1572,7 @@ pub(crate) fn first_certified(
         while let Some(given) = motion(i, n, a, g) {
             if given {
                 diff(a, g, d);
-                if certify_curve(model, Levers::of(model), space, &Line { a, delta: d }, clearance, ms)? == Motion::Certified {
+                if certify_curve(model, Levers::of(model), space, &Line { a, delta: d }, clearance, order, ms)? == Motion::Certified {
                     return Ok(Some(n));
                 }
             }
@@ -2347,20 +2497,22 @@ pub(crate) mod tests {
 
     /// Certified motions are clear at every state of a fine sampling; a motion through the box
     /// is blocked at a state that is not; the verdict is the same from a used scratch (on the
-    /// arm, and on the arm among boxes).
+    /// arm, and on the arm among boxes; the proof started from either end).
     #[test]
     fn certified_motions_are_clear_between_samples_and_verdicts_do_not_depend_on_history() {
-        for model in [arm(), cluttered_arm()] {
-            certified_motions_are_clear_between_samples(model);
+        for order in [Order::EndFirst, Order::MiddleFirst] {
+            for model in [arm(), cluttered_arm()] {
+                certified_motions_are_clear_between_samples(&model, order);
+            }
         }
     }
 
-    fn certified_motions_are_clear_between_samples(model: RobotModel) {
-        let space = Space::of(&model).unwrap();
-        let levers = Levers::of(&model);
-        let mut ms = MotionScratch::new(&model);
-        let mut fresh = MotionScratch::new(&model);
-        let mut s = Scratch::new(&model);
+    fn certified_motions_are_clear_between_samples(model: &RobotModel, order: Order) {
+        let space = Space::of(model).unwrap();
+        let levers = Levers::of(model);
+        let mut ms = MotionScratch::new(model);
+        let mut fresh = MotionScratch::new(model);
+        let mut s = Scratch::new(model);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let (mut certified, mut blocked) = (0, 0);
         for _ in 0..300 {
@@ -2370,25 +2522,25 @@ pub(crate) mod tests {
             let mut b = vec![0.0; 4];
             space.along(&a, &delta, 1.0, &mut b);
             space.delta(&a, &b, &mut delta);
-            let v = certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut ms).unwrap();
-            assert_eq!(v, certify_motion(&model, levers, &space, &a, &delta, 1e-6, &mut fresh).unwrap());
+            let v = certify_motion(model, levers, &space, &a, &delta, 1e-6, order, &mut ms).unwrap();
+            assert_eq!(v, certify_motion(model, levers, &space, &a, &delta, 1e-6, order, &mut fresh).unwrap());
             let mut q = vec![0.0; 4];
             match v {
                 Motion::Certified => {
                     certified += 1;
                     for i in 0..=400 {
                         space.along(&a, &delta, i as f64 / 400.0, &mut q);
-                        assert!(crate::collision::fastpath::certified_pose(&model, &q, 1e-6, &mut s).unwrap(), "state {i}");
+                        assert!(crate::collision::fastpath::certified_pose(model, &q, 1e-6, &mut s).unwrap(), "state {i}");
                     }
                 }
                 Motion::Blocked(t) => {
                     blocked += 1;
                     space.along(&a, &delta, t, &mut q);
                     assert!(
-                        !crate::collision::fastpath::certified_pose(&model, &q, 1e-6 * (1.0 + 1e-6), &mut s).unwrap() || {
+                        !crate::collision::fastpath::certified_pose(model, &q, 1e-6 * (1.0 + 1e-6), &mut s).unwrap() || {
                             // within GJK's tolerance of the clearance or margin
                             let l = crate::collision::collide::label_pose(
-                                &model,
+                                model,
                                 &q,
                                 &mut s,
                                 crate::collision::collide::LabelOptions { pairs: false, distance: true },
@@ -2402,11 +2554,65 @@ pub(crate) mod tests {
                 Motion::Unproven => {}
             }
         }
-        assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+        assert!(certified > 30 && blocked > 30, "{order:?}: {certified} {blocked}");
+    }
+
+    /// Every pair of a certified motion is covered: the intervals its states' radii prove,
+    /// `[t − back, t + fwd]`, join up over `[0, 1]` (that each radius is a bound is
+    /// `no_pair_closes_faster_than_its_rate`'s), on lines and blends, from either end.
+    #[test]
+    fn certified_motions_cover_every_pair_from_either_end() {
+        for order in [Order::EndFirst, Order::MiddleFirst] {
+            for model in [arm(), cluttered_arm()] {
+                let space = Space::of(&model).unwrap();
+                let levers = Levers::of(&model);
+                let mut ms = MotionScratch::new(&model);
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(13);
+                let (mut certified, mut measured) = (0, 0);
+                for n in 0..200 {
+                    let p0: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j] * 0.8..space.hi[j] * 0.8)).collect();
+                    let mut d: [Vec<f64>; 2] = std::array::from_fn(|_| (0..4).map(|_| rng.random_range(-0.5..0.5)).collect());
+                    d[0][2] *= 0.1;
+                    d[1][2] *= 0.1;
+                    let v = if n % 2 == 0 {
+                        certify_motion(&model, levers, &space, &p0, &d[0], 1e-6, order, &mut ms)
+                    } else {
+                        certify_curve(&model, levers, &space, &Bezier { p0: &p0, d1: &d[0], d2: &d[1] }, 1e-6, order, &mut ms)
+                    };
+                    if v.unwrap() != Motion::Certified {
+                        continue;
+                    }
+                    certified += 1;
+                    let mut by_pair: Vec<Vec<[f64; 2]>> = vec![Vec::new(); model.pairs.len()];
+                    for &(p, t, [back, fwd]) in &ms.axes.covers {
+                        by_pair[p].push([t - back, t + fwd]);
+                    }
+                    for (p, proven) in by_pair.iter_mut().enumerate() {
+                        proven.sort_by(|a, b| a[0].total_cmp(&b[0]));
+                        let mut reach = 0.0f64;
+                        for &[lo, hi] in proven.iter() {
+                            if lo > reach + 1e-12 {
+                                break;
+                            }
+                            reach = reach.max(hi);
+                        }
+                        assert!(reach >= 1.0 - 1e-12, "{order:?}, motion {n}, pair {p}: proven to {reach} by {proven:?}");
+                        measured += usize::from(proven.len() > 1);
+                    }
+                }
+                assert!(certified > 30 && measured > 100, "{order:?}: {certified} certified, {measured} pairs measured twice");
+            }
+        }
     }
 
     #[test]
     fn certified_blends_are_clear_between_samples() {
+        for order in [Order::EndFirst, Order::MiddleFirst] {
+            certified_blends_are_clear_between_samples_from(order);
+        }
+    }
+
+    fn certified_blends_are_clear_between_samples_from(order: Order) {
         let model = arm();
         let space = Space::of(&model).unwrap();
         let levers = Levers::of(&model);
@@ -2422,7 +2628,7 @@ pub(crate) mod tests {
             d1[2] *= 0.1;
             d2[2] *= 0.1;
             let curve = Bezier { p0: &p0, d1: &d1, d2: &d2 };
-            let v = certify_curve(&model, levers, &space, &curve, 1e-6, &mut ms).unwrap();
+            let v = certify_curve(&model, levers, &space, &curve, 1e-6, order, &mut ms).unwrap();
             match v {
                 Motion::Certified => {
                     certified += 1;
@@ -2439,14 +2645,14 @@ pub(crate) mod tests {
                 Motion::Unproven => {}
             }
         }
-        assert!(certified > 30 && blocked > 30, "{certified} {blocked}");
+        assert!(certified > 30 && blocked > 30, "{order:?}: {certified} {blocked}");
         // A straight Bézier (`d₁ = d₂`) is the straight motion of twice its length: the same verdict.
         for _ in 0..100 {
             let a: Vec<f64> = (0..4).map(|j| rng.random_range(space.lo[j] * 0.8..space.hi[j] * 0.8)).collect();
             let d: Vec<f64> = (0..4).map(|_| rng.random_range(-0.2..0.2)).collect();
             let twice: Vec<f64> = d.iter().map(|x| 2.0 * x).collect();
-            let line = certify_motion(&model, levers, &space, &a, &twice, 1e-6, &mut ms).unwrap();
-            let blend = certify_curve(&model, levers, &space, &Bezier { p0: &a, d1: &d, d2: &d }, 1e-6, &mut ms).unwrap();
+            let line = certify_motion(&model, levers, &space, &a, &twice, 1e-6, order, &mut ms).unwrap();
+            let blend = certify_curve(&model, levers, &space, &Bezier { p0: &a, d1: &d, d2: &d }, 1e-6, order, &mut ms).unwrap();
             assert_eq!(line == Motion::Certified, blend == Motion::Certified);
         }
     }
@@ -2454,9 +2660,16 @@ pub(crate) mod tests {
     /// One batch of lines and blends (`certify_given`) gives each motion the verdict, and the
     /// states, of the certificate run on it alone (`certify_curve` of the line or the Bézier
     /// taken as given), in order (lines, then blends), on one thread and two; `certify_as_given`
-    /// of either kind alone agrees; an empty kind is no motion; bad arrays are refused.
+    /// of either kind alone agrees; an empty kind is no motion; bad arrays are refused. From
+    /// either end.
     #[test]
     fn lines_and_blends_in_one_batch_are_the_motions_alone() {
+        for order in [Order::EndFirst, Order::MiddleFirst] {
+            lines_and_blends_in_one_batch_are_the_motions_alone_from(order);
+        }
+    }
+
+    fn lines_and_blends_in_one_batch_are_the_motions_alone_from(order: Order) {
         use crate::threads::with_threads;
         let model = arm();
         let k = model.njoint();
@@ -2479,32 +2692,34 @@ pub(crate) mod tests {
             .map(|i| {
                 let (a, g) = (&l0[i * k..(i + 1) * k], &l1[i * k..(i + 1) * k]);
                 let delta = diff(a, g);
-                alone(&|ms| certify_curve(&model, levers, &given, &Line { a, delta: &delta }, 1e-6, ms).unwrap())
+                alone(&|ms| certify_curve(&model, levers, &given, &Line { a, delta: &delta }, 1e-6, order, ms).unwrap())
             })
             .collect();
         let blends: Vec<String> = (0..17)
             .map(|i| {
                 let r = i * k..(i + 1) * k;
                 let (d1, d2) = (diff(&b0[r.clone()], &b1[r.clone()]), diff(&b1[r.clone()], &b2[r.clone()]));
-                alone(&|ms| certify_curve(&model, levers, &given, &Bezier { p0: &b0[r.clone()], d1: &d1, d2: &d2 }, 1e-6, ms).unwrap())
+                alone(&|ms| {
+                    certify_curve(&model, levers, &given, &Bezier { p0: &b0[r.clone()], d1: &d1, d2: &d2 }, 1e-6, order, ms).unwrap()
+                })
             })
             .collect();
         let verdicts = |v: &Verdicts| v.iter().map(|(m, n)| format!("{m:?} {n}")).collect::<Vec<_>>();
         let kinds: std::collections::HashSet<&str> = lines.iter().chain(&blends).map(|v| &v[..4]).collect();
         assert!(kinds.len() >= 2, "the motions should not all end alike: {kinds:?}");
         for threads in [1, 2] {
-            let (l, b) = with_threads(Some(threads), || certify_given(&model, [&l0, &l1], [&b0, &b1, &b2], 1e-6)).unwrap().unwrap();
+            let (l, b) = with_threads(Some(threads), || certify_given(&model, [&l0, &l1], [&b0, &b1, &b2], 1e-6, order)).unwrap().unwrap();
             assert_eq!(verdicts(&l), lines, "{threads} threads");
             assert_eq!(verdicts(&b), blends, "{threads} threads");
         }
-        assert_eq!(verdicts(&certify_as_given(&model, &l0, None, &l1, 1e-6).unwrap()), lines);
-        assert_eq!(verdicts(&certify_as_given(&model, &b0, Some(&b1), &b2, 1e-6).unwrap()), blends);
-        let (l, b) = certify_given(&model, [&[], &[]], [&b0, &b1, &b2], 1e-6).unwrap();
+        assert_eq!(verdicts(&certify_as_given(&model, &l0, None, &l1, 1e-6, order).unwrap()), lines);
+        assert_eq!(verdicts(&certify_as_given(&model, &b0, Some(&b1), &b2, 1e-6, order).unwrap()), blends);
+        let (l, b) = certify_given(&model, [&[], &[]], [&b0, &b1, &b2], 1e-6, order).unwrap();
         assert!(l.is_empty() && verdicts(&b) == blends);
         let err = |r: Result<(Verdicts, Verdicts)>| r.unwrap_err().to_string();
-        assert!(err(certify_given(&model, [&l0, &l1[..2 * k]], [&[], &[], &[]], 1e-6)).contains("differ in shape"));
-        assert!(err(certify_given(&model, [&l0, &l1], [&[], &[], &[]], 0.0)).contains("clearance"));
-        assert!(certify_as_given(&model, &[], None, &[], 1e-6).is_err());
+        assert!(err(certify_given(&model, [&l0, &l1[..2 * k]], [&[], &[], &[]], 1e-6, order)).contains("differ in shape"));
+        assert!(err(certify_given(&model, [&l0, &l1], [&[], &[], &[]], 0.0, order)).contains("clearance"));
+        assert!(certify_as_given(&model, &[], None, &[], 1e-6, order).is_err());
     }
 
     /// `first_certified` gives each task the first of its motions `certify_as_given` certifies,
@@ -2532,7 +2747,9 @@ pub(crate) mod tests {
         let want: Vec<Option<usize>> = tasks
             .iter()
             .map(|t| {
-                t.iter().position(|(a, g, given)| *given && certify_as_given(&model, a, None, g, 1e-6).unwrap()[0].0 == Motion::Certified)
+                t.iter().position(|(a, g, given)| {
+                    *given && certify_as_given(&model, a, None, g, 1e-6, Order::MiddleFirst).unwrap()[0].0 == Motion::Certified
+                })
             })
             .collect();
         assert!(want.iter().any(|w| w.is_none()) && want.iter().any(|w| w.is_some_and(|n| n > 0)), "{want:?}");
@@ -2543,9 +2760,11 @@ pub(crate) mod tests {
             Some(*given)
         };
         for threads in [1, 2] {
-            let got = with_threads(Some(threads), || first_certified(&model, tasks.len(), &|i| format!("task {i}"), 1e-6, motion));
+            let got = with_threads(Some(threads), || {
+                first_certified(&model, tasks.len(), &|i| format!("task {i}"), 1e-6, Order::MiddleFirst, motion)
+            });
             assert_eq!(got.unwrap().unwrap(), want, "{threads} threads");
         }
-        assert!(first_certified(&model, 3, &|i| format!("task {i}"), 0.0, motion).is_err());
+        assert!(first_certified(&model, 3, &|i| format!("task {i}"), 0.0, Order::MiddleFirst, motion).is_err());
     }
 }

@@ -49,7 +49,7 @@ use crate::joints::angles::wrap;
 use crate::joints::couplings::FEASIBLE_TOL;
 use crate::model::broad::{check_clearance, MAX_CLEARANCE};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_motion, prove_apart, Levers, Motion, MotionScratch, Space};
+use crate::planning::motion::{certify_motion, prove_apart, Levers, Motion, MotionScratch, Order, Space};
 use crate::threads::map_shared;
 
 /// What a planning call may spend and how finely it checks edges.
@@ -707,8 +707,9 @@ fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> 
 }
 
 /// Whether the motion `a → a + delta` (ending at `b`) is certified at `clearance`, and the states
-/// it placed (`certify_motion`); an error names the motion. The continuous check of
-/// `Checker::edge_free` and of `proven_segments`.
+/// it placed (`certify_motion`, from the middle first: `a` is free, and `edge_free` has refuted
+/// cheaply at a few states, `b` among them, what it could); an error names the motion. The
+/// continuous check of `Checker::edge_free` and of `proven_segments`.
 #[allow(clippy::too_many_arguments)]
 fn certified_edge(
     model: &RobotModel,
@@ -720,7 +721,7 @@ fn certified_edge(
     clearance: f64,
     ms: &mut MotionScratch,
 ) -> Result<(bool, usize)> {
-    match certify_motion(model, levers, space, a, delta, clearance, ms) {
+    match certify_motion(model, levers, space, a, delta, clearance, Order::MiddleFirst, ms) {
         Ok(m) => Ok((m == Motion::Certified, ms.states)),
         Err(e) => Err(e.error(model, format!("planning motion {a:?} -> {b:?}"))),
     }

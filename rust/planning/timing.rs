@@ -27,7 +27,8 @@
 //!
 //! What is proven is what the robot crosses: the chords, the parts of the path's segments
 //! between them (`Part::Along`; none where two chords of half a segment meet at its middle)
-//! and the blends kept. Velocity is piecewise linear and acceleration piecewise constant, each
+//! and the blends kept, each proof from the curve's middle first (`Order::MiddleFirst`: their
+//! ends lie on the path's motions, so most pairs close from the middle alone). Velocity is piecewise linear and acceleration piecewise constant, each
 //! within its limit by construction; the cruise parts lie on those segments and chords, so the
 //! timed motion is certified when every part crossed is (`first_unproven`). A part on a
 //! segment this model has proven whole, at this clearance, is not proven again
@@ -41,7 +42,7 @@ use std::collections::HashMap;
 
 use crate::error::{Error, Result};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_as_given, certify_given, first_certified, Motion, Verdicts};
+use crate::planning::motion::{certify_as_given, certify_given, first_certified, Motion, Order, Verdicts};
 
 /// Speed fractions the ramp tries, fastest first: `1 − i/GRID` for `i < GRID` (exact in binary).
 const GRID: usize = 64;
@@ -361,7 +362,10 @@ fn proven(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> 
     if starts.is_empty() {
         return Ok(Vec::new());
     }
-    Ok(certify_as_given(model, starts, None, goals, clearance)?.iter().map(|(m, _)| matches!(m, Motion::Certified)).collect())
+    Ok(certify_as_given(model, starts, None, goals, clearance, Order::MiddleFirst)?
+        .iter()
+        .map(|(m, _)| matches!(m, Motion::Certified))
+        .collect())
 }
 
 /// Rows `idx` of the `(M, K)` row-major `x`, row-major.
@@ -399,7 +403,7 @@ fn blended(model: &RobotModel, lim: &Limits, w: &[f64], first: Pieces, memo: &mu
         let todo: Vec<&Vec<f64>> = p.blends.iter().map(|(_, c)| c).filter(|c| !memo.contains_key(&memo_key(c))).collect();
         if !todo.is_empty() {
             let [s, v, g] = controls(lim.k, &todo);
-            remember(memo, &todo, certify_as_given(model, &s, Some(&v), &g, clearance)?);
+            remember(memo, &todo, certify_as_given(model, &s, Some(&v), &g, clearance, Order::MiddleFirst)?);
         }
         let failed: Vec<usize> = p.blends.iter().filter(|(_, c)| !memo[&memo_key(c)]).map(|&(i, _)| i).collect();
         if failed.is_empty() {
@@ -439,7 +443,7 @@ fn proven_timing(
     let ends = |d: usize| rows(w, k, todo().map(|i| i + d));
     let blends: Vec<&Vec<f64>> = first.blends.iter().map(|(_, c)| c).collect();
     let [s, v, g] = controls(k, &blends);
-    let (parts_proven, blends_proven) = certify_given(model, [&ends(0), &ends(1)], [&s, &v, &g], clearance)?;
+    let (parts_proven, blends_proven) = certify_given(model, [&ends(0), &ends(1)], [&s, &v, &g], clearance, Order::MiddleFirst)?;
     let mut alone = parts_proven.into_iter();
     let parts_proven: Verdicts =
         known.iter().map(|&known| if known { (Motion::Certified, 0) } else { alone.next().expect("a verdict a part") }).collect();
@@ -459,15 +463,22 @@ fn cuts(model: &RobotModel, k: usize, w: &[f64], cut: f64, clearance: f64) -> Re
     // Each corner tries its chords in turn, the corners in parallel (a corner whose widest
     // chord is blocked tries the next at once, not after every corner's first).
     // (task `i` is corner `i + 1`)
-    let first = first_certified(model, m.saturating_sub(2), &|i| format!("the chord of corner {}", i + 1), clearance, |i, n, p0, p1| {
-        let f = *shares.get(n)?;
-        let (a, b, c) = (&w[i * k..(i + 1) * k], &w[(i + 1) * k..(i + 2) * k], &w[(i + 2) * k..(i + 3) * k]);
-        for j in 0..k {
-            p0[j] = a[j] + (b[j] - a[j]) * (1.0 - f);
-            p1[j] = b[j] + (c[j] - b[j]) * f;
-        }
-        Some((0..k).all(|j| !wraps[j] || (p1[j] - p0[j]).abs() < std::f64::consts::PI - 1e-6))
-    })?;
+    let first = first_certified(
+        model,
+        m.saturating_sub(2),
+        &|i| format!("the chord of corner {}", i + 1),
+        clearance,
+        Order::MiddleFirst,
+        |i, n, p0, p1| {
+            let f = *shares.get(n)?;
+            let (a, b, c) = (&w[i * k..(i + 1) * k], &w[(i + 1) * k..(i + 2) * k], &w[(i + 2) * k..(i + 3) * k]);
+            for j in 0..k {
+                p0[j] = a[j] + (b[j] - a[j]) * (1.0 - f);
+                p1[j] = b[j] + (c[j] - b[j]) * f;
+            }
+            Some((0..k).all(|j| !wraps[j] || (p1[j] - p0[j]).abs() < std::f64::consts::PI - 1e-6))
+        },
+    )?;
     let mut share = vec![0.0; m];
     for (i, n) in first.into_iter().enumerate() {
         if let Some(n) = n {
