@@ -302,12 +302,18 @@ def time_path(robot: Robot, path: npt.ArrayLike, *, velocity: npt.ArrayLike | fl
     # Unwrapped waypoints (short arcs on continuous hinges; the other joints' values as given, bit
     # for bit, so that a planned path's segments are the motions plan_path proved), zero-length
     # segments removed.
-    steps = so2_steps(robot, p) if len(p) > 1 else np.zeros((0, robot.njoint))
+    # (a handful of small numpy calls: each costs microseconds, several times that right after
+    # the native work has evicted them from the caches, and this runs on every call)
     w = p.copy()
     wraps = np.asarray(robot.continuous, dtype=bool)
-    w[1:, wraps] = p[0, wraps] + np.cumsum(steps[:, wraps], axis=0)
-    # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal)
-    w = w[np.concatenate([[True], np.abs(np.diff(w, axis=0)).max(axis=1) > 0])]
+    if len(p) > 1 and wraps.any():
+        steps = so2_steps(robot, p)
+        w[1:, wraps] = p[0, wraps] + np.cumsum(steps[:, wraps], axis=0)
+    # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal;
+    # finite values differ exactly where their difference is not 0)
+    moved = (w[1:] != w[:-1]).any(axis=1)
+    if not moved.all():
+        w = w[np.concatenate([[True], moved])]
     m = len(w)
     meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
                 wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, jerk=j, waypoints=w)
