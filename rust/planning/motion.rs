@@ -1406,7 +1406,7 @@ pub type Verdicts = Vec<(Motion, usize)>;
 /// alone, so the result does not depend on the number of threads.
 pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
     check_clearance(clearance)?;
-    certify_each(model, same_shape(model, &[starts, goals])?, &|i| format!("motion {i}"), |space, ms, d, i, k| {
+    certify_each(model, same_shape(model, &[starts, goals])?, &|i| format!("motion {i}"), None, |space, ms, d, i, k| {
         let (a, g) = (&starts[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         space.delta(a, g, &mut d[..k]);
         certify_curve(model, Levers::of(model), space, &Line { a, delta: &d[..k] }, clearance, Order::EndFirst, ms)
@@ -1417,7 +1417,7 @@ pub fn certify_motions(model: &RobotModel, starts: &[f64], goals: &[f64], cleara
 /// blend at the corner `vias[i]`; short arcs on continuous hinges), as `certify_motions`.
 pub fn certify_blends(model: &RobotModel, starts: &[f64], vias: &[f64], goals: &[f64], clearance: f64) -> Result<Verdicts> {
     check_clearance(clearance)?;
-    certify_each(model, same_shape(model, &[starts, vias, goals])?, &|i| format!("blend {i}"), |space, ms, d, i, k| {
+    certify_each(model, same_shape(model, &[starts, vias, goals])?, &|i| format!("blend {i}"), None, |space, ms, d, i, k| {
         let (a, v, g) = (&starts[i * k..(i + 1) * k], &vias[i * k..(i + 1) * k], &goals[i * k..(i + 1) * k]);
         let (d1, d2) = d.split_at_mut(k);
         space.delta(a, v, d1);
@@ -1469,7 +1469,12 @@ pub fn certify_given(
     let count = |a: &[&[f64]]| if a.iter().all(|a| a.is_empty()) { Ok(0) } else { same_shape(model, a) };
     let (nl, nb) = (count(&lines)?, count(&blends)?);
     let name = |i: usize| if i < nl { format!("motion {i}") } else { format!("blend {}", i - nl) };
-    let mut all = certify_each(model, nl + nb, &name, |space, ms, d, i, k| {
+    let k = model.njoint();
+    let length = |i: usize| {
+        let (rows, j) = if i < nl { (&lines[..], i) } else { (&blends[..], i - nl) };
+        rows.windows(2).map(|w| travel(&w[0][j * k..(j + 1) * k], &w[1][j * k..(j + 1) * k])).sum()
+    };
+    let mut all = certify_each(model, nl + nb, &name, Some(&length), |space, ms, d, i, k| {
         if i < nl {
             let (a, g) = (&lines[0][i * k..(i + 1) * k], &lines[1][i * k..(i + 1) * k]);
             diff(a, g, &mut d[..k]);
@@ -1507,11 +1512,17 @@ fn same_shape(model: &RobotModel, arrays: &[&[f64]]) -> Result<usize> {
 /// current pool, one motion a work item, each worker's scratch reused across its items; an
 /// error names the first motion that fails in order, as `name(i)` (its kind and its index
 /// among its kind: "motion 3", "blend 0"). The caller checks the clearance and the arrays.
-fn certify_each<F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Verdicts>
+fn certify_each<F>(
+    model: &RobotModel,
+    b: usize,
+    name: &(dyn Fn(usize) -> String + Sync),
+    travel: Option<&Travel<'_>>,
+    one: F,
+) -> Result<Verdicts>
 where
     F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<Motion, Undecided> + Sync,
 {
-    each_task(model, b, name, |space, ms, d, i, k| one(space, ms, d, i, k).map(|m| (m, ms.states)))
+    each_task(model, b, name, travel, |space, ms, d, i, k| one(space, ms, d, i, k).map(|m| (m, ms.states)))
 }
 
 /// Batches of fewer motions run on the calling thread (`threads::map_shared`): a short timed
@@ -1525,8 +1536,15 @@ const SHARED_FROM: usize = 4;
 /// decided alone on `scratch`), as `certify_each` runs its motions: in parallel, each worker
 /// taking the next task as it frees up (`threads::map_shared`: a motion is 10 µs to
 /// milliseconds of work, and a timed path's batches are a handful of unequal tasks; fewer than
-/// [`SHARED_FROM`] on the calling thread), an error named `name(i)`.
-fn each_task<T, F>(model: &RobotModel, b: usize, name: &(dyn Fn(usize) -> String + Sync), one: F) -> Result<Vec<T>>
+/// [`SHARED_FROM`] on the calling thread), the longest first where `travel` gives each task's
+/// length, an error named `name(i)`; the results in task order.
+fn each_task<T, F>(
+    model: &RobotModel,
+    b: usize,
+    name: &(dyn Fn(usize) -> String + Sync),
+    travel: Option<&Travel<'_>>,
+    one: F,
+) -> Result<Vec<T>>
 where
     T: Send,
     F: Fn(&Space, &mut MotionScratch, &mut [f64], usize, usize) -> std::result::Result<T, Undecided> + Sync,
@@ -1534,17 +1552,39 @@ where
     let k = model.njoint();
     let wraps = model.continuous();
     let space = Space { lo: vec![f64::NEG_INFINITY; k], hi: vec![f64::INFINITY; k], wraps, couplings: model.couplings.clone() };
+    // The tasks taken longest first where `travel` says which (a task's proof grows with its
+    // motion's length): the last one taken, which one worker runs while the other waits, is then
+    // a short one. Each task is decided alone, so the order changes when it runs, not its answer.
+    let mut order: Vec<usize> = (0..b).collect();
+    if let Some(travel) = travel {
+        let t: Vec<f64> = (0..b).map(travel).collect();
+        order.sort_by(|&x, &y| t[y].total_cmp(&t[x]));
+    }
     // (each worker takes the next task as it frees up: `threads::map_shared`)
-    let parts: Vec<Result<T>> = crate::threads::map_shared(
+    let taken: Vec<Result<T>> = crate::threads::map_shared(
         b,
         SHARED_FROM,
         || (MotionScratch::new(model), vec![0.0; 3 * k]),
-        |(ms, d), i| {
+        |(ms, d), n| {
+            let i = order[n];
             crate::cancel::check()?;
             one(&space, ms, d, i, k).map_err(|e| e.error(model, name(i)))
         },
     );
-    first_error(parts)
+    let mut parts: Vec<Option<Result<T>>> = (0..b).map(|_| None).collect();
+    for (&i, r) in order.iter().zip(taken) {
+        parts[i] = Some(r);
+    }
+    first_error(parts.into_iter().map(|r| r.expect("every task ran")).collect())
+}
+
+/// A task's joint travel, `Σ_j |Δ_j|` over its motion (the sum of its curve's legs for a blend):
+/// what `each_task` takes the longest tasks first by.
+type Travel<'a> = dyn Fn(usize) -> f64 + Sync + 'a;
+
+/// `Σ_j |b_j − a_j|`.
+fn travel(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| (b - a).abs()).sum()
 }
 
 /// For each of `b` tasks, the first of its straight motions that is certified, taken as given
@@ -1565,7 +1605,13 @@ pub(crate) fn first_certified(
     motion: impl Fn(usize, usize, &mut [f64], &mut [f64]) -> Option<bool> + Sync,
 ) -> Result<Vec<Option<usize>>> {
     check_clearance(clearance)?;
-    each_task(model, b, name, |space, ms, buf, i, k| {
+    // (a task's first motion's travel)
+    let k = model.njoint();
+    let length = |i: usize| {
+        let (mut a, mut g) = (vec![0.0; k], vec![0.0; k]);
+        motion(i, 0, &mut a, &mut g).map_or(0.0, |_| travel(&a, &g))
+    };
+    each_task(model, b, name, Some(&length), |space, ms, buf, i, k| {
         let (a, rest) = buf.split_at_mut(k);
         let (g, d) = rest.split_at_mut(k);
         let mut n = 0;
