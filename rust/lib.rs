@@ -42,7 +42,8 @@
 //! |---|---|---|---|
 //! | [`error`] | the one error type | | |
 //! | [`budget`] | sizes checked against the memory available before they are allocated | `error` | |
-//! | [`threads`] | one rayon pool per thread count, fork-safe; one work item on the calling thread; a few unequal items shared, the sleeping workers steered off the busy CPU | `error` | |
+//! | [`threads`] | one rayon pool per thread count, fork-safe; one work item on the calling thread; a call run on its own thread with a thread count; a few unequal items shared, the sleeping workers steered off the busy CPU | `error` | |
+//! | `threads::crew` | helper threads kept awake between one call's few-item sections, off the caller's CPU, fork-safe | | |
 //! | [`cancel`] | the flag long loops read between items: a call stopped part-way (Ctrl-C) | `error` | |
 //! | [`joints`] | joint space: poses and what holds of them before any geometry | `error`, `budget` | |
 //! | [`joints::angles`] | the one angle wrap (SO(2), shortest arcs) | | |
@@ -84,7 +85,7 @@
 //! | [`render::images`] | rendered images finished (background, expected depth) and compared (the image loss), with gradients | | |
 //! | `bindings` | the pyo3 module `profrobot._core` (feature `python`), the only code that knows Python | `error`, `threads`, `cancel`, `joints`, `geometry`, `model`, `collision`, `planning`, `ik`, `render` | |
 //! | `bindings::errors` | the Python error classes, and the core's errors mapped onto them | | |
-//! | `bindings::interrupt` | long calls run off the calling thread, which watches for Ctrl-C meanwhile | | |
+//! | `bindings::interrupt` | long calls stop on Ctrl-C: run off the calling thread, which watches meanwhile, or on it, its loops watching | | |
 //! | `bindings::arrays` | numpy arguments read in any memory layout | | |
 //! | `bindings::model` | `RobotModel`: built from MuJoCo's arrays, pickled, and all its methods | | |
 //! | `bindings::joints` | `interpolate`, `first_bad_entries` | | |

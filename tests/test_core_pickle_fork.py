@@ -130,6 +130,43 @@ def test_forked_child_labels_after_parent_used_the_pools_regression():
     assert _same(robot.core.label(q, pairs=True, distance=True), want[None])
 
 
+def _plan_and_time_inherited():
+    robot, start, goal = _INHERITED
+    plan = profrobot.plan_path(robot, start, goal, seed=0, threads=2)
+    timed = profrobot.time_path(robot, plan.path, velocity=np.full(robot.njoint, 1.5),
+                                acceleration=np.full(robot.njoint, 3.0), threads=2)
+    return plan.path, timed.duration
+
+
+def test_forked_child_plans_after_parent_used_the_crew_regression():
+    """plan_path and time_path run on the calling thread with helper threads of their own (the
+    crew, ``rust/threads/crew.rs``): a child forked after its parent used them has none of the
+    threads, builds its own, and answers as the parent did."""
+    global _INHERITED
+    robot = scene("panda_blocks")
+    start, goal = profrobot.exact.problems.free_poses(robot, 2, seed=3)
+    _INHERITED = (robot, start, goal)
+    want = _plan_and_time_inherited()
+    ctx = multiprocessing.get_context("fork")
+    try:
+        with ctx.Pool(1) as pool:  # forks now, after the parent's crew is up
+            try:
+                got = pool.apply_async(_plan_and_time_inherited).get(timeout=TIMEOUT_S)
+            except multiprocessing.TimeoutError:
+                pool.terminate()
+                pytest.fail(f"forked child did not plan within {TIMEOUT_S} s (a helper it does not have)")
+    finally:
+        _INHERITED = ()
+    assert np.array_equal(got[0], want[0]) and got[1] == want[1]
+    # The parent's crew still works after the fork.
+    _INHERITED = (robot, start, goal)
+    try:
+        again = _plan_and_time_inherited()
+    finally:
+        _INHERITED = ()
+    assert np.array_equal(again[0], want[0]) and again[1] == want[1]
+
+
 def test_spawned_worker_labels_an_unpickled_model_identically(panda_poses):
     robot, q = panda_poses
     q = q[:2000]

@@ -43,6 +43,11 @@ CASES = {
         "wall = profrobot.Robot.from_mjcf(write('wall.xml'))   # a slider behind a wall: no path exists",
         "profrobot.plan_path(wall, [-0.5], [0.5], max_time=3600.0, iterations=10**9, threads=1)",
         "profrobot.plan_path(robot, *profrobot.exact.problems.free_poses(robot, 2, seed=3), seed=0).path"),
+    # (plan_path runs on the calling thread, its loops asking for signals: on two threads, too)
+    "plan_path_two_threads": (
+        "wall = profrobot.Robot.from_mjcf(write('wall.xml'))",
+        "profrobot.plan_path(wall, [-0.5], [0.5], max_time=3600.0, iterations=10**9, threads=2)",
+        "profrobot.plan_path(robot, *profrobot.exact.problems.free_poses(robot, 2, seed=3), seed=0, threads=2).path"),
 }
 
 #: seconds the child may take after the signal before the test calls it hung: a guard, not a speed

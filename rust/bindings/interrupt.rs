@@ -1,22 +1,25 @@
 //! Long calls that stop on Ctrl-C. Python runs its signal handlers only on the main thread and
 //! only between bytecodes, so a native call that holds the calling thread for a minute hears
-//! Ctrl-C only when it returns. Here the work runs on the rayon pool instead, and the calling
-//! thread waits for it, checking for signals every [`POLL`]; on one it asks the loops to stop
-//! (`crate::cancel`), waits for them (one item of work), and raises the signal's exception
-//! (`KeyboardInterrupt`), returning nothing the work computed.
+//! Ctrl-C only when it returns. Two ways around it:
+//! - [`run`]: the work runs on the rayon pool, and the calling thread waits for it, checking for
+//!   signals every [`POLL`]; for the batches, whose wide loops run on the pool anyway;
+//! - [`run_here`]: the work runs on the calling thread ([`threads::on_caller`]), whose own
+//!   loops check for signals every [`POLL`] (`cancel::watch`); for the calls of a millisecond or
+//!   so (`plan_path`, `time_path`), which spent a tenth of it handing the work to a sleeping
+//!   worker and being woken by it.
+//!
+//! Either way, on a signal the loops are asked to stop (`crate::cancel`), the call waits for them
+//! (one item of work), and raises the signal's exception (`KeyboardInterrupt`), returning nothing
+//! the work computed.
 
 use std::sync::mpsc::{sync_channel, RecvTimeoutError};
-use std::time::Duration;
 
 use pyo3::prelude::*;
 
 use super::errors::to_py;
-use crate::cancel;
+use crate::cancel::{self, POLL};
 use crate::error::Result;
-use crate::threads::{count, pool};
-
-/// How often the waiting thread checks for signals.
-const POLL: Duration = Duration::from_millis(20);
+use crate::threads::{self, count, pool};
 
 /// Batches of at most this many poses are one work item of every pose loop, milliseconds at
 /// most: [`run_batch`] runs them on the calling thread.
@@ -74,4 +77,36 @@ pub(super) fn run<T: Send>(py: Python<'_>, threads: Option<usize>, work: impl Fn
     }
     // the job always runs (in_place_scope waits for it); a panic in it propagated above
     out.expect("the interruptible job ran").map_err(to_py)
+}
+
+thread_local! {
+    /// The signal's exception a watched call's thread raised in its loops ([`run_here`]).
+    static SIGNAL: std::cell::RefCell<Option<PyErr>> = const { std::cell::RefCell::new(None) };
+}
+
+/// `work()` on the calling thread as on the pool of `threads` workers ([`threads::on_caller`]),
+/// the GIL released, stopping on Ctrl-C: its loops run Python's signal handlers every [`POLL`]
+/// (module docs). For calls whose parallel sections are few and short.
+pub(super) fn run_here<T: Send>(py: Python<'_>, threads: Option<usize>, work: impl FnOnce() -> Result<T> + Send) -> PyResult<T> {
+    let out = py.detach(|| {
+        let _watch = cancel::watch(signalled);
+        threads::on_caller(threads, work)
+    });
+    if let Some(e) = SIGNAL.with(|s| s.borrow_mut().take()) {
+        cancel::clear();
+        return Err(e);
+    }
+    out.and_then(|r| r).map_err(to_py)
+}
+
+/// Python's signal handlers run here (the GIL taken for them): `true`, the exception kept for
+/// [`run_here`], when one raised.
+fn signalled() -> bool {
+    Python::attach(|py| match py.check_signals() {
+        Ok(()) => false,
+        Err(e) => {
+            SIGNAL.with(|s| *s.borrow_mut() = Some(e));
+            true
+        }
+    })
 }

@@ -457,7 +457,7 @@ impl PyRobotModel {
         let w = rows_of(&w);
         let (v, a) = (rows_of(&velocity), rows_of(&acceleration));
         let (w, v, a): (&[f64], &[f64], &[f64]) = (&w, &v, &a);
-        let r = interrupt::run(py, threads, || time_path(model, w, v, a, blend, cut, clearance))?;
+        let r = interrupt::run_here(py, threads, || time_path(model, w, v, a, blend, cut, clearance))?;
         let (m, p) = (r.times.len(), r.starts.len());
         let out = PyDict::new(py);
         out.set_item("waypoints", PyArray1::from_vec(py, r.waypoints).reshape([m, k])?)?;
@@ -535,7 +535,7 @@ impl PyRobotModel {
         let held = held.unwrap_or_default();
         let opts = PlanOptions { resolution, max_time, seed, range, max_iterations, shortcut_rounds, verify, continuous, clearance, held };
         let model = &self.model;
-        let r = interrupt::run(py, threads, || plan_path(model, &s, &g, &opts))?;
+        let r = interrupt::run_here(py, threads, || plan_path(model, &s, &g, &opts))?;
         let k = model.njoint();
         let m = r.path.len() / k.max(1);
         let out = PyDict::new(py);

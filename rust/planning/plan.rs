@@ -273,16 +273,18 @@ impl<'m> Checker<'m> {
             // (the first either way, so the answer does not depend on the thread count).
             let stops = |(_, r): &(usize, std::result::Result<bool, _>)| *r != Ok(false);
             let first = if batch.len() >= PARALLEL_FROM {
-                batch
-                    .par_iter()
-                    .map_init(
-                        || (Scratch::new(model), vec![0.0; k]),
-                        |(s, q), &i| {
-                            state(i, q);
-                            (i, collides_pose_with(model, q, s, First::LastHit))
-                        },
-                    )
-                    .find_first(stops)
+                crate::threads::in_pool(|| {
+                    batch
+                        .par_iter()
+                        .map_init(
+                            || (Scratch::new(model), vec![0.0; k]),
+                            |(s, q), &i| {
+                                state(i, q);
+                                (i, collides_pose_with(model, q, s, First::LastHit))
+                            },
+                        )
+                        .find_first(stops)
+                })
             } else if b_idx > 1 {
                 // (after the first batch, whose end state usually settles a blocked edge: four
                 // states at a time)

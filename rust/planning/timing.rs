@@ -614,6 +614,8 @@ pub fn time_path(
     if (0..m - 1).any(|i| (0..k).all(|j| path[i * k + j] == path[(i + 1) * k + j])) {
         return Err(Error::InvalidInput("path must hold no zero-length segment".into()));
     }
+    // (the crew's helpers awake for the sections ahead, from here on)
+    let _awake = crate::threads::crew_awake();
     let lim = Limits { k, v: velocity, a: acceleration };
     let share = if blend && cut > 0.0 && m > 2 { cuts(model, k, path, cut, clearance)? } else { vec![0.0; m] };
     let whole: Vec<Part> = (0..m - 1).map(Part::Along).collect();

@@ -1,5 +1,6 @@
 //! Thread pools: one rayon pool per thread count, built on first use and reused by every call,
-//! and forgotten in a forked child.
+//! and forgotten in a forked child; and the crew (`crew`), helper threads for the few-item
+//! sections of calls that run on their own thread ([`on_caller`]).
 //!
 //! Results never depend on the pool: work is split into fixed-size, independently seeded items.
 //!
@@ -19,6 +20,9 @@ use rayon::prelude::*;
 use rayon::{ThreadPool, ThreadPoolBuilder};
 
 use crate::error::{invalid_input, Result};
+
+pub(crate) mod crew;
+pub use crew::{awake as crew_awake, Awake};
 
 /// The pools of one process, by thread count.
 struct Pools {
@@ -112,15 +116,13 @@ pub(crate) struct Steer(Option<Steered>);
 /// What a steer changed: the pool, and each steered sibling's thread id with its CPUs before.
 pub(crate) struct Steered {
     workers: Arc<Workers>,
-    saved: Vec<(i32, Vec<usize>)>,
+    saved: Saved,
 }
 
 impl Drop for Steer {
     fn drop(&mut self) {
         if let Some(st) = &self.0 {
-            for (tid, cpus) in &st.saved {
-                os::allow(*tid, cpus);
-            }
+            steer_back(&st.saved);
             st.workers.steering.store(false, std::sync::atomic::Ordering::Release);
         }
     }
@@ -154,9 +156,17 @@ pub(crate) fn steer_siblings() -> Steer {
     if w.steering.swap(true, Ordering::AcqRel) {
         return Steer(None);
     }
-    let mut saved = Vec::with_capacity(w.tids.len() - 1);
-    for (_, tid) in w.tids.iter().enumerate().filter(|&(i, _)| i != me) {
-        let tid = tid.load(Ordering::Acquire);
+    let saved = steer_off(cpu, w.tids.iter().enumerate().filter(|&(i, _)| i != me).map(|(_, tid)| tid.load(Ordering::Acquire)));
+    Steer(Some(Steered { workers: w, saved }))
+}
+
+/// Threads kept off one CPU: each one's id with the CPUs it had before.
+pub(crate) type Saved = Vec<(i32, Vec<usize>)>;
+
+/// Keeps each thread of `tids` off CPU `cpu` where it has another to run on; what it changed.
+fn steer_off(cpu: usize, tids: impl Iterator<Item = i32>) -> Saved {
+    let mut saved = Vec::new();
+    for tid in tids {
         let Some(cpus) = os::allowed(tid) else { continue };
         let others: Vec<usize> = cpus.iter().copied().filter(|&c| c != cpu).collect();
         if !others.is_empty() && others.len() < cpus.len() {
@@ -164,7 +174,14 @@ pub(crate) fn steer_siblings() -> Steer {
             saved.push((tid, cpus));
         }
     }
-    Steer(Some(Steered { workers: w, saved }))
+    saved
+}
+
+/// Gives each thread `steer_off` steered its CPUs back.
+fn steer_back(saved: &Saved) {
+    for (tid, cpus) in saved {
+        os::allow(*tid, cpus);
+    }
 }
 
 /// The scheduler calls `steer_siblings` makes (Linux; elsewhere they do nothing).
@@ -227,6 +244,53 @@ mod os {
         None
     }
     pub fn allow(_tid: i32, _cpus: &[usize]) {}
+}
+
+thread_local! {
+    /// On a thread running a call itself ([`on_caller`]): the call's thread count.
+    static CALLER: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// Runs `f` on the calling thread as if on a pool of `threads` workers: its few-item sections
+/// ([`map_shared`]) shared with the crew's helpers, its wide parallel loops ([`in_pool`]) on
+/// the pool of `threads` workers. No hand-off to the pool and back: a pool worker asleep
+/// starts the job tens of µs late on a VM, and the caller, asleep meanwhile, wakes as late
+/// when it ends (0.14-0.27 ms of a 1.6 ms `plan_path` call, p10-p90). `Some(0)` is an error.
+pub fn on_caller<T>(threads: Option<usize>, f: impl FnOnce() -> T) -> Result<T> {
+    let n = count(threads)?;
+    let before = CALLER.replace(n);
+    struct Restore(usize);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            CALLER.set(self.0);
+        }
+    }
+    let _restore = Restore(before);
+    Ok(f())
+}
+
+/// The thread count the calling thread's work runs on: its call's ([`on_caller`]), or its
+/// pool's on a pool worker, or 1 (a thread outside both: a crew helper, or a caller that
+/// chose no pool).
+pub fn current() -> usize {
+    match CALLER.get() {
+        0 if rayon::current_thread_index().is_some() => rayon::current_num_threads(),
+        0 => 1,
+        n => n,
+    }
+}
+
+/// `f()` where rayon's parallel iterators reach the call's pool: on the pool of [`current`]
+/// workers when the calling thread runs a call itself ([`on_caller`]), else here (a pool
+/// worker's own pool, or rayon's global pool where no pool was chosen).
+pub fn in_pool<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+    match CALLER.get() {
+        n if n > 0 && rayon::current_thread_index().is_none() => match pool(Some(n)) {
+            Ok(p) => p.install(f),
+            Err(_) => f(),
+        },
+        _ => f(),
+    }
 }
 
 /// Runs `f` on this process's pool of `threads` workers (`None`: [`default_threads`]).
@@ -306,7 +370,8 @@ where
 {
     use std::sync::atomic::{AtomicUsize, Ordering};
 
-    let workers = rayon::current_num_threads().min(n);
+    // (outside a pool, a crew helper's nested section among them, on the calling thread alone)
+    let workers = current().min(n);
     if workers <= 1 || n < shared_from {
         let mut state = init();
         return (0..n).map(|i| f(&mut state, i)).collect();
@@ -324,13 +389,22 @@ where
             *slots[i].lock().unwrap_or_else(PoisonError::into_inner) = Some(r);
         }
     };
-    let _steered = steer_siblings();
-    rayon::scope(|s| {
-        for _ in 1..workers {
-            s.spawn(|_| work());
+    // (the crew, awake between a call's sections; the pool's sleeping workers where another
+    // section holds it)
+    if !crew::try_run(workers - 1, &work) {
+        if rayon::current_thread_index().is_none() {
+            // (a caller's own section, the crew held by another: alone)
+            work();
+            return slots.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner).expect("every item ran")).collect();
         }
-        work();
-    });
+        let _steered = steer_siblings();
+        rayon::scope(|s| {
+            for _ in 1..workers {
+                s.spawn(|_| work());
+            }
+            work();
+        });
+    }
     slots.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner).expect("every item ran")).collect()
 }
 
@@ -421,6 +495,60 @@ mod tests {
         })
         .unwrap();
         assert_eq!(on, vec![true; 3]);
+    }
+
+    /// A call run on its own thread counts as its thread count wherever it asks: its few-item
+    /// sections are shared with crew helpers (the same results as on one thread, each item
+    /// once), its wide loops reach the pool of that many workers; a thread outside any call or
+    /// pool counts as one.
+    #[test]
+    fn a_call_on_its_own_thread_has_its_thread_count() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let caller = std::thread::current().id();
+        assert_eq!(std::thread::spawn(current).join().unwrap(), 1);
+        assert_eq!(on_caller(Some(3), current).unwrap(), 3);
+        assert_eq!(with_threads(Some(2), current).unwrap(), 2);
+        assert!(on_caller(Some(0), || ()).is_err());
+        assert_eq!(
+            on_caller(Some(2), || in_pool(|| (rayon::current_num_threads(), rayon::current_thread_index().is_some()))).unwrap(),
+            (2, true)
+        );
+        // (restored after the call, also nested)
+        on_caller(Some(2), || on_caller(Some(1), || assert_eq!(current(), 1)).unwrap()).unwrap();
+        assert_eq!(std::thread::spawn(current).join().unwrap(), 1);
+        let slow = |i: usize| {
+            let mut x = i as u64;
+            for _ in 0..(if i < 3 { 3_000_000 } else { 10 }) {
+                x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+            }
+            x
+        };
+        let want: Vec<u64> = (0..9).map(slow).collect();
+        // (another test's section may hold the crew: then this call's run alone, so try again)
+        let mut helped = false;
+        let tried = std::time::Instant::now();
+        while tried.elapsed().as_secs() < 20 {
+            let seen: Vec<AtomicUsize> = (0..9).map(|_| Default::default()).collect();
+            let out = on_caller(Some(2), || {
+                map_shared(
+                    9,
+                    2,
+                    || (),
+                    |_, i| {
+                        seen[i].fetch_add(1, Ordering::Relaxed);
+                        (slow(i), std::thread::current().id() != caller)
+                    },
+                )
+            })
+            .unwrap();
+            assert!(seen.iter().all(|n| n.load(Ordering::Relaxed) == 1), "an item ran twice or never");
+            assert_eq!(out.iter().map(|r| r.0).collect::<Vec<_>>(), want);
+            if out.iter().any(|r| r.1) {
+                helped = true;
+                break;
+            }
+        }
+        assert!(helped, "no crew helper ever took an item");
     }
 
     #[test]
