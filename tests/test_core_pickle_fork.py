@@ -105,65 +105,59 @@ def _label_inherited():
     return _label_in_child(*_INHERITED)
 
 
+def _in_forked_child(inherited: tuple, call, what: str):
+    """``call()`` in a child forked now (after the parent's threads are up), which inherits
+    ``inherited`` as ``_INHERITED`` rather than unpickling it; a hang fails the test."""
+    global _INHERITED
+    _INHERITED = inherited
+    ctx = multiprocessing.get_context("fork")
+    try:
+        with ctx.Pool(1) as pool:  # forks now
+            try:
+                return pool.apply_async(call).get(timeout=TIMEOUT_S)
+            except multiprocessing.TimeoutError:
+                pool.terminate()
+                pytest.fail(f"forked child did not {what} within {TIMEOUT_S} s (threads it does not have)")
+    finally:
+        _INHERITED = ()
+
+
 def test_forked_child_labels_after_parent_used_the_pools_regression():
     """A child forked after its parent labelled poses (a torch DataLoader worker) waited forever
     on the parent's rayon pool, whose threads do not exist in the child."""
-    global _INHERITED
     robot = scene("panda_blocks")
     q = profrobot.sample_poses(robot, N, seed=5)
     want = {threads: robot.core.label(q, pairs=True, distance=True, threads=threads) for threads in (None, 2)}
     assert _same(want[None], want[2])
-    _INHERITED = (robot.core, q)
-    ctx = multiprocessing.get_context("fork")
-    try:
-        with ctx.Pool(1) as pool:  # forks now, after the parent's pools are up
-            try:
-                got = pool.apply_async(_label_inherited).get(timeout=TIMEOUT_S)
-            except multiprocessing.TimeoutError:
-                pool.terminate()
-                pytest.fail(f"forked child did not label {N} poses within {TIMEOUT_S} s (deadlocked pool)")
-    finally:
-        _INHERITED = ()
+    got = _in_forked_child((robot.core, q), _label_inherited, f"label {N} poses")
     for threads in (None, 2):
         assert _same(got[threads], want[threads]), threads
     # The parent's pools still work after the fork.
     assert _same(robot.core.label(q, pairs=True, distance=True), want[None])
 
 
-def _plan_and_time_inherited():
-    robot, start, goal = _INHERITED
+def _plan_and_time(robot, start, goal):
     plan = profrobot.plan_path(robot, start, goal, seed=0, threads=2)
     timed = profrobot.time_path(robot, plan.path, velocity=np.full(robot.njoint, 1.5),
                                 acceleration=np.full(robot.njoint, 3.0), threads=2)
     return plan.path, timed.duration
 
 
+def _plan_and_time_inherited():
+    return _plan_and_time(*_INHERITED)
+
+
 def test_forked_child_plans_after_parent_used_the_crew_regression():
     """plan_path and time_path run on the calling thread with helper threads of their own (the
     crew, ``rust/threads/crew.rs``): a child forked after its parent used them has none of the
     threads, builds its own, and answers as the parent did."""
-    global _INHERITED
     robot = scene("panda_blocks")
     start, goal = profrobot.exact.problems.free_poses(robot, 2, seed=3)
-    _INHERITED = (robot, start, goal)
-    want = _plan_and_time_inherited()
-    ctx = multiprocessing.get_context("fork")
-    try:
-        with ctx.Pool(1) as pool:  # forks now, after the parent's crew is up
-            try:
-                got = pool.apply_async(_plan_and_time_inherited).get(timeout=TIMEOUT_S)
-            except multiprocessing.TimeoutError:
-                pool.terminate()
-                pytest.fail(f"forked child did not plan within {TIMEOUT_S} s (a helper it does not have)")
-    finally:
-        _INHERITED = ()
+    want = _plan_and_time(robot, start, goal)
+    got = _in_forked_child((robot, start, goal), _plan_and_time_inherited, "plan and time a path")
     assert np.array_equal(got[0], want[0]) and got[1] == want[1]
     # The parent's crew still works after the fork.
-    _INHERITED = (robot, start, goal)
-    try:
-        again = _plan_and_time_inherited()
-    finally:
-        _INHERITED = ()
+    again = _plan_and_time(robot, start, goal)
     assert np.array_equal(again[0], want[0]) and again[1] == want[1]
 
 

@@ -100,13 +100,15 @@ pub(super) fn run_here<T: Send>(py: Python<'_>, threads: Option<usize>, work: im
 }
 
 /// Python's signal handlers run here (the GIL taken for them): `true`, the exception kept for
-/// [`run_here`], when one raised.
+/// [`run_here`], when one raised. An interpreter shutting down is not attached to (a thread
+/// taking its GIL then would be ended by unwinding through the work): no signal.
 fn signalled() -> bool {
-    Python::attach(|py| match py.check_signals() {
+    Python::try_attach(|py| match py.check_signals() {
         Ok(()) => false,
         Err(e) => {
             SIGNAL.with(|s| *s.borrow_mut() = Some(e));
             true
         }
     })
+    .unwrap_or(false)
 }

@@ -30,6 +30,15 @@ use std::time::{Duration, Instant};
 /// finished call leaves no core busy for long.
 pub(crate) const SPIN: Duration = Duration::from_micros(50);
 
+/// How long a helper kept awake ([`awake`]) looks for the next section before it sleeps all
+/// the same: far longer than the sequential work between a call's sections, so that a long
+/// stretch of it (or a caller that forgot its guard) leaves no core spinning.
+const AWAKE_SPIN: Duration = Duration::from_millis(1);
+
+/// Calls on more threads keep no helper awake ([`awake`]): as many cores spinning, and two
+/// system calls a helper to steer them, would cost more than the late starts they avoid.
+const AWAKE_UP_TO: usize = super::STEER_UP_TO;
+
 /// A section's work, its lifetime erased: valid while the section that posted it waits
 /// (`Crew::try_run` returns only once no helper holds it).
 #[derive(Clone, Copy)]
@@ -102,17 +111,18 @@ pub(crate) fn try_run(helpers: usize, work: &(dyn Fn() + Sync)) -> bool {
     true
 }
 
-/// Keeps the crew's helpers awake, looking for sections, while it lives (they sleep [`SPIN`]
-/// after the last guard is dropped): a call about to run sections takes one first, so that the
-/// helpers' wake-up overlaps its sequential work and they do not fall asleep between its
-/// sections. An awake helper yields its CPU between looks, to any thread that needs it. Where
-/// the calling thread is no pool's worker of more than one thread, nothing is woken.
+/// Keeps the crew's helpers awake, looking for sections, while it lives (they sleep `SPIN`
+/// after the last guard is dropped, or [`AWAKE_SPIN`] after a section while it lives): a call
+/// about to run sections takes one first, so that the helpers' wake-up overlaps its sequential
+/// work and they do not fall asleep between its sections. An awake helper spins off the
+/// caller's CPU (steered, as the pools' sleeping workers are). Where the call runs on one
+/// thread, or on more than [`AWAKE_UP_TO`], or the crew is busy being grown, nothing is woken.
 pub fn awake() -> Awake {
     let n = super::current();
-    if n < 2 {
+    if !(2..=AWAKE_UP_TO).contains(&n) {
         return Awake(None);
     }
-    let Some(shared) = grown(&mut CREW.lock().unwrap_or_else(PoisonError::into_inner), n - 1) else {
+    let Some(shared) = held().and_then(|mut slot| grown(&mut slot, n - 1)) else {
         return Awake(None);
     };
     // (the helpers kept off the caller's CPU while awake: a helper spinning beside the caller
@@ -153,8 +163,7 @@ impl Drop for Awake {
 /// The crew with at least `helpers` helpers, held for one section; `None` when another section
 /// holds it or a thread could not be started.
 fn take(helpers: usize) -> Option<Arc<Shared>> {
-    let mut slot = CREW.lock().unwrap_or_else(PoisonError::into_inner);
-    let shared = grown(&mut slot, helpers)?;
+    let shared = grown(&mut *held()?, helpers)?;
     let mut st = shared.lock();
     if st.busy {
         return None;
@@ -162,6 +171,17 @@ fn take(helpers: usize) -> Option<Arc<Shared>> {
     st.busy = true;
     drop(st);
     Some(shared)
+}
+
+/// The crew's slot, or `None` while another thread holds it (growing the crew, or looking it
+/// up): the caller then does without it. Never waited for: a child forked while another
+/// thread held it inherits it held for good, and runs its sections alone.
+fn held() -> Option<MutexGuard<'static, Option<Crew>>> {
+    match CREW.try_lock() {
+        Ok(g) => Some(g),
+        Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
+        Err(std::sync::TryLockError::WouldBlock) => None,
+    }
 }
 
 /// This process's crew (built, or rebuilt in a forked child), grown to at least `helpers`
@@ -251,7 +271,8 @@ fn helper(shared: &Shared, mut seen: u64) {
     loop {
         let spun = Instant::now();
         while shared.posted.load(Ordering::Acquire) == seen {
-            if shared.awake.load(Ordering::Acquire) == 0 && spun.elapsed() >= SPIN {
+            let limit = if shared.awake.load(Ordering::Acquire) > 0 { AWAKE_SPIN } else { SPIN };
+            if spun.elapsed() >= limit {
                 break;
             }
             for _ in 0..64 {

@@ -106,7 +106,7 @@ impl Workers {
 
 /// Pools of more workers are not steered: one call per sibling each way, a few µs each, would
 /// cost as much as the late start it avoids (the case it was measured on is a 2-core VM).
-const STEER_UP_TO: usize = 8;
+pub(crate) const STEER_UP_TO: usize = 8;
 
 /// While alive, the calling worker's siblings may not run on the CPU the caller was on
 /// ([`steer_siblings`]); dropped, each has the CPUs it had before again.
