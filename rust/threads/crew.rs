@@ -30,6 +30,11 @@ use std::time::{Duration, Instant};
 /// finished call leaves no core busy for long.
 pub(crate) const SPIN: Duration = Duration::from_micros(50);
 
+/// How long a section's caller, its own share done, looks for its helpers' end before it
+/// sleeps: their last items (a motion's proof, up to milliseconds), its CPU yielded meanwhile to
+/// any thread that needs it. Asleep, it would wake tens of µs after them on a VM.
+const WAIT_SPIN: Duration = Duration::from_millis(2);
+
 /// How long a helper kept awake ([`awake`]) looks for the next section before it sleeps all
 /// the same: far longer than the sequential work between a call's sections, so that a long
 /// stretch of it (or a caller that forgot its guard) leaves no core spinning.
@@ -244,8 +249,8 @@ fn section(shared: &Shared, helpers: usize, job: Job, work: &(dyn Fn() + Sync)) 
         st.job = None;
         let spun = Instant::now();
         drop(st);
-        while shared.running.load(Ordering::Acquire) > 0 && spun.elapsed() < SPIN {
-            std::hint::spin_loop();
+        while shared.running.load(Ordering::Acquire) > 0 && spun.elapsed() < WAIT_SPIN {
+            std::thread::yield_now();
         }
         let mut st = shared.lock();
         while shared.running.load(Ordering::Acquire) > 0 {
