@@ -48,36 +48,43 @@ pub fn requested() -> bool {
 /// How often a watched call's thread asks its watcher.
 pub const POLL: Duration = Duration::from_millis(20);
 
-/// A watched call's watcher ([`watch`]) and when to ask it next.
-#[derive(Clone, Copy)]
-struct Watcher {
-    next: Instant,
-    stop: fn() -> bool,
-}
+/// The watcher of watched calls ([`watch`]): one a process (the bindings').
+static STOPPER: std::sync::Mutex<Option<fn() -> bool>> = std::sync::Mutex::new(None);
+
+/// The clock [`WATCHED`] counts from.
+static EPOCH: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
 
 thread_local! {
-    /// On a thread running a watched call: its watcher.
-    static WATCHER: Cell<Option<Watcher>> = const { Cell::new(None) };
+    /// On a thread running a watched call: when to ask its watcher next, in nanoseconds from
+    /// [`EPOCH`] plus one; 0 elsewhere. One word: this library's thread-locals sit in the
+    /// process's static TLS block, whose spare bytes other libraries need too (`threads`).
+    static WATCHED: Cell<u64> = const { Cell::new(0) };
+}
+
+/// [`WATCHED`]'s value for the time `POLL` from now.
+fn next_poll() -> u64 {
+    (EPOCH.get_or_init(Instant::now).elapsed() + POLL).as_nanos() as u64 + 1
 }
 
 /// While alive, the calling thread's own loops ask `stop()` at most every [`POLL`] whether to
 /// stop (from their checks, [`requested`] and [`check`]); on `true` a stop is requested for
 /// every loop, as by [`request`]. For a call that runs on the thread that must watch for a
 /// stop (Python's signal handlers run on its main thread only): the bindings' Ctrl-C, with no
-/// second thread to wait for the work.
+/// second thread to wait for the work. One watcher serves the process: the last one given.
 pub fn watch(stop: fn() -> bool) -> Watch {
-    let before = WATCHER.replace(Some(Watcher { next: Instant::now() + POLL, stop }));
+    *STOPPER.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = Some(stop);
+    let before = WATCHED.replace(next_poll());
     STATE.fetch_add(2, Ordering::Relaxed);
     Watch(before)
 }
 
 /// A watched call ([`watch`]); dropped, its thread's loops stop asking.
 #[must_use]
-pub struct Watch(Option<Watcher>);
+pub struct Watch(u64);
 
 impl Drop for Watch {
     fn drop(&mut self) {
-        WATCHER.set(self.0);
+        WATCHED.set(self.0);
         STATE.fetch_sub(2, Ordering::Relaxed);
     }
 }
@@ -86,15 +93,13 @@ impl Drop for Watch {
 #[cold]
 #[inline(never)]
 fn watched_stop() -> bool {
-    let Some(w) = WATCHER.get() else {
-        return false;
-    };
-    let now = Instant::now();
-    if now < w.next {
+    let next = WATCHED.get();
+    if next == 0 || (EPOCH.get_or_init(Instant::now).elapsed().as_nanos() as u64) < next - 1 {
         return false;
     }
-    WATCHER.set(Some(Watcher { next: now + POLL, ..w }));
-    if (w.stop)() {
+    WATCHED.set(next_poll());
+    let stop = *STOPPER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if stop.is_some_and(|stop| stop()) {
         request();
         return true;
     }

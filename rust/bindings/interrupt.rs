@@ -79,9 +79,17 @@ pub(super) fn run<T: Send>(py: Python<'_>, threads: Option<usize>, work: impl Fn
     out.expect("the interruptible job ran").map_err(to_py)
 }
 
-thread_local! {
-    /// The signal's exception a watched call's thread raised in its loops ([`run_here`]).
-    static SIGNAL: std::cell::RefCell<Option<PyErr>> = const { std::cell::RefCell::new(None) };
+/// The signals' exceptions watched calls' threads raised in their loops ([`run_here`]), by
+/// thread. (Not a thread-local: this library's sit in the process's static TLS block, whose
+/// spare bytes other libraries need too; see `threads`.)
+static SIGNALS: std::sync::Mutex<Vec<(std::thread::ThreadId, PyErr)>> = std::sync::Mutex::new(Vec::new());
+
+/// The calling thread's exception in [`SIGNALS`], taken out.
+fn take_signal() -> Option<PyErr> {
+    let me = std::thread::current().id();
+    let mut all = SIGNALS.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let at = all.iter().position(|(t, _)| *t == me)?;
+    Some(all.swap_remove(at).1)
 }
 
 /// `work()` on the calling thread as on the pool of `threads` workers ([`threads::on_caller`]),
@@ -92,7 +100,7 @@ pub(super) fn run_here<T: Send>(py: Python<'_>, threads: Option<usize>, work: im
         let _watch = cancel::watch(signalled);
         threads::on_caller(threads, work)
     });
-    if let Some(e) = SIGNAL.with(|s| s.borrow_mut().take()) {
+    if let Some(e) = take_signal() {
         cancel::clear();
         return Err(e);
     }
@@ -106,7 +114,8 @@ fn signalled() -> bool {
     Python::try_attach(|py| match py.check_signals() {
         Ok(()) => false,
         Err(e) => {
-            SIGNAL.with(|s| *s.borrow_mut() = Some(e));
+            let me = std::thread::current().id();
+            SIGNALS.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((me, e));
             true
         }
     })

@@ -87,9 +87,24 @@ struct Workers {
     steering: std::sync::atomic::AtomicBool,
 }
 
+/// Every pool's workers table, in the order the pools were built (a worker finds its own by
+/// index: [`SIBLINGS`]).
+static TABLES: Mutex<Vec<Arc<Workers>>> = Mutex::new(Vec::new());
+
 thread_local! {
-    /// On a pool's worker: its pool's table and its own index in it.
-    static SIBLINGS: std::cell::RefCell<Option<(Arc<Workers>, usize)>> = const { std::cell::RefCell::new(None) };
+    /// On a pool's worker: its pool's table (`TABLES`, index + 1) in the high half, its own
+    /// index in it in the low half; 0 elsewhere. One word: this library's thread-locals sit in
+    /// the process's static TLS block (its `STATIC_TLS` flag), whose few spare bytes a library
+    /// loaded later (torch's `libgomp`) needs too, so each of them is kept small.
+    static SIBLINGS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// The calling worker's pool's table and its own index in it, on a pool's worker.
+fn siblings() -> Option<(Arc<Workers>, usize)> {
+    let at = SIBLINGS.get();
+    let table = (at >> 32).checked_sub(1)? as usize;
+    let w = TABLES.lock().unwrap_or_else(PoisonError::into_inner).get(table)?.clone();
+    Some((w, (at & 0xffff_ffff) as usize))
 }
 
 impl Workers {
@@ -100,7 +115,15 @@ impl Workers {
     /// Worker `i` has started on the calling thread.
     fn started(self: &Arc<Self>, i: usize) {
         self.tids[i].store(os::thread_id(), std::sync::atomic::Ordering::Release);
-        SIBLINGS.with(|s| *s.borrow_mut() = Some((self.clone(), i)));
+        let mut tables = TABLES.lock().unwrap_or_else(PoisonError::into_inner);
+        let table = match tables.iter().position(|t| Arc::ptr_eq(t, self)) {
+            Some(t) => t,
+            None => {
+                tables.push(self.clone());
+                tables.len() - 1
+            }
+        };
+        SIBLINGS.set((table as u64 + 1) << 32 | i as u64);
     }
 }
 
@@ -144,7 +167,7 @@ impl Drop for Steer {
 pub(crate) fn steer_siblings() -> Steer {
     use std::sync::atomic::Ordering;
 
-    let Some((w, me)) = SIBLINGS.with(|s| s.borrow().clone()) else {
+    let Some((w, me)) = siblings() else {
         return Steer(None);
     };
     if w.tids.len() < 2 || w.tids.len() > STEER_UP_TO {
@@ -558,7 +581,7 @@ mod tests {
         let pool = PoolCache(Mutex::new(None)).get(9, 2).unwrap();
         let all = os::allowed(os::thread_id()).unwrap();
         pool.install(|| {
-            let (w, me) = SIBLINGS.with(|s| s.borrow().clone()).expect("a profrobot pool's worker knows its siblings");
+            let (w, me) = siblings().expect("a profrobot pool's worker knows its siblings");
             // (the sibling records its id as it starts: wait for it)
             let waited = std::time::Instant::now();
             let sibling = loop {
