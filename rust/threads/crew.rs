@@ -7,9 +7,10 @@
 //! plain thread woken by a condition variable started after 2.6 / 6.2 / 8.7 µs. A timed path is
 //! two to four such sections of 0.1-0.5 ms each, with 50-100 µs of sequential work between them,
 //! so the late starts were a tenth of the call. A crew helper looks for the next section for
-//! [`SPIN`] after each one before it sleeps: within one call it is already awake.
+//! `SPIN` after each one before it sleeps, and for up to `AWAKE_SPIN` while a call that runs
+//! sections holds it awake ([`awake`]): within that call it is awake when a section comes.
 //!
-//! One section at a time holds the crew (`Crew::try_run`); another caller meanwhile (a second
+//! One section at a time holds the crew (`try_run`); another caller meanwhile (a second
 //! Python thread, or a section nested in a section) is told so and runs its section another way.
 //! Nothing computed depends on who runs an item: the caller's work hands out items from one
 //! counter and each item's result is its own.
@@ -17,7 +18,8 @@
 //! Fork: `fork()` copies only the calling thread, so a child inherits the crew's bookkeeping and
 //! none of its helpers. The crew records the process id it was built in; a process that finds
 //! another id forgets it (leaks it: dropping would touch state the helpers may have held locked)
-//! and builds its own, as the pools do.
+//! and builds its own, as the pools do. The crew's slot is never waited for (`held`): a child
+//! forked while another thread held it runs its sections alone.
 
 use std::any::Any;
 use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
@@ -25,9 +27,9 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-/// How long an idle helper, or a caller waiting for its helpers, keeps looking before it sleeps:
-/// longer than the sequential work between a call's sections (50-100 µs), short enough that a
-/// finished call leaves no core busy for long.
+/// How long an idle helper keeps looking for the next section before it sleeps, where no call
+/// holds it awake: a section that follows at once finds it, and a finished call leaves no core
+/// busy for long.
 pub(crate) const SPIN: Duration = Duration::from_micros(50);
 
 /// How long a section's caller, its own share done, looks for its helpers' end before it
@@ -45,7 +47,7 @@ const AWAKE_SPIN: Duration = Duration::from_millis(1);
 const AWAKE_UP_TO: usize = super::STEER_UP_TO;
 
 /// A section's work, its lifetime erased: valid while the section that posted it waits
-/// (`Crew::try_run` returns only once no helper holds it).
+/// (`try_run` returns only once no helper holds it).
 #[derive(Clone, Copy)]
 struct Job(*const (dyn Fn() + Sync + 'static));
 
@@ -117,11 +119,11 @@ pub(crate) fn try_run(helpers: usize, work: &(dyn Fn() + Sync)) -> bool {
 }
 
 /// Keeps the crew's helpers awake, looking for sections, while it lives (they sleep `SPIN`
-/// after the last guard is dropped, or [`AWAKE_SPIN`] after a section while it lives): a call
+/// after the last guard is dropped, or `AWAKE_SPIN` after a section while it lives): a call
 /// about to run sections takes one first, so that the helpers' wake-up overlaps its sequential
 /// work and they do not fall asleep between its sections. An awake helper spins off the
 /// caller's CPU (steered, as the pools' sleeping workers are). Where the call runs on one
-/// thread, or on more than [`AWAKE_UP_TO`], or the crew is busy being grown, nothing is woken.
+/// thread, or on more than `AWAKE_UP_TO` (8), or the crew is busy being grown, nothing is woken.
 pub fn awake() -> Awake {
     let n = super::current();
     if !(2..=AWAKE_UP_TO).contains(&n) {
@@ -269,8 +271,9 @@ fn section(shared: &Shared, helpers: usize, job: Job, work: &(dyn Fn() + Sync)) 
     }
 }
 
-/// A helper's life, from the sections posted after the `seen`-th: wait for a section (spinning for [`SPIN`], then asleep), take a seat if one
-/// is open, run the work, say so; forever.
+/// A helper's life, from the sections posted after the `seen`-th: wait for a section (spinning
+/// for [`SPIN`], or [`AWAKE_SPIN`] while held awake, then asleep), take a seat if one is open,
+/// run the work, say so; forever.
 fn helper(shared: &Shared, mut seen: u64) {
     shared.lock().tids.push(super::os::thread_id());
     loop {
