@@ -91,6 +91,15 @@ impl Shared {
     fn lock(&self) -> MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
+
+    /// Tells the helpers something was posted (a section, or a call that keeps them awake),
+    /// waking those asleep; `st` is the held lock, under which they go to sleep.
+    fn post(&self, st: &State) {
+        self.posted.fetch_add(1, Ordering::Release);
+        if st.sleepers > 0 {
+            self.wake.notify_all();
+        }
+    }
 }
 
 /// The helpers of one process.
@@ -143,10 +152,7 @@ pub fn awake() -> Awake {
         }
     }
     shared.awake.fetch_add(1, Ordering::AcqRel);
-    shared.posted.fetch_add(1, Ordering::Release);
-    if st.sleepers > 0 {
-        shared.wake.notify_all();
-    }
+    shared.post(&st);
     drop(st);
     Awake(Some((shared, steered)))
 }
@@ -238,10 +244,7 @@ fn section(shared: &Shared, helpers: usize, job: Job, work: &(dyn Fn() + Sync)) 
         st.job = Some(job);
         st.seats = helpers;
         st.panic = None;
-        shared.posted.fetch_add(1, Ordering::Release);
-        if st.sleepers > 0 {
-            shared.wake.notify_all();
-        }
+        shared.post(&st);
     }
     let mine = catch_unwind(AssertUnwindSafe(work));
     // (a helper that joins from here on would find the work done: no seat for it)

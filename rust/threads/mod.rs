@@ -418,15 +418,15 @@ where
         if rayon::current_thread_index().is_none() {
             // (a caller's own section, the crew held by another: alone)
             work();
-            return slots.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner).expect("every item ran")).collect();
+        } else {
+            let _steered = steer_siblings();
+            rayon::scope(|s| {
+                for _ in 1..workers {
+                    s.spawn(|_| work());
+                }
+                work();
+            });
         }
-        let _steered = steer_siblings();
-        rayon::scope(|s| {
-            for _ in 1..workers {
-                s.spawn(|_| work());
-            }
-            work();
-        });
     }
     slots.into_iter().map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner).expect("every item ran")).collect()
 }
@@ -482,6 +482,16 @@ mod tests {
         // cache forgets it, one leaked handle per count, by design.)
     }
 
+    /// Item `i`'s result after `rounds` steps of a linear congruential generator: work that
+    /// takes time and cannot be skipped.
+    fn busy(i: usize, rounds: usize) -> u64 {
+        let mut x = i as u64;
+        for _ in 0..rounds {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+        }
+        x
+    }
+
     #[test]
     fn shared_items_run_once_each_in_order_on_any_pool() {
         // Items of very unequal cost (the first few slow), a state per worker counting its items.
@@ -495,11 +505,7 @@ mod tests {
                     |done, i| {
                         *done += 1;
                         seen[i].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        let mut x = i as u64;
-                        for _ in 0..(if i < 3 { 2_000_000 } else { 10 }) {
-                            x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
-                        }
-                        (i, x, rayon::current_thread_index())
+                        (i, busy(i, if i < 3 { 2_000_000 } else { 10 }), rayon::current_thread_index())
                     },
                 );
                 assert!(seen.iter().all(|n| n.load(std::sync::atomic::Ordering::Relaxed) == 1), "an item ran twice or never");
@@ -539,13 +545,7 @@ mod tests {
         // (restored after the call, also nested)
         on_caller(Some(2), || on_caller(Some(1), || assert_eq!(current(), 1)).unwrap()).unwrap();
         assert_eq!(std::thread::spawn(current).join().unwrap(), 1);
-        let slow = |i: usize| {
-            let mut x = i as u64;
-            for _ in 0..(if i < 3 { 3_000_000 } else { 10 }) {
-                x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
-            }
-            x
-        };
+        let slow = |i: usize| busy(i, if i < 3 { 3_000_000 } else { 10 });
         let want: Vec<u64> = (0..9).map(slow).collect();
         // (another test's section may hold the crew: then this call's run alone, so try again)
         let mut helped = false;
