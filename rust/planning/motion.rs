@@ -430,6 +430,7 @@ fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
         // once per geom, not once per pair of it; a scene's obstacles pair with every link)
         let mut reach = vec![f64::NAN; k * model.geoms.len()];
         let mut centre = vec![f64::NAN; k * model.geoms.len()];
+        let mut walks = vec![None; k * model.body_parent.len()];
         // Each body and its ancestors, up to the world.
         let ups: Vec<Vec<usize>> = (0..model.body_parent.len())
             .map(|mut b| {
@@ -470,7 +471,7 @@ fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
             for &e in chain {
                 let (j, g) = (entry_joint(e), if e & SIDE == 0 { pair.g1 } else { pair.g2 });
                 if reach[g * k + j].is_nan() {
-                    (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, &ups[model.geoms[g].body]);
+                    (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, &ups[model.geoms[g].body], &mut walks);
                 }
                 // (each joint is on one side only: one term per entry of the row)
                 rows[p * k + j] += reach[g * k + j];
@@ -499,7 +500,7 @@ fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
                 for j in j0..j1 {
                     branch.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 });
                     if reach[g * k + j].is_nan() {
-                        (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, up);
+                        (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, up, &mut walks);
                     }
                 }
             }
@@ -869,32 +870,38 @@ fn slide_reach(model: &RobotModel, j: usize) -> f64 {
 /// The walk keeps a point `π` fixed in the current frame and a bound `cost ≥ |p_j − π|` (world):
 /// each later hinge (anchor `α`, fixed while it turns) adds `|π − α|` and moves `π` to `α`; each
 /// later slide adds its largest displacement; a body's fixed offset maps `π` into the child's
-/// coordinates exactly. At the geom: `|π − centre| + radius`, its bounding sphere.
-fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize]) -> (f64, f64) {
+/// coordinates exactly. At the geom: `|π − centre| + radius`, its bounding sphere. The walk is
+/// the joint's and the geom's body's alone: `walks` keeps it per body and joint (`(K · nbody)`,
+/// None until walked), for every geom on that body.
+fn joint_reach(model: &RobotModel, j: usize, g: usize, up: &[usize], walks: &mut [Option<(nalgebra::Vector3<f64>, f64)>]) -> (f64, f64) {
     let jnt = &model.joints[j];
     if !jnt.hinge {
         return (1.0, 1.0);
     }
-    let mut pi = jnt.anchor;
-    let mut cost = 0.0;
-    let later = |b: usize, from: usize, pi: &mut nalgebra::Vector3<f64>, cost: &mut f64| {
-        for i in from..model.body_joints[b].1 {
-            let ji = &model.joints[i];
-            if ji.hinge {
-                *cost += (*pi - ji.anchor).norm();
-                *pi = ji.anchor;
-            } else {
-                *cost += slide_reach(model, i);
+    let body = model.geoms[g].body;
+    let (pi, cost) = *walks[body * model.njoint() + j].get_or_insert_with(|| {
+        let mut pi = jnt.anchor;
+        let mut cost = 0.0;
+        let later = |b: usize, from: usize, pi: &mut nalgebra::Vector3<f64>, cost: &mut f64| {
+            for i in from..model.body_joints[b].1 {
+                let ji = &model.joints[i];
+                if ji.hinge {
+                    *cost += (*pi - ji.anchor).norm();
+                    *pi = ji.anchor;
+                } else {
+                    *cost += slide_reach(model, i);
+                }
             }
+        };
+        later(jnt.body, j + 1, &mut pi, &mut cost);
+        // Bodies from the joint's body down to the geom's: `up` reversed, after the joint's body.
+        let at = up.iter().position(|&b| b == jnt.body).expect("the joint is above the geom");
+        for &b in up[..at].iter().rev() {
+            pi = model.body_local[b].inverse_transform_point(&pi.into()).coords;
+            later(b, model.body_joints[b].0, &mut pi, &mut cost);
         }
-    };
-    later(jnt.body, j + 1, &mut pi, &mut cost);
-    // Bodies from the joint's body down to the geom's: `up` reversed, after the joint's body.
-    let at = up.iter().position(|&b| b == jnt.body).expect("the joint is above the geom");
-    for &b in up[..at].iter().rev() {
-        pi = model.body_local[b].inverse_transform_point(&pi.into()).coords;
-        later(b, model.body_joints[b].0, &mut pi, &mut cost);
-    }
+        (pi, cost)
+    });
     let geom = &model.geoms[g];
     let centre = (geom.local * nalgebra::Point3::from(geom.shape.obb_center)).coords;
     // (1e-9 relative: rounding of the offsets, far below any distance's own slack)

@@ -36,6 +36,7 @@
 //! the start with the time left. A sampled search that finds nothing is the answer: a proving
 //! one accepts fewer edges.
 
+use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
@@ -194,8 +195,32 @@ struct Checker<'m> {
     /// tens of states: built once per call, not once per edge; 260 kB at most).
     orders: Vec<Option<std::sync::Arc<[usize]>>>,
     checks: u64,
-    /// Continuous edges: the certificate's levers, buffers and clearance.
-    motion: Option<(Levers<'m>, MotionScratch, f64)>,
+    /// Continuous edges: the certificate's levers, clearance and buffers.
+    motion: Option<Continuous<'m>>,
+}
+
+/// What a `Checker` certifies continuous edges with: the model's levers, the clearance, and the
+/// certificate's buffers (made on first use; lent to `proven_segments`' first worker).
+struct Continuous<'m> {
+    levers: Levers<'m>,
+    clearance: f64,
+    buffers: Option<MotionScratch>,
+}
+
+/// A `proven_segments` worker's certificate buffers: lent from its checker where they were free
+/// (else made), and given back there, if none were, when the worker is done with them.
+struct Lent<'a> {
+    buffers: Option<MotionScratch>,
+    home: &'a Mutex<Option<MotionScratch>>,
+}
+
+impl Drop for Lent<'_> {
+    fn drop(&mut self) {
+        let mut home = self.home.lock().unwrap_or_else(PoisonError::into_inner);
+        if home.is_none() {
+            *home = self.buffers.take();
+        }
+    }
 }
 
 /// The longest edge (in states) whose check order a `Checker` keeps.
@@ -245,8 +270,10 @@ impl<'m> Checker<'m> {
                 }
             }
         }
-        if let Some((levers, ms, clearance)) = &mut self.motion {
-            let (certified, states) = certified_edge(self.model, *levers, &self.space, a, b, &d, *clearance, ms)?;
+        if let Some(c) = &mut self.motion {
+            let model = self.model;
+            let ms = c.buffers.get_or_insert_with(|| MotionScratch::new(model));
+            let (certified, states) = certified_edge(model, c.levers, &self.space, a, b, &d, c.clearance, ms)?;
             self.checks += states as u64;
             return Ok(certified);
         }
@@ -434,7 +461,7 @@ pub fn plan_path(model: &RobotModel, start: &[f64], goal: &[f64], opts: &PlanOpt
     let space = Space::of(model)?;
     let diagonal = space.lo.iter().zip(&space.hi).map(|(l, h)| (h - l) * (h - l)).sum::<f64>().sqrt();
     let range = if opts.range > 0.0 { opts.range } else { DEFAULT_RANGE * diagonal };
-    let motion = opts.continuous.then(|| (Levers::of(model), MotionScratch::new(model), opts.clearance));
+    let motion = opts.continuous.then(|| Continuous { levers: Levers::of(model), clearance: opts.clearance, buffers: None });
     let mut checker = Checker {
         model,
         space,
@@ -624,7 +651,7 @@ fn prove(
     opts: &PlanOptions,
     out_of_time: impl Fn() -> bool + Copy,
 ) -> Result<Option<Proven>> {
-    let Some(clearance) = checker.motion.as_ref().map(|m| m.2) else {
+    let Some(clearance) = checker.motion.as_ref().map(|m| m.clearance) else {
         return Ok(None);
     };
     // start and goal are certified by the caller; interior waypoints only free at EXPLORE
@@ -693,16 +720,26 @@ fn record_proven_lines(checker: &Checker, path: &[Vec<f64>], proven: &[bool], cl
 fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> Result<Vec<bool>> {
     let (model, space) = (checker.model, &checker.space);
     let levers = Levers::of(model);
+    // (the checker's buffers, where an edge it proved made them, to the first worker that
+    // starts; the first set given back goes on to the repairs' edges)
+    let home = Mutex::new(checker.motion.as_mut().and_then(|m| m.buffers.take()));
     let verdicts: Vec<Result<(bool, usize)>> = map_shared(
         path.len() - 1,
         2,
-        || (MotionScratch::new(model), vec![0.0; model.njoint()]),
-        |(ms, delta), i| {
+        || {
+            let lent = home.lock().unwrap_or_else(PoisonError::into_inner).take();
+            (Lent { buffers: Some(lent.unwrap_or_else(|| MotionScratch::new(model))), home: &home }, vec![0.0; model.njoint()])
+        },
+        |(lent, delta), i| {
             let w = &path[i..i + 2];
             space.delta(&w[0], &w[1], delta);
+            let ms = lent.buffers.as_mut().expect("lent until dropped");
             certified_edge(model, levers, space, &w[0], &w[1], delta, clearance, ms)
         },
     );
+    if let Some(m) = checker.motion.as_mut() {
+        m.buffers = home.into_inner().unwrap_or_else(PoisonError::into_inner);
+    }
     let verdicts = verdicts.into_iter().collect::<Result<Vec<_>>>()?;
     checker.checks += verdicts.iter().map(|v| v.1 as u64).sum::<u64>();
     Ok(verdicts.into_iter().map(|v| v.0).collect())
