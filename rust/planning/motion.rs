@@ -389,10 +389,11 @@ impl<'m> Levers<'m> {
     fn spans(&self, model: &'m RobotModel) -> &'m [PairSpans] {
         model.joint_spans.get_or_init(|| {
             let mut s = Scratch::new(model);
+            let mut gaps = Gaps::default();
             let inherited = model.inherited.as_ref();
             let ranges = model.sampling_ranges().ok();
-            let ball = |s: &mut Scratch, p: usize, j: usize| {
-                ranges.as_ref().filter(|r| swept_ball_clear(model, *self, s, p, r)).map(|r| vec![r[j]])
+            let mut ball = |s: &mut Scratch, p: usize, j: usize| {
+                ranges.as_ref().filter(|r| swept_ball_clear(model, *self, s, p, r, &mut gaps)).map(|r| vec![r[j]])
             };
             (0..model.pairs.len())
                 .map(|p| match (inherited.and_then(|i| i.spans(p)), self.sole_joint(p)) {
@@ -1189,12 +1190,13 @@ pub(crate) fn certify_curve<C: Curve>(
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
     // inside one of its spans (`planning/spans.rs`), proven at a need at least the motion's.
-    // A pair two joints move, likewise, when both joints' sweeps stay inside its proven box
-    // (`prove_apart`; run here once per model, so that verdicts do not depend on whether
-    // something else ran it first).
+    // A pair two joints move, likewise, when both joints' sweeps stay inside its proven box, and
+    // a pair of a longer chain proven by its swept ball when its first joint's sweep stays
+    // inside the range it was recorded over (`prove_apart`; run here once per model, so that
+    // verdicts do not depend on whether something else ran it first).
     prove_apart(model);
     let apart = model.apart().unwrap_or(&[]);
-    let boxed = |p: usize| apart.get(p).is_some_and(|a| a.joints[1] != u32::MAX && a.covers(&ms.lo, &ms.hi));
+    let boxed = |p: usize| apart.get(p).is_some_and(|a| a.covers(&ms.lo, &ms.hi));
     let spanned = |p: usize| {
         let (j, sp) = &spans[p];
         need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed(p))
@@ -1665,6 +1667,7 @@ pub fn prove_apart(model: &RobotModel) {
         let levers = Levers::of(model);
         let ranges = model.sampling_ranges().ok();
         let mut s = Scratch::new(model);
+        let mut gaps = Gaps::default();
         joint_spans(model)
             .iter()
             .enumerate()
@@ -1683,10 +1686,15 @@ pub fn prove_apart(model: &RobotModel) {
                 joints.dedup();
                 match (&ranges, joints.as_slice()) {
                     (Some(r), &[a, b])
-                        if swept_ball_clear(model, levers, &mut s, p, r)
+                        if swept_ball_clear(model, levers, &mut s, p, r, &mut gaps)
                             || box_clear(model, &mut s, p, [a, b], r, [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]]) =>
                     {
                         Apart { joints: [a as u32, b as u32], lo: [r[a][0], r[b][0]], hi: [r[a][1], r[b][1]] }
+                    }
+                    // (a longer chain: its ball proves it in every configuration, recorded over
+                    // the range of its first joint, whose anchor it is)
+                    (Some(r), &[a, _, _, ..]) if swept_ball_clear(model, levers, &mut s, p, r, &mut gaps) => {
+                        Apart { joints: [a as u32, u32::MAX], lo: [r[a][0], f64::NAN], hi: [r[a][1], f64::NAN] }
                     }
                     _ => Apart::NONE,
                 }
@@ -1714,33 +1722,74 @@ pub fn prove_apart(model: &RobotModel) {
 /// slack (`slack_above`). One bound for the pair where `box_clear`'s branch and bound places
 /// tens of cells: a scene's obstacles beside a Panda's second link, 40-70 each on
 /// MotionBenchMaker's scenes. `ranges`: the model's sampling ranges, the pose placed (any pose
-/// serves: the anchor and the fixed geom do not move).
-fn swept_ball_clear(model: &RobotModel, levers: Levers, s: &mut Scratch, p: usize, ranges: &[[f64; 2]]) -> bool {
+/// serves: the anchor and the fixed geom do not move). The fixed geom's distance from `a`'s
+/// anchor is the same for every pair of it with a chain from `a` (a scene's obstacle and each
+/// geom of an arm): `gaps` keeps it, per fixed geom and joint (`(ngeom · K)`, NaN until
+/// measured; `Gaps`).
+fn swept_ball_clear(model: &RobotModel, levers: Levers, s: &mut Scratch, p: usize, ranges: &[[f64; 2]], gaps: &mut Gaps) -> bool {
     let g = levers.solo[p];
-    // (MuJoCo numbers bodies parent first and joints in body order: the chain's first joint is
-    // its least, checked to be above the others)
-    let Some(a) = levers.chain(p).iter().map(|&e| entry_joint(e)).min() else {
-        return false;
-    };
-    let above = |j: usize| {
-        let mut b = model.joints[j].body;
-        while b != model.joints[a].body && b != 0 {
-            b = model.body_parent[b];
-        }
-        b == model.joints[a].body
-    };
-    let jnt = &model.joints[a];
-    if g == u32::MAX || !jnt.hinge || has_cloud(model, p) || !levers.chain(p).iter().all(|&e| above(entry_joint(e))) {
+    if g == u32::MAX || has_cloud(model, p) {
         return false;
     }
+    if gaps.gap.len() != model.geoms.len() * levers.k {
+        gaps.gap = vec![f64::NAN; model.geoms.len() * levers.k];
+        gaps.first = vec![Gaps::UNSEEN; model.geoms.len()];
+    }
+    // The chain's first joint `a`, where it qualifies (a solo pair's chain is its moving geom's
+    // branch alone: the same for every pair of that geom).
+    if gaps.first[g as usize] == Gaps::UNSEEN {
+        // (MuJoCo numbers bodies parent first and joints in body order: the chain's first joint
+        // is its least, checked to be above the others)
+        gaps.first[g as usize] = match levers.chain(p).iter().map(|&e| entry_joint(e)).min() {
+            Some(a) => {
+                let above = |j: usize| {
+                    let mut b = model.joints[j].body;
+                    while b != model.joints[a].body && b != 0 {
+                        b = model.body_parent[b];
+                    }
+                    b == model.joints[a].body
+                };
+                if model.joints[a].hinge && levers.chain(p).iter().all(|&e| above(entry_joint(e))) {
+                    a as u32
+                } else {
+                    Gaps::NONE
+                }
+            }
+            None => Gaps::NONE,
+        };
+    }
+    let a = match gaps.first[g as usize] {
+        Gaps::NONE => return false,
+        a => a as usize,
+    };
+    let jnt = &model.joints[a];
     let pair = &model.pairs[p];
     let fixed = if pair.g1 == g as usize { pair.g2 } else { pair.g1 };
-    let q: Vec<f64> = ranges.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
-    s.place_pairs(model, &q, std::iter::once(p));
-    // (the anchor where `a` turns: its body's frame before its joints, `a` the first of them)
-    let anchor = model.body_local[jnt.body] * nalgebra::Point3::from(jnt.anchor);
-    let d = s.point_lower_bound(model, fixed, model.body_parent[jnt.body], &anchor.coords);
-    slack_above(d - levers.rows[p * levers.k + a], span_need(model, p)) > 0.0
+    let at = fixed * levers.k + a;
+    if gaps.gap[at].is_nan() {
+        let q: Vec<f64> = ranges.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
+        s.place_pairs(model, &q, std::iter::once(p));
+        // (the anchor where `a` turns: its body's frame before its joints, `a` the first of them)
+        let anchor = model.body_local[jnt.body] * nalgebra::Point3::from(jnt.anchor);
+        gaps.gap[at] = s.point_lower_bound(model, fixed, model.body_parent[jnt.body], &anchor.coords);
+    }
+    slack_above(gaps.gap[at] - levers.rows[p * levers.k + a], span_need(model, p)) > 0.0
+}
+
+/// What `swept_ball_clear` finds once for every pair it serves, within one pass over a model's
+/// pairs: the distance of a fixed geom from a joint's anchor (`gap`, per geom and joint, NaN
+/// until measured: a bound is never NaN, `-inf` where none is proven), and a moving geom's
+/// chain's first joint where its swept ball applies (`first`, per geom: `UNSEEN`, `NONE`, or
+/// the joint).
+#[derive(Default)]
+pub(crate) struct Gaps {
+    gap: Vec<f64>,
+    first: Vec<u32>,
+}
+
+impl Gaps {
+    const UNSEEN: u32 = u32::MAX - 1;
+    const NONE: u32 = u32::MAX;
 }
 
 /// Most cells [`box_clear`] places for one pair before it gives up.
@@ -2132,11 +2181,13 @@ pub(crate) mod tests {
     fn proofs_of_prove_apart_hold_inside_their_boxes() {
         use crate::model::broad::MAX_CLEARANCE;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
-        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter"] {
+        let mut longer = 0;
+        for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter", "panda_shelf", "ur5e_wall_box"] {
             let path = format!("{}/benches/data/{scene}.json", env!("CARGO_MANIFEST_DIR"));
             let model = RobotModel::new(serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()).unwrap();
             prove_apart(&model);
             let ranges = model.sampling_ranges().unwrap();
+            let levers = Levers::of(&model);
             let mut s = Scratch::new(&model);
             let (mut ones, mut twos) = (0, 0);
             for (k, a) in model.apart().unwrap().iter().enumerate() {
@@ -2144,6 +2195,12 @@ pub(crate) mod tests {
                     continue;
                 }
                 let two = a.joints[1] != u32::MAX;
+                // (one entry: a one-joint pair's widest span, or a longer chain's swept ball over
+                // its first joint's range, which holds in every configuration)
+                let mut joints: Vec<usize> = levers.chain(k).iter().map(|&e| entry_joint(e)).collect();
+                joints.sort_unstable();
+                joints.dedup();
+                longer += (joints.len() > 2) as usize;
                 (ones, twos) = if two { (ones, twos + 1) } else { (ones + 1, twos) };
                 for _ in 0..200 {
                     let mut q: Vec<f64> = ranges.iter().map(|r| rng.random_range(r[0]..=r[1])).collect();
@@ -2159,6 +2216,7 @@ pub(crate) mod tests {
             // candidates)
             assert!(twos > 0 && (ones > 0 || scene == "shadow_hand"), "{scene}: {ones} spans and {twos} boxes");
         }
+        assert!(longer > 0, "no pair of a chain of three joints or more proven by its swept ball");
     }
 
     /// The bounding spheres' proof of a pair's box (`sphere_box_clear`) proves only boxes the
@@ -2210,7 +2268,7 @@ pub(crate) mod tests {
             let ranges = model.sampling_ranges().unwrap();
             let mut s = Scratch::new(&model);
             for p in 0..model.pairs.len() {
-                if !swept_ball_clear(&model, levers, &mut s, p, &ranges) {
+                if !swept_ball_clear(&model, levers, &mut s, p, &ranges, &mut Gaps::default()) {
                     continue;
                 }
                 let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
@@ -2265,7 +2323,7 @@ pub(crate) mod tests {
             let levers = Levers::of(&model);
             let ranges = model.sampling_ranges().unwrap();
             let mut s = Scratch::new(&model);
-            if !swept_ball_clear(&model, levers, &mut s, 0, &ranges) {
+            if !swept_ball_clear(&model, levers, &mut s, 0, &ranges, &mut Gaps::default()) {
                 not += 1;
                 continue;
             }
