@@ -237,7 +237,8 @@ impl Pruned4 {
 
 /// A candidate pair proven clear while `lo[i] <= q[joints[i]] <= hi[i]` for both entries
 /// (`RobotModel::apart`); an entry with joint `u32::MAX` holds for every pose (a pair one joint
-/// alone moves uses one entry).
+/// alone moves uses one entry, and so does a longer chain's pair proven by its swept ball, over
+/// its first joint).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Apart {
     pub joints: [u32; 2],
