@@ -1652,7 +1652,7 @@ pub(crate) fn joint_spans(model: &RobotModel) -> &[PairSpans] {
 ///   5 to 10 times the 0.02-0.05 s this takes on a bundled model.)
 /// - A pair of a longer chain with one geom fixed in the world, where the ball its moving geom
 ///   sweeps about the chain's first hinge proves it clear in every configuration
-///   ([`swept_ball_clear`]): recorded over that joint's range (a scene's obstacle beyond an
+///   (`swept_ball_clear`): recorded over that joint's range (a scene's obstacle beyond an
 ///   arm's reach from its shoulder; on MotionBenchMaker's scenes a quarter of such pairs).
 ///
 /// Exact: a span, a box or a ball proves the pair more than `max(margin, MAX_CLEARANCE)` apart at every
