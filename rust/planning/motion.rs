@@ -373,6 +373,14 @@ impl<'m> Levers<'m> {
         &self.chains[n + self.chains[p] as usize..n + self.chains[p + 1] as usize]
     }
 
+    /// The joints pair `p`'s distance depends on, ascending, each once.
+    fn joints(&self, p: usize) -> Vec<usize> {
+        let mut joints: Vec<usize> = self.chain(p).iter().map(|&e| entry_joint(e)).collect();
+        joints.sort_unstable();
+        joints.dedup();
+        joints
+    }
+
     /// The one joint pair `p`'s distance depends on, when there is just one (`planning/spans.rs`).
     #[inline]
     fn sole_joint(&self, p: usize) -> Option<usize> {
@@ -389,7 +397,7 @@ impl<'m> Levers<'m> {
     fn spans(&self, model: &'m RobotModel) -> &'m [PairSpans] {
         model.joint_spans.get_or_init(|| {
             let mut s = Scratch::new(model);
-            let mut gaps = Gaps::default();
+            let mut gaps = Gaps::of(model);
             let inherited = model.inherited.as_ref();
             let ranges = model.sampling_ranges().ok();
             let mut ball = |s: &mut Scratch, p: usize, j: usize| {
@@ -1671,7 +1679,7 @@ pub fn prove_apart(model: &RobotModel) {
         let levers = Levers::of(model);
         let ranges = model.sampling_ranges().ok();
         let mut s = Scratch::new(model);
-        let mut gaps = Gaps::default();
+        let mut gaps = Gaps::of(model);
         joint_spans(model)
             .iter()
             .enumerate()
@@ -1685,10 +1693,7 @@ pub fn prove_apart(model: &RobotModel) {
                         None => Apart::NONE,
                     };
                 }
-                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
-                joints.sort_unstable();
-                joints.dedup();
-                match (&ranges, joints.as_slice()) {
+                match (&ranges, levers.joints(p).as_slice()) {
                     (Some(r), &[a, b])
                         if swept_ball_clear(model, levers, &mut s, p, r, &mut gaps)
                             || box_clear(model, &mut s, p, [a, b], r, [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]]) =>
@@ -1734,10 +1739,6 @@ fn swept_ball_clear(model: &RobotModel, levers: Levers, s: &mut Scratch, p: usiz
     let g = levers.solo[p];
     if g == u32::MAX || has_cloud(model, p) {
         return false;
-    }
-    if gaps.gap.len() != model.geoms.len() * levers.k {
-        gaps.gap = vec![f64::NAN; model.geoms.len() * levers.k];
-        gaps.first = vec![Gaps::UNSEEN; model.geoms.len()];
     }
     // The chain's first joint `a`, where it qualifies (a solo pair's chain is its moving geom's
     // branch alone: the same for every pair of that geom).
@@ -1785,7 +1786,6 @@ fn swept_ball_clear(model: &RobotModel, levers: Levers, s: &mut Scratch, p: usiz
 /// until measured: a bound is never NaN, `-inf` where none is proven), and a moving geom's
 /// chain's first joint where its swept ball applies (`first`, per geom: `UNSEEN`, `NONE`, or
 /// the joint).
-#[derive(Default)]
 pub(crate) struct Gaps {
     gap: Vec<f64>,
     first: Vec<u32>,
@@ -1794,6 +1794,11 @@ pub(crate) struct Gaps {
 impl Gaps {
     const UNSEEN: u32 = u32::MAX - 1;
     const NONE: u32 = u32::MAX;
+
+    /// Nothing measured yet, for `model`'s geoms and joints.
+    pub(crate) fn of(model: &RobotModel) -> Gaps {
+        Gaps { gap: vec![f64::NAN; model.geoms.len() * model.njoint()], first: vec![Gaps::UNSEEN; model.geoms.len()] }
+    }
 }
 
 /// Most cells [`box_clear`] places for one pair before it gives up.
@@ -2201,10 +2206,7 @@ pub(crate) mod tests {
                 let two = a.joints[1] != u32::MAX;
                 // (one entry: a one-joint pair's widest span, or a longer chain's swept ball over
                 // its first joint's range, which holds in every configuration)
-                let mut joints: Vec<usize> = levers.chain(k).iter().map(|&e| entry_joint(e)).collect();
-                joints.sort_unstable();
-                joints.dedup();
-                longer += (joints.len() > 2) as usize;
+                longer += (levers.joints(k).len() > 2) as usize;
                 (ones, twos) = if two { (ones, twos + 1) } else { (ones + 1, twos) };
                 for _ in 0..200 {
                     let mut q: Vec<f64> = ranges.iter().map(|r| rng.random_range(r[0]..=r[1])).collect();
@@ -2236,10 +2238,7 @@ pub(crate) mod tests {
             let ranges = model.sampling_ranges().unwrap();
             let mut s = Scratch::new(&model);
             for p in 0..model.pairs.len() {
-                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
-                joints.sort_unstable();
-                joints.dedup();
-                let &[a, b] = joints.as_slice() else { continue };
+                let &[a, b] = levers.joints(p).as_slice() else { continue };
                 let lv = [levers.rows[p * levers.k + a], levers.rows[p * levers.k + b]];
                 let need = span_need(&model, p);
                 let mut q: Vec<f64> = ranges.iter().map(|r| 0.5 * (r[0] + r[1])).collect();
@@ -2272,12 +2271,10 @@ pub(crate) mod tests {
             let ranges = model.sampling_ranges().unwrap();
             let mut s = Scratch::new(&model);
             for p in 0..model.pairs.len() {
-                if !swept_ball_clear(&model, levers, &mut s, p, &ranges, &mut Gaps::default()) {
+                if !swept_ball_clear(&model, levers, &mut s, p, &ranges, &mut Gaps::of(&model)) {
                     continue;
                 }
-                let mut joints: Vec<usize> = levers.chain(p).iter().map(|&e| entry_joint(e)).collect();
-                joints.dedup();
-                match joints.len() {
+                match levers.joints(p).len() {
                     1 => ones += 1,
                     2 => twos += 1,
                     _ => longer += 1,
@@ -2327,7 +2324,7 @@ pub(crate) mod tests {
             let levers = Levers::of(&model);
             let ranges = model.sampling_ranges().unwrap();
             let mut s = Scratch::new(&model);
-            if !swept_ball_clear(&model, levers, &mut s, 0, &ranges, &mut Gaps::default()) {
+            if !swept_ball_clear(&model, levers, &mut s, 0, &ranges, &mut Gaps::of(&model)) {
                 not += 1;
                 continue;
             }
