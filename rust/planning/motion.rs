@@ -37,7 +37,9 @@
 //!    costs one state instead of two or three).
 //!
 //! Distances are lower bounds, the cheapest that closes the interval: the pair's bounding
-//! spheres (`model/broad.rs`), enough wherever the pair is far; else a separation along an axis from
+//! spheres (`model/broad.rs`), enough wherever the pair is far; else the smaller geom's sphere
+//! against the larger one's bounding box (`collide::Scratch::box_gap`: a link above a board or a
+//! table top, whose own sphere is far larger than its distance); else a separation along an axis from
 //! the two shapes' exact support points (`collide::Scratch::pair_lower_bound`: the pair's axis
 //! from the previous state or the line between the geoms, and GJK's where that cannot decide
 //! or nearly closes the interval; the support point for a plane), reduced by
@@ -1029,7 +1031,8 @@ struct At<'a, 'm> {
 /// (chain rate `chain`, growth `quad`) in the placed state, for an interval end whose
 /// neighbours need `cover` of it each way (`NEG_INFINITY`: nothing that way, and no radius that
 /// way is to be read): the bounding spheres' radii when they give the whole cover, at the chain
-/// rate or the state-local one (`Rate`, `local_rate`), or when a closer measurement could not
+/// rate or the state-local one (`Rate`, `local_rate`), or the smaller sphere against the larger
+/// box (`Scratch::box_gap`) when it gives the whole cover, or when a closer measurement could not
 /// plausibly give even the smaller cover (then the caller halves the interval, cheaper than
 /// measuring); else the separation-axis or GJK bound (`Scratch::pair_lower_bound`) with the
 /// state-local rates along its own axis, each way (`axis_rates`, `Scratch::bound_axis`).
@@ -1087,6 +1090,17 @@ fn measure(
             return Ok([r, r]);
         }
     }
+    // The smaller geom's sphere against the larger one's box (a link above a board), where it
+    // may give the cover: it is at most the sphere's distance from the ball the box holds about
+    // its centre, `gap + radius − min half extent` of the larger geom.
+    let drop = rate.drop(most);
+    if gap + box_room(model, k) >= drop {
+        let boxed = s.box_gap(model, k) - need;
+        if boxed > 0.0 && boxed >= drop {
+            let r = rate.reach(boxed);
+            return Ok([r, r]);
+        }
+    }
     // (only the ways asked for: at an end of the motion, one)
     let asked = cover.map(|c| c > f64::NEG_INFINITY);
     let least = match asked {
@@ -1118,6 +1132,17 @@ fn measure(
         [rate; 2]
     };
     Ok(std::array::from_fn(|w| if asked[w] { exact[w].reach(slack).max(by_spheres) } else { f64::NAN }))
+}
+
+/// How much more than the spheres' gap the box bound (`Scratch::box_gap`) of pair `k` can give:
+/// the larger geom's radius less its smallest half extent (its box holds a ball that large
+/// about the sphere's centre, which no point outside the box is farther from than from the box).
+#[inline]
+fn box_room(model: &RobotModel, k: usize) -> f64 {
+    let pair = &model.pairs[k];
+    let (a, b) = (&model.geoms[pair.g1].shape, &model.geoms[pair.g2].shape);
+    let held = if a.radius <= b.radius { b } else { a };
+    held.radius - held.obb_half.min()
 }
 
 /// Whether the motion `a → a + Δ` is certified (module docs) with every pair above
