@@ -1013,30 +1013,30 @@ impl Scratch4 {
         if k == 0 {
             return Ok(());
         }
-        let mut quads = poses.chunks_exact(4 * k);
-        for (n, quad) in quads.by_ref().enumerate() {
-            let q: [&[f64]; 4] = std::array::from_fn(|l| &quad[l * k..(l + 1) * k]);
+        let n = poses.len() / k;
+        for start in (0..n).step_by(4) {
+            // (the last one to three poses fill the four lanes by repeating their last: placing
+            // four lanes costs less than one pose on the scalar path; only the poses given are
+            // tested and emitted)
+            let real = (n - start).min(4);
+            let q: [&[f64]; 4] = std::array::from_fn(|l| {
+                let i = start + l.min(real - 1);
+                &poses[i * k..(i + 1) * k]
+            });
             self.lanes(model, q, Step::Place);
             for s in self.s.iter_mut() {
                 s.place_geoms(model, all_geoms, false);
             }
-            let mut decided: [Option<R>; 4] = std::array::from_fn(|l| first(4 * n + l, q[l], &mut self.s[l]));
+            let mut decided: [Option<R>; 4] = std::array::from_fn(|l| if l < real { first(start + l, q[l], &mut self.s[l]) } else { None });
             // (bit `l`: pose `l` needs its near pairs)
-            let undecided = (0..4).filter(|&l| decided[l].is_none()).fold(0u32, |m, l| m | 1 << l);
+            let undecided = (0..real).filter(|&l| decided[l].is_none()).fold(0u32, |m, l| m | 1 << l);
             if undecided != 0 {
                 self.lanes(model, q, Step::Near(undecided));
             }
-            for (l, s) in self.s.iter_mut().enumerate() {
-                let answer = decided[l].take().unwrap_or_else(|| second(4 * n + l, q[l], s));
-                emit(4 * n + l, answer)?;
+            for (l, s) in self.s.iter_mut().enumerate().take(real) {
+                let answer = decided[l].take().unwrap_or_else(|| second(start + l, q[l], s));
+                emit(start + l, answer)?;
             }
-        }
-        let done = (poses.len() - quads.remainder().len()) / k;
-        for (i, q) in quads.remainder().chunks_exact(k).enumerate() {
-            let s = &mut self.s[0];
-            s.place(model, q, all_geoms);
-            let answer = first(done + i, q, s).unwrap_or_else(|| second(done + i, q, s));
-            emit(done + i, answer)?;
         }
         Ok(())
     }

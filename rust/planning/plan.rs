@@ -159,12 +159,15 @@ fn check_order(n: usize) -> Vec<usize> {
     order
 }
 
-/// Batch sizes over an edge's ordered states: the end alone first (it settles most blocked edges
-/// of a tree search), then small ones (early exit), then wide (parallel). After the first, a
-/// batch checked on one thread places its states four at a time (`fastpath::first_colliding`:
-/// forward kinematics, spheres and the near pairs' box tests in lanes): 0.88-0.89 of the time
-/// per MotionBenchMaker problem (paired), the same paths.
-const BATCHES: [usize; 5] = [1, 4, 16, 64, 256];
+/// Batch sizes over an edge's ordered states: the end and the first midpoints first (the end
+/// settles most blocked edges of a tree search), then small ones (early exit), then wide
+/// (parallel). A batch checked on one thread places its states four at a time
+/// (`fastpath::first_colliding`: forward kinematics, spheres and the near pairs' box tests in
+/// lanes): 0.88-0.89 of the time per MotionBenchMaker problem (paired), the same paths, against
+/// one at a time. The first batch too: four states in lanes cost less than the end state alone
+/// on the scalar path (the 30 median MotionBenchMaker problems' plans, callgrind: 326.4 → 319.1 M
+/// instructions against a first batch of the end alone; `[4, 16, 64, 256]` 319.5 M).
+const BATCHES: [usize; 5] = [4, 4, 16, 64, 256];
 /// Continuous edges are first tried for a cheap refutation at up to `PRECHECK_STATES` states of
 /// a grid this fine (radians / metres), coarse to fine. The verdict is the certificate's either
 /// way (a refuted edge has a state in contact, which no certificate passes), so these set cost
@@ -312,23 +315,14 @@ impl<'m> Checker<'m> {
                         )
                         .find_first(stops)
                 })
-            } else if b_idx > 1 {
-                // (after the first batch, whose end state usually settles a blocked edge: four
-                // states at a time)
+            } else {
+                // (four states at a time, the first batch too: its end state usually settles a
+                // blocked edge, and three more cost less beside it than it costs alone)
                 let mut states = vec![0.0; batch.len() * k];
                 for (&i, q) in batch.iter().zip(states.chunks_exact_mut(k)) {
                     state(i, q);
                 }
                 first_colliding(model, &states, &mut self.lanes, &mut self.scratch).map(|(at, r)| (batch[at], r))
-            } else {
-                let mut q = vec![0.0; k];
-                batch
-                    .iter()
-                    .map(|&i| {
-                        state(i, &mut q);
-                        (i, collides_pose_with(model, &q, &mut self.scratch, First::LastHit))
-                    })
-                    .find(stops)
             };
             match first {
                 None => {}
