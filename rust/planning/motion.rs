@@ -1094,12 +1094,14 @@ fn measure(
     // may give the cover: it is at most the sphere's distance from the ball the box holds about
     // its centre, `gap + radius − min half extent` of the larger geom.
     let drop = rate.drop(most);
+    let mut best = gap;
     if gap + box_room(model, k) >= drop {
         let boxed = s.box_gap(model, k) - need;
         if boxed > 0.0 && boxed >= drop {
             let r = rate.reach(boxed);
             return Ok([r, r]);
         }
+        best = best.max(boxed);
     }
     // (only the ways asked for: at an end of the motion, one)
     let asked = cover.map(|c| c > f64::NEG_INFINITY);
@@ -1107,8 +1109,8 @@ fn measure(
         [true, true] => cover[0].min(cover[1]),
         _ => most,
     };
-    if gap > 0.0 && (gap >= rate.drop(most) || gap + reach < rate.drop(least)) {
-        let r = rate.reach(gap);
+    if best > 0.0 && gap + reach < rate.drop(least) {
+        let r = rate.reach(best);
         return Ok([r, r]);
     }
     let want = need + rate.drop(most);
@@ -1124,7 +1126,7 @@ fn measure(
     if slack.is_nan() || slack <= 0.0 {
         return Err(Stop::Blocked);
     }
-    let by_spheres = if gap > 0.0 { rate.reach(gap) } else { 0.0 };
+    let by_spheres = if best > 0.0 { rate.reach(best) } else { 0.0 };
     let exact = if chain > 0.0 {
         let axis = s.bound_axis;
         axis_rates(model, at.levers, s, at.axes, k, &axis, rate.a).map(|a| Rate { a, ..rate })
