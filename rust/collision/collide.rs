@@ -570,8 +570,7 @@ impl Scratch {
         if !matches!((&a.shape.solid, &b.shape.solid), (Solid::Convex { .. }, Solid::Convex { .. })) {
             return f64::NEG_INFINITY;
         }
-        // (`ball`: the geom whose sphere is taken; `held`: the one whose box is)
-        let (ball, held) = if a.shape.radius <= b.shape.radius { (pair.g1, pair.g2) } else { (pair.g2, pair.g1) };
+        let (ball, held) = box_sides(model, k);
         self.obb(model, held);
         let o = &self.obbs[held];
         let h = &model.geoms[held].shape.obb_half;
@@ -657,6 +656,18 @@ impl Scratch {
             let (rot, center) = model.broad.geom_box(&self.broad, g);
             self.obbs[g] = Obb { rot, center };
         }
+    }
+}
+
+/// The geoms of candidate pair `k` that `Scratch::box_gap` measures, `(ball, held)`: the
+/// smaller geom (by bounding-sphere radius), whose sphere is taken, and the larger, whose box is.
+#[inline]
+pub(crate) fn box_sides(model: &RobotModel, k: usize) -> (usize, usize) {
+    let pair = &model.pairs[k];
+    if model.geoms[pair.g1].shape.radius <= model.geoms[pair.g2].shape.radius {
+        (pair.g1, pair.g2)
+    } else {
+        (pair.g2, pair.g1)
     }
 }
 

@@ -59,7 +59,7 @@
 
 use std::f64::consts::PI;
 
-use crate::collision::collide::{first_error, Scratch, Undecided};
+use crate::collision::collide::{box_sides, first_error, Scratch, Undecided};
 use crate::error::{Error, Result};
 use crate::joints::angles::wrap;
 use crate::joints::couplings::{Couplings, FEASIBLE_TOL};
@@ -1113,7 +1113,7 @@ fn measure(
         let r = rate.reach(best);
         return Ok([r, r]);
     }
-    let want = need + rate.drop(most);
+    let want = need + drop;
     let d = s
         .pair_lower_bound(
             model,
@@ -1141,9 +1141,7 @@ fn measure(
 /// about the sphere's centre, which no point outside the box is farther from than from the box).
 #[inline]
 fn box_room(model: &RobotModel, k: usize) -> f64 {
-    let pair = &model.pairs[k];
-    let (a, b) = (&model.geoms[pair.g1].shape, &model.geoms[pair.g2].shape);
-    let held = if a.radius <= b.radius { b } else { a };
+    let held = &model.geoms[box_sides(model, k).1].shape;
     held.radius - held.obb_half.min()
 }
 
