@@ -113,7 +113,13 @@ pub struct RobotModel {
     /// (`proven::ProvenLines`): a timed path's parts on a planned path's segments are not proven
     /// twice.
     pub(crate) proven_lines: proven::ProvenLines,
+    /// This model among those built in the process (never 0, never reused): what a thread's
+    /// spare buffers are kept for (`motion::Spare`).
+    pub(crate) id: u64,
 }
+
+/// The next `RobotModel::id`.
+static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// The fast path's likely pairs (`RobotModel::likely`) and what they were drawn from: which
 /// pairs are in contact in each pose of a seeded sample (`collision/fastpath.rs`).
@@ -551,6 +557,7 @@ impl RobotModel {
             pruned4: std::sync::OnceLock::new(),
             inherited,
             proven_lines: Default::default(),
+            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 

@@ -930,6 +930,8 @@ struct Open {
 
 /// Per-thread buffers of the certificate.
 pub struct MotionScratch {
+    /// The model they are sized for (`RobotModel::id`).
+    model: u64,
     pub(crate) scratch: Scratch,
     abs_delta: Vec<f64>,
     /// Per joint, the interval it sweeps along the motion.
@@ -996,6 +998,7 @@ impl Lanes {
 impl MotionScratch {
     pub fn new(model: &RobotModel) -> Self {
         MotionScratch {
+            model: model.id,
             scratch: Scratch::new(model),
             abs_delta: vec![0.0; model.njoint()],
             lo: vec![0.0; model.njoint()],
@@ -1010,6 +1013,51 @@ impl MotionScratch {
             mid: Vec::new(),
             lanes: Lanes::new(model),
             states: 0,
+        }
+    }
+}
+
+/// Buffers the sections' workers gave back (`Spare`), the last one first: the next section's
+/// workers, of this call or the next on the same model, take them instead of making new ones
+/// (~30 k instructions, each worker's first item, several times a timed path). Not
+/// thread-locals: this library's sit in the process's static TLS block (`threads`).
+static SPARES: std::sync::Mutex<Vec<MotionScratch>> = std::sync::Mutex::new(Vec::new());
+
+/// The most buffers `SPARES` keeps (a section's workers, a few calls at once).
+const MAX_SPARES: usize = 8;
+
+/// A worker's buffers for one section: spare ones made for the same model (else new), given
+/// back when dropped. Each motion forgets what its buffers saw before (`certify_curve`), so
+/// whose they were changes no verdict.
+pub(crate) struct Spare(Option<MotionScratch>);
+
+impl Spare {
+    pub(crate) fn take(model: &RobotModel) -> Spare {
+        let mut spares = SPARES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        // (buffers of another model are dropped: the newest model is the one in use)
+        spares.retain(|ms| ms.model == model.id);
+        Spare(Some(spares.pop().unwrap_or_else(|| MotionScratch::new(model))))
+    }
+}
+
+impl std::ops::Deref for Spare {
+    type Target = MotionScratch;
+    fn deref(&self) -> &MotionScratch {
+        self.0.as_ref().expect("held until dropped")
+    }
+}
+
+impl std::ops::DerefMut for Spare {
+    fn deref_mut(&mut self) -> &mut MotionScratch {
+        self.0.as_mut().expect("held until dropped")
+    }
+}
+
+impl Drop for Spare {
+    fn drop(&mut self) {
+        let mut spares = SPARES.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if spares.len() < MAX_SPARES {
+            spares.extend(self.0.take());
         }
     }
 }
@@ -1606,7 +1654,7 @@ where
     let taken: Vec<Result<T>> = crate::threads::map_shared(
         b,
         SHARED_FROM,
-        || (MotionScratch::new(model), vec![0.0; 3 * k]),
+        || (Spare::take(model), vec![0.0; 3 * k]),
         |(ms, d), n| {
             let i = order[n];
             crate::cancel::check()?;
@@ -2692,6 +2740,57 @@ pub(crate) mod tests {
             }
         }
         assert!(certified > 30 && blocked > 30, "{order:?}: {certified} {blocked}");
+    }
+
+    /// Buffers kept between sections (`Spare`) serve only their own model, and whoever used
+    /// them before changes no verdict: batches on two models of different sizes, in turn,
+    /// each model twice (the second time on the first time's spare buffers), give each motion
+    /// the verdict and state count of a fresh scratch.
+    #[test]
+    fn spare_buffers_serve_their_own_model_and_change_no_verdict() {
+        let models = [arm(), cluttered_arm()];
+        assert_ne!(models[0].pairs.len(), models[1].pairs.len());
+        assert_ne!(models[0].id, models[1].id);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let batches: Vec<(Vec<f64>, Vec<f64>)> = models
+            .iter()
+            .map(|model| {
+                let space = Space::of(model).unwrap();
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                for _ in 0..24 {
+                    for j in 0..4 {
+                        a.push(rng.random_range(space.lo[j]..space.hi[j]));
+                        b.push(rng.random_range(space.lo[j]..space.hi[j]));
+                    }
+                }
+                (a, b)
+            })
+            .collect();
+        let fresh: Vec<Verdicts> = models
+            .iter()
+            .zip(&batches)
+            .map(|(model, (a, b))| {
+                let space = Space::of(model).unwrap();
+                (0..a.len() / 4)
+                    .map(|i| {
+                        let (s, g) = (&a[i * 4..i * 4 + 4], &b[i * 4..i * 4 + 4]);
+                        let mut delta = vec![0.0; 4];
+                        space.delta(s, g, &mut delta);
+                        let mut ms = MotionScratch::new(model);
+                        let v = certify_motion(model, Levers::of(model), &space, s, &delta, 1e-6, Order::EndFirst, &mut ms).unwrap();
+                        (v, ms.states)
+                    })
+                    .collect()
+            })
+            .collect();
+        for _ in 0..2 {
+            for ((model, (a, b)), want) in models.iter().zip(&batches).zip(&fresh) {
+                for threads in [1, 2] {
+                    let got = crate::threads::with_threads(Some(threads), || certify_motions(model, a, b, 1e-6)).unwrap().unwrap();
+                    assert_eq!(&got, want, "{threads} threads");
+                }
+            }
+        }
     }
 
     /// Every pair of a certified motion is covered: the intervals its states' radii prove,

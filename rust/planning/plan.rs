@@ -50,7 +50,7 @@ use crate::joints::angles::wrap;
 use crate::joints::couplings::FEASIBLE_TOL;
 use crate::model::broad::{check_clearance, MAX_CLEARANCE};
 use crate::model::RobotModel;
-use crate::planning::motion::{certify_motion, prove_apart, Levers, Motion, MotionScratch, Order, Space};
+use crate::planning::motion::{certify_motion, prove_apart, Levers, Motion, MotionScratch, Order, Space, Spare};
 use crate::threads::map_shared;
 
 /// What a planning call may spend and how finely it checks edges.
@@ -203,18 +203,20 @@ struct Checker<'m> {
 }
 
 /// What a `Checker` certifies continuous edges with: the model's levers, the clearance, and the
-/// certificate's buffers (made on first use; lent to `proven_segments`' first worker).
+/// certificate's buffers (taken on first use, `Spare`: the thread's own where it has them;
+/// lent to `proven_segments`' first worker).
 struct Continuous<'m> {
     levers: Levers<'m>,
     clearance: f64,
-    buffers: Option<MotionScratch>,
+    buffers: Option<Spare>,
 }
 
 /// A `proven_segments` worker's certificate buffers: lent from its checker where they were free
-/// (else made), and given back there, if none were, when the worker is done with them.
+/// (else its thread's, `Spare`), and given back there, if none were, when the worker is done
+/// with them (else to its thread).
 struct Lent<'a> {
-    buffers: Option<MotionScratch>,
-    home: &'a Mutex<Option<MotionScratch>>,
+    buffers: Option<Spare>,
+    home: &'a Mutex<Option<Spare>>,
 }
 
 impl Drop for Lent<'_> {
@@ -275,7 +277,7 @@ impl<'m> Checker<'m> {
         }
         if let Some(c) = &mut self.motion {
             let model = self.model;
-            let ms = c.buffers.get_or_insert_with(|| MotionScratch::new(model));
+            let ms = c.buffers.get_or_insert_with(|| Spare::take(model));
             let (certified, states) = certified_edge(model, c.levers, &self.space, a, b, &d, c.clearance, ms)?;
             self.checks += states as u64;
             return Ok(certified);
@@ -722,7 +724,7 @@ fn proven_segments(checker: &mut Checker, path: &[Vec<f64>], clearance: f64) -> 
         2,
         || {
             let lent = home.lock().unwrap_or_else(PoisonError::into_inner).take();
-            (Lent { buffers: Some(lent.unwrap_or_else(|| MotionScratch::new(model))), home: &home }, vec![0.0; model.njoint()])
+            (Lent { buffers: Some(lent.unwrap_or_else(|| Spare::take(model))), home: &home }, vec![0.0; model.njoint()])
         },
         |(lent, delta), i| {
             let w = &path[i..i + 2];

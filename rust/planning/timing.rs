@@ -628,7 +628,14 @@ pub fn time_path(
         // The cut path is kept outright when it is certified and no timing of the uncut path
         // could be quicker (every blend proven, at best); else the uncut path where it is
         // certified and the cut one is not, or as certified and quicker.
-        if unproven.is_some() || timed.duration > lim.pieces(path, &ends).duration {
+        // (no timing of the uncut path is quicker than its segments each at its velocity limit:
+        // `pieces`' segment times are at least `t_min` each, its duration their sum and the end
+        // blends', so a cut path within `Σ t_min`, less a rounding margin, needs no `pieces`)
+        let floor = || {
+            let d: Vec<f64> = (0..(m - 1) * k).map(|x| path[x + k] - path[x]).collect();
+            lim.t_min(&d).iter().sum::<f64>() * (1.0 - 1e-9)
+        };
+        if unproven.is_some() || (timed.duration > floor() && timed.duration > lim.pieces(path, &ends).duration) {
             let (uncut, uncut_unproven) = proven_timing(model, &lim, path, path, &whole, true, clearance)?;
             let better = match (uncut_unproven.is_none(), unproven.is_none()) {
                 (true, false) => true,

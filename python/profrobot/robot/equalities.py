@@ -30,6 +30,7 @@ of ``joint2``, and y0, x0 their ``qpos0``,
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -205,9 +206,10 @@ class JointCouplings:
                 poses[:, j1] = y0 + a[0] + d * (a[1] + d * (a[2] + d * (a[3] + d * a[4])))
         return poses
 
-    @property
+    @functools.cached_property
     def linear(self) -> bool:
-        """Whether every coupling is affine (a straight motion between coupled poses stays on it)."""
+        """Whether every coupling is affine (a straight motion between coupled poses stays on it);
+        read once (``time_path`` asks on every call)."""
         return all(not np.any(a[2:]) for _, _, a, _, _, _ in self.rows)
 
     def arrays(self) -> dict[str, np.ndarray]:

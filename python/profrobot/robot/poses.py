@@ -31,6 +31,19 @@ class Jointed(Protocol):
     def continuous(self) -> np.ndarray: ...
 
 
+def limit_bounds(robot: Jointed, atol: float) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) lower and upper bounds each limited joint of ``robot`` must keep, its limits widened
+    by ``atol`` (±inf for continuous hinges): read once per robot and tolerance, as ``pose_array``
+    runs on every call of every entry point (kept in the robot's ``_pose_bounds``, a cache that
+    copies and pickles leave out, ``robot/state.py``)."""
+    cache = robot.__dict__.setdefault("_pose_bounds", {}) if hasattr(robot, "__dict__") else {}
+    got = cache.get(atol)
+    if got is None:
+        lim, limited = robot.joint_limits, ~np.asarray(robot.continuous, dtype=bool)
+        got = cache[atol] = (np.where(limited, lim[:, 0] - atol, -np.inf), np.where(limited, lim[:, 1] + atol, np.inf))
+    return got
+
+
 def pose_array(robot: Jointed, poses: npt.ArrayLike, *, name: str = "poses", check_limits: bool = False,
                atol: float = 1e-9) -> np.ndarray:
     """``poses`` as a C-contiguous float64 (B, K) array for ``robot``, or a clear exception.
@@ -59,19 +72,14 @@ def pose_array(robot: Jointed, poses: npt.ArrayLike, *, name: str = "poses", che
     arr = np.ascontiguousarray(arr, dtype=np.float64)
     # One pass in Rust (numpy's comparisons and reductions took 4-12 ms a 200 000-pose batch):
     # the first non-finite entry, and the first limited entry outside its limits by more than atol.
-    lim = robot.joint_limits
-    if check_limits:
-        limited = ~robot.continuous
-        lo = np.where(limited, lim[:, 0] - atol, -np.inf)
-        hi = np.where(limited, lim[:, 1] + atol, np.inf)
-    else:
-        lo, hi = np.full(k, -np.inf), np.full(k, np.inf)
+    lo, hi = limit_bounds(robot, atol) if check_limits else (np.full(k, -np.inf), np.full(k, np.inf))
     nonfinite, outside = first_bad_entries(arr, lo, hi) if k else (None, None)
     if nonfinite is not None:
         i, j = divmod(nonfinite, k)
         raise InputError(f"{name}[{i}, {j}] ({robot.joint_names[j]}) is {arr[i, j]}; poses must be finite")
     if outside is not None:
         i, j = divmod(outside, k)
+        lim = robot.joint_limits
         raise InputError(f"{name}[{i}, {j}] = {arr[i, j]:.6g} is outside the limits of joint "
                          f"{robot.joint_names[j]!r} [{lim[j, 0]:.6g}, {lim[j, 1]:.6g}]")
     return arr

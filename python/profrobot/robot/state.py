@@ -23,7 +23,7 @@ STATE_FORMAT = "profrobot.Robot/1"
 #: with its point cloud (pointcloud.reference_model) and, for a robot derived without compiling
 #: (robot/world.py), the spec it was derived from and the edits since (an MjSpec does not pickle);
 #: left out of copies, derived robots and pickles
-CACHES = ("_layouts", "_margins", "_reference_model", "_reference_ids", "_spec_from")
+CACHES = ("_layouts", "_margins", "_reference_model", "_reference_ids", "_spec_from", "_pose_bounds")
 
 
 def getstate(self) -> dict:
