@@ -113,8 +113,8 @@ pub struct RobotModel {
     /// (`proven::ProvenLines`): a timed path's parts on a planned path's segments are not proven
     /// twice.
     pub(crate) proven_lines: proven::ProvenLines,
-    /// This model among those built in the process (never 0, never reused): what a thread's
-    /// spare buffers are kept for (`motion::Spare`).
+    /// This model among those built in the process (never 0, never reused): the model spare
+    /// certificate buffers are kept for (`motion::Spare`).
     pub(crate) id: u64,
 }
 

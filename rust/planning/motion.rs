@@ -928,7 +928,7 @@ struct Open {
     r1: f64,
 }
 
-/// Per-thread buffers of the certificate.
+/// A worker's buffers of the certificate (one motion at a time).
 pub struct MotionScratch {
     /// The model they are sized for (`RobotModel::id`).
     model: u64,

@@ -203,8 +203,8 @@ struct Checker<'m> {
 }
 
 /// What a `Checker` certifies continuous edges with: the model's levers, the clearance, and the
-/// certificate's buffers (taken on first use, `Spare`: the thread's own where it has them;
-/// lent to `proven_segments`' first worker).
+/// certificate's buffers (taken on first use, `Spare`: spare ones of this model where there are
+/// any; lent to `proven_segments`' first worker).
 struct Continuous<'m> {
     levers: Levers<'m>,
     clearance: f64,
@@ -212,8 +212,8 @@ struct Continuous<'m> {
 }
 
 /// A `proven_segments` worker's certificate buffers: lent from its checker where they were free
-/// (else its thread's, `Spare`), and given back there, if none were, when the worker is done
-/// with them (else to its thread).
+/// (else taken, `Spare`), and given back there, if none were, when the worker is done with them
+/// (else to the spares).
 struct Lent<'a> {
     buffers: Option<Spare>,
     home: &'a Mutex<Option<Spare>>,
