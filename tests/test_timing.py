@@ -253,11 +253,31 @@ def test_saved_loaded_pickled_and_refused_for_another_robot(tmp_path, panda):
     (dict(velocity=1.0, acceleration=1.0, cut="half"), "cut must be a non-negative number"),
     (dict(velocity=1.0, acceleration=1.0, jerk=0.0), "jerk[0] (x)"),
     (dict(velocity=1.0, acceleration=1.0, jerk=[1.0, np.inf]), "jerk[1] (y)"),
+    (dict(velocity=1.0, acceleration=1.0, threads=0), "threads must be a positive integer"),
 ])
 def test_bad_input_refused_by_name(kwargs, words):
     with pytest.raises(InputError) as e:
         time_path(puck(), _L, **kwargs)
     assert words in str(e.value)
+
+
+def test_the_crew_woken_ahead_changes_no_timing(panda):
+    # time_path wakes the crew's helpers before its checks (_core.crew_awake); a guard held
+    # across calls, on the thread counts it wakes for and those it does not, times every path
+    # as a call on one thread does, bit for bit.
+    from profrobot._core import crew_awake
+
+    starts, goals = hard_pairs(panda, 3, seed=4)
+    path = np.concatenate([profrobot.plan_path(panda, s, g).path for s, g in zip(starts, goals)])
+    one = time_path(panda, path, velocity=1.5, acceleration=3.0, threads=1)
+    for n in (2, 3, 1, None):
+        held = crew_awake(n)
+        for threads in (2, 1):
+            tp = time_path(panda, path, velocity=1.5, acceleration=3.0, threads=threads)
+            assert tp.duration == one.duration and np.array_equal(tp.q0, one.q0) and np.array_equal(tp.acc, one.acc)
+        del held
+    with pytest.raises(InputError, match="threads must be at least 1"):
+        crew_awake(0)
 
 
 def test_bad_path_and_times_refused_by_name():

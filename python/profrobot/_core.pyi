@@ -21,7 +21,7 @@ from typing import Any, Literal, TypedDict, final
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "first_bad_entries", "voxel_downsample", "RenderState", "render_forward", "render_backward", "finish_images", "finish_images_backward", "image_loss", "image_loss_backward",
+__all__ = ["RobotModel", "ProfrobotError", "InputError", "InputTypeError", "ModelError", "interpolate", "first_bad_entries", "CrewAwake", "crew_awake", "voxel_downsample", "RenderState", "render_forward", "render_backward", "finish_images", "finish_images_backward", "image_loss", "image_loss_backward",
            "__version__"]
 
 __version__: str
@@ -220,6 +220,17 @@ def first_bad_entries(poses: npt.NDArray[np.float64], lo: npt.NDArray[np.float64
     """Row-major flat indices into the (B, K) ``poses`` (any layout) of the first entry that is not
     finite and of the first outside ``[lo[j], hi[j]]`` of its column (``lo``, ``hi``: (K,); -inf /
     inf where unlimited), or None each; one pass, the GIL released (``as_poses``' checks)."""
+
+@final
+class CrewAwake:
+    """While alive, the crew's helper threads stay awake for a call (:func:`crew_awake`); a
+    guard of one call, dropped when its last reference goes (not pickled)."""
+
+def crew_awake(threads: int | None = None) -> CrewAwake:
+    """Wakes the crew's helper threads for a call on ``threads`` threads (None: the default
+    count), ahead of it: they wake (tens of µs on a VM) while the Python checks before the call
+    run, and stay awake while the guard lives (each at most 1 ms after its last section). A
+    call on one thread, or more than 8, wakes none. ``rust/threads/crew.rs``."""
 
 def voxel_downsample(points: npt.NDArray[np.float64], radius: npt.NDArray[np.float64],
                      voxel: float) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:

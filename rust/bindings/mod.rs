@@ -9,6 +9,7 @@ mod interrupt;
 mod joints;
 mod model;
 mod render;
+mod threads;
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -68,6 +69,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<render::PyRenderState>()?;
     m.add_function(wrap_pyfunction!(joints::interpolate, m)?)?;
     m.add_function(wrap_pyfunction!(joints::first_bad_entries, m)?)?;
+    m.add_class::<threads::PyCrewAwake>()?;
+    m.add_function(wrap_pyfunction!(threads::crew_awake, m)?)?;
     m.add_function(wrap_pyfunction!(clouds::voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_forward, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_backward, m)?)?;

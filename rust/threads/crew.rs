@@ -134,7 +134,13 @@ pub(crate) fn try_run(helpers: usize, work: &(dyn Fn() + Sync)) -> bool {
 /// caller's CPU (steered, as the pools' sleeping workers are). Where the call runs on one
 /// thread, or on more than `AWAKE_UP_TO` (8), or the crew is busy being grown, nothing is woken.
 pub fn awake() -> Awake {
-    let n = super::current();
+    awake_for(super::current())
+}
+
+/// [`awake`] for a call about to run on `n` threads, taken before it starts (the bindings'
+/// `crew_awake`: the helpers' wake-up then overlaps the Python checks ahead of the call, where
+/// [`awake`] inside it gave a timed path's first section a helper 24 µs late).
+pub fn awake_for(n: usize) -> Awake {
     if !(2..=AWAKE_UP_TO).contains(&n) {
         return Awake(None);
     }

@@ -22,7 +22,7 @@ use rayon::{ThreadPool, ThreadPoolBuilder};
 use crate::error::{invalid_input, Result};
 
 pub(crate) mod crew;
-pub use crew::{awake as crew_awake, Awake};
+pub use crew::{awake as crew_awake, awake_for as crew_awake_for, Awake};
 
 /// The pools of one process, by thread count.
 struct Pools {

@@ -80,10 +80,11 @@ def per_joint(robot: "Robot", name: str, value: Any, unit: str) -> np.ndarray:
     if v.shape != (robot.njoint,):
         raise InputError(f"{name} must be a number or {robot.njoint} numbers ({unit}), one per joint of "
                          f"{robot.name}; got shape {v.shape}")
-    bad = ~(np.isfinite(v) & (v > 0))
-    if bad.any():
-        j = int(np.argmax(bad))
-        raise InputError(f"{name}[{j}] ({robot.joint_names[j]}) must be positive and finite ({unit}); got {v[j]!r}")
+    # (on Python floats: K numbers, where three numpy calls would cost more than the test;
+    # NaN fails both comparisons)
+    for j, x in enumerate(v.tolist()):
+        if not 0.0 < x < math.inf:
+            raise InputError(f"{name}[{j}] ({robot.joint_names[j]}) must be positive and finite ({unit}); got {v[j]!r}")
     return v
 
 
