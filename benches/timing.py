@@ -25,10 +25,11 @@ Also the cost of ``time_path`` on paths of 20 waypoints (certified plans chained
 cut at 20 waypoints), twice per path: the first call, right after the ``plan_path`` that
 completed the path, and the median of five more calls on it (its ``repeated`` figure: the same
 work with the caches warm, as in a loop timing many paths). The first call pays for refilling
-the caches the planning left cold: on this machine, a 1.1 ms call takes 2–3 ms after 1–8 s of
-idling and 8 ms after 15 s, the same code and the same answer; a plan that runs seconds before
-it (ur5e_wall_box's hard goals) leaves it the same. Timings are medians; run it alone on the
-machine.
+the caches the planning left cold, the more the longer a core idled: on this machine a 1.1 ms
+call took 2–3 ms after 1–8 s of sleep and 8.5 ms after 15 s (the same code, the same answer),
+and on ur5e_wall_box, whose hard goals' plans run out their 10 s on one of the two cores, the
+first call took 0.9–9 ms where its repeats took 0.64–0.69 ms. Timings are medians; run it alone
+on the machine.
 Markdown in ``benches/timing_results.md``.
 """
 
