@@ -92,6 +92,7 @@
 //! | `bindings::clouds` | point-cloud arguments, `voxel_downsample` | | |
 //! | `bindings::render` | `render_forward`, `render_backward` and the state between them | | |
 //! | `bindings::images` | `finish_images`, `image_loss` and their backwards | | |
+//! | `bindings::threads` | `crew_awake`: the crew's helpers woken ahead of a call | | |
 
 pub mod budget;
 pub mod cancel;
