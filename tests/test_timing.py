@@ -4,6 +4,7 @@ the positions give, blends proven or turned into stops, bad input refused by nam
 
 from __future__ import annotations
 
+import os
 import pickle
 
 import mujoco
@@ -278,6 +279,22 @@ def test_the_crew_woken_ahead_changes_no_timing(panda):
         del held
     with pytest.raises(InputError, match="threads must be at least 1"):
         crew_awake(0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="the crew's helpers are steered off the caller's CPU only with two CPUs or more")
+def test_a_refused_call_leaves_no_helper_steered(panda):
+    # time_path wakes the crew before its checks, steering the helpers off its CPU; a call
+    # refused after that, its traceback (which keeps the call's frame) held, gives them back.
+    allowed = os.sched_getaffinity(0)
+    q = panda.joint_limits.mean(axis=1)
+    time_path(panda, [q, q + np.eye(panda.njoint)[0] * 0.1], velocity=1.5, acceleration=3.0, threads=2)
+    with pytest.raises(InputError) as refused:
+        time_path(panda, [[0.0] * panda.njoint] * 2, velocity=-1.0, acceleration=3.0, threads=2)
+    helpers = [int(t) for t in os.listdir("/proc/self/task")
+               if open(f"/proc/self/task/{t}/comm").read().startswith("profrobot-crew")]
+    assert helpers and refused.value
+    assert all(os.sched_getaffinity(t) == allowed for t in helpers)
 
 
 def test_bad_path_and_times_refused_by_name():
