@@ -297,6 +297,16 @@ def test_a_refused_call_leaves_no_helper_steered(panda):
     assert all(os.sched_getaffinity(t) == allowed for t in helpers)
 
 
+def test_zero_length_segments_are_dropped():
+    # Repeated waypoints (0.0 and -0.0 are one value) time as the path without them, bit for bit.
+    robot = puck()
+    ref = time_path(robot, _L, velocity=1.0, acceleration=10.0)
+    dup = time_path(robot, [[0.0, 0.0], [-0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [1.0, 1.0]],
+                    velocity=1.0, acceleration=10.0)
+    assert dup.duration == ref.duration and dup.certified
+    assert np.array_equal(dup.waypoints, ref.waypoints) and np.array_equal(dup.q0, ref.q0)
+
+
 def test_bad_path_and_times_refused_by_name():
     robot = puck()
     with pytest.raises(InputError, match="path"):

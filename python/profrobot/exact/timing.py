@@ -319,16 +319,19 @@ def _timed(robot: Robot, path: npt.ArrayLike, velocity: npt.ArrayLike | float | 
     # segments removed.
     # (a handful of small numpy calls: each costs microseconds, several times that right after
     # the native work has evicted them from the caches, and this runs on every call)
+    # (and on Python lists where a row is a handful of numbers: numpy's ufunc and reduction
+    # machinery, cold after the last call's native work, cost more than the comparisons)
     w = p.copy()
     wraps = np.asarray(robot.continuous, dtype=bool)
-    if len(p) > 1 and wraps.any():
+    if len(p) > 1 and True in wraps.tolist():
         steps = so2_steps(robot, p)
         w[1:, wraps] = p[0, wraps] + np.cumsum(steps[:, wraps], axis=0)
     # (read on the unwrapped waypoints: a step below their rounding leaves two of them equal;
-    # finite values differ exactly where their difference is not 0)
-    moved = (w[1:] != w[:-1]).any(axis=1)
-    if not moved.all():
-        w = w[np.concatenate([[True], moved])]
+    # finite values differ exactly where their difference is not 0, as Python's floats compare)
+    rows = w.tolist()
+    kept = [0] + [i for i in range(1, len(rows)) if rows[i] != rows[i - 1]]
+    if len(kept) < len(rows):
+        w = w[kept]
     m = len(w)
     meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
                 wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, jerk=j, waypoints=w)
