@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import pickle
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -291,8 +292,8 @@ def test_a_refused_call_leaves_no_helper_steered(panda):
     time_path(panda, [q, q + np.eye(panda.njoint)[0] * 0.1], velocity=1.5, acceleration=3.0, threads=2)
     with pytest.raises(InputError) as refused:
         time_path(panda, [[0.0] * panda.njoint] * 2, velocity=-1.0, acceleration=3.0, threads=2)
-    helpers = [int(t) for t in os.listdir("/proc/self/task")
-               if open(f"/proc/self/task/{t}/comm").read().startswith("profrobot-crew")]
+    helpers = [int(t.name) for t in Path("/proc/self/task").iterdir()
+               if (t / "comm").read_text().startswith("profrobot-crew")]
     assert helpers and refused.value
     assert all(os.sched_getaffinity(t) == allowed for t in helpers)
 

@@ -317,10 +317,9 @@ def _timed(robot: Robot, path: npt.ArrayLike, velocity: npt.ArrayLike | float | 
     # Unwrapped waypoints (short arcs on continuous hinges; the other joints' values as given, bit
     # for bit, so that a planned path's segments are the motions plan_path proved), zero-length
     # segments removed.
-    # (a handful of small numpy calls: each costs microseconds, several times that right after
-    # the native work has evicted them from the caches, and this runs on every call)
-    # (and on Python lists where a row is a handful of numbers: numpy's ufunc and reduction
-    # machinery, cold after the last call's native work, cost more than the comparisons)
+    # (a handful of small numpy calls, and Python lists where a row is a handful of numbers:
+    # each numpy call costs microseconds, several times that right after the native work has
+    # evicted numpy's ufunc and reduction machinery from the caches, and this runs on every call)
     w = p.copy()
     wraps = np.asarray(robot.continuous, dtype=bool)
     if len(p) > 1 and True in wraps.tolist():
@@ -334,7 +333,7 @@ def _timed(robot: Robot, path: npt.ArrayLike, velocity: npt.ArrayLike | float | 
         w = w[kept]
     m = len(w)
     meta = dict(robot_name=robot.name, robot_fingerprint=robot.fingerprint, joint_names=list(robot.joint_names),
-                wraps=np.asarray(robot.continuous, dtype=bool), velocity=v, acceleration=a, jerk=j, waypoints=w)
+                wraps=wraps, velocity=v, acceleration=a, jerk=j, waypoints=w)
     if m == 1:
         free = bool(certify_motions(robot, w, w, threads=threads).certified[0])
         return TimedPath(duration=0.0, starts=np.zeros(1), q0=w.copy(), v0=np.zeros_like(w), acc=np.zeros_like(w),
