@@ -951,6 +951,10 @@ pub struct MotionScratch {
     lanes: Lanes,
     /// States placed by the last call.
     pub states: usize,
+    /// Per pair, whether the motion's sweep lies inside one of its spans or its proven box.
+    spanned: Vec<bool>,
+    /// The pairs that have a span or a proven box (`provable_pairs`), once per buffer.
+    provable: Option<Vec<u32>>,
 }
 
 /// The body frames of four states of one level (`certify_curve`), the level's intervals
@@ -1013,6 +1017,8 @@ impl MotionScratch {
             mid: Vec::new(),
             lanes: Lanes::new(model),
             states: 0,
+            spanned: Vec::new(),
+            provable: None,
         }
     }
 }
@@ -1184,6 +1190,19 @@ fn measure(
     Ok(std::array::from_fn(|w| if asked[w] { exact[w].reach(slack).max(by_spheres) } else { f64::NAN }))
 }
 
+/// The pairs `certify_curve` may find spanned: those with a span of their one joint
+/// (`planning/spans.rs`) or a proven box (`prove_apart`; `Apart::covers` holds for no motion
+/// without one). A function of the model once `prove_apart` has run.
+fn provable_pairs(model: &RobotModel, spans: &[PairSpans], apart: &[Apart]) -> Vec<u32> {
+    (0..model.pairs.len())
+        .filter(|&p| {
+            let (j, sp) = &spans[p];
+            (*j != u32::MAX && !sp.is_empty()) || apart.get(p).is_some_and(|a| a.lo[0] <= a.hi[0])
+        })
+        .map(|p| p as u32)
+        .collect()
+}
+
 /// How much more than the spheres' gap the box bound (`Scratch::box_gap`) of pair `k` can give:
 /// the larger geom's radius less its smallest half extent (its box holds a ball that large
 /// about the sphere's centre, which no point outside the box is farther from than from the box).
@@ -1256,32 +1275,42 @@ pub(crate) fn certify_curve<C: Curve>(
         return Ok(Motion::Unproven);
     }
     let npairs = model.pairs.len();
-    // (each pair's chain rate and growth are sums over its geoms' branches, summed once per geom)
-    ms.axes.motion(model, space, curve, &ms.lo, &ms.hi);
-    levers.motion_sums(model, &ms.abs_delta, &mut ms.axes);
-    for p in 0..npairs {
-        ms.rates[p] = levers.side_sums(model, &ms.axes.chain, p);
-        ms.quads[p] = f64::NAN;
-    }
-    // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
-    ms.axes.forget();
-    ms.scratch.forget_axes();
     let spans = levers.spans(model);
-    let mut at = At { model, levers, axes: &mut ms.axes };
     let need = |p: usize| model.pairs[p].margin.max(clearance);
     // A pair one joint alone moves is proven for the whole motion when that joint's sweep stays
     // inside one of its spans (`planning/spans.rs`), proven at a need at least the motion's.
     // A pair two joints move, likewise, when both joints' sweeps stay inside its proven box, and
     // a pair of a longer chain proven by its swept ball when its first joint's sweep stays
     // inside the range it was recorded over (`prove_apart`; run here once per model, so that
-    // verdicts do not depend on whether something else ran it first).
+    // verdicts do not depend on whether something else ran it first). Only the pairs with a
+    // span or a box are asked (`MotionScratch::provable`): the others are never spanned.
     prove_apart(model);
     let apart = model.apart().unwrap_or(&[]);
-    let boxed = |p: usize| apart.get(p).is_some_and(|a| a.covers(&ms.lo, &ms.hi));
-    let spanned = |p: usize| {
+    let provable = ms.provable.get_or_insert_with(|| provable_pairs(model, spans, apart));
+    ms.spanned.clear();
+    ms.spanned.resize(npairs, false);
+    for &p in provable.iter() {
+        let p = p as usize;
         let (j, sp) = &spans[p];
-        need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed(p))
-    };
+        let boxed = || apart.get(p).is_some_and(|a| a.covers(&ms.lo, &ms.hi));
+        ms.spanned[p] =
+            need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed());
+    }
+    // (each pair's chain rate and growth are sums over its geoms' branches, summed once per geom;
+    // a spanned pair's never read)
+    ms.axes.motion(model, space, curve, &ms.lo, &ms.hi);
+    levers.motion_sums(model, &ms.abs_delta, &mut ms.axes);
+    for p in 0..npairs {
+        if !ms.spanned[p] {
+            ms.rates[p] = levers.side_sums(model, &ms.axes.chain, p);
+        }
+        ms.quads[p] = f64::NAN;
+    }
+    // (pose stamps are never 0 once placed: nothing cached from an earlier call is reused)
+    ms.axes.forget();
+    ms.scratch.forget_axes();
+    let mut at = At { model, levers, axes: &mut ms.axes };
+    let spanned = &ms.spanned;
     let stop = |e: Stop, t: f64| match e {
         Stop::Blocked => Ok(Motion::Blocked(t)),
         Stop::Undecided(u) => Err(u),
@@ -1295,8 +1324,8 @@ pub(crate) fn certify_curve<C: Curve>(
         ms.states += 1;
         ms.open.clear();
         ms.next.clear();
-        for p in 0..npairs {
-            if spanned(p) {
+        for (p, &spanned) in spanned.iter().enumerate() {
+            if spanned {
                 #[cfg(test)]
                 at.axes.covers.push((p, 0.0, [0.0, f64::INFINITY]));
                 continue;
@@ -1366,8 +1395,8 @@ pub(crate) fn certify_curve<C: Curve>(
         at.axes.at(curve, 1.0);
         ms.scratch.place(model, q, false);
         ms.states += 1;
-        for p in 0..npairs {
-            if spanned(p) {
+        for (p, &spanned) in spanned.iter().enumerate() {
+            if spanned {
                 ms.radius1[p] = f64::INFINITY;
                 #[cfg(test)]
                 at.axes.covers.push((p, 0.0, [0.0, f64::INFINITY]));
