@@ -168,6 +168,8 @@ pub(crate) struct Broad {
     /// Each group's members start on a lane boundary; the gaps are padding members that never
     /// pass (pair `NONE`).
     members: Vec<Member>,
+    /// Per member, its two geoms' sphere radii summed (`sphere_gap`, which reads no geom then).
+    member_radii: Vec<f64>,
     /// The members' geom-sphere tests, entry for entry.
     member_tests: PairList,
     /// The members' box tests, entry for entry (`near_pairs4`).
@@ -367,6 +369,10 @@ impl Broad {
         bodies.dedup();
         bodies.retain(|&b| b != 0);
         let static_geoms = (0..geoms.len() as u32).filter(|&g| sphere[g as usize] && geom_body[g as usize] == 0).collect();
+        let member_radii = members
+            .iter()
+            .map(|m| if m.pair == NONE { f64::NAN } else { geoms[m.g1 as usize].shape.radius + geoms[m.g2 as usize].shape.radius })
+            .collect();
         let geoms = (0..geoms.len() as u32)
             .filter(|&g| sphere[g as usize] && geom_body[g as usize] != 0)
             .map(|g| (g, geom_body[g as usize]))
@@ -394,6 +400,7 @@ impl Broad {
             clusters: nbody..nb,
             groups,
             group_tests,
+            member_radii,
             members,
             member_tests,
             member_boxes,
@@ -642,7 +649,7 @@ impl Broad {
             (normal.dot(&s.geom_world.get(p.geom as usize)) - offset - r, r)
         } else {
             let m = &self.members[i as usize];
-            let r = geoms[m.g1 as usize].shape.radius + geoms[m.g2 as usize].shape.radius;
+            let r = self.member_radii[i as usize];
             ((s.geom_world.get(m.g1 as usize) - s.geom_world.get(m.g2 as usize)).norm() - r, r)
         };
         (gap - 1e-9 * (1.0 + reach + gap.abs()), reach)

@@ -154,9 +154,9 @@ impl Space {
     /// The curve's state at `t` into `out`, by `along`'s rules.
     #[inline]
     pub fn place<C: Curve>(&self, c: &C, t: f64, out: &mut [f64]) {
-        for (k, o) in out.iter_mut().enumerate() {
+        for (k, ((o, &wraps), (&lo, &hi))) in out.iter_mut().zip(&self.wraps).zip(self.lo.iter().zip(&self.hi)).enumerate() {
             let v = c.at(k, t);
-            *o = if self.wraps[k] { wrap(v) } else { v.clamp(self.lo[k], self.hi[k]) };
+            *o = if wraps { wrap(v) } else { v.clamp(lo, hi) };
         }
         self.couplings.apply(out);
     }
