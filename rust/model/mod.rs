@@ -257,7 +257,7 @@ impl Apart {
     pub(crate) const NONE: Apart = Apart { joints: [u32::MAX; 2], lo: [f64::NAN; 2], hi: [f64::NAN; 2] };
 
     /// Whether this proves anything.
-    #[cfg(test)]
+    #[inline]
     pub(crate) fn some(&self) -> bool {
         self.joints[0] != u32::MAX
     }

@@ -1190,15 +1190,22 @@ fn measure(
     Ok(std::array::from_fn(|w| if asked[w] { exact[w].reach(slack).max(by_spheres) } else { f64::NAN }))
 }
 
-/// The pairs `certify_curve` may find spanned: those with a span of their one joint
-/// (`planning/spans.rs`) or a proven box (`prove_apart`; `Apart::covers` holds for no motion
-/// without one). A function of the model once `prove_apart` has run.
+/// Whether pair `p` is proven at `need` over a motion's sweep (per joint, `lo..hi`) by a span of
+/// its one joint (`planning/spans.rs`, proven at a need at least `need`) or by its proven box
+/// (`prove_apart`): `certify_curve` then skips it.
+#[inline(always)]
+fn spanned_over(model: &RobotModel, spans: &[PairSpans], apart: &[Apart], p: usize, need: f64, lo: &[f64], hi: &[f64]) -> bool {
+    let (j, sp) = &spans[p];
+    need <= span_need(model, p)
+        && ((*j != u32::MAX && covers(sp, lo[*j as usize], hi[*j as usize])) || apart.get(p).is_some_and(|a| a.covers(lo, hi)))
+}
+
+/// The pairs `spanned_over` can hold for: those with a span of their one joint or a proven box
+/// (`Apart::covers` holds for no motion without one). A function of the model once
+/// `prove_apart` has run.
 fn provable_pairs(model: &RobotModel, spans: &[PairSpans], apart: &[Apart]) -> Vec<u32> {
     (0..model.pairs.len())
-        .filter(|&p| {
-            let (j, sp) = &spans[p];
-            (*j != u32::MAX && !sp.is_empty()) || apart.get(p).is_some_and(|a| a.lo[0] <= a.hi[0])
-        })
+        .filter(|&p| (spans[p].0 != u32::MAX && !spans[p].1.is_empty()) || apart.get(p).is_some_and(Apart::some))
         .map(|p| p as u32)
         .collect()
 }
@@ -1291,10 +1298,7 @@ pub(crate) fn certify_curve<C: Curve>(
     ms.spanned.resize(npairs, false);
     for &p in provable.iter() {
         let p = p as usize;
-        let (j, sp) = &spans[p];
-        let boxed = || apart.get(p).is_some_and(|a| a.covers(&ms.lo, &ms.hi));
-        ms.spanned[p] =
-            need(p) <= span_need(model, p) && ((*j != u32::MAX && covers(sp, ms.lo[*j as usize], ms.hi[*j as usize])) || boxed());
+        ms.spanned[p] = spanned_over(model, spans, apart, p, need(p), &ms.lo, &ms.hi);
     }
     // (each pair's chain rate and growth are sums over its geoms' branches, summed once per geom;
     // a spanned pair's never read)
@@ -2242,8 +2246,8 @@ pub(crate) mod tests {
 
     /// `certify_curve` asks only `provable_pairs` whether a motion's sweep lies in a span or a
     /// proven box: on five bundled scenes, over sweeps of every width (a point, ±0.05 and ±0.5
-    /// rad, a joint's whole range) at random places, every pair the full test finds spanned is
-    /// among them; and the full test finds pairs spanned and pairs open in every scene.
+    /// rad, a joint's whole range) at random places, every pair `spanned_over` holds for is
+    /// among them; and it finds pairs spanned and pairs open in every scene.
     #[test]
     fn only_provable_pairs_are_ever_spanned() {
         for scene in ["panda_blocks", "xarm7_table", "shadow_hand", "vx300s_clutter", "ur5e_wall_box"] {
@@ -2264,10 +2268,8 @@ pub(crate) mod tests {
                     let c = rng.random_range(a..=b);
                     (lo[j], hi[j]) = ((c - width).max(a), (c + width).min(b));
                 }
-                for (p, (j, sp)) in spans.iter().enumerate() {
-                    let need = model.pairs[p].margin.max(1e-6);
-                    let by_span = *j != u32::MAX && covers(sp, lo[*j as usize], hi[*j as usize]);
-                    if need <= span_need(&model, p) && (by_span || apart[p].covers(&lo, &hi)) {
+                for p in 0..model.pairs.len() {
+                    if spanned_over(&model, spans, apart, p, model.pairs[p].margin.max(1e-6), &lo, &hi) {
                         assert!(provable.contains(&(p as u32)), "{scene}: pair {p} spanned, not provable");
                         spanned += 1;
                     } else {
