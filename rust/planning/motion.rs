@@ -135,14 +135,17 @@ impl Space {
         }
     }
 
-    pub fn distance(&self, a: &[f64], b: &[f64]) -> f64 {
+    /// The squared distance from `a` to `b`: the sum of the squares of `delta` (the planner's
+    /// metric is its root, `plan::Tree::nearest`).
+    #[inline]
+    pub fn squared(&self, a: &[f64], b: &[f64]) -> f64 {
         let mut s = 0.0;
         for k in 0..a.len() {
             let d = b[k] - a[k];
             let d = if self.wraps[k] { wrap(d) } else { d };
             s += d * d;
         }
-        s.sqrt()
+        s
     }
 
     /// `a + t·Δ` into `out`, wrapping joints mapped back into [-π, π), then the dependent joints

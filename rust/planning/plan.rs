@@ -340,7 +340,18 @@ impl<'m> Checker<'m> {
     }
 }
 
+/// A tree's node nearest a target (`Tree::nearest`): its index, distance and squared
+/// distance, over the tree's first `seen` nodes.
+#[derive(Clone, Copy, Debug)]
+struct Nearest {
+    node: usize,
+    dist: f64,
+    squared: f64,
+    seen: usize,
+}
+
 /// One search tree: nodes row-major, each with its parent (`usize::MAX` at the root).
+#[derive(Clone)]
 struct Tree {
     nodes: Vec<f64>,
     parent: Vec<usize>,
@@ -360,15 +371,30 @@ impl Tree {
         self.parent.len()
     }
 
-    fn nearest(&self, space: &Space, q: &[f64]) -> usize {
-        let mut best = (f64::INFINITY, 0);
-        for i in 0..self.len() {
-            let d = space.distance(self.node(i), q);
-            if d < best.0 {
-                best = (d, i);
+    /// The first of the nodes nearest `q` (the root of `Space::squared`), and that distance, going on
+    /// from `known` (the same target's scan of this tree's first `known.seen` nodes: the
+    /// nodes added since are scanned alone) where given.
+    ///
+    /// The same node and distance as the root of `squared` to every node, the first of equals kept:
+    /// squared distances decide first (the square root is monotonic, so a square at or above
+    /// the best one's is never nearer), and a smaller square is nearer only where its root is
+    /// (two squares can share a root), which is computed then alone.
+    fn nearest(&self, space: &Space, q: &[f64], known: Option<Nearest>) -> Nearest {
+        let mut best = known.unwrap_or(Nearest { node: 0, dist: f64::INFINITY, squared: f64::INFINITY, seen: 0 });
+        let wraps = space.wraps.iter().any(|&w| w);
+        for (i, node) in self.nodes.chunks_exact(self.k).enumerate().skip(best.seen) {
+            // (`Space::squared`'s sum, in the same order, without its per-joint wrap test
+            // where no joint wraps)
+            let squared = if wraps { space.squared(node, q) } else { node.iter().zip(q).fold(0.0, |s, (a, b)| s + (b - a) * (b - a)) };
+            if squared < best.squared {
+                let dist = squared.sqrt();
+                if dist < best.dist {
+                    best = Nearest { node: i, dist, squared, seen: 0 };
+                }
             }
         }
-        best.1
+        best.seen = self.len();
+        best
     }
 
     fn push(&mut self, q: &[f64], parent: usize) -> usize {
@@ -394,11 +420,13 @@ enum Extend {
     Reached(usize),
 }
 
-/// Grows `tree` from its node nearest `target` by at most `range` toward it.
-fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64) -> Result<Extend> {
-    let near = tree.nearest(&checker.space, target);
+/// Grows `tree` from its node nearest `target` by at most `range` toward it. `known`: the
+/// last call's nearest node to the same target (RRT-Connect's connect steps), updated.
+fn extend(tree: &mut Tree, checker: &mut Checker, target: &[f64], range: f64, known: &mut Option<Nearest>) -> Result<Extend> {
+    let nearest = tree.nearest(&checker.space, target, known.take());
+    *known = Some(nearest);
+    let (near, dist) = (nearest.node, nearest.dist);
     let from = tree.node(near).to_vec();
-    let dist = checker.space.distance(&from, target);
     let mut q = target.to_vec();
     let reached = dist <= range;
     if !reached {
@@ -795,13 +823,15 @@ fn rrt_connect(
         iterations += 1;
         let (a, b) = if iterations % 2 == 1 { (0, 1) } else { (1, 0) };
         sample(&checker.space, rng, &mut target);
-        let new = match extend(&mut trees[a], checker, &target, range)? {
+        let new = match extend(&mut trees[a], checker, &target, range, &mut None)? {
             Extend::Trapped => continue,
             Extend::Advanced(i) | Extend::Reached(i) => i,
         };
         let q_new = trees[a].node(new).to_vec();
+        // (the connect steps toward one target: each scans only the node the last one added)
+        let mut known = None;
         loop {
-            match extend(&mut trees[b], checker, &q_new, range)? {
+            match extend(&mut trees[b], checker, &q_new, range, &mut known)? {
                 Extend::Advanced(_) => continue,
                 Extend::Trapped => break,
                 Extend::Reached(j) => {
@@ -918,6 +948,61 @@ mod tests {
             assert!((wrap(replay[n]) - b[0]).abs() < 1e-15 || (wrap(replay[n]) - b[0]).abs() > 2.0 * PI - 1e-15);
             if (b[0] - a[0]).abs() == PI {
                 assert!(d[0] == -PI && replay[1] < replay[0], "a half turn moves the negative way: {s} -> {g}");
+            }
+        }
+    }
+
+    /// `Tree::nearest` against the planner's metric taken the plain way, `sqrt` of `Space::squared`
+    /// to every node and the first of the least kept: random trees on spaces with and without
+    /// wrapping joints, with repeated nodes (ties) and targets on a node, scanned whole and
+    /// continued from a scan of fewer nodes (`known`, as RRT-Connect's connect steps do).
+    #[test]
+    fn nearest_is_the_first_least_distance_scanned_whole_or_continued() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for wraps in [vec![false; 9], vec![true, false, true, false, false, false, true, false, false]] {
+            let space = Space { lo: vec![-3.0; 9], hi: vec![3.0; 9], wraps, couplings: Default::default() };
+            for round in 0..200 {
+                let mut q = vec![0.0; 9];
+                sample(&space, &mut rng, &mut q);
+                let mut tree = Tree::new(&q);
+                let n = 1 + round % 40;
+                for i in 1..n {
+                    // (a repeat of an earlier node now and then: equal distances)
+                    if rng.random_range(0..4) == 0 {
+                        q = tree.node(rng.random_range(0..i)).to_vec();
+                    } else {
+                        sample(&space, &mut rng, &mut q);
+                    }
+                    tree.push(&q, 0);
+                }
+                let mut target = vec![0.0; 9];
+                if round % 5 == 0 {
+                    target.copy_from_slice(tree.node(round % n));
+                } else {
+                    sample(&space, &mut rng, &mut target);
+                }
+                let plain = |upto: usize| {
+                    let mut best = (f64::INFINITY, 0);
+                    for i in 0..upto {
+                        let d = space.squared(tree.node(i), &target).sqrt();
+                        if d < best.0 {
+                            best = (d, i);
+                        }
+                    }
+                    best
+                };
+                let whole = tree.nearest(&space, &target, None);
+                assert_eq!((whole.dist, whole.node), plain(n), "round {round}");
+                assert_eq!(whole.seen, n);
+                // continued: the scan of the first `m` nodes, then the rest
+                let m = 1 + round % n;
+                let mut part = tree.clone();
+                part.nodes.truncate(m * 9);
+                part.parent.truncate(m);
+                let first = part.nearest(&space, &target, None);
+                assert_eq!((first.dist, first.node), plain(m), "round {round}");
+                let on = tree.nearest(&space, &target, Some(first));
+                assert_eq!((on.dist, on.node, on.seen), (whole.dist, whole.node, n), "round {round}");
             }
         }
     }
