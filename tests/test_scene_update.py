@@ -117,6 +117,27 @@ def test_a_scene_update_pickles_copies_and_refuses_bad_input(arm):
 
 
 
+def test_scenes_on_one_robot_share_its_pose_bounds_and_refuse_poses_outside_them(arm):
+    """A scene update keeps the robot's joints, so the bounds every entry point checks poses
+    against (``robot/poses.py``) are read once per robot and shared by its scenes: they are each
+    scene's own limits, and a pose outside them is refused by name, from the first call on."""
+    from profrobot.robot.poses import limit_bounds
+
+    first = arm.with_obstacles([Box(pos=(0.6, 0, 0.3), name="crate")])
+    second = first.with_obstacles([Sphere(pos=(0.5, 0.3, 0.4), radius=0.05)])
+    for robot in (first, second):
+        lo, hi = limit_bounds(robot, 1e-9)
+        lim, limited = robot.core.sampling_ranges(), ~np.asarray(robot.continuous, dtype=bool)
+        assert np.array_equal(lo, np.where(limited, lim[:, 0] - 1e-9, -np.inf))
+        assert np.array_equal(hi, np.where(limited, lim[:, 1] + 1e-9, np.inf))
+        assert limit_bounds(robot, 1e-9) is limit_bounds(arm, 1e-9)   # read once, shared
+    start = second.joint_limits.mean(axis=1)
+    goal = start.copy()
+    goal[3] = second.joint_limits[3, 1] + 1e-3
+    with pytest.raises(InputError, match=r"goal\[0, 3\] = .* is outside the limits of joint 'joint4'"):
+        profrobot.plan_path(second, start, goal)
+
+
 def test_an_ancestor_spec_edited_in_place_falls_back_to_the_source():
     """The MuJoCo model of a scene update is compiled from the spec it was derived from; edited in
     place since, that spec no longer gives the robot, and its source does (the fingerprint says)."""

@@ -35,7 +35,8 @@ def limit_bounds(robot: Jointed, atol: float) -> tuple[np.ndarray, np.ndarray]:
     """(K,) lower and upper bounds each limited joint of ``robot`` must keep, its limits widened
     by ``atol`` (±inf for continuous hinges): read once per robot and tolerance, as ``pose_array``
     runs on every call of every entry point (kept in the robot's ``_pose_bounds``, a cache that
-    copies and pickles leave out, ``robot/state.py``)."""
+    copies and pickles leave out, ``robot/state.py``, and that the scenes put on the robot share:
+    the same joints, ``robot/world.py``)."""
     cache = robot.__dict__.setdefault("_pose_bounds", {}) if hasattr(robot, "__dict__") else {}
     got = cache.get(atol)
     if got is None:

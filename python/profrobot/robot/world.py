@@ -167,6 +167,9 @@ def with_primitives(robot: Any, obstacles: tuple[Obstacle, ...], name: str) -> A
 
     derived = with_core(robot, arrays, robot.core.rebuilt(arrays))
     derived.name = name
+    # the same joints and limits: the bounds poses are checked against (robot/poses.py) are
+    # shared, read once for every scene put on one robot
+    derived._pose_bounds = robot.__dict__.setdefault("_pose_bounds", {})
     plain = {k: v for k, v in arrays.items() if not k.startswith("cloud_")}
     derived.geometry_fingerprint = (derived.fingerprint if len(plain) == len(arrays)
                                     else label_fingerprint(robot.joint_names, plain, robot.scene_joints))
