@@ -433,106 +433,111 @@ impl<'m> Levers<'m> {
 /// The lever table of `Levers`: the `(npairs, K)` rows, the pairs' chains, their `solo`
 /// geoms and sides, and each geom's branch and levers.
 fn lever_rows(model: &RobotModel) -> crate::model::LeverTable {
-    {
-        let k = model.njoint();
-        let mut rows = vec![0.0; model.pairs.len() * k];
-        let mut offsets = vec![0u32];
-        let mut entries = Vec::new();
-        let mut solo = Vec::with_capacity(model.pairs.len());
-        let mut sides = Vec::with_capacity(model.pairs.len());
-        // (a joint's reach to a geom, `joint_reach`, is the joint's and the geom's alone: computed
-        // once per geom, not once per pair of it; a scene's obstacles pair with every link)
-        let mut reach = vec![f64::NAN; k * model.geoms.len()];
-        let mut centre = vec![f64::NAN; k * model.geoms.len()];
-        let mut walks = vec![None; k * model.body_parent.len()];
-        // Each body and its ancestors, up to the world.
-        let ups: Vec<Vec<usize>> = (0..model.body_parent.len())
-            .map(|mut b| {
-                let mut out = vec![b];
-                while b != 0 {
-                    b = model.body_parent[b];
-                    out.push(b);
-                }
-                out
-            })
-            .collect();
-        // Each body pair's chain entries and common ancestor, once (`memo[start..end]`): a
-        // scene's obstacles share the world's, and a link's geoms their body's.
-        // (by the body pairs met, each first body's few in a list: not a table of every body
-        // pair, which grows with the square of the bodies, nor a hash per pair)
-        // (a second body, and its pair's chain: `memo[start..end]` and the common ancestor)
-        type Met = (usize, (usize, usize, usize));
-        let mut by_bodies: Vec<Vec<Met>> = vec![Vec::new(); model.body_parent.len()];
-        let mut memo = Vec::new();
-        for (p, pair) in model.pairs.iter().enumerate() {
-            let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
-            let met = by_bodies[b1].iter().find(|(b, _)| *b == b2).map(|m| m.1);
-            let (start, end, common) = met.unwrap_or_else(|| {
-                let (up1, up2) = (&ups[b1], &ups[b2]);
-                let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
-                let start = memo.len();
-                for (side, up) in [up1, up2].into_iter().enumerate() {
-                    let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
-                    for &b in up[..below].iter().rev() {
-                        let (j0, j1) = model.body_joints[b];
-                        memo.extend((j0..j1).map(|j| (j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32));
-                    }
-                }
-                by_bodies[b1].push((b2, (start, memo.len(), common)));
-                (start, memo.len(), common)
-            });
-            let chain = &memo[start..end];
-            for &e in chain {
-                let (j, g) = (entry_joint(e), if e & SIDE == 0 { pair.g1 } else { pair.g2 });
-                if reach[g * k + j].is_nan() {
-                    (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, &ups[model.geoms[g].body], &mut walks);
-                }
-                // (each joint is on one side only: one term per entry of the row)
-                rows[p * k + j] += reach[g * k + j];
+    let k = model.njoint();
+    let ngeom = model.geoms.len();
+    let mut rows = vec![0.0; model.pairs.len() * k];
+    let mut offsets = vec![0u32];
+    let mut entries = Vec::new();
+    let mut solo = Vec::with_capacity(model.pairs.len());
+    let mut sides = Vec::with_capacity(model.pairs.len());
+    // (a joint's reach to a geom, `joint_reach`, is the joint's and the geom's alone: computed
+    // once per geom and joint of its branch, before the pairs, which read them; a scene's
+    // obstacles pair with every link)
+    let mut reach = vec![f64::NAN; k * ngeom];
+    let mut centre = vec![f64::NAN; k * ngeom];
+    let mut walks = vec![None; k * model.body_parent.len()];
+    // Each body and its ancestors, up to the world.
+    let ups: Vec<Vec<usize>> = (0..model.body_parent.len())
+        .map(|mut b| {
+            let mut out = vec![b];
+            while b != 0 {
+                b = model.body_parent[b];
+                out.push(b);
             }
-            entries.extend_from_slice(chain);
-            offsets.push(entries.len() as u32);
-            let first = chain.iter().filter(|&&e| e & SIDE == 0).count() as u32;
-            sides.push([first, chain.len() as u32 - first]);
-            // (one side's entries only, and that side's whole branch from the world: the chain,
-            // and the rows over it, are its geom's alone)
-            solo.push(match (common, chain.first()) {
-                (0, Some(&e)) if chain.iter().all(|&c| c & SIDE == e & SIDE) => (if e & SIDE == 0 { pair.g1 } else { pair.g2 }) as u32,
-                _ => u32::MAX,
-            });
-        }
-        offsets.extend(entries);
-        // Each geom's branch from the world, top down: a pair's side is its last entries (the
-        // chain from the common ancestor down to the geom, built the same way); and its levers.
-        let ngeom = model.geoms.len();
-        let mut branches = vec![0u32];
-        let mut branch = Vec::new();
-        for g in 0..ngeom {
-            let up = &ups[model.geoms[g].body];
-            for &b in up.iter().rev() {
-                let (j0, j1) = model.body_joints[b];
-                for j in j0..j1 {
-                    branch.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 });
-                    if reach[g * k + j].is_nan() {
-                        (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, up, &mut walks);
-                    }
-                }
+            out
+        })
+        .collect();
+    // Each geom's branch from the world, top down: a pair's side is its last entries (the
+    // chain from the common ancestor down to the geom, built the same way); and its levers.
+    let mut branches = vec![0u32];
+    let mut branch = Vec::new();
+    for g in 0..ngeom {
+        let up = &ups[model.geoms[g].body];
+        for &b in up.iter().rev() {
+            let (j0, j1) = model.body_joints[b];
+            for j in j0..j1 {
+                branch.push((j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 });
+                (reach[g * k + j], centre[g * k + j]) = joint_reach(model, j, g, up, &mut walks);
             }
-            branches.push(branch.len() as u32);
         }
-        branches.extend(branch);
-        let mut first = vec![u32::MAX; model.body_parent.len()];
-        let twin = (0..ngeom)
-            .map(|g| {
-                let f = &mut first[model.geoms[g].body];
-                if *f == u32::MAX {
-                    *f = g as u32;
-                }
-                *f
-            })
-            .collect();
-        crate::model::LeverTable { rows, chains: offsets, solo, sides, branches, reach, centre, twin }
+        branches.push(branch.len() as u32);
     }
+    branches.extend(branch);
+    // Each body pair's chain entries, common ancestor, first side's entry count and whether
+    // one side alone moves, once (`memo[start..end]`): a scene's obstacles share the world's,
+    // and a link's geoms their body's.
+    // (by the body pairs met, each first body's few in a list: not a table of every body
+    // pair, which grows with the square of the bodies, nor a hash per pair)
+    #[derive(Clone, Copy)]
+    struct Met {
+        start: usize,
+        end: usize,
+        common: usize,
+        first: u32,
+        one_side: Option<u32>,
+    }
+    let mut by_bodies: Vec<Vec<(usize, Met)>> = vec![Vec::new(); model.body_parent.len()];
+    let mut memo = Vec::new();
+    for (p, pair) in model.pairs.iter().enumerate() {
+        let (b1, b2) = (model.geoms[pair.g1].body, model.geoms[pair.g2].body);
+        let met = by_bodies[b1].iter().find(|(b, _)| *b == b2).map(|m| m.1);
+        let met = met.unwrap_or_else(|| {
+            let (up1, up2) = (&ups[b1], &ups[b2]);
+            let common = *up1.iter().find(|b| up2.contains(b)).expect("the world is a common ancestor");
+            let start = memo.len();
+            for (side, up) in [up1, up2].into_iter().enumerate() {
+                let below = up.iter().position(|&b| b == common).expect("the common ancestor is an ancestor");
+                for &b in up[..below].iter().rev() {
+                    let (j0, j1) = model.body_joints[b];
+                    memo.extend((j0..j1).map(|j| (j as u32) << 2 | if tight(model, j) { TIGHT } else { 0 } | side as u32));
+                }
+            }
+            let chain = &memo[start..];
+            let first = chain.iter().filter(|&&e| e & SIDE == 0).count() as u32;
+            let one_side = chain.first().filter(|&&e| chain.iter().all(|&c| c & SIDE == e & SIDE)).map(|&e| e & SIDE);
+            let met = Met { start, end: memo.len(), common, first, one_side };
+            by_bodies[b1].push((b2, met));
+            met
+        });
+        let chain = &memo[met.start..met.end];
+        let row = &mut rows[p * k..(p + 1) * k];
+        for &e in chain {
+            let (j, g) = (entry_joint(e), if e & SIDE == 0 { pair.g1 } else { pair.g2 });
+            // (each joint is on one side only: one term per entry of the row)
+            row[j] += reach[g * k + j];
+        }
+        entries.extend_from_slice(chain);
+        offsets.push(entries.len() as u32);
+        sides.push([met.first, chain.len() as u32 - met.first]);
+        // (one side's entries only, and that side's whole branch from the world: the chain,
+        // and the rows over it, are its geom's alone)
+        solo.push(match (met.common, met.one_side) {
+            (0, Some(side)) => (if side == 0 { pair.g1 } else { pair.g2 }) as u32,
+            _ => u32::MAX,
+        });
+    }
+    offsets.extend(entries);
+    let mut first = vec![u32::MAX; model.body_parent.len()];
+    let twin = (0..ngeom)
+        .map(|g| {
+            let f = &mut first[model.geoms[g].body];
+            if *f == u32::MAX {
+                *f = g as u32;
+            }
+            *f
+        })
+        .collect();
+    crate::model::LeverTable { rows, chains: offsets, solo, sides, branches, reach, centre, twin }
 }
 
 /// A chain entry's bits: the geom's side (0: the first geom's branch), and whether the joint is
