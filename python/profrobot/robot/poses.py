@@ -35,14 +35,25 @@ def limit_bounds(robot: Jointed, atol: float) -> tuple[np.ndarray, np.ndarray]:
     """(K,) lower and upper bounds each limited joint of ``robot`` must keep, its limits widened
     by ``atol`` (±inf for continuous hinges): read once per robot and tolerance, as ``pose_array``
     runs on every call of every entry point (kept in the robot's ``_pose_bounds``, a cache that
-    copies and pickles leave out, ``robot/state.py``, and that the scenes put on the robot share:
-    the same joints, ``robot/world.py``)."""
-    cache = robot.__dict__.setdefault("_pose_bounds", {}) if hasattr(robot, "__dict__") else {}
+    copies and pickles leave out, ``robot/state.py``, and that the scenes put on the robot share,
+    :func:`share_bounds`)."""
+    cache = _bounds(robot) if hasattr(robot, "__dict__") else {}
     got = cache.get(atol)
     if got is None:
         lim, limited = robot.joint_limits, ~np.asarray(robot.continuous, dtype=bool)
         got = cache[atol] = (np.where(limited, lim[:, 0] - atol, -np.inf), np.where(limited, lim[:, 1] + atol, np.inf))
     return got
+
+
+def _bounds(robot: Jointed) -> dict:
+    """``robot``'s cache of :func:`limit_bounds`, by tolerance."""
+    return robot.__dict__.setdefault("_pose_bounds", {})
+
+
+def share_bounds(robot: Jointed, derived: Jointed) -> None:
+    """``derived``, a robot with ``robot``'s joints and limits (a scene put on it,
+    ``robot/world.py``), reads its pose bounds from ``robot``'s cache: read once for all."""
+    derived.__dict__["_pose_bounds"] = _bounds(robot)
 
 
 def pose_array(robot: Jointed, poses: npt.ArrayLike, *, name: str = "poses", check_limits: bool = False,

@@ -33,6 +33,7 @@ import numpy as np
 from .arrays import label_fingerprint
 from .margin import ObstacleMargin
 from .obstacles import Box, Capsule, Cylinder, Obstacle, Plane, Sphere
+from .poses import share_bounds
 from .sources import _Mjcf
 from .state import with_core
 
@@ -167,9 +168,7 @@ def with_primitives(robot: Any, obstacles: tuple[Obstacle, ...], name: str) -> A
 
     derived = with_core(robot, arrays, robot.core.rebuilt(arrays))
     derived.name = name
-    # the same joints and limits: the bounds poses are checked against (robot/poses.py) are
-    # shared, read once for every scene put on one robot
-    derived._pose_bounds = robot.__dict__.setdefault("_pose_bounds", {})
+    share_bounds(robot, derived)   # the same joints and limits
     plain = {k: v for k, v in arrays.items() if not k.startswith("cloud_")}
     derived.geometry_fingerprint = (derived.fingerprint if len(plain) == len(arrays)
                                     else label_fingerprint(robot.joint_names, plain, robot.scene_joints))
